@@ -1,0 +1,185 @@
+"""The :class:`Lens` object: a validated, material-resolved prescription plus thin
+wrappers around the Rust engine (:mod:`optix_e2e._engine`)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from .prescription import PrescriptionError, resolve_prescription
+
+__all__ = ["Lens", "LensLoadError", "bundled_lenses", "DEFAULT_RGB_CHANNELS"]
+
+BUNDLED_DIR = Path(__file__).parent / "bundled"
+
+#: Default sensor channels (R, G, B): three wavelengths each, weights ~ a smooth
+#: spectral response.  Used when a lens does not list exactly three wavelengths or when
+#: asked for explicitly.
+DEFAULT_RGB_CHANNELS: list[list[tuple[float, float]]] = [
+    [(600.0, 0.25), (625.0, 0.5), (650.0, 0.25)],
+    [(520.0, 0.25), (550.0, 0.5), (580.0, 0.25)],
+    [(450.0, 0.25), (475.0, 0.5), (500.0, 0.25)],
+]
+
+
+class LensLoadError(PrescriptionError):
+    """A lens that cannot be loaded: missing file, bad JSON, unknown bundled name."""
+
+
+def bundled_lenses() -> list[str]:
+    """Names of the lenses shipped with the package (``optix_e2e/bundled/*.json``)."""
+    return sorted(p.stem for p in BUNDLED_DIR.glob("*.json"))
+
+
+def _engine():
+    from . import _engine as engine  # compiled Rust extension
+
+    return engine
+
+
+def _engine_fn(name: str):
+    fn = getattr(_engine(), name, None)
+    if fn is None:
+        raise RuntimeError(f"the compiled engine has no '{name}' (rebuild: maturin develop --release)")
+    return fn
+
+
+class Lens:
+    """A lens prescription (docs/lens-format.md) with its materials resolved.
+
+    Build one with :meth:`load` (path, bundled name, dict or Lens) or directly from a
+    dict.  ``source`` names where it came from in error messages.
+    """
+
+    def __init__(self, data: dict, source: str = "<dict>"):
+        self.source = source
+        self.data = resolve_prescription(data, source)
+        self._json: str | None = None
+
+    # ----- loading -------------------------------------------------------------
+    @classmethod
+    def load(cls, spec: "str | Path | dict | Lens") -> "Lens":
+        if isinstance(spec, Lens):
+            return spec
+        if isinstance(spec, dict):
+            return cls(spec)
+        path = Path(spec)
+        if path.is_file():
+            return cls.from_file(path)
+        if isinstance(spec, str) and spec in bundled_lenses():
+            return cls.from_file(BUNDLED_DIR / f"{spec}.json", source=f"bundled lens {spec!r}")
+        if path.suffix.lower() == ".json" or path.parent != Path("."):
+            raise LensLoadError(f"{spec}: no such lens file")
+        raise LensLoadError(f"{spec!r} is neither a lens file nor a bundled lens (bundled: {', '.join(bundled_lenses())})")
+
+    @classmethod
+    def from_file(cls, path: "str | Path", source: str | None = None) -> "Lens":
+        path = Path(path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise LensLoadError(f"{path}: cannot read lens file ({exc.strerror or exc})") from exc
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise LensLoadError(f"{path}:{exc.lineno}:{exc.colno}: invalid JSON: {exc.msg}") from exc
+        data.setdefault("name", path.stem) if isinstance(data, dict) else None
+        return cls(data, source=source or str(path))
+
+    # ----- prescription data ------------------------------------------------------
+    @property
+    def name(self) -> str:
+        return self.data.get("name", "lens")
+
+    @property
+    def wavelengths_nm(self) -> list[float]:
+        return [float(w) for w in self.data["wavelengths_nm"]]
+
+    @property
+    def wavelength_weights(self) -> list[float]:
+        w = self.data.get("wavelength_weights")
+        return [float(x) for x in w] if w else [1.0] * len(self.wavelengths_nm)
+
+    @property
+    def primary_wavelength_nm(self) -> float:
+        if "primary_wavelength_nm" in self.data:
+            return float(self.data["primary_wavelength_nm"])
+        wls = self.wavelengths_nm
+        return wls[len(wls) // 2]
+
+    @property
+    def fields_deg(self) -> list[float]:
+        return [float(f) for f in self.data["fields_deg"]]
+
+    @property
+    def max_field_deg(self) -> float:
+        return max(self.fields_deg)
+
+    @property
+    def surfaces(self) -> list[dict]:
+        return self.data["surfaces"]
+
+    def rgb_channels(self, mode: str = "rgb") -> list[list[tuple[float, float]]]:
+        """Channels for :meth:`psf_rgb`: ``"lens"`` maps exactly three lens wavelengths
+        (longest first) to R, G, B; ``"rgb"`` uses :data:`DEFAULT_RGB_CHANNELS`."""
+        if mode == "lens":
+            pairs = sorted(zip(self.wavelengths_nm, self.wavelength_weights), reverse=True)
+            if len(pairs) != 3:
+                raise PrescriptionError(f"{self.source}: channel mode 'lens' needs exactly 3 wavelengths, lens has {len(pairs)}")
+            return [[p] for p in pairs]
+        if mode == "rgb":
+            return [list(c) for c in DEFAULT_RGB_CHANNELS]
+        raise ValueError(f"unknown channel mode {mode!r} (lens or rgb)")
+
+    def to_engine_json(self) -> str:
+        """The resolved prescription as the JSON string the engine takes."""
+        if self._json is None:
+            self._json = json.dumps(self.data)
+        return self._json
+
+    def __repr__(self) -> str:
+        return f"Lens({self.name!r}, {len(self.surfaces)} surfaces, source={self.source!r})"
+
+    # ----- engine wrappers --------------------------------------------------------
+    def validate(self) -> None:
+        _engine_fn("validate_lens")(self.to_engine_json())
+
+    def refractive_indices(self, wavelength_nm: float | None = None) -> np.ndarray:
+        wl = self.primary_wavelength_nm if wavelength_nm is None else wavelength_nm
+        return _engine_fn("refractive_indices")(self.to_engine_json(), float(wl))
+
+    def paraxial(self, wavelength_nm: float | None = None) -> dict[str, float]:
+        return _engine_fn("paraxial")(self.to_engine_json(), wavelength_nm)
+
+    def trace_field(self, field_deg: float, px, py, wavelength_nm: float | None = None,
+                    aiming: str = "paraxial") -> dict[str, np.ndarray]:
+        wl = self.primary_wavelength_nm if wavelength_nm is None else wavelength_nm
+        px = np.ascontiguousarray(px, dtype=np.float64)
+        py = np.ascontiguousarray(py, dtype=np.float64)
+        return _engine_fn("trace_field")(self.to_engine_json(), float(field_deg), px, py, float(wl), aiming)
+
+    def spot(self, field_deg: float, wavelengths_nm: Sequence[float] | None = None,
+             weights: Sequence[float] | None = None, rings: int = 64,
+             aiming: str = "paraxial") -> dict[str, Any]:
+        """Spot statistics; by default polychromatic over the lens's wavelengths and weights."""
+        if wavelengths_nm is None:
+            wavelengths_nm = self.wavelengths_nm
+            weights = self.wavelength_weights if weights is None else weights
+        return _engine_fn("spot")(self.to_engine_json(), float(field_deg), list(wavelengths_nm),
+                                  None if weights is None else list(weights), rings, aiming)
+
+    def psf(self, field_deg: float, wavelength_nm: float | None = None, method: str = "fft",
+            **kwargs) -> tuple[np.ndarray, dict[str, Any]]:
+        """Monochromatic PSF; keyword arguments as :func:`optix_e2e._engine.psf`."""
+        wl = self.primary_wavelength_nm if wavelength_nm is None else wavelength_nm
+        return _engine_fn("psf")(self.to_engine_json(), float(field_deg), float(wl), method, **kwargs)
+
+    def psf_rgb(self, field_deg: float, channels=None, method: str = "fft", **kwargs):
+        """Per-channel PSFs (C, size, size) and relative illumination (C,); channels default
+        to :meth:`rgb_channels` ("rgb")."""
+        channels = self.rgb_channels("rgb") if channels is None else channels
+        channels = [[(float(w), float(k)) for w, k in ch] for ch in channels]
+        return _engine_fn("psf_rgb")(self.to_engine_json(), float(field_deg), channels, method, **kwargs)

@@ -1,0 +1,205 @@
+"""Validation of the JSON lens prescription (docs/lens-format.md) and resolution of
+catalog materials into the engine's resolved form.
+
+Every error is a :class:`PrescriptionError` whose message starts with the source (file
+path or ``<dict>``) and the JSON location at fault, e.g.
+``lens.json: surfaces[3].thickness: missing``.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from typing import Any
+
+from . import glass as _glass
+
+__all__ = ["PrescriptionError", "resolve_prescription"]
+
+TOP_KEYS = {
+    "name", "description", "units", "aperture", "fields_deg", "wavelengths_nm",
+    "wavelength_weights", "primary_wavelength_nm", "surfaces", "image",
+}
+SURFACE_KEYS = {
+    "radius", "curvature", "thickness", "material", "conic", "aspheric",
+    "semi_diameter", "stop", "name",
+}
+ASPHERIC_KEYS = {f"a{2 * i}" for i in range(1, 11)}
+
+
+class PrescriptionError(ValueError):
+    """Invalid lens prescription; the message names the source and the JSON location."""
+
+
+class _Checker:
+    def __init__(self, source: str):
+        self.source = source
+
+    def fail(self, where: str, msg: str):
+        raise PrescriptionError(f"{self.source}: {where}: {msg}")
+
+    def number(self, where: str, value: Any, *, positive=False, nonneg=False) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            self.fail(where, f"must be a number, got {value!r}")
+        if not math.isfinite(value):
+            self.fail(where, f"must be finite, got {value!r}")
+        if positive and value <= 0:
+            self.fail(where, f"must be > 0, got {value!r}")
+        if nonneg and value < 0:
+            self.fail(where, f"must be >= 0, got {value!r}")
+        return float(value)
+
+    def numbers(self, where: str, value: Any, **kw) -> list[float]:
+        if not isinstance(value, list) or not value:
+            self.fail(where, f"must be a non-empty list of numbers, got {value!r}")
+        return [self.number(f"{where}[{i}]", v, **kw) for i, v in enumerate(value)]
+
+    def keys(self, where: str, obj: dict, allowed: set[str]):
+        unknown = sorted(set(obj) - allowed)
+        if unknown:
+            self.fail(where, f"unknown key(s) {', '.join(map(repr, unknown))}; allowed: {', '.join(sorted(allowed))}")
+
+
+def resolve_prescription(data: Any, source: str = "<dict>") -> dict:
+    """Validate ``data`` and return a deep copy with every material resolved."""
+    ck = _Checker(source)
+    if not isinstance(data, dict):
+        ck.fail("top level", f"a lens is a JSON object, got {type(data).__name__}")
+    ck.keys("top level", data, TOP_KEYS)
+    out = copy.deepcopy(data)
+    if not isinstance(out.get("name", ""), str):
+        ck.fail("name", "must be a string")
+    if out.get("units", "mm") != "mm":
+        ck.fail("units", f"only \"mm\" is supported, got {out['units']!r}")
+
+    ap = out.get("aperture")
+    if not isinstance(ap, dict):
+        ck.fail("aperture", "missing or not an object {\"type\": \"epd\"|\"fno\", \"value\": ...}")
+    ck.keys("aperture", ap, {"type", "value"})
+    if ap.get("type") not in ("epd", "fno"):
+        ck.fail("aperture.type", f"must be \"epd\" or \"fno\", got {ap.get('type')!r}")
+    ck.number("aperture.value", ap.get("value"), positive=True)
+
+    if "fields_deg" not in out:
+        ck.fail("fields_deg", "missing")
+    for i, f in enumerate(ck.numbers("fields_deg", out["fields_deg"], nonneg=True)):
+        if f >= 90:
+            ck.fail(f"fields_deg[{i}]", f"must be < 90 deg, got {f}")
+    if "wavelengths_nm" not in out:
+        ck.fail("wavelengths_nm", "missing")
+    wls = ck.numbers("wavelengths_nm", out["wavelengths_nm"], positive=True)
+    if "wavelength_weights" in out:
+        w = ck.numbers("wavelength_weights", out["wavelength_weights"], nonneg=True)
+        if len(w) != len(wls):
+            ck.fail("wavelength_weights", f"has {len(w)} entries for {len(wls)} wavelengths")
+        if sum(w) <= 0:
+            ck.fail("wavelength_weights", "must not all be zero")
+    if "primary_wavelength_nm" in out:
+        ck.number("primary_wavelength_nm", out["primary_wavelength_nm"], positive=True)
+
+    surfaces = out.get("surfaces")
+    if not isinstance(surfaces, list) or not surfaces:
+        ck.fail("surfaces", "missing or empty (a list of surface objects)")
+    stops = []
+    for i, s in enumerate(surfaces):
+        _check_surface(ck, f"surfaces[{i}]", s)
+        if s.get("stop", False):
+            stops.append(i)
+    if len(stops) != 1:
+        ck.fail("surfaces", f"exactly one surface must have \"stop\": true, found {len(stops)}"
+                + (f" (surfaces {stops})" if stops else ""))
+
+    image = out.get("image")
+    if image is not None:
+        if not isinstance(image, dict):
+            ck.fail("image", "must be an object {\"semi_diameter\": ...}")
+        ck.keys("image", image, {"semi_diameter"})
+        if image.get("semi_diameter") is not None:
+            ck.number("image.semi_diameter", image["semi_diameter"], positive=True)
+    return out
+
+
+def _check_surface(ck: _Checker, where: str, s: Any):
+    if not isinstance(s, dict):
+        ck.fail(where, f"a surface is a JSON object, got {s!r}")
+    ck.keys(where, s, SURFACE_KEYS)
+    if "radius" in s and "curvature" in s:
+        ck.fail(where, "give \"radius\" or \"curvature\", not both")
+    if "curvature" in s:
+        ck.number(f"{where}.curvature", s["curvature"])
+    else:
+        r = s.get("radius")
+        if isinstance(r, str):
+            if r.strip().lower() not in ("inf", "infinity"):
+                ck.fail(f"{where}.radius", f"must be a number, \"inf\" or null, got {r!r}")
+            s["radius"] = "inf"
+        elif r is not None:
+            if ck.number(f"{where}.radius", r) == 0:
+                ck.fail(f"{where}.radius", "must not be 0 (use \"inf\" for a plane)")
+    if "thickness" not in s:
+        ck.fail(f"{where}.thickness", "missing (distance to the next surface; for the last one, to the image plane)")
+    ck.number(f"{where}.thickness", s["thickness"])
+    if "material" not in s:
+        ck.fail(f"{where}.material", "missing (\"air\", a glass name or a material object)")
+    s["material"] = _resolve_material(ck, f"{where}.material", s["material"])
+    if "conic" in s:
+        ck.number(f"{where}.conic", s["conic"])
+    if "aspheric" in s:
+        a = s["aspheric"]
+        if not isinstance(a, dict):
+            ck.fail(f"{where}.aspheric", "must be an object like {\"a4\": 1e-5, \"a6\": ...}")
+        ck.keys(f"{where}.aspheric", a, ASPHERIC_KEYS)
+        for k, v in a.items():
+            ck.number(f"{where}.aspheric.{k}", v)
+    if s.get("semi_diameter") is not None:
+        ck.number(f"{where}.semi_diameter", s["semi_diameter"], positive=True)
+    if not isinstance(s.get("stop", False), bool):
+        ck.fail(f"{where}.stop", f"must be true or false, got {s['stop']!r}")
+    if not isinstance(s.get("name", ""), str):
+        ck.fail(f"{where}.name", "must be a string")
+
+
+def _resolve_material(ck: _Checker, where: str, m: Any):
+    if isinstance(m, str):
+        if m.strip().lower() == "air":
+            return "air"
+        return _catalog_glass(ck, where, m, None)
+    if not isinstance(m, dict):
+        ck.fail(where, f"must be \"air\", a glass name or an object, got {m!r}")
+    if "glass" in m:
+        ck.keys(where, m, {"glass", "catalog"})
+        return _catalog_glass(ck, where, m["glass"], m.get("catalog"))
+    if "n" in m:
+        ck.keys(where, m, {"n", "name"})
+        ck.number(f"{where}.n", m["n"], positive=True)
+    elif "nd" in m or "vd" in m:
+        ck.keys(where, m, {"nd", "vd", "name"})
+        ck.number(f"{where}.nd", m.get("nd"), positive=True)
+        ck.number(f"{where}.vd", m.get("vd"), positive=True)
+    elif "formula" in m:
+        ck.keys(where, m, {"formula", "coefficients", "range_um", "name"})
+        f = m["formula"]
+        if isinstance(f, bool) or not isinstance(f, int) or not 1 <= f <= 9:
+            ck.fail(f"{where}.formula", f"must be an integer 1-9 (refractiveindex.info formulas), got {f!r}")
+        ck.numbers(f"{where}.coefficients", m.get("coefficients"))
+        rng = ck.numbers(f"{where}.range_um", m.get("range_um"), positive=True)
+        if len(rng) != 2 or rng[0] >= rng[1]:
+            ck.fail(f"{where}.range_um", f"must be [lo, hi] with lo < hi, got {rng}")
+    elif "tabulated" in m:
+        ck.keys(where, m, {"tabulated", "name"})
+        t = m["tabulated"]
+        if not isinstance(t, list) or len(t) < 2 or not all(isinstance(r, list) and len(r) == 2 for r in t):
+            ck.fail(f"{where}.tabulated", "must be a list of at least two [wl_um, n] pairs")
+        for i, r in enumerate(t):
+            ck.number(f"{where}.tabulated[{i}][0]", r[0], positive=True)
+            ck.number(f"{where}.tabulated[{i}][1]", r[1], positive=True)
+    else:
+        ck.fail(where, f"unknown material form {m!r}; see docs/lens-format.md")
+    return m
+
+
+def _catalog_glass(ck: _Checker, where: str, name: Any, catalog: Any):
+    try:
+        return _glass.resolve(name, catalog).to_engine()
+    except _glass.GlassError as exc:
+        ck.fail(where, str(exc))
