@@ -1,0 +1,191 @@
+//! Launching a collimated beam for a field angle (object at infinity, field along +y).
+//!
+//! Paraxial aiming sends ray (px, py) through the point (px, py) * EPD/2 of the paraxial
+//! entrance pupil (what most tools, and the reference data, do). Real aiming moves the
+//! ray's entry point until it crosses the real stop at (px, py) times the stop's paraxial
+//! semi-diameter, by Newton iteration on a finite-difference Jacobian.
+
+use crate::error::{arg, EngineError, Result};
+use crate::paraxial::{paraxial, Paraxial};
+use crate::trace::{End, RayState, Status, System};
+use glam::{DVec2, DVec3};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Aiming {
+    Paraxial,
+    Real,
+}
+
+impl std::str::FromStr for Aiming {
+    type Err = EngineError;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "paraxial" => Ok(Aiming::Paraxial),
+            "real" => Ok(Aiming::Real),
+            _ => arg(format!("aiming must be \"paraxial\" or \"real\", got \"{s}\"")),
+        }
+    }
+}
+
+/// One launched ray: origin, direction and the entrance-plane area it stands for per unit
+/// pupil-coordinate area (d(ex, ey)/d(px, py)).
+#[derive(Clone, Copy, Debug)]
+pub struct Launch {
+    pub origin: DVec3,
+    pub area: f64,
+    pub ok: bool,
+}
+
+pub struct Beam<'s, 'l> {
+    pub sys: &'s System<'l>,
+    /// First-order data at the lens's primary wavelength (pupils do not follow colour).
+    pub par: Paraxial,
+    pub field_deg: f64,
+    pub dir: DVec3,
+    pub aiming: Aiming,
+    z_launch: f64,
+    /// Real aiming: entry point of the chief ray and d(stop)/d(entry) there.
+    chief_entry: DVec2,
+    chief_jac: [[f64; 2]; 2],
+}
+
+const AIM_TOL: f64 = 1e-10;
+const FD_STEP: f64 = 1e-6;
+
+impl<'s, 'l> Beam<'s, 'l> {
+    pub fn new(sys: &'s System<'l>, field_deg: f64, aiming: Aiming) -> Result<Self> {
+        if !(field_deg.is_finite() && field_deg.abs() < 90.0) {
+            return arg(format!("field angle {field_deg} deg must be within (-90, 90)"));
+        }
+        let lens = sys.lens;
+        let par = paraxial(lens, lens.primary_nm)?;
+        let t = field_deg.to_radians();
+        let dir = DVec3::new(0.0, t.sin(), t.cos());
+        // Launch plane well before the first surface and the entrance pupil.
+        let s1 = &lens.surfaces[0];
+        let reach = s1.semi_diameter.unwrap_or(par.epd);
+        let dip = crate::surface::sag(s1, reach * reach).map(|z| (-z).max(0.0)).unwrap_or(reach);
+        let z_launch = par.entrance_pupil_z.min(0.0) - 10.0 - dip;
+        let mut b = Beam { sys, par, field_deg, dir, aiming, z_launch, chief_entry: DVec2::ZERO, chief_jac: [[1.0, 0.0], [0.0, 1.0]] };
+        if aiming == Aiming::Real {
+            let (e, j) = b.aim_at(DVec2::ZERO, DVec2::ZERO, None).ok_or_else(|| {
+                EngineError::Trace(format!("real ray aiming: the chief ray at {field_deg} deg cannot be aimed at the stop centre"))
+            })?;
+            b.chief_entry = e;
+            b.chief_jac = j;
+        }
+        Ok(b)
+    }
+
+    /// Origin of the ray entering through point `e` of the entrance-pupil plane.
+    #[inline]
+    fn origin(&self, e: DVec2) -> DVec3 {
+        let ze = self.par.entrance_pupil_z;
+        let q = DVec3::new(e.x, e.y, ze);
+        q - ((ze - self.z_launch) / self.dir.z) * self.dir
+    }
+
+    fn stop_hit(&self, e: DVec2) -> Option<DVec2> {
+        let r = self.sys.trace_unclipped(self.origin(e), self.dir, End::Surface(self.sys.lens.stop));
+        r.ok().then(|| DVec2::new(r.p.x, r.p.y))
+    }
+
+    /// Newton iteration for the entry point whose ray crosses the stop at `target`.
+    fn aim_at(&self, target: DVec2, guess: DVec2, jac0: Option<[[f64; 2]; 2]>) -> Option<(DVec2, [[f64; 2]; 2])> {
+        let mut e = guess;
+        let mut s = self.stop_hit(e)?;
+        let mut jac = jac0.unwrap_or([[1.0, 0.0], [0.0, 1.0]]);
+        let mut fresh = false;
+        for it in 0..40 {
+            let r = s - target;
+            if r.length() < AIM_TOL && fresh {
+                return Some((e, jac));
+            }
+            if it == 0 || !fresh || r.length() > 1e-3 {
+                let sx = self.stop_hit(e + DVec2::new(FD_STEP, 0.0))?;
+                let sy = self.stop_hit(e + DVec2::new(0.0, FD_STEP))?;
+                jac = [[(sx.x - s.x) / FD_STEP, (sy.x - s.x) / FD_STEP], [(sx.y - s.y) / FD_STEP, (sy.y - s.y) / FD_STEP]];
+                fresh = true;
+            }
+            let det = jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0];
+            if det.abs() < 1e-14 {
+                return None;
+            }
+            let step = DVec2::new((jac[1][1] * r.x - jac[0][1] * r.y) / det, (-jac[1][0] * r.x + jac[0][0] * r.y) / det);
+            // Damped step: halve until the ray still reaches the stop.
+            let mut lam = 1.0;
+            loop {
+                let cand = e - lam * step;
+                if let Some(sc) = self.stop_hit(cand) {
+                    e = cand;
+                    s = sc;
+                    break;
+                }
+                lam *= 0.5;
+                if lam < 1e-6 {
+                    return None;
+                }
+            }
+            if r.length() < AIM_TOL {
+                return Some((e, jac));
+            }
+        }
+        None
+    }
+
+    /// Launch ray (px, py) in normalized pupil coordinates.
+    pub fn launch(&self, px: f64, py: f64) -> Launch {
+        match self.aiming {
+            Aiming::Paraxial => {
+                let h = 0.5 * self.par.epd;
+                Launch { origin: self.origin(DVec2::new(px * h, py * h)), area: h * h, ok: true }
+            }
+            Aiming::Real => {
+                let rs = self.par.stop_semi_diameter;
+                let target = DVec2::new(px * rs, py * rs);
+                // Linear predictor from the chief ray's Jacobian.
+                let j = self.chief_jac;
+                let det = j[0][0] * j[1][1] - j[0][1] * j[1][0];
+                let guess = self.chief_entry + DVec2::new((j[1][1] * target.x - j[0][1] * target.y) / det, (-j[1][0] * target.x + j[0][0] * target.y) / det);
+                match self.aim_at(target, guess, Some(j)) {
+                    Some((e, jac)) => {
+                        let d = (jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0]).abs();
+                        Launch { origin: self.origin(e), area: rs * rs / d, ok: true }
+                    }
+                    None => Launch { origin: self.origin(guess), area: 0.0, ok: false },
+                }
+            }
+        }
+    }
+
+    /// Optical path from the incident plane wavefront through the global origin to the
+    /// launch point: added to a traced OPL it puts every ray on a common wavefront.
+    #[inline]
+    pub fn wavefront_offset(&self, origin: DVec3) -> f64 {
+        self.sys.n[0] * origin.dot(self.dir)
+    }
+
+    /// Irradiance weight of a launched ray per unit pupil-coordinate area: its
+    /// entrance-plane area projected on the beam (cos of the field angle).
+    #[inline]
+    pub fn flux_weight(&self, l: &Launch) -> f64 {
+        l.area * self.dir.z
+    }
+
+    /// Launch and trace rays at pupil points; unaimable rays come back Missed at surface 0.
+    pub fn trace_pupil(&self, px: &[f64], py: &[f64]) -> (Vec<Launch>, Vec<RayState>) {
+        use rayon::prelude::*;
+        let launches: Vec<Launch> = px.par_iter().zip(py.par_iter()).map(|(&x, &y)| self.launch(x, y)).collect();
+        let rays = launches
+            .par_iter()
+            .map(|l| {
+                if l.ok {
+                    self.sys.trace(l.origin, self.dir, End::Image)
+                } else {
+                    RayState { p: DVec3::ZERO, d: DVec3::ZERO, opl: 0.0, status: Status::Missed, surface: 0 }
+                }
+            })
+            .collect();
+        (launches, rays)
+    }
+}

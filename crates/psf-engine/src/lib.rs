@@ -1,0 +1,17 @@
+//! psf-engine: exact sequential ray tracing through rotationally symmetric compound
+//! lenses, and their point spread functions (geometric, FFT of the pupil function,
+//! Huygens). Pure Rust; the Python bindings live in the psf-engine-py crate.
+
+pub mod aim;
+pub mod error;
+pub mod lens;
+pub mod material;
+pub mod paraxial;
+pub mod surface;
+pub mod trace;
+
+pub use aim::{Aiming, Beam};
+pub use error::{EngineError, Result};
+pub use lens::Lens;
+pub use paraxial::{paraxial, Paraxial};
+pub use trace::{End, RayState, Status, System};

@@ -1,0 +1,254 @@
+//! Optical materials: constant index, model glass (nd, Vd) and the dispersion formulas of
+//! the refractiveindex.info database (formulas 1-9, wavelength in micrometres), plus
+//! tabulated n(lambda). Catalog names are resolved on the Python side.
+
+use crate::error::{EngineError, Result};
+
+/// Fraunhofer d, F and C lines (micrometres) used by the model glass.
+const LAMBDA_D: f64 = 0.5875618;
+const LAMBDA_F: f64 = 0.4861327;
+const LAMBDA_C: f64 = 0.6562725;
+
+#[derive(Debug, Clone, PartialEq)]
+pub enum Material {
+    Air,
+    Constant(f64),
+    /// Model glass: two-term Cauchy n = A + B / lambda^2 through nd with nF - nC = (nd-1)/Vd.
+    Model { nd: f64, vd: f64 },
+    /// refractiveindex.info formula `kind` (1-9) with its coefficient list.
+    Formula { kind: u8, coefficients: Vec<f64>, range_um: Option<(f64, f64)>, name: String },
+    /// Tabulated n, linearly interpolated (wavelengths ascending, micrometres).
+    Tabulated { wavelength_um: Vec<f64>, n: Vec<f64>, name: String },
+}
+
+impl Material {
+    pub fn name(&self) -> String {
+        match self {
+            Material::Air => "air".into(),
+            Material::Constant(n) => format!("n={n}"),
+            Material::Model { nd, vd } => format!("model nd={nd} vd={vd}"),
+            Material::Formula { name, .. } | Material::Tabulated { name, .. } => name.clone(),
+        }
+    }
+
+    /// Check coefficients once, at load time, so that `index` only fails on range.
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        match self {
+            Material::Air => Ok(()),
+            Material::Constant(n) => {
+                if n.is_finite() && *n > 0.0 {
+                    Ok(())
+                } else {
+                    Err(format!("constant index n={n} must be finite and positive"))
+                }
+            }
+            Material::Model { nd, vd } => {
+                if !(nd.is_finite() && *nd > 1.0) {
+                    Err(format!("model glass nd={nd} must be finite and > 1"))
+                } else if !(vd.is_finite() && *vd > 0.0) {
+                    Err(format!("model glass vd={vd} must be finite and > 0"))
+                } else {
+                    Ok(())
+                }
+            }
+            Material::Formula { kind, coefficients, range_um, .. } => {
+                if !(1..=9).contains(kind) {
+                    return Err(format!("dispersion formula {kind} is not one of refractiveindex.info's 1-9"));
+                }
+                if coefficients.is_empty() || coefficients.iter().any(|c| !c.is_finite()) {
+                    return Err("dispersion coefficients must be a non-empty list of finite numbers".into());
+                }
+                if let Some((lo, hi)) = range_um {
+                    if !(lo.is_finite() && hi.is_finite() && lo < hi && *lo > 0.0) {
+                        return Err(format!("range_um [{lo}, {hi}] is not an increasing positive range"));
+                    }
+                }
+                Ok(())
+            }
+            Material::Tabulated { wavelength_um, n, .. } => {
+                if wavelength_um.len() < 2 || wavelength_um.len() != n.len() {
+                    return Err("tabulated material needs at least two (wavelength, n) rows".into());
+                }
+                if wavelength_um.windows(2).any(|w| !(w[1] > w[0])) {
+                    return Err("tabulated wavelengths must be strictly increasing".into());
+                }
+                if n.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
+                    return Err("tabulated n must be finite and positive".into());
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// Refractive index at `wl_um` micrometres.
+    pub fn index(&self, wl_um: f64) -> Result<f64> {
+        let bad = |msg: String| Err(EngineError::Material(format!("{}: {msg}", self.name())));
+        if !(wl_um.is_finite() && wl_um > 0.0) {
+            return bad(format!("wavelength {wl_um} um is not positive"));
+        }
+        let n = match self {
+            Material::Air => 1.0,
+            Material::Constant(n) => *n,
+            Material::Model { nd, vd } => {
+                let b = (nd - 1.0) / vd / (LAMBDA_F.powi(-2) - LAMBDA_C.powi(-2));
+                let a = nd - b / (LAMBDA_D * LAMBDA_D);
+                a + b / (wl_um * wl_um)
+            }
+            Material::Formula { kind, coefficients, range_um, .. } => {
+                if let Some((lo, hi)) = range_um {
+                    // 1 nm of slack for rounding of published ranges.
+                    if wl_um < lo - 1e-3 || wl_um > hi + 1e-3 {
+                        return bad(format!(
+                            "wavelength {:.1} nm is outside the formula's valid range {:.1}-{:.1} nm",
+                            wl_um * 1e3,
+                            lo * 1e3,
+                            hi * 1e3
+                        ));
+                    }
+                }
+                formula(*kind, coefficients, wl_um)
+            }
+            Material::Tabulated { wavelength_um, n, .. } => {
+                let (lo, hi) = (wavelength_um[0], *wavelength_um.last().unwrap());
+                if wl_um < lo - 1e-9 || wl_um > hi + 1e-9 {
+                    return bad(format!(
+                        "wavelength {:.1} nm is outside the table {:.1}-{:.1} nm",
+                        wl_um * 1e3,
+                        lo * 1e3,
+                        hi * 1e3
+                    ));
+                }
+                let i = wavelength_um.partition_point(|&w| w < wl_um).clamp(1, wavelength_um.len() - 1);
+                let t = (wl_um - wavelength_um[i - 1]) / (wavelength_um[i] - wavelength_um[i - 1]);
+                n[i - 1] + t * (n[i] - n[i - 1])
+            }
+        };
+        if n.is_finite() && n > 0.0 {
+            Ok(n)
+        } else {
+            bad(format!("index evaluates to {n} at {:.1} nm", wl_um * 1e3))
+        }
+    }
+}
+
+/// Coefficient `i` (0-based) or 0 when the list is shorter: the database omits trailing zeros.
+fn c(cs: &[f64], i: usize) -> f64 {
+    cs.get(i).copied().unwrap_or(0.0)
+}
+
+/// The refractiveindex.info dispersion formulas (database documentation, "formula 1".."9").
+fn formula(kind: u8, cs: &[f64], l: f64) -> f64 {
+    let l2 = l * l;
+    match kind {
+        // 1: Sellmeier, n^2 - 1 = C1 + sum C_i l^2 / (l^2 - C_{i+1}^2)
+        1 => {
+            let mut s = 1.0 + c(cs, 0);
+            let mut i = 1;
+            while i < cs.len() {
+                s += c(cs, i) * l2 / (l2 - c(cs, i + 1).powi(2));
+                i += 2;
+            }
+            s.sqrt()
+        }
+        // 2: Sellmeier-2, n^2 - 1 = C1 + sum C_i l^2 / (l^2 - C_{i+1})
+        2 => {
+            let mut s = 1.0 + c(cs, 0);
+            let mut i = 1;
+            while i < cs.len() {
+                s += c(cs, i) * l2 / (l2 - c(cs, i + 1));
+                i += 2;
+            }
+            s.sqrt()
+        }
+        // 3: polynomial, n^2 = C1 + sum C_i l^C_{i+1}
+        3 => {
+            let mut s = c(cs, 0);
+            let mut i = 1;
+            while i < cs.len() {
+                s += c(cs, i) * l.powf(c(cs, i + 1));
+                i += 2;
+            }
+            s.sqrt()
+        }
+        // 4: RefractiveIndex.INFO, two Sellmeier-like terms then polynomial terms from C10 on
+        4 => {
+            let mut s = c(cs, 0);
+            if cs.len() > 1 {
+                s += c(cs, 1) * l.powf(c(cs, 2)) / (l2 - c(cs, 3).powf(c(cs, 4)));
+            }
+            if cs.len() > 5 {
+                s += c(cs, 5) * l.powf(c(cs, 6)) / (l2 - c(cs, 7).powf(c(cs, 8)));
+            }
+            let mut i = 9;
+            while i < cs.len() {
+                s += c(cs, i) * l.powf(c(cs, i + 1));
+                i += 2;
+            }
+            s.sqrt()
+        }
+        // 5: Cauchy, n = C1 + sum C_i l^C_{i+1}
+        5 => {
+            let mut s = c(cs, 0);
+            let mut i = 1;
+            while i < cs.len() {
+                s += c(cs, i) * l.powf(c(cs, i + 1));
+                i += 2;
+            }
+            s
+        }
+        // 6: gases, n - 1 = C1 + sum C_i / (C_{i+1} - l^-2)
+        6 => {
+            let mut s = 1.0 + c(cs, 0);
+            let mut i = 1;
+            while i < cs.len() {
+                s += c(cs, i) / (c(cs, i + 1) - 1.0 / l2);
+                i += 2;
+            }
+            s
+        }
+        // 7: Herzberger
+        7 => {
+            let d = 1.0 / (l2 - 0.028);
+            c(cs, 0) + c(cs, 1) * d + c(cs, 2) * d * d + c(cs, 3) * l2 + c(cs, 4) * l2 * l2 + c(cs, 5) * l2 * l2 * l2
+        }
+        // 8: retro, (n^2-1)/(n^2+2) = C1 + C2 l^2/(l^2-C3) + C4 l^2
+        8 => {
+            let r = c(cs, 0) + c(cs, 1) * l2 / (l2 - c(cs, 2)) + c(cs, 3) * l2;
+            ((1.0 + 2.0 * r) / (1.0 - r)).sqrt()
+        }
+        // 9: exotic, n^2 = C1 + C2/(l^2-C3) + C4 (l-C5)/((l-C5)^2 + C6)
+        9 => {
+            let s = c(cs, 0) + c(cs, 1) / (l2 - c(cs, 2)) + c(cs, 3) * (l - c(cs, 4)) / ((l - c(cs, 4)).powi(2) + c(cs, 5));
+            s.sqrt()
+        }
+        _ => f64::NAN,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn model_glass_hits_nd_and_abbe_number() {
+        let m = Material::Model { nd: 1.5168, vd: 64.17 };
+        let nd = m.index(LAMBDA_D).unwrap();
+        let nf = m.index(LAMBDA_F).unwrap();
+        let nc = m.index(LAMBDA_C).unwrap();
+        assert!((nd - 1.5168).abs() < 1e-12);
+        assert!(((nd - 1.0) / (nf - nc) - 64.17).abs() < 1e-9);
+    }
+
+    #[test]
+    fn out_of_range_wavelength_is_an_error_naming_the_glass() {
+        let m = Material::Formula { kind: 2, coefficients: vec![0.0, 1.0, 0.01], range_um: Some((0.4, 0.7)), name: "X1".into() };
+        let e = m.index(0.9).unwrap_err().to_string();
+        assert!(e.contains("X1") && e.contains("900.0 nm"), "{e}");
+    }
+
+    #[test]
+    fn tabulated_interpolates_linearly() {
+        let m = Material::Tabulated { wavelength_um: vec![0.5, 0.6], n: vec![1.5, 1.4], name: "t".into() };
+        assert!((m.index(0.55).unwrap() - 1.45).abs() < 1e-15);
+    }
+}

@@ -1,0 +1,148 @@
+"""Type stub of the compiled Rust engine (crates/psf-engine-py).
+
+Conventions shared by every function:
+
+* ``lens_json`` is a *resolved* prescription in the JSON schema of docs/lens-format.md:
+  every material is ``"air"``, ``{"n": ...}``, ``{"nd": ..., "vd": ...}``,
+  ``{"formula": k, "coefficients": [...], "range_um": [lo, hi]}`` (refractiveindex.info
+  dispersion formulas 1-9) or ``{"tabulated": [[wl_um, n], ...]}``.  Catalog names
+  (``"N-SF11"``, ``{"glass": ..., "catalog": ...}``) are resolved on the Python side by
+  :class:`optix_e2e.lens.Lens` before the JSON reaches the engine.
+* Lengths are millimetres unless a name says ``_um``; wavelengths are nanometres
+  (``wavelength_nm``); field angles are degrees along +y, object at infinity.
+* Global frame: first surface vertex at z = 0, image plane at z = total track.
+* Ray status codes (uint8): 0 ok, 1 missed a surface, 2 clipped by a clear aperture,
+  3 total internal reflection, 4 invalid (non-finite input).  Failed rays carry the
+  index of the surface where they failed and zeros in their numeric fields, never NaN.
+* PSF arrays: row index = image y, column index = image x, pixel (size//2, size//2) is
+  centred on the chief-ray image point; each pixel holds the fraction of the
+  entrance-pupil flux that lands in it, so ``psf.sum()`` is the transmitted energy
+  inside the window (<= 1).
+* ``aiming`` is ``"paraxial"`` (launch through the paraxial entrance pupil) or
+  ``"real"`` (each ray iterated onto the real stop).
+"""
+
+from typing import Any, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+__version__: str
+
+class EngineError(Exception):
+    """Base class of every error raised by the engine."""
+
+class LensError(EngineError):
+    """Invalid prescription; the message names the surface index and parameter."""
+
+class MaterialError(LensError):
+    """Unusable material (bad coefficients, wavelength outside its valid range)."""
+
+class TraceError(EngineError):
+    """A trace that cannot produce a result (e.g. the chief ray fails, aiming diverges)."""
+
+class PsfError(EngineError):
+    """A PSF that cannot be computed (no transmitted rays, bad sampling parameters)."""
+
+def validate_lens(lens_json: str) -> None: ...
+def refractive_indices(lens_json: str, wavelength_nm: float) -> NDArray[np.float64]:
+    """Index of the medium after each surface; element 0 is object space."""
+
+def paraxial(lens_json: str, wavelength_nm: float | None = None) -> dict[str, float]:
+    """First-order data at ``wavelength_nm`` (default: the lens's primary wavelength).
+
+    Keys: efl_mm, bfl_mm (last vertex to paraxial focus), ffl_mm, f_number (EFL/EPD),
+    epd_mm, entrance_pupil_z_mm (from first vertex), xpd_mm, exit_pupil_z_mm
+    (relative to the image plane), stop_semi_diameter_mm, total_track_mm,
+    image_z_mm, paraxial_image_height_mm (EFL*tan(max field)), back_focus_shift_mm
+    (paraxial focus minus image plane).
+    """
+
+def trace(
+    lens_json: str,
+    origins: NDArray[np.float64],
+    directions: NDArray[np.float64],
+    wavelength_nm: float,
+) -> dict[str, NDArray[Any]]:
+    """Trace arbitrary rays (n, 3) from object space to the image plane.
+
+    Returns position (n, 3), direction (n, 3) at the image plane, opl (n,) from the
+    origin, status (n,) uint8 and surface (n,) int32 (failing surface or -1).
+    """
+
+def trace_field(
+    lens_json: str,
+    field_deg: float,
+    px: NDArray[np.float64],
+    py: NDArray[np.float64],
+    wavelength_nm: float,
+    aiming: str = "paraxial",
+) -> dict[str, NDArray[Any]]:
+    """Aim and trace rays at normalized pupil coordinates (px, py) for one field.
+
+    Same keys as :func:`trace` plus origin (n, 3) and launch_direction (n, 3).
+    """
+
+def spot(
+    lens_json: str,
+    field_deg: float,
+    wavelengths_nm: Sequence[float],
+    weights: Sequence[float] | None = None,
+    rings: int = 64,
+    aiming: str = "paraxial",
+) -> dict[str, Any]:
+    """Spot diagram statistics on a hexapolar grid (``rings`` rings per wavelength).
+
+    Keys: rms_um (centroid-referenced, weighted over wavelengths), rms_um_per_wavelength,
+    centroid_x_mm, centroid_y_mm, chief_y_mm, n_rays, n_ok, vignetting (transmitted
+    fraction of the pupil), relative_illumination (image irradiance relative to axis).
+    """
+
+def psf(
+    lens_json: str,
+    field_deg: float,
+    wavelength_nm: float,
+    method: str = "fft",
+    pixel_um: float = 1.0,
+    size: int = 64,
+    pupil_samples: int = 64,
+    fft_grid: int | None = None,
+    rays: int | None = None,
+    aiming: str = "paraxial",
+) -> tuple[NDArray[np.float64], dict[str, Any]]:
+    """Monochromatic PSF with method "geometric", "fft" or "huygens".
+
+    Diagnostics keys: method, strehl, warnings (list[str]), time_s, chief_x_mm,
+    chief_y_mm, transmitted_fraction, energy_in_window, pupil_samples, and the
+    method's sampling checks (max_phase_step_waves, native_pitch_um, ...).
+    """
+
+def psf_rgb(
+    lens_json: str,
+    field_deg: float,
+    channels: Sequence[Sequence[tuple[float, float]]],
+    method: str = "fft",
+    pixel_um: float = 1.0,
+    size: int = 64,
+    pupil_samples: int = 64,
+    aiming: str = "paraxial",
+) -> tuple[NDArray[np.float64], NDArray[np.float64], dict[str, Any]]:
+    """Per-channel PSF (C, size, size), each normalized to unit sum, and the per-channel
+    relative illumination (C,). ``channels[c]`` lists (wavelength_nm, weight) pairs."""
+
+def psf_batch(
+    lens_jsons: Sequence[str],
+    fields_deg: Sequence[float],
+    channels: Sequence[Sequence[tuple[float, float]]],
+    method: str = "fft",
+    pixel_um: float = 1.0,
+    size: int = 64,
+    pupil_samples: int = 64,
+    aiming: str = "paraxial",
+) -> dict[str, Any]:
+    """Many designs x fields x channels in one call (GIL released, parallel).
+
+    Returns psf (D, F, C, size, size) float32 (unit sum per channel),
+    relative_illumination (D, F, C) float64, ok (D,) bool, errors (list[str | None])
+    with the reason a design failed (its PSFs are zeros and ok is False).
+    """
