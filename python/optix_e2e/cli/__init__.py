@@ -1,0 +1,22 @@
+"""The ``optix`` command line (click). One module per subcommand."""
+
+import click
+
+from .demo import demo
+from .lens import lens
+from .psf import psf
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="optix-e2e")
+def main():
+    """optix: exact ray-traced PSFs for compound lenses.
+
+    LENS arguments take a JSON prescription path (docs/lens-format.md) or the name of a
+    bundled lens (e.g. cooke-f50).
+    """
+
+
+main.add_command(lens)
+main.add_command(psf)
+main.add_command(demo)

@@ -1,0 +1,54 @@
+"""``optix psf``: one monochromatic PSF to a .npy file, diagnostics as one JSON line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+import numpy as np
+
+from ._common import AIMING, dumps, friendly_errors, load_lens
+
+
+@click.command()
+@click.argument("lens_spec", metavar="LENS")
+@click.option("--field-deg", type=float, default=0.0, show_default=True, help="Field angle along +y.")
+@click.option("--wavelength-nm", type=float, default=None, help="Default: the lens's primary wavelength.")
+@click.option("--method", type=click.Choice(["geometric", "fft", "huygens"]), default="fft", show_default=True)
+@click.option("--pixel-um", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True)
+@click.option("--size", type=click.IntRange(min=1), default=64, show_default=True, help="Window is SIZE x SIZE pixels.")
+@click.option("--pupil-samples", type=click.IntRange(min=2), default=64, show_default=True)
+@click.option("--fft-grid", type=click.IntRange(min=2), default=None, help="FFT size (fft method; default: engine's choice).")
+@click.option("--rays", type=click.IntRange(min=1), default=None, help="Ray count (geometric method).")
+@click.option("--aiming", type=AIMING, default="paraxial", show_default=True)
+@click.option("--out", "out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Output .npy file.")
+@click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Also write a PNG image.")
+@click.option("--log/--linear", "log", default=False, help="PNG intensity scale.")
+@friendly_errors
+def psf(lens_spec, field_deg, wavelength_nm, method, pixel_um, size, pupil_samples, fft_grid, rays,
+        aiming, out, png, log):
+    """Compute the PSF of LENS at one field and wavelength and save it as .npy.
+
+    The array's row index is image y, the column index image x, pixel (SIZE//2, SIZE//2)
+    sits on the chief ray, and each pixel holds its fraction of the entrance-pupil flux.
+    """
+    lens_ = load_lens(lens_spec)
+    wl = lens_.primary_wavelength_nm if wavelength_nm is None else wavelength_nm
+    kwargs = dict(pixel_um=pixel_um, size=size, pupil_samples=pupil_samples, aiming=aiming)
+    if fft_grid is not None:
+        kwargs["fft_grid"] = fft_grid
+    if rays is not None:
+        kwargs["rays"] = rays
+    image, diag = lens_.psf(field_deg, wl, method, **kwargs)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    np.save(out, image)
+    line = {"method": method, "strehl": diag.get("strehl"), "time_s": diag.get("time_s"),
+            "warnings": list(diag.get("warnings", [])), **diag,
+            "lens": lens_.name, "field_deg": field_deg, "wavelength_nm": wl,
+            "pixel_um": pixel_um, "size": size, "sum": float(np.sum(image)), "out": str(out)}
+    if png is not None:
+        from ..plotting import save_psf_png
+
+        save_psf_png(png, image, pixel_um, title=f"{lens_.name} {method} {field_deg:g} deg {wl:g} nm", log=log)
+        line["png"] = str(png)
+    click.echo(dumps(line))
