@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# Every test: create/reuse .venv, install the project with its test extra (builds the Rust
+# extension in release mode), run the Rust core's tests, then the Python suite.
+set -euo pipefail
+cd "$(dirname "$0")"
+if [ ! -x .venv/bin/python ]; then
+  "${PYTHON:-python3}" -m venv .venv
+fi
+# shellcheck disable=SC1091
+. .venv/bin/activate
+python -m pip install --disable-pip-version-check -q ".[test]"
+echo "== cargo test --release (crates/psf-engine)"
+cargo test --release
+echo "== pytest"
+python -m pytest -q tests
