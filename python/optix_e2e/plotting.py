@@ -53,10 +53,12 @@ def rgb_composite(channels: np.ndarray, log: bool = False) -> np.ndarray:
 
 
 def save_psf_grid(path: str | Path, psfs: np.ndarray, fields_deg: Sequence[float], pixel_um: float,
-                  channel_labels: Sequence[str], title: str = "", log: bool = False):
+                  channel_labels: Sequence[str], title: str = "", log: bool = False,
+                  row_notes: Sequence[str] | None = None):
     """Grid of PSFs: one row per field, one column per channel plus an RGB composite.
 
-    ``psfs`` is (F, C, H, W); the composite uses the first three channels as R, G, B.
+    ``psfs`` is (F, C, H, W); the composite uses the first three channels as R, G, B;
+    ``row_notes`` (one short string per field) is appended to the composite's title.
     """
     n_f, n_c = psfs.shape[:2]
     composite = n_c >= 3
@@ -74,7 +76,8 @@ def save_psf_grid(path: str | Path, psfs: np.ndarray, fields_deg: Sequence[float
             ax = axes[i, n_c]
             ax.imshow(rgb_composite(psfs[i, :3], log), origin="lower", extent=_extent(psfs.shape[2:], pixel_um),
                       interpolation="nearest")
-            ax.set_title(f"{f:g} deg, RGB", fontsize=8)
+            note = f" ({row_notes[i]})" if row_notes else ""
+            ax.set_title(f"{f:g} deg, RGB{note}", fontsize=8)
         for ax in axes[i]:
             ax.tick_params(labelsize=6)
             ax.set_ylabel("y (um)", fontsize=7)

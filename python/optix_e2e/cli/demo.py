@@ -86,7 +86,8 @@ def demo(lens_spec, out_dir, n_fields, channels, method, pixel_um, size, pupil_s
     from ..plotting import save_psf_grid
 
     save_psf_grid(out_dir / "psf_grid.png", grid, fields, pixel_um, labels,
-                  title=f"{lens_.name}: {method} PSFs", log=log)
+                  title=f"{lens_.name}: {method} PSFs", log=log,
+                  row_notes=[f"RMS {r['rms_spot_um']:.1f} um, RI {r['relative_illumination']:.2f}" for r in rows])
     timings["plot_s"] = time.perf_counter() - t0
     timings["total_s"] = time.perf_counter() - t_start
 
