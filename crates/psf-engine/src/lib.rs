@@ -7,6 +7,7 @@ pub mod error;
 pub mod lens;
 pub mod material;
 pub mod paraxial;
+pub mod psf;
 pub mod surface;
 pub mod trace;
 
