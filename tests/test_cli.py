@@ -82,7 +82,7 @@ def test_unknown_glass_error(tmp_path):
     p = tmp_path / "l.json"
     p.write_text(json.dumps(lens))
     r = run("lens", "info", p, "--json")
-    assert r.exit_code != 0 and "surfaces[2].material: unknown glass 'F22'" in r.output
+    assert r.exit_code != 0 and "surface 3 (surfaces[2]) material: unknown glass 'F22'" in r.output
 
 
 def test_engine_error_is_one_line(tmp_path):

@@ -88,7 +88,7 @@ def test_missing_thickness_names_file_and_surface(tmp_path):
     data = singlet()
     del data["surfaces"][1]["thickness"]
     p = write(tmp_path, data, "nothick.json")
-    with pytest.raises(PrescriptionError, match=r"nothick\.json: surfaces\[1\]\.thickness: missing"):
+    with pytest.raises(PrescriptionError, match=r"nothick\.json: surface 2 \(surfaces\[1\]\) thickness: missing"):
         Lens.load(p)
 
 
@@ -97,22 +97,22 @@ def test_unknown_glass_names_surface_and_close_matches(tmp_path):
     with pytest.raises(PrescriptionError) as err:
         Lens.load(p)
     msg = str(err.value)
-    assert msg.startswith(f"{p}: surfaces[0].material: unknown glass 'N-SF111'") and "N-SF11 (schott)" in msg
+    assert msg.startswith(f"{p}: surface 1 (surfaces[0]) material: unknown glass 'N-SF111'") and "N-SF11 (schott)" in msg
 
 
 @pytest.mark.parametrize("change, pattern", [
-    ({"thickness": math.nan}, r"surfaces\[0\]\.thickness: must be finite"),
-    ({"thickness": "5"}, r"surfaces\[0\]\.thickness: must be a number"),
-    ({"radius": 0}, r"surfaces\[0\]\.radius: must not be 0"),
-    ({"radius": "flat"}, r"surfaces\[0\]\.radius: must be a number"),
-    ({"curvature": 0.02}, r"surfaces\[0\]: give \"radius\" or \"curvature\", not both"),
-    ({"thicknes": 1.0}, r"surfaces\[0\]: unknown key\(s\) 'thicknes'"),
+    ({"thickness": math.nan}, r"surface 1 \(surfaces\[0\]\) thickness: must be finite"),
+    ({"thickness": "5"}, r"surface 1 \(surfaces\[0\]\) thickness: must be a number"),
+    ({"radius": 0}, r"surface 1 \(surfaces\[0\]\) radius: must not be 0"),
+    ({"radius": "flat"}, r"surface 1 \(surfaces\[0\]\) radius: must be a number"),
+    ({"curvature": 0.02}, r"surface 1 \(surfaces\[0\]\): give \"radius\" or \"curvature\", not both"),
+    ({"thicknes": 1.0}, r"surface 1 \(surfaces\[0\]\): unknown key\(s\) 'thicknes'"),
     ({"stop": False}, r"exactly one surface must have \"stop\": true, found 0"),
-    ({"semi_diameter": -1.0}, r"surfaces\[0\]\.semi_diameter: must be > 0"),
-    ({"aspheric": {"a3": 1e-5}}, r"surfaces\[0\]\.aspheric: unknown key\(s\) 'a3'"),
+    ({"semi_diameter": -1.0}, r"surface 1 \(surfaces\[0\]\) semi_diameter: must be > 0"),
+    ({"aspheric": {"a3": 1e-5}}, r"surface 1 \(surfaces\[0\]\) aspheric: unknown key\(s\) 'a3'"),
     ({"material": {"formula": 12, "coefficients": [1], "range_um": [0.4, 0.7]}}, r"formula: must be an integer 1-9"),
     ({"material": {"nd": 1.5}}, r"material\.vd: must be a number"),
-    ({"material": 42}, r"surfaces\[0\]\.material: must be \"air\""),
+    ({"material": 42}, r"surface 1 \(surfaces\[0\]\) material: must be \"air\""),
 ])
 def test_surface_validation_errors(change, pattern):
     with pytest.raises(PrescriptionError, match=pattern):
@@ -139,7 +139,7 @@ def test_top_level_validation_errors(change, pattern):
 def test_two_stops_rejected():
     data = singlet()
     data["surfaces"][1]["stop"] = True
-    with pytest.raises(PrescriptionError, match=r"found 2 \(surfaces \[0, 1\]\)"):
+    with pytest.raises(PrescriptionError, match=r"found 2 \(surfaces 1, 2\)"):
         Lens(data)
 
 

@@ -3,7 +3,8 @@ catalog materials into the engine's resolved form.
 
 Every error is a :class:`PrescriptionError` whose message starts with the source (file
 path or ``<dict>``) and the JSON location at fault, e.g.
-``lens.json: surfaces[3].thickness: missing``.
+``lens.json: surface 4 (surfaces[3]) thickness: missing``.  Surfaces are numbered from 1
+as in the engine's messages; ``surfaces[i]`` is the 0-based JSON list index.
 """
 
 from __future__ import annotations
@@ -102,12 +103,12 @@ def resolve_prescription(data: Any, source: str = "<dict>") -> dict:
         ck.fail("surfaces", "missing or empty (a list of surface objects)")
     stops = []
     for i, s in enumerate(surfaces):
-        _check_surface(ck, f"surfaces[{i}]", s)
+        _check_surface(ck, f"surface {i + 1} (surfaces[{i}])", s)
         if s.get("stop", False):
             stops.append(i)
     if len(stops) != 1:
         ck.fail("surfaces", f"exactly one surface must have \"stop\": true, found {len(stops)}"
-                + (f" (surfaces {stops})" if stops else ""))
+                + (f" (surfaces {', '.join(str(i + 1) for i in stops)})" if stops else ""))
 
     image = out.get("image")
     if image is not None:
@@ -126,37 +127,37 @@ def _check_surface(ck: _Checker, where: str, s: Any):
     if "radius" in s and "curvature" in s:
         ck.fail(where, "give \"radius\" or \"curvature\", not both")
     if "curvature" in s:
-        ck.number(f"{where}.curvature", s["curvature"])
+        ck.number(f"{where} curvature", s["curvature"])
     else:
         r = s.get("radius")
         if isinstance(r, str):
             if r.strip().lower() not in ("inf", "infinity"):
-                ck.fail(f"{where}.radius", f"must be a number, \"inf\" or null, got {r!r}")
+                ck.fail(f"{where} radius", f"must be a number, \"inf\" or null, got {r!r}")
             s["radius"] = "inf"
         elif r is not None:
-            if ck.number(f"{where}.radius", r) == 0:
-                ck.fail(f"{where}.radius", "must not be 0 (use \"inf\" for a plane)")
+            if ck.number(f"{where} radius", r) == 0:
+                ck.fail(f"{where} radius", "must not be 0 (use \"inf\" for a plane)")
     if "thickness" not in s:
-        ck.fail(f"{where}.thickness", "missing (distance to the next surface; for the last one, to the image plane)")
-    ck.number(f"{where}.thickness", s["thickness"])
+        ck.fail(f"{where} thickness", "missing (distance to the next surface; for the last one, to the image plane)")
+    ck.number(f"{where} thickness", s["thickness"])
     if "material" not in s:
-        ck.fail(f"{where}.material", "missing (\"air\", a glass name or a material object)")
-    s["material"] = _resolve_material(ck, f"{where}.material", s["material"])
+        ck.fail(f"{where} material", "missing (\"air\", a glass name or a material object)")
+    s["material"] = _resolve_material(ck, f"{where} material", s["material"])
     if "conic" in s:
-        ck.number(f"{where}.conic", s["conic"])
+        ck.number(f"{where} conic", s["conic"])
     if "aspheric" in s:
         a = s["aspheric"]
         if not isinstance(a, dict):
-            ck.fail(f"{where}.aspheric", "must be an object like {\"a4\": 1e-5, \"a6\": ...}")
-        ck.keys(f"{where}.aspheric", a, ASPHERIC_KEYS)
+            ck.fail(f"{where} aspheric", "must be an object like {\"a4\": 1e-5, \"a6\": ...}")
+        ck.keys(f"{where} aspheric", a, ASPHERIC_KEYS)
         for k, v in a.items():
-            ck.number(f"{where}.aspheric.{k}", v)
+            ck.number(f"{where} aspheric.{k}", v)
     if s.get("semi_diameter") is not None:
-        ck.number(f"{where}.semi_diameter", s["semi_diameter"], positive=True)
+        ck.number(f"{where} semi_diameter", s["semi_diameter"], positive=True)
     if not isinstance(s.get("stop", False), bool):
-        ck.fail(f"{where}.stop", f"must be true or false, got {s['stop']!r}")
+        ck.fail(f"{where} stop", f"must be true or false, got {s['stop']!r}")
     if not isinstance(s.get("name", ""), str):
-        ck.fail(f"{where}.name", "must be a string")
+        ck.fail(f"{where} name", "must be a string")
 
 
 def _resolve_material(ck: _Checker, where: str, m: Any):
