@@ -33,7 +33,7 @@ def friendly_errors(fn):
             return fn(*args, **kwargs)
         except click.ClickException:
             raise
-        except (PrescriptionError, GlassError, OSError, RuntimeError, ImportError) as exc:
+        except (PrescriptionError, GlassError, ValueError, OSError, RuntimeError, ImportError) as exc:
             raise click.ClickException(_one_line(exc)) from None
         except _engine_errors() as exc:
             raise click.ClickException(f"engine: {type(exc).__name__}: {_one_line(exc)}") from None
