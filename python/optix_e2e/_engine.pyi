@@ -74,7 +74,7 @@ def trace_field(
     lens_json: str,
     field_deg: float,
     px: NDArray[np.float64],
-    py: NDArray[np.float64],
+    py_: NDArray[np.float64],
     wavelength_nm: float,
     aiming: str = "paraxial",
 ) -> dict[str, NDArray[Any]]:
@@ -107,14 +107,19 @@ def psf(
     size: int = 64,
     pupil_samples: int = 64,
     fft_grid: int | None = None,
-    rays: int | None = None,
     aiming: str = "paraxial",
+    integrate: bool = False,
+    exact: bool = False,
 ) -> tuple[NDArray[np.float64], dict[str, Any]]:
     """Monochromatic PSF with method "geometric", "fft" or "huygens".
 
     Diagnostics keys: method, strehl, warnings (list[str]), time_s, chief_x_mm,
     chief_y_mm, transmitted_fraction, energy_in_window, pupil_samples, and the
-    method's sampling checks (max_phase_step_waves, native_pitch_um, ...).
+    method's sampling checks (max_phase_step_waves, native_pitch_x_um, ...).
+    ``integrate=False`` gives intensity at pixel centres x pixel area (a super-resolved
+    PSF); ``True`` integrates over each pixel (what a detector pixel collects; geometric
+    always integrates). ``exact`` makes Huygens evaluate every distance exactly.
+    ``pupil_samples`` is also the ray grid across the pupil for the geometric method.
     """
 
 def psf_rgb(
@@ -126,6 +131,7 @@ def psf_rgb(
     size: int = 64,
     pupil_samples: int = 64,
     aiming: str = "paraxial",
+    integrate: bool = False,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], dict[str, Any]]:
     """Per-channel PSF (C, size, size), each normalized to unit sum, and the per-channel
     relative illumination (C,). ``channels[c]`` lists (wavelength_nm, weight) pairs."""
@@ -139,6 +145,7 @@ def psf_batch(
     size: int = 64,
     pupil_samples: int = 64,
     aiming: str = "paraxial",
+    integrate: bool = False,
 ) -> dict[str, Any]:
     """Many designs x fields x channels in one call (GIL released, parallel).
 

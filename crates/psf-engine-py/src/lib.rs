@@ -1,3 +1,251 @@
+//! Thin PyO3 layer over psf-engine: converts arrays and errors, releases the GIL around
+//! every engine call. All physics lives in the core crate.
+
+use numpy::{IntoPyArray, PyArray1, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
+use psf_engine::psf::{Method, PsfOptions};
+use psf_engine::{Aiming, EngineError as CoreError, Lens};
+use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+pyo3::create_exception!(_engine, EngineError, PyException, "Base class of every error raised by the engine.");
+pyo3::create_exception!(_engine, LensError, EngineError, "Invalid prescription; names the surface and parameter.");
+pyo3::create_exception!(_engine, MaterialError, LensError, "Unusable material (bad coefficients, wavelength out of range).");
+pyo3::create_exception!(_engine, TraceError, EngineError, "A trace that cannot produce a result.");
+pyo3::create_exception!(_engine, PsfError, EngineError, "A PSF that cannot be computed.");
+
+fn to_py(e: CoreError) -> PyErr {
+    let msg = e.to_string();
+    match e {
+        CoreError::Lens(_) => LensError::new_err(msg),
+        CoreError::Material(_) => MaterialError::new_err(msg),
+        CoreError::Trace(_) => TraceError::new_err(msg),
+        CoreError::Psf(_) => PsfError::new_err(msg),
+        CoreError::Argument(_) => pyo3::exceptions::PyValueError::new_err(msg),
+    }
+}
+
+/// Run `f` without the GIL and convert its error.
+fn run<T: Send>(py: Python<'_>, f: impl FnOnce() -> psf_engine::Result<T> + Send) -> PyResult<T> {
+    py.detach(f).map_err(to_py)
+}
+
+fn json_to_py<'py>(py: Python<'py>, v: &serde_json::Value) -> PyResult<Bound<'py, PyAny>> {
+    py.import("json")?.call_method1("loads", (v.to_string(),))
+}
+
+fn parse_lens(text: &str) -> psf_engine::Result<Lens> {
+    Lens::from_json(text)
+}
+
+fn options(method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_grid: Option<usize>, aiming: &str, integrate: bool, exact: bool) -> PyResult<PsfOptions> {
+    Ok(PsfOptions {
+        method: method.parse::<Method>().map_err(to_py)?,
+        pixel_mm: pixel_um * 1e-3,
+        size,
+        pupil_samples,
+        fft_grid,
+        aiming: aiming.parse::<Aiming>().map_err(to_py)?,
+        huygens_exact: exact,
+        integrate,
+    })
+}
+
+#[pyfunction]
+fn validate_lens(py: Python<'_>, lens_json: &str) -> PyResult<()> {
+    run(py, || parse_lens(lens_json).map(|_| ()))
+}
+
+#[pyfunction]
+fn refractive_indices<'py>(py: Python<'py>, lens_json: &str, wavelength_nm: f64) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let n = run(py, || parse_lens(lens_json)?.indices(wavelength_nm))?;
+    Ok(n.into_pyarray(py))
+}
+
+#[pyfunction]
+#[pyo3(signature = (lens_json, wavelength_nm=None))]
+fn paraxial<'py>(py: Python<'py>, lens_json: &str, wavelength_nm: Option<f64>) -> PyResult<Bound<'py, PyDict>> {
+    let p = run(py, || {
+        let lens = parse_lens(lens_json)?;
+        psf_engine::paraxial(&lens, wavelength_nm.unwrap_or(lens.primary_nm))
+    })?;
+    let d = PyDict::new(py);
+    for (k, v) in [
+        ("wavelength_nm", p.wavelength_nm),
+        ("efl_mm", p.efl),
+        ("bfl_mm", p.bfl),
+        ("ffl_mm", p.ffl),
+        ("f_number", p.f_number),
+        ("epd_mm", p.epd),
+        ("entrance_pupil_z_mm", p.entrance_pupil_z),
+        ("xpd_mm", p.xpd),
+        ("exit_pupil_z_mm", p.exit_pupil_z),
+        ("stop_semi_diameter_mm", p.stop_semi_diameter),
+        ("total_track_mm", p.total_track),
+        ("image_z_mm", p.image_z),
+        ("paraxial_image_height_mm", p.image_height),
+        ("back_focus_shift_mm", p.back_focus_shift),
+    ] {
+        d.set_item(k, v)?;
+    }
+    Ok(d)
+}
+
+fn rays_dict<'py>(py: Python<'py>, rays: &[psf_engine::RayState], extra: Option<(&[[f64; 3]], &[[f64; 3]])>) -> PyResult<Bound<'py, PyDict>> {
+    let n = rays.len();
+    let mut pos = Vec::with_capacity(3 * n);
+    let mut dir = Vec::with_capacity(3 * n);
+    for r in rays {
+        pos.extend([r.p.x, r.p.y, r.p.z]);
+        dir.extend([r.d.x, r.d.y, r.d.z]);
+    }
+    let d = PyDict::new(py);
+    d.set_item("position", pos.into_pyarray(py).reshape([n, 3])?)?;
+    d.set_item("direction", dir.into_pyarray(py).reshape([n, 3])?)?;
+    d.set_item("opl", rays.iter().map(|r| r.opl).collect::<Vec<_>>().into_pyarray(py))?;
+    d.set_item("status", rays.iter().map(|r| r.status as u8).collect::<Vec<_>>().into_pyarray(py))?;
+    d.set_item("surface", rays.iter().map(|r| r.surface).collect::<Vec<_>>().into_pyarray(py))?;
+    if let Some((o, l)) = extra {
+        d.set_item("origin", o.iter().flatten().copied().collect::<Vec<_>>().into_pyarray(py).reshape([n, 3])?)?;
+        d.set_item("launch_direction", l.iter().flatten().copied().collect::<Vec<_>>().into_pyarray(py).reshape([n, 3])?)?;
+    }
+    Ok(d)
+}
+
+fn vec3s(a: &PyReadonlyArray2<f64>, name: &str) -> PyResult<Vec<glam::DVec3>> {
+    if a.shape().len() != 2 || a.shape()[1] != 3 {
+        return Err(pyo3::exceptions::PyValueError::new_err(format!("{name} must have shape (n, 3), got {:?}", a.shape())));
+    }
+    let v = a.as_array();
+    Ok(v.rows().into_iter().map(|r| glam::DVec3::new(r[0], r[1], r[2])).collect())
+}
+
+#[pyfunction]
+fn trace<'py>(py: Python<'py>, lens_json: &str, origins: PyReadonlyArray2<f64>, directions: PyReadonlyArray2<f64>, wavelength_nm: f64) -> PyResult<Bound<'py, PyDict>> {
+    let o = vec3s(&origins, "origins")?;
+    let d = vec3s(&directions, "directions")?;
+    if o.len() != d.len() {
+        return Err(pyo3::exceptions::PyValueError::new_err(format!("origins ({}) and directions ({}) differ in length", o.len(), d.len())));
+    }
+    let rays = run(py, || {
+        let lens = parse_lens(lens_json)?;
+        let sys = psf_engine::System::new(&lens, wavelength_nm)?;
+        Ok(sys.trace_many(&o, &d))
+    })?;
+    rays_dict(py, &rays, None)
+}
+
+#[pyfunction]
+#[pyo3(signature = (lens_json, field_deg, px, py_, wavelength_nm, aiming="paraxial"))]
+fn trace_field<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: Vec<f64>, py_: Vec<f64>, wavelength_nm: f64, aiming: &str) -> PyResult<Bound<'py, PyDict>> {
+    if px.len() != py_.len() {
+        return Err(pyo3::exceptions::PyValueError::new_err("px and py differ in length"));
+    }
+    let aiming: Aiming = aiming.parse().map_err(to_py)?;
+    let (launch, rays, dir) = run(py, || {
+        let lens = parse_lens(lens_json)?;
+        let sys = psf_engine::System::new(&lens, wavelength_nm)?;
+        let beam = psf_engine::Beam::new(&sys, field_deg, aiming)?;
+        let (l, r) = beam.trace_pupil(&px, &py_);
+        Ok((l.iter().map(|l| [l.origin.x, l.origin.y, l.origin.z]).collect::<Vec<_>>(), r, [beam.dir.x, beam.dir.y, beam.dir.z]))
+    })?;
+    let dirs = vec![dir; launch.len()];
+    rays_dict(py, &rays, Some((&launch, &dirs)))
+}
+
+#[pyfunction]
+#[pyo3(signature = (lens_json, field_deg, wavelengths_nm, weights=None, rings=64, aiming="paraxial"))]
+fn spot<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavelengths_nm: Vec<f64>, weights: Option<Vec<f64>>, rings: usize, aiming: &str) -> PyResult<Bound<'py, PyDict>> {
+    let aiming: Aiming = aiming.parse().map_err(to_py)?;
+    let weights = weights.unwrap_or_else(|| vec![1.0; wavelengths_nm.len()]);
+    if weights.len() != wavelengths_nm.len() || wavelengths_nm.is_empty() || rings == 0 {
+        return Err(pyo3::exceptions::PyValueError::new_err("need >= 1 wavelength, one weight per wavelength and rings >= 1"));
+    }
+    let r = run(py, move || psf_engine::spot::spot_summary(&parse_lens(lens_json)?, field_deg, &wavelengths_nm, &weights, rings, aiming))?;
+    json_to_py(py, &r).map(|o| o.cast_into::<PyDict>().unwrap())
+}
+
+#[pyfunction]
+#[pyo3(signature = (lens_json, field_deg, wavelength_nm, method="fft", pixel_um=1.0, size=64, pupil_samples=64, fft_grid=None, aiming="paraxial", integrate=false, exact=false))]
+#[allow(clippy::too_many_arguments)]
+fn psf<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavelength_nm: f64, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_grid: Option<usize>, aiming: &str, integrate: bool, exact: bool) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let o = options(method, pixel_um, size, pupil_samples, fft_grid, aiming, integrate, exact)?;
+    let p = run(py, || psf_engine::psf::psf(&parse_lens(lens_json)?, field_deg, wavelength_nm, &o))?;
+    let arr = p.data.into_pyarray(py).reshape([size, size])?.into_any();
+    Ok((arr, json_to_py(py, &p.diagnostics.to_json())?))
+}
+
+#[pyfunction]
+#[pyo3(signature = (lens_json, field_deg, channels, method="fft", pixel_um=1.0, size=64, pupil_samples=64, aiming="paraxial", integrate=false))]
+#[allow(clippy::too_many_arguments)]
+fn psf_rgb<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, channels: Vec<Vec<(f64, f64)>>, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, aiming: &str, integrate: bool) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let o = options(method, pixel_um, size, pupil_samples, None, aiming, integrate, false)?;
+    let nc = channels.len();
+    let r = run(py, || psf_engine::rgb::psf_rgb(&parse_lens(lens_json)?, field_deg, &channels, &o))?;
+    let arr = r.data.into_pyarray(py).reshape([nc, size, size])?.into_any();
+    let ri = r.relative_illumination.into_pyarray(py).into_any();
+    let diags = serde_json::Value::Array(r.diagnostics.iter().map(|d| d.to_json()).collect());
+    Ok((arr, ri, json_to_py(py, &serde_json::json!({"per_wavelength": diags}))?))
+}
+
+#[pyfunction]
+#[pyo3(signature = (lens_jsons, fields_deg, channels, method="fft", pixel_um=1.0, size=64, pupil_samples=64, aiming="paraxial", integrate=false))]
+#[allow(clippy::too_many_arguments)]
+fn psf_batch<'py>(py: Python<'py>, lens_jsons: Vec<String>, fields_deg: Vec<f64>, channels: Vec<Vec<(f64, f64)>>, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, aiming: &str, integrate: bool) -> PyResult<Bound<'py, PyDict>> {
+    let o = options(method, pixel_um, size, pupil_samples, None, aiming, integrate, false)?;
+    let (nd, nf, nc) = (lens_jsons.len(), fields_deg.len(), channels.len());
+    let (batch, parse_errors) = run(py, || {
+        // Designs that do not parse are failures of that design, not of the call.
+        let parsed: Vec<psf_engine::Result<Lens>> = lens_jsons.iter().map(|t| parse_lens(t)).collect();
+        let placeholder = parsed.iter().find_map(|r| r.as_ref().ok().cloned());
+        let lenses: Vec<Lens> = match &placeholder {
+            Some(p) => parsed.iter().map(|r| r.as_ref().ok().cloned().unwrap_or_else(|| p.clone())).collect(),
+            None => vec![],
+        };
+        let errs: Vec<Option<String>> = parsed.iter().map(|r| r.as_ref().err().map(|e| e.to_string())).collect();
+        let b = if lenses.is_empty() {
+            psf_engine::rgb::Batch { psf: vec![0.0; nd * nf * nc * size * size], relative_illumination: vec![0.0; nd * nf * nc], errors: vec![None; nd] }
+        } else {
+            psf_engine::rgb::psf_batch(&lenses, &fields_deg, &channels, &o)?
+        };
+        Ok((b, errs))
+    })?;
+    let mut errors = batch.errors;
+    let mut psfv = batch.psf;
+    let mut ri = batch.relative_illumination;
+    let per = nf * nc * size * size;
+    for (i, e) in parse_errors.into_iter().enumerate() {
+        if let Some(msg) = e {
+            errors[i] = Some(msg);
+            psfv[i * per..(i + 1) * per].iter_mut().for_each(|v| *v = 0.0);
+            ri[i * nf * nc..(i + 1) * nf * nc].iter_mut().for_each(|v| *v = 0.0);
+        }
+    }
+    let d = PyDict::new(py);
+    d.set_item("psf", psfv.into_pyarray(py).reshape([nd, nf, nc, size, size])?)?;
+    d.set_item("relative_illumination", ri.into_pyarray(py).reshape([nd, nf, nc])?)?;
+    d.set_item("ok", errors.iter().map(|e| e.is_none()).collect::<Vec<_>>().into_pyarray(py))?;
+    d.set_item("errors", errors)?;
+    Ok(d)
+}
+
 #[pymodule]
-fn _engine(_m: &Bound<'_, PyModule>) -> PyResult<()> { Ok(()) }
+fn _engine(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    let py = m.py();
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add("EngineError", py.get_type::<EngineError>())?;
+    m.add("LensError", py.get_type::<LensError>())?;
+    m.add("MaterialError", py.get_type::<MaterialError>())?;
+    m.add("TraceError", py.get_type::<TraceError>())?;
+    m.add("PsfError", py.get_type::<PsfError>())?;
+    m.add_function(wrap_pyfunction!(validate_lens, m)?)?;
+    m.add_function(wrap_pyfunction!(refractive_indices, m)?)?;
+    m.add_function(wrap_pyfunction!(paraxial, m)?)?;
+    m.add_function(wrap_pyfunction!(trace, m)?)?;
+    m.add_function(wrap_pyfunction!(trace_field, m)?)?;
+    m.add_function(wrap_pyfunction!(spot, m)?)?;
+    m.add_function(wrap_pyfunction!(psf, m)?)?;
+    m.add_function(wrap_pyfunction!(psf_rgb, m)?)?;
+    m.add_function(wrap_pyfunction!(psf_batch, m)?)?;
+    Ok(())
+}

@@ -8,6 +8,8 @@ pub mod lens;
 pub mod material;
 pub mod paraxial;
 pub mod psf;
+pub mod rgb;
+pub mod spot;
 pub mod surface;
 pub mod trace;
 
