@@ -31,6 +31,7 @@ fn plan(len: usize) -> Arc<dyn Fft<f64>> {
 /// Largest Taylor order for the pupil-distortion correction, and its target phase error.
 const MAX_ORDER: usize = 8;
 const TAYLOR_TOL_RAD: f64 = 1e-3;
+const MAX_GRID: usize = 8192;
 
 pub struct AffineMap {
     pub l0: f64,
@@ -78,15 +79,22 @@ fn factorial(k: usize) -> f64 {
 
 pub fn fft_psf(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics) -> Result<(Vec<f64>, f64)> {
     let n = p.n;
-    let g = o.fft_grid.unwrap_or(4 * n);
+    let k = 2.0 * PI * p.n_image / p.wavelength_mm;
+    let map = fit_affine(p);
+    // Default grid: 4x zero padding, more where needed for a native pitch of at most half
+    // the output pixel (so the cubic resampling stays accurate), capped at 8192.
+    let field = p.wavelength_mm / (p.n_image * map.lx.abs().min(map.my.abs()));
+    let want = (2.0 * field / o.pixel_mm).ceil() as usize;
+    let g = o.fft_grid.unwrap_or_else(|| (4 * n).max(want.next_power_of_two()).min(MAX_GRID.max(4 * n)));
+    if o.fft_grid.is_none() && g < want {
+        d.warn(format!("FFT grid capped at {g}: the native pitch exceeds half the output pixel; the resampled PSF is approximate"));
+    }
     if g < n {
         return Err(EngineError::Argument(format!("fft_grid {g} is smaller than pupil_samples {n}")));
     }
     if g < 2 * n {
         d.warn(format!("fft_grid {g} < 2 x pupil_samples {n}: the intensity is sampled below Nyquist and aliases"));
     }
-    let k = 2.0 * PI * p.n_image / p.wavelength_mm;
-    let map = fit_affine(p);
     let dx = p.wavelength_mm / (p.n_image * g as f64 * map.lx.abs());
     let dy = p.wavelength_mm / (p.n_image * g as f64 * map.my.abs());
     let sgn_x = map.lx.signum();
