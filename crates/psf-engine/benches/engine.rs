@@ -1,1 +1,45 @@
-fn main(){}
+//! Criterion benchmarks of the core: ray throughput through the Cooke triplet at full
+//! field, FFT PSF (64 pupil samples, 256 grid) and Huygens PSF (64 samples, 128x128).
+//! Uses the reference Cooke triplet in ../shared/reference.
+
+#[path = "../tests/common/mod.rs"]
+mod common;
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use psf_engine::psf::{psf, Method, PsfOptions};
+use psf_engine::{Aiming, Beam, System};
+use std::hint::black_box;
+
+fn bench_trace(c: &mut Criterion) {
+    let lens = common::cooke();
+    let sys = System::new(&lens, 550.0).unwrap();
+    let beam = Beam::new(&sys, 20.0, Aiming::Paraxial).unwrap();
+    let n = 200_000;
+    let side = (n as f64).sqrt() as usize;
+    let (mut o, mut d) = (vec![], vec![]);
+    for i in 0..side * side {
+        let (a, b) = ((i % side) as f64 / side as f64 * 2.0 - 1.0, (i / side) as f64 / side as f64 * 2.0 - 1.0);
+        o.push(beam.launch(a * 0.7, b * 0.7).origin);
+        d.push(beam.dir);
+    }
+    let mut g = c.benchmark_group("trace");
+    g.throughput(Throughput::Elements(o.len() as u64));
+    g.bench_function("cooke_20deg", |bch| bch.iter(|| black_box(sys.trace_many(&o, &d))));
+    g.finish();
+}
+
+fn bench_psf(c: &mut Criterion) {
+    let lens = common::cooke();
+    let mut g = c.benchmark_group("psf");
+    g.sample_size(20);
+    for field in [0.0, 20.0] {
+        let fft = PsfOptions { method: Method::Fft, pupil_samples: 64, fft_grid: Some(256), size: 64, pixel_mm: 1e-3, ..Default::default() };
+        g.bench_function(format!("fft_64_256_{field}deg"), |b| b.iter(|| black_box(psf(&lens, field, 550.0, &fft).unwrap())));
+        let huy = PsfOptions { method: Method::Huygens, pupil_samples: 64, size: 128, pixel_mm: 0.5e-3, ..Default::default() };
+        g.bench_function(format!("huygens_64_128_{field}deg"), |b| b.iter(|| black_box(psf(&lens, field, 550.0, &huy).unwrap())));
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench_trace, bench_psf);
+criterion_main!(benches);
