@@ -2,8 +2,10 @@
 //!
 //! Paraxial aiming sends ray (px, py) through the point (px, py) * EPD/2 of the paraxial
 //! entrance pupil (what most tools, and the reference data, do). Real aiming moves the
-//! ray's entry point until it crosses the real stop at (px, py) times the stop's paraxial
-//! semi-diameter, by Newton iteration on a finite-difference Jacobian.
+//! ray's entry point until it crosses the real stop at (px, py) times the stop radius, by
+//! Newton iteration on a finite-difference Jacobian. The stop radius is where the on-axis
+//! real marginal ray of the specified EPD crosses the stop, so the axial beam keeps the
+//! specified diameter and off-axis beams fill the same physical stop.
 
 use crate::error::{arg, EngineError, Result};
 use crate::paraxial::{paraxial, Paraxial};
@@ -47,6 +49,8 @@ pub struct Beam<'s, 'l> {
     /// Real aiming: entry point of the chief ray and d(stop)/d(entry) there.
     chief_entry: DVec2,
     chief_jac: [[f64; 2]; 2],
+    /// Real aiming: the stop radius that the specified EPD fills on axis.
+    pub stop_radius: f64,
 }
 
 const AIM_TOL: f64 = 1e-10;
@@ -66,8 +70,17 @@ impl<'s, 'l> Beam<'s, 'l> {
         let reach = s1.semi_diameter.unwrap_or(par.epd);
         let dip = crate::surface::sag(s1, reach * reach).map(|z| (-z).max(0.0)).unwrap_or(reach);
         let z_launch = par.entrance_pupil_z.min(0.0) - 10.0 - dip;
-        let mut b = Beam { sys, par, field_deg, dir, aiming, z_launch, chief_entry: DVec2::ZERO, chief_jac: [[1.0, 0.0], [0.0, 1.0]] };
+        let mut b = Beam { sys, par, field_deg, dir, aiming, z_launch, chief_entry: DVec2::ZERO, chief_jac: [[1.0, 0.0], [0.0, 1.0]], stop_radius: par.stop_semi_diameter };
         if aiming == Aiming::Real {
+            // The stop's real size: the height at which the on-axis marginal ray of the
+            // specified EPD crosses it, so the on-axis entrance pupil keeps its diameter.
+            let h = 0.5 * par.epd;
+            let q = DVec3::new(0.0, h, par.entrance_pupil_z);
+            let r = sys.trace_unclipped(q - ((par.entrance_pupil_z - z_launch) / 1.0) * DVec3::Z, DVec3::Z, End::Surface(lens.stop));
+            if !r.ok() {
+                return Err(EngineError::Trace(format!("real ray aiming: the on-axis marginal ray does not reach the stop ({:?} at surface {})", r.status, r.surface + 1)));
+            }
+            b.stop_radius = r.p.y.abs();
             let (e, j) = b.aim_at(DVec2::ZERO, DVec2::ZERO, None).ok_or_else(|| {
                 EngineError::Trace(format!("real ray aiming: the chief ray at {field_deg} deg cannot be aimed at the stop centre"))
             })?;
@@ -141,7 +154,7 @@ impl<'s, 'l> Beam<'s, 'l> {
                 Launch { origin: self.origin(DVec2::new(px * h, py * h)), area: h * h, ok: true }
             }
             Aiming::Real => {
-                let rs = self.par.stop_semi_diameter;
+                let rs = self.stop_radius;
                 let target = DVec2::new(px * rs, py * rs);
                 // Linear predictor from the chief ray's Jacobian.
                 let j = self.chief_jac;

@@ -61,7 +61,7 @@ pub fn paraxial(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
     let ua = nua / nk;
     let bfl = -ya / ua;
     // Front focal point: an object ray (y0, u0) leaves parallel when y0*A + u0*B = 0.
-    let ffl = -b[k - 1].1 / nua;
+    let ffl = b[k - 1].1 / nua;
     let (ysa, ysb) = (a[lens.stop].0, b[lens.stop].0);
     if ysa.abs() < 1e-15 {
         return Err(EngineError::Lens(format!(
