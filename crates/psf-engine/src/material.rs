@@ -136,6 +136,11 @@ fn c(cs: &[f64], i: usize) -> f64 {
     cs.get(i).copied().unwrap_or(0.0)
 }
 
+/// sum of C_i l^C_{i+1} over coefficient pairs starting at index `from`.
+fn power_terms(cs: &[f64], from: usize, l: f64) -> f64 {
+    cs.get(from..).unwrap_or(&[]).chunks(2).map(|p| p[0] * l.powf(p.get(1).copied().unwrap_or(0.0))).sum()
+}
+
 /// The refractiveindex.info dispersion formulas (database documentation, "formula 1".."9").
 fn formula(kind: u8, cs: &[f64], l: f64) -> f64 {
     let l2 = l * l;
@@ -161,15 +166,7 @@ fn formula(kind: u8, cs: &[f64], l: f64) -> f64 {
             s.sqrt()
         }
         // 3: polynomial, n^2 = C1 + sum C_i l^C_{i+1}
-        3 => {
-            let mut s = c(cs, 0);
-            let mut i = 1;
-            while i < cs.len() {
-                s += c(cs, i) * l.powf(c(cs, i + 1));
-                i += 2;
-            }
-            s.sqrt()
-        }
+        3 => (c(cs, 0) + power_terms(cs, 1, l)).sqrt(),
         // 4: RefractiveIndex.INFO, two Sellmeier-like terms then polynomial terms from C10 on
         4 => {
             let mut s = c(cs, 0);
@@ -179,23 +176,10 @@ fn formula(kind: u8, cs: &[f64], l: f64) -> f64 {
             if cs.len() > 5 {
                 s += c(cs, 5) * l.powf(c(cs, 6)) / (l2 - c(cs, 7).powf(c(cs, 8)));
             }
-            let mut i = 9;
-            while i < cs.len() {
-                s += c(cs, i) * l.powf(c(cs, i + 1));
-                i += 2;
-            }
-            s.sqrt()
+            (s + power_terms(cs, 9, l)).sqrt()
         }
         // 5: Cauchy, n = C1 + sum C_i l^C_{i+1}
-        5 => {
-            let mut s = c(cs, 0);
-            let mut i = 1;
-            while i < cs.len() {
-                s += c(cs, i) * l.powf(c(cs, i + 1));
-                i += 2;
-            }
-            s
-        }
+        5 => c(cs, 0) + power_terms(cs, 1, l),
         // 6: gases, n - 1 = C1 + sum C_i / (C_{i+1} - l^-2)
         6 => {
             let mut s = 1.0 + c(cs, 0);
