@@ -17,16 +17,20 @@ from ._common import AIMING, dumps, friendly_errors, load_lens
 @click.option("--method", type=click.Choice(["geometric", "fft", "huygens"]), default="fft", show_default=True)
 @click.option("--pixel-um", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True)
 @click.option("--size", type=click.IntRange(min=1), default=64, show_default=True, help="Window is SIZE x SIZE pixels.")
-@click.option("--pupil-samples", type=click.IntRange(min=2), default=64, show_default=True)
+@click.option("--pupil-samples", type=click.IntRange(min=2), default=64, show_default=True,
+              help="Samples across the pupil (the ray grid for the geometric method).")
 @click.option("--fft-grid", type=click.IntRange(min=2), default=None, help="FFT size (fft method; default: engine's choice).")
-@click.option("--rays", type=click.IntRange(min=1), default=None, help="Ray count (geometric method).")
+@click.option("--integrate/--sample", default=False, show_default=True,
+              help="Integrate over each pixel (what a detector pixel collects) or sample the intensity at "
+                   "pixel centres x pixel area (super-resolved PSF). Geometric PSFs always integrate.")
+@click.option("--exact", is_flag=True, help="Huygens: evaluate every pupil-to-pixel distance exactly.")
 @click.option("--aiming", type=AIMING, default="paraxial", show_default=True)
 @click.option("--out", "out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Output .npy file.")
 @click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Also write a PNG image.")
 @click.option("--log/--linear", "log", default=False, help="PNG intensity scale.")
 @friendly_errors
-def psf(lens_spec, field_deg, wavelength_nm, method, pixel_um, size, pupil_samples, fft_grid, rays,
-        aiming, out, png, log):
+def psf(lens_spec, field_deg, wavelength_nm, method, pixel_um, size, pupil_samples, fft_grid, integrate,
+        exact, aiming, out, png, log):
     """Compute the PSF of LENS at one field and wavelength and save it as .npy.
 
     The array's row index is image y, the column index image x, pixel (SIZE//2, SIZE//2)
@@ -37,8 +41,10 @@ def psf(lens_spec, field_deg, wavelength_nm, method, pixel_um, size, pupil_sampl
     kwargs = dict(pixel_um=pixel_um, size=size, pupil_samples=pupil_samples, aiming=aiming)
     if fft_grid is not None:
         kwargs["fft_grid"] = fft_grid
-    if rays is not None:
-        kwargs["rays"] = rays
+    if integrate:
+        kwargs["integrate"] = True
+    if exact:
+        kwargs["exact"] = True
     image, diag = lens_.psf(field_deg, wl, method, **kwargs)
     out.parent.mkdir(parents=True, exist_ok=True)
     np.save(out, image)
