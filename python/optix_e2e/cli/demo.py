@@ -12,10 +12,24 @@ from tqdm import tqdm
 from ._common import AIMING, dumps, friendly_errors, load_lens
 
 
+MAX_PRINTED_WARNINGS = 8
+
+
 def _channel_label(name: str, channel) -> str:
     wls = [w for w, _ in channel]
     span = f"{min(wls):g}-{max(wls):g} nm" if len(wls) > 1 else f"{wls[0]:g} nm"
     return f"{name} {span}"
+
+
+def _collect_warnings(field_deg, rgb_diag, mono_diag) -> list[str]:
+    """Engine warnings of one field, each labelled with its field and wavelength."""
+    out = [f"{field_deg:g} deg: {w}" for w in rgb_diag.get("warnings", [])]
+    for d in list(rgb_diag.get("per_wavelength", [])) + [mono_diag]:
+        for w in d.get("warnings", []):
+            line = f"{field_deg:g} deg, {d.get('wavelength_nm', 0):g} nm: {w}"
+            if line not in out:
+                out.append(line)
+    return out
 
 
 @click.command()
@@ -29,7 +43,7 @@ def _channel_label(name: str, channel) -> str:
               help="rgb: 3 wavelengths per channel with weights; lens: the lens's 3 wavelengths as R, G, B.")
 @click.option("--method", type=click.Choice(["geometric", "fft", "huygens"]), default="fft", show_default=True)
 @click.option("--pixel-um", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True)
-@click.option("--size", type=click.IntRange(min=8), default=64, show_default=True)
+@click.option("--size", type=click.IntRange(min=8), default=128, show_default=True)
 @click.option("--pupil-samples", type=click.IntRange(min=8), default=64, show_default=True)
 @click.option("--rings", type=click.IntRange(min=1), default=128, show_default=True,
               help="Hexapolar rings per wavelength for the RMS spot.")
@@ -66,7 +80,7 @@ def demo(lens_spec, out_dir, n_fields, channels, method, pixel_um, size, pupil_s
         timings["psf_rgb_s"] += t1 - t0
         timings["spot_s"] += t2 - t1
         timings["strehl_s"] += t3 - t2
-        warnings = [f"{f:g} deg: {w}" for w in list(diag.get("warnings", [])) + list(mono.get("warnings", []))]
+        warnings = _collect_warnings(f, diag, mono)
         all_warnings += warnings
         stacks.append(np.asarray(psfs, dtype=np.float64))
         rows.append({
@@ -102,5 +116,8 @@ def demo(lens_spec, out_dir, n_fields, channels, method, pixel_um, size, pupil_s
     click.echo(f"wrote {out_dir / 'psf_grid.png'}, {out_dir / 'psfs.npy'}, {out_dir / 'summary.json'} "
                f"({len(fields)} fields x {len(chans)} channels, {timings['total_s']:.2f} s, "
                f"{len(all_warnings)} warning(s))")
-    for w in all_warnings:
+    for w in all_warnings[:MAX_PRINTED_WARNINGS]:
         click.echo(f"warning: {w}", err=True)
+    if len(all_warnings) > MAX_PRINTED_WARNINGS:
+        click.echo(f"... and {len(all_warnings) - MAX_PRINTED_WARNINGS} more warning(s) in {out_dir / 'summary.json'}",
+                   err=True)
