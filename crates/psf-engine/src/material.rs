@@ -97,26 +97,16 @@ impl Material {
             Material::Formula { kind, coefficients, range_um, .. } => {
                 if let Some((lo, hi)) = range_um {
                     // 1 nm of slack for rounding of published ranges.
-                    if wl_um < lo - 1e-3 || wl_um > hi + 1e-3 {
-                        return bad(format!(
-                            "wavelength {:.1} nm is outside the formula's valid range {:.1}-{:.1} nm",
-                            wl_um * 1e3,
-                            lo * 1e3,
-                            hi * 1e3
-                        ));
+                    if let Some(m) = out_of_range(wl_um, *lo, *hi, 1e-3, "the formula's valid range") {
+                        return bad(m);
                     }
                 }
                 formula(*kind, coefficients, wl_um)
             }
             Material::Tabulated { wavelength_um, n, .. } => {
                 let (lo, hi) = (wavelength_um[0], *wavelength_um.last().unwrap());
-                if wl_um < lo - 1e-9 || wl_um > hi + 1e-9 {
-                    return bad(format!(
-                        "wavelength {:.1} nm is outside the table {:.1}-{:.1} nm",
-                        wl_um * 1e3,
-                        lo * 1e3,
-                        hi * 1e3
-                    ));
+                if let Some(m) = out_of_range(wl_um, lo, hi, 1e-9, "the table") {
+                    return bad(m);
                 }
                 let i = wavelength_um.partition_point(|&w| w < wl_um).clamp(1, wavelength_um.len() - 1);
                 let t = (wl_um - wavelength_um[i - 1]) / (wavelength_um[i] - wavelength_um[i - 1]);
@@ -129,6 +119,12 @@ impl Material {
             bad(format!("index evaluates to {n} at {:.1} nm", wl_um * 1e3))
         }
     }
+}
+
+/// The message for a wavelength outside [lo - slack, hi + slack] (micrometres), if it is.
+fn out_of_range(wl_um: f64, lo: f64, hi: f64, slack: f64, what: &str) -> Option<String> {
+    (wl_um < lo - slack || wl_um > hi + slack)
+        .then(|| format!("wavelength {:.1} nm is outside {what} {:.1}-{:.1} nm", wl_um * 1e3, lo * 1e3, hi * 1e3))
 }
 
 /// Coefficient `i` (0-based) or 0 when the list is shorter: the database omits trailing zeros.
