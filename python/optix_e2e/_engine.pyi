@@ -80,7 +80,8 @@ def trace_field(
 ) -> dict[str, NDArray[Any]]:
     """Aim and trace rays at normalized pupil coordinates (px, py) for one field.
 
-    Same keys as :func:`trace` plus origin (n, 3) and launch_direction (n, 3).
+    Same keys as :func:`trace` plus origin (n, 3) and launch_direction (n, 3), a
+    read-only broadcast view of the one beam direction.
     """
 
 def spot(

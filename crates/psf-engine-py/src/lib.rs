@@ -1,7 +1,7 @@
 //! Thin PyO3 layer over psf-engine: converts arrays and errors, releases the GIL around
 //! every engine call. All physics lives in the core crate.
 
-use numpy::{IntoPyArray, PyArray1, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{IntoPyArray, PyArray1, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use psf_engine::psf::{Method, PsfOptions};
 use psf_engine::{Aiming, EngineError as CoreError, Lens};
 use pyo3::exceptions::PyException;
@@ -91,33 +91,35 @@ fn paraxial<'py>(py: Python<'py>, lens_json: &str, wavelength_nm: Option<f64>) -
     Ok(d)
 }
 
-fn rays_dict<'py>(py: Python<'py>, rays: &[psf_engine::RayState], extra: Option<(&[[f64; 3]], &[[f64; 3]])>) -> PyResult<Bound<'py, PyDict>> {
-    let n = rays.len();
-    let mut pos = Vec::with_capacity(3 * n);
-    let mut dir = Vec::with_capacity(3 * n);
-    for r in rays {
-        pos.extend([r.p.x, r.p.y, r.p.z]);
-        dir.extend([r.d.x, r.d.y, r.d.z]);
-    }
+/// Flat traced arrays to a dict of numpy arrays (the Vecs are handed over, not copied).
+fn traced_dict<'py>(py: Python<'py>, t: psf_engine::Traced) -> PyResult<Bound<'py, PyDict>> {
+    let n = t.opl.len();
     let d = PyDict::new(py);
-    d.set_item("position", pos.into_pyarray(py).reshape([n, 3])?)?;
-    d.set_item("direction", dir.into_pyarray(py).reshape([n, 3])?)?;
-    d.set_item("opl", rays.iter().map(|r| r.opl).collect::<Vec<_>>().into_pyarray(py))?;
-    d.set_item("status", rays.iter().map(|r| r.status as u8).collect::<Vec<_>>().into_pyarray(py))?;
-    d.set_item("surface", rays.iter().map(|r| r.surface).collect::<Vec<_>>().into_pyarray(py))?;
-    if let Some((o, l)) = extra {
-        d.set_item("origin", o.iter().flatten().copied().collect::<Vec<_>>().into_pyarray(py).reshape([n, 3])?)?;
-        d.set_item("launch_direction", l.iter().flatten().copied().collect::<Vec<_>>().into_pyarray(py).reshape([n, 3])?)?;
-    }
+    d.set_item("position", t.position.into_pyarray(py).reshape([n, 3])?)?;
+    d.set_item("direction", t.direction.into_pyarray(py).reshape([n, 3])?)?;
+    d.set_item("opl", t.opl.into_pyarray(py))?;
+    d.set_item("status", t.status.into_pyarray(py))?;
+    d.set_item("surface", t.surface.into_pyarray(py))?;
+    d.set_item("origin", t.origin.into_pyarray(py).reshape([n, 3])?)?;
     Ok(d)
 }
 
-fn vec3s(a: &PyReadonlyArray2<f64>, name: &str) -> PyResult<Vec<glam::DVec3>> {
+/// A float64 array as a slice, copying only when it is not contiguous.
+fn contiguous<'a>(a: &'a PyReadonlyArray1<'_, f64>) -> std::borrow::Cow<'a, [f64]> {
+    match a.as_slice() {
+        Ok(s) => std::borrow::Cow::Borrowed(s),
+        Err(_) => std::borrow::Cow::Owned(a.as_array().to_vec()),
+    }
+}
+
+fn vec3s(a: &PyReadonlyArray2<f64>, name: &str) -> PyResult<Vec<f64>> {
     if a.shape().len() != 2 || a.shape()[1] != 3 {
         return Err(pyo3::exceptions::PyValueError::new_err(format!("{name} must have shape (n, 3), got {:?}", a.shape())));
     }
-    let v = a.as_array();
-    Ok(v.rows().into_iter().map(|r| glam::DVec3::new(r[0], r[1], r[2])).collect())
+    Ok(match a.as_slice() {
+        Ok(s) => s.to_vec(),
+        Err(_) => a.as_array().iter().copied().collect(),
+    })
 }
 
 #[pyfunction]
@@ -125,32 +127,44 @@ fn trace<'py>(py: Python<'py>, lens_json: &str, origins: PyReadonlyArray2<f64>, 
     let o = vec3s(&origins, "origins")?;
     let d = vec3s(&directions, "directions")?;
     if o.len() != d.len() {
-        return Err(pyo3::exceptions::PyValueError::new_err(format!("origins ({}) and directions ({}) differ in length", o.len(), d.len())));
+        return Err(pyo3::exceptions::PyValueError::new_err(format!("origins ({}) and directions ({}) differ in length", o.len() / 3, d.len() / 3)));
     }
-    let rays = run(py, || {
+    let t = run(py, || {
         let lens = parse_lens(lens_json)?;
         let sys = psf_engine::System::new(&lens, wavelength_nm)?;
-        Ok(sys.trace_many(&o, &d))
+        Ok(sys.trace_soa(o.len() / 3, psf_engine::End::Image, |start, b| {
+            for j in 0..b.len {
+                let k = 3 * (start + j);
+                b.set(j, [o[k], o[k + 1], o[k + 2]], [d[k], d[k + 1], d[k + 2]]);
+            }
+        }))
     })?;
-    rays_dict(py, &rays, None)
+    let dict = traced_dict(py, t)?;
+    dict.del_item("origin")?;
+    Ok(dict)
 }
 
 #[pyfunction]
 #[pyo3(signature = (lens_json, field_deg, px, py_, wavelength_nm, aiming="paraxial"))]
-fn trace_field<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: Vec<f64>, py_: Vec<f64>, wavelength_nm: f64, aiming: &str) -> PyResult<Bound<'py, PyDict>> {
-    if px.len() != py_.len() {
-        return Err(pyo3::exceptions::PyValueError::new_err("px and py differ in length"));
+fn trace_field<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: PyReadonlyArray1<'py, f64>, py_: PyReadonlyArray1<'py, f64>, wavelength_nm: f64, aiming: &str) -> PyResult<Bound<'py, PyDict>> {
+    let (pxs, pys) = (contiguous(&px), contiguous(&py_));
+    if pxs.len() != pys.len() {
+        return Err(pyo3::exceptions::PyValueError::new_err(format!("px ({}) and py ({}) differ in length", pxs.len(), pys.len())));
     }
     let aiming: Aiming = aiming.parse().map_err(to_py)?;
-    let (launch, rays, dir) = run(py, || {
+    let (t, dir) = run(py, || {
         let lens = parse_lens(lens_json)?;
         let sys = psf_engine::System::new(&lens, wavelength_nm)?;
         let beam = psf_engine::Beam::new(&sys, field_deg, aiming)?;
-        let (l, r) = beam.trace_pupil(&px, &py_);
-        Ok((l.iter().map(|l| [l.origin.x, l.origin.y, l.origin.z]).collect::<Vec<_>>(), r, [beam.dir.x, beam.dir.y, beam.dir.z]))
+        Ok((beam.trace_pupil_soa(&pxs, &pys), beam.dir.to_array()))
     })?;
-    let dirs = vec![dir; launch.len()];
-    rays_dict(py, &rays, Some((&launch, &dirs)))
+    let n = t.opl.len();
+    let dict = traced_dict(py, t)?;
+    // Every ray of a field leaves along the same direction: a read-only broadcast view.
+    let one = dir.to_vec().into_pyarray(py);
+    let launch = py.import("numpy")?.getattr("broadcast_to")?.call1((one, (n, 3)))?;
+    dict.set_item("launch_direction", launch)?;
+    Ok(dict)
 }
 
 #[pyfunction]

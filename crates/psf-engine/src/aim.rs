@@ -9,7 +9,8 @@
 
 use crate::error::{arg, EngineError, Result};
 use crate::paraxial::{paraxial, Paraxial};
-use crate::trace::{End, RayState, Status, System};
+use crate::kernel::Block;
+use crate::trace::{End, RayState, Status, System, Traced};
 use glam::{DVec2, DVec3};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -185,20 +186,51 @@ impl<'s, 'l> Beam<'s, 'l> {
         l.area * self.dir.z
     }
 
+    /// Launch rays at pupil points (in parallel; paraxial launches are closed-form).
+    pub fn launches(&self, px: &[f64], py: &[f64]) -> Vec<Launch> {
+        use rayon::prelude::*;
+        px.par_iter().zip(py.par_iter()).with_min_len(256).map(|(&x, &y)| self.launch(x, y)).collect()
+    }
+
+    /// Fill a kernel block with launched rays `start..start + b.len`; unaimable rays are
+    /// marked Missed at surface 0.
+    fn load(&self, launches: &[Launch], start: usize, b: &mut Block) {
+        let d = self.dir.to_array();
+        for j in 0..b.len {
+            let l = &launches[start + j];
+            b.set(j, l.origin.to_array(), d);
+            if !l.ok {
+                b.status[j] = Status::Missed as u8;
+                b.surface[j] = 0;
+            }
+        }
+    }
+
     /// Launch and trace rays at pupil points; unaimable rays come back Missed at surface 0.
     pub fn trace_pupil(&self, px: &[f64], py: &[f64]) -> (Vec<Launch>, Vec<RayState>) {
-        use rayon::prelude::*;
-        let launches: Vec<Launch> = px.par_iter().zip(py.par_iter()).map(|(&x, &y)| self.launch(x, y)).collect();
-        let rays = launches
-            .par_iter()
-            .map(|l| {
-                if l.ok {
-                    self.sys.trace(l.origin, self.dir, End::Image)
-                } else {
-                    RayState { p: DVec3::ZERO, d: DVec3::ZERO, opl: 0.0, status: Status::Missed, surface: 0 }
-                }
-            })
-            .collect();
+        let launches = self.launches(px, py);
+        let rays = self.sys.trace_launched(launches.len(), |start, b| self.load(&launches, start, b));
         (launches, rays)
+    }
+
+    /// Launch and trace rays at pupil points into flat arrays (see `System::trace_soa`).
+    pub fn trace_pupil_soa(&self, px: &[f64], py: &[f64]) -> Traced {
+        match self.aiming {
+            // Paraxial launches are computed in the kernel's loader: no intermediate array.
+            Aiming::Paraxial => {
+                let h = 0.5 * self.par.epd;
+                let d = self.dir.to_array();
+                self.sys.trace_soa(px.len(), End::Image, |start, b| {
+                    for j in 0..b.len {
+                        let o = self.origin(DVec2::new(px[start + j] * h, py[start + j] * h));
+                        b.set(j, o.to_array(), d);
+                    }
+                })
+            }
+            Aiming::Real => {
+                let launches = self.launches(px, py);
+                self.sys.trace_soa(px.len(), End::Image, |start, b| self.load(&launches, start, b))
+            }
+        }
     }
 }

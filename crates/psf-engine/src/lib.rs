@@ -4,6 +4,7 @@
 
 pub mod aim;
 pub mod error;
+pub mod kernel;
 pub mod lens;
 pub mod material;
 pub mod paraxial;
@@ -17,4 +18,4 @@ pub use aim::{Aiming, Beam};
 pub use error::{EngineError, Result};
 pub use lens::Lens;
 pub use paraxial::{paraxial, Paraxial};
-pub use trace::{End, RayState, Status, System};
+pub use trace::{End, RayState, Status, System, Traced};

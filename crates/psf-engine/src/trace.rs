@@ -4,7 +4,7 @@
 
 use crate::error::Result;
 use crate::lens::Lens;
-use crate::surface::{intersect, refract};
+use crate::kernel::{self, Block, ImageConst, Plan, Ray, SurfConst, LANES};
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -31,6 +31,19 @@ pub struct RayState {
     pub surface: i32,
 }
 
+impl Status {
+    /// The status for a kernel code (0-4).
+    pub fn from_code(c: u8) -> Status {
+        match c {
+            0 => Status::Ok,
+            1 => Status::Missed,
+            2 => Status::Clipped,
+            3 => Status::Tir,
+            _ => Status::Invalid,
+        }
+    }
+}
+
 impl RayState {
     pub fn ok(&self) -> bool {
         self.status == Status::Ok
@@ -48,6 +61,8 @@ pub struct System<'a> {
     pub n: Vec<f64>,
     /// Respect clear semi-diameters (vignetting); off for aiming probes.
     pub clip: bool,
+    consts: Vec<SurfConst>,
+    image: ImageConst,
 }
 
 /// Where a trace stops.
@@ -58,16 +73,26 @@ pub enum End {
     Surface(usize),
 }
 
-/// Rays per rayon task: large enough to amortize scheduling, small enough to balance.
-const CHUNK: usize = 2048;
+/// Blocks per rayon task at the least: enough work to amortize scheduling.
+const MIN_BLOCKS_PER_TASK: usize = 8;
 
 impl<'a> System<'a> {
     pub fn new(lens: &'a Lens, wavelength_nm: f64) -> Result<Self> {
-        Ok(System { lens, wavelength_nm, n: lens.indices(wavelength_nm)?, clip: true })
+        let n = lens.indices(wavelength_nm)?;
+        let (consts, image) = kernel::constants(lens, &n);
+        Ok(System { lens, wavelength_nm, n, clip: true, consts, image })
     }
 
     pub fn image_index(&self) -> f64 {
         *self.n.last().unwrap()
+    }
+
+    fn plan(&self, end: End, clip: bool) -> Plan<'_> {
+        let stop_at = match end {
+            End::Image => None,
+            End::Surface(i) => Some(i.min(self.consts.len() - 1)),
+        };
+        Plan { consts: &self.consts, surfaces: &self.lens.surfaces, image: &self.image, stop_at, clip }
     }
 
     /// Trace one ray from `p` (global) along unit `d` in object space.
@@ -76,65 +101,135 @@ impl<'a> System<'a> {
         self.trace_opts(p, d, end, self.clip)
     }
 
-    #[inline]
-    fn trace_opts(&self, mut p: DVec3, mut d: DVec3, end: End, clip: bool) -> RayState {
-        if !(p.is_finite() && d.is_finite()) || (d.length_squared() - 1.0).abs() > 1e-9 {
+    fn trace_opts(&self, p: DVec3, d: DVec3, end: End, clip: bool) -> RayState {
+        let mut r = Ray { x: p.x, y: p.y, z: p.z, dx: d.x, dy: d.y, dz: d.z, opl: 0.0 };
+        if !kernel::valid_input(&r) {
             return RayState::fail(Status::Invalid, 0);
         }
-        let mut opl = 0.0;
-        let last = match end {
-            End::Image => self.lens.surfaces.len(),
-            End::Surface(i) => i + 1,
-        };
-        for (i, s) in self.lens.surfaces[..last].iter().enumerate() {
-            let local = DVec3::new(p.x, p.y, p.z - s.z);
-            let Some((t, nrm)) = intersect(s, local, d) else {
-                return RayState::fail(Status::Missed, i);
-            };
-            p += t * d;
-            opl += self.n[i] * t;
-            if clip {
-                if let Some(sd) = s.semi_diameter {
-                    if p.x * p.x + p.y * p.y > sd * sd {
-                        return RayState::fail(Status::Clipped, i);
-                    }
-                }
-            }
-            if end == End::Surface(i) {
-                return RayState { p, d, opl, status: Status::Ok, surface: -1 };
-            }
-            match refract(d, nrm, self.n[i], self.n[i + 1]) {
-                Some(dn) => d = dn,
-                None => return RayState::fail(Status::Tir, i),
+        let plan = self.plan(end, clip);
+        let last = plan.stop_at.map_or(self.consts.len(), |i| i + 1);
+        for i in 0..last {
+            let (sc, s) = (&self.consts[i], &self.lens.surfaces[i]);
+            let refract = plan.stop_at != Some(i) && !sc.same;
+            let st = kernel::step(sc, s, sc.kind, &mut r, clip, refract);
+            if st != 0 {
+                return RayState::fail(Status::from_code(st), i);
             }
         }
-        let k = self.lens.surfaces.len();
-        if d.z <= 0.0 {
-            return RayState::fail(Status::Missed, k);
-        }
-        let t = (self.lens.image_z - p.z) / d.z;
-        p += t * d;
-        opl += self.n[k] * t;
-        if clip {
-            if let Some(sd) = self.lens.image_semi_diameter {
-                if p.x * p.x + p.y * p.y > sd * sd {
-                    return RayState::fail(Status::Clipped, k);
-                }
+        if plan.stop_at.is_none() {
+            let st = kernel::step_image(&self.image, &mut r, clip);
+            if st != 0 {
+                return RayState::fail(Status::from_code(st), self.consts.len());
             }
         }
-        RayState { p, d, opl, status: Status::Ok, surface: -1 }
+        RayState { p: DVec3::new(r.x, r.y, r.z), d: DVec3::new(r.dx, r.dy, r.dz), opl: r.opl, status: Status::Ok, surface: -1 }
     }
 
     /// Trace a batch in parallel; output order matches input order.
     pub fn trace_many(&self, origins: &[DVec3], dirs: &[DVec3]) -> Vec<RayState> {
-        let mut out = vec![RayState::fail(Status::Invalid, 0); origins.len()];
-        out.par_chunks_mut(CHUNK).enumerate().for_each(|(ci, chunk)| {
-            let base = ci * CHUNK;
-            for (j, o) in chunk.iter_mut().enumerate() {
-                *o = self.trace(origins[base + j], dirs[base + j], End::Image);
+        self.trace_launched(origins.len(), |start, b| {
+            for j in 0..b.len {
+                b.set(j, origins[start + j].to_array(), dirs[start + j].to_array());
             }
+        })
+    }
+
+    /// Trace `n` rays to the image in parallel blocks; `load(start, block)` fills lanes
+    /// `0..block.len` with the rays from index `start` (`Block::set`).
+    pub fn trace_launched<L>(&self, n: usize, load: L) -> Vec<RayState>
+    where
+        L: Fn(usize, &mut Block) + Sync,
+    {
+        let mut out = vec![RayState::fail(Status::Invalid, 0); n];
+        let plan = self.plan(End::Image, self.clip);
+        out.par_chunks_mut(LANES).enumerate().with_min_len(MIN_BLOCKS_PER_TASK).for_each_init(Block::default, |b, (bi, chunk)| {
+            *b = Block::default();
+            b.len = chunk.len();
+            load(bi * LANES, b);
+            kernel::run(&plan, b);
+            b.write_states(chunk);
         });
         out
+    }
+}
+
+/// Traced rays as flat arrays (struct of arrays), ready to hand to numpy without copying.
+/// Failed rays have zero position, direction and optical path.
+#[derive(Clone, Debug, Default)]
+pub struct Traced {
+    /// Row-major (n, 3) launch points.
+    pub origin: Vec<f64>,
+    /// Row-major (n, 3).
+    pub position: Vec<f64>,
+    /// Row-major (n, 3).
+    pub direction: Vec<f64>,
+    pub opl: Vec<f64>,
+    /// Status codes (`Status as u8`).
+    pub status: Vec<u8>,
+    /// Surface of the failure (0-based, surfaces.len() = image plane), or -1.
+    pub surface: Vec<i32>,
+}
+
+impl<'a> System<'a> {
+    /// Trace `n` rays straight into flat output arrays, in parallel: `load(start, block)`
+    /// fills lanes `0..block.len` with the rays from index `start` (`Block::set`).
+    pub fn trace_soa<L>(&self, n: usize, end: End, load: L) -> Traced
+    where
+        L: Fn(usize, &mut Block) + Sync,
+    {
+        let plan = self.plan(end, self.clip);
+        let mut t = Traced {
+            origin: vec![0.0; 3 * n],
+            position: vec![0.0; 3 * n],
+            direction: vec![0.0; 3 * n],
+            opl: vec![0.0; n],
+            status: vec![0; n],
+            surface: vec![0; n],
+        };
+        t.origin
+            .par_chunks_mut(3 * LANES)
+            .zip(t.position.par_chunks_mut(3 * LANES))
+            .zip(t.direction.par_chunks_mut(3 * LANES))
+            .zip(t.opl.par_chunks_mut(LANES))
+            .zip(t.status.par_chunks_mut(LANES))
+            .zip(t.surface.par_chunks_mut(LANES))
+            .enumerate()
+            .with_min_len(MIN_BLOCKS_PER_TASK)
+            .for_each_init(Block::default, |b, (bi, (((((org, pos), dir), opl), status), surface))| {
+                *b = Block::default();
+                b.len = opl.len();
+                load(bi * LANES, b);
+                for j in 0..b.len {
+                    org[3 * j..3 * j + 3].copy_from_slice(&[b.x[j], b.y[j], b.z[j]]);
+                }
+                kernel::run(&plan, b);
+                for j in 0..b.len {
+                    let ok = b.status[j] == 0;
+                    status[j] = b.status[j];
+                    surface[j] = if ok { -1 } else { b.surface[j] };
+                    if ok {
+                        pos[3 * j..3 * j + 3].copy_from_slice(&[b.x[j], b.y[j], b.z[j]]);
+                        dir[3 * j..3 * j + 3].copy_from_slice(&[b.dx[j], b.dy[j], b.dz[j]]);
+                        opl[j] = b.opl[j];
+                    }
+                }
+            });
+        t
+    }
+}
+
+impl Block {
+    /// The first `out.len()` lanes as RayStates (failed rays zeroed).
+    pub fn write_states(&self, out: &mut [RayState]) {
+        for (j, o) in out.iter_mut().enumerate() {
+            let st = Status::from_code(self.status[j]);
+            *o = if st == Status::Ok {
+                let r = self.get(j);
+                RayState { p: DVec3::new(r.x, r.y, r.z), d: DVec3::new(r.dx, r.dy, r.dz), opl: r.opl, status: st, surface: -1 }
+            } else {
+                RayState::fail(st, self.surface[j].max(0) as usize)
+            };
+        }
     }
 }
 
