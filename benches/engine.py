@@ -86,7 +86,8 @@ def main() -> None:
         },
         "samples_s": {"trace": trace_all, "fft": fft_all, "huygens": huy_all},
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
-                    "engine_version": getattr(_engine, "__version__", None)},
+                    "engine_version": getattr(_engine, "__version__", None),
+                    "simd": getattr(_engine, "simd", None)},
     }
     if args.json:
         print(json.dumps(result))

@@ -28,6 +28,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 __version__: str
+simd: str
+"""Vector instruction set the ray-trace kernel uses here: "avx512", "avx2" or "baseline"."""
 
 class EngineError(Exception):
     """Base class of every error raised by the engine."""

@@ -247,6 +247,12 @@ fn psf_batch<'py>(py: Python<'py>, lens_jsons: Vec<String>, fields_deg: Vec<f64>
 fn _engine(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    let simd = match psf_engine::kernel::simd_level() {
+        psf_engine::kernel::Simd::Avx512 => "avx512",
+        psf_engine::kernel::Simd::Avx2 => "avx2",
+        psf_engine::kernel::Simd::Baseline => "baseline",
+    };
+    m.add("simd", simd)?;
     m.add("EngineError", py.get_type::<EngineError>())?;
     m.add("LensError", py.get_type::<LensError>())?;
     m.add("MaterialError", py.get_type::<MaterialError>())?;

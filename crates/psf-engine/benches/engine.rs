@@ -25,6 +25,17 @@ fn bench_trace(c: &mut Criterion) {
     let mut g = c.benchmark_group("trace");
     g.throughput(Throughput::Elements(o.len() as u64));
     g.bench_function("cooke_20deg", |bch| bch.iter(|| black_box(sys.trace_many(&o, &d))));
+    // What the Python bench measures: 1e6 pupil points, launched and traced into flat arrays.
+    let n = 1_000_000;
+    let (px, py): (Vec<f64>, Vec<f64>) = (0..n)
+        .map(|i| {
+            let (r, t) = (((i as f64 * 0.618_034) % 1.0).sqrt(), (i as f64 * 0.754_877_666) % 1.0 * std::f64::consts::TAU);
+            (r * t.cos(), r * t.sin())
+        })
+        .unzip();
+    g.throughput(Throughput::Elements(n as u64));
+    g.sample_size(20);
+    g.bench_function("cooke_20deg_pupil_1e6", |bch| bch.iter(|| black_box(beam.trace_pupil_soa(&px, &py))));
     g.finish();
 }
 

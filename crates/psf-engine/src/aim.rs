@@ -220,10 +220,11 @@ impl<'s, 'l> Beam<'s, 'l> {
             Aiming::Paraxial => {
                 let h = 0.5 * self.par.epd;
                 let d = self.dir.to_array();
+                // origin(e) = origin(0) + (e, 0), bit for bit.
+                let o0 = self.origin(DVec2::ZERO);
                 self.sys.trace_soa(px.len(), End::Image, |start, b| {
                     for j in 0..b.len {
-                        let o = self.origin(DVec2::new(px[start + j] * h, py[start + j] * h));
-                        b.set(j, o.to_array(), d);
+                        b.set(j, [px[start + j] * h + o0.x, py[start + j] * h + o0.y, o0.z], d);
                     }
                 })
             }

@@ -330,19 +330,107 @@ fn run_inline(plan: &Plan, b: &mut Block) {
     }
 }
 
+// The same kernel compiled for wider vector units, chosen once at run time. Rust does not
+// fuse multiplies and adds on its own, so every variant gives bit-identical results.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn run_avx2(plan: &Plan, b: &mut Block) {
     run_inline(plan, b)
 }
 
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx2,fma")]
+unsafe fn run_avx512(plan: &Plan, b: &mut Block) {
+    run_inline(plan, b)
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub enum Simd {
+    Avx512,
+    Avx2,
+    Baseline,
+}
+
+/// The vector instruction set the kernel uses on this CPU.
+pub fn simd_level() -> Simd {
+    static LEVEL: std::sync::OnceLock<Simd> = std::sync::OnceLock::new();
+    *LEVEL.get_or_init(|| {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::is_x86_feature_detected as has;
+            if has!("avx512f") && has!("avx512vl") && has!("avx512dq") && has!("avx2") && has!("fma") {
+                return Simd::Avx512;
+            }
+            if has!("avx2") && has!("fma") {
+                return Simd::Avx2;
+            }
+        }
+        Simd::Baseline
+    })
+}
+
 /// Trace every lane of a block through the plan (vectorized where the CPU allows).
 pub(crate) fn run(plan: &Plan, b: &mut Block) {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-        // SAFETY: the CPU supports the features run_avx2 was compiled for.
-        unsafe { run_avx2(plan, b) };
-        return;
+    match simd_level() {
+        // SAFETY: simd_level() checked that the CPU has these features.
+        #[cfg(target_arch = "x86_64")]
+        Simd::Avx512 => unsafe { run_avx512(plan, b) },
+        #[cfg(target_arch = "x86_64")]
+        Simd::Avx2 => unsafe { run_avx2(plan, b) },
+        _ => run_inline(plan, b),
     }
-    run_inline(plan, b)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every compiled variant the CPU can run gives the same bits as the baseline.
+    #[test]
+    fn simd_variants_agree_bit_for_bit() {
+        let lens = Lens::from_json(
+            r#"{"aperture": {"type": "epd", "value": 10}, "wavelengths_nm": [550],
+                "surfaces": [
+                  {"radius": 12, "conic": -0.6, "aspheric": {"a4": -2e-5}, "thickness": 6, "material": {"n": 1.9}, "semi_diameter": 8},
+                  {"radius": "inf", "thickness": 2, "material": "air", "semi_diameter": 8},
+                  {"radius": 25, "conic": 0.5, "thickness": 3, "material": {"n": 1.6}, "stop": true},
+                  {"radius": -40, "thickness": 35, "material": "air", "semi_diameter": 7}]}"#,
+        )
+        .unwrap();
+        let n = lens.indices(550.0).unwrap();
+        let (consts, image) = constants(&lens, &n);
+        let plan = Plan { consts: &consts, surfaces: &lens.surfaces, image: &image, stop_at: None, clip: true };
+        let mut base = Block::default();
+        base.len = LANES;
+        for j in 0..LANES {
+            let a = (j as f64 / LANES as f64 - 0.5) * 1.6;
+            base.set(j, [0.3 * j as f64 % 9.0 - 4.5, (j as f64 * 0.77) % 11.0 - 5.5, -3.0], [0.1 * a.sin(), a.sin(), (1.0 - 0.01 * a.sin().powi(2) - a.sin().powi(2)).sqrt()]);
+        }
+        let mut expect = base.clone();
+        run_inline(&plan, &mut expect);
+        assert!(expect.status.iter().any(|&s| s == 0) && expect.status.iter().any(|&s| s != 0));
+        let mut variants: Vec<(&str, Block)> = vec![];
+        #[cfg(target_arch = "x86_64")]
+        {
+            if simd_level() != Simd::Baseline {
+                let mut b = base.clone();
+                unsafe { run_avx2(&plan, &mut b) };
+                variants.push(("avx2", b));
+            }
+            if simd_level() == Simd::Avx512 {
+                let mut b = base.clone();
+                unsafe { run_avx512(&plan, &mut b) };
+                variants.push(("avx512", b));
+            }
+        }
+        for (name, b) in variants {
+            for j in 0..LANES {
+                assert_eq!((b.status[j], b.surface[j]), (expect.status[j], expect.surface[j]), "{name} lane {j}");
+                if b.status[j] == 0 {
+                    let (r, e) = (b.get(j), expect.get(j));
+                    assert_eq!([r.x, r.y, r.z, r.dx, r.dy, r.dz, r.opl], [e.x, e.y, e.z, e.dx, e.dy, e.dz, e.opl], "{name} lane {j}");
+                }
+            }
+        }
+    }
 }

@@ -179,12 +179,12 @@ impl<'a> System<'a> {
     {
         let plan = self.plan(end, self.clip);
         let mut t = Traced {
-            origin: vec![0.0; 3 * n],
-            position: vec![0.0; 3 * n],
-            direction: vec![0.0; 3 * n],
-            opl: vec![0.0; n],
+            origin: huge_pages(vec![0.0; 3 * n]),
+            position: huge_pages(vec![0.0; 3 * n]),
+            direction: huge_pages(vec![0.0; 3 * n]),
+            opl: huge_pages(vec![0.0; n]),
             status: vec![0; n],
-            surface: vec![0; n],
+            surface: huge_pages(vec![0; n]),
         };
         t.origin
             .par_chunks_mut(3 * LANES)
@@ -216,6 +216,27 @@ impl<'a> System<'a> {
             });
         t
     }
+}
+
+/// Ask the kernel to back a large, freshly allocated (not yet touched) output array with
+/// transparent huge pages: a million rays write ~85 MB, and faulting that in 4 KiB pages
+/// costs more than tracing them. Advice only; nothing changes where it is not honoured.
+fn huge_pages<T>(v: Vec<T>) -> Vec<T> {
+    #[cfg(target_os = "linux")]
+    {
+        const HUGE: usize = 2 << 20;
+        let bytes = v.len() * std::mem::size_of::<T>();
+        if bytes >= 4 * HUGE {
+            let start = (v.as_ptr() as usize).next_multiple_of(HUGE);
+            let end = (v.as_ptr() as usize + bytes) / HUGE * HUGE;
+            if end > start {
+                // SAFETY: the range lies inside the vector's allocation; madvise only
+                // changes how the kernel backs it, not its contents.
+                unsafe { libc::madvise(start as *mut libc::c_void, end - start, libc::MADV_HUGEPAGE) };
+            }
+        }
+    }
+    v
 }
 
 impl Block {

@@ -111,9 +111,21 @@ impl Diagnostics {
 pub struct Psf {
     pub size: usize,
     pub data: Vec<f64>,
+    /// Strehl ratio; NaN where it cannot be trusted (the diagnostics then hold
+    /// `"strehl": null` and a warning saying why). `strehl_ratio()` gives it as an Option.
     pub strehl: f64,
     pub diagnostics: Diagnostics,
 }
+
+impl Psf {
+    /// The Strehl ratio, or None where it could not be trusted (see the warnings).
+    pub fn strehl_ratio(&self) -> Option<f64> {
+        self.strehl.is_finite().then_some(self.strehl)
+    }
+}
+
+/// Largest Strehl ratio accepted (1 plus rounding and peak-refinement slack).
+const STREHL_MAX: f64 = 1.0 + 1e-3;
 
 /// Sub-sample offset of a peak from three samples (parabola vertex), within +-0.5.
 pub(crate) fn parabolic_offset(l: f64, c: f64, r: f64) -> f64 {
@@ -164,9 +176,25 @@ pub fn psf(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) -> R
         ));
     }
     let (data, strehl) = match o.method {
-        Method::Geometric => geometric::geometric_psf(&p, o, &mut d),
+        Method::Geometric => {
+            let (data, s) = geometric::geometric_psf(&p, o, &mut d);
+            (data, Some(s))
+        }
         Method::Fft => fft::fft_psf(&p, o, &mut d)?,
-        Method::Huygens => huygens::huygens_psf(&p, o, &mut d)?,
+        Method::Huygens => {
+            let (data, s) = huygens::huygens_psf(&p, o, &mut d)?;
+            (data, Some(s))
+        }
+    };
+    // A Strehl ratio above 1 (or not finite) means the sampled field is wrong: no number.
+    let strehl = match strehl {
+        Some(s) if !(s.is_finite() && s <= STREHL_MAX) => {
+            d.warn(format!(
+                "Strehl not reported: the computed value {s:.3e} exceeds 1, so the sampled field is wrong (undersampled pupil or aliasing; see the other warnings)"
+            ));
+            None
+        }
+        s => s,
     };
     let e = d.values.get("energy_in_window").and_then(Value::as_f64).unwrap_or(1.0);
     if e < 0.99 && transmitted > 0.0 {
@@ -175,7 +203,7 @@ pub fn psf(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) -> R
     if data.iter().any(|v| !v.is_finite()) {
         return Err(EngineError::Psf(format!("non-finite PSF value at {field_deg} deg, {wavelength_nm} nm")));
     }
-    d.set("strehl", strehl);
+    d.set("strehl", strehl.map_or(Value::Null, Value::from));
     d.set("time_s", t0.elapsed().as_secs_f64());
-    Ok(Psf { size: o.size, data, strehl, diagnostics: d })
+    Ok(Psf { size: o.size, data, strehl: strehl.unwrap_or(f64::NAN), diagnostics: d })
 }

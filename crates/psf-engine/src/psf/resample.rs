@@ -70,23 +70,32 @@ pub fn point_weights_1d(native_len: usize, native_pitch: f64, native_centre: f64
 }
 
 /// out[r][c] = sum_n sum_m wy[r][n] wx[c][m] native[n][m] (row-major native, `nx` columns).
+/// Separable: first along x for every native row that wy reads, then along y.
 pub fn apply(native: &[f64], nx: usize, wy: &[Vec<(usize, f64)>], wx: &[Vec<(usize, f64)>]) -> Vec<f64> {
     let (oy, ox) = (wy.len(), wx.len());
     let mut out = vec![0.0; oy * ox];
-    let mut row = vec![0.0; ox];
-    for (r, wr) in wy.iter().enumerate() {
-        row.iter_mut().for_each(|v| *v = 0.0);
+    let (lo, hi) = wy.iter().flatten().fold((usize::MAX, 0), |(lo, hi), &(n, _)| (lo.min(n), hi.max(n)));
+    if lo > hi {
+        return out;
+    }
+    // tmp[n - lo][c] = sum_m wx[c][m] native[n][m]
+    let mut tmp = vec![0.0; (hi - lo + 1) * ox];
+    for (t, n) in tmp.chunks_exact_mut(ox).zip(lo..=hi) {
+        let src = &native[n * nx..(n + 1) * nx];
+        for (v, wc) in t.iter_mut().zip(wx) {
+            let mut acc = 0.0;
+            for &(m, wm) in wc {
+                acc += wm * src[m];
+            }
+            *v = acc;
+        }
+    }
+    for (row, wr) in out.chunks_exact_mut(ox).zip(wy) {
         for &(n, wn) in wr {
-            let src = &native[n * nx..(n + 1) * nx];
-            for (c, wc) in wx.iter().enumerate() {
-                let mut acc = 0.0;
-                for &(m, wm) in wc {
-                    acc += wm * src[m];
-                }
-                row[c] += wn * acc;
+            for (v, t) in row.iter_mut().zip(&tmp[(n - lo) * ox..(n - lo + 1) * ox]) {
+                *v += wn * t;
             }
         }
-        out[r * ox..(r + 1) * ox].copy_from_slice(&row);
     }
     out
 }
