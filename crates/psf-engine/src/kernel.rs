@@ -229,6 +229,14 @@ impl Default for Block {
 }
 
 impl Block {
+    /// Prepare for `len` rays: the loader sets lanes `0..len` (`set`), the lanes after are
+    /// padding, marked Invalid so that nothing is reported for them.
+    #[inline]
+    pub fn reset(&mut self, len: usize) {
+        self.len = len;
+        self.status[len..].fill(Status::Invalid as u8);
+    }
+
     #[inline(always)]
     pub(crate) fn get(&self, j: usize) -> Ray {
         Ray { x: self.x[j], y: self.y[j], z: self.z[j], dx: self.dx[j], dy: self.dy[j], dz: self.dz[j], opl: self.opl[j] }

@@ -143,8 +143,7 @@ impl<'a> System<'a> {
         let mut out = vec![RayState::fail(Status::Invalid, 0); n];
         let plan = self.plan(End::Image, self.clip);
         out.par_chunks_mut(LANES).enumerate().with_min_len(MIN_BLOCKS_PER_TASK).for_each_init(Block::default, |b, (bi, chunk)| {
-            *b = Block::default();
-            b.len = chunk.len();
+            b.reset(chunk.len());
             load(bi * LANES, b);
             kernel::run(&plan, b);
             b.write_states(chunk);
@@ -196,8 +195,7 @@ impl<'a> System<'a> {
             .enumerate()
             .with_min_len(MIN_BLOCKS_PER_TASK)
             .for_each_init(Block::default, |b, (bi, (((((org, pos), dir), opl), status), surface))| {
-                *b = Block::default();
-                b.len = opl.len();
+                b.reset(opl.len());
                 load(bi * LANES, b);
                 for j in 0..b.len {
                     org[3 * j..3 * j + 3].copy_from_slice(&[b.x[j], b.y[j], b.z[j]]);
