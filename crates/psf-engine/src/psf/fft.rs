@@ -56,24 +56,35 @@ pub struct AffineMap {
 /// Least-squares L = l0 + lx a + ..., M = m0 + my b + ... over valid samples (a, b indices).
 pub fn fit_affine(p: &Pupil) -> AffineMap {
     let n = p.n;
-    let mut ata = [[0.0f64; 3]; 3];
+    // Sums over valid samples of 1, a, b, a^2, ab, b^2 and of L, M times 1, a, b.
+    let (mut s, mut sa, mut sb, mut saa, mut sab, mut sbb) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     let (mut bl, mut bm) = ([0.0f64; 3], [0.0f64; 3]);
     for b in 0..n {
+        let (mut c, mut ca, mut caa, mut l, mut la, mut m, mut ma) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
         for a in 0..n {
             let j = b * n + a;
-            if !p.valid[j] {
-                continue;
-            }
-            let row = [1.0, a as f64, b as f64];
-            for r in 0..3 {
-                for c in 0..3 {
-                    ata[r][c] += row[r] * row[c];
-                }
-                bl[r] += row[r] * p.l[j];
-                bm[r] += row[r] * p.m[j];
+            if p.valid[j] {
+                let af = a as f64;
+                c += 1.0;
+                ca += af;
+                caa += af * af;
+                l += p.l[j];
+                la += af * p.l[j];
+                m += p.m[j];
+                ma += af * p.m[j];
             }
         }
+        let bf = b as f64;
+        s += c;
+        sa += ca;
+        sb += bf * c;
+        saa += caa;
+        sab += bf * ca;
+        sbb += bf * bf * c;
+        bl = [bl[0] + l, bl[1] + la, bl[2] + bf * l];
+        bm = [bm[0] + m, bm[1] + ma, bm[2] + bf * m];
     }
+    let ata = [[s, sa, sb], [sa, saa, sab], [sb, sab, sbb]];
     let cl = super::pupil::solve3(ata, bl);
     let cm = super::pupil::solve3(ata, bm);
     match (cl, cm) {
@@ -277,6 +288,16 @@ fn zeros(n: usize) -> Vec<Complex64> {
     v
 }
 
+/// A buffer of n values with unspecified (stale) contents, from this thread's pool.
+fn buffer(n: usize) -> Vec<Complex64> {
+    let mut v = POOL.with(|p| p.borrow_mut().pop()).unwrap_or_default();
+    if v.len() < n {
+        v.resize(n, Complex64::new(0.0, 0.0));
+    }
+    v.truncate(n);
+    v
+}
+
 /// Returns a buffer to this thread's pool.
 fn recycle(v: Vec<Complex64>) {
     POOL.with(|p| {
@@ -294,23 +315,18 @@ fn zero_fill(v: &mut [Complex64]) {
 }
 
 /// Whether the pupil function is mirror symmetric in x about the grid centre (column a ->
-/// n - 1 - a): same samples, same field, residual dL odd and dM even, to 1e-9 relative.
-fn mirror_symmetric(n: usize, valid: &[bool], field: &[Complex64], res_l: &[f64], res_m: &[f64]) -> bool {
+/// n - 1 - a): same samples, same field, residual dL odd and dM even, to 1e-9 relative
+/// (of the largest |field|, |dL| and |dM|).
+fn mirror_symmetric(n: usize, valid: &[bool], field: &[Complex64], res_l: &[f64], res_m: &[f64], max_rl: f64, max_rm: f64) -> bool {
     const TOL: f64 = 1e-9;
-    let (mut fmax2, mut lmax, mut mmax) = (0.0f64, 0.0f64, 0.0f64);
-    for j in (0..n * n).filter(|&j| valid[j]) {
-        fmax2 = fmax2.max(field[j].norm_sqr());
-        lmax = lmax.max(res_l[j].abs());
-        mmax = mmax.max(res_m[j].abs());
-    }
+    let fmax2 = field.iter().map(|z| z.norm_sqr()).fold(0.0, f64::max);
+    let (tf, tl, tm) = (TOL * TOL * fmax2, TOL * max_rl, TOL * max_rm);
     (0..n).all(|b| {
+        let r = b * n..(b + 1) * n;
+        let (v, f, l, m) = (&valid[r.clone()], &field[r.clone()], &res_l[r.clone()], &res_m[r]);
         (0..n.div_ceil(2)).all(|a| {
-            let (j, jm) = (b * n + a, b * n + n - 1 - a);
-            valid[j] == valid[jm]
-                && (!valid[j]
-                    || ((field[j] - field[jm]).norm_sqr() <= TOL * TOL * fmax2
-                        && (res_l[j] + res_l[jm]).abs() <= TOL * lmax
-                        && (res_m[j] - res_m[jm]).abs() <= TOL * mmax))
+            let am = n - 1 - a;
+            v[a] == v[am] && (!v[a] || ((f[a] - f[am]).norm_sqr() <= tf && (l[a] + l[am]).abs() <= tl && (m[a] - m[am]).abs() <= tm))
         })
     })
 }
@@ -354,6 +370,7 @@ fn fft_psf_impl(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mirror: bool
     let mut res_m = vec![0.0; n * n];
     let mut rows: Vec<(usize, usize, usize)> = Vec::with_capacity(n);
     let mut valid = Vec::with_capacity(n * n);
+    let (mut opd, mut w) = (Vec::with_capacity(n * n), Vec::with_capacity(n * n));
     let (mut max_rl, mut max_rm) = (0.0f64, 0.0f64);
     for b in 0..n {
         let (mut a_lo, mut a_hi) = (usize::MAX, 0);
@@ -363,6 +380,8 @@ fn fft_psf_impl(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mirror: bool
                 continue;
             }
             valid.push(j);
+            opd.push(p.opd_waves[j]);
+            w.push(amp * (p.flux[j] * p.jacobian[j]).sqrt());
             res_l[j] = p.l[j] - map.l0 - map.lx * a as f64;
             res_m[j] = p.m[j] - map.m0 - map.my * b as f64;
             max_rl = max_rl.max(res_l[j].abs());
@@ -374,9 +393,8 @@ fn fft_psf_impl(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mirror: bool
             rows.push((b, a_lo, a_hi + 1));
         }
     }
-    let (opd, w) = pupil_weights(p, amp, &valid);
     let peak_ref: f64 = w.iter().sum();
-    let mut phasors = zeros(valid.len());
+    let mut phasors = buffer(valid.len());
     cis_scaled(&opd, &w, &mut phasors);
     for (&j, z) in valid.iter().zip(&phasors) {
         field[j] = *z;
@@ -410,7 +428,7 @@ fn fft_psf_impl(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mirror: bool
     // Columns of the transform to compute (`cols`), and which of them each native column
     // of the window reads: the window's own bins, or with the mirror symmetry the bins
     // 0..=R standing for +-bin.
-    let mirror = use_mirror && mirror_symmetric(n, &p.valid, &field, &res_l, &res_m);
+    let mirror = use_mirror && mirror_symmetric(n, &p.valid, &field, &res_l, &res_m, max_rl, max_rm);
     let (cols, col_of): (BinRun, Vec<usize>) = if mirror {
         let rep = |i: usize| {
             let m = bin(x0 + i, g, sgn_x);
@@ -459,15 +477,13 @@ fn fft_psf_impl(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mirror: bool
     let fft = plan(g);
     let scratch_len = fft.get_inplace_scratch_len();
     let nr = rows.len();
-    let mut rq = zeros((order + 1) * nr * nc);
-    let mut ut = zeros(nc * ny);
     let row_task = |q: usize, r0: usize, out: &mut [Complex64]| {
         let cnt = out.len() / nc;
         let rows = &rows[r0..r0 + cnt];
-        let mut buf = zeros(cnt * g);
-        let mut scratch = zeros(scratch_len);
+        let mut buf = buffer(cnt * g);
+        let mut scratch = buffer(scratch_len);
         // t_p = field dM^q dL^p, kept as `cur` and advanced by dL.
-        let mut cur = zeros(cnt * n);
+        let mut cur = buffer(cnt * n);
         for (rr, &(b, a_lo, a_hi)) in rows.iter().enumerate() {
             for a in a_lo..a_hi {
                 let j = b * n + a;
@@ -515,44 +531,52 @@ fn fft_psf_impl(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mirror: bool
         recycle(scratch);
         recycle(cur);
     };
-    // One entry into the thread pool for both stages.
-    rayon::scope(|_| {
-        rq.par_chunks_mut(nr * nc).enumerate().for_each(|(q, rq)| {
-            rq.par_chunks_mut(ROWS_PER_TASK * nc).enumerate().for_each(|(t, out)| row_task(q, t * ROWS_PER_TASK, out));
-        });
-        // Column transforms of each R_q, times (i k)^q/q! y^q, summed over q.
-        let col_task = |i0: usize, out: &mut [Complex64]| {
-            let cnt = out.len() / ny;
-            let mut buf = zeros(cnt * g);
-            debug_assert!(nr > 0);
-            let mut scratch = zeros(scratch_len);
-            for (q, yp) in ypow.iter().enumerate() {
-                // Zero what the pupil rows do not cover (they are usually one block).
-                let (b_lo, b_hi) = (rows[0].0, rows[nr - 1].0 + 1);
-                for col in buf.chunks_exact_mut(g) {
-                    if b_hi - b_lo == nr {
-                        zero_fill(&mut col[..b_lo]);
-                        zero_fill(&mut col[b_hi..]);
-                    } else {
-                        zero_fill(col);
-                    }
-                }
-                let r = &rq[q * nr * nc..(q + 1) * nr * nc];
-                for (ri, &(b, _, _)) in rows.iter().enumerate() {
-                    for ii in 0..cnt {
-                        buf[ii * g + b] = r[ri * nc + i0 + ii];
-                    }
-                }
-                fft.process_with_scratch(&mut buf, &mut scratch);
-                for (o, src) in out.chunks_exact_mut(ny).zip(buf.chunks_exact(g)) {
-                    cmac(o, yp, run_y.slices(src));
-                }
+    // Column transforms of R_q (nr x nc, row-major) times (i k)^q/q! y^q.
+    let (b_lo, b_hi) = (rows[0].0, rows[nr - 1].0 + 1);
+    let col_task = |q: usize, r: &[Complex64], i0: usize, out: &mut [Complex64]| {
+        let cnt = out.len() / ny;
+        let mut buf = buffer(cnt * g);
+        let mut scratch = buffer(scratch_len);
+        for (ii, col) in buf.chunks_exact_mut(g).enumerate() {
+            // Zero what the pupil rows do not cover (usually one block of rows).
+            if b_hi - b_lo == nr {
+                zero_fill(&mut col[..b_lo]);
+                zero_fill(&mut col[b_hi..]);
+            } else {
+                zero_fill(col);
             }
-            recycle(buf);
-            recycle(scratch);
-        };
-        ut.par_chunks_mut(COLS_PER_TASK * ny).enumerate().for_each(|(t, out)| col_task(t * COLS_PER_TASK, out));
+            for (ri, &(b, _, _)) in rows.iter().enumerate() {
+                col[b] = r[ri * nc + i0 + ii];
+            }
+        }
+        fft.process_with_scratch(&mut buf, &mut scratch);
+        for (o, src) in out.chunks_exact_mut(ny).zip(buf.chunks_exact(g)) {
+            cmac(o, &ypow[q], run_y.slices(src));
+        }
+        recycle(buf);
+        recycle(scratch);
+    };
+    // Each q in parallel (rows, then columns, both in parallel chunks): no barrier between
+    // the stages of different q. Entered once from the caller's thread.
+    let parts: Vec<Vec<Complex64>> = rayon::scope(|_| {
+        (0..=order)
+            .into_par_iter()
+            .map(|q| {
+                let mut r = zeros(nr * nc);
+                r.par_chunks_mut(ROWS_PER_TASK * nc).enumerate().for_each(|(t, out)| row_task(q, t * ROWS_PER_TASK, out));
+                let mut u = zeros(nc * ny);
+                u.par_chunks_mut(COLS_PER_TASK * ny).enumerate().for_each(|(t, out)| col_task(q, &r, t * COLS_PER_TASK, out));
+                recycle(r);
+                u
+            })
+            .collect()
     });
+    let mut parts = parts.into_iter();
+    let mut ut = parts.next().expect("order >= 0");
+    for u in parts {
+        ut.iter_mut().zip(&u).for_each(|(a, b)| *a += b);
+        recycle(u);
+    }
     // Native intensity over the window, row-major (ny x nx), along +x / +y.
     let row_of: Vec<usize> = (0..ny).map(|j| (bin(y0 + j, g, sgn_y) + g - run_y.first) % g).collect();
     let mut native = vec![0.0; ny * nx];
@@ -561,13 +585,17 @@ fn fft_psf_impl(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mirror: bool
             *v = ut[c * ny + row_of[j]].norm_sqr();
         }
     }
-    recycle(rq);
     recycle(ut);
     recycle(field);
 
     // Strehl: sampled peak refined by the exact direct sum at the parabolic vertex. The
     // peak must lie inside the computed window and where the Taylor series holds.
-    let (imax, _) = native.iter().enumerate().fold((0, f64::MIN), |a, (i, &v)| if v > a.1 { (i, v) } else { a });
+    let mut imax = 0;
+    for (i, &v) in native.iter().enumerate() {
+        if v > native[imax] {
+            imax = i;
+        }
+    }
     let (ry, rx) = (imax / nx, imax % nx);
     let on_edge = |r: usize, len: usize| len < g && (r == 0 || r + 1 == len);
     let strehl = if on_edge(rx, nx) || on_edge(ry, ny) {
@@ -594,8 +622,11 @@ fn fft_psf_impl(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mirror: bool
 
     // Resample onto the requested detector grid. The transform is energy conserving by
     // construction (weights sqrt(f J)), the same absolute scale as the Huygens PSF.
-    let shift = |w: Vec<Vec<(usize, f64)>>, o0: usize| -> Vec<Vec<(usize, f64)>> { w.into_iter().map(|v| v.into_iter().map(|(m, x)| (m - o0, x)).collect()).collect() };
-    let mut out = resample::apply(&native, nx, &shift(wy, y0), &shift(wx, x0));
+    let shift = |w: &mut Vec<Vec<(usize, f64)>>, o0: usize| w.iter_mut().flatten().for_each(|(m, _)| *m -= o0);
+    let (mut wx, mut wy) = (wx, wy);
+    shift(&mut wx, x0);
+    shift(&mut wy, y0);
+    let mut out = resample::apply(&native, nx, &wy, &wx);
     if !o.integrate {
         out.iter_mut().for_each(|v| *v = v.max(0.0));
     }
@@ -622,7 +653,7 @@ fn fft_psf_impl(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mirror: bool
     }
     // Geometric check for wrap-around: rays landing beyond half the FFT period alias.
     let (mut ex, mut ey) = (0.0f64, 0.0f64);
-    for j in (0..p.valid.len()).filter(|&j| p.valid[j]) {
+    for &j in &valid {
         ex = ex.max((p.image[j].x - p.chief.x).abs());
         ey = ey.max((p.image[j].y - p.chief.y).abs());
     }

@@ -140,6 +140,12 @@ pub(crate) fn parabolic_offset(l: f64, c: f64, r: f64) -> f64 {
 /// Monochromatic PSF at `field_deg`, `wavelength_nm`.
 pub fn psf(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) -> Result<Psf> {
     o.check()?;
+    // Run on a thread of the pool: the tracing and the transforms each go parallel, and
+    // from a thread outside the pool every parallel section would be a round trip to it.
+    rayon::scope(|_| psf_in_pool(lens, field_deg, wavelength_nm, o))
+}
+
+fn psf_in_pool(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) -> Result<Psf> {
     let t0 = Instant::now();
     let sys = System::new(lens, wavelength_nm)?;
     let mut d = Diagnostics::default();
@@ -203,6 +209,7 @@ pub fn psf(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) -> R
     if data.iter().any(|v| !v.is_finite()) {
         return Err(EngineError::Psf(format!("non-finite PSF value at {field_deg} deg, {wavelength_nm} nm")));
     }
+    pupil::recycle(p);
     d.set("strehl", strehl.map_or(Value::Null, Value::from));
     d.set("time_s", t0.elapsed().as_secs_f64());
     Ok(Psf { size: o.size, data, strehl: strehl.unwrap_or(f64::NAN), diagnostics: d })

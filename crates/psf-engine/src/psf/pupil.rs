@@ -8,6 +8,8 @@ use crate::aim::{Aiming, Beam};
 use crate::error::{EngineError, Result};
 use crate::trace::{End, Status, System};
 use glam::DVec3;
+use std::cell::RefCell;
+use std::sync::Arc;
 
 pub struct Pupil {
     /// Grid size (samples across the pupil diameter).
@@ -38,6 +40,28 @@ pub struct Pupil {
 }
 
 impl Pupil {
+    fn empty() -> Pupil {
+        Pupil {
+            n: 0,
+            wavelength_mm: 0.0,
+            n_image: 1.0,
+            inside: vec![],
+            valid: vec![],
+            opd_waves: vec![],
+            flux: vec![],
+            l: vec![],
+            m: vec![],
+            jacobian: vec![],
+            sphere: vec![],
+            image: vec![],
+            chief: DVec3::ZERO,
+            chief_dir: DVec3::ZERO,
+            radius: 0.0,
+            launched_flux_mm2: 0.0,
+            status_counts: [0; 5],
+        }
+    }
+
     #[inline]
     pub fn coord(&self, i: usize) -> f64 {
         -1.0 + (2.0 * i as f64 + 1.0) / self.n as f64
@@ -151,113 +175,190 @@ pub fn sample_pupil(sys: &System, field_deg: f64, aiming: Aiming, n: usize) -> R
     if !(radius.is_finite() && radius > 0.0) {
         return Err(EngineError::Psf("exit pupil at infinity (image-space telecentric): reference sphere undefined".into()));
     }
-    let coord = |i: usize| -1.0 + (2.0 * i as f64 + 1.0) / n as f64;
-    let (mut px, mut py, mut idx) = (vec![], vec![], vec![]);
-    for b in 0..n {
-        for a in 0..n {
-            let (x, y) = (coord(a), coord(b));
-            if x * x + y * y <= 1.0 {
-                px.push(x);
-                py.push(y);
-                idx.push(b * n + a);
+    let grid = grid(n);
+    let nn = n * n;
+    let mut p = SPARE.with(|s| s.borrow_mut().take()).unwrap_or_else(Pupil::empty);
+    p.n = n;
+    p.wavelength_mm = sys.wavelength_nm * 1e-6;
+    p.n_image = n_img;
+    reset(&mut p.inside, nn, false);
+    reset(&mut p.valid, nn, false);
+    reset(&mut p.opd_waves, nn, 0.0);
+    reset(&mut p.flux, nn, 0.0);
+    reset(&mut p.l, nn, 0.0);
+    reset(&mut p.m, nn, 0.0);
+    reset(&mut p.jacobian, nn, 0.0);
+    reset(&mut p.sphere, nn, DVec3::ZERO);
+    reset(&mut p.image, nn, DVec3::ZERO);
+    p.chief = chief.p;
+    p.chief_dir = chief.d;
+    p.radius = radius;
+    p.launched_flux_mm2 = 0.0;
+    p.status_counts = [0; 5];
+    // The chief ray crosses the sphere a distance R before its image point.
+    let ctx = RayCtx {
+        chief: chief.p,
+        radius,
+        n_img,
+        chief_sphere_opl: chief_opl - n_img * radius,
+        cell: (2.0 / n as f64).powi(2),
+        beam: &beam,
+    };
+    let mut total = 0.0;
+    match aiming {
+        // Paraxial launches all carry the same area: trace straight into flat arrays.
+        Aiming::Paraxial => {
+            let weight = beam.flux_weight(&chief_launch);
+            let t = beam.trace_pupil_soa(&grid.px, &grid.py);
+            let v3 = |a: &[f64], k: usize| DVec3::new(a[3 * k], a[3 * k + 1], a[3 * k + 2]);
+            for (k, &j) in grid.idx.iter().enumerate() {
+                total += take_ray(&mut p, &ctx, j, v3(&t.origin, k), weight, Status::from_code(t.status[k]), v3(&t.position, k), v3(&t.direction, k), t.opl[k]);
             }
         }
-    }
-    let (launches, rays) = beam.trace_pupil(&px, &py);
-    let nn = n * n;
-    let mut p = Pupil {
-        n,
-        wavelength_mm: sys.wavelength_nm * 1e-6,
-        n_image: n_img,
-        inside: vec![false; nn],
-        valid: vec![false; nn],
-        opd_waves: vec![0.0; nn],
-        flux: vec![0.0; nn],
-        l: vec![0.0; nn],
-        m: vec![0.0; nn],
-        jacobian: vec![0.0; nn],
-        sphere: vec![DVec3::ZERO; nn],
-        image: vec![DVec3::ZERO; nn],
-        chief: chief.p,
-        chief_dir: chief.d,
-        radius,
-        launched_flux_mm2: 0.0,
-        status_counts: [0; 5],
-    };
-    // The chief ray crosses the sphere a distance R before its image point.
-    let chief_sphere_opl = chief_opl - n_img * radius;
-    let cell = (2.0 / n as f64).powi(2);
-    let mut total = 0.0;
-    for ((&j, l), r) in idx.iter().zip(&launches).zip(&rays) {
-        p.inside[j] = true;
-        let f = beam.flux_weight(l) * cell;
-        p.flux[j] = f;
-        total += f;
-        p.status_counts[r.status as usize] += 1;
-        if r.status != Status::Ok {
-            continue;
+        Aiming::Real => {
+            let (launches, rays) = beam.trace_pupil(&grid.px, &grid.py);
+            for ((&j, l), r) in grid.idx.iter().zip(&launches).zip(&rays) {
+                total += take_ray(&mut p, &ctx, j, l.origin, beam.flux_weight(l), r.status, r.p, r.d, r.opl);
+            }
         }
-        // Back along the ray from the image plane to the reference sphere (t < 0).
-        let v = r.p - chief.p;
-        let vd = v.dot(r.d);
-        let disc = vd * vd - v.length_squared() + radius * radius;
-        if disc < 0.0 {
-            p.status_counts[Status::Ok as usize] -= 1;
-            p.status_counts[Status::Missed as usize] += 1;
-            continue;
-        }
-        let t = -vd - disc.sqrt();
-        let opl = r.opl + beam.wavefront_offset(l.origin) + n_img * t;
-        p.valid[j] = true;
-        p.sphere[j] = r.p + t * r.d;
-        p.image[j] = r.p;
-        p.l[j] = r.d.x;
-        p.m[j] = r.d.y;
-        p.opd_waves[j] = (opl - chief_sphere_opl) / p.wavelength_mm;
     }
     p.launched_flux_mm2 = total;
     if total > 0.0 {
         p.flux.iter_mut().for_each(|f| *f /= total);
     }
     if p.n_valid() == 0 {
+        let counts = p.status_counts;
+        recycle(p);
         return Err(EngineError::Psf(format!(
             "no ray of the {}-sample pupil reaches the image at {field_deg} deg, {:.1} nm (status counts ok/missed/clipped/TIR/invalid = {:?})",
-            idx.len(),
+            grid.idx.len(),
             sys.wavelength_nm,
-            p.status_counts
+            counts
         )));
     }
     jacobians(&mut p);
     Ok(p)
 }
 
+struct RayCtx<'b, 's, 'l> {
+    chief: DVec3,
+    radius: f64,
+    n_img: f64,
+    chief_sphere_opl: f64,
+    cell: f64,
+    beam: &'b Beam<'s, 'l>,
+}
+
+/// Records one traced ray of grid cell j (launched at `origin` with flux weight `weight`)
+/// in the pupil; returns its flux.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn take_ray(p: &mut Pupil, c: &RayCtx, j: usize, origin: DVec3, weight: f64, status: Status, pos: DVec3, dir: DVec3, opl: f64) -> f64 {
+    p.inside[j] = true;
+    let f = weight * c.cell;
+    p.flux[j] = f;
+    p.status_counts[status as usize] += 1;
+    if status != Status::Ok {
+        return f;
+    }
+    // Back along the ray from the image plane to the reference sphere (t < 0).
+    let v = pos - c.chief;
+    let vd = v.dot(dir);
+    let disc = vd * vd - v.length_squared() + c.radius * c.radius;
+    if disc < 0.0 {
+        p.status_counts[Status::Ok as usize] -= 1;
+        p.status_counts[Status::Missed as usize] += 1;
+        return f;
+    }
+    let t = -vd - disc.sqrt();
+    let opl = opl + c.beam.wavefront_offset(origin) + c.n_img * t;
+    p.valid[j] = true;
+    p.sphere[j] = pos + t * dir;
+    p.image[j] = pos;
+    p.l[j] = dir.x;
+    p.m[j] = dir.y;
+    p.opd_waves[j] = (opl - c.chief_sphere_opl) / p.wavelength_mm;
+    f
+}
+
+/// The grid's cell centres inside the unit circle: x, y and cell index (row = y).
+struct Grid {
+    n: usize,
+    px: Vec<f64>,
+    py: Vec<f64>,
+    idx: Vec<usize>,
+}
+
+thread_local! {
+    /// The last grid built on this thread, and a pupil whose buffers can be reused.
+    static GRID: RefCell<Option<Arc<Grid>>> = const { RefCell::new(None) };
+    static SPARE: RefCell<Option<Pupil>> = const { RefCell::new(None) };
+}
+
+fn grid(n: usize) -> Arc<Grid> {
+    GRID.with(|c| {
+        let mut c = c.borrow_mut();
+        if let Some(g) = c.as_ref().filter(|g| g.n == n) {
+            return g.clone();
+        }
+        let coord = |i: usize| -1.0 + (2.0 * i as f64 + 1.0) / n as f64;
+        let mut g = Grid { n, px: vec![], py: vec![], idx: vec![] };
+        for b in 0..n {
+            for a in 0..n {
+                let (x, y) = (coord(a), coord(b));
+                if x * x + y * y <= 1.0 {
+                    g.px.push(x);
+                    g.py.push(y);
+                    g.idx.push(b * n + a);
+                }
+            }
+        }
+        let g = Arc::new(g);
+        *c = Some(g.clone());
+        g
+    })
+}
+
+fn reset<T: Clone>(v: &mut Vec<T>, n: usize, x: T) {
+    v.clear();
+    v.resize(n, x);
+}
+
+/// Hands a pupil that is no longer needed back, so that the next `sample_pupil` on this
+/// thread reuses its buffers instead of allocating (and page-faulting) fresh ones.
+pub fn recycle(p: Pupil) {
+    SPARE.with(|s| *s.borrow_mut() = Some(p));
+}
+
 /// d(L, M)/d(a, b) by central differences where both neighbours are valid, one-sided
 /// otherwise, and the grid-average slope for isolated samples.
 fn jacobians(p: &mut Pupil) {
     let n = p.n;
-    let deriv = |v: &Vec<f64>, j: usize, step: usize, at_lo: bool, at_hi: bool| -> Option<f64> {
-        let lo = !at_lo && p.valid[j - step];
-        let hi = !at_hi && p.valid[j + step];
-        match (lo, hi) {
-            (true, true) => Some(0.5 * (v[j + step] - v[j - step])),
-            (false, true) => Some(v[j + step] - v[j]),
-            (true, false) => Some(v[j] - v[j - step]),
-            _ => None,
+    let Pupil { valid, l, m, jacobian: jac, .. } = p;
+    // Difference over the valid neighbours lo = j - step and/or hi = j + step (one at least).
+    #[inline(always)]
+    fn diff(v: &[f64], j: usize, step: usize, lo: bool, hi: bool) -> f64 {
+        if lo && hi {
+            0.5 * (v[j + step] - v[j - step])
+        } else if hi {
+            v[j + step] - v[j]
+        } else {
+            v[j] - v[j - step]
         }
-    };
-    let mut jac = vec![0.0; n * n];
+    }
     let (mut sum, mut cnt) = (0.0, 0usize);
     for b in 0..n {
         for a in 0..n {
             let j = b * n + a;
-            if !p.valid[j] {
+            if !valid[j] {
+                jac[j] = 0.0;
                 continue;
             }
-            let la = deriv(&p.l, j, 1, a == 0, a + 1 == n);
-            let ma = deriv(&p.m, j, 1, a == 0, a + 1 == n);
-            let lb = deriv(&p.l, j, n, b == 0, b + 1 == n);
-            let mb = deriv(&p.m, j, n, b == 0, b + 1 == n);
-            if let (Some(la), Some(ma), Some(lb), Some(mb)) = (la, ma, lb, mb) {
+            let (lo_a, hi_a) = (a > 0 && valid[j - 1], a + 1 < n && valid[j + 1]);
+            let (lo_b, hi_b) = (b > 0 && valid[j - n], b + 1 < n && valid[j + n]);
+            if (lo_a || hi_a) && (lo_b || hi_b) {
+                let (la, ma) = (diff(l, j, 1, lo_a, hi_a), diff(m, j, 1, lo_a, hi_a));
+                let (lb, mb) = (diff(l, j, n, lo_b, hi_b), diff(m, j, n, lo_b, hi_b));
                 jac[j] = (la * mb - lb * ma).abs();
                 sum += jac[j];
                 cnt += 1;
@@ -268,9 +369,8 @@ fn jacobians(p: &mut Pupil) {
     }
     let mean = if cnt > 0 { sum / cnt as f64 } else { 0.0 };
     for (j, v) in jac.iter_mut().enumerate() {
-        if p.valid[j] && *v < 0.0 {
+        if valid[j] && *v < 0.0 {
             *v = mean;
         }
     }
-    p.jacobian = jac;
 }
