@@ -332,8 +332,8 @@ fn mirror_symmetric(n: usize, valid: &[bool], field: &[Complex64], res_l: &[f64]
 }
 
 /// Pupil rows per parallel task (row transforms) and transform columns per task.
-const ROWS_PER_TASK: usize = 16;
-const COLS_PER_TASK: usize = 12;
+const ROWS_PER_TASK: usize = 32;
+const COLS_PER_TASK: usize = 24;
 
 pub fn fft_psf(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics) -> Result<(Vec<f64>, Option<f64>)> {
     fft_psf_impl(p, o, d, true)
@@ -598,8 +598,8 @@ fn fft_psf_impl(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mirror: bool
     }
     let (ry, rx) = (imax / nx, imax % nx);
     let on_edge = |r: usize, len: usize| len < g && (r == 0 || r + 1 == len);
-    let strehl = if on_edge(rx, nx) || on_edge(ry, ny) {
-        d.warn(format!("Strehl not reported: the PSF peak lies at or beyond the edge of the {}x{} window", o.size, o.size));
+    // Where to refine the peak: None at the window edge, else (x, y, Taylor error there).
+    let vertex = if on_edge(rx, nx) || on_edge(ry, ny) {
         None
     } else {
         let at = |yy: usize, xx: usize| native[(yy % ny) * nx + xx % nx];
@@ -608,25 +608,43 @@ fn fft_psf_impl(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mirror: bool
         let fx = ((x0 + rx) as f64 - (g / 2) as f64 + super::parabolic_offset(l, native[imax], r)) * dx;
         let fy = ((y0 + ry) as f64 - (g / 2) as f64 + super::parabolic_offset(dn, native[imax], up)) * dy;
         let eps_pk = k * (max_rl * fx.abs() + max_rm * fy.abs());
-        let trunc_pk = eps_pk.powi(order as i32 + 1) / factorial(order + 1);
-        if trunc_pk > STREHL_TAYLOR_TOL_RAD {
-            d.warn(format!(
-                "Strehl not reported: at the PSF peak the FFT field is inaccurate (pupil distortion phase {eps_pk:.2} rad, order-{order} error {trunc_pk:.2e} rad)"
-            ));
-            None
-        } else {
-            let peak = direct_sum(p, &valid, &w, k, fx, fy).max(native[imax]);
-            Some(peak / (peak_ref * peak_ref))
-        }
+        Some((fx, fy, eps_pk, eps_pk.powi(order as i32 + 1) / factorial(order + 1)))
     };
+    let trusted = vertex.filter(|v| v.3 <= STREHL_TAYLOR_TOL_RAD);
 
-    // Resample onto the requested detector grid. The transform is energy conserving by
-    // construction (weights sqrt(f J)), the same absolute scale as the Huygens PSF.
+    // Resample onto the requested detector grid (the transform is energy conserving by
+    // construction, weights sqrt(f J): the same absolute scale as the Huygens PSF), beside
+    // the exact direct sum at the peak and the spot extent.
     let shift = |w: &mut Vec<Vec<(usize, f64)>>, o0: usize| w.iter_mut().flatten().for_each(|(m, _)| *m -= o0);
     let (mut wx, mut wy) = (wx, wy);
     shift(&mut wx, x0);
     shift(&mut wy, y0);
-    let mut out = resample::apply(&native, nx, &wy, &wx);
+    let ((direct, (ex, ey)), mut out) = rayon::join(
+        || {
+            let direct = trusted.map(|(fx, fy, _, _)| direct_sum(p, &valid, &w, k, fx, fy));
+            // Geometric check for wrap-around: rays landing beyond half the FFT period alias.
+            let (mut ex, mut ey) = (0.0f64, 0.0f64);
+            for &j in &valid {
+                ex = ex.max((p.image[j].x - p.chief.x).abs());
+                ey = ey.max((p.image[j].y - p.chief.y).abs());
+            }
+            (direct, (ex, ey))
+        },
+        || resample::apply(&native, nx, &wy, &wx),
+    );
+    let strehl = match (vertex, direct) {
+        (None, _) => {
+            d.warn(format!("Strehl not reported: the PSF peak lies at or beyond the edge of the {}x{} window", o.size, o.size));
+            None
+        }
+        (Some((_, _, eps_pk, trunc_pk)), None) => {
+            d.warn(format!(
+                "Strehl not reported: at the PSF peak the FFT field is inaccurate (pupil distortion phase {eps_pk:.2} rad, order-{order} error {trunc_pk:.2e} rad)"
+            ));
+            None
+        }
+        (Some(_), Some(direct)) => Some(direct.max(native[imax]) / (peak_ref * peak_ref)),
+    };
     if !o.integrate {
         out.iter_mut().for_each(|v| *v = v.max(0.0));
     }
@@ -650,12 +668,6 @@ fn fft_psf_impl(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mirror: bool
             period_x * 1e3,
             period_y * 1e3
         ));
-    }
-    // Geometric check for wrap-around: rays landing beyond half the FFT period alias.
-    let (mut ex, mut ey) = (0.0f64, 0.0f64);
-    for &j in &valid {
-        ex = ex.max((p.image[j].x - p.chief.x).abs());
-        ey = ey.max((p.image[j].y - p.chief.y).abs());
     }
     if ex > 0.5 * period_x || ey > 0.5 * period_y {
         d.warn(format!(
@@ -684,13 +696,22 @@ fn pupil_weights(p: &Pupil, amp: f64, idx: &[usize]) -> (Vec<f64>, Vec<f64>) {
 
 /// |U(x, y)|^2 by the exact direct sum over the listed samples with weights w.
 fn direct_sum(p: &Pupil, idx: &[usize], w: &[f64], k: f64, x: f64, y: f64) -> f64 {
-    // Phase in turns: W + k (L x + M y) / 2 pi.
+    // Phase in turns: W + k (L x + M y) / 2 pi; blocks of samples on the stack.
+    const B: usize = 64;
     let (tx, ty) = (k * x / (2.0 * PI), k * y / (2.0 * PI));
-    let t: Vec<f64> = idx.iter().map(|&j| p.opd_waves[j] + p.l[j] * tx + p.m[j] * ty).collect();
-    let mut z = zeros(idx.len());
-    cis_scaled(&t, w, &mut z);
-    let (re, im) = z.iter().fold((0.0, 0.0), |(re, im), z| (re + z.re, im + z.im));
-    recycle(z);
+    let (mut t, mut z) = ([0.0; B], [Complex64::new(0.0, 0.0); B]);
+    let (mut re, mut im) = (0.0, 0.0);
+    for (idx, w) in idx.chunks(B).zip(w.chunks(B)) {
+        for (t, &j) in t.iter_mut().zip(idx) {
+            *t = p.opd_waves[j] + p.l[j] * tx + p.m[j] * ty;
+        }
+        let m = idx.len();
+        cis_scaled(&t[..m], w, &mut z[..m]);
+        for z in &z[..m] {
+            re += z.re;
+            im += z.im;
+        }
+    }
     re * re + im * im
 }
 
