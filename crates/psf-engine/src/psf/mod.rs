@@ -111,17 +111,10 @@ impl Diagnostics {
 pub struct Psf {
     pub size: usize,
     pub data: Vec<f64>,
-    /// Strehl ratio; NaN where it cannot be trusted (the diagnostics then hold
-    /// `"strehl": null` and a warning saying why). `strehl_ratio()` gives it as an Option.
-    pub strehl: f64,
+    /// Strehl ratio; None where it cannot be trusted (the diagnostics then hold
+    /// `"strehl": null` and a warning saying why).
+    pub strehl: Option<f64>,
     pub diagnostics: Diagnostics,
-}
-
-impl Psf {
-    /// The Strehl ratio, or None where it could not be trusted (see the warnings).
-    pub fn strehl_ratio(&self) -> Option<f64> {
-        self.strehl.is_finite().then_some(self.strehl)
-    }
 }
 
 /// Largest Strehl ratio accepted (1 plus rounding and peak-refinement slack).
@@ -212,5 +205,5 @@ fn psf_in_pool(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) 
     pupil::recycle(p);
     d.set("strehl", strehl.map_or(Value::Null, Value::from));
     d.set("time_s", t0.elapsed().as_secs_f64());
-    Ok(Psf { size: o.size, data, strehl: strehl.unwrap_or(f64::NAN), diagnostics: d })
+    Ok(Psf { size: o.size, data, strehl, diagnostics: d })
 }
