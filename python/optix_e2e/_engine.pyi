@@ -86,6 +86,26 @@ def trace_field(
     read-only broadcast view of the one beam direction.
     """
 
+def trace_field_path(
+    lens_json: str,
+    field_deg: float,
+    px: NDArray[np.float64],
+    py_: NDArray[np.float64],
+    wavelength_nm: float,
+    aiming: str = "paraxial",
+) -> dict[str, NDArray[Any]]:
+    """Like :func:`trace_field`, plus each ray's path through every surface (for layouts).
+
+    Extra keys: path (n, n_surfaces + 1, 3), the global intersection point with each
+    surface and, last, the image plane; last (n,) int32, the index of each ray's last
+    valid point (-1: none), with zeros after it; launch_direction (3,).  A ray that
+    reaches the image has last = n_surfaces and path[:, -1] equal to ``position`` (bit
+    for bit the :func:`trace_field` result).  A failed ray stops where it failed: a
+    clipped ray at its hit point on the clipping surface (outside its clear aperture),
+    a TIR ray where it reflected, a ray that missed surface i at surface i - 1.
+    status and surface are those of the image-plane trace.
+    """
+
 def spot(
     lens_json: str,
     field_deg: float,

@@ -168,6 +168,28 @@ fn trace_field<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: PyRead
 }
 
 #[pyfunction]
+#[pyo3(signature = (lens_json, field_deg, px, py_, wavelength_nm, aiming="paraxial"))]
+fn trace_field_path<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: PyReadonlyArray1<'py, f64>, py_: PyReadonlyArray1<'py, f64>, wavelength_nm: f64, aiming: &str) -> PyResult<Bound<'py, PyDict>> {
+    let (pxs, pys) = (contiguous(&px), contiguous(&py_));
+    if pxs.len() != pys.len() {
+        return Err(pyo3::exceptions::PyValueError::new_err(format!("px ({}) and py ({}) differ in length", pxs.len(), pys.len())));
+    }
+    let aiming: Aiming = aiming.parse().map_err(to_py)?;
+    let (p, dir) = run(py, || {
+        let lens = parse_lens(lens_json)?;
+        let sys = psf_engine::System::new(&lens, wavelength_nm)?;
+        let beam = psf_engine::Beam::new(&sys, field_deg, aiming)?;
+        Ok((beam.trace_path(&pxs, &pys)?, beam.dir.to_array()))
+    })?;
+    let (n, m) = (p.last.len(), p.points);
+    let dict = traced_dict(py, p.image)?;
+    dict.set_item("path", p.position.into_pyarray(py).reshape([n, m, 3])?)?;
+    dict.set_item("last", p.last.into_pyarray(py))?;
+    dict.set_item("launch_direction", dir.to_vec().into_pyarray(py))?;
+    Ok(dict)
+}
+
+#[pyfunction]
 #[pyo3(signature = (lens_json, field_deg, wavelengths_nm, weights=None, rings=64, aiming="paraxial"))]
 fn spot<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavelengths_nm: Vec<f64>, weights: Option<Vec<f64>>, rings: usize, aiming: &str) -> PyResult<Bound<'py, PyDict>> {
     let aiming: Aiming = aiming.parse().map_err(to_py)?;
@@ -263,6 +285,7 @@ fn _engine(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(paraxial, m)?)?;
     m.add_function(wrap_pyfunction!(trace, m)?)?;
     m.add_function(wrap_pyfunction!(trace_field, m)?)?;
+    m.add_function(wrap_pyfunction!(trace_field_path, m)?)?;
     m.add_function(wrap_pyfunction!(spot, m)?)?;
     m.add_function(wrap_pyfunction!(psf, m)?)?;
     m.add_function(wrap_pyfunction!(psf_rgb, m)?)?;

@@ -215,23 +215,91 @@ impl<'s, 'l> Beam<'s, 'l> {
 
     /// Launch and trace rays at pupil points into flat arrays (see `System::trace_soa`).
     pub fn trace_pupil_soa(&self, px: &[f64], py: &[f64]) -> Traced {
-        match self.aiming {
+        self.trace_pupil_to(px, py, End::Image)
+    }
+
+    /// Launch rays at pupil points and trace them to `end`: the image plane, or the
+    /// intersection with a surface (before refracting there).
+    pub fn trace_pupil_to(&self, px: &[f64], py: &[f64], end: End) -> Traced {
+        let launches = (self.aiming == Aiming::Real).then(|| self.launches(px, py));
+        self.trace_with(self.sys, launches.as_deref(), px, py, end)
+    }
+
+    /// Trace through `sys` (this beam's system or an unclipped copy) with the launches
+    /// computed once (`None`: paraxial launches, computed in the loader).
+    fn trace_with(&self, sys: &System, launches: Option<&[Launch]>, px: &[f64], py: &[f64], end: End) -> Traced {
+        match launches {
             // Paraxial launches are computed in the kernel's loader: no intermediate array.
-            Aiming::Paraxial => {
+            None => {
                 let h = 0.5 * self.par.epd;
                 let d = self.dir.to_array();
                 // origin(e) = origin(0) + (e, 0), bit for bit.
                 let o0 = self.origin(DVec2::ZERO);
-                self.sys.trace_soa(px.len(), End::Image, |start, b| {
+                sys.trace_soa(px.len(), end, |start, b| {
                     for j in 0..b.len {
                         b.set(j, [px[start + j] * h + o0.x, py[start + j] * h + o0.y, o0.z], d);
                     }
                 })
             }
-            Aiming::Real => {
-                let launches = self.launches(px, py);
-                self.sys.trace_soa(px.len(), End::Image, |start, b| self.load(&launches, start, b))
-            }
+            Some(l) => sys.trace_soa(px.len(), end, |start, b| self.load(l, start, b)),
         }
     }
+
+    /// Each ray's path through every surface and onto the image plane (for layouts).
+    ///
+    /// Point `i` of a ray is its intersection with surface `i` (`i` = surfaces.len(): the
+    /// image plane), from the same kernel as the image trace, so the last point of a ray
+    /// that reaches the image equals `trace_pupil_soa` bit for bit. A failed ray stops
+    /// where it failed: a clipped ray keeps its hit point on the surface that clipped it
+    /// (outside the clear aperture), a TIR ray the point where it reflected, a ray that
+    /// missed a surface the point before. Points after `last` are zero.
+    pub fn trace_path(&self, px: &[f64], py: &[f64]) -> Result<RayPath> {
+        if px.len() != py.len() {
+            return arg(format!("px ({}) and py ({}) differ in length", px.len(), py.len()));
+        }
+        let (n, k) = (px.len(), self.sys.lens.surfaces.len());
+        let launches = (self.aiming == Aiming::Real).then(|| self.launches(px, py));
+        let launches = launches.as_deref();
+        let image = self.trace_with(self.sys, launches, px, py, End::Image);
+        // Geometry does not depend on clipping: an unclipped copy gives the hit point of
+        // a ray on the surface whose clear aperture stopped it.
+        let mut open = System::new(self.sys.lens, self.sys.wavelength_nm)?;
+        open.clip = false;
+        let clipped_at = |j: usize| (image.status[j] == Status::Clipped as u8).then_some(image.surface[j]);
+        let mut position = vec![0.0; n * (k + 1) * 3];
+        let mut last = vec![-1i32; n];
+        for i in 0..=k {
+            let end = if i == k { End::Image } else { End::Surface(i) };
+            let here = if i == k { None } else { Some(self.trace_with(self.sys, launches, px, py, end)) };
+            let t = here.as_ref().unwrap_or(&image);
+            let unclipped = (0..n).any(|j| clipped_at(j) == Some(i as i32)).then(|| self.trace_with(&open, launches, px, py, end));
+            for j in 0..n {
+                let src = if t.status[j] == Status::Ok as u8 {
+                    &t.position
+                } else if clipped_at(j) == Some(i as i32) {
+                    &unclipped.as_ref().unwrap().position
+                } else {
+                    continue;
+                };
+                let o = (j * (k + 1) + i) * 3;
+                position[o..o + 3].copy_from_slice(&src[3 * j..3 * j + 3]);
+                last[j] = i as i32;
+            }
+        }
+        Ok(RayPath { points: k + 1, position, last, image })
+    }
+}
+
+/// Ray paths through a lens (`Beam::trace_path`).
+#[derive(Clone, Debug, Default)]
+pub struct RayPath {
+    /// Points per ray: one per surface plus the image plane.
+    pub points: usize,
+    /// Row-major (n, points, 3), global frame; zeros after `last`.
+    pub position: Vec<f64>,
+    /// Index of each ray's last valid point, or -1 (none: missed surface 1 or not aimable).
+    pub last: Vec<i32>,
+    /// The trace to the image plane: launch points, status, failing surface, and the
+    /// direction and optical path at the image of the rays that arrived.
+    pub image: Traced,
 }
