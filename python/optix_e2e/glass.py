@@ -15,9 +15,9 @@ Lookup rules
   alphabetically); inside one catalog the ``optical`` class wins over ``infrared``,
   ``misc``, ``i-line`` and ``obsolete``.
 * ``{"glass": NAME, "catalog": VENDOR}`` restricts the search to one catalog.
-* Polymers: ``PMMA`` (alias ``acrylic``), ``polycarbonate`` (alias ``PC``) and
-  ``polystyrene`` (alias ``PS``) map to the pages refractiveindex.info shows by default
-  (Sultanova et al. 2009); their catalog is ``organic``.
+* Polymers: ``PMMA`` (alias ``acrylic``), ``polycarbonate`` (aliases ``PC`` and Zemax's
+  ``POLYCARB``) and ``polystyrene`` (``PS``, ``POLYSTYR``) map to the pages
+  refractiveindex.info shows by default (Sultanova et al. 2009); their catalog is ``organic``.
 * The environment variable ``OPTIX_GLASS_DB`` may point to another copy of the
   database's ``data`` folder.
 """
@@ -53,7 +53,9 @@ _POLYMERS = {
     "polycarbonate": ("polycarbonate", "organic/(C16H14O3)n - polycarbonate/nk/Sultanova.yml"),
     "polystyrene": ("polystyrene", "organic/(C8H8)n - polystyrene/nk/Sultanova.yml"),
 }
-_ALIASES = {"acrylic": "pmma", "pc": "polycarbonate", "ps": "polystyrene"}
+# Zemax's MISC catalog spells the plastics POLYCARB and POLYSTYR.
+_ALIASES = {"acrylic": "pmma", "pc": "polycarbonate", "ps": "polystyrene",
+            "polycarb": "polycarbonate", "polystyr": "polystyrene"}
 
 
 class GlassError(ValueError):

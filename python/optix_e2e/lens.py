@@ -3,6 +3,7 @@ wrappers around the Rust engine (:mod:`optix_e2e._engine`)."""
 
 from __future__ import annotations
 
+import copy
 import json
 from pathlib import Path
 from typing import Any, Sequence
@@ -57,6 +58,10 @@ class Lens:
     def __init__(self, data: dict, source: str = "<dict>"):
         self.source = source
         self.data = resolve_prescription(data, source)
+        #: the prescription as given (catalog names unresolved): what save() writes
+        self.raw = copy.deepcopy(data)
+        #: for a lens read from .zmx: the :class:`optix_e2e.zemax.ZemaxImport` report
+        self.zemax_import = None
         self._json: str | None = None
 
     # ----- loading -------------------------------------------------------------
@@ -71,13 +76,22 @@ class Lens:
             return cls.from_file(path)
         if isinstance(spec, str) and spec in bundled_lenses():
             return cls.from_file(BUNDLED_DIR / f"{spec}.json", source=f"bundled lens {spec!r}")
-        if path.suffix.lower() == ".json" or path.parent != Path("."):
+        if path.suffix.lower() in (".json", ".zmx") or path.parent != Path("."):
             raise LensLoadError(f"{spec}: no such lens file")
         raise LensLoadError(f"{spec!r} is neither a lens file nor a bundled lens (bundled: {', '.join(bundled_lenses())})")
 
     @classmethod
-    def from_file(cls, path: "str | Path", source: str | None = None) -> "Lens":
+    def from_file(cls, path: "str | Path", source: str | None = None, *, strict: bool = True) -> "Lens":
+        """A JSON prescription, or a Zemax .zmx file (by extension; ``strict=False``
+        lists unknown .zmx keywords as ignored instead of failing, see docs/zemax.md)."""
         path = Path(path)
+        if path.suffix.lower() == ".zmx":
+            from .zemax import read_zmx
+
+            imp = read_zmx(path, strict=strict)
+            lens = cls(imp.data, source=source or str(path))
+            lens.zemax_import = imp
+            return lens
         try:
             text = path.read_text(encoding="utf-8")
         except OSError as exc:
@@ -88,6 +102,27 @@ class Lens:
             raise LensLoadError(f"{path}:{exc.lineno}:{exc.colno}: invalid JSON: {exc.msg}") from exc
         data.setdefault("name", path.stem) if isinstance(data, dict) else None
         return cls(data, source=source or str(path))
+
+    # ----- saving -----------------------------------------------------------------
+    def to_zmx(self) -> str:
+        """The prescription as Zemax .zmx text (docs/zemax.md)."""
+        from .zemax import zmx_text
+
+        return zmx_text(self.raw, self.source)
+
+    def save(self, path: "str | Path", *, encoding: str = "utf-8") -> Path:
+        """Write the prescription as ``.json`` or ``.zmx`` (by extension); ``encoding``
+        ("utf-8" or "utf-16", OpticStudio's own) applies to .zmx."""
+        path = Path(path)
+        suffix = path.suffix.lower()
+        if suffix == ".zmx":
+            from .zemax import write_zmx
+
+            return write_zmx(self.raw, path, encoding=encoding, source=self.source)
+        if suffix == ".json":
+            path.write_text(json.dumps(self.raw, indent=2) + "\n", encoding="utf-8")
+            return path
+        raise LensLoadError(f"{path}: unknown lens file extension {path.suffix!r} (use .json or .zmx)")
 
     # ----- prescription data ------------------------------------------------------
     @property

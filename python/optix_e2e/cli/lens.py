@@ -1,9 +1,12 @@
-"""``optix lens ...``: prescription summaries."""
+"""``optix lens ...``: prescription summaries and format conversion (JSON <-> Zemax .zmx)."""
 
 from __future__ import annotations
 
 import click
 
+from pathlib import Path
+
+from ..lens import Lens
 from ._common import AIMING, dumps, friendly_errors, load_lens
 
 PARAXIAL_KEYS = ("efl_mm", "bfl_mm", "f_number", "epd_mm", "total_track_mm")
@@ -11,7 +14,7 @@ PARAXIAL_KEYS = ("efl_mm", "bfl_mm", "f_number", "epd_mm", "total_track_mm")
 
 @click.group()
 def lens():
-    """Inspect lens prescriptions."""
+    """Inspect and convert lens prescriptions (LENS: .json, .zmx or a bundled name)."""
 
 
 @lens.command("info")
@@ -53,3 +56,42 @@ def info(lens_spec, aiming, rings, as_json):
     click.echo(f"  {'field (deg)':>11}  {'RMS spot (um)':>13}  {'rel. illum.':>11}")
     for row in fields:
         click.echo(f"  {row['field_deg']:>11.3f}  {row['rms_spot_um']:>13.4f}  {row['relative_illumination']:>11.4f}")
+
+
+FORMATS = (".json", ".zmx")
+
+
+@lens.command("convert")
+@click.argument("src", metavar="IN")
+@click.argument("dst", metavar="OUT", type=click.Path(dir_okay=False))
+@click.option("--utf16", is_flag=True, help="Write .zmx as UTF-16 (OpticStudio's own encoding) instead of UTF-8.")
+@click.option("--lenient", is_flag=True,
+              help="Reading .zmx: list unknown keywords as ignored instead of failing "
+                   "(known-unsupported features still fail).")
+@friendly_errors
+def convert(src, dst, utf16, lenient):
+    """Convert IN to OUT; formats by extension (.json, .zmx). IN may be a bundled name.
+
+    Prints what a .zmx import ignored, and the paraxial EFL/BFL of both sides.
+    """
+    out = Path(dst)
+    if out.suffix.lower() not in FORMATS:
+        raise click.UsageError(f"OUT {dst}: unknown extension {out.suffix!r} (use .json or .zmx)")
+    if Path(src).suffix.lower() not in FORMATS + ("",):
+        raise click.UsageError(f"IN {src}: unknown extension {Path(src).suffix!r} (use .json or .zmx)")
+    if Path(src).suffix.lower() == ".zmx" and Path(src).is_file():
+        lens_ = Lens.from_file(src, strict=not lenient)
+    else:
+        lens_ = load_lens(src)
+    imp = lens_.zemax_import
+    if imp is not None:
+        for note in imp.notes:
+            click.echo(f"note: {note}", err=True)
+        if imp.ignored:
+            click.echo("ignored (no effect on the nominal optics, see docs/zemax.md):", err=True)
+            click.echo("  " + imp.ignored_summary().replace("\n", "\n  "), err=True)
+    lens_.save(out, encoding="utf-16" if utf16 else "utf-8")
+    back = Lens.from_file(out, strict=True)
+    a, b = lens_.paraxial(), back.paraxial()
+    click.echo(f"wrote {out} ({len(back.surfaces)} surfaces)   EFL {a['efl_mm']:.9g} -> {b['efl_mm']:.9g} mm"
+               f"   BFL {a['bfl_mm']:.9g} -> {b['bfl_mm']:.9g} mm")

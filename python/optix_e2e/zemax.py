@@ -1,0 +1,705 @@
+"""Zemax OpticStudio ``.zmx`` import and export (sequential lenses); see docs/zemax.md.
+
+:func:`read_zmx` turns a file into our JSON prescription (docs/lens-format.md) plus a
+report of what was ignored; :func:`write_zmx` / :func:`zmx_text` go the other way.
+Nothing is dropped silently: a keyword either maps onto the prescription, is listed in
+:attr:`ZemaxImport.ignored` (display / bookkeeping only, see ``IGNORED``), or raises a
+:class:`ZemaxError` that names the file, the line and the keyword.  Unknown glass is an
+error with near matches, never a substituted index.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from . import glass as _glass
+
+__all__ = ["ZemaxError", "ZemaxImport", "read_zmx", "parse_zmx", "write_zmx", "zmx_text"]
+
+#: Lens units -> millimetres (the UNIT line's first token).
+UNITS_MM = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0, "M": 1000.0}
+#: Keywords that do not change the nominal optics: listed in the report, then skipped.
+IGNORED = {
+    # header: file/version/UI state, analysis defaults, ray-aiming and polarization settings
+    "VERS", "NOTE", "AUTH", "IWDP", "PFIL", "LANG", "GFAC", "RAIM", "PUSH", "SDMA", "OMMA",
+    "ROPD", "HYPR", "PICB", "POLS", "GLRS", "GSTD", "NSCD", "COFN", "LUID", "BLNK", "TOL",
+    "MOFF", "FWGN", "FWGT", "VDXN", "VDYN", "VCXN", "VCYN", "VANN", "CONF", "DMFS", "SUMM",
+    # surface: drawing, slabs, physical-optics settings, mechanical size, coating (transmission)
+    "HIDE", "MIRR", "SLAB", "POPS", "MEMA", "COAT", "FIMP", "MAZH", "DIAZ",
+    # tolerancing data, displayed EFL, glass-catalog cache
+    "TOLE", "EFFL", "GLCZ",
+}
+#: Known keywords whose meaning this reader cannot represent: always an error.
+UNSUPPORTED = {
+    "OBNA": "object-space NA aperture (use ENPD, FNUM or FLOA)",
+    "EFNO": "working F/# aperture (use ENPD, FNUM or FLOA)",
+    "SCBD": "surface tilt/decenter",
+    "TILT": "surface tilt", "DECX": "surface decenter", "DECY": "surface decenter",
+    "XDAT": "extra-data surface parameters",
+    "PZUP": "pickup solve", "ELAP": "elliptical aperture", "SQAP": "rectangular aperture",
+    "UDAP": "user-defined aperture", "CLOB": "circular obscuration", "ELOB": "elliptical obscuration",
+    "SQOB": "rectangular obscuration",
+}
+SURFACE_TYPES = ("STANDARD", "EVENASPH")
+#: Our catalog folder for a Zemax GCAT name (lower-cased names not listed map to themselves).
+GCAT_TO_CATALOG = {"MISC": "organic"}
+CATALOG_TO_GCAT = {"organic": "MISC"}
+#: Zemax MISC-catalog names of our polymers.
+ZEMAX_POLYMER_NAMES = {"PMMA": "PMMA", "polycarbonate": "POLYCARB", "polystyrene": "POLYSTYR"}
+N_EVENASPH = 8  # PARM 1..8 = a2, a4, ..., a16
+
+
+class ZemaxError(ValueError):
+    """A .zmx file (or a lens to be written as one) this module cannot map faithfully."""
+
+
+@dataclass
+class ZemaxImport:
+    """What :func:`read_zmx` found: the prescription dict and the ignored keywords."""
+
+    data: dict
+    source: str
+    ignored: list[tuple[int, str, str]] = field(default_factory=list)  # (line, keyword, why)
+    notes: list[str] = field(default_factory=list)
+
+    def ignored_summary(self) -> str:
+        """One line per reason: ``why: KEY (line 3), KEY (lines 9, 17, ...)``."""
+        by_why: dict[str, dict[str, list[int]]] = {}
+        for line, key, why in self.ignored:
+            by_why.setdefault(why, {}).setdefault(key, []).append(line)
+        rows = []
+        for why, keys in by_why.items():
+            items = []
+            for key, lines in keys.items():
+                shown = ", ".join(map(str, lines[:3])) + (", ..." if len(lines) > 3 else "")
+                items.append(f"{key} (line{'s' if len(lines) > 1 else ''} {shown})")
+            rows.append(f"{why}: {', '.join(items)}")
+        return "\n".join(rows)
+
+
+# ----------------------------------------------------------------------------- reading
+def _decode(raw: bytes, source: str) -> tuple[str, str]:
+    """Text and the encoding used. OpticStudio writes UTF-16 LE with a BOM."""
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+        enc = "utf-16"
+    elif raw.startswith(b"\xef\xbb\xbf"):
+        enc = "utf-8-sig"
+    elif len(raw) > 1 and raw[1:2] == b"\x00":
+        enc = "utf-16-le"
+    else:
+        enc = "utf-8"
+    try:
+        return raw.decode(enc), enc
+    except UnicodeDecodeError as exc:
+        if enc.startswith("utf-16"):
+            raise ZemaxError(f"{source}: cannot decode as {enc} at byte {exc.start} "
+                             f"({exc.reason}; truncated file?)") from None
+        return raw.decode("latin-1"), "latin-1"  # older ANSI files
+
+
+def read_zmx(path: "str | Path", *, strict: bool = True) -> ZemaxImport:
+    """Read a sequential .zmx file (UTF-8 or UTF-16). ``strict=False`` lists unknown
+    keywords as ignored instead of failing (known-unsupported ones still fail)."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ZemaxError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    text, enc = _decode(raw, str(path))
+    imp = parse_zmx(text, source=str(path), strict=strict, name=path.stem)
+    imp.notes.insert(0, f"encoding {enc}")
+    return imp
+
+
+class _Parser:
+    def __init__(self, source: str, strict: bool):
+        self.source, self.strict = source, strict
+        self.ignored: list[tuple[int, str, str]] = []
+        self.notes: list[str] = []
+        self.hdr: dict[str, Any] = {}
+        self.surfs: list[dict[str, Any]] = []
+        self.wavm: dict[int, tuple[float, float, int]] = {}
+
+    def fail(self, line: int, key: str, msg: str):
+        raise ZemaxError(f"{self.source}:{line}: {key}: {msg}")
+
+    def num(self, line: int, key: str, tok: list[str], i: int, default=None) -> float:
+        if i >= len(tok):
+            if default is not None:
+                return default
+            self.fail(line, key, f"value {i} missing (truncated line?)")
+        try:
+            v = float(tok[i].replace(",", "."))  # some locales write decimal commas
+        except ValueError:
+            self.fail(line, key, f"expected a number, got {tok[i]!r}")
+        if not math.isfinite(v):
+            self.fail(line, key, f"expected a finite number, got {tok[i]!r}")
+        return v
+
+    def nums(self, line, key, tok):
+        return [self.num(line, key, tok, i) for i in range(1, len(tok))]
+
+    def where(self, s) -> str:
+        return f"SURF {s['id']}"
+
+    def feed(self, lineno: int, raw_line: str):
+        tok = raw_line.split()
+        if not tok:
+            return
+        key = tok[0]
+        rest = raw_line.strip()[len(key):].strip()
+        if key == "SURF":
+            sid = int(self.num(lineno, key, tok, 1))
+            if sid != len(self.surfs):
+                self.fail(lineno, key, f"surface {sid} out of order (expected SURF {len(self.surfs)})")
+            self.surfs.append({"id": sid, "line": lineno, "type": "STANDARD", "curv": 0.0,
+                               "disz": 0.0, "parm": {}, "lines": {}})
+            return
+        s = self.surfs[-1] if self.surfs else None
+        if key in UNSUPPORTED:
+            self.fail(lineno, key, f"{UNSUPPORTED[key]} is not supported")
+        if key in IGNORED:
+            self._ignore(lineno, key, tok, s)
+            return
+        handler = getattr(self, f"k_{key}", None)
+        if handler is not None and key in HEADER_KEYS:
+            handler(lineno, key, tok, rest, None)  # file-level: allowed anywhere
+            return
+        if handler is not None and s is None:
+            self.fail(lineno, key, "surface keyword before the first SURF")
+        if handler is None:
+            if self.strict:
+                self.fail(lineno, key, "unknown keyword; not supported by this reader "
+                          "(see docs/zemax.md; strict=False / --lenient lists it as ignored)")
+            self.ignored.append((lineno, key, "unknown keyword (lenient mode)"))
+            return
+        s["lines"][key] = lineno
+        handler(lineno, key, tok, rest, s)
+
+    def _ignore(self, line, key, tok, s):
+        why = "display/bookkeeping only"
+        if key in ("VDXN", "VDYN", "VCXN", "VCYN", "VANN"):
+            if any(v != 0 for v in self.nums(line, key, tok)):
+                why = "Zemax vignetting factors; optix vignettes by clipping at the semi-diameters instead"
+            else:
+                return  # all zero: nothing to report
+        elif key in ("FWGN", "FWGT"):
+            why = "field weights (used by Zemax's merit function only)"
+        elif key == "RAIM":
+            why = "ray-aiming setting (optix picks aiming per analysis: aiming=\"paraxial\"|\"real\")"
+        elif key == "COAT":
+            why = "coating (transmission only; optix traces uncoated geometry)"
+        self.ignored.append((line, key, why))
+
+    # header keywords ------------------------------------------------------------
+    def k_MODE(self, line, key, tok, rest, s):
+        if tok[1:2] != ["SEQ"]:
+            self.fail(line, key, f"only sequential files are supported (MODE SEQ), got {rest!r}")
+
+    def k_NAME(self, line, key, tok, rest, s):
+        self.hdr["name"] = rest.strip('"')
+
+    def k_UNIT(self, line, key, tok, rest, s):
+        u = tok[1].upper() if len(tok) > 1 else ""
+        if u not in UNITS_MM:
+            self.fail(line, key, f"unknown lens unit {u!r} (MM, CM, IN or METER)")
+        self.hdr["unit"] = u
+
+    def _aperture(self, line, key, ap):
+        if "aperture" in self.hdr:
+            self.fail(line, key, f"second aperture definition (first: {self.hdr['aperture_key']} "
+                      f"on line {self.hdr['aperture_line']})")
+        self.hdr.update(aperture=ap, aperture_key=key, aperture_line=line)
+
+    def k_ENPD(self, line, key, tok, rest, s):
+        v = self.num(line, key, tok, 1)
+        if v <= 0:
+            self.fail(line, key, f"entrance pupil diameter must be > 0, got {v}")
+        self._aperture(line, key, ("epd", v))
+
+    def k_FNUM(self, line, key, tok, rest, s):
+        v = self.num(line, key, tok, 1)
+        flag = int(self.num(line, key, tok, 2, default=0.0))
+        if flag != 0:
+            self.fail(line, key, f"FNUM type flag {flag} (only 0, image-space F/# = EFL/EPD, is supported)")
+        if v <= 0:
+            self.fail(line, key, f"F-number must be > 0, got {v}")
+        self._aperture(line, key, ("fno", v))
+
+    def k_FLOA(self, line, key, tok, rest, s):
+        self._aperture(line, key, ("floa", None))
+
+    def k_ENVD(self, line, key, tok, rest, s):
+        t, p = self.num(line, key, tok, 1, 20.0), self.num(line, key, tok, 2, 1.0)
+        if t != 20 or p != 1:
+            self.fail(line, key, f"environment {t:g} C, {p:g} atm: thermal/pressure index changes "
+                      "are not modelled (20 C, 1 atm only)")
+        self.ignored.append((line, key, "standard environment 20 C, 1 atm"))
+
+    def k_GCAT(self, line, key, tok, rest, s):
+        self.hdr["gcat"] = tok[1:]
+
+    def k_FTYP(self, line, key, tok, rest, s):
+        ftype = int(self.num(line, key, tok, 1, 0.0))
+        if ftype != 0:
+            kinds = {1: "object height", 2: "paraxial image height", 3: "real image height",
+                     4: "theodolite angle"}
+            self.fail(line, key, f"field type {ftype} ({kinds.get(ftype, 'unknown')}); only angle "
+                      "fields (type 0) with the object at infinity are supported")
+        if int(self.num(line, key, tok, 2, 0.0)) != 0:
+            self.fail(line, key, "object-space telecentric systems are not supported")
+        if len(tok) > 4:
+            self.hdr["n_fields"] = int(self.num(line, key, tok, 3))
+            self.hdr["n_waves"] = int(self.num(line, key, tok, 4))
+        if int(self.num(line, key, tok, 8, 0.0)) == 1:
+            self.fail(line, key, "afocal image space is not supported")
+
+    def k_XFLN(self, line, key, tok, rest, s):
+        self.hdr["xfld"] = (line, key, self.nums(line, key, tok))
+
+    def k_YFLN(self, line, key, tok, rest, s):
+        self.hdr["yfld"] = (line, key, self.nums(line, key, tok))
+
+    k_XFLD, k_YFLD = k_XFLN, k_YFLN  # older files
+
+    def k_WAVM(self, line, key, tok, rest, s):
+        slot = int(self.num(line, key, tok, 1))
+        self.wavm[slot] = (self.num(line, key, tok, 2), self.num(line, key, tok, 3, 1.0), line)
+
+    def k_WAVL(self, line, key, tok, rest, s):  # older files: all wavelengths on one line
+        for i, w in enumerate(self.nums(line, key, tok), 1):
+            old = self.wavm.get(i, (0, 1.0, line))
+            self.wavm[i] = (w, old[1], line)
+
+    def k_WWGT(self, line, key, tok, rest, s):
+        for i, w in enumerate(self.nums(line, key, tok), 1):
+            old = self.wavm.get(i, (0.55, 1.0, line))
+            self.wavm[i] = (old[0], w, old[2])
+
+    def k_PWAV(self, line, key, tok, rest, s):
+        self.hdr["pwav"] = (line, int(self.num(line, key, tok, 1)))
+
+    def k_MNUM(self, line, key, tok, rest, s):
+        if int(self.num(line, key, tok, 1)) > 1:
+            self.fail(line, key, "multi-configuration files are not supported")
+
+    # surface keywords -----------------------------------------------------------
+    def k_TYPE(self, line, key, tok, rest, s):
+        t = tok[1] if len(tok) > 1 else ""
+        if t not in SURFACE_TYPES:
+            what = {"COORDBRK": " (coordinate break: tilts/decenters are not supported)"}.get(t, "")
+            self.fail(line, key, f"{self.where(s)}: unknown surface type {t!r}{what}; "
+                      f"supported: {', '.join(SURFACE_TYPES)}")
+        s["type"] = t
+
+    def k_CURV(self, line, key, tok, rest, s):
+        s["curv"] = self.num(line, key, tok, 1)
+
+    def k_DISZ(self, line, key, tok, rest, s):
+        s["disz"] = math.inf if tok[1:2] == ["INFINITY"] else self.num(line, key, tok, 1)
+
+    def k_CONI(self, line, key, tok, rest, s):
+        s["coni"] = self.num(line, key, tok, 1)
+
+    def k_PARM(self, line, key, tok, rest, s):
+        s["parm"][int(self.num(line, key, tok, 1))] = (self.num(line, key, tok, 2), line)
+
+    def k_STOP(self, line, key, tok, rest, s):
+        s["stop"] = True
+
+    def k_COMM(self, line, key, tok, rest, s):
+        s["comm"] = rest.strip('"')
+
+    def k_DIAM(self, line, key, tok, rest, s):
+        s["diam"] = (self.num(line, key, tok, 1), int(self.num(line, key, tok, 2, 0.0)))
+
+    def k_CLAP(self, line, key, tok, rest, s):
+        rmin, rmax = self.num(line, key, tok, 1), self.num(line, key, tok, 2)
+        if rmin != 0:
+            self.fail(line, key, f"{self.where(s)}: annular aperture (r_min {rmin:g}) is not supported")
+        s["clap"] = rmax
+
+    def k_IGNR(self, line, key, tok, rest, s):
+        if int(self.num(line, key, tok, 1, 0.0)) != 0:
+            self.fail(line, key, f"{self.where(s)} is marked 'ignore this surface', which is not supported")
+
+    def k_FLAP(self, line, key, tok, rest, s):
+        s["flap"] = True
+
+    def k_OBDC(self, line, key, tok, rest, s):
+        if any(v != 0 for v in self.nums(line, key, tok)):
+            self.fail(line, key, f"{self.where(s)}: decentered aperture is not supported")
+
+    def k_GLAS(self, line, key, tok, rest, s):
+        if len(tok) < 2:
+            self.fail(line, key, f"{self.where(s)}: glass name missing (truncated line?)")
+        s["glas"] = (line, tok)
+
+
+HEADER_KEYS = {"MODE", "NAME", "UNIT", "ENPD", "FNUM", "FLOA", "ENVD", "GCAT", "FTYP", "XFLN",
+               "YFLN", "XFLD", "YFLD", "WAVM", "WAVL", "WWGT", "PWAV", "MNUM"}
+
+
+def parse_zmx(text: str, source: str = "<zmx>", *, strict: bool = True, name: str = "lens") -> ZemaxImport:
+    """Parse .zmx text into a :class:`ZemaxImport` (see :func:`read_zmx`)."""
+    p = _Parser(source, strict)
+    lines = text.splitlines()
+    for lineno, line in enumerate(lines, 1):
+        p.feed(lineno, line)
+    end = len(lines)
+    data = _build(p, end, name)
+    return ZemaxImport(data, source, p.ignored, p.notes)
+
+
+def _build(p: _Parser, end: int, name: str) -> dict:
+    h = p.hdr
+    scale = UNITS_MM[h.get("unit", "MM")]
+    if "unit" not in h:
+        p.notes.append("no UNIT line: millimetres assumed")
+    if "aperture" not in h:
+        p.fail(end, "ENPD", "no aperture definition (ENPD, FNUM or FLOA) in the file (truncated file?)")
+    if len(p.surfs) < 3:
+        p.fail(end, "SURF", f"{len(p.surfs)} surface(s); a lens needs the object surface, at least one "
+               "surface and the image surface (truncated file?)")
+
+    obj, image, body = p.surfs[0], p.surfs[-1], p.surfs[1:-1]
+    if not math.isinf(obj["disz"]):
+        p.fail(obj["lines"].get("DISZ", obj["line"]), "DISZ",
+               f"object distance {obj['disz']:g}: only an object at infinity (DISZ INFINITY) is supported")
+    if "glas" in obj:
+        p.fail(obj["glas"][0], "GLAS", "object space must be air")
+    # The last SURF is the image; a glass there means the file was cut short.
+    if "glas" in image:
+        p.fail(image["glas"][0], "GLAS", f"{p.where(image)} is the last surface, taken as the image "
+               "plane, but has glass after it: the file looks truncated")
+    if image["curv"] != 0:
+        p.fail(image["lines"].get("CURV", image["line"]), "CURV",
+               f"{p.where(image)} (image): curved image surfaces are not supported (or the file is truncated)")
+    if image["type"] != "STANDARD" or image["parm"]:
+        p.fail(image["line"], "SURF", f"{p.where(image)} (image) must be a plain STANDARD surface")
+    if image["disz"] != 0:
+        p.notes.append(f"{p.where(image)}: image-surface thickness {image['disz']:g} ignored")
+    stops = [s for s in body if s.get("stop")]
+    if obj.get("stop") or image.get("stop"):
+        p.fail((obj if obj.get("stop") else image)["lines"]["STOP"], "STOP",
+               "the stop must be one of the lens surfaces, not the object or the image")
+    if not stops:
+        p.fail(end, "STOP", "no surface is marked STOP (the aperture stop must be given)")
+
+    surfaces = [_surface(p, s, scale) for s in body]
+    out: dict[str, Any] = {"name": h.get("name") or name, "units": "mm"}
+    out["description"] = f"Imported from Zemax file {Path(p.source).name}"
+    if scale != 1:
+        out["description"] += f" (lens units {h['unit']}, converted to mm)"
+    kind, value = h["aperture"]
+    if kind == "floa":
+        out["aperture"] = {"type": "epd", "value": 1.0}  # replaced below, once glass is known
+    else:
+        out["aperture"] = {"type": kind, "value": value * scale if kind == "epd" else value}
+    out.update(_fields(p, end))
+    out.update(_waves(p, end))
+    out["surfaces"] = surfaces
+    img_sd = image.get("clap") if "clap" in image else (
+        image["diam"][0] if "diam" in image and image["diam"][1] == 1 else None)
+    if "diam" in image and image["diam"][1] != 1 and "clap" not in image:
+        p.ignored.append((image["lines"]["DIAM"], "DIAM", "automatic image semi-diameter (not a clear aperture)"))
+    out["image"] = {"semi_diameter": img_sd * scale if img_sd else None}
+    if kind == "floa":
+        _resolve_floa(p, out, h["aperture_line"])
+    return out
+
+
+def _surface(p: _Parser, s: dict, scale: float) -> dict:
+    # The exact-inverse search makes radius -> CURV -> radius a bit-exact round trip.
+    c = s["curv"]
+    surf: dict[str, Any] = {"radius": "inf" if c == 0 else 1.0 / c * scale,
+                            "thickness": s["disz"] * scale}
+    if math.isinf(s["disz"]):
+        p.fail(s["lines"]["DISZ"], "DISZ", f"{p.where(s)}: infinite thickness inside the lens")
+    surf["material"] = _material(p, s)
+    if s.get("coni", 0.0) != 0:
+        surf["conic"] = s["coni"]
+    asph = {}
+    for i, (v, line) in sorted(s["parm"].items()):
+        if v == 0:
+            continue
+        if s["type"] != "EVENASPH" or not 1 <= i <= N_EVENASPH:
+            p.fail(line, "PARM", f"{p.where(s)}: PARM {i} = {v:g} has no meaning on a {s['type']} surface"
+                   + (" (EVENASPH uses PARM 1-8)" if s["type"] == "EVENASPH" else ""))
+        asph[f"a{2 * i}"] = v * scale ** (1 - 2 * i)  # a_{2i} has units length^(1-2i)
+    if asph:
+        surf["aspheric"] = asph
+    sd = None
+    if "clap" in s:
+        sd = s["clap"]
+    elif "diam" in s:
+        sd = s["diam"][0]
+    if s.get("flap") and "diam" not in s:
+        p.fail(s["lines"]["FLAP"], "FLAP", f"{p.where(s)}: floating aperture without a DIAM")
+    if sd:
+        surf["semi_diameter"] = sd * scale
+    if s.get("stop"):
+        surf["stop"] = True
+    if s.get("comm"):
+        surf["name"] = s["comm"]
+    return surf
+
+
+def _material(p: _Parser, s: dict):
+    if "glas" not in s:
+        return "air"
+    line, tok = s["glas"]
+    name = tok[1]
+    solve = int(p.num(line, "GLAS", tok, 2, 0.0))
+    nd = p.num(line, "GLAS", tok, 4, 0.0)
+    vd = p.num(line, "GLAS", tok, 5, 0.0)
+    if name.upper() == "MIRROR":
+        p.fail(line, "GLAS", f"{p.where(s)}: mirrors are not supported (refractive systems only)")
+    if solve == 1:  # model glass: GLAS ___BLANK 1 0 nd vd dPgF ...
+        dpgf = p.num(line, "GLAS", tok, 6, 0.0)
+        if dpgf != 0:
+            p.fail(line, "GLAS", f"{p.where(s)}: model glass dPgF = {dpgf:g} is not supported "
+                   "(optix model glass has no partial-dispersion term)")
+        if nd <= 0:
+            p.fail(line, "GLAS", f"{p.where(s)}: model glass needs nd > 0, got {nd:g}")
+        return {"n": nd} if vd == 0 else {"nd": nd, "vd": vd}
+    if solve != 0:
+        p.fail(line, "GLAS", f"{p.where(s)}: glass solve type {solve} (pickup/offset/substitute) "
+               "is not supported; fix the glass first")
+    if name.upper() in ("___BLANK", "MODEL"):
+        p.fail(line, "GLAS", f"{p.where(s)}: {name} without the model flag (GLAS {name} 1 0 nd vd)")
+    return _catalog_glass(p, line, s, name, nd, vd)
+
+
+def _nd_vd(g) -> tuple[float, float]:
+    """Catalog nd and Abbe number vd (d, F, C lines) of a resolved glass."""
+    nd, nf, nc = (float(g.n(w)) for w in (0.5875618, 0.4861327, 0.6562725))
+    return nd, (nd - 1) / (nf - nc)
+
+
+def _catalog_glass(p: _Parser, line: int, s: dict, name: str, nd: float, vd: float) -> dict:
+    """Find ``name`` in the file's GCAT catalogs (in order), else in any catalog.
+    Several hits: the one nearest the nd recorded on the GLAS line."""
+    gcat = [GCAT_TO_CATALOG.get(c.upper(), c.lower()) for c in p.hdr.get("gcat", [])]
+    known = set(_glass.catalogs())
+    hits = []
+    for cat in [c for c in gcat if c in known] or [None]:
+        try:
+            hits.append(_glass.resolve(name, cat))
+        except _glass.GlassError:
+            continue
+    if not hits:
+        try:
+            hits.append(_glass.resolve(name))
+        except _glass.GlassError as exc:
+            p.fail(line, "GLAS", f"{p.where(s)}: {exc}")
+        p.notes.append(f"{p.where(s)}: glass {name} not in the file's catalogs "
+                       f"({' '.join(p.hdr.get('gcat', [])) or 'none'}); found in {hits[0].catalog}")
+    g = hits[0]
+    if nd > 1 and len(hits) > 1:  # nearest (nd, vd); ties keep the GCAT order
+        g = min(hits, key=lambda h: abs(_nd_vd(h)[0] - nd) + abs(_nd_vd(h)[1] - vd) * 1e-3)
+    return {"glass": g.name, "catalog": g.catalog}
+
+
+def _fields(p: _Parser, end: int) -> dict:
+    h = p.hdr
+    if "yfld" not in h:
+        p.fail(end, "YFLN", "no field definition (YFLN) in the file (truncated file?)")
+    line, key, ys = h["yfld"]
+    n = h.get("n_fields", len(ys))
+    if n < 1 or n > len(ys):
+        p.fail(line, key, f"FTYP declares {n} fields but {key} lists {len(ys)} values")
+    ys = ys[:n]
+    if "xfld" in h:
+        xline, xkey, xs = h["xfld"]
+        if any(x != 0 for x in xs[:n]):
+            p.fail(xline, xkey, "x field angles are not supported (fields lie along +y; "
+                   "a rotationally symmetric lens needs only the radial angle)")
+    for y in ys:
+        if y < 0:
+            p.fail(line, key, f"negative field angle {y:g}: give fields along +y")
+    return {"fields_deg": ys}
+
+
+def _waves(p: _Parser, end: int) -> dict:
+    n = p.hdr.get("n_waves", len(p.wavm))
+    slots = list(range(1, n + 1))
+    missing = [i for i in slots if i not in p.wavm]
+    if n < 1 or missing:
+        p.fail(end, "WAVM", f"{n} wavelength(s) declared but slot(s) {missing or [1]} not given (truncated file?)")
+    for i in sorted(p.wavm):
+        if i > n:
+            p.ignored.append((p.wavm[i][2], "WAVM", f"inactive wavelength slot (FTYP declares {n})"))
+    wl = [_from_um(p.wavm[i][0]) for i in slots]
+    w = [p.wavm[i][1] for i in slots]
+    for i in slots:
+        if p.wavm[i][0] <= 0:
+            p.fail(p.wavm[i][2], "WAVM", f"wavelength {i} must be > 0 um, got {p.wavm[i][0]:g}")
+    line, pw = p.hdr.get("pwav", (end, 1))
+    if not 1 <= pw <= n:
+        p.fail(line, "PWAV", f"primary wavelength {pw} outside 1..{n}")
+    return {"wavelengths_nm": wl, "wavelength_weights": w, "primary_wavelength_nm": wl[pw - 1]}
+
+
+def _resolve_floa(p: _Parser, out: dict, line: int):
+    """FLOA: the EPD is whatever fills the stop's semi-diameter paraxially.  The
+    paraxial stop height is linear in the EPD, so one trace at EPD = 1 gives it."""
+    from .lens import Lens  # circular import otherwise
+    from .prescription import PrescriptionError
+
+    stop = next(s for s in out["surfaces"] if s.get("stop"))
+    if not stop.get("semi_diameter"):
+        p.fail(line, "FLOA", "aperture floats by stop size but the stop surface has no DIAM")
+    try:
+        unit = Lens(out, p.source).paraxial()["stop_semi_diameter_mm"]
+    except PrescriptionError as exc:
+        raise ZemaxError(str(exc)) from None
+    epd = stop["semi_diameter"] / unit
+    out["aperture"] = {"type": "epd", "value": epd}
+    out["description"] += (f"; aperture FLOA (float by stop size): stop semi-diameter "
+                           f"{stop['semi_diameter']:.10g} mm -> paraxial EPD {epd:.10g} mm")
+    p.notes.append(f"FLOA resolved to EPD {epd:.10g} mm")
+
+
+# ----------------------------------------------------------------------------- exact conversions
+def _neighbours(x: float, k: int = 4):
+    yield x
+    lo = hi = x
+    for _ in range(k):
+        lo, hi = math.nextafter(lo, -math.inf), math.nextafter(hi, math.inf)
+        yield lo
+        yield hi
+
+
+def _exact(target: float, x0: float, back) -> float:
+    """An x near x0 with back(x) == target, so write-then-read returns ``target`` exactly."""
+    for x in _neighbours(x0):
+        if back(x) == target:
+            return x
+    return x0
+
+
+def _from_um(um: float) -> float:
+    return um * 1000.0
+
+
+def _to_um(nm: float) -> float:
+    return _exact(nm, nm / 1000.0, _from_um)
+
+
+def _curv(radius: float) -> float:
+    return _exact(radius, 1.0 / radius, lambda c: 1.0 / c)
+
+
+# ----------------------------------------------------------------------------- writing
+def _f(v: float) -> str:
+    return repr(float(v))  # shortest string that reads back to the same double
+
+
+def zmx_text(data: dict, source: str = "<lens>") -> str:
+    """The .zmx text of an (unresolved, validated) prescription dict."""
+    from .prescription import resolve_prescription
+
+    resolve_prescription(data, source)  # validate first: errors name the JSON location
+
+    def fail(where, msg):
+        raise ZemaxError(f"{source}: {where}: {msg}")
+
+    lines = ["VERS 190513 80 123457 L123457", "MODE SEQ", f"NAME {data.get('name', 'lens')}",
+             "PFIL 0 0 0", "LANG 0", "UNIT MM X W X CM MR CPMM"]
+    ap = data["aperture"]
+    lines.append(f"ENPD {_f(ap['value'])}" if ap["type"] == "epd" else f"FNUM {_f(ap['value'])} 0")
+    lines += ["ENVD 2.0E+1 1 0", "GFAC 0 0"]
+    glas, gcat = [], []
+    for i, s in enumerate(data["surfaces"]):
+        g = _glas_line(s["material"], f"surface {i + 1} (surfaces[{i}]) material", fail)
+        glas.append(g[0] if g else None)
+        if g and g[1] and g[1] not in gcat:
+            gcat.append(g[1])
+    if gcat:  # in our search order, so a bare name resolves as it does in JSON
+        order = {c.upper(): i for i, c in enumerate(_glass.catalogs())}
+        lines.append("GCAT " + " ".join(sorted(gcat, key=lambda c: order.get(c, len(order)))))
+    fields = [float(f) for f in data["fields_deg"]]
+    wls = [float(w) for w in data["wavelengths_nm"]]
+    weights = [float(w) for w in data.get("wavelength_weights") or [1.0] * len(wls)]
+    primary = float(data.get("primary_wavelength_nm", wls[len(wls) // 2]))
+    if primary not in wls:
+        fail("primary_wavelength_nm", f"{primary} is not one of wavelengths_nm (Zemax's PWAV is an index)")
+    lines += ["RAIM 0 0 1 1 0 0 0 0 0", f"FTYP 0 0 {len(fields)} {len(wls)} 0 0 0",
+              "XFLN " + " ".join("0" for _ in fields), "YFLN " + " ".join(_f(f) for f in fields),
+              "FWGN " + " ".join("1" for _ in fields)]
+    lines += [f"WAVM {i} {_f(_to_um(w))} {_f(k)}" for i, (w, k) in enumerate(zip(wls, weights), 1)]
+    lines.append(f"PWAV {wls.index(primary) + 1}")
+    lines += ["SURF 0", "  TYPE STANDARD", "  CURV 0.0", "  DISZ INFINITY"]
+    for i, s in enumerate(data["surfaces"]):
+        where = f"surface {i + 1} (surfaces[{i}])"
+        lines.append(f"SURF {i + 1}")
+        if s.get("name"):
+            lines.append(f"  COMM {s['name']}")
+        if s.get("stop"):
+            lines.append("  STOP")
+        asph = {k: float(v) for k, v in (s.get("aspheric") or {}).items() if v != 0}
+        high = [k for k in asph if int(k[1:]) > 2 * N_EVENASPH]
+        if high:
+            fail(f"{where} aspheric", f"{', '.join(high)}: Zemax EVENASPH stops at a16")
+        lines.append(f"  TYPE {'EVENASPH' if asph else 'STANDARD'}")
+        lines.append(f"  CURV {_f(_surface_curv(s))}")
+        lines.append(f"  DISZ {_f(s['thickness'])}")
+        if glas[i]:
+            lines.append(f"  GLAS {glas[i]}")
+        if s.get("conic"):
+            lines.append(f"  CONI {_f(s['conic'])}")
+        sd = s.get("semi_diameter")
+        if sd:  # fixed semi-diameter plus a circular aperture: Zemax clips there too
+            lines += [f'  DIAM {_f(sd)} 1 0 0 1 ""', f"  CLAP 0 {_f(sd)} 0"]
+        for k in sorted(asph, key=lambda k: int(k[1:])):
+            lines.append(f"  PARM {int(k[1:]) // 2} {_f(asph[k])}")
+    lines += [f"SURF {len(data['surfaces']) + 1}", "  TYPE STANDARD", "  CURV 0.0", "  DISZ 0.0"]
+    isd = (data.get("image") or {}).get("semi_diameter")
+    if isd:
+        lines += [f'  DIAM {_f(isd)} 1 0 0 1 ""', f"  CLAP 0 {_f(isd)} 0"]
+    return "\n".join(lines) + "\n"
+
+
+def _surface_curv(s: dict) -> float:
+    if "curvature" in s:
+        return float(s["curvature"])
+    r = s.get("radius")
+    if r is None or isinstance(r, str):
+        return 0.0
+    return _curv(float(r))
+
+
+def _glas_line(m, where: str, fail) -> "tuple[str, str | None] | None":
+    """(GLAS arguments, GCAT catalog) for a material; None for air."""
+    if isinstance(m, str) and m.strip().lower() == "air":
+        return None
+    if isinstance(m, str) or (isinstance(m, dict) and "glass" in m):
+        g = _glass.resolve(m)
+        name = ZEMAX_POLYMER_NAMES.get(g.name, g.name) if g.catalog == "organic" else g.name
+        nd, vd = _nd_vd(g)  # recorded like OpticStudio does; the reader uses them to pick the vendor
+        gcat = CATALOG_TO_GCAT.get(g.catalog, g.catalog.upper())
+        return f"{name} 0 0 {nd:.10f} {vd:.8f} 0 0 0 0 0 0", gcat
+    if isinstance(m, dict) and "nd" in m:
+        return f"___BLANK 1 0 {_f(m['nd'])} {_f(m['vd'])} 0 0 0 0 0 0", None
+    if isinstance(m, dict) and "n" in m:  # Vd = 0: no dispersion
+        return f"___BLANK 1 0 {_f(m['n'])} 0 0 0 0 0 0 0", None
+    fail(where, "a formula or tabulated material has no Zemax equivalent; use a catalog "
+         "glass name or a model glass {\"nd\", \"vd\"}")
+
+
+def write_zmx(data: dict, path: "str | Path", *, encoding: str = "utf-8", source: str = "<lens>") -> Path:
+    """Write ``data`` as a .zmx file; ``encoding="utf-16"`` gives OpticStudio's own
+    encoding (UTF-16 LE with a BOM)."""
+    if encoding.lower().replace("_", "-") not in ("utf-8", "utf-16"):
+        raise ZemaxError(f"encoding must be utf-8 or utf-16, got {encoding!r}")
+    path = Path(path)
+    text = zmx_text(data, source)
+    if encoding.lower().replace("_", "-") == "utf-16":
+        path.write_bytes(b"\xff\xfe" + text.replace("\n", "\r\n").encode("utf-16-le"))
+    else:
+        path.write_text(text, encoding="utf-8")
+    return path
