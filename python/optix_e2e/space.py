@@ -1,0 +1,247 @@
+"""Parameter spaces over a base lens: named, bounded design variables.
+
+A parameter is ``{name, kind, surface, min, max, unit}``.  ``surface`` is 1-based as in the
+prescription's error messages (and in the paper's Table 1, where the stop is a surface of
+its own).  Kinds and what they change on ``surfaces[surface - 1]``:
+
+* ``radius``                   radius of curvature (mm)
+* ``conic``                    conic constant k
+* ``asphere_2nd`` ... ``asphere_20th``  even-asphere coefficient a2 ... a20 (mm^(1-n))
+* ``thickness`` / ``air_gap``  axial distance to the next surface (mm); ``thickness`` is
+  used when the medium after the surface is a material, ``air_gap`` when it is air.
+
+Names follow the paper's Table 1 (``s_1_radius``, ``s_1_conic``, ``s_1_4th`` ... ``s_1_10th``)
+plus ``s_N_thickness`` for the distance after surface N.  A space file may give any name
+(e.g. Table 1's ``l_12``) as long as kind and surface say what it changes.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import re
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Sequence
+
+__all__ = ["Parameter", "ParameterSpace", "SpaceError", "parameter_from_name", "default_bounds"]
+
+ORDINAL = {2: "2nd", 4: "4th", 6: "6th", 8: "8th", 10: "10th", 12: "12th", 14: "14th",
+           16: "16th", 18: "18th", 20: "20th"}
+ASPHERE_KINDS = {f"asphere_{v}": k for k, v in ORDINAL.items()}
+KINDS = {"radius", "conic", "thickness", "air_gap", *ASPHERE_KINDS}
+UNITS = {"radius": "mm", "conic": "-", "thickness": "mm", "air_gap": "mm",
+         **{f"asphere_{v}": f"mm^-{k - 1}" for k, v in ORDINAL.items()}}
+_NAME = re.compile(r"^s_(\d+)_(radius|conic|thickness|(\d+)(?:st|nd|rd|th))$")
+
+
+class SpaceError(ValueError):
+    """Invalid parameter space or parameter name; the message names the file and entry."""
+
+
+@dataclass(frozen=True)
+class Parameter:
+    name: str
+    kind: str
+    surface: int  # 1-based
+    min: float
+    max: float
+    unit: str = ""
+
+    def get(self, lens: dict) -> float:
+        """Current value of this parameter in a lens dict."""
+        s = lens["surfaces"][self.surface - 1]
+        if self.kind == "radius":
+            if "curvature" in s:
+                return math.inf if s["curvature"] == 0 else 1.0 / s["curvature"]
+            r = s.get("radius")
+            return math.inf if r in (None, "inf") else float(r)
+        if self.kind == "conic":
+            return float(s.get("conic", 0.0))
+        if self.kind in ("thickness", "air_gap"):
+            return float(s["thickness"])
+        return float((s.get("aspheric") or {}).get(f"a{ASPHERE_KINDS[self.kind]}", 0.0))
+
+    def set(self, lens: dict, value: float) -> None:
+        """Write ``value`` into a lens dict (in place)."""
+        s = lens["surfaces"][self.surface - 1]
+        value = float(value)
+        if self.kind == "radius":
+            s.pop("curvature", None)
+            s["radius"] = value
+        elif self.kind == "conic":
+            s["conic"] = value
+        elif self.kind in ("thickness", "air_gap"):
+            s["thickness"] = value
+        else:
+            asph = dict(s.get("aspheric") or {})
+            asph[f"a{ASPHERE_KINDS[self.kind]}"] = value
+            s["aspheric"] = asph
+
+
+def _is_air(material) -> bool:
+    return material == "air" or (isinstance(material, str) and material.lower() == "air")
+
+
+def parameter_from_name(name: str, lens: dict, bounds: tuple[float, float] | None = None) -> Parameter:
+    """A parameter from a Table-1 style name (``s_3_radius``, ``s_1_4th``, ``s_2_thickness``),
+    with ``bounds`` or :func:`default_bounds` around the lens's current value."""
+    m = _NAME.match(name.strip())
+    if not m:
+        raise SpaceError(f"parameter {name!r}: expected s_N_radius, s_N_conic, s_N_thickness or "
+                         f"s_N_<order> with order 2nd, 4th, ..., 20th (e.g. s_1_4th)")
+    surf = int(m.group(1))
+    n = len(lens["surfaces"])
+    if not 1 <= surf <= n:
+        raise SpaceError(f"parameter {name!r}: surface {surf} out of range (lens has surfaces 1..{n})")
+    if m.group(3):
+        order = int(m.group(3))
+        if order not in ORDINAL or ORDINAL[order] != m.group(2):
+            raise SpaceError(f"parameter {name!r}: asphere order must be one of "
+                             f"{', '.join(ORDINAL.values())}")
+        kind = f"asphere_{ORDINAL[order]}"
+    elif m.group(2) == "thickness":
+        kind = "air_gap" if _is_air(lens["surfaces"][surf - 1]["material"]) else "thickness"
+    else:
+        kind = m.group(2)
+    p = Parameter(name, kind, surf, -math.inf, math.inf, UNITS[kind])
+    lo, hi = bounds if bounds is not None else default_bounds(p, lens)
+    return Parameter(name, kind, surf, float(lo), float(hi), UNITS[kind])
+
+
+def default_bounds(p: Parameter, lens: dict) -> tuple[float, float]:
+    """Bounds used when a variable is chosen by name only (no space file).
+
+    Radii keep their sign within a factor 0.5..3 of the current value (a flat surface can
+    become |R| >= 20 mm of either sign is not offered: give a space file for that); conics
+    +-2 around the current value; thicknesses 0.3x..3x (air gaps may close to 0); asphere
+    coefficients as large as makes 0.5 mm of sag at the clear semi-diameter (or 10 mm).
+    """
+    v = p.get(lens)
+    if p.kind == "radius":
+        if not math.isfinite(v):
+            raise SpaceError(f"parameter {p.name!r}: surface {p.surface} is flat; give bounds in a space file")
+        a, b = 0.5 * v, 3.0 * v
+        return (min(a, b), max(a, b))
+    if p.kind == "conic":
+        return (v - 2.0, v + 2.0)
+    if p.kind == "thickness":
+        return (0.3 * v, 3.0 * v + 1.0)
+    if p.kind == "air_gap":
+        return (0.0, 3.0 * v + 1.0)
+    order = ASPHERE_KINDS[p.kind]
+    h = lens["surfaces"][p.surface - 1].get("semi_diameter") or 10.0
+    amp = 0.5 / h ** order
+    return (v - amp, v + amp)
+
+
+class ParameterSpace:
+    """An ordered list of :class:`Parameter` over a base lens."""
+
+    def __init__(self, params: Sequence[Parameter], source: str = "<space>"):
+        self.params = list(params)
+        self.source = source
+        names = [p.name for p in self.params]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise SpaceError(f"{source}: duplicate parameter name(s) {', '.join(dup)}")
+        targets = [(p.surface, p.kind) for p in self.params]
+        clash = sorted({t for t in targets if targets.count(t) > 1})
+        if clash:
+            raise SpaceError(f"{source}: several parameters change the same thing: "
+                             + ", ".join(f"surface {s} {k}" for s, k in clash))
+
+    # ----- construction ---------------------------------------------------------------
+    @classmethod
+    def from_names(cls, names: "str | Sequence[str]", lens: dict) -> "ParameterSpace":
+        if isinstance(names, str):
+            names = [n for n in (x.strip() for x in names.split(",")) if n]
+        if not names:
+            raise SpaceError("no variables given")
+        return cls([parameter_from_name(n, lens) for n in names], source="--vars")
+
+    @classmethod
+    def load(cls, path: "str | Path", lens: dict | None = None) -> "ParameterSpace":
+        """Read a space file (JSON list of parameter objects, or ``{"parameters": [...]}``)."""
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except OSError as exc:
+            raise SpaceError(f"{path}: cannot read space file ({exc.strerror or exc})") from exc
+        except json.JSONDecodeError as exc:
+            raise SpaceError(f"{path}:{exc.lineno}:{exc.colno}: invalid JSON: {exc.msg}") from exc
+        if isinstance(data, dict):
+            data = data.get("parameters")
+        if not isinstance(data, list) or not data:
+            raise SpaceError(f"{path}: a space is a non-empty JSON list of parameters "
+                             f"(or an object with a \"parameters\" list)")
+        params = [cls._entry(path, i, e, lens) for i, e in enumerate(data)]
+        return cls(params, source=str(path))
+
+    @staticmethod
+    def _entry(path, i, e, lens) -> Parameter:
+        where = f"{path}: parameters[{i}]"
+        if not isinstance(e, dict):
+            raise SpaceError(f"{where}: must be an object with name, kind, surface, min, max, unit")
+        unknown = sorted(set(e) - {"name", "kind", "surface", "min", "max", "unit", "note"})
+        if unknown:
+            raise SpaceError(f"{where}: unknown key(s) {', '.join(unknown)}")
+        for key in ("name", "kind", "surface", "min", "max"):
+            if key not in e:
+                raise SpaceError(f"{where}: missing {key!r}")
+        name = e["name"]
+        where = f"{path}: parameters[{i}] ({name})"
+        if e["kind"] not in KINDS:
+            raise SpaceError(f"{where}: kind {e['kind']!r} is not one of {', '.join(sorted(KINDS))}")
+        surf = e["surface"]
+        if isinstance(surf, bool) or not isinstance(surf, int) or surf < 1:
+            raise SpaceError(f"{where}: surface must be an integer >= 1, got {surf!r}")
+        lo, hi = e["min"], e["max"]
+        for key, v in (("min", lo), ("max", hi)):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise SpaceError(f"{where}: {key} must be a finite number, got {v!r}")
+        if not lo < hi:
+            raise SpaceError(f"{where}: min {lo} must be < max {hi}")
+        if e["kind"] == "radius" and lo < 0 < hi:
+            raise SpaceError(f"{where}: a radius range may not contain 0 ({lo}..{hi})")
+        if lens is not None:
+            n = len(lens["surfaces"])
+            if surf > n:
+                raise SpaceError(f"{where}: surface {surf} out of range (lens has surfaces 1..{n})")
+        return Parameter(name, e["kind"], surf, float(lo), float(hi), e.get("unit", UNITS[e["kind"]]))
+
+    def to_json(self) -> list[dict]:
+        return [asdict(p) for p in self.params]
+
+    # ----- use ------------------------------------------------------------------------
+    @property
+    def names(self) -> list[str]:
+        return [p.name for p in self.params]
+
+    def __len__(self) -> int:
+        return len(self.params)
+
+    def values(self, lens: dict) -> list[float]:
+        return [p.get(lens) for p in self.params]
+
+    def apply(self, lens: dict, values: Sequence[float]) -> dict:
+        """A new lens dict with ``values`` written in (the input is not modified)."""
+        if len(values) != len(self.params):
+            raise SpaceError(f"{self.source}: {len(values)} values for {len(self.params)} parameters")
+        out = copy.deepcopy(lens)
+        for p, v in zip(self.params, values):
+            if not math.isfinite(float(v)):
+                raise SpaceError(f"{self.source}: parameter {p.name}: value {v!r} is not finite")
+            p.set(out, v)
+        return out
+
+    def check_bounds(self, lens: dict, tol: float = 1e-12) -> list[str]:
+        """Messages for each parameter whose value in ``lens`` lies outside its range."""
+        out = []
+        for p in self.params:
+            v = p.get(lens)
+            span = tol * max(1.0, abs(p.max - p.min))
+            if not (p.min - span <= v <= p.max + span):
+                out.append(f"{p.name} = {v:.6g} outside [{p.min:.6g}, {p.max:.6g}] {p.unit}")
+        return out
