@@ -125,6 +125,35 @@ def test_handmade_cooke_matches_bundled():
     assert "inactive wavelength slot (FTYP declares 3)" in zmx.zemax_import.ignored_summary()
 
 
+def test_bundled_lenses_roundtrip_exactly(tmp_path):
+    from optix_e2e.lens import bundled_lenses
+
+    for name in bundled_lenses():
+        lens = Lens.load(name)
+        _same_optics(lens, _roundtrip(lens, tmp_path, f"{name}.zmx"))
+
+
+def test_vendor_glass_names_in_zmx(tmp_path):
+    """Zemax-style names from several vendors' catalogs, found through GCAT."""
+    names = ["S-BSL7", "H-K9L", "E-FD1", "PMMA", "POLYCARB", "N-BK7", "S-LAH66"]
+    surfs = "".join(f"SURF {i}\n  CURV 0\n  DISZ 1\n  GLAS {g} 0 0 0 0\nSURF {i + 1}\n  CURV 0\n  DISZ 1\n"
+                    for i, g in zip(range(1, 2 * len(names), 2), names))
+    text = ("MODE SEQ\nENPD 5\nGCAT OHARA CDGM HOYA MISC SCHOTT\nFTYP 0 0 1 1 0 0 0\nYFLN 0\n"
+            "WAVM 1 0.55 1\nSURF 0\n  DISZ INFINITY\n" + surfs.replace("SURF 1\n", "SURF 1\n  STOP\n", 1)
+            + f"SURF {2 * len(names) + 1}\n")
+    imp = parse_zmx(text, source="<t>")
+    got = [s["material"] for s in imp.data["surfaces"] if s["material"] != "air"]
+    assert got == [{"glass": "S-BSL7", "catalog": "ohara"}, {"glass": "H-K9L", "catalog": "cdgm"},
+                   {"glass": "E-FD1", "catalog": "hoya"}, {"glass": "PMMA", "catalog": "organic"},
+                   {"glass": "polycarbonate", "catalog": "organic"}, {"glass": "N-BK7", "catalog": "schott"},
+                   {"glass": "S-LAH66", "catalog": "ohara"}]
+    # a glass outside the file's catalogs is still found, and the note says where
+    imp = parse_zmx(text.replace("GCAT OHARA CDGM HOYA MISC SCHOTT", "GCAT SCHOTT MISC"), source="<t>")
+    assert "SURF 1: glass S-BSL7 not in the file's catalogs (SCHOTT MISC); found in ohara" in imp.notes
+    lens = Lens(imp.data)
+    _same_optics(lens, _roundtrip(lens, tmp_path))
+
+
 def test_legacy_wavl_layout():
     lens = Lens.load(DATA / "cooke_legacy_wavl.zmx")
     assert lens.wavelengths_nm == [480.0, 550.0, 650.0] and lens.wavelength_weights == [1.0, 2.0, 1.0]

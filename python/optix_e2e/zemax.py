@@ -41,7 +41,7 @@ UNSUPPORTED = {
     "XDAT": "extra-data surface parameters",
     "PZUP": "pickup solve", "ELAP": "elliptical aperture", "SQAP": "rectangular aperture",
     "UDAP": "user-defined aperture", "CLOB": "circular obscuration", "ELOB": "elliptical obscuration",
-    "SQOB": "rectangular obscuration",
+    "SQOB": "rectangular obscuration", "OBSC": "obscuration",
 }
 SURFACE_TYPES = ("STANDARD", "EVENASPH")
 #: Our catalog folder for a Zemax GCAT name (lower-cased names not listed map to themselves).
@@ -377,7 +377,8 @@ def _build(p: _Parser, end: int, name: str) -> dict:
                "plane, but has glass after it: the file looks truncated")
     if image["curv"] != 0:
         p.fail(image["lines"].get("CURV", image["line"]), "CURV",
-               f"{p.where(image)} (image): curved image surfaces are not supported (or the file is truncated)")
+               f"{p.where(image)} (image): curved image surfaces are not supported "
+               "(or the file is truncated)")
     if image["type"] != "STANDARD" or image["parm"]:
         p.fail(image["line"], "SURF", f"{p.where(image)} (image) must be a plain STANDARD surface")
     if image["disz"] != 0:
@@ -405,7 +406,8 @@ def _build(p: _Parser, end: int, name: str) -> dict:
     img_sd = image.get("clap") if "clap" in image else (
         image["diam"][0] if "diam" in image and image["diam"][1] == 1 else None)
     if "diam" in image and image["diam"][1] != 1 and "clap" not in image:
-        p.ignored.append((image["lines"]["DIAM"], "DIAM", "automatic image semi-diameter (not a clear aperture)"))
+        p.ignored.append((image["lines"]["DIAM"], "DIAM",
+                          "automatic image semi-diameter (not a clear aperture)"))
     out["image"] = {"semi_diameter": img_sd * scale if img_sd else None}
     if kind == "floa":
         _resolve_floa(p, out, h["aperture_line"])
@@ -413,8 +415,7 @@ def _build(p: _Parser, end: int, name: str) -> dict:
 
 
 def _surface(p: _Parser, s: dict, scale: float) -> dict:
-    # The exact-inverse search makes radius -> CURV -> radius a bit-exact round trip.
-    c = s["curv"]
+    c = s["curv"]  # the writer picks CURV so that 1/CURV is the JSON radius exactly
     surf: dict[str, Any] = {"radius": "inf" if c == 0 else 1.0 / c * scale,
                             "thickness": s["disz"] * scale}
     if math.isinf(s["disz"]):
@@ -529,7 +530,8 @@ def _waves(p: _Parser, end: int) -> dict:
     slots = list(range(1, n + 1))
     missing = [i for i in slots if i not in p.wavm]
     if n < 1 or missing:
-        p.fail(end, "WAVM", f"{n} wavelength(s) declared but slot(s) {missing or [1]} not given (truncated file?)")
+        p.fail(end, "WAVM", f"{n} wavelength(s) declared but slot(s) {missing or [1]} not given "
+               "(truncated file?)")
     for i in sorted(p.wavm):
         if i > n:
             p.ignored.append((p.wavm[i][2], "WAVM", f"inactive wavelength slot (FTYP declares {n})"))
