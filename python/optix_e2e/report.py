@@ -1,0 +1,208 @@
+"""Lens analysis for figures and reports: surface geometry and ray fans for the layout,
+spot diagrams, per-field MTF, and ``write_report`` (layout.png, spots.png, mtf.png,
+report.json).  The drawing lives in :mod:`optix_e2e.plotting`."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from .lens import Lens
+from .mtf import NYQUIST_5P86_UM, default_frequencies, field_mtf, mtf_at, psf_sampling
+
+__all__ = ["sag", "surface_geometry", "ray_fans", "spot_diagram", "hexapolar", "write_report",
+           "DEFAULT_MTF_FREQS"]
+
+#: Frequencies (cycles/mm) whose MTF goes into report.json: round numbers and the
+#: Nyquist frequency of a 5.86 um pixel.
+DEFAULT_MTF_FREQS = (10.0, 20.0, 40.0, round(NYQUIST_5P86_UM, 2), 100.0)
+
+Progress = Callable[[str], Any] | None
+
+
+def _curvature(s: dict) -> float:
+    if "curvature" in s and s["curvature"] is not None:
+        return float(s["curvature"])
+    r = s.get("radius")
+    if r is None or (isinstance(r, str) and r.lower() in ("inf", "infinity")):
+        return 0.0
+    return 1.0 / float(r)
+
+
+def sag(s: dict, r) -> np.ndarray:
+    """Sag z(r) of a surface dict (conic + even asphere, docs/lens-format.md); NaN where
+    the conic is undefined."""
+    r = np.asarray(r, dtype=float)
+    c, k = _curvature(s), float(s.get("conic", 0.0) or 0.0)
+    rho = r * r
+    arg = 1.0 - (1.0 + k) * c * c * rho
+    with np.errstate(invalid="ignore"):
+        z = c * rho / (1.0 + np.sqrt(arg))
+    for key, a in (s.get("aspheric") or {}).items():
+        z = z + float(a) * r ** int(key[1:])  # "a4" -> r^4
+    return np.where(arg >= 0.0, z, np.nan)
+
+
+def _is_air(material, index: float) -> bool:
+    return material == "air" or index == 1.0
+
+
+def surface_geometry(lens: Lens, footprint: Sequence[float]) -> list[dict[str, Any]]:
+    """Per surface: vertex z, drawn semi-diameter (the clear semi-diameter, else the ray
+    footprint), whether glass follows it, and whether it is the stop."""
+    z, out = 0.0, []
+    n = lens.refractive_indices()
+    for i, s in enumerate(lens.surfaces):
+        sd = s.get("semi_diameter")
+        h = float(sd) if sd else float(footprint[i])
+        # Keep to where the conic is defined.
+        c, k = _curvature(s), float(s.get("conic", 0.0) or 0.0)
+        if (1.0 + k) * c * c > 0:
+            h = min(h, 0.999 / math.sqrt((1.0 + k) * c * c))
+        out.append({"index": i, "z": z, "semi_diameter": h, "clear_aperture": bool(sd),
+                    "glass_after": not _is_air(s["material"], float(n[i + 1])),
+                    "stop": bool(s.get("stop")), "surface": s})
+        z += float(s["thickness"])
+    return out
+
+
+def _trace_paths(lens: Lens, field: float, px, py, wavelength_nm: float, aiming: str) -> dict:
+    from . import _engine
+
+    return _engine.trace_field_path(lens.to_engine_json(), float(field), np.ascontiguousarray(px, float),
+                                    np.ascontiguousarray(py, float), float(wavelength_nm), aiming)
+
+
+def footprint(lens: Lens, fields: Sequence[float], aiming: str = "paraxial", n_edge: int = 32) -> np.ndarray:
+    """Largest ray height at each surface over the pupil rim (and chief ray) of each of
+    ``fields``, at the primary wavelength: the drawn size of surfaces without a clear
+    semi-diameter (as Zemax's automatic semi-diameters)."""
+    t = np.linspace(0.0, 2 * np.pi, n_edge, endpoint=False)
+    px, py = np.append(np.sin(t), 0.0), np.append(np.cos(t), 0.0)
+    k = len(lens.surfaces)
+    h = np.zeros(k)
+    for f in sorted(set(fields)):
+        d = _trace_paths(lens, f, px, py, lens.primary_wavelength_nm, aiming)
+        r = np.hypot(d["path"][:, :k, 0], d["path"][:, :k, 1])
+        valid = np.arange(k)[None, :] <= d["last"][:, None]
+        h = np.maximum(h, np.where(valid, r, 0.0).max(axis=0))
+    if np.any(h <= 0):
+        bad = [i + 1 for i in np.flatnonzero(h <= 0)]
+        raise ValueError(f"no ray reaches surface(s) {bad}: cannot size them (give semi_diameter)")
+    return h
+
+
+def ray_fans(lens: Lens, fields: Sequence[float], n_rays: int = 9, aiming: str = "paraxial",
+             wavelength_nm: float | None = None) -> list[dict[str, Any]]:
+    """Meridional (y-z) fans: ``n_rays`` rays from py = -1 to 1 per field.  Each ray is
+    its list of (z, y) points, surface by surface to where it ends (the image, or the
+    surface where it was clipped); ``launch_direction`` lets the caller extend it back."""
+    if n_rays < 1:
+        raise ValueError(f"rays per field must be at least 1, got {n_rays}")
+    wl = lens.primary_wavelength_nm if wavelength_nm is None else wavelength_nm
+    py = np.linspace(-1.0, 1.0, n_rays) if n_rays > 1 else np.zeros(1)
+    fans = []
+    for f in fields:
+        d = _trace_paths(lens, f, np.zeros_like(py), py, wl, aiming)
+        rays = [d["path"][j, : d["last"][j] + 1][:, [2, 1]] for j in range(py.size) if d["last"][j] >= 0]
+        fans.append({"field_deg": float(f), "rays": rays, "direction": d["launch_direction"],
+                     "status": d["status"], "n_image": int(np.sum(d["status"] == 0))})
+    return fans
+
+
+def hexapolar(rings: int) -> tuple[np.ndarray, np.ndarray]:
+    """Hexapolar pupil grid: the centre plus ``rings`` rings of 6k points (unit pupil)."""
+    px, py = [0.0], [0.0]
+    for k in range(1, rings + 1):
+        t = np.arange(6 * k) * 2 * np.pi / (6 * k)
+        px += list(k / rings * np.sin(t))
+        py += list(k / rings * np.cos(t))
+    return np.array(px), np.array(py)
+
+
+def spot_diagram(lens: Lens, field: float, rings: int = 12, aiming: str = "paraxial") -> dict[str, Any]:
+    """Image-plane points (um, relative to the weighted polychromatic centroid) per
+    wavelength; RMS radius from the engine's dense polychromatic spot (64 rings)."""
+    px, py = hexapolar(rings)
+    pts, weights = [], []
+    for wl, w in zip(lens.wavelengths_nm, lens.wavelength_weights):
+        t = lens.trace_field(field, px, py, wl, aiming=aiming)
+        ok = t["status"] == 0
+        pts.append(t["position"][ok, :2] * 1e3)
+        weights.append(np.full(int(ok.sum()), w))
+    allp, allw = np.concatenate(pts), np.concatenate(weights)
+    if allp.size == 0:
+        raise ValueError(f"no ray of field {field} deg reaches the image")
+    centroid = (allw[:, None] * allp).sum(axis=0) / allw.sum()
+    s = lens.spot(field, aiming=aiming)
+    return {"field_deg": float(field), "centroid_um": centroid, "wavelengths_nm": lens.wavelengths_nm,
+            "points_um": [p - centroid for p in pts], "rms_um": float(s["rms_um"]),
+            "rms_um_per_wavelength": [float(v) for v in s["rms_um_per_wavelength"]],
+            "relative_illumination": float(s["relative_illumination"]), "vignetting": s.get("vignetting"),
+            "chief_y_mm": s.get("chief_y_mm"), "n_rays": int(px.size * len(pts))}
+
+
+def write_report(lens: Lens, out_dir: str | Path, fields: Sequence[float] | None = None, aiming: str = "paraxial",
+                 rays: int = 9, freqs: Sequence[float] = DEFAULT_MTF_FREQS, max_freq: float | None = None,
+                 per_wavelength: bool = False, progress: Progress = None) -> dict[str, Any]:
+    """layout.png, spots.png, mtf.png and report.json in ``out_dir``; returns the JSON."""
+    from . import plotting
+    from .cli._common import to_jsonable
+
+    say = progress or (lambda msg: None)
+    t0 = time.perf_counter()
+    out = Path(out_dir)
+    fields = list(lens.fields_deg if fields is None else fields)
+    par = lens.paraxial()
+    # Check the MTF request before any work: 0 .. the grid's Nyquist frequency.
+    samp = psf_sampling(lens, lens.wavelengths_nm)
+    top = max_freq if max_freq is not None else default_frequencies(lens.wavelengths_nm, samp["f_number"])[-1]
+    asked = [top, *freqs]
+    if min(asked) < 0 or max(asked) > samp["grid_nyquist_cyc_mm"]:
+        raise ValueError(f"MTF frequencies must lie in 0..{samp['grid_nyquist_cyc_mm']:.1f} cycles/mm "
+                         f"(twice the diffraction cutoff), got {', '.join(f'{q:g}' for q in asked)}")
+    out.mkdir(parents=True, exist_ok=True)
+    say("layout")
+    plotting.save_layout_png(out / "layout.png", lens, fields=fields, rays=rays, aiming=aiming)
+    spots = []
+    for f in fields:
+        say(f"spot diagram {f:g} deg")
+        spots.append(spot_diagram(lens, f, aiming=aiming))
+    plotting.save_spots_png(out / "spots.png", lens, spots)
+    # One frequency grid for every field: 0 .. the cutoff (or max_freq), plus the
+    # reported frequencies so that their values are exact, not interpolated.
+    grid = np.union1d(np.linspace(0.0, top, 101), np.asarray(freqs, dtype=float))
+    mtfs = []
+    for f in fields:
+        say(f"MTF {f:g} deg ({len(lens.wavelengths_nm)} FFT PSFs)")
+        mtfs.append(field_mtf(lens, f, grid, aiming=aiming))
+    plotting.save_mtf_png(out / "mtf.png", lens, mtfs, per_wavelength=per_wavelength, mark_freq=NYQUIST_5P86_UM,
+                          max_freq=top)
+    rows = []
+    for s, m in zip(spots, mtfs):
+        rows.append({
+            "field_deg": s["field_deg"], "rms_spot_um": s["rms_um"], "rms_spot_um_per_wavelength": s["rms_um_per_wavelength"],
+            "relative_illumination": s["relative_illumination"], "vignetting": s["vignetting"], "chief_y_mm": s["chief_y_mm"],
+            "strehl_per_wavelength": m["strehl"],
+            "mtf": {f"{q:g}": mtf_at(m, q) for q in freqs},
+            "mtf_curve": {"freq_cyc_mm": m["freq_cyc_mm"], "tangential": m["tangential"], "sagittal": m["sagittal"],
+                          "diffraction_limit": m["diffraction_limit"]},
+            "warnings": m["warnings"],
+        })
+    report = {
+        "lens": lens.name, "source": lens.source, "aiming": aiming, "wavelengths_nm": lens.wavelengths_nm,
+        "wavelength_weights": lens.wavelength_weights, "primary_wavelength_nm": lens.primary_wavelength_nm,
+        "paraxial": par, "mtf_frequencies_cyc_mm": list(freqs),
+        "mtf_method": "FFT PSF (point-sampled), OTF along x (sagittal) and y (tangential); polychromatic with "
+                      "lateral colour; diffraction limit at the working f-number",
+        "mtf_sampling": mtfs[0]["sampling"] if mtfs else None,
+        "fields": rows, "files": ["layout.png", "spots.png", "mtf.png", "report.json"],
+        "time_s": time.perf_counter() - t0,
+    }
+    (out / "report.json").write_text(json.dumps(to_jsonable(report), indent=1, allow_nan=False))
+    return report
