@@ -415,8 +415,8 @@ def _build(p: _Parser, end: int, name: str) -> dict:
 
 
 def _surface(p: _Parser, s: dict, scale: float) -> dict:
-    c = s["curv"]  # the writer picks CURV so that 1/CURV is the JSON radius exactly
-    surf: dict[str, Any] = {"radius": "inf" if c == 0 else 1.0 / c * scale,
+    c = s["curv"]
+    surf: dict[str, Any] = {"radius": "inf" if c == 0 else _radius(c) * scale,
                             "thickness": s["disz"] * scale}
     if math.isinf(s["disz"]):
         p.fail(s["lines"]["DISZ"], "DISZ", f"{p.where(s)}: infinite thickness inside the lens")
@@ -584,12 +584,27 @@ def _exact(target: float, x0: float, back) -> float:
     return x0
 
 
+def _shortest(raw: float, written: float, forward) -> float:
+    """The shortest decimal near ``raw`` that the writer's ``forward`` maps to ``written``.
+    Not every double radius has a double curvature whose reciprocal gives it back, so the
+    reader picks the value a person would have typed: JSON -> zmx -> JSON stays exact."""
+    for digits in range(1, 18):
+        cand = float(f"{raw:.{digits}g}")
+        if forward(cand) == written:
+            return cand
+    return raw
+
+
+def _radius(c: float) -> float:
+    return _shortest(1.0 / c, c, _curv)
+
+
 def _from_um(um: float) -> float:
-    return um * 1000.0
+    return _shortest(um * 1000.0, um, _to_um)
 
 
 def _to_um(nm: float) -> float:
-    return _exact(nm, nm / 1000.0, _from_um)
+    return _exact(nm, nm / 1000.0, lambda um: um * 1000.0)
 
 
 def _curv(radius: float) -> float:
