@@ -93,6 +93,18 @@ def test_cooke_mtf_lies_below_the_diffraction_limit(cooke):
         assert r["tangential"][mid] < 0.8 * r["diffraction_limit"][mid]
 
 
+@pytest.mark.parametrize("field", [14.0, 20.0])
+def test_off_axis_fft_mtf_matches_huygens(cooke, field):
+    # Off axis the exit pupil is anamorphic and distorted: the FFT PSF's corrections
+    # against the direct Huygens sum, through the MTF (measured: within 0.0053).
+    f = np.linspace(0.0, 360.0, 73)
+    fft = field_mtf(cooke, field, f, wavelengths_nm=[550.0])
+    huy = field_mtf(cooke, field, f, wavelengths_nm=[550.0], method="huygens")
+    for k in ("tangential", "sagittal"):
+        assert np.abs(fft[k] - huy[k]).max() < 0.01, (k, np.abs(fft[k] - huy[k]).max())
+    assert fft["tangential"][17] < 0.5 * fft["sagittal"][17] if field == 14.0 else True  # astigmatism at 85 c/mm
+
+
 def test_mtf_rejects_bad_requests(cooke):
     with pytest.raises(ValueError, match="Nyquist"):
         field_mtf(cooke, 0.0, [10.0, 5000.0])
@@ -100,5 +112,7 @@ def test_mtf_rejects_bad_requests(cooke):
         field_mtf(cooke, 0.0, [-1.0, 10.0])
     with pytest.raises(ValueError, match="weights"):
         field_mtf(cooke, 0.0, [10.0], wavelengths_nm=[550.0, 650.0], weights=[1.0])
+    with pytest.raises(ValueError, match="method"):
+        field_mtf(cooke, 0.0, [10.0], method="geometric")
     with pytest.raises(ValueError, match="pupil_samples"):
         field_mtf(cooke, 0.0, [10.0], pupil_samples=8)

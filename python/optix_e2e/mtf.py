@@ -17,7 +17,9 @@ Sampling (``psf_sampling``): an incoherent PSF is band-limited to the cutoff
 f_c = 1/(lambda N).  The PSF is point-sampled (``integrate=False``: no pixel MTF) at
 p = lambda_min N / 4, so the grid's Nyquist frequency is twice the highest cutoff; the
 window is 90% of the FFT field lambda N P (P pupil samples across), the most the FFT
-PSF covers without wrap-around.  With P = 64 the window holds 99.8% of a perfect lens's
+PSF covers without wrap-around; P starts at 64 and doubles while the geometric spot
+(from the chief ray) reaches beyond 85% of the half window or more than 1% of the
+energy falls outside.  With P = 64 the window holds 99.8% of a perfect lens's
 Airy pattern, and the MTF of a diffraction-limited f/50 lens matches the closed form to
 0.3% of unity (tests/test_mtf.py).  Engine warnings (wavefront under-sampled, energy
 outside the window) are passed on.
@@ -29,6 +31,7 @@ wavelength's chief-ray position, so lateral colour lowers the MTF as it should.
 
 from __future__ import annotations
 
+import math
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -40,6 +43,8 @@ NYQUIST_5P86_UM = 1e3 / (2 * 5.86)
 
 #: Fraction of the FFT field (lambda N P) that the PSF window spans.
 WINDOW_FRACTION = 0.9
+#: Largest pupil sampling the window growth goes to (window ~ 460 lambda N).
+MAX_PUPIL_SAMPLES = 512
 
 
 def diffraction_mtf(freq_cyc_mm, wavelength_nm: float, f_number: float) -> np.ndarray:
@@ -98,6 +103,32 @@ def psf_sampling(lens, wavelengths_nm: Sequence[float], pupil_samples: int = 64)
             "window_um": pixel_um * size, "grid_nyquist_cyc_mm": 1e3 / (2 * pixel_um)}
 
 
+def _sized_psf(lens, field_deg: float, wl: float, samp: dict, aiming: str, method: str = "fft"):
+    """FFT PSF at the MTF sampling, its window (and pupil sampling, which bounds the
+    window) grown by powers of two until the geometric spot extent, measured from the
+    chief ray, stays inside 85% of the half window (FFT: the engine reports the extent)
+    and the window holds 99% of the transmitted energy; at most MAX_PUPIL_SAMPLES.
+    Huygens PSFs keep the first window (see below)."""
+    p_um, n_pupil = samp["pixel_um"], samp["pupil_samples"]
+    while True:
+        size = int(WINDOW_FRACTION * 4 * n_pupil) // 2 * 2
+        psf, d = lens.psf(field_deg, wl, method, pixel_um=p_um, size=size, pupil_samples=n_pupil,
+                          aiming=aiming, integrate=False)
+        extent = max(float(d.get("spot_extent_x_um", 0.0)), float(d.get("spot_extent_y_um", 0.0)))
+        need = extent / (0.85 * 0.5 * size * p_um)
+        # Diffraction spreads light past the rays: also grow while the window holds
+        # less than 99% of the transmitted energy (a perfect lens's Airy pattern: 99.9%).
+        if float(d.get("energy_in_window", 1.0)) < 0.99 * float(d.get("transmitted_fraction", 1.0)):
+            need = max(need, 2.0)
+        # Huygens: a larger window leaves the engine's fast separable evaluation (100x
+        # slower), so its window stays fixed; the engine warns when energy falls outside.
+        if method == "huygens":
+            need = 0.0
+        if need <= 1.0 or n_pupil >= MAX_PUPIL_SAMPLES:
+            return psf, d, {"pupil_samples": n_pupil, "size": size, "window_um": size * p_um, "spot_extent_um": extent}
+        n_pupil = min(MAX_PUPIL_SAMPLES, n_pupil * 2 ** math.ceil(math.log2(need)))
+
+
 def default_frequencies(wavelengths_nm: Sequence[float], f_number: float, n: int = 101) -> np.ndarray:
     """0 .. the diffraction cutoff of the shortest wavelength, ``n`` points."""
     return np.linspace(0.0, 1.0 / (min(wavelengths_nm) * 1e-6 * f_number), n)
@@ -105,8 +136,11 @@ def default_frequencies(wavelengths_nm: Sequence[float], f_number: float, n: int
 
 def field_mtf(lens, field_deg: float, freq_cyc_mm=None, wavelengths_nm: Sequence[float] | None = None,
               weights: Sequence[float] | None = None, aiming: str = "paraxial", pupil_samples: int = 64,
+              method: str = "fft",
               progress: Callable[[str], Any] | None = None) -> dict[str, Any]:
-    """Tangential and sagittal MTF of one field, polychromatic and per wavelength.
+    """Tangential and sagittal MTF of one field, polychromatic and per wavelength, from
+    FFT PSFs (``method="huygens"``: Huygens PSFs, the reference where the FFT's
+    assumptions break, e.g. strongly distorted exit pupils at large fields).
 
     Returns freq_cyc_mm, tangential, sagittal (polychromatic), per_wavelength
     ({"wavelength_nm", "tangential", "sagittal", "diffraction_limit"} each),
@@ -114,6 +148,8 @@ def field_mtf(lens, field_deg: float, freq_cyc_mm=None, wavelengths_nm: Sequence
     the shortest wavelength), f_number (working, on axis), sampling, warnings (engine warnings, prefixed by the
     wavelength) and strehl per wavelength (None where the engine does not trust it).
     """
+    if method not in ("fft", "huygens"):
+        raise ValueError(f"MTF PSF method must be 'fft' or 'huygens', got {method!r}")
     if wavelengths_nm is None:
         wavelengths_nm = lens.wavelengths_nm
         weights = lens.wavelength_weights if weights is None else weights
@@ -135,12 +171,12 @@ def field_mtf(lens, field_deg: float, freq_cyc_mm=None, wavelengths_nm: Sequence
     n_w = {wl: working_f_number(lens, wl, aiming) for wl in wavelengths_nm}
     otf_t = np.zeros(freq.size, complex)
     otf_s = np.zeros(freq.size, complex)
-    per_wl, warnings, strehl = [], [], []
+    per_wl, warnings, strehl, sampling_used = [], [], [], []
     for wl, w in zip(wavelengths_nm, weights):
         if progress:
             progress(f"PSF {field_deg:g} deg, {wl:g} nm")
-        psf, d = lens.psf(field_deg, wl, "fft", pixel_um=samp["pixel_um"], size=samp["size"],
-                          pupil_samples=pupil_samples, aiming=aiming, integrate=False)
+        psf, d, used = _sized_psf(lens, field_deg, wl, samp, aiming, method)
+        sampling_used.append(used)
         warnings += [f"{field_deg:g} deg, {wl:g} nm: {m}" for m in d.get("warnings", [])]
         strehl.append(d.get("strehl"))
         # Chief-ray position (mm) puts each wavelength's OTF on a common origin.
@@ -155,7 +191,7 @@ def field_mtf(lens, field_deg: float, freq_cyc_mm=None, wavelengths_nm: Sequence
     return {"field_deg": float(field_deg), "freq_cyc_mm": freq, "tangential": np.abs(otf_t),
             "sagittal": np.abs(otf_s), "diffraction_limit": dl, "per_wavelength": per_wl,
             "cutoff_cyc_mm": max(1.0 / (wl * 1e-6 * n) for wl, n in n_w.items()),
-            "sampling": samp, "aiming": aiming, "strehl": strehl, "warnings": warnings}
+            "method": method, "sampling": samp, "sampling_per_wavelength": sampling_used, "aiming": aiming, "strehl": strehl, "warnings": warnings}
 
 
 def mtf_at(result: dict[str, Any], freq_cyc_mm: float) -> dict[str, float]:

@@ -197,6 +197,11 @@ def save_layout_png(path: str | Path, lens, fields: Sequence[float] | None = Non
             "size_px": tuple(int(v) for v in fig.canvas.get_width_height())}
 
 
+def _no_neg_zero(v: float, digits: int) -> str:
+    text = f"{v:.{digits}f}"
+    return text[1:] if text.startswith("-") and float(text) == 0 else text
+
+
 def save_spots_png(path: str | Path, lens, spots: Sequence[dict]) -> None:
     """One spot diagram per field on a common scale: rays coloured by wavelength,
     centred on the polychromatic centroid, RMS radius and the Airy disk (1.22 lambda N)."""
@@ -223,7 +228,7 @@ def save_spots_png(path: str | Path, lens, spots: Sequence[dict]) -> None:
         ax.set_ylabel("y (um)", fontsize=8)
         ci = f", RI {s['relative_illumination']:.3f}" if s.get("relative_illumination") is not None else ""
         ax.set_title(f"{s['field_deg']:g} deg: RMS {s['rms_um']:.2f} um{ci}\n"
-                     f"centroid y {s['centroid_um'][1] * 1e-3:.4f} mm", fontsize=8)
+                     f"centroid y {_no_neg_zero(s['centroid_um'][1] * 1e-3, 4)} mm", fontsize=8)
     for ax in axes[n:]:
         ax.set_visible(False)
     axes[0].legend(fontsize=6, loc="upper right", markerscale=4)
@@ -268,7 +273,8 @@ def save_mtf_png(path: str | Path, lens, mtfs: Sequence[dict], per_wavelength: b
     axes[0].legend(fontsize=6, loc="upper right")
     wls = ", ".join(f"{w:g}" for w in lens.wavelengths_nm)
     wts = ", ".join(f"{w:g}" for w in lens.wavelength_weights)
-    fig.suptitle(f"{lens.name}: polychromatic FFT MTF ({wls} nm, weights {wts}); "
+    method = mtfs[0].get("method", "fft").upper() if mtfs else "FFT"
+    fig.suptitle(f"{lens.name}: polychromatic MTF from {method} PSFs ({wls} nm, weights {wts}); "
                  f"T: tangential, S: sagittal", fontsize=9)
     fig.tight_layout()
     fig.savefig(path)

@@ -74,8 +74,10 @@ def plot(lens_spec, out, fields, rays, aiming, wavelength_nm):
 @click.option("--max-freq", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Highest MTF frequency (cycles/mm) [default: the diffraction cutoff].")
 @click.option("--per-wavelength", is_flag=True, help="Also draw each wavelength's MTF.")
+@click.option("--psf-method", type=click.Choice(["fft", "huygens"]), default="fft", show_default=True,
+              help="PSFs the MTF is computed from (huygens: slower, the reference at large fields).")
 @friendly_errors
-def report(lens_spec, out, fields, aiming, rays, freqs, max_freq, per_wavelength):
+def report(lens_spec, out, fields, aiming, rays, freqs, max_freq, per_wavelength, psf_method):
     """Write OUT/layout.png, spots.png, mtf.png and report.json for LENS.
 
     report.json holds the first-order data and, per field, the polychromatic RMS spot,
@@ -94,7 +96,7 @@ def report(lens_spec, out, fields, aiming, rays, freqs, max_freq, per_wavelength
         click.echo(f"[{time.perf_counter() - t0:6.2f} s] {msg}", err=True)
 
     rep = write_report(lens_, out, fields=_fields(fields), aiming=aiming, rays=rays, freqs=freq_list,
-                       max_freq=max_freq, per_wavelength=per_wavelength, progress=progress)
+                       max_freq=max_freq, per_wavelength=per_wavelength, psf_method=psf_method, progress=progress)
     progress(f"wrote {', '.join(str(out / f) for f in rep['files'])}")
     par = rep["paraxial"]
     click.echo(f"{lens_.name}: EFL {par['efl_mm']:.4f} mm, f/{par['f_number']:.3f}, aiming {aiming}")
