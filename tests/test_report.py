@@ -90,6 +90,9 @@ def test_geometry_uses_clear_apertures_or_the_footprint(cooke):
     assert on_axis[0] == pytest.approx(cooke.paraxial()["epd_mm"] / 2, abs=1e-12)
     assert on_axis[3] <= fp[3]
     assert on_axis[3] == pytest.approx(cooke.paraxial()["stop_semi_diameter_mm"], rel=0.02)
+    # Rays that fail (at 35 deg every ray misses surface 4 or is totally reflected
+    # there) do not size the surfaces.
+    np.testing.assert_array_equal(footprint(cooke, [0.0, 20.0, 35.0]), footprint(cooke, [0.0, 20.0]))
     asph = Lens(ASPHERIC)
     assert [g["semi_diameter"] for g in surface_geometry(asph, footprint(asph, [0.0]))] == [6, 6, 4.5, 5]
 
@@ -127,6 +130,8 @@ def test_plot_command_draws_every_ray(tmp_path, cooke):
         for pts in fan["rays"]:
             assert x0 < r["z_start"] and pts[:, 0].max() < x1
             assert y0 < pts[:, 1].min() and pts[:, 1].max() < y1
+    r35 = save_layout_png(tmp_path / "tir.png", cooke, fields=[0, 35], rays=5)
+    assert r35["fans"][1]["n_image"] == 0 and not any(r35["fans"][1]["ok"]) and all(r35["fans"][0]["ok"])
     w, h = r["size_px"]
     assert 1.3 < w / h < 3.5  # equal aspect for a 60 mm long, ~40 mm tall drawing
 
@@ -145,6 +150,10 @@ def test_report_command_writes_figures_and_json(tmp_path, cooke):
     row = rep["fields"][1]
     assert row["mtf"]["85.32"]["tangential"] == pytest.approx(ref["tangential"][0], abs=1e-12)
     assert row["mtf"]["85.32"]["sagittal"] == pytest.approx(ref["sagittal"][0], abs=1e-12)
+    # Alone, 650 nm is sampled at its own pixel (lambda N / 4), not 480 nm's: same MTF
+    # within the method's error.
+    mono = field_mtf(cooke, 14.0, [85.32], wavelengths_nm=[650.0])
+    assert row["mtf_per_wavelength"]["650"]["85.32"]["sagittal"] == pytest.approx(mono["sagittal"][0], abs=1e-3)
     assert row["relative_illumination"] == pytest.approx(cooke.spot(14.0)["relative_illumination"], abs=1e-12)
     assert rep["fields"][0]["rms_spot_um"] == pytest.approx(cooke.spot(0.0)["rms_um"], abs=1e-12)
     assert rep["time_s"] < 20

@@ -168,8 +168,11 @@ def save_layout_png(path: str | Path, lens, fields: Sequence[float] | None = Non
             p0 = pts[0]
             t = (p0[0] - z_start) / d[2]
             zs, ys = np.r_[p0[0] - t * d[2], pts[:, 0]], np.r_[p0[1] - t * d[1], pts[:, 1]]
+            note = "" if fan["n_image"] == len(fan["status"]) else f" ({fan['n_image']}/{len(fan['status'])} reach the image)"
             ax.plot(zs, ys, color=colour, linewidth=0.7, zorder=3,
-                    label=f"{fan['field_deg']:g} deg" if k == 0 else None)
+                    label=f"{fan['field_deg']:g} deg{note}" if k == 0 else None)
+            if not fan["ok"][k]:  # failed ray: mark where it stopped
+                ax.plot(zs[-1], ys[-1], marker="x", markersize=4, color=colour, zorder=5)
             y_max = max(y_max, float(np.max(np.abs(ys))))
     # Image plane over the image height reached by the rays.
     y_img = max([abs(float(p[-1, 1])) for f in fans for p in f["rays"] if abs(p[-1, 0] - z_img) < 1e-9] + [1.0])

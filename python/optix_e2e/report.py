@@ -79,8 +79,8 @@ def _trace_paths(lens: Lens, field: float, px, py, wavelength_nm: float, aiming:
 
 
 def footprint(lens: Lens, fields: Sequence[float], aiming: str = "paraxial", n_edge: int = 32) -> np.ndarray:
-    """Largest ray height at each surface over the pupil rim (and chief ray) of each of
-    ``fields``, at the primary wavelength: the drawn size of surfaces without a clear
+    """Largest height at each surface of the rays through the pupil rim (and the chief
+    ray) of each of ``fields`` that reach the image, at the primary wavelength: the drawn size of surfaces without a clear
     semi-diameter (as Zemax's automatic semi-diameters)."""
     t = np.linspace(0.0, 2 * np.pi, n_edge, endpoint=False)
     px, py = np.append(np.sin(t), 0.0), np.append(np.cos(t), 0.0)
@@ -88,9 +88,11 @@ def footprint(lens: Lens, fields: Sequence[float], aiming: str = "paraxial", n_e
     h = np.zeros(k)
     for f in sorted(set(fields)):
         d = _trace_paths(lens, f, px, py, lens.primary_wavelength_nm, aiming)
-        r = np.hypot(d["path"][:, :k, 0], d["path"][:, :k, 1])
-        valid = np.arange(k)[None, :] <= d["last"][:, None]
-        h = np.maximum(h, np.where(valid, r, 0.0).max(axis=0))
+        # Only rays that reach the image size the surfaces (a failed ray may meet a
+        # surface far out on its extended sphere).
+        ok = d["status"] == 0
+        if ok.any():
+            h = np.maximum(h, np.hypot(d["path"][ok, :k, 0], d["path"][ok, :k, 1]).max(axis=0))
     if np.any(h <= 0):
         bad = [i + 1 for i in np.flatnonzero(h <= 0)]
         raise ValueError(f"no ray reaches surface(s) {bad}: cannot size them (give semi_diameter)")
@@ -101,7 +103,8 @@ def ray_fans(lens: Lens, fields: Sequence[float], n_rays: int = 9, aiming: str =
              wavelength_nm: float | None = None) -> list[dict[str, Any]]:
     """Meridional (y-z) fans: ``n_rays`` rays from py = -1 to 1 per field.  Each ray is
     its list of (z, y) points, surface by surface to where it ends (the image, or the
-    surface where it was clipped); ``launch_direction`` lets the caller extend it back."""
+    surface where it failed; ``ok`` says which); ``direction`` (the beam's) lets the
+    caller extend it back.  Rays that miss surface 1 are left out."""
     if n_rays < 1:
         raise ValueError(f"rays per field must be at least 1, got {n_rays}")
     wl = lens.primary_wavelength_nm if wavelength_nm is None else wavelength_nm
@@ -109,8 +112,10 @@ def ray_fans(lens: Lens, fields: Sequence[float], n_rays: int = 9, aiming: str =
     fans = []
     for f in fields:
         d = _trace_paths(lens, f, np.zeros_like(py), py, wl, aiming)
-        rays = [d["path"][j, : d["last"][j] + 1][:, [2, 1]] for j in range(py.size) if d["last"][j] >= 0]
-        fans.append({"field_deg": float(f), "rays": rays, "direction": d["launch_direction"],
+        keep = [j for j in range(py.size) if d["last"][j] >= 0]
+        rays = [d["path"][j, : d["last"][j] + 1][:, [2, 1]] for j in keep]
+        fans.append({"field_deg": float(f), "rays": rays, "ok": [bool(d["status"][j] == 0) for j in keep],
+                     "direction": d["launch_direction"],
                      "status": d["status"], "n_image": int(np.sum(d["status"] == 0))})
     return fans
 
@@ -190,6 +195,8 @@ def write_report(lens: Lens, out_dir: str | Path, fields: Sequence[float] | None
             "relative_illumination": s["relative_illumination"], "vignetting": s["vignetting"], "chief_y_mm": s["chief_y_mm"],
             "strehl_per_wavelength": m["strehl"], "mtf_psf_sampling": m["sampling_per_wavelength"],
             "mtf": {f"{q:g}": mtf_at(m, q) for q in freqs},
+            "mtf_per_wavelength": {f"{p['wavelength_nm']:g}": {f"{q:g}": mtf_at({**p, "freq_cyc_mm": m["freq_cyc_mm"]}, q)
+                                                                for q in freqs} for p in m["per_wavelength"]},
             "mtf_curve": {"freq_cyc_mm": m["freq_cyc_mm"], "tangential": m["tangential"], "sagittal": m["sagittal"],
                           "diffraction_limit": m["diffraction_limit"]},
             "warnings": m["warnings"],
