@@ -12,8 +12,8 @@ from .psf import psf
 def main():
     """optix: exact ray-traced PSFs for compound lenses.
 
-    LENS arguments take a JSON prescription path (docs/lens-format.md) or the name of a
-    bundled lens (e.g. cooke-f50).
+    LENS arguments take a JSON prescription path (docs/lens-format.md), a Zemax .zmx file
+    (docs/zemax.md) or the name of a bundled lens (e.g. cooke-f50).
     """
 
 

@@ -95,3 +95,10 @@ def convert(src, dst, utf16, lenient):
     a, b = lens_.paraxial(), back.paraxial()
     click.echo(f"wrote {out} ({len(back.surfaces)} surfaces)   EFL {a['efl_mm']:.9g} -> {b['efl_mm']:.9g} mm"
                f"   BFL {a['bfl_mm']:.9g} -> {b['bfl_mm']:.9g} mm")
+
+
+# Subcommands that live in their own modules (one module per subcommand).
+from .lens_report import plot, report  # noqa: E402
+
+lens.add_command(plot)
+lens.add_command(report)
