@@ -1,86 +1,16 @@
-"""Zemax OpticStudio ``.zmx`` import and export (sequential lenses); see docs/zemax.md.
-
-:func:`read_zmx` turns a file into our JSON prescription (docs/lens-format.md) plus a
-report of what was ignored; :func:`write_zmx` / :func:`zmx_text` go the other way.
-Nothing is dropped silently: a keyword either maps onto the prescription, is listed in
-:attr:`ZemaxImport.ignored` (display / bookkeeping only, see ``IGNORED``), or raises a
-:class:`ZemaxError` that names the file, the line and the keyword.  Unknown glass is an
-error with near matches, never a substituted index.
-"""
+"""Reading .zmx files into our JSON prescription (docs/zemax.md)."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from . import glass as _glass
-
-__all__ = ["ZemaxError", "ZemaxImport", "read_zmx", "parse_zmx", "write_zmx", "zmx_text"]
-
-#: Lens units -> millimetres (the UNIT line's first token).
-UNITS_MM = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0, "M": 1000.0}
-#: Keywords that do not change the nominal optics: listed in the report, then skipped.
-IGNORED = {
-    # header: file/version/UI state, analysis defaults, ray-aiming and polarization settings
-    "VERS", "NOTE", "AUTH", "IWDP", "PFIL", "LANG", "GFAC", "RAIM", "PUSH", "SDMA", "OMMA",
-    "ROPD", "HYPR", "PICB", "POLS", "GLRS", "GSTD", "NSCD", "COFN", "LUID", "BLNK", "TOL",
-    "MOFF", "FWGN", "FWGT", "VDXN", "VDYN", "VCXN", "VCYN", "VANN", "CONF", "DMFS", "SUMM",
-    # surface: drawing, slabs, physical-optics settings, mechanical size, coating (transmission)
-    "HIDE", "MIRR", "SLAB", "POPS", "MEMA", "COAT", "FIMP", "MAZH", "DIAZ",
-    # tolerancing data, displayed EFL, glass-catalog cache
-    "TOLE", "EFFL", "GLCZ",
-}
-#: Known keywords whose meaning this reader cannot represent: always an error.
-UNSUPPORTED = {
-    "OBNA": "object-space NA aperture (use ENPD, FNUM or FLOA)",
-    "EFNO": "working F/# aperture (use ENPD, FNUM or FLOA)",
-    "SCBD": "surface tilt/decenter",
-    "TILT": "surface tilt", "DECX": "surface decenter", "DECY": "surface decenter",
-    "XDAT": "extra-data surface parameters",
-    "PZUP": "pickup solve", "ELAP": "elliptical aperture", "SQAP": "rectangular aperture",
-    "UDAP": "user-defined aperture", "CLOB": "circular obscuration", "ELOB": "elliptical obscuration",
-    "SQOB": "rectangular obscuration", "OBSC": "obscuration",
-}
-SURFACE_TYPES = ("STANDARD", "EVENASPH")
-#: Our catalog folder for a Zemax GCAT name (lower-cased names not listed map to themselves).
-GCAT_TO_CATALOG = {"MISC": "organic"}
-CATALOG_TO_GCAT = {"organic": "MISC"}
-#: Zemax MISC-catalog names of our polymers.
-ZEMAX_POLYMER_NAMES = {"PMMA": "PMMA", "polycarbonate": "POLYCARB", "polystyrene": "POLYSTYR"}
-N_EVENASPH = 8  # PARM 1..8 = a2, a4, ..., a16
+from .. import glass as _glass
+from .common import GCAT_TO_CATALOG, IGNORED, N_EVENASPH, SURFACE_TYPES, UNITS_MM, UNSUPPORTED, ZemaxError, ZemaxImport
+from .numbers import _from_um, _radius
 
 
-class ZemaxError(ValueError):
-    """A .zmx file (or a lens to be written as one) this module cannot map faithfully."""
-
-
-@dataclass
-class ZemaxImport:
-    """What :func:`read_zmx` found: the prescription dict and the ignored keywords."""
-
-    data: dict
-    source: str
-    ignored: list[tuple[int, str, str]] = field(default_factory=list)  # (line, keyword, why)
-    notes: list[str] = field(default_factory=list)
-
-    def ignored_summary(self) -> str:
-        """One line per reason: ``why: KEY (line 3), KEY (lines 9, 17, ...)``."""
-        by_why: dict[str, dict[str, list[int]]] = {}
-        for line, key, why in self.ignored:
-            by_why.setdefault(why, {}).setdefault(key, []).append(line)
-        rows = []
-        for why, keys in by_why.items():
-            items = []
-            for key, lines in keys.items():
-                shown = ", ".join(map(str, lines[:3])) + (", ..." if len(lines) > 3 else "")
-                items.append(f"{key} (line{'s' if len(lines) > 1 else ''} {shown})")
-            rows.append(f"{why}: {', '.join(items)}")
-        return "\n".join(rows)
-
-
-# ----------------------------------------------------------------------------- reading
 def _decode(raw: bytes, source: str) -> tuple[str, str]:
     """Text and the encoding used. OpticStudio writes UTF-16 LE with a BOM."""
     if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
@@ -549,8 +479,8 @@ def _waves(p: _Parser, end: int) -> dict:
 def _resolve_floa(p: _Parser, out: dict, line: int):
     """FLOA: the EPD is whatever fills the stop's semi-diameter paraxially.  The
     paraxial stop height is linear in the EPD, so one trace at EPD = 1 gives it."""
-    from .lens import Lens  # circular import otherwise
-    from .prescription import PrescriptionError
+    from ..lens import Lens  # circular import otherwise
+    from ..prescription import PrescriptionError
 
     stop = next(s for s in out["surfaces"] if s.get("stop"))
     if not stop.get("semi_diameter"):
@@ -564,159 +494,3 @@ def _resolve_floa(p: _Parser, out: dict, line: int):
     out["description"] += (f"; aperture FLOA (float by stop size): stop semi-diameter "
                            f"{stop['semi_diameter']:.10g} mm -> paraxial EPD {epd:.10g} mm")
     p.notes.append(f"FLOA resolved to EPD {epd:.10g} mm")
-
-
-# ----------------------------------------------------------------------------- exact conversions
-def _neighbours(x: float, k: int = 4):
-    yield x
-    lo = hi = x
-    for _ in range(k):
-        lo, hi = math.nextafter(lo, -math.inf), math.nextafter(hi, math.inf)
-        yield lo
-        yield hi
-
-
-def _exact(target: float, x0: float, back) -> float:
-    """An x near x0 with back(x) == target, so write-then-read returns ``target`` exactly."""
-    for x in _neighbours(x0):
-        if back(x) == target:
-            return x
-    return x0
-
-
-def _shortest(raw: float, written: float, forward) -> float:
-    """The shortest decimal near ``raw`` that the writer's ``forward`` maps to ``written``.
-    Not every double radius has a double curvature whose reciprocal gives it back, so the
-    reader picks the value a person would have typed: JSON -> zmx -> JSON stays exact."""
-    for digits in range(1, 18):
-        cand = float(f"{raw:.{digits}g}")
-        if forward(cand) == written:
-            return cand
-    return raw
-
-
-def _radius(c: float) -> float:
-    return _shortest(1.0 / c, c, _curv)
-
-
-def _from_um(um: float) -> float:
-    return _shortest(um * 1000.0, um, _to_um)
-
-
-def _to_um(nm: float) -> float:
-    return _exact(nm, nm / 1000.0, lambda um: um * 1000.0)
-
-
-def _curv(radius: float) -> float:
-    return _exact(radius, 1.0 / radius, lambda c: 1.0 / c)
-
-
-# ----------------------------------------------------------------------------- writing
-def _f(v: float) -> str:
-    return repr(float(v))  # shortest string that reads back to the same double
-
-
-def zmx_text(data: dict, source: str = "<lens>") -> str:
-    """The .zmx text of an (unresolved, validated) prescription dict."""
-    from .prescription import resolve_prescription
-
-    resolve_prescription(data, source)  # validate first: errors name the JSON location
-
-    def fail(where, msg):
-        raise ZemaxError(f"{source}: {where}: {msg}")
-
-    lines = ["VERS 190513 80 123457 L123457", "MODE SEQ", f"NAME {data.get('name', 'lens')}",
-             "PFIL 0 0 0", "LANG 0", "UNIT MM X W X CM MR CPMM"]
-    ap = data["aperture"]
-    lines.append(f"ENPD {_f(ap['value'])}" if ap["type"] == "epd" else f"FNUM {_f(ap['value'])} 0")
-    lines += ["ENVD 2.0E+1 1 0", "GFAC 0 0"]
-    glas, gcat = [], []
-    for i, s in enumerate(data["surfaces"]):
-        g = _glas_line(s["material"], f"surface {i + 1} (surfaces[{i}]) material", fail)
-        glas.append(g[0] if g else None)
-        if g and g[1] and g[1] not in gcat:
-            gcat.append(g[1])
-    if gcat:  # in our search order, so a bare name resolves as it does in JSON
-        order = {c.upper(): i for i, c in enumerate(_glass.catalogs())}
-        lines.append("GCAT " + " ".join(sorted(gcat, key=lambda c: order.get(c, len(order)))))
-    fields = [float(f) for f in data["fields_deg"]]
-    wls = [float(w) for w in data["wavelengths_nm"]]
-    weights = [float(w) for w in data.get("wavelength_weights") or [1.0] * len(wls)]
-    primary = float(data.get("primary_wavelength_nm", wls[len(wls) // 2]))
-    if primary not in wls:
-        fail("primary_wavelength_nm", f"{primary} is not one of wavelengths_nm (Zemax's PWAV is an index)")
-    lines += ["RAIM 0 0 1 1 0 0 0 0 0", f"FTYP 0 0 {len(fields)} {len(wls)} 0 0 0",
-              "XFLN " + " ".join("0" for _ in fields), "YFLN " + " ".join(_f(f) for f in fields),
-              "FWGN " + " ".join("1" for _ in fields)]
-    lines += [f"WAVM {i} {_f(_to_um(w))} {_f(k)}" for i, (w, k) in enumerate(zip(wls, weights), 1)]
-    lines.append(f"PWAV {wls.index(primary) + 1}")
-    lines += ["SURF 0", "  TYPE STANDARD", "  CURV 0.0", "  DISZ INFINITY"]
-    for i, s in enumerate(data["surfaces"]):
-        where = f"surface {i + 1} (surfaces[{i}])"
-        lines.append(f"SURF {i + 1}")
-        if s.get("name"):
-            lines.append(f"  COMM {s['name']}")
-        if s.get("stop"):
-            lines.append("  STOP")
-        asph = {k: float(v) for k, v in (s.get("aspheric") or {}).items() if v != 0}
-        high = [k for k in asph if int(k[1:]) > 2 * N_EVENASPH]
-        if high:
-            fail(f"{where} aspheric", f"{', '.join(high)}: Zemax EVENASPH stops at a16")
-        lines.append(f"  TYPE {'EVENASPH' if asph else 'STANDARD'}")
-        lines.append(f"  CURV {_f(_surface_curv(s))}")
-        lines.append(f"  DISZ {_f(s['thickness'])}")
-        if glas[i]:
-            lines.append(f"  GLAS {glas[i]}")
-        if s.get("conic"):
-            lines.append(f"  CONI {_f(s['conic'])}")
-        sd = s.get("semi_diameter")
-        if sd:  # fixed semi-diameter plus a circular aperture: Zemax clips there too
-            lines += [f'  DIAM {_f(sd)} 1 0 0 1 ""', f"  CLAP 0 {_f(sd)} 0"]
-        for k in sorted(asph, key=lambda k: int(k[1:])):
-            lines.append(f"  PARM {int(k[1:]) // 2} {_f(asph[k])}")
-    lines += [f"SURF {len(data['surfaces']) + 1}", "  TYPE STANDARD", "  CURV 0.0", "  DISZ 0.0"]
-    isd = (data.get("image") or {}).get("semi_diameter")
-    if isd:
-        lines += [f'  DIAM {_f(isd)} 1 0 0 1 ""', f"  CLAP 0 {_f(isd)} 0"]
-    return "\n".join(lines) + "\n"
-
-
-def _surface_curv(s: dict) -> float:
-    if "curvature" in s:
-        return float(s["curvature"])
-    r = s.get("radius")
-    if r is None or isinstance(r, str):
-        return 0.0
-    return _curv(float(r))
-
-
-def _glas_line(m, where: str, fail) -> "tuple[str, str | None] | None":
-    """(GLAS arguments, GCAT catalog) for a material; None for air."""
-    if isinstance(m, str) and m.strip().lower() == "air":
-        return None
-    if isinstance(m, str) or (isinstance(m, dict) and "glass" in m):
-        g = _glass.resolve(m)
-        name = ZEMAX_POLYMER_NAMES.get(g.name, g.name) if g.catalog == "organic" else g.name
-        nd, vd = _nd_vd(g)  # recorded like OpticStudio does; the reader uses them to pick the vendor
-        gcat = CATALOG_TO_GCAT.get(g.catalog, g.catalog.upper())
-        return f"{name} 0 0 {nd:.10f} {vd:.8f} 0 0 0 0 0 0", gcat
-    if isinstance(m, dict) and "nd" in m:
-        return f"___BLANK 1 0 {_f(m['nd'])} {_f(m['vd'])} 0 0 0 0 0 0", None
-    if isinstance(m, dict) and "n" in m:  # Vd = 0: no dispersion
-        return f"___BLANK 1 0 {_f(m['n'])} 0 0 0 0 0 0 0", None
-    fail(where, "a formula or tabulated material has no Zemax equivalent; use a catalog "
-         "glass name or a model glass {\"nd\", \"vd\"}")
-
-
-def write_zmx(data: dict, path: "str | Path", *, encoding: str = "utf-8", source: str = "<lens>") -> Path:
-    """Write ``data`` as a .zmx file; ``encoding="utf-16"`` gives OpticStudio's own
-    encoding (UTF-16 LE with a BOM)."""
-    if encoding.lower().replace("_", "-") not in ("utf-8", "utf-16"):
-        raise ZemaxError(f"encoding must be utf-8 or utf-16, got {encoding!r}")
-    path = Path(path)
-    text = zmx_text(data, source)
-    if encoding.lower().replace("_", "-") == "utf-16":
-        path.write_bytes(b"\xff\xfe" + text.replace("\n", "\r\n").encode("utf-16-le"))
-    else:
-        path.write_text(text, encoding="utf-8")
-    return path

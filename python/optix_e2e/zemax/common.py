@@ -1,0 +1,66 @@
+"""Shared parts of the .zmx reader and writer: keyword classes, unit scales, the error
+and the import report."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+#: Lens units -> millimetres (the UNIT line's first token).
+UNITS_MM = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0, "M": 1000.0}
+#: Keywords that do not change the nominal optics: listed in the report, then skipped.
+IGNORED = {
+    # header: file/version/UI state, analysis defaults, ray-aiming and polarization settings
+    "VERS", "NOTE", "AUTH", "IWDP", "PFIL", "LANG", "GFAC", "RAIM", "PUSH", "SDMA", "OMMA",
+    "ROPD", "HYPR", "PICB", "POLS", "GLRS", "GSTD", "NSCD", "COFN", "LUID", "BLNK", "TOL",
+    "MOFF", "FWGN", "FWGT", "VDXN", "VDYN", "VCXN", "VCYN", "VANN", "CONF", "DMFS", "SUMM",
+    # surface: drawing, slabs, physical-optics settings, mechanical size, coating (transmission)
+    "HIDE", "MIRR", "SLAB", "POPS", "MEMA", "COAT", "FIMP", "MAZH", "DIAZ",
+    # tolerancing data, displayed EFL, glass-catalog cache
+    "TOLE", "EFFL", "GLCZ",
+}
+#: Known keywords whose meaning this reader cannot represent: always an error.
+UNSUPPORTED = {
+    "OBNA": "object-space NA aperture (use ENPD, FNUM or FLOA)",
+    "EFNO": "working F/# aperture (use ENPD, FNUM or FLOA)",
+    "SCBD": "surface tilt/decenter",
+    "TILT": "surface tilt", "DECX": "surface decenter", "DECY": "surface decenter",
+    "XDAT": "extra-data surface parameters",
+    "PZUP": "pickup solve", "ELAP": "elliptical aperture", "SQAP": "rectangular aperture",
+    "UDAP": "user-defined aperture", "CLOB": "circular obscuration", "ELOB": "elliptical obscuration",
+    "SQOB": "rectangular obscuration", "OBSC": "obscuration",
+}
+SURFACE_TYPES = ("STANDARD", "EVENASPH")
+#: Our catalog folder for a Zemax GCAT name (lower-cased names not listed map to themselves).
+GCAT_TO_CATALOG = {"MISC": "organic"}
+CATALOG_TO_GCAT = {"organic": "MISC"}
+#: Zemax MISC-catalog names of our polymers.
+ZEMAX_POLYMER_NAMES = {"PMMA": "PMMA", "polycarbonate": "POLYCARB", "polystyrene": "POLYSTYR"}
+N_EVENASPH = 8  # PARM 1..8 = a2, a4, ..., a16
+
+
+class ZemaxError(ValueError):
+    """A .zmx file (or a lens to be written as one) this module cannot map faithfully."""
+
+
+@dataclass
+class ZemaxImport:
+    """What :func:`read_zmx` found: the prescription dict and the ignored keywords."""
+
+    data: dict
+    source: str
+    ignored: list[tuple[int, str, str]] = field(default_factory=list)  # (line, keyword, why)
+    notes: list[str] = field(default_factory=list)
+
+    def ignored_summary(self) -> str:
+        """One line per reason: ``why: KEY (line 3), KEY (lines 9, 17, ...)``."""
+        by_why: dict[str, dict[str, list[int]]] = {}
+        for line, key, why in self.ignored:
+            by_why.setdefault(why, {}).setdefault(key, []).append(line)
+        rows = []
+        for why, keys in by_why.items():
+            items = []
+            for key, lines in keys.items():
+                shown = ", ".join(map(str, lines[:3])) + (", ..." if len(lines) > 3 else "")
+                items.append(f"{key} (line{'s' if len(lines) > 1 else ''} {shown})")
+            rows.append(f"{why}: {', '.join(items)}")
+        return "\n".join(rows)
