@@ -346,18 +346,25 @@ class OptimizeResult:
 
 
 def optimize(lens: "Lens | dict", space: ParameterSpace, merit: Merit, max_nfev: int = 400,
-             progress: Callable[[int, float, float], None] | None = None,
+             progress: Callable[[int, float, float, bool], None] | None = None,
              ftol: float = 1e-8, xtol: float = 1e-8, x_scale="jac") -> OptimizeResult:
     """Minimize ``merit`` over ``space`` starting from ``lens``.
 
     ``lens`` may carry catalog glass names (a raw dict): the optimizer evaluates the resolved
-    copy and writes the variables (and a solved focus) back into the raw one.
-    ``progress(nfev, merit_um, worst_violation)`` is called after each evaluation.
+    copy and writes the variables (and a solved focus) back into the raw one.  Clear
+    semi-diameters in ``lens`` are ignored while optimizing and kept as they are in the
+    result (see :func:`set_semi_diameters` and ``OptimizeResult.after["semi_diameters_mm"]``).
+    ``progress(nfev, merit_um, worst_violation, feasible)`` is called after each evaluation
+    (Jacobian columns included); ``feasible``: every constraint met.
     """
     from scipy.optimize import least_squares
 
     raw = copy.deepcopy(lens.data if isinstance(lens, Lens) else lens)
     resolved = Lens.load(raw).data if not isinstance(lens, Lens) else copy.deepcopy(lens.data)
+    # designs are evaluated without clear apertures (automatic semi-diameters, as Zemax
+    # does while optimizing); the footprint gives the edge heights
+    for s in resolved["surfaces"]:
+        s["semi_diameter"] = None
     lo = np.array([p.min for p in space.params])
     hi = np.array([p.max for p in space.params])
     x0 = np.array(space.values(resolved))
@@ -385,13 +392,13 @@ def optimize(lens: "Lens | dict", space: ParameterSpace, merit: Merit, max_nfev:
             if not _is_design_error(exc):
                 raise
             if progress:
-                progress(count["n"], math.nan, math.nan)
+                progress(count["n"], math.nan, math.nan, False)
             return np.full(nres, REJECTED)
         if rep["merit_um"] < history[-1] and all(c["ok"] for c in rep["constraints"]):
             history.append(rep["merit_um"])
         if progress:
             worst = max((c["violation"] for c in rep["constraints"]), default=0.0)
-            progress(count["n"], rep["merit_um"], worst)
+            progress(count["n"], rep["merit_um"], worst, all(c["ok"] for c in rep["constraints"]))
         return r
 
     sol = least_squares(fun, u0, bounds=(0.0, 1.0), method="trf", x_scale=x_scale,
@@ -418,7 +425,7 @@ def _is_design_error(exc: Exception) -> bool:
 
 
 def set_semi_diameters(lens: dict, semi_diameters: Sequence[float], margin: float = 0.0,
-                       decimals: int = 2) -> dict:
+                       decimals: int = 4) -> dict:
     """A copy of ``lens`` with each surface's clear semi-diameter set to the footprint
     (plus ``margin`` mm), rounded up to ``decimals``."""
     out = copy.deepcopy(lens)

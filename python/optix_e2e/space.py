@@ -84,7 +84,8 @@ def _is_air(material) -> bool:
     return material == "air" or (isinstance(material, str) and material.lower() == "air")
 
 
-def parameter_from_name(name: str, lens: dict, bounds: tuple[float, float] | None = None) -> Parameter:
+def parameter_from_name(name: str, lens: dict, bounds: tuple[float, float] | None = None,
+                        semi_diameters: Sequence[float] | None = None) -> Parameter:
     """A parameter from a Table-1 style name (``s_3_radius``, ``s_1_4th``, ``s_2_thickness``),
     with ``bounds`` or :func:`default_bounds` around the lens's current value."""
     m = _NAME.match(name.strip())
@@ -106,17 +107,19 @@ def parameter_from_name(name: str, lens: dict, bounds: tuple[float, float] | Non
     else:
         kind = m.group(2)
     p = Parameter(name, kind, surf, -math.inf, math.inf, UNITS[kind])
-    lo, hi = bounds if bounds is not None else default_bounds(p, lens)
+    lo, hi = bounds if bounds is not None else default_bounds(p, lens, semi_diameters)
     return Parameter(name, kind, surf, float(lo), float(hi), UNITS[kind])
 
 
-def default_bounds(p: Parameter, lens: dict) -> tuple[float, float]:
+def default_bounds(p: Parameter, lens: dict,
+                   semi_diameters: Sequence[float] | None = None) -> tuple[float, float]:
     """Bounds used when a variable is chosen by name only (no space file).
 
-    Radii keep their sign within a factor 0.5..3 of the current value (a flat surface can
-    become |R| >= 20 mm of either sign is not offered: give a space file for that); conics
-    +-2 around the current value; thicknesses 0.3x..3x (air gaps may close to 0); asphere
-    coefficients as large as makes 0.5 mm of sag at the clear semi-diameter (or 10 mm).
+    Radii keep their sign within 0.5x..3x of the current value (a flat surface needs a
+    space file); conics +-2 around the current value; thicknesses 0.3x..3x + 1 mm (air gaps
+    may close to 0); asphere coefficients +- the value that makes 0.5 mm of sag at the
+    surface's semi-diameter (``semi_diameters`` (e.g. the ray footprint), else the
+    prescription's, else 10 mm).
     """
     v = p.get(lens)
     if p.kind == "radius":
@@ -131,7 +134,8 @@ def default_bounds(p: Parameter, lens: dict) -> tuple[float, float]:
     if p.kind == "air_gap":
         return (0.0, 3.0 * v + 1.0)
     order = ASPHERE_KINDS[p.kind]
-    h = lens["surfaces"][p.surface - 1].get("semi_diameter") or 10.0
+    h = (semi_diameters[p.surface - 1] if semi_diameters is not None
+         else lens["surfaces"][p.surface - 1].get("semi_diameter")) or 10.0
     amp = 0.5 / h ** order
     return (v - amp, v + amp)
 
@@ -154,12 +158,14 @@ class ParameterSpace:
 
     # ----- construction ---------------------------------------------------------------
     @classmethod
-    def from_names(cls, names: "str | Sequence[str]", lens: dict) -> "ParameterSpace":
+    def from_names(cls, names: "str | Sequence[str]", lens: dict,
+                   semi_diameters: Sequence[float] | None = None) -> "ParameterSpace":
         if isinstance(names, str):
             names = [n for n in (x.strip() for x in names.split(",")) if n]
         if not names:
             raise SpaceError("no variables given")
-        return cls([parameter_from_name(n, lens) for n in names], source="--vars")
+        return cls([parameter_from_name(n, lens, semi_diameters=semi_diameters) for n in names],
+                   source="--vars")
 
     @classmethod
     def load(cls, path: "str | Path", lens: dict | None = None) -> "ParameterSpace":

@@ -72,11 +72,12 @@ def _floats(text: str | None, what: str) -> list[float] | None:
               help="Solver iterations (merit evaluations outside the Jacobian).")
 @click.option("--set-semi-diameters", is_flag=True,
               help="Write each surface's clear semi-diameter from the optimized ray footprint.")
+@click.option("--name", "new_name", help="Name to store in the output lens.")
 @click.option("--description", help="Description to store in the output lens.")
 @friendly_errors
 def optimize_cmd(lens_spec, var_names, space_file, out_path, summary_path, efl, efl_tol, min_center,
                  min_edge, min_air_gap, min_bfd, focus, field_weights, rings, arms, aiming, max_iter,
-                 set_semi_diameters, description):
+                 set_semi_diameters, new_name, description):
     """Optimize LENS by trust-region damped least squares on the polychromatic RMS spot
     radius over its fields, under EFL / thickness / air-gap / BFD constraints."""
     from tqdm import tqdm
@@ -85,28 +86,32 @@ def optimize_cmd(lens_spec, var_names, space_file, out_path, summary_path, efl, 
     lens = Lens(raw, source=source)
     if not var_names and not space_file:
         raise click.UsageError("give the variables: --vars NAMES and/or --space FILE")
+    constraints = Constraints(efl=efl, efl_tol=efl_tol, min_center=min_center, min_edge=min_edge,
+                              min_air_gap=min_air_gap, min_bfd=min_bfd)
+    merit = Merit(lens, constraints, field_weights=_floats(field_weights, "--field-weights"),
+                  rings=rings, arms=arms, aiming=aiming, focus=focus)
     params = []
     try:
         if space_file:
             params += ParameterSpace.load(space_file, lens.data).params
         if var_names:
-            params += ParameterSpace.from_names(var_names, lens.data).params
+            # default asphere bounds scale with the start's ray footprint
+            footprint = merit.footprint(lens.data, lens.to_engine_json())
+            params += ParameterSpace.from_names(var_names, lens.data, footprint).params
         space = ParameterSpace(params, source=space_file or "--vars")
     except SpaceError as exc:
         raise click.ClickException(str(exc)) from None
-    constraints = Constraints(efl=efl, efl_tol=efl_tol, min_center=min_center, min_edge=min_edge,
-                              min_air_gap=min_air_gap, min_bfd=min_bfd)
-    merit = Merit(lens, constraints, field_weights=_floats(field_weights, "--field-weights"),
-                  rings=rings, arms=arms, aiming=aiming, focus=focus)
 
     bar = tqdm(total=None, unit="eval", desc="optimize", dynamic_ncols=True, file=sys.stderr)
     best = {"merit": math.inf}
 
-    def progress(n, merit_um, worst):
+    def progress(n, merit_um, worst, feasible):
+        # the bar shows the best merit among designs meeting every constraint so far and
+        # the worst violation of the latest evaluation
         bar.update(1)
-        if math.isfinite(merit_um) and merit_um < best["merit"]:
+        if feasible and merit_um < best["merit"]:
             best["merit"] = merit_um
-            bar.set_postfix(merit_um=f"{merit_um:.4f}", worst_violation=f"{worst:.2e}")
+        bar.set_postfix(best_feasible_um=f"{best['merit']:.4f}", violation=f"{worst:.1e}", refresh=False)
 
     try:
         res = optimize(raw, space, merit, max_nfev=max_iter, progress=progress)
@@ -115,6 +120,15 @@ def optimize_cmd(lens_spec, var_names, space_file, out_path, summary_path, efl, 
     out = res.lens
     if set_semi_diameters:
         out = _with_semi_diameters(out, res.after["semi_diameters_mm"])
+    else:
+        small = [f"surface {i + 1}: {s['semi_diameter']} < {h:.4f} mm"
+                 for i, (s, h) in enumerate(zip(out["surfaces"], res.after["semi_diameters_mm"]))
+                 if s.get("semi_diameter") is not None and s["semi_diameter"] < h]
+        if small:
+            click.echo("warning: clear semi-diameters kept from the input now clip the beam ("
+                       + "; ".join(small) + "); rerun with --set-semi-diameters", err=True)
+    if new_name:
+        out["name"] = new_name
     if description:
         out["description"] = description
     Lens(out, source=out_path)  # the result must be a valid prescription

@@ -1,0 +1,247 @@
+"""The bundled nominal designs (docs/designs.md): paper-triplet and double-gauss-f5.
+
+Geometry (sags, edge thicknesses, gaps) is recomputed here from the prescription with its
+own formulas, independently of optix_e2e.optimize.  The double Gauss is checked against
+optiland 0.6.3 (its DoubleGauss sample is the published prescription we bundle; both tools
+read the same refractiveindex.info Schott pages, so first-order data agree to rounding).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from optix_e2e.lens import BUNDLED_DIR, Lens, bundled_lenses
+from optix_e2e.space import ParameterSpace
+
+SPACES = BUNDLED_DIR / "spaces"
+
+# paper-triplet: requirements (issue 3) and the bound on the per-field RMS spot radius;
+# measured figures are in docs/designs.md
+TRIPLET_EFL_MM = 25.0
+TRIPLET_EFL_TOL = 1e-3          # the relative tolerance the optimizer was run with
+TRIPLET_FNO = 4.4
+TRIPLET_MIN_AIR_GAP = 1.0
+TRIPLET_MIN_EDGE = 2.0
+TRIPLET_MIN_CENTER = 2.0
+TRIPLET_MIN_BFD = 10.0
+SENSOR_HALF_DIAGONAL_MM = 0.5 * math.hypot(1920, 1200) * 5.86e-3
+# per-field bound on the polychromatic RMS spot radius (measured, 128 rings: 8.80, 7.84,
+# 9.48, 14.43, 20.97 um): the paper's ~10 um holds to 10 deg; the horizontal edge (12.7 deg)
+# and the sensor corner (14.9 deg) are worse, limited by the Petzval curvature of PMMA
+# positives (docs/designs.md)
+TRIPLET_MAX_RMS_UM = {0.0: 10.0, 5.0: 10.0, 10.0: 10.0, 12.7: 15.0, 14.9: 22.0}
+TRIPLET_MAX_MERIT_UM = 13.5     # field-averaged (quadratic mean) RMS spot; measured 13.24
+
+
+def _sag(s: dict, r: float) -> float:
+    R = s.get("radius")
+    c = 0.0 if R in (None, "inf") else 1.0 / R
+    k = s.get("conic", 0.0)
+    z = c * r * r / (1.0 + math.sqrt(1.0 - (1.0 + k) * c * c * r * r))
+    return z + sum(a * r ** int(key[1:]) for key, a in (s.get("aspheric") or {}).items())
+
+
+def _is_air(m) -> bool:
+    return m == "air"
+
+
+def _vertices(surfs):
+    return np.concatenate([[0.0], np.cumsum([s["thickness"] for s in surfs])])
+
+
+@pytest.fixture(scope="module")
+def triplet() -> Lens:
+    return Lens.load("paper-triplet")
+
+
+@pytest.fixture(scope="module")
+def triplet_raw() -> dict:
+    return json.loads((BUNDLED_DIR / "paper-triplet.json").read_text())
+
+
+def test_bundled_listing_has_designs_not_spaces():
+    names = bundled_lenses()
+    assert {"paper-triplet", "double-gauss-f5"} <= set(names)
+    assert not any("space" in n for n in names)
+
+
+# ----- paper-triplet --------------------------------------------------------------------
+def test_triplet_layout(triplet_raw):
+    """PMMA - N-SF11 biconcave - PMMA, aspheres on surfaces 1 and 6, stop (surface 5)
+    between elements 2 and 3, catalog glass names as written."""
+    s = triplet_raw["surfaces"]
+    assert len(s) == 7
+    assert [x["material"] for x in s] == ["PMMA", "air", "N-SF11", "air", "air", "PMMA", "air"]
+    assert s[4].get("stop") and s[4]["radius"] == "inf"
+    assert s[2]["radius"] < 0 < s[3]["radius"]  # biconcave
+    assert set(s[0]["aspheric"]) == set(s[5]["aspheric"]) == {"a4", "a6", "a8", "a10"}
+    assert all("aspheric" not in x for i, x in enumerate(s) if i not in (0, 5))
+    assert "optix lens optimize" in triplet_raw["description"]
+
+
+def test_triplet_first_order(triplet):
+    par = triplet.paraxial()
+    assert par["efl_mm"] == pytest.approx(TRIPLET_EFL_MM, rel=TRIPLET_EFL_TOL)
+    assert par["f_number"] == pytest.approx(TRIPLET_FNO, rel=1e-12)
+    assert par["epd_mm"] == pytest.approx(par["efl_mm"] / TRIPLET_FNO, rel=1e-12)
+    # the largest field reaches the sensor corner: real chief-ray height >= half diagonal
+    chief = triplet.spot(triplet.max_field_deg, rings=8)["chief_y_mm"]
+    assert abs(chief) >= SENSOR_HALF_DIAGONAL_MM
+
+
+def test_triplet_constraints_hold(triplet):
+    """Center and edge thicknesses of both PMMA elements and the N-SF11 element, air gaps
+    (center and rim) and BFD, at the clear semi-diameters written in the file."""
+    surfs = triplet.surfaces
+    z = _vertices(surfs)
+    sd = [s["semi_diameter"] for s in surfs]
+    for a, b in ((0, 1), (2, 3), (5, 6)):  # glass elements
+        h = max(sd[a], sd[b])
+        assert z[b] - z[a] >= TRIPLET_MIN_CENTER - 1e-9
+        edge = (z[b] + _sag(surfs[b], h)) - (z[a] + _sag(surfs[a], h))
+        assert edge >= TRIPLET_MIN_EDGE - 1e-9, (a + 1, edge)
+    for a, b in ((1, 2), (3, 5)):  # air gaps between elements (the stop plane 5 is not a lens)
+        h = max(sd[a], sd[b])
+        assert z[b] - z[a] >= TRIPLET_MIN_AIR_GAP - 1e-9
+        edge = (z[b] + _sag(surfs[b], h)) - (z[a] + _sag(surfs[a], h))
+        assert edge >= TRIPLET_MIN_AIR_GAP - 1e-9, (a + 1, edge)
+    # the iris at the stop plane clears both neighbouring rims
+    assert z[4] - (z[3] + _sag(surfs[3], sd[3])) >= -1e-9
+    assert (z[5] + _sag(surfs[5], sd[5])) - z[4] >= -1e-9
+    assert surfs[-1]["thickness"] >= TRIPLET_MIN_BFD
+
+
+def test_triplet_semi_diameters_pass_the_full_beam(triplet):
+    """The written clear apertures come from the ray footprint: nothing is vignetted."""
+    for f in triplet.fields_deg:
+        assert triplet.spot(f, rings=16)["vignetting"] == pytest.approx(1.0, abs=1e-12)
+
+
+def test_triplet_rms_spot(triplet):
+    assert triplet.fields_deg == list(TRIPLET_MAX_RMS_UM)
+    rms = [triplet.spot(f, rings=64)["rms_um"] for f in triplet.fields_deg]
+    for f, r in zip(triplet.fields_deg, rms):
+        assert r <= TRIPLET_MAX_RMS_UM[f], (f, r)
+    assert math.sqrt(np.mean(np.square(rms))) <= TRIPLET_MAX_MERIT_UM
+
+
+def test_triplet_space_is_table1_and_contains_nominal(triplet_raw, triplet):
+    sp = ParameterSpace.load(SPACES / "paper-triplet.space.json", triplet.data)
+    table1 = (["s_1_radius", "s_1_conic", "s_2_radius", "l_12", "l_2STO", "l_STO3", "s_6_radius",
+               "s_6_conic", "s_7_radius"] + [f"s_1_{o}" for o in ("2nd", "4th", "6th", "8th", "10th")]
+              + [f"s_6_{o}" for o in ("2nd", "4th", "6th", "8th", "10th")])
+    assert sp.names == table1
+    assert sp.check_bounds(triplet_raw) == []
+    kinds = {p.name: (p.kind, p.surface) for p in sp.params}
+    assert kinds["l_12"] == ("air_gap", 2) and kinds["l_2STO"] == ("air_gap", 4) and kinds["l_STO3"] == ("air_gap", 5)
+
+
+def test_triplet_matches_optiland(triplet):
+    """optiland 0.6.3 built from our prescription (even aspheres, stop plane; indices at
+    550 nm as ideal materials, so both use the same glass data): paraxial EFL/BFL to 1e-6
+    relative and real rays at the corner field (paraxial aiming in both) to 1e-6 mm."""
+    optic_mod = pytest.importorskip("optiland.optic", reason="optiland is in the test extra")
+    from optiland.materials import IdealMaterial
+
+    n = triplet.refractive_indices(550.0)
+    o = optic_mod.Optic()
+    o.surfaces.add(index=0, radius=np.inf, thickness=np.inf)
+    for i, s in enumerate(triplet.surfaces, 1):
+        kw = dict(index=i, radius=np.inf if s["radius"] == "inf" else s["radius"], thickness=s["thickness"],
+                  material="air" if n[i] == 1.0 else IdealMaterial(float(n[i])),
+                  is_stop=bool(s.get("stop")), conic=s.get("conic", 0.0))
+        if "aspheric" in s:
+            a = s["aspheric"]
+            kw.update(surface_type="even_asphere", coefficients=[0.0, a["a4"], a["a6"], a["a8"], a["a10"]])
+        o.surfaces.add(**kw)
+    o.surfaces.add(index=len(triplet.surfaces) + 1)
+    par = triplet.paraxial(550.0)
+    o.set_aperture(aperture_type="EPD", value=par["epd_mm"])
+    o.fields.set_type(field_type="angle")
+    for f in triplet.fields_deg:
+        o.fields.add(y=f)
+    o.wavelengths.add(value=0.55, is_primary=True)
+    assert float(o.paraxial.f2()) == pytest.approx(par["efl_mm"], rel=1e-6)
+    assert float(o.surfaces[-2].thickness) + float(o.paraxial.F2()) == pytest.approx(par["bfl_mm"], rel=1e-6)
+    pupil = [0.0, 1.0, -1.0, 0.5, -0.5]
+    ours = triplet.trace_field(triplet.max_field_deg, [0.0] * 5, pupil, 550.0)["position"][:, 1]
+    for py, y in zip(pupil, ours):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            rays = o.trace_generic(Hx=0.0, Hy=1.0, Px=0.0, Py=py, wavelength=0.55)
+        assert float(np.squeeze(rays.y)) == pytest.approx(y, abs=1e-6), py
+
+
+# ----- double Gauss ---------------------------------------------------------------------
+optiland_objectives = pytest.importorskip("optiland.samples.objectives", reason="optiland is in the test extra")
+
+
+@pytest.fixture(scope="module")
+def dgauss() -> Lens:
+    return Lens.load("double-gauss-f5")
+
+
+@pytest.fixture(scope="module")
+def optiland_dg():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return optiland_objectives.DoubleGauss()
+
+
+def test_double_gauss_is_optilands_prescription(dgauss, optiland_dg):
+    ours = dgauss.surfaces
+    theirs = list(optiland_dg.surfaces)[1:-1]
+    assert len(ours) == len(theirs) == 11
+    n_elements = sum(1 for s in ours if s["material"] != "air" and not s.get("stop"))
+    assert n_elements == 6
+    for s, t in zip(ours, theirs):
+        r = math.inf if s["radius"] == "inf" else s["radius"]
+        assert float(t.geometry.radius) == pytest.approx(r, rel=1e-12)
+        assert float(t.thickness) == pytest.approx(s["thickness"], rel=1e-12)
+        assert bool(t.is_stop) == bool(s.get("stop", False))
+
+
+def test_double_gauss_first_order_matches_optiland(dgauss, optiland_dg):
+    par = dgauss.paraxial()
+    efl = float(optiland_dg.paraxial.f2())
+    bfl = float(optiland_dg.surfaces[-2].thickness) + float(optiland_dg.paraxial.F2())
+    assert par["efl_mm"] == pytest.approx(efl, rel=1e-6)
+    assert par["bfl_mm"] == pytest.approx(bfl, rel=1e-6)
+    assert par["epd_mm"] == pytest.approx(float(optiland_dg.paraxial.EPD()), rel=1e-6)
+
+
+def test_double_gauss_spot_matches_optiland(dgauss, optiland_dg):
+    """Monochromatic RMS spot at the primary wavelength: optiland's hexapolar estimate
+    converges as 1/rings, so compare with its extrapolation 2 r(64) - r(32), to 0.2 %."""
+    from optiland.analysis import SpotDiagram
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = {n: SpotDiagram(optiland_dg, num_rings=n, distribution="hexapolar").rms_spot_radius()
+             for n in (32, 64)}
+    ip = dgauss.wavelengths_nm.index(dgauss.primary_wavelength_nm)
+    for i, f in enumerate(dgauss.fields_deg):
+        ref_um = 1e3 * (2 * r[64][i][ip] - r[32][i][ip])
+        ours = dgauss.spot(f, wavelengths_nm=[dgauss.primary_wavelength_nm], rings=128)["rms_um"]
+        assert ours == pytest.approx(ref_um, rel=2e-3), (f, ours, ref_um)
+
+
+def test_double_gauss_polychromatic_spot_is_reasonable(dgauss):
+    """Well corrected for its class: polychromatic RMS spot below 0.01 % of the EFL on
+    axis and below 0.04 % at the 14 degree field (measured: 9.4, 22.2, 35.3 um)."""
+    efl = dgauss.paraxial()["efl_mm"]
+    rms = [dgauss.spot(f, rings=64)["rms_um"] for f in dgauss.fields_deg]
+    assert rms[0] < 1e-4 * efl * 1e3
+    assert max(rms) < 4e-4 * efl * 1e3
+
+
+def test_double_gauss_space(dgauss):
+    sp = ParameterSpace.load(SPACES / "double-gauss-f5.space.json", dgauss.data)
+    assert sp.check_bounds(dgauss.data) == []
+    assert {p.kind for p in sp.params} == {"radius", "thickness", "air_gap"}
+    assert len([p for p in sp.params if p.kind == "radius"]) == 8
