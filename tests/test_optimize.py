@@ -230,3 +230,22 @@ def test_cli_optimize_errors(tmp_path, args, msg):
     r = CliRunner().invoke(optimize_cmd, ["cooke-f50", "--out", str(tmp_path / "o.json"), *args])
     assert r.exit_code != 0
     assert msg in r.output
+
+
+def test_cli_space_file_and_paraxial_focus(tmp_path):
+    """--space with the double Gauss's bundled space and the BFL solve: the result keeps
+    every parameter in range and its image sits at its own paraxial focus."""
+    out, summ = tmp_path / "dg.json", tmp_path / "dg.summary.json"
+    space = BUNDLED_DIR / "spaces" / "double-gauss-f5.space.json"
+    r = CliRunner().invoke(optimize_cmd, [
+        "double-gauss-f5", "--space", str(space), "--focus", "paraxial", "--efl", "100",
+        "--max-iter", "4", "--rings", "3", "--arms", "6", "--out", str(out), "--summary", str(summ)])
+    assert r.exit_code == 0, r.output
+    summary = json.loads(summ.read_text())
+    assert summary["after"]["merit_um"] <= summary["before"]["merit_um"]
+    lens = Lens.load(out)
+    assert ParameterSpace.load(space, lens.data).check_bounds(lens.data) == []
+    par = lens.paraxial()
+    assert par["back_focus_shift_mm"] == pytest.approx(0.0, abs=1e-9)
+    written = json.loads(out.read_text())  # catalog names kept as written
+    assert written["surfaces"][3]["material"] == {"glass": "F5", "catalog": "schott"}
