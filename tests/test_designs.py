@@ -1,7 +1,7 @@
 """The bundled nominal designs (docs/designs.md): paper-triplet and double-gauss-f5.
 
 Geometry (sags, edge thicknesses, gaps) is recomputed here from the prescription with its
-own formulas, independently of optix_e2e.optimize.  The double Gauss is checked against
+own formulas, independently of optix_e2e.lens_optimizer.  The double Gauss is checked against
 optiland 0.6.3 (its DoubleGauss sample is the published prescription we bundle; both tools
 read the same refractiveindex.info Schott pages, so first-order data agree to rounding).
 """

@@ -98,7 +98,9 @@ def convert(src, dst, utf16, lenient):
 
 
 # Subcommands that live in their own modules (one module per subcommand).
+from .lens_optimize import optimize_cmd  # noqa: E402
 from .lens_report import plot, report  # noqa: E402
 
+lens.add_command(optimize_cmd)
 lens.add_command(plot)
 lens.add_command(report)

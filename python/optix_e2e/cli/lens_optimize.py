@@ -11,8 +11,8 @@ import click
 
 from ._common import AIMING, dumps, friendly_errors
 from ..lens import BUNDLED_DIR, Lens, LensLoadError
-from ..optimize import Constraints, Merit, optimize
-from ..optimize import set_semi_diameters as _with_semi_diameters
+from ..lens_optimizer import Constraints, Merit, optimize
+from ..lens_optimizer import set_semi_diameters as _with_semi_diameters
 from ..space import ParameterSpace, SpaceError
 
 
