@@ -10,6 +10,10 @@ use crate::lens::{Lens, Surface};
 use crate::surface;
 use crate::trace::Status;
 
+/// How far behind its current point a ray may meet the next surface and still count (mm):
+/// rounding only, e.g. a ray that starts on the surface.
+const BEHIND_TOL_MM: f64 = 1e-9;
+
 /// Rays per block: 8 f64 arrays of 64 lanes stay well inside L1.
 pub const LANES: usize = 64;
 
@@ -157,6 +161,8 @@ fn verdict(hit: bool, inside: bool, no_tir: bool) -> u8 {
 #[inline(always)]
 pub(crate) fn step(sc: &SurfConst, s: &Surface, kind: Kind, r: &mut Ray, clip: bool, refract_here: bool) -> u8 {
     let (t, nx, ny, nz, hit) = if kind == Kind::Asphere { asphere_hit(sc, s, r) } else { hit_conic(sc, kind, r) };
+    // A surface met behind the ray (it would have had to cross it already) is a miss.
+    let hit = hit & (t >= -BEHIND_TOL_MM);
     r.x += t * r.dx;
     r.y += t * r.dy;
     r.z += t * r.dz;

@@ -103,3 +103,17 @@ fn flat_pupil_trace_matches_ray_states() {
         }
     }
 }
+
+/// A surface that lies behind the ray (here: a ray starting inside the first element,
+/// past surface 1) is a miss at that surface, in both the single-ray and block paths.
+#[test]
+fn surface_behind_the_ray_is_a_miss() {
+    let lens = common::cooke();
+    let sys = System::new(&lens, 550.0).unwrap();
+    let (o, d) = (DVec3::new(0.0, 1.0, 2.0), DVec3::Z);
+    let one = sys.trace(o, d, End::Image);
+    assert_eq!((one.status, one.surface), (Status::Missed, 0), "{one:?}");
+    let many = sys.trace_many(&[o, DVec3::new(0.0, 1.0, -5.0)], &[d, d]);
+    assert_eq!((many[0].status, many[0].surface), (Status::Missed, 0));
+    assert_eq!(many[1].status, Status::Ok);
+}

@@ -838,8 +838,9 @@ mod tests {
         }
     }
 
-    /// At 30 degrees the 64-sample pupil is badly undersampled (20-wave steps) and too
-    /// distorted for the Taylor series: the FFT once reported a Strehl of ~1e6 here.
+    /// At 30 degrees the 64-sample pupil is undersampled (4-wave steps; 20 before rays that
+    /// met a surface behind themselves counted as misses) and too distorted for the Taylor
+    /// series: the FFT once reported a Strehl of ~1e6 here.
     #[test]
     fn untrustworthy_strehl_is_not_reported() {
         let lens = cooke();

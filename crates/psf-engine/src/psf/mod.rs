@@ -193,6 +193,11 @@ fn psf_in_pool(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) 
             ));
             None
         }
+        // The Strehl's direct pupil sum needs the same sampling as the PSF itself.
+        Some(_) if o.method != Method::Geometric && step > 0.5 => {
+            d.warn(format!("Strehl not reported: the pupil is undersampled ({step:.2} waves between neighbouring samples > 0.5)"));
+            None
+        }
         s => s,
     };
     let e = d.values.get("energy_in_window").and_then(Value::as_f64).unwrap_or(1.0);
