@@ -257,6 +257,15 @@ impl Block {
         self.dz[j] = r.dz;
         self.opl[j] = r.opl;
     }
+    /// A lane's verdict at surface `surface`: only a ray still Ok takes it (as selects, so
+    /// lane loops stay branch-free), so a failed ray keeps its first failure.
+    #[inline(always)]
+    fn record(&mut self, j: usize, st: u8, surface: i32) {
+        let alive = self.status[j] == 0;
+        self.surface[j] = if alive & (st != 0) { surface } else { self.surface[j] };
+        self.status[j] = if alive { st } else { self.status[j] };
+    }
+
     /// Set lane `j` to a ray starting at (x, y, z) along unit (dx, dy, dz), and mark it
     /// Ok or Invalid.
     #[inline(always)]
@@ -279,6 +288,19 @@ pub(crate) struct Plan<'a> {
     pub clip: bool,
 }
 
+impl Plan<'_> {
+    /// Surfaces traced: all of them, or up to and including `stop_at`.
+    pub fn last(&self) -> usize {
+        self.stop_at.map_or(self.consts.len(), |i| i + 1)
+    }
+
+    /// Whether the ray refracts at surface `i` (not where the trace stops, nor between
+    /// equal indices).
+    pub fn refracts(&self, i: usize) -> bool {
+        self.stop_at != Some(i) && !self.consts[i].same
+    }
+}
+
 /// One surface over all lanes. Every choice that is the same for all lanes is a constant
 /// here, so the loop body is branch-free and vectorizes.
 #[inline(always)]
@@ -293,9 +315,7 @@ fn lanes<const KIND: u8, const CLIP: bool, const REFRACT: bool>(b: &mut Block, i
         let mut r = b.get(j);
         let st = step(sc, s, kind, &mut r, CLIP, REFRACT);
         b.put(j, &r);
-        let alive = b.status[j] == 0;
-        b.surface[j] = if alive & (st != 0) { i as i32 } else { b.surface[j] };
-        b.status[j] = if alive { st } else { b.status[j] };
+        b.record(j, st, i as i32);
     }
 }
 
@@ -315,18 +335,15 @@ fn image_lanes<const CLIP: bool>(b: &mut Block, k: i32, im: &ImageConst) {
         let mut r = b.get(j);
         let st = step_image(im, &mut r, CLIP);
         b.put(j, &r);
-        let alive = b.status[j] == 0;
-        b.surface[j] = if alive & (st != 0) { k } else { b.surface[j] };
-        b.status[j] = if alive { st } else { b.status[j] };
+        b.record(j, st, k);
     }
 }
 
 #[inline(always)]
 fn run_inline(plan: &Plan, b: &mut Block) {
-    let last = plan.stop_at.map_or(plan.consts.len(), |i| i + 1);
-    for i in 0..last {
+    for i in 0..plan.last() {
         let (sc, s) = (&plan.consts[i], &plan.surfaces[i]);
-        let refract = plan.stop_at != Some(i) && !sc.same;
+        let refract = plan.refracts(i);
         match sc.kind {
             Kind::Plane => surface_lanes::<0>(b, i, sc, s, plan.clip, refract),
             Kind::Sphere => surface_lanes::<1>(b, i, sc, s, plan.clip, refract),

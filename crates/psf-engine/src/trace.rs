@@ -48,6 +48,9 @@ impl RayState {
     pub fn ok(&self) -> bool {
         self.status == Status::Ok
     }
+    fn arrived(r: &Ray) -> RayState {
+        RayState { p: DVec3::new(r.x, r.y, r.z), d: DVec3::new(r.dx, r.dy, r.dz), opl: r.opl, status: Status::Ok, surface: -1 }
+    }
     fn fail(status: Status, surface: usize) -> RayState {
         RayState { p: DVec3::ZERO, d: DVec3::ZERO, opl: 0.0, status, surface: surface as i32 }
     }
@@ -107,11 +110,9 @@ impl<'a> System<'a> {
             return RayState::fail(Status::Invalid, 0);
         }
         let plan = self.plan(end, clip);
-        let last = plan.stop_at.map_or(self.consts.len(), |i| i + 1);
-        for i in 0..last {
+        for i in 0..plan.last() {
             let (sc, s) = (&self.consts[i], &self.lens.surfaces[i]);
-            let refract = plan.stop_at != Some(i) && !sc.same;
-            let st = kernel::step(sc, s, sc.kind, &mut r, clip, refract);
+            let st = kernel::step(sc, s, sc.kind, &mut r, clip, plan.refracts(i));
             if st != 0 {
                 return RayState::fail(Status::from_code(st), i);
             }
@@ -122,7 +123,7 @@ impl<'a> System<'a> {
                 return RayState::fail(Status::from_code(st), self.consts.len());
             }
         }
-        RayState { p: DVec3::new(r.x, r.y, r.z), d: DVec3::new(r.dx, r.dy, r.dz), opl: r.opl, status: Status::Ok, surface: -1 }
+        RayState::arrived(&r)
     }
 
     /// Trace a batch in parallel; output order matches input order.
@@ -243,8 +244,7 @@ impl Block {
         for (j, o) in out.iter_mut().enumerate() {
             let st = Status::from_code(self.status[j]);
             *o = if st == Status::Ok {
-                let r = self.get(j);
-                RayState { p: DVec3::new(r.x, r.y, r.z), d: DVec3::new(r.dx, r.dy, r.dz), opl: r.opl, status: st, surface: -1 }
+                RayState::arrived(&self.get(j))
             } else {
                 RayState::fail(st, self.surface[j].max(0) as usize)
             };
