@@ -2,6 +2,10 @@
 //! lenses, and their point spread functions (geometric, FFT of the pupil function,
 //! Huygens). Pure Rust; the Python bindings live in the psf-engine-py crate.
 
+// Lets unit tests share tests/common, which refers to this crate by name.
+#[cfg(test)]
+extern crate self as psf_engine;
+
 pub mod aim;
 pub mod error;
 pub mod kernel;

@@ -795,34 +795,20 @@ pub fn direct_intensity(p: &Pupil, amp: f64, k: f64, x: f64, y: f64) -> f64 {
     direct_sum(p, &idx, &w, k, x, y)
 }
 
+// The integration tests' reference Cooke triplet loader (it names this crate psf_engine,
+// which lib.rs makes valid inside the crate for tests).
+#[cfg(test)]
+#[path = "../../tests/common/mod.rs"]
+mod test_common;
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::aim::Aiming;
     use crate::psf::{psf, pupil, Method};
     use crate::trace::System;
-    use crate::Lens;
-    use serde_json::{json, Value};
-
-    /// The reference Cooke triplet of ../shared/reference in our schema (as in
-    /// tests/common/mod.rs).
-    fn cooke() -> Lens {
-        let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/reference/cooke_triplet.json");
-        let r: Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))).unwrap();
-        let mut surfaces = vec![];
-        for s in r["surfaces"].as_array().unwrap().iter().filter(|s| s["role"] == "refracting") {
-            let m = &s["material_after"];
-            let material = if m["name"] == "air" {
-                json!("air")
-            } else {
-                let kind: u64 = m["formula"].as_str().unwrap().trim_start_matches("formula ").parse().unwrap();
-                json!({"formula": kind, "coefficients": m["coefficients"], "range_um": m["valid_range_um"], "name": m["name"]})
-            };
-            surfaces.push(json!({"radius": s["radius_mm"], "conic": s["conic"], "thickness": s["thickness_after_mm"], "material": material, "stop": s["is_stop"]}));
-        }
-        let lens = json!({"name": "cooke", "aperture": {"type": "epd", "value": r["aperture"]["value"]}, "wavelengths_nm": [550.0], "surfaces": surfaces});
-        Lens::from_json(&lens.to_string()).unwrap()
-    }
+    use serde_json::Value;
+    use test_common::cooke;
 
     fn opts() -> PsfOptions {
         PsfOptions { method: Method::Fft, pupil_samples: 64, fft_grid: Some(256), size: 64, pixel_mm: 1e-3, ..Default::default() }
