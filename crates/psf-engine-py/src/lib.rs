@@ -144,20 +144,36 @@ fn trace<'py>(py: Python<'py>, lens_json: &str, origins: PyReadonlyArray2<f64>, 
     Ok(dict)
 }
 
-#[pyfunction]
-#[pyo3(signature = (lens_json, field_deg, px, py_, wavelength_nm, aiming="paraxial"))]
-fn trace_field<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: PyReadonlyArray1<'py, f64>, py_: PyReadonlyArray1<'py, f64>, wavelength_nm: f64, aiming: &str) -> PyResult<Bound<'py, PyDict>> {
-    let (pxs, pys) = (contiguous(&px), contiguous(&py_));
+/// Pupil coordinates checked and made contiguous, then `f` run on the field's beam with
+/// the GIL released; returns its result and the beam direction.
+#[allow(clippy::too_many_arguments)]
+fn with_beam<T: Send>(
+    py: Python<'_>,
+    lens_json: &str,
+    field_deg: f64,
+    px: &PyReadonlyArray1<'_, f64>,
+    py_: &PyReadonlyArray1<'_, f64>,
+    wavelength_nm: f64,
+    aiming: &str,
+    f: impl FnOnce(&psf_engine::Beam, &[f64], &[f64]) -> psf_engine::Result<T> + Send,
+) -> PyResult<(T, [f64; 3])> {
+    let (pxs, pys) = (contiguous(px), contiguous(py_));
     if pxs.len() != pys.len() {
         return Err(pyo3::exceptions::PyValueError::new_err(format!("px ({}) and py ({}) differ in length", pxs.len(), pys.len())));
     }
     let aiming: Aiming = aiming.parse().map_err(to_py)?;
-    let (t, dir) = run(py, || {
+    run(py, || {
         let lens = parse_lens(lens_json)?;
         let sys = psf_engine::System::new(&lens, wavelength_nm)?;
         let beam = psf_engine::Beam::new(&sys, field_deg, aiming)?;
-        Ok((beam.trace_pupil_soa(&pxs, &pys), beam.dir.to_array()))
-    })?;
+        Ok((f(&beam, &pxs, &pys)?, beam.dir.to_array()))
+    })
+}
+
+#[pyfunction]
+#[pyo3(signature = (lens_json, field_deg, px, py_, wavelength_nm, aiming="paraxial"))]
+fn trace_field<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: PyReadonlyArray1<'py, f64>, py_: PyReadonlyArray1<'py, f64>, wavelength_nm: f64, aiming: &str) -> PyResult<Bound<'py, PyDict>> {
+    let (t, dir) = with_beam(py, lens_json, field_deg, &px, &py_, wavelength_nm, aiming, |beam, x, y| Ok(beam.trace_pupil_soa(x, y)))?;
     let n = t.opl.len();
     let dict = traced_dict(py, t)?;
     // Every ray of a field leaves along the same direction: a read-only broadcast view.
@@ -170,17 +186,7 @@ fn trace_field<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: PyRead
 #[pyfunction]
 #[pyo3(signature = (lens_json, field_deg, px, py_, wavelength_nm, aiming="paraxial"))]
 fn trace_field_path<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: PyReadonlyArray1<'py, f64>, py_: PyReadonlyArray1<'py, f64>, wavelength_nm: f64, aiming: &str) -> PyResult<Bound<'py, PyDict>> {
-    let (pxs, pys) = (contiguous(&px), contiguous(&py_));
-    if pxs.len() != pys.len() {
-        return Err(pyo3::exceptions::PyValueError::new_err(format!("px ({}) and py ({}) differ in length", pxs.len(), pys.len())));
-    }
-    let aiming: Aiming = aiming.parse().map_err(to_py)?;
-    let (p, dir) = run(py, || {
-        let lens = parse_lens(lens_json)?;
-        let sys = psf_engine::System::new(&lens, wavelength_nm)?;
-        let beam = psf_engine::Beam::new(&sys, field_deg, aiming)?;
-        Ok((beam.trace_path(&pxs, &pys)?, beam.dir.to_array()))
-    })?;
+    let (p, dir) = with_beam(py, lens_json, field_deg, &px, &py_, wavelength_nm, aiming, |beam, x, y| beam.trace_path(x, y))?;
     let (n, m) = (p.last.len(), p.points);
     let dict = traced_dict(py, p.image)?;
     dict.set_item("path", p.position.into_pyarray(py).reshape([n, m, 3])?)?;
