@@ -205,17 +205,23 @@ def _no_neg_zero(v: float, digits: int) -> str:
     return text[1:] if text.startswith("-") and float(text) == 0 else text
 
 
+def _panels(n: int, max_cols: int, width: float, height: float):
+    """A figure of n panels (width x height inches each) in rows of at most max_cols, with
+    room for a title; returns it and the flat array of axes (spare ones included)."""
+    cols = min(n, max_cols)
+    rows = -(-n // cols)
+    fig = Figure(figsize=(width * cols, height * rows + 0.5), dpi=120)
+    FigureCanvasAgg(fig)
+    return fig, fig.subplots(rows, cols, squeeze=False).ravel()
+
+
 def save_spots_png(path: str | Path, lens, spots: Sequence[dict]) -> None:
     """One spot diagram per field on a common scale: rays coloured by wavelength,
     centred on the polychromatic centroid, RMS radius and the Airy disk (1.22 lambda N)."""
     from matplotlib.patches import Circle
 
     n = len(spots)
-    cols = min(n, 4)
-    rows = -(-n // cols)
-    fig = Figure(figsize=(3.3 * cols, 3.5 * rows + 0.5), dpi=120)
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(rows, cols, squeeze=False).ravel()
+    fig, axes = _panels(n, max_cols=4, width=3.3, height=3.5)
     n_f = lens.paraxial()["f_number"]
     airy = 1.22 * lens.primary_wavelength_nm * 1e-3 * n_f
     half = max([airy] + [float(np.max(np.abs(p))) for s in spots for p in s["points_um"] if p.size]) * 1.1
@@ -246,11 +252,7 @@ def save_mtf_png(path: str | Path, lens, mtfs: Sequence[dict], per_wavelength: b
     """Tangential (solid) and sagittal (dashed) MTF per field, polychromatic, with the
     diffraction limit; per-wavelength curves as thin lines when asked."""
     n = len(mtfs)
-    cols = min(n, 3)
-    rows = -(-n // cols)
-    fig = Figure(figsize=(4.2 * cols, 3.4 * rows + 0.5), dpi=120)
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(rows, cols, squeeze=False).ravel()
+    fig, axes = _panels(n, max_cols=3, width=4.2, height=3.4)
     for ax, m in zip(axes, mtfs):
         f = m["freq_cyc_mm"]
         top = f[-1] if max_freq is None else max_freq
