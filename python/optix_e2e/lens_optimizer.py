@@ -38,6 +38,7 @@ import numpy as np
 
 from .lens import Lens
 from .space import ParameterSpace
+from .surface import sag as _surface_sag
 
 __all__ = ["Constraints", "Merit", "OptimizeResult", "optimize", "sag", "element_geometry"]
 
@@ -56,23 +57,9 @@ def _engine():
 
 
 # ----- geometry --------------------------------------------------------------------------
-def _curvature(s: dict) -> float:
-    if "curvature" in s:
-        return float(s["curvature"])
-    r = s.get("radius")
-    return 0.0 if r in (None, "inf") else 1.0 / float(r)
-
-
 def sag(s: dict, r) -> np.ndarray:
-    """Surface sag z(r) in mm: conic base plus even-asphere terms (docs/lens-format.md)."""
-    r = np.asarray(r, dtype=float)
-    c = _curvature(s)
-    k = float(s.get("conic", 0.0))
-    arg = np.clip(1.0 - (1.0 + k) * c * c * r * r, 0.0, None)
-    z = c * r * r / (1.0 + np.sqrt(arg))
-    for key, a in (s.get("aspheric") or {}).items():
-        z = z + float(a) * r ** int(key[1:])
-    return z
+    """Surface sag z(r) in mm (optix_e2e.surface.sag; beyond the conic's reach, its rim value)."""
+    return _surface_sag(s, r, clip=True)
 
 
 def _is_air(material) -> bool:

@@ -14,6 +14,7 @@ import numpy as np
 
 from .lens import Lens
 from .mtf import NYQUIST_5P86_UM, default_frequencies, field_mtf, mtf_at, psf_sampling
+from .surface import curvature, sag
 
 __all__ = ["sag", "surface_geometry", "ray_fans", "spot_diagram", "hexapolar", "write_report",
            "DEFAULT_MTF_FREQS"]
@@ -23,29 +24,6 @@ __all__ = ["sag", "surface_geometry", "ray_fans", "spot_diagram", "hexapolar", "
 DEFAULT_MTF_FREQS = (10.0, 20.0, 40.0, round(NYQUIST_5P86_UM, 2), 100.0)
 
 Progress = Callable[[str], Any] | None
-
-
-def _curvature(s: dict) -> float:
-    if "curvature" in s and s["curvature"] is not None:
-        return float(s["curvature"])
-    r = s.get("radius")
-    if r is None or (isinstance(r, str) and r.lower() in ("inf", "infinity")):
-        return 0.0
-    return 1.0 / float(r)
-
-
-def sag(s: dict, r) -> np.ndarray:
-    """Sag z(r) of a surface dict (conic + even asphere, docs/lens-format.md); NaN where
-    the conic is undefined."""
-    r = np.asarray(r, dtype=float)
-    c, k = _curvature(s), float(s.get("conic", 0.0) or 0.0)
-    rho = r * r
-    arg = 1.0 - (1.0 + k) * c * c * rho
-    with np.errstate(invalid="ignore"):
-        z = c * rho / (1.0 + np.sqrt(arg))
-    for key, a in (s.get("aspheric") or {}).items():
-        z = z + float(a) * r ** int(key[1:])  # "a4" -> r^4
-    return np.where(arg >= 0.0, z, np.nan)
 
 
 def _is_air(material, index: float) -> bool:
@@ -61,7 +39,7 @@ def surface_geometry(lens: Lens, footprint: Sequence[float]) -> list[dict[str, A
         sd = s.get("semi_diameter")
         h = float(sd) if sd else float(footprint[i])
         # Keep to where the conic is defined.
-        c, k = _curvature(s), float(s.get("conic", 0.0) or 0.0)
+        c, k = curvature(s), float(s.get("conic", 0.0) or 0.0)
         if (1.0 + k) * c * c > 0:
             h = min(h, 0.999 / math.sqrt((1.0 + k) * c * c))
         out.append({"index": i, "z": z, "semi_diameter": h, "clear_aperture": bool(sd),

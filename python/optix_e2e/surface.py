@@ -1,0 +1,34 @@
+"""Surface geometry of a prescription's surface dict (docs/lens-format.md): curvature and
+sag, for drawing lenses and checking thicknesses on the Python side (the engine has its own
+in crates/psf-engine/src/surface.rs)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def curvature(s: dict) -> float:
+    """1/radius in mm^-1; 0 for a plane ("inf", "infinity", null or a zero curvature)."""
+    if s.get("curvature") is not None:
+        return float(s["curvature"])
+    r = s.get("radius")
+    if r is None or (isinstance(r, str) and r.lower() in ("inf", "infinity")):
+        return 0.0
+    return 1.0 / float(r)
+
+
+def sag(s: dict, r, *, clip: bool = False) -> np.ndarray:
+    """Sag z(r) in mm: conic base c r^2 / (1 + sqrt(1 - (1+k) c^2 r^2)) plus the even
+    asphere terms.  Beyond the conic's reach (negative root) the result is NaN, or with
+    ``clip`` the root is taken as 0 (the value at the conic's rim)."""
+    r = np.asarray(r, dtype=float)
+    c, k = curvature(s), float(s.get("conic", 0.0) or 0.0)
+    rho = r * r
+    arg = 1.0 - (1.0 + k) * c * c * rho
+    if clip:
+        arg = np.clip(arg, 0.0, None)
+    with np.errstate(invalid="ignore"):
+        z = c * rho / (1.0 + np.sqrt(arg))
+    for key, a in (s.get("aspheric") or {}).items():
+        z = z + float(a) * r ** int(key[1:])  # "a4" -> r^4
+    return np.where(arg >= 0.0, z, np.nan)
