@@ -36,6 +36,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from .footprint import ray_footprint
 from .lens import Lens
 from .space import ParameterSpace
 from .surface import sag as _surface_sag
@@ -212,37 +213,9 @@ class Merit:
 
     def footprint(self, lens: dict, js: str) -> np.ndarray:
         """Clear semi-diameter of each surface: the largest rim-ray height over all fields
-        and wavelengths (rays back-intersected with the real surface, sag included)."""
-        E = _engine()
-        surfs = lens["surfaces"]
-        n = len(surfs)
-        origins, dirs = [], []
-        for f in self.fields:
-            tr = E.trace_field(js, float(f), self.rim_px, self.rim_py, self.primary, self.aiming)
-            origins.append(tr["origin"])
-            dirs.append(np.asarray(tr["launch_direction"]))
-        o = np.ascontiguousarray(np.concatenate(origins))
-        d = np.ascontiguousarray(np.concatenate(dirs))
-        z = np.concatenate([[0.0], np.cumsum([float(s["thickness"]) for s in surfs])])
-        sd = np.zeros(n)
-        for k in range(n):
-            trunc = copy.deepcopy(surfs[: k + 1])
-            for s in trunc:
-                s.pop("stop", None)
-                s["semi_diameter"] = None
-            trunc[0]["stop"] = True
-            trunc[-1]["thickness"] = 1.0
-            sub = dict(lens, surfaces=trunc)
-            sub.pop("image", None)
-            sub_js = json.dumps(sub)
-            for wl in self.wavelengths:
-                tr = E.trace(sub_js, o, d, float(wl))
-                ok = tr["status"] == 0
-                if not ok.any():
-                    continue
-                p, v = tr["position"][ok], tr["direction"][ok]
-                sd[k] = max(sd[k], float(np.max(_hit_height(surfs[k], z[k], p, v))))
-        return sd
+        and wavelengths (the engine's ray paths on the real surfaces)."""
+        return ray_footprint(js, len(lens["surfaces"]), self.fields, self.wavelengths,
+                             self.rim_px, self.rim_py, self.aiming)
 
     def evaluate(self, lens: dict, footprint: bool | None = None) -> dict:
         """Residual vector and a report of ``lens`` (already prepared).  The footprint
@@ -292,24 +265,6 @@ class Merit:
 
     def residuals(self, lens: dict) -> np.ndarray:
         return self.evaluate(self.prepare(lens))["residuals"]
-
-
-def _hit_height(s: dict, z0: float, p: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Radial height where the rays p + t v meet surface ``s`` (vertex at z0): Newton on t."""
-    t = (z0 - p[:, 2]) / v[:, 2]
-    for _ in range(20):
-        q = p + t[:, None] * v
-        r = np.hypot(q[:, 0], q[:, 1])
-        g = q[:, 2] - z0 - sag(s, r)
-        eps = 1e-6
-        q2 = p + (t + eps)[:, None] * v
-        g2 = q2[:, 2] - z0 - sag(s, np.hypot(q2[:, 0], q2[:, 1]))
-        step = g / np.where(np.abs(g2 - g) > 0, (g2 - g) / eps, 1.0)
-        t = t - step
-        if np.max(np.abs(step)) < 1e-10:
-            break
-    q = p + t[:, None] * v
-    return np.hypot(q[:, 0], q[:, 1])
 
 
 # ----- optimizer -------------------------------------------------------------------------

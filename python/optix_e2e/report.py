@@ -12,6 +12,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from .footprint import ray_footprint
 from .lens import Lens
 from .mtf import NYQUIST_5P86_UM, default_frequencies, field_mtf, mtf_at, psf_sampling
 from .surface import curvature, sag
@@ -58,19 +59,12 @@ def _trace_paths(lens: Lens, field: float, px, py, wavelength_nm: float, aiming:
 
 def footprint(lens: Lens, fields: Sequence[float], aiming: str = "paraxial", n_edge: int = 32) -> np.ndarray:
     """Largest height at each surface of the rays through the pupil rim (and the chief
-    ray) of each of ``fields`` that reach the image, at the primary wavelength: the drawn size of surfaces without a clear
-    semi-diameter (as Zemax's automatic semi-diameters)."""
+    ray) of each of ``fields``, at the primary wavelength: the drawn size of surfaces
+    without a clear semi-diameter (as Zemax's automatic semi-diameters)."""
     t = np.linspace(0.0, 2 * np.pi, n_edge, endpoint=False)
     px, py = np.append(np.sin(t), 0.0), np.append(np.cos(t), 0.0)
-    k = len(lens.surfaces)
-    h = np.zeros(k)
-    for f in sorted(set(fields)):
-        d = _trace_paths(lens, f, px, py, lens.primary_wavelength_nm, aiming)
-        # Only rays that reach the image size the surfaces (a failed ray may meet a
-        # surface far out on its extended sphere).
-        ok = d["status"] == 0
-        if ok.any():
-            h = np.maximum(h, np.hypot(d["path"][ok, :k, 0], d["path"][ok, :k, 1]).max(axis=0))
+    h = ray_footprint(lens.to_engine_json(), len(lens.surfaces), sorted(set(fields)),
+                      [lens.primary_wavelength_nm], px, py, aiming)
     if np.any(h <= 0):
         bad = [i + 1 for i in np.flatnonzero(h <= 0)]
         raise ValueError(f"no ray reaches surface(s) {bad}: cannot size them (give semi_diameter)")
