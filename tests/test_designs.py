@@ -131,7 +131,7 @@ def test_triplet_rms_spot(triplet):
 
 
 def test_triplet_space_is_table1_and_contains_nominal(triplet_raw, triplet):
-    sp = ParameterSpace.load(SPACES / "paper-triplet.space.json", triplet.data)
+    sp = ParameterSpace.load(SPACES / "paper-triplet.toml", triplet.data)
     table1 = (["s_1_radius", "s_1_conic", "s_2_radius", "l_12", "l_2STO", "l_STO3", "s_6_radius",
                "s_6_conic", "s_7_radius"] + [f"s_1_{o}" for o in ("2nd", "4th", "6th", "8th", "10th")]
               + [f"s_6_{o}" for o in ("2nd", "4th", "6th", "8th", "10th")])
@@ -241,7 +241,7 @@ def test_double_gauss_polychromatic_spot_is_reasonable(dgauss):
 
 
 def test_double_gauss_space(dgauss):
-    sp = ParameterSpace.load(SPACES / "double-gauss-f5.space.json", dgauss.data)
+    sp = ParameterSpace.load(SPACES / "double-gauss-f5.toml", dgauss.data)
     assert sp.check_bounds(dgauss.data) == []
     assert {p.kind for p in sp.params} == {"radius", "thickness", "air_gap"}
     assert len([p for p in sp.params if p.kind == "radius"]) == 8

@@ -236,7 +236,7 @@ def test_cli_space_file_and_paraxial_focus(tmp_path):
     """--space with the double Gauss's bundled space and the BFL solve: the result keeps
     every parameter in range and its image sits at its own paraxial focus."""
     out, summ = tmp_path / "dg.json", tmp_path / "dg.summary.json"
-    space = BUNDLED_DIR / "spaces" / "double-gauss-f5.space.json"
+    space = BUNDLED_DIR / "spaces" / "double-gauss-f5.toml"
     r = CliRunner().invoke(optimize_cmd, [
         "double-gauss-f5", "--space", str(space), "--focus", "paraxial", "--efl", "100",
         "--max-iter", "4", "--rings", "3", "--arms", "6", "--out", str(out), "--summary", str(summ)])

@@ -9,10 +9,18 @@ its own).  Kinds and what they change on ``surfaces[surface - 1]``:
 * ``asphere_2nd`` ... ``asphere_20th``  even-asphere coefficient a2 ... a20 (mm^(1-n))
 * ``thickness`` / ``air_gap``  axial distance to the next surface (mm); ``thickness`` is
   used when the medium after the surface is a material, ``air_gap`` when it is air.
+* ``f_number`` / ``epd``       the aperture (whole system; ``surface`` is 0): the lens's
+  aperture becomes ``{"type": "fno" | "epd", "value": v}``.
 
 Names follow the paper's Table 1 (``s_1_radius``, ``s_1_conic``, ``s_1_4th`` ... ``s_1_10th``)
-plus ``s_N_thickness`` for the distance after surface N.  A space file may give any name
-(e.g. Table 1's ``l_12``) as long as kind and surface say what it changes.
+plus ``s_N_thickness`` for the distance after surface N, ``f_number`` and ``epd``.  A space
+file may give any name (e.g. Table 1's ``l_12``) as long as kind and surface say what it
+changes.
+
+Space files are TOML (``lens = "paper-triplet"`` naming the base lens, then one
+``[[parameter]]`` table per parameter; docs/spaces.md) or JSON (a list of parameter objects,
+or ``{"lens": ..., "parameters": [...]}``).  :func:`load_space` resolves a path or a bundled
+lens's name to its space and base lens.
 """
 
 from __future__ import annotations
@@ -25,14 +33,16 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Sequence
 
-__all__ = ["Parameter", "ParameterSpace", "SpaceError", "parameter_from_name", "default_bounds"]
+__all__ = ["Parameter", "ParameterSpace", "SpaceError", "parameter_from_name", "default_bounds",
+           "load_space", "bundled_spaces"]
 
 ORDINAL = {2: "2nd", 4: "4th", 6: "6th", 8: "8th", 10: "10th", 12: "12th", 14: "14th",
            16: "16th", 18: "18th", 20: "20th"}
 ASPHERE_KINDS = {f"asphere_{v}": k for k, v in ORDINAL.items()}
-KINDS = {"radius", "conic", "thickness", "air_gap", *ASPHERE_KINDS}
-UNITS = {"radius": "mm", "conic": "-", "thickness": "mm", "air_gap": "mm",
-         **{f"asphere_{v}": f"mm^-{k - 1}" for k, v in ORDINAL.items()}}
+APERTURE_KINDS = {"f_number": "fno", "epd": "epd"}
+KINDS = {"radius", "conic", "thickness", "air_gap", *ASPHERE_KINDS, *APERTURE_KINDS}
+UNITS = {"radius": "mm", "conic": "-", "thickness": "mm", "air_gap": "mm", "f_number": "-",
+         "epd": "mm", **{f"asphere_{v}": f"mm^-{k - 1}" for k, v in ORDINAL.items()}}
 _NAME = re.compile(r"^s_(\d+)_(radius|conic|thickness|(\d+)(?:st|nd|rd|th))$")
 
 
@@ -44,13 +54,19 @@ class SpaceError(ValueError):
 class Parameter:
     name: str
     kind: str
-    surface: int  # 1-based
+    surface: int  # 1-based; 0 for the aperture kinds
     min: float
     max: float
     unit: str = ""
 
     def get(self, lens: dict) -> float:
         """Current value of this parameter in a lens dict."""
+        if self.kind in APERTURE_KINDS:
+            ap = lens["aperture"]
+            if ap["type"] != APERTURE_KINDS[self.kind]:
+                raise SpaceError(f"parameter {self.name!r} ({self.kind}): the lens's aperture is "
+                                 f"given as {ap['type']!r}, not {APERTURE_KINDS[self.kind]!r}")
+            return float(ap["value"])
         s = lens["surfaces"][self.surface - 1]
         if self.kind == "radius":
             if "curvature" in s:
@@ -65,8 +81,11 @@ class Parameter:
 
     def set(self, lens: dict, value: float) -> None:
         """Write ``value`` into a lens dict (in place)."""
-        s = lens["surfaces"][self.surface - 1]
         value = float(value)
+        if self.kind in APERTURE_KINDS:
+            lens["aperture"] = {"type": APERTURE_KINDS[self.kind], "value": value}
+            return
+        s = lens["surfaces"][self.surface - 1]
         if self.kind == "radius":
             s.pop("curvature", None)
             s["radius"] = value
@@ -88,10 +107,16 @@ def parameter_from_name(name: str, lens: dict, bounds: tuple[float, float] | Non
                         semi_diameters: Sequence[float] | None = None) -> Parameter:
     """A parameter from a Table-1 style name (``s_3_radius``, ``s_1_4th``, ``s_2_thickness``),
     with ``bounds`` or :func:`default_bounds` around the lens's current value."""
+    if name.strip() in APERTURE_KINDS:
+        kind = name.strip()
+        p = Parameter(kind, kind, 0, -math.inf, math.inf, UNITS[kind])
+        p.get(lens)  # the lens's aperture must be of this kind
+        lo, hi = bounds if bounds is not None else default_bounds(p, lens, semi_diameters)
+        return Parameter(kind, kind, 0, float(lo), float(hi), UNITS[kind])
     m = _NAME.match(name.strip())
     if not m:
-        raise SpaceError(f"parameter {name!r}: expected s_N_radius, s_N_conic, s_N_thickness or "
-                         f"s_N_<order> with order 2nd, 4th, ..., 20th (e.g. s_1_4th)")
+        raise SpaceError(f"parameter {name!r}: expected s_N_radius, s_N_conic, s_N_thickness, "
+                         f"s_N_<order> with order 2nd, 4th, ..., 20th (e.g. s_1_4th), f_number or epd")
     surf = int(m.group(1))
     n = len(lens["surfaces"])
     if not 1 <= surf <= n:
@@ -116,7 +141,7 @@ def default_bounds(p: Parameter, lens: dict,
     """Bounds used when a variable is chosen by name only (no space file).
 
     Radii keep their sign within 0.5x..3x of the current value (a flat surface needs a
-    space file); conics +-2 around the current value; thicknesses 0.3x..3x + 1 mm (air gaps
+    space file); conics +-2 around the current value; f-number and EPD 0.8x..1.25x; thicknesses 0.3x..3x + 1 mm (air gaps
     may close to 0); asphere coefficients +- the value that makes 0.5 mm of sag at the
     surface's semi-diameter (``semi_diameters`` (e.g. the ray footprint), else the
     prescription's, else 10 mm).
@@ -129,6 +154,8 @@ def default_bounds(p: Parameter, lens: dict,
         return (min(a, b), max(a, b))
     if p.kind == "conic":
         return (v - 2.0, v + 2.0)
+    if p.kind in APERTURE_KINDS:
+        return (0.8 * v, 1.25 * v)
     if p.kind == "thickness":
         return (0.3 * v, 3.0 * v + 1.0)
     if p.kind == "air_gap":
@@ -143,9 +170,14 @@ def default_bounds(p: Parameter, lens: dict,
 class ParameterSpace:
     """An ordered list of :class:`Parameter` over a base lens."""
 
-    def __init__(self, params: Sequence[Parameter], source: str = "<space>"):
+    def __init__(self, params: Sequence[Parameter], source: str = "<space>",
+                 lens_ref: str | None = None, description: str | None = None,
+                 notes: dict[str, str] | None = None):
         self.params = list(params)
         self.source = source
+        self.lens_ref = lens_ref          # base lens named by the file (bundled name or path)
+        self.description = description
+        self.notes = dict(notes or {})    # parameter name -> note
         names = [p.name for p in self.params]
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
@@ -169,25 +201,89 @@ class ParameterSpace:
 
     @classmethod
     def load(cls, path: "str | Path", lens: dict | None = None) -> "ParameterSpace":
-        """Read a space file (JSON list of parameter objects, or ``{"parameters": [...]}``)."""
+        """Read a space file: TOML (``lens = ...`` and ``[[parameter]]`` tables) or JSON (a
+        list of parameter objects, or ``{"lens": ..., "parameters": [...]}``).  ``lens``
+        (a lens dict) checks the surface numbers; the file's own ``lens`` entry is kept as
+        :attr:`lens_ref`."""
         path = Path(path)
         try:
-            data = json.loads(path.read_text(encoding="utf-8"))
+            text = path.read_text(encoding="utf-8")
         except OSError as exc:
             raise SpaceError(f"{path}: cannot read space file ({exc.strerror or exc})") from exc
-        except json.JSONDecodeError as exc:
-            raise SpaceError(f"{path}:{exc.lineno}:{exc.colno}: invalid JSON: {exc.msg}") from exc
+        except UnicodeDecodeError as exc:
+            raise SpaceError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from exc
+        if path.suffix.lower() == ".toml":
+            try:
+                data = _toml().loads(text)
+            except _toml().TOMLDecodeError as exc:
+                raise SpaceError(f"{path}: invalid TOML: {exc}") from exc
+            key = "parameter"
+        else:
+            try:
+                data = json.loads(text)
+            except json.JSONDecodeError as exc:
+                raise SpaceError(f"{path}:{exc.lineno}:{exc.colno}: invalid JSON: {exc.msg}") from exc
+            key = "parameters"
+        lens_ref = None
         if isinstance(data, dict):
-            data = data.get("parameters")
+            unknown = sorted(set(data) - {"lens", "source", "description", key})
+            if unknown:
+                raise SpaceError(f"{path}: unknown top-level key(s) {', '.join(unknown)} "
+                                 f"(expected lens, source, description, {key})")
+            lens_ref = data.get("lens")
+            if lens_ref is not None and not isinstance(lens_ref, str):
+                raise SpaceError(f"{path}: lens must be a bundled lens name or a path, got {lens_ref!r}")
+            description = data.get("description") or data.get("source")
+            data = data.get(key)
+        else:
+            description = None
         if not isinstance(data, list) or not data:
-            raise SpaceError(f"{path}: a space is a non-empty JSON list of parameters "
-                             f"(or an object with a \"parameters\" list)")
-        params = [cls._entry(path, i, e, lens) for i, e in enumerate(data)]
-        return cls(params, source=str(path))
+            raise SpaceError(f"{path}: no parameters (a TOML space has [[parameter]] tables; a JSON "
+                             f"space is a list of parameters or an object with a \"parameters\" list)")
+        label = "[[parameter]] #{}" if key == "parameter" else "parameters[{}]"
+        params = [cls._entry(path, label.format(i + 1 if key == "parameter" else i), e, lens)
+                  for i, e in enumerate(data)]
+        notes = {e["name"]: e["note"] for e in data if "note" in e}
+        return cls(params, source=str(path), lens_ref=lens_ref, description=description, notes=notes)
+
+    def base_lens(self):
+        """The base lens the file names (``lens``): a bundled name, or a path relative to
+        the space file."""
+        from .lens import Lens, LensLoadError
+
+        ref = self.lens_ref
+        if not ref:
+            raise SpaceError(f"{self.source}: the space names no base lens (add lens = \"...\")")
+        candidate = Path(self.source).parent / ref
+        try:
+            lens = Lens.load(str(candidate) if candidate.is_file() else ref)
+        except LensLoadError as exc:
+            raise SpaceError(f"{self.source}: base lens {ref!r}: {exc}") from exc
+        bad = [p.name for p in self.params if p.surface > len(lens.surfaces)]
+        if bad:
+            raise SpaceError(f"{self.source}: parameter(s) {', '.join(bad)} name a surface beyond the "
+                             f"base lens's {len(lens.surfaces)} surfaces")
+        return lens
+
+    def save_toml(self, path: "str | Path", lens_ref: str | None = None,
+                  description: str | None = None) -> None:
+        """Write the space as TOML (what :meth:`load` reads back)."""
+        import tomli_w
+
+        doc: dict = {}
+        ref = lens_ref or self.lens_ref
+        if ref:
+            doc["lens"] = ref
+        desc = description or self.description
+        if desc:
+            doc["description"] = desc
+        doc["parameter"] = [{**asdict(p), **({"note": self.notes[p.name]} if p.name in self.notes else {})}
+                            for p in self.params]
+        Path(path).write_text(tomli_w.dumps(doc), encoding="utf-8")
 
     @staticmethod
-    def _entry(path, i, e, lens) -> Parameter:
-        where = f"{path}: parameters[{i}]"
+    def _entry(path, entry: str, e, lens) -> Parameter:
+        where = f"{path}: {entry}"
         if not isinstance(e, dict):
             raise SpaceError(f"{where}: must be an object with name, kind, surface, min, max, unit")
         unknown = sorted(set(e) - {"name", "kind", "surface", "min", "max", "unit", "note"})
@@ -197,11 +293,14 @@ class ParameterSpace:
             if key not in e:
                 raise SpaceError(f"{where}: missing {key!r}")
         name = e["name"]
-        where = f"{path}: parameters[{i}] ({name})"
+        where = f"{path}: {entry} ({name})"
         if e["kind"] not in KINDS:
             raise SpaceError(f"{where}: kind {e['kind']!r} is not one of {', '.join(sorted(KINDS))}")
         surf = e["surface"]
-        if isinstance(surf, bool) or not isinstance(surf, int) or surf < 1:
+        if e["kind"] in APERTURE_KINDS:
+            if surf != 0:
+                raise SpaceError(f"{where}: an aperture parameter ({e['kind']}) has surface = 0, got {surf!r}")
+        elif isinstance(surf, bool) or not isinstance(surf, int) or surf < 1:
             raise SpaceError(f"{where}: surface must be an integer >= 1, got {surf!r}")
         lo, hi = e["min"], e["max"]
         for key, v in (("min", lo), ("max", hi)):
@@ -211,11 +310,18 @@ class ParameterSpace:
             raise SpaceError(f"{where}: min {lo} must be < max {hi}")
         if e["kind"] == "radius" and lo < 0 < hi:
             raise SpaceError(f"{where}: a radius range may not contain 0 ({lo}..{hi})")
+        if e["kind"] in ("thickness", "f_number", "epd") and lo <= 0:
+            raise SpaceError(f"{where}: {e['kind']} must stay positive (min {lo})")
+        if e["kind"] == "air_gap" and lo < 0:
+            raise SpaceError(f"{where}: an air gap may not be negative (min {lo})")
+        unit = e.get("unit", UNITS[e["kind"]])
+        if unit != UNITS[e["kind"]]:
+            raise SpaceError(f"{where}: unit {unit!r} for kind {e['kind']}; expected {UNITS[e['kind']]!r}")
         if lens is not None:
             n = len(lens["surfaces"])
             if surf > n:
                 raise SpaceError(f"{where}: surface {surf} out of range (lens has surfaces 1..{n})")
-        return Parameter(name, e["kind"], surf, float(lo), float(hi), e.get("unit", UNITS[e["kind"]]))
+        return Parameter(name, e["kind"], surf, float(lo), float(hi), unit)
 
     def to_json(self) -> list[dict]:
         return [asdict(p) for p in self.params]
@@ -251,3 +357,37 @@ class ParameterSpace:
             if not (p.min - span <= v <= p.max + span):
                 out.append(f"{p.name} = {v:.6g} outside [{p.min:.6g}, {p.max:.6g}] {p.unit}")
         return out
+
+
+def _toml():
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+    return tomllib
+
+
+SPACES_DIR = Path(__file__).parent / "bundled" / "spaces"
+
+
+def bundled_spaces() -> list[str]:
+    """Names of the bundled lenses that ship a parameter space."""
+    return sorted(p.stem for p in SPACES_DIR.glob("*.toml"))
+
+
+def load_space(spec: "str | Path") -> tuple[ParameterSpace, "object"]:
+    """(space, base Lens) from a space file path or a bundled lens's name."""
+    path = Path(spec)
+    if not path.is_file():
+        bundled = SPACES_DIR / f"{spec}.toml"
+        if bundled.is_file():
+            path = bundled
+        else:
+            raise SpaceError(f"{spec!r} is neither a space file nor a bundled lens with a space "
+                             f"(bundled: {', '.join(bundled_spaces())})")
+    space = ParameterSpace.load(path)
+    lens = space.base_lens()
+    bad = space.check_bounds(lens.data)
+    if bad:
+        raise SpaceError(f"{path}: the base lens lies outside the space: " + "; ".join(bad))
+    return space, lens

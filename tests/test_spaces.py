@@ -1,0 +1,88 @@
+"""TOML parameter spaces (optix_e2e.space): the bundled ones, the file format and its errors,
+and the aperture kinds."""
+
+from __future__ import annotations
+
+import pytest
+
+from optix_e2e.lens import Lens, bundled_lenses
+from optix_e2e.space import ParameterSpace, SpaceError, bundled_spaces, load_space, parameter_from_name
+
+
+def test_every_bundled_lens_ships_a_space_containing_it():
+    assert set(bundled_spaces()) == set(bundled_lenses())
+    for name in bundled_spaces():
+        space, lens = load_space(name)
+        assert lens.name == name
+        assert space.check_bounds(lens.data) == []
+        for p in space.params:  # every range is a real interval around the nominal
+            assert p.min < p.get(lens.data) < p.max or p.min <= p.get(lens.data) <= p.max
+
+
+def test_toml_round_trip(tmp_path):
+    space, lens = load_space("paper-triplet")
+    out = tmp_path / "copy.toml"
+    space.save_toml(out)
+    again = ParameterSpace.load(out)
+    assert again.params == space.params
+    assert again.notes == space.notes and again.lens_ref == "paper-triplet"
+    assert again.base_lens().data == lens.data
+
+
+def test_relative_base_lens_path(tmp_path):
+    (tmp_path / "my.json").write_text(Lens.load("cooke-f50").to_engine_json())
+    (tmp_path / "s.toml").write_text('lens = "my.json"\n[[parameter]]\nname = "s_1_radius"\n'
+                                     'kind = "radius"\nsurface = 1\nmin = 21.0\nmax = 23.0\nunit = "mm"\n')
+    space, lens = load_space(tmp_path / "s.toml")
+    assert lens.surfaces[0]["radius"] == pytest.approx(22.01359)
+
+
+@pytest.mark.parametrize("body, msg", [
+    ('lens = "cooke-f50"\n[[parameter]]\nname = "a"\nkind = "radius"\nsurface = 1\nmin = 30\nmax = 20\n',
+     r"\[\[parameter\]\] #1 \(a\): min 30 must be < max 20"),
+    ('lens = "cooke-f50"\n[[parameter]]\nname = "a"\nkind = "radius"\nsurface = 1\nmin = 20\nmax = 30\nunit = "um"\n',
+     r"#1 \(a\): unit 'um' for kind radius; expected 'mm'"),
+    ('lens = "cooke-f50"\n[[parameter]]\nname = "a"\nkind = "thickness"\nsurface = 1\nmin = 0\nmax = 3\n',
+     r"thickness must stay positive"),
+    ('lens = "cooke-f50"\n[[parameter]]\nname = "a"\nkind = "f_number"\nsurface = 2\nmin = 4\nmax = 6\n',
+     r"aperture parameter \(f_number\) has surface = 0"),
+    ('lens = "cooke-f50"\n[[parameter]]\nname = "a"\nkind = "radius"\nsurface = 1\nmin = 20\n',
+     r"#1: missing 'max'"),
+    ('lens = "cooke-f50"\nranges = 3\n', r"unknown top-level key\(s\) ranges"),
+    ('lens = "cooke-f50"\n', r"no parameters"),
+    ('lens = "cooke-f50"\n[[parameter]\n', r"s\.toml: invalid TOML: .*line 2"),
+])
+def test_toml_errors_name_file_and_entry(tmp_path, body, msg):
+    f = tmp_path / "s.toml"
+    f.write_text(body)
+    with pytest.raises(SpaceError, match=msg):
+        ParameterSpace.load(f)
+
+
+def test_base_lens_problems(tmp_path):
+    f = tmp_path / "s.toml"
+    f.write_text('lens = "no-such-lens"\n[[parameter]]\nname = "a"\nkind = "radius"\nsurface = 1\nmin = 20\nmax = 30\n')
+    with pytest.raises(SpaceError, match=r"s\.toml: base lens 'no-such-lens'"):
+        load_space(f)
+    f.write_text('lens = "cooke-f50"\n[[parameter]]\nname = "a"\nkind = "radius"\nsurface = 9\nmin = 20\nmax = 30\n')
+    with pytest.raises(SpaceError, match=r"parameter\(s\) a name a surface beyond the base lens's 6 surfaces"):
+        load_space(f)
+    f.write_text('lens = "cooke-f50"\n[[parameter]]\nname = "a"\nkind = "radius"\nsurface = 1\nmin = 30\nmax = 40\n')
+    with pytest.raises(SpaceError, match=r"base lens lies outside the space: a = 22.0136 outside \[30, 40\]"):
+        load_space(f)
+    with pytest.raises(SpaceError, match=r"neither a space file nor a bundled lens with a space"):
+        load_space("nothing-here")
+
+
+def test_aperture_kinds():
+    cooke = Lens.load("cooke-f50")  # aperture given as EPD 10 mm
+    p = parameter_from_name("epd", cooke.data)
+    assert (p.kind, p.surface, p.min, p.max) == ("epd", 0, 8.0, 12.5)
+    sp = ParameterSpace([p])
+    new = Lens(sp.apply(cooke.data, [8.0]))
+    assert new.paraxial()["epd_mm"] == pytest.approx(8.0, rel=1e-9)
+    with pytest.raises(SpaceError, match=r"aperture is given as 'epd', not 'fno'"):
+        parameter_from_name("f_number", cooke.data)
+    fno = ParameterSpace([parameter_from_name("f_number", Lens.load("paper-triplet").data)])
+    faster = Lens(fno.apply(Lens.load("paper-triplet").data, [3.2]))
+    assert faster.paraxial()["f_number"] == pytest.approx(3.2, rel=1e-9)
