@@ -172,12 +172,13 @@ class ParameterSpace:
 
     def __init__(self, params: Sequence[Parameter], source: str = "<space>",
                  lens_ref: str | None = None, description: str | None = None,
-                 notes: dict[str, str] | None = None):
+                 notes: dict[str, str] | None = None, constraints: dict | None = None):
         self.params = list(params)
         self.source = source
         self.lens_ref = lens_ref          # base lens named by the file (bundled name or path)
         self.description = description
         self.notes = dict(notes or {})    # parameter name -> note
+        self.constraints = dict(constraints or {})  # manufacturability limits (optix_e2e.sampling)
         names = [p.name for p in self.params]
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
@@ -226,17 +227,20 @@ class ParameterSpace:
             key = "parameters"
         lens_ref = None
         if isinstance(data, dict):
-            unknown = sorted(set(data) - {"lens", "source", "description", key})
+            unknown = sorted(set(data) - {"lens", "source", "description", "constraints", key})
             if unknown:
                 raise SpaceError(f"{path}: unknown top-level key(s) {', '.join(unknown)} "
-                                 f"(expected lens, source, description, {key})")
+                                 f"(expected lens, source, description, constraints, {key})")
+            constraints = data.get("constraints")
+            if constraints is not None and not isinstance(constraints, dict):
+                raise SpaceError(f"{path}: constraints must be a table (min_air_gap = 1.0, ...)")
             lens_ref = data.get("lens")
             if lens_ref is not None and not isinstance(lens_ref, str):
                 raise SpaceError(f"{path}: lens must be a bundled lens name or a path, got {lens_ref!r}")
             description = data.get("description") or data.get("source")
             data = data.get(key)
         else:
-            description = None
+            description = constraints = None
         if not isinstance(data, list) or not data:
             raise SpaceError(f"{path}: no parameters (a TOML space has [[parameter]] tables; a JSON "
                              f"space is a list of parameters or an object with a \"parameters\" list)")
@@ -244,7 +248,8 @@ class ParameterSpace:
         params = [cls._entry(path, label.format(i + 1 if key == "parameter" else i), e, lens)
                   for i, e in enumerate(data)]
         notes = {e["name"]: e["note"] for e in data if "note" in e}
-        return cls(params, source=str(path), lens_ref=lens_ref, description=description, notes=notes)
+        return cls(params, source=str(path), lens_ref=lens_ref, description=description, notes=notes,
+                   constraints=constraints)
 
     def base_lens(self):
         """The base lens the file names (``lens``): a bundled name, or a path relative to
@@ -277,6 +282,8 @@ class ParameterSpace:
         desc = description or self.description
         if desc:
             doc["description"] = desc
+        if self.constraints:
+            doc["constraints"] = self.constraints
         doc["parameter"] = [{**asdict(p), **({"note": self.notes[p.name]} if p.name in self.notes else {})}
                             for p in self.params]
         Path(path).write_text(tomli_w.dumps(doc), encoding="utf-8")

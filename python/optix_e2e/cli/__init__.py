@@ -5,6 +5,7 @@ import click
 from .demo import demo
 from .lens import lens
 from .psf import psf
+from .sample import sample
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -20,3 +21,4 @@ def main():
 main.add_command(lens)
 main.add_command(psf)
 main.add_command(demo)
+main.add_command(sample)

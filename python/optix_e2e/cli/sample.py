@@ -1,0 +1,72 @@
+"""``optix sample SPACE -n N --seed S --method ... --out designs.csv``."""
+
+from __future__ import annotations
+
+import csv
+import os
+import sys
+from pathlib import Path
+
+import click
+
+from ..sampling import METHODS, Limits, SampleResult, sample_designs
+from ..space import load_space
+from ._common import dumps, friendly_errors
+
+
+def limit_options(fn):
+    """--min-air-gap / --min-center / --min-edge / --min-bfd, overriding the space's own."""
+    for name, what in (("min-bfd", "back focal distance"), ("min-edge", "glass edge thickness"),
+                       ("min-center", "glass center thickness"), ("min-air-gap", "air gap (center and rim)")):
+        fn = click.option(f"--{name}", type=float, default=None,
+                          help=f"Minimum {what} (mm); default: the space's [constraints].")(fn)
+    return fn
+
+
+def write_designs_csv(path: "str | Path", result: SampleResult) -> None:
+    """One row per design: its index and the parameter values (full precision), written
+    to a temporary file first and renamed, so a reader never sees half a file."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    with open(tmp, "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(["design", *result.space.names])
+        for i, row in enumerate(result.values):
+            w.writerow([i, *(repr(float(v)) for v in row)])
+    os.replace(tmp, path)
+
+
+@click.command("sample")
+@click.argument("space_spec", metavar="SPACE")
+@click.option("-n", "n", type=click.IntRange(min=1), required=True, help="Designs to accept.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--method", type=click.Choice(METHODS), default="sobol", show_default=True,
+              help="uniform (PCG64), scrambled Sobol' or Latin hypercube (scipy.stats.qmc).")
+@click.option("--out", "out_path", type=click.Path(dir_okay=False), required=True, help="designs.csv")
+@limit_options
+@friendly_errors
+def sample(space_spec, n, seed, method, out_path, min_air_gap, min_center, min_edge, min_bfd):
+    """Draw N manufacturable designs from SPACE (a TOML space file or a bundled lens name).
+
+    Candidates failing a check are counted by reason; the summary (printed as JSON and
+    written beside OUT as <stem>.summary.json) has the accepted, drawn and rejected counts.
+    """
+    from tqdm import tqdm
+
+    space, base = load_space(space_spec)
+    limits = Limits.from_dict(space.constraints, f"{space.source}: [constraints]").merged(
+        min_air_gap=min_air_gap, min_center=min_center, min_edge=min_edge, min_bfd=min_bfd)
+    bar = tqdm(total=n, unit="design", desc="sample", file=sys.stderr, dynamic_ncols=True)
+
+    def progress(drawn, accepted):
+        bar.update(accepted - bar.n)
+        bar.set_postfix(drawn=drawn, refresh=False)
+
+    try:
+        res = sample_designs(space, base, n, seed=seed, method=method, limits=limits, progress=progress)
+    finally:
+        bar.close()
+    write_designs_csv(out_path, res)
+    summary = {"out": str(out_path), "lens": base.name, **res.summary()}
+    Path(out_path).with_suffix(".summary.json").write_text(dumps(summary, indent=2) + "\n", encoding="utf-8")
+    click.echo(dumps(summary))
