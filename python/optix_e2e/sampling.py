@@ -76,32 +76,42 @@ def apertures(lens: Lens) -> np.ndarray:
     return np.array([g if g is not None else h for g, h in zip(given, fp)], float)
 
 
+def geometry_problem(design: dict, semi_diameters: Sequence[float]) -> tuple[str, str] | None:
+    """(reason, message) if the lens cannot exist: a clear semi-diameter beyond a surface's
+    reach, or two consecutive surfaces crossing inside their apertures (checked at 17
+    heights up to the smaller one).  The engine traces such lenses without complaint, so
+    the sampler and the dataset generator check this themselves."""
+    surfs = design["surfaces"]
+    for i, (s, h) in enumerate(zip(surfs, semi_diameters)):
+        if not np.isfinite(sag(s, h)):
+            return ("aperture_outside_surface",
+                    f"surface {i + 1}: clear semi-diameter {h:.4g} mm lies beyond the surface (radius "
+                    f"{s.get('radius')}, conic {s.get('conic', 0.0)})")
+    z = np.concatenate([[0.0], np.cumsum([float(s["thickness"]) for s in surfs])])
+    for i in range(len(surfs) - 1):
+        r = np.linspace(0.0, min(semi_diameters[i], semi_diameters[i + 1]), 17)
+        gap = (z[i + 1] + sag(surfs[i + 1], r)) - (z[i] + sag(surfs[i], r))
+        if np.any(gap < 0.0):
+            j = int(np.argmin(gap))
+            return ("surfaces_cross", f"surfaces {i + 1} and {i + 2} cross inside the clear aperture "
+                                      f"(gap {gap[j]:.4g} mm at r = {r[j]:.4g} mm)")
+    return None
+
+
 def check_design(design: dict, semi_diameters: Sequence[float], limits: Limits) -> list[str]:
     """Reasons (from :data:`REASONS`) why the lens dict ``design`` is not manufacturable;
     empty when it passes."""
-    surfs = design["surfaces"]
-    reasons: list[str] = []
-    # apertures inside each surface's reach (sag defined up to the rim)
-    for s, h in zip(surfs, semi_diameters):
-        if not np.isfinite(sag(s, h)):
-            reasons.append("aperture_outside_surface")
-            break
-    if "aperture_outside_surface" not in reasons:
-        z = np.concatenate([[0.0], np.cumsum([float(s["thickness"]) for s in surfs])])
-        for i in range(len(surfs) - 1):
-            h = min(semi_diameters[i], semi_diameters[i + 1])
-            r = np.linspace(0.0, h, 17)
-            gap = (z[i + 1] + sag(surfs[i + 1], r)) - (z[i] + sag(surfs[i], r))
-            if np.any(gap < 0.0):
-                reasons.append("surfaces_cross")
-                break
-        rows = Constraints(min_center=limits.min_center, min_edge=limits.min_edge,
-                           min_air_gap=limits.min_air_gap, min_bfd=limits.min_bfd
-                           ).evaluate(design, {}, semi_diameters)
-        for row in rows:
-            reason = _ROW_REASON[row["name"].split("[")[0]]
-            if not row["ok"] and reason not in reasons:
-                reasons.append(reason)
+    bad = geometry_problem(design, semi_diameters)
+    if bad is not None and bad[0] == "aperture_outside_surface":
+        return [bad[0]]
+    reasons: list[str] = [bad[0]] if bad else []
+    rows = Constraints(min_center=limits.min_center, min_edge=limits.min_edge,
+                       min_air_gap=limits.min_air_gap, min_bfd=limits.min_bfd
+                       ).evaluate(design, {}, semi_diameters)
+    for row in rows:
+        reason = _ROW_REASON[row["name"].split("[")[0]]
+        if not row["ok"] and reason not in reasons:
+            reasons.append(reason)
     return reasons
 
 

@@ -2,6 +2,7 @@
 
 import click
 
+from .dataset import dataset
 from .demo import demo
 from .lens import lens
 from .psf import psf
@@ -22,3 +23,4 @@ main.add_command(lens)
 main.add_command(psf)
 main.add_command(demo)
 main.add_command(sample)
+main.add_command(dataset)

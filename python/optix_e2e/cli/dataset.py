@@ -1,0 +1,95 @@
+"""``optix dataset SPACE -n N --seed S --out DIR``, ``optix dataset verify DIR`` and
+``optix dataset merge OUT DIR...`` (docs/dataset.md)."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from ._common import dumps, friendly_errors
+
+
+class _DefaultToGenerate(click.Group):
+    """``optix dataset SPACE ...`` runs the ``generate`` subcommand; ``verify`` and
+    ``merge`` are subcommands of their own."""
+
+    def parse_args(self, ctx, args):
+        if args and args[0] not in self.commands and args[0] not in ("-h", "--help"):
+            args = ["generate", *args]
+        return super().parse_args(ctx, args)
+
+
+@click.group("dataset", cls=_DefaultToGenerate)
+def dataset():
+    """PSF datasets: `optix dataset SPACE -n N --seed S --out DIR` generates (or resumes);
+    `optix dataset verify DIR` checks; `optix dataset merge OUT DIR...` combines shard ranges."""
+
+
+@dataset.command("generate")
+@click.argument("space_spec", metavar="SPACE")
+@click.option("-n", "n", type=click.IntRange(min=1), required=True, help="Designs to sample.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True)
+@click.option("--fields", "n_fields", type=click.IntRange(min=1), default=13, show_default=True,
+              help="K field positions, uniform along +y from the axis to the lens's full field.")
+@click.option("--window-um", type=float, default=128.0, show_default=True, help="Super-resolved PSF window.")
+@click.option("--pixel-um", type=float, default=1.0, show_default=True, help="Super-resolved PSF pitch.")
+@click.option("--sensor-pixel-um", type=float, default=5.86, show_default=True, help="Pitch of the sensor-pitch PSFs.")
+@click.option("--pupil-samples", type=click.IntRange(min=4), default=64, show_default=True)
+@click.option("--psf-method", type=click.Choice(["fft", "huygens", "geometric"]), default="fft", show_default=True)
+@click.option("--aiming", type=click.Choice(["paraxial", "real"]), default="paraxial", show_default=True)
+@click.option("--channels", type=click.Choice(["lens", "rgb"]), default="lens", show_default=True,
+              help="lens: the lens's three wavelengths as R, G, B; rgb: three wavelengths per channel.")
+@click.option("--apertures", type=click.Choice(["auto", "fixed"]), default="auto", show_default=True,
+              help="auto: no clear apertures (every surface passes the beam); fixed: the base lens's "
+                   "(mechanical vignetting), the stop's excepted. The aperture is the lens's f-number/EPD.")
+@click.option("--shard-size", type=click.IntRange(min=1), default=64, show_default=True)
+@click.option("--sampling", type=click.Choice(["sobol", "uniform", "lhs"]), default="sobol", show_default=True)
+@click.option("--shards", "shard_range", default=None,
+              help="Only these shards: A:B (B exclusive) or K; for several processes on one dataset.")
+@friendly_errors
+def generate_cmd(space_spec, n, seed, out_dir, n_fields, window_um, pixel_um, sensor_pixel_um, pupil_samples,
+                 psf_method, aiming, channels, apertures, shard_size, sampling, shard_range):
+    """Sample N designs from SPACE (a TOML space or a bundled lens's name) and write their
+    RGB PSFs at K fields, shard by shard, into DIR.  Running the same command again resumes."""
+    from ..dataset import DatasetSettings, generate
+
+    s = DatasetSettings(n_fields=n_fields, window_um=window_um, pixel_um=pixel_um,
+                        sensor_pixel_um=sensor_pixel_um, pupil_samples=pupil_samples, psf_method=psf_method,
+                        aiming=aiming, channels=channels, apertures=apertures, shard_size=shard_size,
+                        sampling=sampling)
+    rep = generate(space_spec, n, seed, out_dir, s, shards=shard_range,
+                   log=lambda m: click.echo(m, err=True))
+    click.echo(dumps(rep.to_json()))
+
+
+@dataset.command("verify")
+@click.argument("root", metavar="DIR", type=click.Path(file_okay=False, exists=True))
+@click.option("--no-hashes", is_flag=True, help="Skip the sha256 checks (shapes and values only).")
+@friendly_errors
+def verify_cmd(root, no_hashes):
+    """Check every shard of DIR against the manifest; print one JSON line (n_designs,
+    n_failed, digest, problems).  Exit status 1 when a shard is missing or damaged."""
+    from ..dataset import verify
+
+    rep = verify(root, check_hashes=not no_hashes)
+    click.echo(dumps(rep))
+    if not rep["ok"]:
+        for p in rep["problems"]:
+            click.echo(f"problem: {p}", err=True)
+        if rep["missing_shards"]:
+            click.echo(f"missing shards: {rep['missing_shards']}", err=True)
+        sys.exit(1)
+
+
+@dataset.command("merge")
+@click.argument("out", type=click.Path(file_okay=False))
+@click.argument("parts", nargs=-1, required=True, type=click.Path(file_okay=False, exists=True))
+@friendly_errors
+def merge_cmd(out, parts):
+    """Copy the shards of PARTS (directories of one dataset, made by separate processes)
+    into OUT."""
+    from ..dataset.merge import merge
+
+    click.echo(dumps(merge(out, parts)))

@@ -1,0 +1,9 @@
+"""Sharded, resumable PSF datasets: generation (:mod:`.generate`), checking
+(:mod:`.verify`) and a lazy torch ``Dataset`` (:mod:`.torch_dataset`).  Layout and
+guarantees: docs/dataset.md."""
+
+from .generate import DatasetSettings, GenerateReport, generate
+from .layout import DatasetError
+from .verify import verify
+
+__all__ = ["DatasetSettings", "DatasetError", "GenerateReport", "generate", "verify"]

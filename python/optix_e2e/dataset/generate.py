@@ -1,0 +1,382 @@
+"""Generate a PSF dataset: sample designs from a parameter space, compute RGB PSFs at K
+field positions with the engine, write them shard by shard (docs/dataset.md).
+
+Resumable: finished shards are skipped, an interrupted one is redone.  Deterministic: the
+designs come from the seed, and the engine's batch PSFs do not depend on the thread count,
+so the same command gives byte-identical arrays.  Shards are independent units: processes
+may run disjoint shard ranges (``shards=range(a, b)``) into the same directory, or into
+separate directories that :func:`optix_e2e.dataset.merge.merge` combines.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import io
+import json
+import math
+import os
+import shutil
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..lens import Lens
+from ..sampling import Limits, apertures, geometry_problem, sample_designs
+from ..space import ParameterSpace, load_space
+from .layout import (ARRAYS, FORMAT, DatasetError, fsync_dir, read_json, sha256_file, shard_name,
+                     shards_dir, write_json_atomic)
+
+
+@dataclass(frozen=True)
+class DatasetSettings:
+    """What each design's record holds and how it is computed."""
+
+    n_fields: int = 13              # K field positions, uniform along +y from 0 to the full field
+    window_um: float = 128.0        # super-resolved PSF window (side)
+    pixel_um: float = 1.0           # ... and its pitch
+    sensor_pixel_um: float = 5.86   # the sensor-pitch version (IMX249 pixels)
+    pupil_samples: int = 64
+    psf_method: str = "fft"
+    aiming: str = "paraxial"
+    channels: str = "lens"          # "lens": the lens's three wavelengths -> R, G, B; "rgb": 3 per channel
+    shard_size: int = 64
+    sampling: str = "sobol"
+    apertures: str = "auto"         # "auto": no clear apertures (Zemax's automatic semi-diameters,
+                                    # every surface passes the beam); "fixed": the base lens's, stop excepted
+
+    def check(self) -> None:
+        if self.n_fields < 1:
+            raise ValueError(f"n_fields must be >= 1, got {self.n_fields}")
+        if not (self.window_um > 0 and self.pixel_um > 0 and self.sensor_pixel_um > 0):
+            raise ValueError("window_um, pixel_um and sensor_pixel_um must be positive")
+        if self.size < 8:
+            raise ValueError(f"window {self.window_um} um at {self.pixel_um} um/pixel is only {self.size} pixels")
+        if self.sensor_size < 1:
+            raise ValueError(f"window {self.window_um} um holds no {self.sensor_pixel_um} um sensor pixel")
+        if self.shard_size < 1:
+            raise ValueError(f"shard_size must be >= 1, got {self.shard_size}")
+        if self.apertures not in ("auto", "fixed"):
+            raise ValueError(f"apertures must be 'auto' or 'fixed', got {self.apertures!r}")
+        if self.channels not in ("lens", "rgb"):
+            raise ValueError(f"channels must be 'lens' or 'rgb', got {self.channels!r}")
+
+    @property
+    def size(self) -> int:
+        return int(round(self.window_um / self.pixel_um))
+
+    @property
+    def sensor_size(self) -> int:
+        """Whole sensor pixels inside the window, odd so one is centred on the chief ray."""
+        s = int(math.floor(self.window_um / self.sensor_pixel_um + 1e-9))
+        return s if s % 2 else s - 1
+
+
+def engine_base(base: Lens, apertures: str) -> dict:
+    """The base prescription the sampled designs are traced with.  The aperture is always
+    the lens's f-number / EPD (the stop's clear semi-diameter is dropped: the iris follows
+    the aperture setting as the design changes); ``"auto"`` drops every clear aperture."""
+    d = copy.deepcopy(base.data)
+    for s in d["surfaces"]:
+        if apertures == "auto" or s.get("stop"):
+            s["semi_diameter"] = None
+    return d
+
+
+def field_positions(base: Lens, k: int) -> list[float]:
+    return [float(f) for f in np.linspace(0.0, base.max_field_deg, k)]
+
+
+def sensor_binning(size: int, pitch_um: float, s_size: int, s_pitch_um: float) -> np.ndarray:
+    """(s_size, size) weights: the overlap of each fine pixel (a box of one pitch around
+    its centre) with each sensor pixel, as a fraction of the fine pixel; both grids are
+    centred on pixel size // 2 (the engine's chief-ray pixel)."""
+    x = (np.arange(size) - size // 2) * pitch_um
+    lo_f, hi_f = x - pitch_um / 2, x + pitch_um / 2
+    c = (np.arange(s_size) - s_size // 2) * s_pitch_um
+    lo_s, hi_s = c - s_pitch_um / 2, c + s_pitch_um / 2
+    ov = np.minimum(hi_f[None, :], hi_s[:, None]) - np.maximum(lo_f[None, :], lo_s[:, None])
+    return np.clip(ov, 0.0, None) / pitch_um
+
+
+@dataclass
+class GenerateReport:
+    out: str
+    n_designs: int
+    n_shards: int
+    shards_written: list = field(default_factory=list)
+    shards_skipped: list = field(default_factory=list)
+    n_ok: int = 0                 # designs written by this run
+    n_failed: int = 0             # designs that failed in the engine in this run
+    seconds: float = 0.0
+
+    @property
+    def designs_per_s(self) -> float:
+        return (self.n_ok + self.n_failed) / self.seconds if self.seconds > 0 else 0.0
+
+    def to_json(self) -> dict:
+        return {**asdict(self), "designs_per_s": self.designs_per_s}
+
+
+# ----- manifest ------------------------------------------------------------------------
+def _request(space: ParameterSpace, base: Lens, n: int, seed: int, s: DatasetSettings,
+             fields: list[float], channels) -> dict:
+    """The part of the manifest that defines the data (must match on resume)."""
+    return {
+        "format": FORMAT, "n_designs": n, "seed": seed, "settings": asdict(s),
+        "fields_deg": fields, "channels": [[list(p) for p in c] for c in channels],
+        "channel_names": ["R", "G", "B"] if len(channels) == 3 else [f"C{i}" for i in range(len(channels))],
+        "psf_size": s.size, "sensor_size": s.sensor_size, "n_shards": math.ceil(n / s.shard_size),
+        "space": {"source": space.source, "lens": space.lens_ref, "constraints": space.constraints,
+                  "parameters": space.to_json()},
+        "base_lens": base.data,
+    }
+
+
+def _versions() -> dict:
+    import importlib.metadata as md
+    import platform
+
+    out = {"python": platform.python_version(), "numpy": np.__version__}
+    for pkg in ("optix-e2e", "scipy"):
+        try:
+            out[pkg] = md.version(pkg)
+        except md.PackageNotFoundError:
+            out[pkg] = None
+    return out
+
+
+def _read_designs(path: Path, names: Sequence[str]) -> np.ndarray:
+    with open(path, newline="", encoding="utf-8") as f:
+        rows = list(csv.reader(f))
+    if not rows or rows[0] != ["design", *names]:
+        raise DatasetError(f"{path}: header does not list the manifest's parameters")
+    return np.array([[float(v) for v in r[1:]] for r in rows[1:]], float)
+
+
+def _designs_csv_bytes(names: Sequence[str], values: np.ndarray) -> bytes:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["design", *names])
+    for i, row in enumerate(values):
+        w.writerow([i, *(repr(float(v)) for v in row)])
+    return buf.getvalue().encode("utf-8")
+
+
+def prepare(out: Path, space: ParameterSpace, base: Lens, n: int, seed: int, s: DatasetSettings,
+            log: Callable[[str], None] = lambda m: None) -> tuple[dict, np.ndarray]:
+    """Create or check ``out``'s manifest and designs; returns (manifest, designs (n, P))."""
+    fields = field_positions(base, s.n_fields)
+    channels = base.rgb_channels(s.channels)
+    req = _request(space, base, n, seed, s, fields, channels)
+    mpath = out / "manifest.json"
+    if mpath.exists():
+        man = read_json(mpath, "manifest")
+        diff = sorted(k for k in req if json.dumps(man.get(k), sort_keys=True) != json.dumps(req[k], sort_keys=True))
+        if diff:
+            raise DatasetError(f"{mpath}: this directory holds a different dataset (differs in: "
+                               f"{', '.join(diff)}); use another --out or the same arguments")
+        dpath = out / "designs.csv"
+        if not dpath.exists() or sha256_file(dpath) != man["designs_csv_sha256"]:
+            raise DatasetError(f"{dpath}: missing or changed since the manifest was written")
+        return man, _read_designs(dpath, space.names)
+    log(f"sampling {n} designs ({s.sampling}, seed {seed})")
+    limits = Limits.from_dict(space.constraints, f"{space.source}: [constraints]")
+    res = sample_designs(space, base, n, seed=seed, method=s.sampling, limits=limits)
+    out.mkdir(parents=True, exist_ok=True)
+    data = _designs_csv_bytes(space.names, res.values)
+    tmp = out / f".designs.csv.tmp{os.getpid()}"
+    tmp.write_bytes(data)
+    os.replace(tmp, out / "designs.csv")
+    man = {**req,
+           "sampling_summary": res.summary(),
+           # the paper normalizes parameters by their mean and standard deviation over the designs
+           "param_mean": res.values.mean(axis=0).tolist(),
+           "param_std": res.values.std(axis=0).tolist(),
+           "designs_csv_sha256": sha256_file(out / "designs.csv"),
+           "versions": _versions(),
+           "created_unix": time.time()}
+    write_json_atomic(mpath, man)
+    return man, res.values
+
+
+# ----- shards ----------------------------------------------------------------------------
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _clean_stale(sdir: Path, k: int) -> None:
+    """Remove temporary directories of shard ``k`` left by processes that are gone."""
+    for p in sdir.glob(f".{shard_name(k)}.tmp-*"):
+        try:
+            pid = int(p.name.rsplit("-", 1)[1])
+        except ValueError:
+            pid = -1
+        if pid != os.getpid() and not _pid_alive(pid):
+            shutil.rmtree(p, ignore_errors=True)
+
+
+def _save_npy(path: Path, arr: np.ndarray) -> None:
+    with open(path, "wb") as f:
+        np.save(f, arr, allow_pickle=False)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace, base: Lens,
+                  batch: int = 8, on_batch: Callable[[int, int], None] | None = None) -> tuple[dict, dict]:
+    """Arrays and metadata of shard ``k`` (nothing written)."""
+    from .. import _engine
+
+    s = DatasetSettings(**man["settings"])
+    a = k * s.shard_size
+    b = min(man["n_designs"], a + s.shard_size)
+    fields, channels = man["fields_deg"], [[tuple(p) for p in c] for c in man["channels"]]
+    K, C, S, s2 = len(fields), len(channels), s.size, s.sensor_size
+    ok_idx, failures = [], []
+    psf, ri = [], []
+    sd = apertures(base)
+    traced = engine_base(base, s.apertures)
+    t0 = time.perf_counter()
+
+    def fail(i, reason):
+        failures.append({"design": i, "reason": reason, "params": dict(zip(space.names, map(float, designs[i])))})
+
+    for lo in range(a, b, batch):
+        hi = min(b, lo + batch)
+        todo, jsons = [], []
+        for i in range(lo, hi):
+            d = space.apply(traced, designs[i])
+            bad = geometry_problem(d, sd)  # the engine would trace these without complaint
+            if bad is not None:
+                fail(i, f"{bad[0]}: {bad[1]}")
+            else:
+                todo.append(i)
+                jsons.append(json.dumps(d))
+        r = _engine.psf_batch(jsons, fields, channels, s.psf_method, s.pixel_um, S, s.pupil_samples,
+                              s.aiming, False) if jsons else {"ok": []}
+        for j, i in enumerate(todo):
+            if r["ok"][j]:
+                ok_idx.append(i)
+                psf.append(r["psf"][j])
+                ri.append(r["relative_illumination"][j])
+            else:
+                fail(i, r["errors"][j] or "engine error")
+        failures.sort(key=lambda f: f["design"])
+        if on_batch:
+            on_batch(hi - lo, sum(1 for f in failures if lo <= f["design"] < hi))
+    m = len(ok_idx)
+    psf_arr = np.stack(psf).astype(np.float32) if m else np.zeros((0, K, C, S, S), np.float32)
+    w = sensor_binning(S, s.pixel_um, s2, s.sensor_pixel_um)
+    sensor = np.einsum("ys,mkcsx,zx->mkcyz", w, psf_arr.astype(np.float64), w, optimize=True).astype(np.float32) \
+        if m else np.zeros((0, K, C, s2, s2), np.float32)
+    arrays = {"design": np.array(ok_idx, np.int64), "params": designs[ok_idx].astype(np.float64).reshape(m, designs.shape[1]),
+              "psf": psf_arr, "psf_sensor": sensor,
+              "relative_illumination": (np.stack(ri).astype(np.float64) if m else np.zeros((0, K, C)))}
+    meta = {"format": FORMAT, "shard": k, "designs": [a, b], "n_ok": m, "n_failed": len(failures),
+            "failures": failures, "seconds": time.perf_counter() - t0}
+    return arrays, meta
+
+
+def write_shard(root: Path, k: int, arrays: dict, meta: dict) -> bool:
+    """Write shard ``k`` atomically; False if another process finished it first."""
+    sdir = shards_dir(root)
+    sdir.mkdir(parents=True, exist_ok=True)
+    final = sdir / shard_name(k)
+    tmp = sdir / f".{shard_name(k)}.tmp-{os.getpid()}"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir()
+    files = {}
+    for name in ARRAYS:
+        p = tmp / f"{name}.npy"
+        _save_npy(p, np.ascontiguousarray(arrays[name]))
+        files[name] = {"sha256": sha256_file(p), "shape": list(arrays[name].shape),
+                       "dtype": str(arrays[name].dtype)}
+    write_json_atomic(tmp / "shard.json", {**meta, "files": files})
+    fsync_dir(tmp)
+    try:
+        os.rename(tmp, final)
+    except OSError:
+        if final.is_dir():  # done meanwhile by another process on the same range
+            shutil.rmtree(tmp, ignore_errors=True)
+            return False
+        raise
+    fsync_dir(sdir)
+    return True
+
+
+def parse_shard_range(spec: str | None, n_shards: int) -> range:
+    """``"a:b"`` (b exclusive; either side may be empty) or ``"k"`` -> a range of shards."""
+    if not spec:
+        return range(n_shards)
+    try:
+        if ":" in spec:
+            a, b = spec.split(":", 1)
+            r = range(int(a) if a else 0, int(b) if b else n_shards)
+        else:
+            r = range(int(spec), int(spec) + 1)
+    except ValueError:
+        raise ValueError(f"--shards {spec!r}: expected A:B or K (integers)") from None
+    if r.start < 0 or r.stop > n_shards or r.start >= r.stop:
+        raise ValueError(f"--shards {spec!r}: the dataset has shards 0..{n_shards - 1}")
+    return r
+
+
+def generate(space_spec: "str | Path", n: int, seed: int, out: "str | Path",
+             settings: DatasetSettings | None = None, shards: str | None = None,
+             progress: bool = True, log: Callable[[str], None] = lambda m: None) -> GenerateReport:
+    """Create or finish the dataset in ``out`` (see the module docstring)."""
+    s = settings or DatasetSettings()
+    s.check()
+    if n < 1:
+        raise ValueError(f"n must be >= 1, got {n}")
+    out = Path(out)
+    space, base = load_space(space_spec)
+    man, designs = prepare(out, space, base, n, seed, s, log)
+    n_shards = man["n_shards"]
+    todo = parse_shard_range(shards, n_shards)
+    sdir = shards_dir(out)
+    rep = GenerateReport(out=str(out), n_designs=n, n_shards=n_shards)
+    pending = [k for k in todo if not (sdir / shard_name(k)).is_dir()]
+    rep.shards_skipped = [k for k in todo if k not in pending]
+    if rep.shards_skipped:
+        log(f"{len(rep.shards_skipped)} shard(s) already complete, skipped")
+    total = sum(min(n, (k + 1) * s.shard_size) - k * s.shard_size for k in pending)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, unit="design", desc="dataset", dynamic_ncols=True)
+    failed = {"n": 0}
+
+    def on_batch(done, nfail):
+        failed["n"] += nfail
+        if bar is not None:
+            bar.update(done)
+            bar.set_postfix(failed=failed["n"], refresh=False)
+
+    t0 = time.perf_counter()
+    try:
+        for k in pending:
+            if sdir.exists():
+                _clean_stale(sdir, k)
+            arrays, meta = compute_shard(k, man, designs, space, base, on_batch=on_batch)
+            if write_shard(out, k, arrays, meta):
+                rep.shards_written.append(k)
+            rep.n_ok += meta["n_ok"]
+            rep.n_failed += meta["n_failed"]
+    finally:
+        rep.seconds = time.perf_counter() - t0
+        if bar is not None:
+            bar.close()
+    return rep

@@ -1,0 +1,87 @@
+"""On-disk layout of a dataset directory and the atomic writes that keep it consistent.
+
+```
+DIR/manifest.json          settings, space, base lens, seed, sampling summary, statistics
+DIR/designs.csv            every sampled design (index, parameter values)
+DIR/shards/00000/          one shard: designs [k*shard_size, (k+1)*shard_size)
+    design.npy             (m,) int64 global indices of the designs that succeeded
+    params.npy             (m, P) float64 parameter values
+    psf.npy                (m, K, C, S, S) float32 super-resolved PSFs, unit sum per channel
+    psf_sensor.npy         (m, K, C, s, s) float32 the same integrated over sensor pixels
+    relative_illumination.npy  (m, K, C) float64
+    shard.json             failures with reasons, shapes, sha256 of every .npy file
+```
+
+A shard is written into a hidden temporary directory and renamed into place when complete,
+so a shard directory that exists is whole; an interrupted shard leaves only a hidden
+temporary directory, removed and redone by the next run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+
+FORMAT = "optix-psf-dataset/1"
+ARRAYS = ("design", "params", "psf", "psf_sensor", "relative_illumination")
+
+
+class DatasetError(RuntimeError):
+    """A dataset directory that does not match the request, or is damaged; the message
+    names the file and what is wrong."""
+
+
+def shard_name(k: int) -> str:
+    return f"{k:05d}"
+
+
+def shards_dir(root: Path) -> Path:
+    return Path(root) / "shards"
+
+
+def sha256_file(path: Path, chunk: int = 1 << 22) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while True:
+            b = f.read(chunk)
+            if not b:
+                break
+            h.update(b)
+    return h.hexdigest()
+
+
+def fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def write_json_atomic(path: Path, obj) -> None:
+    """Write JSON to a temporary file, fsync, rename over ``path``."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    with open(tmp, "w", encoding="utf-8") as f:
+        json.dump(obj, f, indent=2, allow_nan=False)
+        f.write("\n")
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    fsync_dir(path.parent)
+
+
+def read_json(path: Path, what: str) -> dict:
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: missing {what}") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"{path}: unreadable {what} ({exc})") from None

@@ -1,0 +1,64 @@
+"""Combine dataset directories produced by processes that ran disjoint shard ranges."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Sequence
+
+from .layout import DatasetError, read_json, shard_name, shards_dir, write_json_atomic
+
+# manifest keys that may differ between processes of one dataset
+_LOCAL = {"created_unix", "versions"}
+
+
+def merge(out: "str | Path", parts: Sequence["str | Path"]) -> dict:
+    """Copy every complete shard of ``parts`` into ``out`` (created from the first part's
+    manifest and designs).  The parts must be the same dataset (same manifest apart from
+    when and where it was made); a shard present in several parts must be identical."""
+    out = Path(out)
+    parts = [Path(p) for p in parts]
+    if not parts:
+        raise ValueError("merge: no input directories")
+    mans = [read_json(p / "manifest.json", "manifest") for p in parts]
+    ref = {k: v for k, v in mans[0].items() if k not in _LOCAL}
+    for p, m in zip(parts[1:], mans[1:]):
+        diff = sorted(k for k in set(ref) | set(m) if k not in _LOCAL
+                      and json.dumps(ref.get(k), sort_keys=True) != json.dumps(m.get(k), sort_keys=True))
+        if diff:
+            raise DatasetError(f"{p / 'manifest.json'}: a different dataset from {parts[0]} (differs in: {', '.join(diff)})")
+    out.mkdir(parents=True, exist_ok=True)
+    if (out / "manifest.json").exists():
+        m = read_json(out / "manifest.json", "manifest")
+        diff = sorted(k for k in ref if json.dumps(ref[k], sort_keys=True) != json.dumps(m.get(k), sort_keys=True))
+        if diff:
+            raise DatasetError(f"{out / 'manifest.json'}: a different dataset (differs in: {', '.join(diff)})")
+    else:
+        tmp_csv = out / f".designs.csv.tmp{os.getpid()}"
+        shutil.copyfile(parts[0] / "designs.csv", tmp_csv)
+        os.replace(tmp_csv, out / "designs.csv")
+        write_json_atomic(out / "manifest.json", mans[0])
+    copied, present = [], []
+    sdir = shards_dir(out)
+    sdir.mkdir(exist_ok=True)
+    for k in range(ref["n_shards"]):
+        dst = sdir / shard_name(k)
+        srcs = [shards_dir(p) / shard_name(k) for p in parts if (shards_dir(p) / shard_name(k)).is_dir()]
+        if not srcs:
+            continue
+        metas = [read_json(s / "shard.json", f"shard {k} metadata")["files"] for s in srcs]
+        if any(m != metas[0] for m in metas[1:]):
+            raise DatasetError(f"shard {k} differs between {', '.join(str(s) for s in srcs)}")
+        if dst.is_dir():
+            present.append(k)
+            continue
+        if srcs[0].resolve() == dst.resolve():
+            continue
+        tmp = sdir / f".{shard_name(k)}.tmp-{os.getpid()}"
+        shutil.rmtree(tmp, ignore_errors=True)
+        shutil.copytree(srcs[0], tmp)
+        os.rename(tmp, dst)
+        copied.append(k)
+    return {"out": str(out), "copied": copied, "already_present": present}

@@ -1,0 +1,95 @@
+"""Check a dataset directory against its manifest and digest its contents."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+
+from .layout import ARRAYS, FORMAT, DatasetError, read_json, sha256_file, shard_name, shards_dir
+
+
+def expected_shapes(man: dict, m: int) -> dict:
+    K, C = len(man["fields_deg"]), len(man["channels"])
+    S, s = man["psf_size"], man["sensor_size"]
+    P = len(man["space"]["parameters"])
+    return {"design": ((m,), "int64"), "params": ((m, P), "float64"),
+            "psf": ((m, K, C, S, S), "float32"), "psf_sensor": ((m, K, C, s, s), "float32"),
+            "relative_illumination": ((m, K, C), "float64")}
+
+
+def open_shard(root: Path, k: int, man: dict, check_hashes: bool = True) -> tuple[dict, dict]:
+    """Memory-mapped arrays and metadata of shard ``k``, checked against the manifest
+    (shapes, dtypes, design ranges, and with ``check_hashes`` the sha256 of every file).
+    Raises :class:`DatasetError` naming the file and the problem."""
+    d = shards_dir(root) / shard_name(k)
+    meta = read_json(d / "shard.json", f"shard {k} metadata")
+    if meta.get("format") != FORMAT or meta.get("shard") != k:
+        raise DatasetError(f"{d / 'shard.json'}: not shard {k} of a {FORMAT} dataset")
+    size = man["settings"]["shard_size"]
+    a, b = k * size, min(man["n_designs"], (k + 1) * size)
+    if meta.get("designs") != [a, b]:
+        raise DatasetError(f"{d / 'shard.json'}: covers designs {meta.get('designs')}, expected [{a}, {b}]")
+    m = meta["n_ok"]
+    if m + meta["n_failed"] != b - a or len(meta["failures"]) != meta["n_failed"]:
+        raise DatasetError(f"{d / 'shard.json'}: {m} ok + {meta['n_failed']} failed designs != {b - a}")
+    arrays = {}
+    for name, (shape, dtype) in expected_shapes(man, m).items():
+        p = d / f"{name}.npy"
+        info = meta.get("files", {}).get(name)
+        if info is None or not p.is_file():
+            raise DatasetError(f"{p}: missing")
+        if check_hashes and sha256_file(p) != info["sha256"]:
+            raise DatasetError(f"{p}: checksum mismatch (the file was changed or damaged after it was written)")
+        try:
+            arr = np.load(p, mmap_mode="r", allow_pickle=False)
+        except (ValueError, OSError, EOFError) as exc:
+            raise DatasetError(f"{p}: unreadable array ({exc})") from None
+        if arr.shape != shape or str(arr.dtype) != dtype:
+            raise DatasetError(f"{p}: shape {arr.shape} {arr.dtype}, expected {shape} {dtype}")
+        arrays[name] = arr
+    idx = np.asarray(arrays["design"])
+    failed = {f["design"] for f in meta["failures"]}
+    if np.any(np.diff(idx) <= 0) or (m and (idx[0] < a or idx[-1] >= b)) or failed & set(idx.tolist()):
+        raise DatasetError(f"{d / 'design.npy'}: design indices not ascending inside [{a}, {b}) "
+                           f"or overlapping the failures")
+    return arrays, meta
+
+
+def verify(root: "str | Path", check_hashes: bool = True) -> dict:
+    """Check every shard; returns a JSON-able report.  ``digest`` is a sha256 over the
+    contents in canonical order (per design by index: index, parameters, PSFs, sensor PSFs,
+    relative illumination; then the failed indices), independent of the shard layout."""
+    root = Path(root)
+    man = read_json(root / "manifest.json", "manifest")
+    if man.get("format") != FORMAT:
+        raise DatasetError(f"{root / 'manifest.json'}: not a {FORMAT} manifest")
+    problems, missing = [], []
+    n_ok = n_failed = 0
+    failed_idx = []
+    h = hashlib.sha256()
+    for k in range(man["n_shards"]):
+        if not (shards_dir(root) / shard_name(k)).is_dir():
+            missing.append(k)
+            continue
+        try:
+            arrays, meta = open_shard(root, k, man, check_hashes)
+            for name in ("params", "psf", "psf_sensor", "relative_illumination"):
+                if not np.all(np.isfinite(arrays[name])):
+                    raise DatasetError(f"{shards_dir(root) / shard_name(k) / (name + '.npy')}: non-finite values")
+        except DatasetError as exc:
+            problems.append(str(exc))
+            continue
+        for j, i in enumerate(np.asarray(arrays["design"])):
+            h.update(np.int64(i).tobytes())
+            for name in ("params", "psf", "psf_sensor", "relative_illumination"):
+                h.update(np.ascontiguousarray(arrays[name][j]).astype(arrays[name].dtype.newbyteorder("<")).tobytes())
+        n_ok += meta["n_ok"]
+        n_failed += meta["n_failed"]
+        failed_idx += [f["design"] for f in meta["failures"]]
+    for i in sorted(failed_idx):
+        h.update(b"failed" + np.int64(i).tobytes())
+    return {"ok": not problems and not missing, "n_designs": n_ok, "n_failed": n_failed,
+            "n_shards": man["n_shards"], "missing_shards": missing, "problems": problems,
+            "digest": h.hexdigest()}

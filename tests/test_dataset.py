@@ -1,0 +1,254 @@
+"""The sharded PSF dataset (optix_e2e.dataset, ``optix dataset``): layout, resume after a
+kill, determinism, failure records, corruption detection, multi-process merging, and the
+torch Dataset."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from optix_e2e.cli.dataset import dataset
+from optix_e2e.dataset import DatasetError, DatasetSettings, generate, verify
+from optix_e2e.dataset.generate import sensor_binning
+from optix_e2e.dataset.merge import merge
+from optix_e2e.dataset.torch_dataset import PsfDataset
+from optix_e2e.lens import Lens
+
+# small and quick: 3 fields, a 32 um window, 32 pupil samples
+SMALL = ["--fields", "3", "--window-um", "32", "--pupil-samples", "32", "--shard-size", "3"]
+SMALL_SETTINGS = DatasetSettings(n_fields=3, window_um=32.0, pupil_samples=32, shard_size=3)
+
+
+def _cli(*args, env=None):
+    """Run ``optix dataset ...`` in a subprocess (so it can be killed)."""
+    return subprocess.Popen([sys.executable, "-m", "optix_e2e", "dataset", *map(str, args)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+
+
+def _arrays(root: Path) -> dict:
+    out = {}
+    for d in sorted((root / "shards").iterdir()):
+        for f in sorted(d.glob("*.npy")):
+            out[f"{d.name}/{f.name}"] = f.read_bytes()
+    return out
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> Path:
+    """An uninterrupted run: 8 designs in shards of 3."""
+    root = tmp_path_factory.mktemp("ref") / "ds"
+    rep = generate("paper-triplet", 8, 11, root, SMALL_SETTINGS, progress=False)
+    assert rep.shards_written == [0, 1, 2] and rep.n_ok + rep.n_failed == 8
+    return root
+
+
+def test_layout_shapes_and_physics(reference):
+    man = json.loads((reference / "manifest.json").read_text())
+    assert man["n_shards"] == 3 and man["psf_size"] == 32 and man["sensor_size"] == 5
+    assert man["fields_deg"] == pytest.approx([0.0, 7.45, 14.9])
+    assert man["channels"] == [[[650.0, 1.0]], [[550.0, 1.0]], [[470.0, 1.0]]]
+    assert len(man["param_mean"]) == len(man["space"]["parameters"]) == 19
+    rep = verify(reference)
+    assert rep["ok"] and rep["n_designs"] + rep["n_failed"] == 8
+    psf = np.load(reference / "shards" / "00000" / "psf.npy")
+    sens = np.load(reference / "shards" / "00000" / "psf_sensor.npy")
+    ri = np.load(reference / "shards" / "00000" / "relative_illumination.npy")
+    np.testing.assert_allclose(psf.sum(axis=(-1, -2)), 1.0, atol=1e-5)  # unit sum per channel
+    assert np.all(ri[:, 0] == 1.0) and np.all(ri > 0)                   # relative to the axis
+    # the sensor version integrates the fine PSF over 5.86 um pixels: its energy is the fine
+    # PSF's energy inside the 5 x 5 pixel block (29.3 um of the 32 um window)
+    w = sensor_binning(32, 1.0, 5, 5.86)
+    np.testing.assert_allclose(w.sum(axis=0)[2:30], 1.0, atol=1e-12)
+    np.testing.assert_allclose(sens.sum(axis=(-1, -2)), np.einsum("mkcyx,x,y->mkc", psf.astype(float),
+                               w.sum(axis=0), w.sum(axis=0)), rtol=1e-5)
+
+
+def test_designs_match_the_sampler_and_psfs_match_the_engine(reference):
+    from optix_e2e import _engine
+    from optix_e2e.dataset.generate import engine_base
+    from optix_e2e.space import load_space
+
+    space, base = load_space("paper-triplet")
+    x = np.load(reference / "shards" / "00000" / "params.npy")[0]
+    d = space.apply(engine_base(base, "auto"), x)
+    psf, ri, _ = _engine.psf_rgb(json.dumps(d), 14.9, [[(650.0, 1.0)], [(550.0, 1.0)], [(470.0, 1.0)]],
+                                 "fft", 1.0, 32, 32)
+    stored = np.load(reference / "shards" / "00000" / "psf.npy")[0, 2]
+    np.testing.assert_allclose(stored, psf, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(np.load(reference / "shards" / "00000" / "relative_illumination.npy")[0, 2], ri)
+
+
+def test_killed_and_resumed_equals_uninterrupted(reference, tmp_path):
+    root = tmp_path / "ds"
+    args = ["paper-triplet", "-n", 8, "--seed", 11, "--out", root, *SMALL]
+    p = _cli(*args)
+    deadline = time.time() + 120
+    while not (root / "shards" / "00000").is_dir() and time.time() < deadline and p.poll() is None:
+        time.sleep(0.02)
+    p.send_signal(signal.SIGKILL)
+    p.wait()
+    done = sorted(d.name for d in (root / "shards").iterdir() if not d.name.startswith("."))
+    assert done and done != ["00000", "00001", "00002"], f"the kill did not land mid-run: {done}"
+    # also a half-written shard left by a dead process: removed and redone
+    stale = root / "shards" / ".00002.tmp-999999999"
+    stale.mkdir(parents=True, exist_ok=True)
+    (stale / "psf.npy").write_bytes(b"garbage")
+    q = _cli(*args)
+    out, err = q.communicate(timeout=300)
+    assert q.returncode == 0, err.decode()
+    rep = json.loads(out.decode().strip().splitlines()[-1])
+    assert rep["shards_skipped"] == [int(d) for d in done] and rep["shards_written"] == [
+        k for k in range(3) if f"{k:05d}" not in done]
+    assert not stale.exists()
+    assert _arrays(root) == _arrays(reference)            # byte-identical arrays
+    assert verify(root)["digest"] == verify(reference)["digest"]
+    # a finished dataset: the same command does nothing
+    rep2 = generate("paper-triplet", 8, 11, root, SMALL_SETTINGS, progress=False)
+    assert rep2.shards_written == [] and rep2.shards_skipped == [0, 1, 2]
+
+
+def test_same_arrays_whatever_the_thread_count(reference, tmp_path):
+    env = dict(os.environ, RAYON_NUM_THREADS="1")
+    p = _cli("paper-triplet", "-n", 8, "--seed", 11, "--out", tmp_path / "one", *SMALL, env=env)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 0, err.decode()
+    assert _arrays(tmp_path / "one") == _arrays(reference)
+
+
+def test_other_arguments_refuse_the_directory(reference, tmp_path):
+    root = tmp_path / "ds"
+    shutil.copytree(reference, root)
+    with pytest.raises(DatasetError, match=r"manifest.json: this directory holds a different dataset \(differs in: seed\)"):
+        generate("paper-triplet", 8, 12, root, SMALL_SETTINGS, progress=False)
+
+
+def test_corruption_is_detected(reference, tmp_path):
+    root = tmp_path / "ds"
+    shutil.copytree(reference, root)
+    f = root / "shards" / "00001" / "psf.npy"
+    b = bytearray(f.read_bytes())
+    b[-5] ^= 0xFF
+    f.write_bytes(bytes(b))
+    rep = verify(root)
+    assert not rep["ok"] and len(rep["problems"]) == 1
+    assert "00001/psf.npy: checksum mismatch" in rep["problems"][0]
+    ds = PsfDataset(root)
+    ds[0]  # shard 0 is fine
+    with pytest.raises(DatasetError, match=r"00001/psf.npy: checksum mismatch"):
+        for i in range(len(ds)):
+            ds[i]
+    r = CliRunner().invoke(dataset, ["verify", str(root)])
+    assert r.exit_code == 1 and json.loads(r.stdout.splitlines()[0])["ok"] is False
+    shutil.rmtree(root / "shards" / "00002")
+    rep = verify(root)
+    assert rep["missing_shards"] == [2]
+
+
+def test_engine_failures_are_recorded_not_written(tmp_path):
+    """Designs the sampler would never produce, put through the shard writer directly: one
+    whose surfaces cross and one whose clear aperture lies beyond its surface (the engine
+    would trace both; the generator checks), and, with the base lens's apertures kept, one
+    whose edge-field chief ray the engine finds clipped.  Each lands in the shard's failure
+    list with its reason; the good designs are written."""
+    from optix_e2e.dataset.generate import compute_shard, prepare, write_shard
+    from optix_e2e.space import load_space
+
+    (tmp_path / "lens.json").write_text(json.dumps(Lens.load("cooke-f50").data))
+    space_file = tmp_path / "space.toml"
+    space_file.write_text('lens = "lens.json"\n'
+                          '[[parameter]]\nname = "s_2_thickness"\nkind = "air_gap"\nsurface = 2\nmin = 0.01\nmax = 8.0\n'
+                          '[[parameter]]\nname = "s_5_radius"\nkind = "radius"\nsurface = 5\nmin = 5.0\nmax = 100.0\n'
+                          '[[parameter]]\nname = "s_6_radius"\nkind = "radius"\nsurface = 6\nmin = -30.0\nmax = -4.0\n')
+    space, base = load_space(space_file)
+    s = DatasetSettings(n_fields=2, window_um=24, pupil_samples=16, shard_size=3)
+    root = tmp_path / "ds"
+    man, _ = prepare(root, space, base, 3, 0, s)
+    designs = np.array([[6.00755, 79.6836, -18.39533],   # the nominal
+                        [0.05, 79.6836, -18.39533],      # lens 1 and lens 2 cross
+                        [6.00755, 6.0, -18.39533]])      # R5 = 6 mm inside a 6.9 mm aperture
+    arrays, meta = compute_shard(0, man, designs, space, base)
+    assert write_shard(root, 0, arrays, meta)
+    reasons = {f["design"]: f["reason"] for f in meta["failures"]}
+    assert reasons[1].startswith("surfaces_cross: surfaces 2 and 3 cross inside the clear aperture")
+    assert reasons[2].startswith("aperture_outside_surface: surface 5: clear semi-diameter 6.904 mm")
+    assert meta["failures"][1]["params"] == {"s_2_thickness": 6.00755, "s_5_radius": 6.0, "s_6_radius": -18.39533}
+    assert np.load(root / "shards" / "00000" / "design.npy").tolist() == [0]
+    rep = verify(root)
+    assert rep["ok"] and (rep["n_designs"], rep["n_failed"]) == (1, 2)
+    # the engine's own refusal: with the base lens's clear apertures kept ("fixed") and
+    # surface 1 cut to 3 mm, the 20 deg chief ray is clipped there
+    data = Lens.load("cooke-f50").data
+    data["surfaces"][0]["semi_diameter"] = 3.0
+    (tmp_path / "lens.json").write_text(json.dumps(data))
+    space, base = load_space(space_file)
+    s = DatasetSettings(n_fields=2, window_um=24, pupil_samples=16, shard_size=3, apertures="fixed")
+    man, _ = prepare(tmp_path / "ds2", space, base, 3, 0, s)
+    _, meta = compute_shard(0, man, designs[[0, 0, 0]], space, base)
+    assert [f["reason"] for f in meta["failures"]] == [
+        "field 20 deg: trace: chief ray at 20 deg, 650.0 nm: Clipped at surface 1"] * 3
+
+
+def test_disjoint_shard_ranges_merge_to_the_same_data(reference, tmp_path):
+    """Two processes on disjoint shard ranges into separate directories, then merged; and
+    two ranges into one shared directory."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    generate("paper-triplet", 8, 11, a, SMALL_SETTINGS, shards="0:2", progress=False)
+    generate("paper-triplet", 8, 11, b, SMALL_SETTINGS, shards="2:", progress=False)
+    assert not verify(a)["ok"] and verify(a)["missing_shards"] == [2]
+    r = CliRunner().invoke(dataset, ["merge", str(tmp_path / "m"), str(a), str(b)])
+    assert r.exit_code == 0, r.output
+    assert verify(tmp_path / "m")["digest"] == verify(reference)["digest"]
+    shared = tmp_path / "shared"
+    generate("paper-triplet", 8, 11, shared, SMALL_SETTINGS, shards="1", progress=False)
+    generate("paper-triplet", 8, 11, shared, SMALL_SETTINGS, shards="0:1", progress=False)
+    generate("paper-triplet", 8, 11, shared, SMALL_SETTINGS, shards="2:3", progress=False)
+    assert _arrays(shared) == _arrays(reference)
+    other = tmp_path / "other"
+    generate("paper-triplet", 8, 12, other, SMALL_SETTINGS, shards="0", progress=False)
+    with pytest.raises(DatasetError, match=r"other/manifest.json: a different dataset .*differs in: .*seed"):
+        merge(tmp_path / "m2", [a, other])
+
+
+def test_torch_dataset(reference):
+    ds = PsfDataset(reference)
+    man = ds.manifest
+    n_ok = verify(reference)["n_designs"]
+    assert len(ds) == n_ok * 3 and ds.n_designs == n_ok
+    item = ds[4]  # design 1, field 1
+    assert item["psf"].shape == (3, 32, 32) and item["psf"].dtype == torch.float32
+    assert item["field"].item() == pytest.approx(0.5) and item["field_deg"] == pytest.approx(7.45)
+    torch.testing.assert_close(item["psf"].sum(dim=(1, 2)), torch.ones(3), atol=1e-5, rtol=0)
+    # parameters normalized by the manifest's mean and std over the designs
+    raw = np.load(reference / "shards" / "00000" / "params.npy")[1]
+    expect = (raw - np.array(man["param_mean"])) / np.array(man["param_std"])
+    np.testing.assert_allclose(item["params"].numpy(), expect, rtol=1e-6, atol=1e-6)
+    all_params = np.array([ds[i * 3]["params"].numpy() for i in range(ds.n_designs)], float)
+    if n_ok == 8:  # mean/std are over all sampled designs
+        np.testing.assert_allclose(all_params.mean(axis=0), 0.0, atol=1e-5)
+    # a held-out subset by design index, and the sensor-pitch PSFs
+    held = PsfDataset(reference, psf="psf_sensor", designs=[int(item["design"])])
+    assert len(held) == 3 and held[1]["psf"].shape == (3, 5, 5) and held[1]["design"] == item["design"]
+    loader = torch.utils.data.DataLoader(ds, batch_size=5, num_workers=2, shuffle=True,
+                                         generator=torch.Generator().manual_seed(0))
+    batch = next(iter(loader))
+    assert batch["psf"].shape == (5, 3, 32, 32) and batch["params"].shape == (5, 19)
+
+
+def test_cli_errors(tmp_path):
+    r = CliRunner().invoke(dataset, ["no-such-space", "-n", "2", "--out", str(tmp_path / "x")])
+    assert r.exit_code == 1 and "neither a space file nor a bundled lens" in r.output
+    r = CliRunner().invoke(dataset, ["paper-triplet", "-n", "2", "--out", str(tmp_path / "x"), "--shards", "5:9"])
+    assert r.exit_code == 1 and "--shards '5:9': the dataset has shards 0..0" in r.output
+    r = CliRunner().invoke(dataset, ["verify", str(tmp_path)])
+    assert r.exit_code == 1 and "manifest.json: missing manifest" in r.output
