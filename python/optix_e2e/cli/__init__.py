@@ -7,6 +7,7 @@ from .demo import demo
 from .lens import lens
 from .psf import psf
 from .sample import sample
+from .tolerance import tolerance
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -24,3 +25,4 @@ main.add_command(psf)
 main.add_command(demo)
 main.add_command(sample)
 main.add_command(dataset)
+main.add_command(tolerance)
