@@ -22,7 +22,7 @@ import time
 from dataclasses import asdict
 
 from optix_e2e.dataset import DatasetSettings, generate
-from optix_e2e.dataset.generate import prepare
+from optix_e2e.dataset.manifest import prepare
 from optix_e2e.space import load_space
 
 

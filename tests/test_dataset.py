@@ -76,7 +76,7 @@ def test_layout_shapes_and_physics(reference):
 
 def test_designs_match_the_sampler_and_psfs_match_the_engine(reference):
     from optix_e2e import _engine
-    from optix_e2e.dataset.generate import engine_base
+    from optix_e2e.dataset.settings import engine_base
     from optix_e2e.space import load_space
 
     space, base = load_space("paper-triplet")
@@ -161,7 +161,8 @@ def test_engine_failures_are_recorded_not_written(tmp_path):
     would trace both; the generator checks), and, with the base lens's apertures kept, one
     whose edge-field chief ray the engine finds clipped.  Each lands in the shard's failure
     list with its reason; the good designs are written."""
-    from optix_e2e.dataset.generate import compute_shard, prepare, write_shard
+    from optix_e2e.dataset.generate import compute_shard, write_shard
+    from optix_e2e.dataset.manifest import prepare
     from optix_e2e.space import load_space
 
     (tmp_path / "lens.json").write_text(json.dumps(Lens.load("cooke-f50").data))

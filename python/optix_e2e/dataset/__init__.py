@@ -2,7 +2,8 @@
 (:mod:`.verify`) and a lazy torch ``Dataset`` (:mod:`.torch_dataset`).  Layout and
 guarantees: docs/dataset.md."""
 
-from .generate import DatasetSettings, GenerateReport, generate
+from .generate import GenerateReport, generate
+from .settings import DatasetSettings
 from .layout import DatasetError
 from .verify import verify
 

@@ -10,84 +10,22 @@ separate directories that :func:`optix_e2e.dataset.merge.merge` combines.
 
 from __future__ import annotations
 
-import copy
-import csv
-import io
 import json
-import math
 import os
 import shutil
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable
 
 import numpy as np
 
 from ..lens import Lens
-from ..sampling import Limits, apertures, geometry_problem, sample_designs
+from ..sampling import apertures, geometry_problem
 from ..space import ParameterSpace, load_space
-from .layout import (ARRAYS, FORMAT, DatasetError, fsync_dir, read_json, sha256_file, shard_name,
-                     shards_dir, write_json_atomic)
-
-
-@dataclass(frozen=True)
-class DatasetSettings:
-    """What each design's record holds and how it is computed."""
-
-    n_fields: int = 13              # K field positions, uniform along +y from 0 to the full field
-    window_um: float = 128.0        # super-resolved PSF window (side)
-    pixel_um: float = 1.0           # ... and its pitch
-    sensor_pixel_um: float = 5.86   # the sensor-pitch version (IMX249 pixels)
-    pupil_samples: int = 64
-    psf_method: str = "fft"
-    aiming: str = "paraxial"
-    channels: str = "lens"          # "lens": the lens's three wavelengths -> R, G, B; "rgb": 3 per channel
-    shard_size: int = 64
-    sampling: str = "sobol"
-    apertures: str = "auto"         # "auto": no clear apertures (Zemax's automatic semi-diameters,
-                                    # every surface passes the beam); "fixed": the base lens's, stop excepted
-
-    def check(self) -> None:
-        if self.n_fields < 1:
-            raise ValueError(f"n_fields must be >= 1, got {self.n_fields}")
-        if not (self.window_um > 0 and self.pixel_um > 0 and self.sensor_pixel_um > 0):
-            raise ValueError("window_um, pixel_um and sensor_pixel_um must be positive")
-        if self.size < 8:
-            raise ValueError(f"window {self.window_um} um at {self.pixel_um} um/pixel is only {self.size} pixels")
-        if self.sensor_size < 1:
-            raise ValueError(f"window {self.window_um} um holds no {self.sensor_pixel_um} um sensor pixel")
-        if self.shard_size < 1:
-            raise ValueError(f"shard_size must be >= 1, got {self.shard_size}")
-        if self.apertures not in ("auto", "fixed"):
-            raise ValueError(f"apertures must be 'auto' or 'fixed', got {self.apertures!r}")
-        if self.channels not in ("lens", "rgb"):
-            raise ValueError(f"channels must be 'lens' or 'rgb', got {self.channels!r}")
-
-    @property
-    def size(self) -> int:
-        return int(round(self.window_um / self.pixel_um))
-
-    @property
-    def sensor_size(self) -> int:
-        """Whole sensor pixels inside the window, odd so one is centred on the chief ray."""
-        s = int(math.floor(self.window_um / self.sensor_pixel_um + 1e-9))
-        return s if s % 2 else s - 1
-
-
-def engine_base(base: Lens, apertures: str) -> dict:
-    """The base prescription the sampled designs are traced with.  The aperture is always
-    the lens's f-number / EPD (the stop's clear semi-diameter is dropped: the iris follows
-    the aperture setting as the design changes); ``"auto"`` drops every clear aperture."""
-    d = copy.deepcopy(base.data)
-    for s in d["surfaces"]:
-        if apertures == "auto" or s.get("stop"):
-            s["semi_diameter"] = None
-    return d
-
-
-def field_positions(base: Lens, k: int) -> list[float]:
-    return [float(f) for f in np.linspace(0.0, base.max_field_deg, k)]
+from .layout import ARRAYS, FORMAT, fsync_dir, sha256_file, shard_name, shards_dir, write_json_atomic
+from .manifest import prepare
+from .settings import DatasetSettings, engine_base
 
 
 def sensor_binning(size: int, pitch_um: float, s_size: int, s_pitch_um: float) -> np.ndarray:
@@ -119,88 +57,6 @@ class GenerateReport:
 
     def to_json(self) -> dict:
         return {**asdict(self), "designs_per_s": self.designs_per_s}
-
-
-# ----- manifest ------------------------------------------------------------------------
-def _request(space: ParameterSpace, base: Lens, n: int, seed: int, s: DatasetSettings,
-             fields: list[float], channels) -> dict:
-    """The part of the manifest that defines the data (must match on resume)."""
-    return {
-        "format": FORMAT, "n_designs": n, "seed": seed, "settings": asdict(s),
-        "fields_deg": fields, "channels": [[list(p) for p in c] for c in channels],
-        "channel_names": ["R", "G", "B"] if len(channels) == 3 else [f"C{i}" for i in range(len(channels))],
-        "psf_size": s.size, "sensor_size": s.sensor_size, "n_shards": math.ceil(n / s.shard_size),
-        "space": {"source": space.source, "lens": space.lens_ref, "constraints": space.constraints,
-                  "parameters": space.to_json()},
-        "base_lens": base.data,
-    }
-
-
-def _versions() -> dict:
-    import importlib.metadata as md
-    import platform
-
-    out = {"python": platform.python_version(), "numpy": np.__version__}
-    for pkg in ("optix-e2e", "scipy"):
-        try:
-            out[pkg] = md.version(pkg)
-        except md.PackageNotFoundError:
-            out[pkg] = None
-    return out
-
-
-def _read_designs(path: Path, names: Sequence[str]) -> np.ndarray:
-    with open(path, newline="", encoding="utf-8") as f:
-        rows = list(csv.reader(f))
-    if not rows or rows[0] != ["design", *names]:
-        raise DatasetError(f"{path}: header does not list the manifest's parameters")
-    return np.array([[float(v) for v in r[1:]] for r in rows[1:]], float)
-
-
-def _designs_csv_bytes(names: Sequence[str], values: np.ndarray) -> bytes:
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["design", *names])
-    for i, row in enumerate(values):
-        w.writerow([i, *(repr(float(v)) for v in row)])
-    return buf.getvalue().encode("utf-8")
-
-
-def prepare(out: Path, space: ParameterSpace, base: Lens, n: int, seed: int, s: DatasetSettings,
-            log: Callable[[str], None] = lambda m: None) -> tuple[dict, np.ndarray]:
-    """Create or check ``out``'s manifest and designs; returns (manifest, designs (n, P))."""
-    fields = field_positions(base, s.n_fields)
-    channels = base.rgb_channels(s.channels)
-    req = _request(space, base, n, seed, s, fields, channels)
-    mpath = out / "manifest.json"
-    if mpath.exists():
-        man = read_json(mpath, "manifest")
-        diff = sorted(k for k in req if json.dumps(man.get(k), sort_keys=True) != json.dumps(req[k], sort_keys=True))
-        if diff:
-            raise DatasetError(f"{mpath}: this directory holds a different dataset (differs in: "
-                               f"{', '.join(diff)}); use another --out or the same arguments")
-        dpath = out / "designs.csv"
-        if not dpath.exists() or sha256_file(dpath) != man["designs_csv_sha256"]:
-            raise DatasetError(f"{dpath}: missing or changed since the manifest was written")
-        return man, _read_designs(dpath, space.names)
-    log(f"sampling {n} designs ({s.sampling}, seed {seed})")
-    limits = Limits.from_dict(space.constraints, f"{space.source}: [constraints]")
-    res = sample_designs(space, base, n, seed=seed, method=s.sampling, limits=limits)
-    out.mkdir(parents=True, exist_ok=True)
-    data = _designs_csv_bytes(space.names, res.values)
-    tmp = out / f".designs.csv.tmp{os.getpid()}"
-    tmp.write_bytes(data)
-    os.replace(tmp, out / "designs.csv")
-    man = {**req,
-           "sampling_summary": res.summary(),
-           # the paper normalizes parameters by their mean and standard deviation over the designs
-           "param_mean": res.values.mean(axis=0).tolist(),
-           "param_std": res.values.std(axis=0).tolist(),
-           "designs_csv_sha256": sha256_file(out / "designs.csv"),
-           "versions": _versions(),
-           "created_unix": time.time()}
-    write_json_atomic(mpath, man)
-    return man, res.values
 
 
 # ----- shards ----------------------------------------------------------------------------

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .layout import ARRAYS, FORMAT, DatasetError, read_json, sha256_file, shard_name, shards_dir
+from .layout import FORMAT, DatasetError, read_json, sha256_file, shard_name, shards_dir
 
 
 def expected_shapes(man: dict, m: int) -> dict:

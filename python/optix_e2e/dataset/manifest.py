@@ -1,0 +1,104 @@
+"""The manifest and the design list of a dataset directory: created once from the seed,
+checked against the request on every later run (docs/dataset.md)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..lens import Lens
+from ..sampling import Limits, sample_designs
+from ..space import ParameterSpace
+from .layout import FORMAT, DatasetError, read_json, sha256_file, write_json_atomic
+from .settings import DatasetSettings, field_positions
+
+def _request(space: ParameterSpace, base: Lens, n: int, seed: int, s: DatasetSettings,
+             fields: list[float], channels) -> dict:
+    """The part of the manifest that defines the data (must match on resume)."""
+    return {
+        "format": FORMAT, "n_designs": n, "seed": seed, "settings": asdict(s),
+        "fields_deg": fields, "channels": [[list(p) for p in c] for c in channels],
+        "channel_names": ["R", "G", "B"] if len(channels) == 3 else [f"C{i}" for i in range(len(channels))],
+        "psf_size": s.size, "sensor_size": s.sensor_size, "n_shards": math.ceil(n / s.shard_size),
+        "space": {"source": space.source, "lens": space.lens_ref, "constraints": space.constraints,
+                  "parameters": space.to_json()},
+        "base_lens": base.data,
+    }
+
+
+def _versions() -> dict:
+    import importlib.metadata as md
+    import platform
+
+    out = {"python": platform.python_version(), "numpy": np.__version__}
+    for pkg in ("optix-e2e", "scipy"):
+        try:
+            out[pkg] = md.version(pkg)
+        except md.PackageNotFoundError:
+            out[pkg] = None
+    return out
+
+
+def _read_designs(path: Path, names: Sequence[str]) -> np.ndarray:
+    with open(path, newline="", encoding="utf-8") as f:
+        rows = list(csv.reader(f))
+    if not rows or rows[0] != ["design", *names]:
+        raise DatasetError(f"{path}: header does not list the manifest's parameters")
+    return np.array([[float(v) for v in r[1:]] for r in rows[1:]], float)
+
+
+def _designs_csv_bytes(names: Sequence[str], values: np.ndarray) -> bytes:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["design", *names])
+    for i, row in enumerate(values):
+        w.writerow([i, *(repr(float(v)) for v in row)])
+    return buf.getvalue().encode("utf-8")
+
+
+def prepare(out: Path, space: ParameterSpace, base: Lens, n: int, seed: int, s: DatasetSettings,
+            log: Callable[[str], None] = lambda m: None) -> tuple[dict, np.ndarray]:
+    """Create or check ``out``'s manifest and designs; returns (manifest, designs (n, P))."""
+    fields = field_positions(base, s.n_fields)
+    channels = base.rgb_channels(s.channels)
+    req = _request(space, base, n, seed, s, fields, channels)
+    mpath = out / "manifest.json"
+    if mpath.exists():
+        man = read_json(mpath, "manifest")
+        diff = sorted(k for k in req if json.dumps(man.get(k), sort_keys=True) != json.dumps(req[k], sort_keys=True))
+        if diff:
+            raise DatasetError(f"{mpath}: this directory holds a different dataset (differs in: "
+                               f"{', '.join(diff)}); use another --out or the same arguments")
+        dpath = out / "designs.csv"
+        if not dpath.exists() or sha256_file(dpath) != man["designs_csv_sha256"]:
+            raise DatasetError(f"{dpath}: missing or changed since the manifest was written")
+        return man, _read_designs(dpath, space.names)
+    log(f"sampling {n} designs ({s.sampling}, seed {seed})")
+    limits = Limits.from_dict(space.constraints, f"{space.source}: [constraints]")
+    res = sample_designs(space, base, n, seed=seed, method=s.sampling, limits=limits)
+    out.mkdir(parents=True, exist_ok=True)
+    data = _designs_csv_bytes(space.names, res.values)
+    tmp = out / f".designs.csv.tmp{os.getpid()}"
+    tmp.write_bytes(data)
+    os.replace(tmp, out / "designs.csv")
+    man = {**req,
+           "sampling_summary": res.summary(),
+           # the paper normalizes parameters by their mean and standard deviation over the designs
+           "param_mean": res.values.mean(axis=0).tolist(),
+           "param_std": res.values.std(axis=0).tolist(),
+           "designs_csv_sha256": sha256_file(out / "designs.csv"),
+           "versions": _versions(),
+           "created_unix": time.time()}
+    write_json_atomic(mpath, man)
+    return man, res.values
+
+

@@ -1,0 +1,70 @@
+"""Settings of a PSF dataset and the pieces derived from them."""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..lens import Lens
+
+
+@dataclass(frozen=True)
+class DatasetSettings:
+    """What each design's record holds and how it is computed."""
+
+    n_fields: int = 13              # K field positions, uniform along +y from 0 to the full field
+    window_um: float = 128.0        # super-resolved PSF window (side)
+    pixel_um: float = 1.0           # ... and its pitch
+    sensor_pixel_um: float = 5.86   # the sensor-pitch version (IMX249 pixels)
+    pupil_samples: int = 64
+    psf_method: str = "fft"
+    aiming: str = "paraxial"
+    channels: str = "lens"          # "lens": the lens's three wavelengths -> R, G, B; "rgb": 3 per channel
+    shard_size: int = 64
+    sampling: str = "sobol"
+    apertures: str = "auto"         # "auto": no clear apertures (Zemax's automatic semi-diameters,
+                                    # every surface passes the beam); "fixed": the base lens's, stop excepted
+
+    def check(self) -> None:
+        if self.n_fields < 1:
+            raise ValueError(f"n_fields must be >= 1, got {self.n_fields}")
+        if not (self.window_um > 0 and self.pixel_um > 0 and self.sensor_pixel_um > 0):
+            raise ValueError("window_um, pixel_um and sensor_pixel_um must be positive")
+        if self.size < 8:
+            raise ValueError(f"window {self.window_um} um at {self.pixel_um} um/pixel is only {self.size} pixels")
+        if self.sensor_size < 1:
+            raise ValueError(f"window {self.window_um} um holds no {self.sensor_pixel_um} um sensor pixel")
+        if self.shard_size < 1:
+            raise ValueError(f"shard_size must be >= 1, got {self.shard_size}")
+        if self.apertures not in ("auto", "fixed"):
+            raise ValueError(f"apertures must be 'auto' or 'fixed', got {self.apertures!r}")
+        if self.channels not in ("lens", "rgb"):
+            raise ValueError(f"channels must be 'lens' or 'rgb', got {self.channels!r}")
+
+    @property
+    def size(self) -> int:
+        return int(round(self.window_um / self.pixel_um))
+
+    @property
+    def sensor_size(self) -> int:
+        """Whole sensor pixels inside the window, odd so one is centred on the chief ray."""
+        s = int(math.floor(self.window_um / self.sensor_pixel_um + 1e-9))
+        return s if s % 2 else s - 1
+
+
+def engine_base(base: Lens, apertures: str) -> dict:
+    """The base prescription the sampled designs are traced with.  The aperture is always
+    the lens's f-number / EPD (the stop's clear semi-diameter is dropped: the iris follows
+    the aperture setting as the design changes); ``"auto"`` drops every clear aperture."""
+    d = copy.deepcopy(base.data)
+    for s in d["surfaces"]:
+        if apertures == "auto" or s.get("stop"):
+            s["semi_diameter"] = None
+    return d
+
+
+def field_positions(base: Lens, k: int) -> list[float]:
+    return [float(f) for f in np.linspace(0.0, base.max_field_deg, k)]
