@@ -119,7 +119,7 @@ def test_killed_and_resumed_equals_uninterrupted(reference, tmp_path):
 
 
 def test_same_arrays_whatever_the_thread_count(reference, tmp_path):
-    env = dict(os.environ, RAYON_NUM_THREADS="1")
+    env = dict(os.environ, RAYON_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
     p = _cli("paper-triplet", "-n", 8, "--seed", 11, "--out", tmp_path / "one", *SMALL, env=env)
     _, err = p.communicate(timeout=300)
     assert p.returncode == 0, err.decode()

@@ -27,7 +27,7 @@ class PsfDataset(Dataset):
 
     ``psf="psf"`` gives the super-resolved PSFs, ``"psf_sensor"`` the sensor-pitch ones.
     ``designs``: keep only these global design indices (e.g. a held-out split).
-    ``verify``: check each shard's sha256 when it is first opened.
+    ``verify``: check each shard's CRC-32 checksums when it is first opened.
     ``allow_missing``: use the shards present (else a missing shard is an error).
 
     Item: dict with ``params`` (P,) float32 normalized, ``field`` () float32 (field angle /

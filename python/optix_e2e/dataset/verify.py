@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .layout import FORMAT, DatasetError, read_json, sha256_file, shard_name, shards_dir
+from .layout import FORMAT, DatasetError, crc32_file, read_json, shard_name, shards_dir
 
 
 def expected_shapes(man: dict, m: int) -> dict:
@@ -21,7 +21,7 @@ def expected_shapes(man: dict, m: int) -> dict:
 
 def open_shard(root: Path, k: int, man: dict, check_hashes: bool = True) -> tuple[dict, dict]:
     """Memory-mapped arrays and metadata of shard ``k``, checked against the manifest
-    (shapes, dtypes, design ranges, and with ``check_hashes`` the sha256 of every file).
+    (shapes, dtypes, design ranges, and with ``check_hashes`` the CRC-32 of every file).
     Raises :class:`DatasetError` naming the file and the problem."""
     d = shards_dir(root) / shard_name(k)
     meta = read_json(d / "shard.json", f"shard {k} metadata")
@@ -40,7 +40,7 @@ def open_shard(root: Path, k: int, man: dict, check_hashes: bool = True) -> tupl
         info = meta.get("files", {}).get(name)
         if info is None or not p.is_file():
             raise DatasetError(f"{p}: missing")
-        if check_hashes and sha256_file(p) != info["sha256"]:
+        if check_hashes and crc32_file(p) != info["crc32"]:
             raise DatasetError(f"{p}: checksum mismatch (the file was changed or damaged after it was written)")
         try:
             arr = np.load(p, mmap_mode="r", allow_pickle=False)
