@@ -14,6 +14,7 @@ import json
 import os
 import shutil
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -237,16 +238,28 @@ def generate(space_spec: "str | Path", n: int, seed: int, out: "str | Path",
             bar.update(done)
             bar.set_postfix(failed=failed["n"], refresh=False)
 
+    def finish(job):
+        k, meta, fut = job
+        if fut.result():
+            rep.shards_written.append(k)
+        rep.n_ok += meta["n_ok"]
+        rep.n_failed += meta["n_failed"]
+
+    # a writer thread stores shard k while the engine (which releases the GIL) computes
+    # shard k + 1; at most one shard waits, and an interruption lets its write finish
     t0 = time.perf_counter()
+    writing = None
     try:
-        for k in pending:
-            if sdir.exists():
-                _clean_stale(sdir, k)
-            arrays, meta = compute_shard(k, man, designs, space, base, on_batch=on_batch)
-            if write_shard(out, k, arrays, meta):
-                rep.shards_written.append(k)
-            rep.n_ok += meta["n_ok"]
-            rep.n_failed += meta["n_failed"]
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="shard-writer") as pool:
+            for k in pending:
+                if sdir.exists():
+                    _clean_stale(sdir, k)
+                arrays, meta = compute_shard(k, man, designs, space, base, on_batch=on_batch)
+                if writing is not None:
+                    finish(writing)
+                writing = (k, meta, pool.submit(write_shard, out, k, arrays, meta))
+            if writing is not None:
+                finish(writing)
     finally:
         rep.seconds = time.perf_counter() - t0
         if bar is not None:
