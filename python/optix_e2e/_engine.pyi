@@ -133,6 +133,7 @@ def psf(
     aiming: str = "paraxial",
     integrate: bool = False,
     exact: bool = False,
+    fast: bool = False,
 ) -> tuple[NDArray[np.float64], dict[str, Any]]:
     """Monochromatic PSF with method "geometric", "fft" or "huygens".
 
@@ -143,6 +144,10 @@ def psf(
     PSF); ``True`` integrates over each pixel (what a detector pixel collects; geometric
     always integrates). ``exact`` makes Huygens evaluate every distance exactly.
     ``pupil_samples`` is also the ray grid across the pupil for the geometric method.
+
+    ``fast=True`` (method "fft"): the fast FFT path of :func:`psf_batch` (see there) where
+    it applies, else the general FFT; diagnostics ``fft_mode`` ("direction_grid" or
+    "general") and, after a fallback, ``fast_fallback`` (the reason).
     """
 
 def psf_rgb(
@@ -155,9 +160,11 @@ def psf_rgb(
     pupil_samples: int = 64,
     aiming: str = "paraxial",
     integrate: bool = False,
+    fast: bool = True,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], dict[str, Any]]:
     """Per-channel PSF (C, size, size), each normalized to unit sum, and the per-channel
-    relative illumination (C,). ``channels[c]`` lists (wavelength_nm, weight) pairs."""
+    relative illumination (C,). ``channels[c]`` lists (wavelength_nm, weight) pairs.
+    ``fast`` as in :func:`psf_batch` (the same computation, so the two agree)."""
 
 def psf_batch(
     lens_jsons: Sequence[str],
@@ -169,10 +176,26 @@ def psf_batch(
     pupil_samples: int = 64,
     aiming: str = "paraxial",
     integrate: bool = False,
+    fast: bool = True,
 ) -> dict[str, Any]:
-    """Many designs x fields x channels in one call (GIL released, parallel).
+    """Many designs x fields x channels in one call (GIL released, parallel over
+    design x field, each PSF single threaded; the output does not depend on the number
+    of threads).
 
     Returns psf (D, F, C, size, size) float32 (unit sum per channel),
     relative_illumination (D, F, C) float64, ok (D,) bool, errors (list[str | None])
     with the reason a design failed (its PSFs are zeros and ok is False).
+
+    ``fast=True`` (default; method "fft" with paraxial aiming and point sampling): the
+    pupil function is fitted (Legendre polynomials of degree 8-12, residual <= 1e-3 waves
+    at ~130 traced rays) and resampled onto a grid of image-space direction cosines whose
+    FFT lands directly on the output pixels (FFT field >= 2 x the window, no Taylor
+    series, no resampling, anti-aliased pupil edge); ``pupil_samples`` is then the least
+    number of grid cells across the pupil. Relative L1 error <= 1% against a 256-sample
+    general FFT on the bundled paper-triplet (tested). Where it does not apply (vignetting
+    or TIR in its ray set, a fit out of tolerance, Real aiming, integrate=True) the
+    general FFT runs, with ``pupil_samples`` rays across the pupil. Relative illumination:
+    where neither the field's nor the axial ray set loses a ray, cos(field) times the
+    chief-ray area factor (what the 24-ring trace gives for an unvignetted beam); else the
+    24-ring trace. ``fast=False``: the general FFT and the 24-ring trace everywhere.
     """

@@ -38,7 +38,8 @@ fn parse_lens(text: &str) -> psf_engine::Result<Lens> {
     Lens::from_json(text)
 }
 
-fn options(method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_grid: Option<usize>, aiming: &str, integrate: bool, exact: bool) -> PyResult<PsfOptions> {
+#[allow(clippy::too_many_arguments)]
+fn options(method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_grid: Option<usize>, aiming: &str, integrate: bool, exact: bool, fast: bool) -> PyResult<PsfOptions> {
     Ok(PsfOptions {
         method: method.parse::<Method>().map_err(to_py)?,
         pixel_mm: pixel_um * 1e-3,
@@ -48,6 +49,7 @@ fn options(method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_g
         aiming: aiming.parse::<Aiming>().map_err(to_py)?,
         huygens_exact: exact,
         integrate,
+        fast,
     })
 }
 
@@ -208,20 +210,20 @@ fn spot<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavelengths_nm: V
 }
 
 #[pyfunction]
-#[pyo3(signature = (lens_json, field_deg, wavelength_nm, method="fft", pixel_um=1.0, size=64, pupil_samples=64, fft_grid=None, aiming="paraxial", integrate=false, exact=false))]
+#[pyo3(signature = (lens_json, field_deg, wavelength_nm, method="fft", pixel_um=1.0, size=64, pupil_samples=64, fft_grid=None, aiming="paraxial", integrate=false, exact=false, fast=false))]
 #[allow(clippy::too_many_arguments)]
-fn psf<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavelength_nm: f64, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_grid: Option<usize>, aiming: &str, integrate: bool, exact: bool) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-    let o = options(method, pixel_um, size, pupil_samples, fft_grid, aiming, integrate, exact)?;
+fn psf<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavelength_nm: f64, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_grid: Option<usize>, aiming: &str, integrate: bool, exact: bool, fast: bool) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let o = options(method, pixel_um, size, pupil_samples, fft_grid, aiming, integrate, exact, fast)?;
     let p = run(py, || psf_engine::psf::psf(&parse_lens(lens_json)?, field_deg, wavelength_nm, &o))?;
     let arr = p.data.into_pyarray(py).reshape([size, size])?.into_any();
     Ok((arr, json_to_py(py, &p.diagnostics.to_json())?))
 }
 
 #[pyfunction]
-#[pyo3(signature = (lens_json, field_deg, channels, method="fft", pixel_um=1.0, size=64, pupil_samples=64, aiming="paraxial", integrate=false))]
+#[pyo3(signature = (lens_json, field_deg, channels, method="fft", pixel_um=1.0, size=64, pupil_samples=64, aiming="paraxial", integrate=false, fast=true))]
 #[allow(clippy::too_many_arguments)]
-fn psf_rgb<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, channels: Vec<Vec<(f64, f64)>>, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, aiming: &str, integrate: bool) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-    let o = options(method, pixel_um, size, pupil_samples, None, aiming, integrate, false)?;
+fn psf_rgb<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, channels: Vec<Vec<(f64, f64)>>, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, aiming: &str, integrate: bool, fast: bool) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let o = options(method, pixel_um, size, pupil_samples, None, aiming, integrate, false, fast)?;
     let nc = channels.len();
     let r = run(py, || psf_engine::rgb::psf_rgb(&parse_lens(lens_json)?, field_deg, &channels, &o))?;
     let arr = r.data.into_pyarray(py).reshape([nc, size, size])?.into_any();
@@ -231,10 +233,10 @@ fn psf_rgb<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, channels: Vec<
 }
 
 #[pyfunction]
-#[pyo3(signature = (lens_jsons, fields_deg, channels, method="fft", pixel_um=1.0, size=64, pupil_samples=64, aiming="paraxial", integrate=false))]
+#[pyo3(signature = (lens_jsons, fields_deg, channels, method="fft", pixel_um=1.0, size=64, pupil_samples=64, aiming="paraxial", integrate=false, fast=true))]
 #[allow(clippy::too_many_arguments)]
-fn psf_batch<'py>(py: Python<'py>, lens_jsons: Vec<String>, fields_deg: Vec<f64>, channels: Vec<Vec<(f64, f64)>>, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, aiming: &str, integrate: bool) -> PyResult<Bound<'py, PyDict>> {
-    let o = options(method, pixel_um, size, pupil_samples, None, aiming, integrate, false)?;
+fn psf_batch<'py>(py: Python<'py>, lens_jsons: Vec<String>, fields_deg: Vec<f64>, channels: Vec<Vec<(f64, f64)>>, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, aiming: &str, integrate: bool, fast: bool) -> PyResult<Bound<'py, PyDict>> {
+    let o = options(method, pixel_um, size, pupil_samples, None, aiming, integrate, false, fast)?;
     let (nd, nf, nc) = (lens_jsons.len(), fields_deg.len(), channels.len());
     let (batch, parse_errors) = run(py, || {
         // Designs that do not parse are failures of that design, not of the call.

@@ -4,8 +4,9 @@
 
 use crate::error::{arg, Result};
 use crate::lens::Lens;
-use crate::psf::{psf, Diagnostics, PsfOptions};
-use crate::spot::relative_illumination;
+use crate::psf::{fast, psf_path, Diagnostics, PsfOptions};
+use crate::spot::{area_ratio, relative_illumination};
+use crate::trace::System;
 use rayon::prelude::*;
 
 /// Rings of the polar grid used for relative illumination.
@@ -39,20 +40,59 @@ pub fn psf_rgb(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions)
     let mut data = vec![0.0; channels.len() * s * s];
     let mut ri = vec![0.0; channels.len()];
     let mut diags = vec![];
+    rgb_core(lens, field_deg, channels, o, None, &mut ri, |c, v| data[c * s * s..(c + 1) * s * s].copy_from_slice(v), |d| diags.push(d))?;
+    Ok(RgbPsf { size: s, data, relative_illumination: ri, diagnostics: diags })
+}
+
+/// The channels of one field: `sink(c, psf)` receives channel c's PSF (unit sum, or zeros
+/// where no energy arrives), `ri` its relative illumination; `diag` each wavelength's
+/// diagnostics. `axis[k]`: whether the k-th wavelength (channels flattened) passes the
+/// fast path's ray set on axis, where the caller knows it.
+#[allow(clippy::too_many_arguments)]
+fn rgb_core(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions, axis: Option<&[bool]>, ri: &mut [f64], mut sink: impl FnMut(usize, &[f64]), mut diag: impl FnMut(Diagnostics)) -> Result<()> {
+    let s = o.size;
+    let mut acc = vec![];
+    let mut k = 0;
     for (c, list) in channels.iter().enumerate() {
-        let out = &mut data[c * s * s..(c + 1) * s * s];
         let wsum: f64 = list.iter().map(|p| p.1).sum();
+        if list.len() > 1 {
+            acc.clear();
+            acc.resize(s * s, 0.0);
+        }
         for &(wl, w) in list {
-            let p = psf(lens, field_deg, wl, o)?;
+            let (mut p, clear) = psf_path(lens, field_deg, wl, o)?;
             let tot: f64 = p.data.iter().sum();
-            if tot > 0.0 {
-                out.iter_mut().zip(&p.data).for_each(|(o, v)| *o += w / wsum * v / tot);
+            if list.len() == 1 {
+                // The sum below for a single wavelength (w / wsum = 1), bit for bit.
+                if tot > 0.0 {
+                    p.data.iter_mut().for_each(|v| *v = w / wsum * *v / tot);
+                } else {
+                    p.data.iter_mut().for_each(|v| *v = 0.0);
+                }
+                sink(c, &p.data);
+            } else if tot > 0.0 {
+                acc.iter_mut().zip(&p.data).for_each(|(o, v)| *o += w / wsum * v / tot);
             }
-            ri[c] += w / wsum * relative_illumination(lens, field_deg, wl, RI_RINGS, o.aiming)?;
-            diags.push(p.diagnostics);
+            ri[c] += w / wsum * illumination(lens, field_deg, wl, o, clear, axis.map(|a| a[k]))?;
+            k += 1;
+            diag(p.diagnostics);
+        }
+        if list.len() > 1 {
+            sink(c, &acc);
         }
     }
-    Ok(RgbPsf { size: s, data, relative_illumination: ri, diagnostics: diags })
+    Ok(())
+}
+
+/// Relative illumination at one wavelength. Where the fast PSF traced its pupil set at this
+/// field without a loss and the same set passes on axis, neither beam is vignetted: the
+/// flux ratio of `relative_illumination` is then exactly cos(field) (every polar-grid ray
+/// carries the same flux), and only its area factor (three chief rays) is left to trace.
+fn illumination(lens: &Lens, field_deg: f64, wl: f64, o: &PsfOptions, clear: bool, axis: Option<bool>) -> Result<f64> {
+    if clear && axis.map_or_else(|| fast::axis_clear(&System::new(lens, wl)?), Ok)? {
+        return Ok(field_deg.to_radians().cos() * area_ratio(lens, field_deg, wl, o.aiming)?);
+    }
+    relative_illumination(lens, field_deg, wl, RI_RINGS, o.aiming)
 }
 
 pub struct Batch {
@@ -62,29 +102,41 @@ pub struct Batch {
     pub errors: Vec<Option<String>>,
 }
 
-/// Every (design, field) pair in parallel; a design that fails records its first error and
-/// keeps zeros.
+/// Every (design, field) pair in parallel, each PSF single threaded where the fast path
+/// applies; a design that fails records its first error and keeps zeros. The result does
+/// not depend on the number of threads (each task writes only its own slice).
 pub fn psf_batch(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &PsfOptions) -> Result<Batch> {
     check_channels(channels)?;
     o.check()?;
-    let (nf, nc, s) = (fields.len(), channels.len(), o.size);
+    let (nd, nf, nc, s) = (lenses.len(), fields.len(), channels.len(), o.size);
     let per = nc * s * s;
-    let results: Vec<Result<RgbPsf>> = (0..lenses.len() * nf).into_par_iter().map(|i| psf_rgb(&lenses[i / nf], fields[i % nf], channels, o)).collect();
-    let mut psfv = vec![0.0f32; lenses.len() * nf * per];
-    let mut ri = vec![0.0; lenses.len() * nf * nc];
-    let mut errors: Vec<Option<String>> = vec![None; lenses.len()];
-    for (i, r) in results.into_iter().enumerate() {
-        let d = i / nf;
-        match r {
-            Ok(p) => {
-                psfv[i * per..(i + 1) * per].iter_mut().zip(&p.data).for_each(|(o, v)| *o = *v as f32);
-                ri[i * nc..(i + 1) * nc].copy_from_slice(&p.relative_illumination);
-            }
-            Err(e) => {
-                if errors[d].is_none() {
-                    errors[d] = Some(format!("field {} deg: {e}", fields[i % nf]));
-                }
-            }
+    // Whether each design's axial beam passes the fast path's ray set, per wavelength
+    // (shared by its fields; an error here is left for the PSF itself to report).
+    let wls: Vec<f64> = channels.iter().flatten().map(|p| p.0).collect();
+    let axis: Vec<Vec<bool>> = if fast::applies(o) {
+        lenses.par_iter().map(|l| wls.iter().map(|&wl| System::new(l, wl).and_then(|sys| fast::axis_clear(&sys)).unwrap_or(false)).collect()).collect()
+    } else {
+        vec![vec![false; wls.len()]; nd]
+    };
+    let axis_known = fast::applies(o);
+    let mut psfv = crate::trace::huge_pages(vec![0.0f32; nd * nf * per]);
+    let mut ri = vec![0.0; nd * nf * nc];
+    let results: Vec<Option<String>> = psfv
+        .par_chunks_mut(per)
+        .zip(ri.par_chunks_mut(nc))
+        .enumerate()
+        .map(|(i, (out, ri))| {
+            let (d, f) = (i / nf, fields[i % nf]);
+            let axis = axis_known.then_some(&axis[d][..]);
+            rgb_core(&lenses[d], f, channels, o, axis, ri, |c, v| out[c * s * s..(c + 1) * s * s].iter_mut().zip(v).for_each(|(o, v)| *o = *v as f32), |_| {})
+                .err()
+                .map(|e| format!("field {f} deg: {e}"))
+        })
+        .collect();
+    let mut errors: Vec<Option<String>> = vec![None; nd];
+    for (i, e) in results.into_iter().enumerate() {
+        if let (Some(e), None) = (e, &errors[i / nf]) {
+            errors[i / nf] = Some(e);
         }
     }
     for (d, e) in errors.iter().enumerate() {

@@ -91,6 +91,12 @@ pub fn relative_illumination(lens: &Lens, field_deg: f64, wavelength_nm: f64, ri
     if on_axis.flux <= 0.0 {
         return Err(EngineError::Trace(format!("no on-axis ray reaches the image at {wavelength_nm} nm")));
     }
+    Ok(here.flux / on_axis.flux * area_ratio(lens, field_deg, wavelength_nm, aiming)?)
+}
+
+/// The area factor of `relative_illumination`: f^2 sin(theta) / (y dy/dtheta) from the
+/// real chief ray (1 on axis).
+pub(crate) fn area_ratio(lens: &Lens, field_deg: f64, wavelength_nm: f64, aiming: Aiming) -> Result<f64> {
     let t = field_deg.to_radians().abs();
     let area_ratio = if t < 1e-6 {
         1.0
@@ -111,7 +117,7 @@ pub fn relative_illumination(lens: &Lens, field_deg: f64, wavelength_nm: f64, ri
         let f = crate::paraxial::paraxial(lens, wavelength_nm)?.efl;
         f * f * t.sin() / (y * dy)
     };
-    Ok(here.flux / on_axis.flux * area_ratio)
+    Ok(area_ratio)
 }
 
 /// Polychromatic spot summary for one field: RMS radius about the common centroid,

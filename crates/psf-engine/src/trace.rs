@@ -220,7 +220,7 @@ impl<'a> System<'a> {
 /// Ask the kernel to back a large, freshly allocated (not yet touched) output array with
 /// transparent huge pages: a million rays write ~85 MB, and faulting that in 4 KiB pages
 /// costs more than tracing them. Advice only; nothing changes where it is not honoured.
-fn huge_pages<T>(v: Vec<T>) -> Vec<T> {
+pub(crate) fn huge_pages<T>(v: Vec<T>) -> Vec<T> {
     #[cfg(target_os = "linux")]
     {
         const HUGE: usize = 2 << 20;

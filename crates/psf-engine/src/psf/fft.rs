@@ -90,7 +90,7 @@ fn narrow<T: Real>(z: Complex64) -> Complex<T> {
     Complex::new(T::narrow(z.re), T::narrow(z.im))
 }
 
-fn plan<T: Real>(len: usize) -> Arc<dyn Fft<T>> {
+pub(super) fn plan<T: Real>(len: usize) -> Arc<dyn Fft<T>> {
     T::planner().with(|p| p.borrow_mut().plan_fft_inverse(len))
 }
 
@@ -317,7 +317,7 @@ unsafe fn cis_scaled_avx2(t: &[f64], w: &[f64], out: &mut [Complex64]) {
 }
 
 /// out = w exp(i 2 pi t), element-wise.
-fn cis_scaled(t: &[f64], w: &[f64], out: &mut [Complex64]) {
+pub(super) fn cis_scaled(t: &[f64], w: &[f64], out: &mut [Complex64]) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2 (checked just above).
@@ -331,7 +331,7 @@ fn cis_scaled(t: &[f64], w: &[f64], out: &mut [Complex64]) {
 // least n values, of which the caller uses the first n.
 
 /// A buffer of at least n values, the first n zero, from this thread's pool when it has one.
-fn zeros<T: Real>(n: usize) -> Vec<Complex<T>> {
+pub(super) fn zeros<T: Real>(n: usize) -> Vec<Complex<T>> {
     let mut v = T::pool().with(|p| p.borrow_mut().pop()).unwrap_or_default();
     if v.len() < n {
         v.clear();
@@ -343,7 +343,7 @@ fn zeros<T: Real>(n: usize) -> Vec<Complex<T>> {
 }
 
 /// A buffer of at least n values with unspecified (stale) contents, from this thread's pool.
-fn buffer<T: Real>(n: usize) -> Vec<Complex<T>> {
+pub(super) fn buffer<T: Real>(n: usize) -> Vec<Complex<T>> {
     let mut v = T::pool().with(|p| p.borrow_mut().pop()).unwrap_or_default();
     if v.len() < n {
         v.resize(n, Complex::default());
@@ -352,7 +352,7 @@ fn buffer<T: Real>(n: usize) -> Vec<Complex<T>> {
 }
 
 /// Returns a buffer to this thread's pool.
-fn recycle<T: Real>(v: Vec<Complex<T>>) {
+pub(super) fn recycle<T: Real>(v: Vec<Complex<T>>) {
     T::pool().with(|p| {
         let mut p = p.borrow_mut();
         if p.len() < 8 {
@@ -362,7 +362,7 @@ fn recycle<T: Real>(v: Vec<Complex<T>>) {
 }
 
 /// Sets a buffer to zero (a memset).
-fn zero_fill<T: Real>(v: &mut [Complex<T>]) {
+pub(super) fn zero_fill<T: Real>(v: &mut [Complex<T>]) {
     // SAFETY: Complex<T> is two f32s or two f64s, for which all-zero bytes are 0.0.
     unsafe { std::ptr::write_bytes(v.as_mut_ptr(), 0, v.len()) }
 }

@@ -4,6 +4,7 @@
 //! centred on the chief-ray image point, each pixel the fraction of the entrance-pupil
 //! flux landing in it.
 
+pub mod fast;
 pub mod fft;
 pub mod geometric;
 pub mod huygens;
@@ -64,11 +65,17 @@ pub struct PsfOptions {
     /// super-resolved PSF needs); true = energy integrated over the pixel area (what a
     /// detector pixel collects; the geometric method always integrates).
     pub integrate: bool,
+    /// FFT method: compute on a grid of direction cosines whose FFT lands on the output
+    /// pixels (psf/fast.rs) wherever that applies (paraxial aiming, point sampling, no
+    /// fixed fft_grid, no vignetting), else the general FFT. `pupil_samples` is then the
+    /// least number of grid cells across the pupil. Off by default here; the RGB and batch
+    /// bindings turn it on.
+    pub fast: bool,
 }
 
 impl Default for PsfOptions {
     fn default() -> Self {
-        PsfOptions { method: Method::Fft, pixel_mm: 1e-3, size: 64, pupil_samples: 64, fft_grid: None, aiming: Aiming::Paraxial, huygens_exact: false, integrate: false }
+        PsfOptions { method: Method::Fft, pixel_mm: 1e-3, size: 64, pupil_samples: 64, fft_grid: None, aiming: Aiming::Paraxial, huygens_exact: false, integrate: false, fast: false }
     }
 }
 
@@ -132,10 +139,59 @@ pub(crate) fn parabolic_offset(l: f64, c: f64, r: f64) -> f64 {
 
 /// Monochromatic PSF at `field_deg`, `wavelength_nm`.
 pub fn psf(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) -> Result<Psf> {
+    psf_path(lens, field_deg, wavelength_nm, o).map(|r| r.0)
+}
+
+/// The PSF, and whether the fast path (psf/fast.rs) computed it: then every ray of its
+/// pupil set reached the image (no vignetting).
+pub(crate) fn psf_path(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) -> Result<(Psf, bool)> {
     o.check()?;
+    if fast::applies(o) {
+        // Single threaded (the batch runs many of these side by side).
+        let t0 = Instant::now();
+        let sys = System::new(lens, wavelength_nm)?;
+        let mut d = Diagnostics::default();
+        common_diagnostics(&mut d, o, field_deg, wavelength_nm);
+        match fast::fast_psf(&sys, field_deg, o, &mut d)? {
+            Ok(data) => return finish(d, data, None, 1.0, o, field_deg, wavelength_nm, t0).map(|p| (p, true)),
+            Err(why) => {
+                let mut p = rayon::scope(|_| psf_in_pool(lens, field_deg, wavelength_nm, o))?;
+                p.diagnostics.set("fft_mode", "general");
+                p.diagnostics.set("fast_fallback", why);
+                return Ok((p, false));
+            }
+        }
+    }
     // Run on a thread of the pool: the tracing and the transforms each go parallel, and
     // from a thread outside the pool every parallel section would be a round trip to it.
-    rayon::scope(|_| psf_in_pool(lens, field_deg, wavelength_nm, o))
+    rayon::scope(|_| psf_in_pool(lens, field_deg, wavelength_nm, o)).map(|p| (p, false))
+}
+
+fn common_diagnostics(d: &mut Diagnostics, o: &PsfOptions, field_deg: f64, wavelength_nm: f64) {
+    d.set("method", o.method.name());
+    d.set("field_deg", field_deg);
+    d.set("wavelength_nm", wavelength_nm);
+    d.set("pupil_samples", o.pupil_samples as f64);
+    d.set("pixel_um", o.pixel_mm * 1e3);
+    d.set("size", o.size as f64);
+    d.set("sampling", if o.integrate || o.method == Method::Geometric { "integrate" } else { "point" });
+    d.set("aiming", if o.aiming == Aiming::Real { "real" } else { "paraxial" });
+}
+
+/// Checks shared by every method: energy outside the window, non-finite values; the
+/// Strehl ratio and the time recorded.
+#[allow(clippy::too_many_arguments)]
+fn finish(mut d: Diagnostics, data: Vec<f64>, strehl: Option<f64>, transmitted: f64, o: &PsfOptions, field_deg: f64, wavelength_nm: f64, t0: Instant) -> Result<Psf> {
+    let e = d.values.get("energy_in_window").and_then(Value::as_f64).unwrap_or(1.0);
+    if e < 0.99 && transmitted > 0.0 {
+        d.warn(format!("{:.1}% of the transmitted energy falls outside the {}x{} window", 100.0 * (1.0 - e), o.size, o.size));
+    }
+    if data.iter().any(|v| !v.is_finite()) {
+        return Err(EngineError::Psf(format!("non-finite PSF value at {field_deg} deg, {wavelength_nm} nm")));
+    }
+    d.set("strehl", strehl.map_or(Value::Null, Value::from));
+    d.set("time_s", t0.elapsed().as_secs_f64());
+    Ok(Psf { size: o.size, data, strehl, diagnostics: d })
 }
 
 fn psf_in_pool(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) -> Result<Psf> {
@@ -145,14 +201,7 @@ fn psf_in_pool(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) 
     let p = pupil::sample_pupil(&sys, field_deg, o.aiming, o.pupil_samples)?;
     let transmitted = p.transmitted_fraction();
     let step = p.max_phase_step();
-    d.set("method", o.method.name());
-    d.set("field_deg", field_deg);
-    d.set("wavelength_nm", wavelength_nm);
-    d.set("pupil_samples", o.pupil_samples as f64);
-    d.set("pixel_um", o.pixel_mm * 1e3);
-    d.set("size", o.size as f64);
-    d.set("sampling", if o.integrate || o.method == Method::Geometric { "integrate" } else { "point" });
-    d.set("aiming", if o.aiming == Aiming::Real { "real" } else { "paraxial" });
+    common_diagnostics(&mut d, o, field_deg, wavelength_nm);
     d.set("chief_x_mm", p.chief.x);
     d.set("chief_y_mm", p.chief.y);
     d.set("transmitted_fraction", transmitted);
@@ -200,15 +249,6 @@ fn psf_in_pool(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) 
         }
         s => s,
     };
-    let e = d.values.get("energy_in_window").and_then(Value::as_f64).unwrap_or(1.0);
-    if e < 0.99 && transmitted > 0.0 {
-        d.warn(format!("{:.1}% of the transmitted energy falls outside the {}x{} window", 100.0 * (1.0 - e), o.size, o.size));
-    }
-    if data.iter().any(|v| !v.is_finite()) {
-        return Err(EngineError::Psf(format!("non-finite PSF value at {field_deg} deg, {wavelength_nm} nm")));
-    }
     pupil::recycle(p);
-    d.set("strehl", strehl.map_or(Value::Null, Value::from));
-    d.set("time_s", t0.elapsed().as_secs_f64());
-    Ok(Psf { size: o.size, data, strehl, diagnostics: d })
+    finish(d, data, strehl, transmitted, o, field_deg, wavelength_nm, t0)
 }

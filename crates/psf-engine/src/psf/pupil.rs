@@ -4,9 +4,9 @@
 //! point (radius: chief-ray distance to the paraxial exit pupil), its image-space direction
 //! cosines, its flux, and the local Jacobian d(L, M)/d(grid index).
 
-use crate::aim::{Aiming, Beam};
+use crate::aim::{Aiming, Beam, Launch};
 use crate::error::{EngineError, Result};
-use crate::trace::{End, Status, System};
+use crate::trace::{End, RayState, Status, System};
 use glam::DVec3;
 use std::cell::RefCell;
 use std::sync::Arc;
@@ -153,28 +153,8 @@ pub fn sample_pupil(sys: &System, field_deg: f64, aiming: Aiming, n: usize) -> R
     }
     let beam = Beam::new(sys, field_deg, aiming)?;
     let chief_launch = beam.launch(0.0, 0.0);
-    let chief = sys.trace(chief_launch.origin, beam.dir, End::Image);
-    if !chief.ok() {
-        return Err(EngineError::Trace(format!(
-            "chief ray at {field_deg} deg, {:.1} nm: {:?} at surface {}",
-            sys.wavelength_nm,
-            chief.status,
-            chief.surface + 1
-        )));
-    }
-    let chief_opl = chief.opl + beam.wavefront_offset(chief_launch.origin);
+    let Reference { chief, chief_opl, radius } = reference(&beam, &chief_launch)?;
     let n_img = sys.image_index();
-    // Reference sphere through the chief ray's crossing of the paraxial exit-pupil plane.
-    let z_xp = sys.lens.image_z + beam.par.exit_pupil_z;
-    let radius = if beam.par.exit_pupil_z.is_finite() {
-        let t = (z_xp - chief.p.z) / chief.d.z;
-        (t * chief.d).length()
-    } else {
-        f64::INFINITY
-    };
-    if !(radius.is_finite() && radius > 0.0) {
-        return Err(EngineError::Psf("exit pupil at infinity (image-space telecentric): reference sphere undefined".into()));
-    }
     let grid = grid(n);
     let nn = n * n;
     let mut p = SPARE.with(|s| s.borrow_mut().take()).unwrap_or_else(Pupil::empty);
@@ -240,6 +220,54 @@ pub fn sample_pupil(sys: &System, field_deg: f64, aiming: Aiming, n: usize) -> R
     Ok(p)
 }
 
+/// The chief ray of a beam and the reference sphere: centred on the chief ray's image
+/// point, through its crossing of the paraxial exit-pupil plane.
+pub(crate) struct Reference {
+    pub chief: RayState,
+    /// Optical path of the chief ray from the incident plane wavefront to the image.
+    pub chief_opl: f64,
+    pub radius: f64,
+}
+
+pub(crate) fn reference(beam: &Beam, chief_launch: &Launch) -> Result<Reference> {
+    let sys = beam.sys;
+    let chief = sys.trace(chief_launch.origin, beam.dir, End::Image);
+    if !chief.ok() {
+        return Err(EngineError::Trace(format!(
+            "chief ray at {} deg, {:.1} nm: {:?} at surface {}",
+            beam.field_deg,
+            sys.wavelength_nm,
+            chief.status,
+            chief.surface + 1
+        )));
+    }
+    let chief_opl = chief.opl + beam.wavefront_offset(chief_launch.origin);
+    let z_xp = sys.lens.image_z + beam.par.exit_pupil_z;
+    let radius = if beam.par.exit_pupil_z.is_finite() {
+        let t = (z_xp - chief.p.z) / chief.d.z;
+        (t * chief.d).length()
+    } else {
+        f64::INFINITY
+    };
+    if !(radius.is_finite() && radius > 0.0) {
+        return Err(EngineError::Psf("exit pupil at infinity (image-space telecentric): reference sphere undefined".into()));
+    }
+    Ok(Reference { chief, chief_opl, radius })
+}
+
+/// Signed distance t (< 0) back along a ray from its image-plane point `pos` (unit
+/// direction `dir`) to the reference sphere of `radius` about `chief`; None if it misses.
+#[inline(always)]
+pub(crate) fn back_to_sphere(pos: DVec3, dir: DVec3, chief: DVec3, radius: f64) -> Option<f64> {
+    let v = pos - chief;
+    let vd = v.dot(dir);
+    let disc = vd * vd - v.length_squared() + radius * radius;
+    if disc < 0.0 {
+        return None;
+    }
+    Some(-vd - disc.sqrt())
+}
+
 struct RayCtx<'b, 's, 'l> {
     chief: DVec3,
     radius: f64,
@@ -261,16 +289,11 @@ fn take_ray(p: &mut Pupil, c: &RayCtx, j: usize, origin: DVec3, weight: f64, sta
     if status != Status::Ok {
         return f;
     }
-    // Back along the ray from the image plane to the reference sphere (t < 0).
-    let v = pos - c.chief;
-    let vd = v.dot(dir);
-    let disc = vd * vd - v.length_squared() + c.radius * c.radius;
-    if disc < 0.0 {
+    let Some(t) = back_to_sphere(pos, dir, c.chief, c.radius) else {
         p.status_counts[Status::Ok as usize] -= 1;
         p.status_counts[Status::Missed as usize] += 1;
         return f;
-    }
-    let t = -vd - disc.sqrt();
+    };
     let opl = opl + c.beam.wavefront_offset(origin) + c.n_img * t;
     p.valid[j] = true;
     p.sphere[j] = pos + t * dir;

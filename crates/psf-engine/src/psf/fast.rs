@@ -1,0 +1,695 @@
+//! The fast FFT PSF (the dataset path): the pupil function resampled onto a grid of
+//! image-space direction cosines whose FFT lands directly on the output pixels.
+//!
+//! The image-plane field is a Fourier transform over the direction cosines (fft.rs):
+//!
+//!   U(x, y) = (n/lambda) int A(L, M) exp(i 2 pi W) exp(i k n (L x + M y)) dL dM.
+//!
+//! fft.rs samples the pupil on a square grid of entrance-pupil coordinates, where (L, M)
+//! is only approximately affine (a Taylor series per extra order of distortion) and the
+//! native pitch is whatever the pupil gives (then resampled); each sample is a traced ray.
+//! Here instead:
+//!
+//! 1. A coarse set of real rays (half the pupil: for a field along y the other half is its
+//!    mirror image; plus rays on the rim) gives px, py (entrance-pupil coordinates) and W
+//!    (waves against the reference sphere) at their (L, M).
+//! 2. Least-squares polynomials px(L, M), py(L, M), W(L, M) in a Legendre basis, odd (px)
+//!    or even (py, W) in L. The degree is the lowest of `DEGREES` whose largest residual at
+//!    the rays is within `W_TOL_WAVES` (W) and `P_TOL` (px, py); none: not applicable.
+//! 3. The pupil function on the grid L = (a - g/2) dL, M = M_chief + (b - g/2) dL with
+//!    dL = lambda / (n g pixel), so that the FFT's native pitch is the output pixel (no
+//!    resampling). Amplitude sqrt(|d(px, py)/d(L, M)|) (flux is uniform over the entrance
+//!    pupil with paraxial aiming), and each rim cell weighted by the fraction of its area
+//!    inside the pupil edge (an anti-aliased edge: its quadrature converges far faster than
+//!    a 0/1 mask's).
+//! 4. Row transforms over the occupied rows, column transforms over the columns x >= 0
+//!    only (the intensity is even in x), in single precision like fft.rs.
+//!
+//! The grid g is the smallest fast FFT size with the window within half the FFT field,
+//! the geometric spot within a quarter of it (so that only far diffraction tails wrap
+//! around), and at least `pupil_samples` grid cells across the pupil.
+//!
+//! It applies to the FFT method with paraxial aiming, point sampling and no fixed
+//! fft_grid, where every ray of the coarse set reaches the image (no vignetting, no TIR)
+//! and the fits hold; otherwise `fast_psf` says why and the caller runs fft.rs.
+
+use super::fft::{buffer, plan, recycle, zeros};
+use super::{Diagnostics, Method, PsfOptions};
+use crate::aim::{Aiming, Beam};
+use crate::error::Result;
+use crate::psf::pupil::{back_to_sphere, reference, Reference};
+use crate::trace::System;
+use glam::DVec3;
+use num_complex::{Complex32, Complex64};
+use std::f64::consts::{FRAC_PI_2, PI};
+use std::sync::OnceLock;
+
+/// Traced grid across the pupil diameter (the half px > 0 is traced) and rays on the half
+/// rim, at a radius just inside the unit circle: a clear aperture that meets the beam's
+/// edge exactly (a stop sized to the paraxial marginal ray, at another wavelength) clips a
+/// sliver thinner than 1 - R_RIM, of no consequence at this tolerance, and such a design
+/// keeps the fast path. Where the rim rays pass, every polar-grid ray of the relative
+/// illumination (outer ring at 0.979) passes too.
+const NT: usize = 16;
+const N_RIM: usize = 33;
+const R_RIM: f64 = 0.999;
+/// Polynomial degrees tried, in order.
+const DEGREES: [usize; 3] = [8, 10, 12];
+const MAX_DEGREE: usize = 12;
+/// Largest fit residual accepted at the traced rays: wavefront (waves) and pupil coordinates.
+pub const W_TOL_WAVES: f64 = 1e-3;
+pub const P_TOL: f64 = 1e-4;
+const MAX_GRID: usize = 8192;
+/// Cells are evaluated out to this radius of the affine approximation of the pupil map
+/// (its distortion is far smaller; checked by the area test).
+const GUARD: f64 = 1.1;
+/// The grid's pupil area (sum of cell areas times edge coverage) must match the unit
+/// circle's to this fraction, else the fit is not trusted.
+const AREA_TOL: f64 = 1e-3;
+
+/// Whether the fast path is asked for and can apply to these options.
+pub fn applies(o: &PsfOptions) -> bool {
+    o.fast && o.method == Method::Fft && o.aiming == Aiming::Paraxial && !o.integrate && o.fft_grid.is_none()
+}
+
+struct Samples {
+    px: Vec<f64>,
+    py: Vec<f64>,
+}
+
+/// Cell centres of the NT x NT grid with px > 0 inside the unit circle, then the half rim.
+fn samples() -> &'static Samples {
+    static S: OnceLock<Samples> = OnceLock::new();
+    S.get_or_init(|| {
+        let coord = |i: usize| -1.0 + (2.0 * i as f64 + 1.0) / NT as f64;
+        let (mut px, mut py) = (vec![], vec![]);
+        for b in 0..NT {
+            for a in NT / 2..NT {
+                let (x, y) = (coord(a), coord(b));
+                if x * x + y * y <= 1.0 {
+                    px.push(x);
+                    py.push(y);
+                }
+            }
+        }
+        for k in 0..N_RIM {
+            let phi = -FRAC_PI_2 + PI * k as f64 / (N_RIM - 1) as f64;
+            let x = if k == 0 || k == N_RIM - 1 { 0.0 } else { phi.cos() };
+            px.push(R_RIM * x);
+            py.push(R_RIM * phi.sin());
+        }
+        Samples { px, py }
+    })
+}
+
+/// Legendre polynomials P_0..=P_deg at x, and their derivatives.
+#[inline]
+fn legendre(x: f64, deg: usize, p: &mut [f64], dp: &mut [f64]) {
+    p[0] = 1.0;
+    dp[0] = 0.0;
+    if deg >= 1 {
+        p[1] = x;
+        dp[1] = 1.0;
+    }
+    for n in 1..deg {
+        let nf = n as f64;
+        p[n + 1] = ((2.0 * nf + 1.0) * x * p[n] - nf * p[n - 1]) / (nf + 1.0);
+        dp[n + 1] = dp[n - 1] + (2.0 * nf + 1.0) * p[n];
+    }
+}
+
+/// Monomial coefficients of the Legendre polynomials: LEG[i][k] = coefficient of x^k in P_i.
+fn legendre_monomials() -> &'static [[f64; MAX_DEGREE + 1]; MAX_DEGREE + 1] {
+    static T: OnceLock<[[f64; MAX_DEGREE + 1]; MAX_DEGREE + 1]> = OnceLock::new();
+    T.get_or_init(|| {
+        let mut t = [[0.0; MAX_DEGREE + 1]; MAX_DEGREE + 1];
+        t[0][0] = 1.0;
+        t[1][1] = 1.0;
+        for n in 1..MAX_DEGREE {
+            let nf = n as f64;
+            for k in 0..=MAX_DEGREE {
+                let up = if k > 0 { t[n][k - 1] } else { 0.0 };
+                t[n + 1][k] = ((2.0 * nf + 1.0) * up - nf * t[n - 1][k]) / (nf + 1.0);
+            }
+        }
+        t
+    })
+}
+
+/// Terms (i, j) of P_i(u) P_j(v) with i + j <= deg and i of the given parity.
+fn terms(deg: usize, parity: usize) -> Vec<(usize, usize)> {
+    (parity..=deg).step_by(2).flat_map(|i| (0..=deg - i).map(move |j| (i, j))).collect()
+}
+
+/// Least squares of each of `ys` on the terms at the points (u, v), by the normal
+/// equations (well conditioned in this basis) and Cholesky. Returns the coefficients per
+/// function and the largest |residual| per function; None if the system is singular.
+fn lsq(u: &[f64], v: &[f64], ys: &[&[f64]], deg: usize, tm: &[(usize, usize)]) -> Option<(Vec<Vec<f64>>, Vec<f64>)> {
+    let (t, m, nf) = (tm.len(), u.len(), ys.len());
+    // Basis matrix phi (m x t, row-major) and the values (m x nf).
+    let (mut pu, mut pv, mut du, mut dv) = ([0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1]);
+    let mut phi = vec![0.0; m * t];
+    for (row, (&uu, &vv)) in phi.chunks_exact_mut(t).zip(u.iter().zip(v)) {
+        legendre(uu, deg, &mut pu, &mut du);
+        legendre(vv, deg, &mut pv, &mut dv);
+        for (f, &(i, j)) in row.iter_mut().zip(tm) {
+            *f = pu[i] * pv[j];
+        }
+    }
+    let mut y = vec![0.0; m * nf];
+    for (k, row) in y.chunks_exact_mut(nf).enumerate() {
+        for (yv, ys) in row.iter_mut().zip(ys) {
+            *yv = ys[k];
+        }
+    }
+    // G = phi^T phi (t x t), rhs = phi^T y (t x nf).
+    let (mut g, mut rhs) = (vec![0.0; t * t], vec![0.0; t * nf]);
+    // SAFETY: the pointers and strides describe the row-major arrays above, in bounds.
+    unsafe {
+        matrixmultiply::dgemm(t, m, t, 1.0, phi.as_ptr(), 1, t as isize, phi.as_ptr(), t as isize, 1, 0.0, g.as_mut_ptr(), t as isize, 1);
+        matrixmultiply::dgemm(t, m, nf, 1.0, phi.as_ptr(), 1, t as isize, y.as_ptr(), nf as isize, 1, 0.0, rhs.as_mut_ptr(), nf as isize, 1);
+    }
+    // Cholesky G = L L^T in the lower triangle.
+    for c in 0..t {
+        let mut d = g[c * t + c];
+        for k in 0..c {
+            d -= g[c * t + k] * g[c * t + k];
+        }
+        if !(d > 1e-14 * g[c * t + c].max(1e-300)) {
+            return None;
+        }
+        let d = d.sqrt();
+        g[c * t + c] = d;
+        for r in c + 1..t {
+            let mut s = g[r * t + c];
+            for k in 0..c {
+                s -= g[r * t + k] * g[c * t + k];
+            }
+            g[r * t + c] = s / d;
+        }
+    }
+    let mut coef = vec![0.0; t * nf];
+    for f in 0..nf {
+        let mut x: Vec<f64> = (0..t).map(|r| rhs[r * nf + f]).collect();
+        for r in 0..t {
+            let mut s = x[r];
+            for k in 0..r {
+                s -= g[r * t + k] * x[k];
+            }
+            x[r] = s / g[r * t + r];
+        }
+        for r in (0..t).rev() {
+            let mut s = x[r];
+            for k in r + 1..t {
+                s -= g[k * t + r] * x[k];
+            }
+            x[r] = s / g[r * t + r];
+        }
+        for (r, xv) in x.into_iter().enumerate() {
+            coef[r * nf + f] = xv;
+        }
+    }
+    // Residuals: phi coef - y.
+    let mut fitted = vec![0.0; m * nf];
+    // SAFETY: as above.
+    unsafe {
+        matrixmultiply::dgemm(m, t, nf, 1.0, phi.as_ptr(), t as isize, 1, coef.as_ptr(), nf as isize, 1, 0.0, fitted.as_mut_ptr(), nf as isize, 1);
+    }
+    let worst = (0..nf).map(|f| fitted.iter().zip(&y).skip(f).step_by(nf).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max)).collect();
+    let coefs = (0..nf).map(|f| (0..t).map(|r| coef[r * nf + f]).collect()).collect();
+    Some((coefs, worst))
+}
+
+/// A fitted function f(u, v) = sum c_ij P_i(u) P_j(v) of one parity in u.
+struct Poly<'a> {
+    c: &'a [f64],
+    tm: &'a [(usize, usize)],
+    parity: usize,
+}
+
+impl Poly<'_> {
+    /// Monomial coefficients in u of f(., v) (`val`) and of df/dv(., v) (`dv`) for the row
+    /// at v, compacted to the terms of its parity: f = u^parity sum_q val[q] u^(2q).
+    fn row(&self, pv: &[f64], dpv: &[f64], val: &mut [f64; MAX_DEGREE / 2 + 1], dv: &mut [f64; MAX_DEGREE / 2 + 1]) {
+        let leg = legendre_monomials();
+        let (mut e, mut ed) = ([0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1]);
+        for (&c, &(i, j)) in self.c.iter().zip(self.tm) {
+            e[i] += c * pv[j];
+            ed[i] += c * dpv[j];
+        }
+        val.fill(0.0);
+        dv.fill(0.0);
+        for i in (self.parity..=MAX_DEGREE).step_by(2) {
+            if e[i] == 0.0 && ed[i] == 0.0 {
+                continue;
+            }
+            for k in (self.parity..=i).step_by(2) {
+                let q = (k - self.parity) / 2;
+                val[q] += e[i] * leg[i][k];
+                dv[q] += ed[i] * leg[i][k];
+            }
+        }
+    }
+}
+
+/// Smallest FFT size 2^k or 3 * 2^k (k >= 1) at least n.
+fn fast_len(n: usize) -> usize {
+    let p = n.max(2).next_power_of_two();
+    if p / 4 * 3 >= n && p / 4 * 3 >= 2 {
+        p / 4 * 3
+    } else {
+        p
+    }
+}
+
+/// One row's series in u: f = u^parity sum_q c[q] u^(2q) for W (even), py (even), its
+/// d/dv (even) and d/du (odd), px (odd), its d/dv (odd) and d/du (even).
+struct RowSeries<'a> {
+    w: &'a [f64],
+    y: &'a [f64],
+    yv: &'a [f64],
+    yd: &'a [f64],
+    x: &'a [f64],
+    xv: &'a [f64],
+    xd: &'a [f64],
+}
+
+/// Per-cell work arrays of one row, reused from row to row.
+#[derive(Default)]
+struct CellWork {
+    u: Vec<f64>,
+    u2: Vec<f64>,
+    w: Vec<f64>,
+    px: Vec<f64>,
+    py: Vec<f64>,
+    xu: Vec<f64>,
+    xv: Vec<f64>,
+    yu: Vec<f64>,
+    yv: Vec<f64>,
+    amp: Vec<f64>,
+    jac: Vec<f64>,
+    r2: Vec<f64>,
+    field: Vec<Complex64>,
+}
+
+/// out[i] = (odd ? u[i] : 1) sum_q c[q] u2[i]^q, element-wise (Horner across the cells).
+#[inline(always)]
+fn horner_cells(c: &[f64], u2: &[f64], u: Option<&[f64]>, out: &mut [f64]) {
+    out.iter_mut().for_each(|o| *o = 0.0);
+    for &cq in c.iter().rev() {
+        for (o, &x) in out.iter_mut().zip(u2) {
+            *o = *o * x + cq;
+        }
+    }
+    if let Some(u) = u {
+        out.iter_mut().zip(u).for_each(|(o, &x)| *o *= x);
+    }
+}
+
+/// Area fraction of the unit cell inside the pupil edge, branch free: d = signed distance
+/// (cells) from the cell centre to the edge (> 0 inside), (gx, gy) the gradient of r in
+/// cells (n = g / |g|), r the pupil radius at the centre.
+#[inline(always)]
+fn cover_cell(r: f64, gx: f64, gy: f64) -> f64 {
+    let gn = (gx * gx + gy * gy).sqrt();
+    let d = (1.0 - r) / gn;
+    let (ax, ay) = (gx.abs() / gn, gy.abs() / gn);
+    let (a, b) = (ax.max(ay), ax.min(ay));
+    let (lo, hi) = (0.5 * (a - b), 0.5 * (a + b));
+    let dd = d.max(-hi).min(hi);
+    let q1 = (dd + hi) * (dd + hi) / (2.0 * a * b);
+    let q2 = 0.5 + dd / a;
+    let q3 = 1.0 - (hi - dd) * (hi - dd) / (2.0 * a * b);
+    let c = if dd < -lo { q1 } else if dd <= lo { q2 } else { q3 };
+    // Deep inside (also where the gradient vanishes, at the pupil centre): fully covered.
+    if r < 0.5 || d >= hi {
+        1.0
+    } else if d <= -hi {
+        0.0
+    } else {
+        c
+    }
+}
+
+#[inline(always)]
+fn row_body(cw: &mut CellWork, sr: &RowSeries, n: usize, sc: f64, delta: f64) -> (f64, f64, f64) {
+    for v in [&mut cw.u, &mut cw.u2, &mut cw.w, &mut cw.px, &mut cw.py, &mut cw.xu, &mut cw.xv, &mut cw.yu, &mut cw.yv, &mut cw.amp, &mut cw.jac, &mut cw.r2] {
+        if v.len() < n {
+            v.resize(n, 0.0);
+        }
+    }
+    if cw.field.len() < n {
+        cw.field.resize(n, Complex64::new(0.0, 0.0));
+    }
+    let (u, u2) = (&mut cw.u[..n], &mut cw.u2[..n]);
+    for (i, (u, u2)) in u.iter_mut().zip(u2.iter_mut()).enumerate() {
+        *u = i as f64 * sc;
+        *u2 = *u * *u;
+    }
+    let (u, u2) = (&cw.u[..n], &cw.u2[..n]);
+    horner_cells(sr.w, u2, None, &mut cw.w[..n]);
+    horner_cells(sr.y, u2, None, &mut cw.py[..n]);
+    horner_cells(sr.yv, u2, None, &mut cw.yv[..n]);
+    horner_cells(sr.yd, u2, Some(u), &mut cw.yu[..n]);
+    horner_cells(sr.x, u2, Some(u), &mut cw.px[..n]);
+    horner_cells(sr.xv, u2, Some(u), &mut cw.xv[..n]);
+    horner_cells(sr.xd, u2, None, &mut cw.xu[..n]);
+    // Cells well inside the edge (r <= 1 - delta) are fully covered, cells beyond 1 + delta
+    // empty: one branch-free pass, then the few rim cells one by one.
+    let (r_in2, r_out2) = ((1.0 - delta).max(0.0).powi(2), (1.0 + delta).powi(2));
+    for i in 0..n {
+        let (px, py, xu, xv, yu, yv) = (cw.px[i], cw.py[i], cw.xu[i], cw.xv[i], cw.yu[i], cw.yv[i]);
+        let r2 = px * px + py * py;
+        let jac = (xu * yv - xv * yu).abs();
+        cw.jac[i] = jac;
+        cw.r2[i] = r2;
+        cw.amp[i] = if r2 <= r_in2 { jac.sqrt() } else { 0.0 };
+    }
+    let (mut area, mut amp_sum, mut energy) = (0.0, 0.0, 0.0);
+    for i in 0..n {
+        let (r2, jac) = (cw.r2[i], cw.jac[i]);
+        let mult = if i == 0 { 1.0 } else { 2.0 };
+        if r2 <= r_in2 {
+            area += mult * jac;
+            energy += mult * jac;
+            amp_sum += mult * cw.amp[i];
+        } else if r2 < r_out2 {
+            let (px, py, xu, xv, yu, yv) = (cw.px[i], cw.py[i], cw.xu[i], cw.xv[i], cw.yu[i], cw.yv[i]);
+            let r = r2.sqrt();
+            let ir = sc / r.max(1e-300);
+            let cov = cover_cell(r, (px * xu + py * yu) * ir, (px * xv + py * yv) * ir);
+            let amp = jac.sqrt() * cov;
+            cw.amp[i] = amp;
+            area += mult * jac * cov;
+            energy += mult * jac * cov * cov;
+            amp_sum += mult * amp;
+        }
+    }
+    super::fft::cis_scaled(&cw.w[..n], &cw.amp[..n], &mut cw.field[..n]);
+    (area * sc * sc, amp_sum, energy * sc * sc)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn row_avx2(cw: &mut CellWork, sr: &RowSeries, n: usize, sc: f64, delta: f64) -> (f64, f64, f64) {
+    row_body(cw, sr, n, sc, delta)
+}
+
+impl CellWork {
+    /// The pupil field of cells t = 0..n of a row (amplitude `amp`, complex `field`);
+    /// returns the row's pupil area, amplitude sum and energy, mirrored cells included.
+    /// `delta`: bound on the change of the pupil radius over one cell (the edge zone).
+    fn row(&mut self, sr: &RowSeries, n: usize, sc: f64, delta: f64) -> (f64, f64, f64) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return unsafe { row_avx2(self, sr, n, sc, delta) };
+        }
+        row_body(self, sr, n, sc, delta)
+    }
+}
+
+/// Whether every ray of the coarse set (half pupil and rim) reaches the image for the
+/// on-axis beam at this system's wavelength: then the axial flux is the full launched flux.
+pub fn axis_clear(sys: &System) -> Result<bool> {
+    let beam = Beam::new(sys, 0.0, Aiming::Paraxial)?;
+    let s = samples();
+    let t = beam.trace_pupil_soa(&s.px, &s.py);
+    Ok(t.status.iter().all(|&c| c == 0))
+}
+
+/// The fast PSF: Ok(Ok(data)) with `d` filled, or Ok(Err(reason)) where it does not apply
+/// (the caller then runs fft.rs). Engine errors (the chief ray fails, ...) are errors.
+pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostics) -> Result<std::result::Result<Vec<f64>, &'static str>> {
+    let beam = Beam::new(sys, field_deg, Aiming::Paraxial)?;
+    let chief_launch = beam.launch(0.0, 0.0);
+    let Reference { chief, chief_opl, radius } = reference(&beam, &chief_launch)?;
+    let n_img = sys.image_index();
+    let wl_mm = sys.wavelength_nm * 1e-6;
+    let s = samples();
+    let t = beam.trace_pupil_soa(&s.px, &s.py);
+    if t.status.iter().any(|&c| c != 0) {
+        return Ok(Err("a ray of the coarse pupil set did not reach the image (vignetting, TIR or a miss)"));
+    }
+    let nr = s.px.len();
+    let chief_sphere_opl = chief_opl - n_img * radius;
+    let v3 = |a: &[f64], k: usize| DVec3::new(a[3 * k], a[3 * k + 1], a[3 * k + 2]);
+    let (mut l, mut m, mut w) = (vec![0.0; nr], vec![0.0; nr], vec![0.0; nr]);
+    let (mut ex, mut ey) = (0.0f64, 0.0f64);
+    for k in 0..nr {
+        let (pos, dir) = (v3(&t.position, k), v3(&t.direction, k));
+        let Some(tt) = back_to_sphere(pos, dir, chief.p, radius) else {
+            return Ok(Err("a ray of the coarse pupil set misses the reference sphere"));
+        };
+        let opl = t.opl[k] + beam.wavefront_offset(v3(&t.origin, k)) + n_img * tt;
+        w[k] = (opl - chief_sphere_opl) / wl_mm;
+        l[k] = dir.x;
+        m[k] = dir.y;
+        ex = ex.max((pos.x - chief.p.x).abs());
+        ey = ey.max((pos.y - chief.p.y).abs());
+    }
+    // Normalized direction coordinates u = L / rho, v = (M - M_chief) / rho in [-1, 1].
+    let mc = chief.d.y;
+    let rho = l.iter().map(|x| x.abs()).chain(m.iter().map(|y| (y - mc).abs())).fold(0.0, f64::max);
+    if !(rho > 0.0 && rho.is_finite()) {
+        return Ok(Err("degenerate pupil"));
+    }
+    let u: Vec<f64> = l.iter().map(|x| x / rho).collect();
+    let v: Vec<f64> = m.iter().map(|y| (y - mc) / rho).collect();
+    // Fits of the lowest degree within tolerance.
+    let mut fit = None;
+    let mut last_resid = (f64::INFINITY, f64::INFINITY);
+    for deg in DEGREES {
+        let (te, to) = (terms(deg, 0), terms(deg, 1));
+        let (Some((ce, re)), Some((co, ro))) = (lsq(&u, &v, &[&w, &s.py], deg, &te), lsq(&u, &v, &[&s.px], deg, &to)) else {
+            continue;
+        };
+        last_resid = (re[0], re[1].max(ro[0]));
+        if re[0] <= W_TOL_WAVES && re[1] <= P_TOL && ro[0] <= P_TOL {
+            fit = Some((deg, te, to, ce, co));
+            break;
+        }
+    }
+    let Some((deg, te, to, ce, co)) = fit else {
+        return Ok(Err("the pupil polynomial fits miss their tolerance"));
+    };
+    // Affine fits (degree 1) guard against the polynomials' excursions far outside the pupil.
+    let (Some((ae, _)), Some((ao, _))) = (lsq(&u, &v, &[&s.py], 1, &terms(1, 0)), lsq(&u, &v, &[&s.px], 1, &terms(1, 1))) else {
+        return Ok(Err("degenerate pupil"));
+    };
+    let (py0, pyv, pxu) = (ae[0][0], ae[0][1], ao[0][0]);
+
+    // Grid: window within half the FFT field, spot within a quarter, pupil_samples across.
+    let pix = o.pixel_mm;
+    // (Image space is inverted: u < 0 on the traced half px > 0; the fits are odd or even.)
+    let (umax, vmin, vmax) = (u.iter().map(|x| x.abs()).fold(0.0, f64::max), v.iter().cloned().fold(f64::INFINITY, f64::min), v.iter().cloned().fold(f64::NEG_INFINITY, f64::max));
+    let min_extent = (2.0 * umax).min(vmax - vmin) * rho;
+    let want_samples = o.pupil_samples as f64 * wl_mm / (n_img * pix * min_extent);
+    let want_spot = 4.0 * ex.max(ey) / pix;
+    let want = want_samples.max(want_spot).max((2 * o.size) as f64).ceil();
+    if !(want <= MAX_GRID as f64) {
+        return Ok(Err("the FFT grid would exceed 8192"));
+    }
+    let g = fast_len(want as usize);
+    let dl = wl_mm / (n_img * g as f64 * pix);
+    let sc = dl / rho; // cell size in u, v
+    let half = (g / 2) as f64;
+    // Cells: rows b_lo..b_hi, columns t = a - g/2 in 0..=t_hi (x >= 0 half).
+    let b_lo = (half + vmin / sc).floor() - 2.0;
+    let b_hi = (half + vmax / sc).ceil() + 2.0;
+    let t_hi = (umax / sc).ceil() as usize + 2;
+    if b_lo < 0.0 || b_hi >= g as f64 || t_hi >= g / 2 {
+        return Ok(Err("the pupil does not fit in the direction grid (pixel too coarse for the aperture)"));
+    }
+    let (b_lo, b_hi) = (b_lo as usize, b_hi as usize);
+    let nrow = b_hi - b_lo + 1;
+    let h = o.size / 2;
+    let ncol = h + 1;
+
+    // Pupil function rows (f32), transformed along x; bins 0..=h kept per row.
+    let fft = plan::<f32>(g);
+    let scratch_len = fft.get_inplace_scratch_len();
+    let mut rows_v = zeros::<f32>(nrow * g);
+    let rows = &mut rows_v[..nrow * g];
+    let (pw, ppy, ppx) = (Poly { c: &ce[0], tm: &te, parity: 0 }, Poly { c: &ce[1], tm: &te, parity: 0 }, Poly { c: &co[0], tm: &to, parity: 1 });
+    let nq = deg / 2 + 1;
+    let (mut pv, mut dpv) = ([0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1]);
+    let z = [0.0; MAX_DEGREE / 2 + 1];
+    let (mut cw, mut cwv, mut cy, mut cyv, mut cx, mut cxv) = (z, z, z, z, z, z);
+    let (mut area, mut amp_sum, mut energy) = (0.0f64, 0.0f64, 0.0f64);
+    let mut cw_ = CellWork::default();
+    // The pupil radius changes by about sc |d(px, py)/d(u, v)| per cell; twice that (the
+    // cover is partial within 0.71 of it) bounds the rim zone.
+    let delta = 2.0 * sc * pxu.abs().max(pyv.abs());
+    for (ri, row) in rows.chunks_exact_mut(g).enumerate() {
+        let vb = ((b_lo + ri) as f64 - half) * sc;
+        legendre(vb, deg, &mut pv, &mut dpv);
+        pw.row(&pv, &dpv, &mut cw, &mut cwv);
+        ppy.row(&pv, &dpv, &mut cy, &mut cyv);
+        ppx.row(&pv, &dpv, &mut cx, &mut cxv);
+        // d/du of the even py and the odd px, as compact series.
+        let (mut cyd, mut cxd) = (z, z);
+        for q in 0..nq {
+            if q + 1 < nq {
+                cyd[q] = 2.0 * (q + 1) as f64 * cy[q + 1];
+            }
+            cxd[q] = (2 * q + 1) as f64 * cx[q];
+        }
+        // Cells t = 0..n: within GUARD pupil radii of the affine map (x grows with t).
+        let pya = py0 + pyv * vb;
+        let room = GUARD * GUARD - pya * pya;
+        if room <= 0.0 {
+            continue;
+        }
+        let n = ((room.sqrt() / (pxu.abs() * sc)).floor() as usize + 1).min(t_hi + 1);
+        let series = RowSeries { w: &cw[..nq], y: &cy[..nq], yv: &cyv[..nq], yd: &cyd[..nq], x: &cx[..nq], xv: &cxv[..nq], xd: &cxd[..nq] };
+        let (a, am, e) = cw_.row(&series, n, sc, delta);
+        area += a;
+        amp_sum += am;
+        energy += e;
+        for (tc, (&amp, zc)) in cw_.amp[..n].iter().zip(&cw_.field[..n]).enumerate() {
+            if amp > 0.0 {
+                let zf = Complex32::new(zc.re as f32, zc.im as f32);
+                row[tc] = zf;
+                if tc > 0 {
+                    row[g - tc] = zf;
+                }
+            }
+        }
+    }
+    if !((area / PI - 1.0).abs() <= AREA_TOL) {
+        recycle(rows_v);
+        return Ok(Err("the fitted pupil's area differs from the unit circle's"));
+    }
+    let mut scratch_v = buffer::<f32>(scratch_len);
+    let scratch = &mut scratch_v[..scratch_len];
+    fft.process_with_scratch(rows, scratch);
+    // Columns m = 0..=h over the rows, transformed along y.
+    let mut cols_v = zeros::<f32>(ncol * g);
+    let cols = &mut cols_v[..ncol * g];
+    for (ri, row) in rows.chunks_exact(g).enumerate() {
+        let k = (b_lo + ri + g - g / 2) % g;
+        for (mx, col) in cols.chunks_exact_mut(g).enumerate() {
+            col[k] = row[mx];
+        }
+    }
+    fft.process_with_scratch(cols, scratch);
+    recycle(scratch_v);
+    recycle(rows_v);
+    // Intensity times pixel area, as a fraction of the entrance-pupil flux:
+    // |U|^2 pix^2 = |sum A exp(i phi)|^2 sc^2 / (pi g^2).
+    let scale = sc * sc / (PI * (g * g) as f64);
+    let size = o.size;
+    let mut out = vec![0.0; size * size];
+    for (r, orow) in out.chunks_exact_mut(size).enumerate() {
+        let k = ((r + g) - h) % g;
+        for (c, ov) in orow.iter_mut().enumerate() {
+            let mx = c.abs_diff(h);
+            let zc = cols[mx * g + k];
+            let (re, im) = (zc.re as f64, zc.im as f64);
+            *ov = (re * re + im * im) * scale;
+        }
+    }
+    recycle(cols_v);
+
+    // Diagnostics and checks, as fft.rs reports them.
+    let period = g as f64 * pix;
+    let step = ex.max(ey) / period;
+    d.set("fft_mode", "direction_grid");
+    d.set("chief_x_mm", chief.p.x);
+    d.set("chief_y_mm", chief.p.y);
+    d.set("transmitted_fraction", 1.0);
+    d.set("max_phase_step_waves", step);
+    d.set("reference_sphere_radius_mm", radius);
+    d.set("rays_traced", nr as f64);
+    d.set("rays_missed", 0.0);
+    d.set("rays_clipped", 0.0);
+    d.set("rays_tir", 0.0);
+    d.set("pupil_fit_degree", deg as f64);
+    d.set("pupil_fit_residual_waves", last_resid.0);
+    d.set("pupil_fit_residual_coord", last_resid.1);
+    d.set("pupil_samples_across", min_extent / dl);
+    d.set("pupil_area_error", area / PI - 1.0);
+    d.set("distortion_order", 0.0);
+    d.set("fft_mirror_symmetry", true);
+    if step > 0.5 {
+        d.warn(format!(
+            "pupil undersampled: the wavefront changes by {step:.2} waves between neighbouring samples (> 0.5); the PSF aliases: increase pupil_samples"
+        ));
+    }
+    let window_energy: f64 = out.iter().sum();
+    if window_energy > 1.0 + 1e-2 {
+        d.warn(format!("the {size}x{size} window holds {window_energy:.3} times the transmitted energy: the FFT PSF is wrong here (aliasing or pupil distortion)"));
+    }
+    if ex > 0.5 * period || ey > 0.5 * period {
+        d.warn(format!(
+            "spot extends to {:.1} x {:.1} um from the chief ray, beyond half the FFT field ({:.1} x {:.1} um): energy wraps around; increase pupil_samples",
+            ex * 1e3,
+            ey * 1e3,
+            0.5 * period * 1e3,
+            0.5 * period * 1e3
+        ));
+    }
+    d.set("fft_grid", g as f64);
+    d.set("native_pitch_x_um", pix * 1e3);
+    d.set("native_pitch_y_um", pix * 1e3);
+    d.set("fft_field_x_um", period * 1e3);
+    d.set("fft_field_y_um", period * 1e3);
+    d.set("spot_extent_x_um", ex * 1e3);
+    d.set("spot_extent_y_um", ey * 1e3);
+    d.set("energy_in_window", window_energy);
+    // The sampled pupil's energy over the whole FFT field (Parseval; the anti-aliased rim
+    // sends a little less there than the unit pupil's 1).
+    d.set("fft_field_energy", energy / PI);
+    d.set("unaberrated_peak", (amp_sum * sc).powi(2) / (PI * (g * g) as f64));
+    Ok(Ok(out))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cell_cover_is_the_area_inside_the_edge() {
+        // Monte Carlo-free check: integrate the indicator on a fine grid.
+        for &(d, ang) in &[(0.0, 0.3), (0.2, 0.0), (-0.3, 0.7), (0.6, 0.785), (-0.65, 1.2), (0.1, 1.5707963)] {
+            let (nx, ny) = (f64::cos(ang), f64::sin(ang));
+            let n = 400;
+            let mut inside = 0usize;
+            for i in 0..n {
+                for j in 0..n {
+                    let (x, y) = ((i as f64 + 0.5) / n as f64 - 0.5, (j as f64 + 0.5) / n as f64 - 0.5);
+                    if nx * x + ny * y <= d {
+                        inside += 1;
+                    }
+                }
+            }
+            let mc = inside as f64 / (n * n) as f64;
+            // The edge r = 1 at signed distance d (cells) along the gradient 0.01 (nx, ny).
+            let c = cover_cell(1.0 - 0.01 * d, 0.01 * nx, 0.01 * ny);
+            assert!((c - mc).abs() < 4e-3, "d {d} angle {ang}: {c} vs {mc}");
+        }
+    }
+
+    #[test]
+    fn legendre_tables_agree() {
+        let (mut p, mut dp) = ([0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1]);
+        let leg = legendre_monomials();
+        for &x in &[-0.9, -0.3, 0.0, 0.45, 1.0] {
+            legendre(x, MAX_DEGREE, &mut p, &mut dp);
+            for i in 0..=MAX_DEGREE {
+                let mono: f64 = (0..=MAX_DEGREE).map(|k| leg[i][k] * x.powi(k as i32)).sum();
+                assert!((mono - p[i]).abs() < 1e-12, "P_{i}({x})");
+                let h = 1e-6;
+                let (mut a, mut b, mut t) = ([0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1]);
+                legendre(x + h, MAX_DEGREE, &mut a, &mut t);
+                legendre(x - h, MAX_DEGREE, &mut b, &mut t);
+                assert!((dp[i] - (a[i] - b[i]) / (2.0 * h)).abs() < 1e-5 * (1.0 + dp[i].abs()), "P'_{i}({x})");
+            }
+        }
+        assert_eq!(fast_len(256), 256);
+        assert_eq!(fast_len(180), 192);
+        assert_eq!(fast_len(257), 384);
+        assert_eq!(fast_len(100), 128);
+    }
+}
