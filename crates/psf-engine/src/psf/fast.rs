@@ -33,7 +33,7 @@
 //! fft_grid, where every ray of the coarse set reaches the image (no vignetting, no TIR)
 //! and the fits hold; otherwise `fast_psf` says why and the caller runs fft.rs.
 
-use super::fft::{buffer, plan, recycle, zeros};
+use super::fft::{buffer, plan, recycle, zero_fill};
 use super::{Diagnostics, Method, PsfOptions};
 use crate::aim::{Aiming, Beam};
 use crate::error::Result;
@@ -50,8 +50,8 @@ use std::sync::OnceLock;
 /// sliver thinner than 1 - R_RIM, of no consequence at this tolerance, and such a design
 /// keeps the fast path. Where the rim rays pass, every polar-grid ray of the relative
 /// illumination (outer ring at 0.979) passes too.
-const NT: usize = 16;
-const N_RIM: usize = 33;
+const NT: usize = 12;
+const N_RIM: usize = 25;
 const R_RIM: f64 = 0.999;
 /// Polynomial degrees tried, in order.
 const DEGREES: [usize; 3] = [8, 10, 12];
@@ -357,23 +357,39 @@ fn row_body(cw: &mut CellWork, sr: &RowSeries, n: usize, sc: f64, delta: f64) ->
     // Cells well inside the edge (r <= 1 - delta) are fully covered, cells beyond 1 + delta
     // empty: one branch-free pass, then the few rim cells one by one.
     let (r_in2, r_out2) = ((1.0 - delta).max(0.0).powi(2), (1.0 + delta).powi(2));
-    for i in 0..n {
-        let (px, py, xu, xv, yu, yv) = (cw.px[i], cw.py[i], cw.xu[i], cw.xv[i], cw.yu[i], cw.yv[i]);
-        let r2 = px * px + py * py;
-        let jac = (xu * yv - xv * yu).abs();
-        cw.jac[i] = jac;
-        cw.r2[i] = r2;
-        cw.amp[i] = if r2 <= r_in2 { jac.sqrt() } else { 0.0 };
+    {
+        // Slices of one length, so that the loop is free of bounds checks and vectorizes.
+        let CellWork { px, py, xu, xv, yu, yv, jac, r2, amp, u, .. } = &mut *cw;
+        let (px, py, xu, xv, yu, yv) = (&px[..n], &py[..n], &xu[..n], &xv[..n], &yu[..n], &yv[..n]);
+        let (jac, r2, amp, jin) = (&mut jac[..n], &mut r2[..n], &mut amp[..n], &mut u[..n]);
+        for i in 0..n {
+            let rr = px[i] * px[i] + py[i] * py[i];
+            let inside = if rr <= r_in2 { 1.0 } else { 0.0 };
+            let j = (xu[i] * yv[i] - xv[i] * yu[i]).abs();
+            jac[i] = j;
+            r2[i] = rr;
+            amp[i] = j.sqrt() * inside;
+            jin[i] = j * inside; // (u is no longer needed: it holds the interior's area)
+        }
     }
-    let (mut area, mut amp_sum, mut energy) = (0.0, 0.0, 0.0);
+    // Interior sums in four fixed lanes (vectorizable, same order every run); the first
+    // cell (t = 0) counts once, the others twice (their mirror images).
+    let lanes = |v: &[f64]| -> f64 {
+        let mut acc = [0.0; 4];
+        for c in v.chunks(4) {
+            for (a, x) in acc.iter_mut().zip(c) {
+                *a += x;
+            }
+        }
+        (acc[0] + acc[1]) + (acc[2] + acc[3])
+    };
+    let (a_in, m_in) = (2.0 * lanes(&cw.u[..n]) - cw.u[0], 2.0 * lanes(&cw.amp[..n]) - cw.amp[0]);
+    let (mut area, mut amp_sum, mut energy) = (a_in, m_in, a_in);
+    // The rim cells one by one.
     for i in 0..n {
         let (r2, jac) = (cw.r2[i], cw.jac[i]);
-        let mult = if i == 0 { 1.0 } else { 2.0 };
-        if r2 <= r_in2 {
-            area += mult * jac;
-            energy += mult * jac;
-            amp_sum += mult * cw.amp[i];
-        } else if r2 < r_out2 {
+        if r2 > r_in2 && r2 < r_out2 {
+            let mult = if i == 0 { 1.0 } else { 2.0 };
             let (px, py, xu, xv, yu, yv) = (cw.px[i], cw.py[i], cw.xu[i], cw.xv[i], cw.yu[i], cw.yv[i]);
             let r = r2.sqrt();
             let ir = sc / r.max(1e-300);
@@ -509,7 +525,7 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
     // Pupil function rows (f32), transformed along x; bins 0..=h kept per row.
     let fft = plan::<f32>(g);
     let scratch_len = fft.get_inplace_scratch_len();
-    let mut rows_v = zeros::<f32>(nrow * g);
+    let mut rows_v = buffer::<f32>(nrow * g);
     let rows = &mut rows_v[..nrow * g];
     let (pw, ppy, ppx) = (Poly { c: &ce[0], tm: &te, parity: 0 }, Poly { c: &ce[1], tm: &te, parity: 0 }, Poly { c: &co[0], tm: &to, parity: 1 });
     let nq = deg / 2 + 1;
@@ -539,6 +555,7 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
         let pya = py0 + pyv * vb;
         let room = GUARD * GUARD - pya * pya;
         if room <= 0.0 {
+            zero_fill(row);
             continue;
         }
         let n = ((room.sqrt() / (pxu.abs() * sc)).floor() as usize + 1).min(t_hi + 1);
@@ -547,15 +564,15 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
         area += a;
         amp_sum += am;
         energy += e;
+        // Cells 0..n and their mirror images g - t; zeros between.
         for (tc, (&amp, zc)) in cw_.amp[..n].iter().zip(&cw_.field[..n]).enumerate() {
-            if amp > 0.0 {
-                let zf = Complex32::new(zc.re as f32, zc.im as f32);
-                row[tc] = zf;
-                if tc > 0 {
-                    row[g - tc] = zf;
-                }
+            let zf = if amp > 0.0 { Complex32::new(zc.re as f32, zc.im as f32) } else { Complex32::new(0.0, 0.0) };
+            row[tc] = zf;
+            if tc > 0 {
+                row[g - tc] = zf;
             }
         }
+        zero_fill(&mut row[n..g + 1 - n]);
     }
     if !((area / PI - 1.0).abs() <= AREA_TOL) {
         recycle(rows_v);
@@ -564,11 +581,22 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
     let mut scratch_v = buffer::<f32>(scratch_len);
     let scratch = &mut scratch_v[..scratch_len];
     fft.process_with_scratch(rows, scratch);
-    // Columns m = 0..=h over the rows, transformed along y.
-    let mut cols_v = zeros::<f32>(ncol * g);
+    // Columns m = 0..=h over the rows, transformed along y. Row b goes to bin b - g/2: one
+    // run of bins from k0, the rest of each column zero.
+    let mut cols_v = buffer::<f32>(ncol * g);
     let cols = &mut cols_v[..ncol * g];
+    let k0 = (b_lo + g - g / 2) % g;
+    for col in cols.chunks_exact_mut(g) {
+        let k1 = k0 + nrow;
+        if k1 <= g {
+            zero_fill(&mut col[..k0]);
+            zero_fill(&mut col[k1..]);
+        } else {
+            zero_fill(&mut col[k1 - g..k0]);
+        }
+    }
     for (ri, row) in rows.chunks_exact(g).enumerate() {
-        let k = (b_lo + ri + g - g / 2) % g;
+        let k = (k0 + ri) % g;
         for (mx, col) in cols.chunks_exact_mut(g).enumerate() {
             col[k] = row[mx];
         }
@@ -577,17 +605,27 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
     recycle(scratch_v);
     recycle(rows_v);
     // Intensity times pixel area, as a fraction of the entrance-pupil flux:
-    // |U|^2 pix^2 = |sum A exp(i phi)|^2 sc^2 / (pi g^2).
+    // |U|^2 pix^2 = |sum A exp(i phi)|^2 sc^2 / (pi g^2); per column first (contiguous),
+    // then into row-major order by tiles.
     let scale = sc * sc / (PI * (g * g) as f64);
     let size = o.size;
-    let mut out = vec![0.0; size * size];
-    for (r, orow) in out.chunks_exact_mut(size).enumerate() {
-        let k = ((r + g) - h) % g;
-        for (c, ov) in orow.iter_mut().enumerate() {
-            let mx = c.abs_diff(h);
-            let zc = cols[mx * g + k];
+    let mut inten = vec![0.0; ncol * size];
+    for (col, dst) in cols.chunks_exact(g).zip(inten.chunks_exact_mut(size)) {
+        for (r, v) in dst.iter_mut().enumerate() {
+            let zc = col[(r + g - h) % g];
             let (re, im) = (zc.re as f64, zc.im as f64);
-            *ov = (re * re + im * im) * scale;
+            *v = (re * re + im * im) * scale;
+        }
+    }
+    let mut out = vec![0.0; size * size];
+    const TILE: usize = 16;
+    for r0 in (0..size).step_by(TILE) {
+        let r1 = (r0 + TILE).min(size);
+        for c in 0..size {
+            let src = &inten[c.abs_diff(h) * size..][r0..r1];
+            for (i, &v) in src.iter().enumerate() {
+                out[(r0 + i) * size + c] = v;
+            }
         }
     }
     recycle(cols_v);
