@@ -40,16 +40,16 @@ pub fn psf_rgb(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions)
     let mut data = vec![0.0; channels.len() * s * s];
     let mut ri = vec![0.0; channels.len()];
     let mut diags = vec![];
-    rgb_core(lens, field_deg, channels, o, None, &mut ri, |c, v| data[c * s * s..(c + 1) * s * s].copy_from_slice(v), |d| diags.push(d))?;
+    rgb_core(lens, field_deg, channels, o, None, &mut ri, |c, v, k| data[c * s * s..(c + 1) * s * s].iter_mut().zip(v).for_each(|(o, v)| *o = v * k), |d| diags.push(d))?;
     Ok(RgbPsf { size: s, data, relative_illumination: ri, diagnostics: diags })
 }
 
-/// The channels of one field: `sink(c, psf)` receives channel c's PSF (unit sum, or zeros
-/// where no energy arrives), `ri` its relative illumination; `diag` each wavelength's
+/// The channels of one field: `sink(c, psf, k)` receives channel c's PSF as `psf` times
+/// `k` (unit sum, or zeros where no energy arrives), `ri` its relative illumination; `diag` each wavelength's
 /// diagnostics. `axis[k]`: whether the k-th wavelength (channels flattened) passes the
 /// fast path's ray set on axis, where the caller knows it.
 #[allow(clippy::too_many_arguments)]
-fn rgb_core(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions, axis: Option<&[bool]>, ri: &mut [f64], mut sink: impl FnMut(usize, &[f64]), mut diag: impl FnMut(Diagnostics)) -> Result<()> {
+fn rgb_core(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions, axis: Option<&[bool]>, ri: &mut [f64], mut sink: impl FnMut(usize, &[f64], f64), mut diag: impl FnMut(Diagnostics)) -> Result<()> {
     let s = o.size;
     let mut acc = vec![];
     let mut k = 0;
@@ -61,15 +61,11 @@ fn rgb_core(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions, ax
         }
         for &(wl, w) in list {
             let (mut p, clear) = psf_path(lens, field_deg, wl, o)?;
-            let tot: f64 = p.data.iter().sum();
+            let tot = crate::psf::sum_lanes(&p.data);
             if list.len() == 1 {
-                // The sum below for a single wavelength (w / wsum = 1), bit for bit.
-                if tot > 0.0 {
-                    p.data.iter_mut().for_each(|v| *v = w / wsum * *v / tot);
-                } else {
-                    p.data.iter_mut().for_each(|v| *v = 0.0);
-                }
-                sink(c, &p.data);
+                // A single wavelength: the PSF times 1 / its sum.
+                sink(c, &p.data, if tot > 0.0 { 1.0 / tot } else { 0.0 });
+                fast::give_f64(std::mem::take(&mut p.data));
             } else if tot > 0.0 {
                 acc.iter_mut().zip(&p.data).for_each(|(o, v)| *o += w / wsum * v / tot);
             }
@@ -78,7 +74,7 @@ fn rgb_core(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions, ax
             diag(p.diagnostics);
         }
         if list.len() > 1 {
-            sink(c, &acc);
+            sink(c, &acc, 1.0);
         }
     }
     Ok(())
@@ -128,7 +124,7 @@ pub fn psf_batch(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &PsfOp
         .map(|(i, (out, ri))| {
             let (d, f) = (i / nf, fields[i % nf]);
             let axis = axis_known.then_some(&axis[d][..]);
-            rgb_core(&lenses[d], f, channels, o, axis, ri, |c, v| out[c * s * s..(c + 1) * s * s].iter_mut().zip(v).for_each(|(o, v)| *o = *v as f32), |_| {})
+            rgb_core(&lenses[d], f, channels, o, axis, ri, |c, v, k| out[c * s * s..(c + 1) * s * s].iter_mut().zip(v).for_each(|(o, v)| *o = (v * k) as f32), |_| {})
                 .err()
                 .map(|e| format!("field {f} deg: {e}"))
         })

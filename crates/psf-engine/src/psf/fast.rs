@@ -425,6 +425,29 @@ impl CellWork {
     }
 }
 
+thread_local! {
+    /// f64 buffers kept between calls on this thread (window-sized buffers are at the
+    /// allocator's mmap threshold: fresh pages, faulted in and zeroed, on every call).
+    static F64_POOL: std::cell::RefCell<Vec<Vec<f64>>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// A buffer of `len` values with unspecified contents (every one is written by the caller).
+fn take_f64(len: usize) -> Vec<f64> {
+    let mut v = F64_POOL.with(|p| p.borrow_mut().pop()).unwrap_or_default();
+    v.resize(len, 0.0);
+    v
+}
+
+/// Hands a buffer back to this thread's pool (e.g. a fast PSF's data, once consumed).
+pub fn give_f64(v: Vec<f64>) {
+    F64_POOL.with(|p| {
+        let mut p = p.borrow_mut();
+        if p.len() < 4 {
+            p.push(v);
+        }
+    });
+}
+
 /// Whether every ray of the coarse set (half pupil and rim) reaches the image for the
 /// on-axis beam at this system's wavelength: then the axial flux is the full launched flux.
 pub fn axis_clear(sys: &System) -> Result<bool> {
@@ -609,15 +632,16 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
     // then into row-major order by tiles.
     let scale = sc * sc / (PI * (g * g) as f64);
     let size = o.size;
-    let mut inten = vec![0.0; ncol * size];
+    let mut inten = take_f64(ncol * size);
     for (col, dst) in cols.chunks_exact(g).zip(inten.chunks_exact_mut(size)) {
-        for (r, v) in dst.iter_mut().enumerate() {
-            let zc = col[(r + g - h) % g];
+        // Row r holds bin r - h: bins g - h..g, then 0..size - h.
+        let (lo, hi) = dst.split_at_mut(h);
+        for (v, zc) in lo.iter_mut().zip(&col[g - h..]).chain(hi.iter_mut().zip(&col[..size - h])) {
             let (re, im) = (zc.re as f64, zc.im as f64);
             *v = (re * re + im * im) * scale;
         }
     }
-    let mut out = vec![0.0; size * size];
+    let mut out = take_f64(size * size);
     const TILE: usize = 16;
     for r0 in (0..size).step_by(TILE) {
         let r1 = (r0 + TILE).min(size);
@@ -629,6 +653,12 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
         }
     }
     recycle(cols_v);
+    // Energy in the window (the columns c and 2h - c share their intensity).
+    let window_energy: f64 = inten.chunks_exact(size).enumerate().map(|(mx, col)| {
+        let copies = if mx == 0 || (mx == h && size % 2 == 0) { 1.0 } else { 2.0 };
+        copies * super::sum_lanes(col)
+    }).sum();
+    give_f64(inten);
 
     // Diagnostics and checks, as fft.rs reports them.
     let period = g as f64 * pix;
@@ -655,7 +685,6 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
             "pupil undersampled: the wavefront changes by {step:.2} waves between neighbouring samples (> 0.5); the PSF aliases: increase pupil_samples"
         ));
     }
-    let window_energy: f64 = out.iter().sum();
     if window_energy > 1.0 + 1e-2 {
         d.warn(format!("the {size}x{size} window holds {window_energy:.3} times the transmitted energy: the FFT PSF is wrong here (aliasing or pupil distortion)"));
     }

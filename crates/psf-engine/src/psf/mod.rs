@@ -127,6 +127,21 @@ pub struct Psf {
 /// Largest Strehl ratio accepted (1 plus rounding and peak-refinement slack).
 const STREHL_MAX: f64 = 1.0 + 1e-3;
 
+/// Sum in eight interleaved lanes (vectorizes; the same order, so the same bits, every run).
+pub(crate) fn sum_lanes(v: &[f64]) -> f64 {
+    let mut acc = [0.0; 8];
+    let mut chunks = v.chunks_exact(8);
+    for c in &mut chunks {
+        for (a, x) in acc.iter_mut().zip(c) {
+            *a += x;
+        }
+    }
+    for (a, x) in acc.iter_mut().zip(chunks.remainder()) {
+        *a += x;
+    }
+    ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
+}
+
 /// Sub-sample offset of a peak from three samples (parabola vertex), within +-0.5.
 pub(crate) fn parabolic_offset(l: f64, c: f64, r: f64) -> f64 {
     let den = l - 2.0 * c + r;
@@ -186,7 +201,8 @@ fn finish(mut d: Diagnostics, data: Vec<f64>, strehl: Option<f64>, transmitted: 
     if e < 0.99 && transmitted > 0.0 {
         d.warn(format!("{:.1}% of the transmitted energy falls outside the {}x{} window", 100.0 * (1.0 - e), o.size, o.size));
     }
-    if data.iter().any(|v| !v.is_finite()) {
+    // (Blocks without an early exit inside, so that the test vectorizes.)
+    if data.chunks(16).any(|c| c.iter().fold(false, |bad, v| bad | !v.is_finite())) {
         return Err(EngineError::Psf(format!("non-finite PSF value at {field_deg} deg, {wavelength_nm} nm")));
     }
     d.set("strehl", strehl.map_or(Value::Null, Value::from));
