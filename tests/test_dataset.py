@@ -82,6 +82,7 @@ def test_designs_match_the_sampler_and_psfs_match_the_engine(reference):
     space, base = load_space("paper-triplet")
     x = np.load(reference / "shards" / "00000" / "params.npy")[0]
     d = space.apply(engine_base(base, "auto"), x)
+    d["surfaces"][-1]["thickness"] = float(np.load(reference / "shards" / "00000" / "image_distance.npy")[0])
     psf, ri, _ = _engine.psf_rgb(json.dumps(d), 14.9, [[(650.0, 1.0)], [(550.0, 1.0)], [(470.0, 1.0)]],
                                  "fft", 1.0, 32, 32)
     stored = np.load(reference / "shards" / "00000" / "psf.npy")[0, 2]

@@ -44,20 +44,22 @@ def dataset():
 @click.option("--apertures", type=click.Choice(["auto", "fixed"]), default="auto", show_default=True,
               help="auto: no clear apertures (every surface passes the beam); fixed: the base lens's "
                    "(mechanical vignetting), the stop's excepted. The aperture is the lens's f-number/EPD.")
+@click.option("--focus", type=click.Choice(["best", "paraxial", "fixed"]), default="best", show_default=True,
+              help="Image plane of each design: best (least RMS spot over the fields), paraxial, or fixed (the base lens's).")
 @click.option("--shard-size", type=click.IntRange(min=1), default=64, show_default=True)
 @click.option("--sampling", type=click.Choice(["sobol", "uniform", "lhs"]), default="sobol", show_default=True)
 @click.option("--shards", "shard_range", default=None,
               help="Only these shards: A:B (B exclusive) or K; for several processes on one dataset.")
 @friendly_errors
 def generate_cmd(space_spec, n, seed, out_dir, n_fields, window_um, pixel_um, sensor_pixel_um, pupil_samples,
-                 psf_method, aiming, channels, apertures, shard_size, sampling, shard_range):
+                 psf_method, aiming, channels, apertures, focus, shard_size, sampling, shard_range):
     """Sample N designs from SPACE (a TOML space or a bundled lens's name) and write their
     RGB PSFs at K fields, shard by shard, into DIR.  Running the same command again resumes."""
     from ..dataset import DatasetSettings, generate
 
     s = DatasetSettings(n_fields=n_fields, window_um=window_um, pixel_um=pixel_um,
                         sensor_pixel_um=sensor_pixel_um, pupil_samples=pupil_samples, psf_method=psf_method,
-                        aiming=aiming, channels=channels, apertures=apertures, shard_size=shard_size,
+                        aiming=aiming, channels=channels, apertures=apertures, focus=focus, shard_size=shard_size,
                         sampling=sampling)
     rep = generate(space_spec, n, seed, out_dir, s, shards=shard_range,
                    log=lambda m: click.echo(m, err=True))

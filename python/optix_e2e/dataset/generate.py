@@ -22,6 +22,7 @@ from typing import Callable
 import numpy as np
 
 from ..lens import Lens
+from ..focus import refocus
 from ..sampling import apertures, geometry_problem
 from ..space import ParameterSpace, load_space
 from .layout import ARRAYS, FORMAT, Crc32Writer, fsync_dir, shard_name, shards_dir, write_json_atomic
@@ -117,7 +118,8 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
     fields, channels = man["fields_deg"], [[tuple(p) for p in c] for c in man["channels"]]
     K, C, S, s2 = len(fields), len(channels), s.size, s.sensor_size
     ok_idx, failures = [], []
-    psf, ri = [], []
+    psf, ri, image = [], [], []
+    wavelengths = sorted({wl for c in channels for wl, _ in c})
     sd = apertures(base)
     traced = engine_base(base, s.apertures)
     t0 = time.perf_counter()
@@ -133,16 +135,26 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
             bad = geometry_problem(d, sd)  # the engine would trace these without complaint
             if bad is not None:
                 fail(i, f"{bad[0]}: {bad[1]}")
-            else:
-                todo.append(i)
-                jsons.append(json.dumps(d))
+                continue
+            try:
+                refocus(d, s.focus, fields, wavelengths, primary_nm=base.primary_wavelength_nm)
+            except _engine.EngineError as exc:
+                fail(i, f"focus: {exc}")
+                continue
+            if not float(d["surfaces"][-1]["thickness"]) > 0.0:
+                fail(i, f"focus: the {s.focus} focus lies {-d['surfaces'][-1]['thickness']:.4g} mm inside "
+                        f"the last surface")
+                continue
+            todo.append((i, float(d["surfaces"][-1]["thickness"])))
+            jsons.append(json.dumps(d))
         r = _engine.psf_batch(jsons, fields, channels, s.psf_method, s.pixel_um, S, s.pupil_samples,
                               s.aiming, False) if jsons else {"ok": []}
-        for j, i in enumerate(todo):
+        for j, (i, image_mm) in enumerate(todo):
             if r["ok"][j]:
                 ok_idx.append(i)
                 psf.append(r["psf"][j])
                 ri.append(r["relative_illumination"][j])
+                image.append(image_mm)
             else:
                 fail(i, r["errors"][j] or "engine error")
         failures.sort(key=lambda f: f["design"])
@@ -154,7 +166,8 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
     sensor = bin_to_sensor(psf_arr, w).astype(np.float32)
     arrays = {"design": np.array(ok_idx, np.int64), "params": designs[ok_idx].astype(np.float64).reshape(m, designs.shape[1]),
               "psf": psf_arr, "psf_sensor": sensor,
-              "relative_illumination": (np.stack(ri).astype(np.float64) if m else np.zeros((0, K, C)))}
+              "relative_illumination": (np.stack(ri).astype(np.float64) if m else np.zeros((0, K, C))),
+              "image_distance": np.array(image, np.float64)}
     meta = {"format": FORMAT, "shard": k, "designs": [a, b], "n_ok": m, "n_failed": len(failures),
             "failures": failures, "seconds": time.perf_counter() - t0}
     return arrays, meta

@@ -9,6 +9,7 @@ DIR/shards/00000/          one shard: designs [k*shard_size, (k+1)*shard_size)
     psf.npy                (m, K, C, S, S) float32 super-resolved PSFs, unit sum per channel
     psf_sensor.npy         (m, K, C, s, s) float32 the same integrated over sensor pixels
     relative_illumination.npy  (m, K, C) float64
+    image_distance.npy     (m,) float64 last vertex to image plane after refocusing (mm)
     shard.json             failures with reasons, shapes, CRC-32 of every .npy file
 ```
 
@@ -26,7 +27,7 @@ import zlib
 from pathlib import Path
 
 FORMAT = "optix-psf-dataset/1"
-ARRAYS = ("design", "params", "psf", "psf_sensor", "relative_illumination")
+ARRAYS = ("design", "params", "psf", "psf_sensor", "relative_illumination", "image_distance")
 
 
 class DatasetError(RuntimeError):

@@ -27,6 +27,8 @@ class DatasetSettings:
     sampling: str = "sobol"
     apertures: str = "auto"         # "auto": no clear apertures (Zemax's automatic semi-diameters,
                                     # every surface passes the beam); "fixed": the base lens's, stop excepted
+    focus: str = "best"             # image plane per design: "best" (least RMS spot over the K fields
+                                    # and the channels' wavelengths), "paraxial", or "fixed" (the base's)
 
     def check(self) -> None:
         if self.n_fields < 1:
@@ -41,6 +43,8 @@ class DatasetSettings:
             raise ValueError(f"shard_size must be >= 1, got {self.shard_size}")
         if self.apertures not in ("auto", "fixed"):
             raise ValueError(f"apertures must be 'auto' or 'fixed', got {self.apertures!r}")
+        if self.focus not in ("best", "paraxial", "fixed"):
+            raise ValueError(f"focus must be 'best', 'paraxial' or 'fixed', got {self.focus!r}")
         if self.channels not in ("lens", "rgb"):
             raise ValueError(f"channels must be 'lens' or 'rgb', got {self.channels!r}")
 

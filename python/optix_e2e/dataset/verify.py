@@ -16,7 +16,7 @@ def expected_shapes(man: dict, m: int) -> dict:
     P = len(man["space"]["parameters"])
     return {"design": ((m,), "int64"), "params": ((m, P), "float64"),
             "psf": ((m, K, C, S, S), "float32"), "psf_sensor": ((m, K, C, s, s), "float32"),
-            "relative_illumination": ((m, K, C), "float64")}
+            "relative_illumination": ((m, K, C), "float64"), "image_distance": ((m,), "float64")}
 
 
 def open_shard(root: Path, k: int, man: dict, check_hashes: bool = True) -> tuple[dict, dict]:
@@ -60,7 +60,8 @@ def open_shard(root: Path, k: int, man: dict, check_hashes: bool = True) -> tupl
 def verify(root: "str | Path", check_hashes: bool = True) -> dict:
     """Check every shard; returns a JSON-able report.  ``digest`` is a sha256 over the
     contents in canonical order (per design by index: index, parameters, PSFs, sensor PSFs,
-    relative illumination; then the failed indices), independent of the shard layout."""
+    relative illumination, image distance; then the failed indices), independent of the
+    shard layout."""
     root = Path(root)
     man = read_json(root / "manifest.json", "manifest")
     if man.get("format") != FORMAT:
@@ -75,7 +76,7 @@ def verify(root: "str | Path", check_hashes: bool = True) -> dict:
             continue
         try:
             arrays, meta = open_shard(root, k, man, check_hashes)
-            for name in ("params", "psf", "psf_sensor", "relative_illumination"):
+            for name in ("params", "psf", "psf_sensor", "relative_illumination", "image_distance"):
                 if not np.all(np.isfinite(arrays[name])):
                     raise DatasetError(f"{shards_dir(root) / shard_name(k) / (name + '.npy')}: non-finite values")
         except DatasetError as exc:
@@ -83,7 +84,7 @@ def verify(root: "str | Path", check_hashes: bool = True) -> dict:
             continue
         for j, i in enumerate(np.asarray(arrays["design"])):
             h.update(np.int64(i).tobytes())
-            for name in ("params", "psf", "psf_sensor", "relative_illumination"):
+            for name in ("params", "psf", "psf_sensor", "relative_illumination", "image_distance"):
                 h.update(np.ascontiguousarray(arrays[name][j]).astype(arrays[name].dtype.newbyteorder("<")).tobytes())
         n_ok += meta["n_ok"]
         n_failed += meta["n_failed"]
