@@ -61,8 +61,9 @@ pub const W_TOL_WAVES: f64 = 1e-3;
 pub const P_TOL: f64 = 1e-4;
 const MAX_GRID: usize = 8192;
 /// Cells are evaluated out to this radius of the affine approximation of the pupil map
-/// (its distortion is far smaller; checked by the area test).
-const GUARD: f64 = 1.1;
+/// (its distortion is far smaller: within 1% at the paper-triplet's corner; a cut pupil
+/// fails the area test and falls back).
+const GUARD: f64 = 1.05;
 /// The grid's pupil area (sum of cell areas times edge coverage) must match the unit
 /// circle's to this fraction, else the fit is not trusted.
 const AREA_TOL: f64 = 1e-3;
@@ -401,7 +402,10 @@ fn row_body(cw: &mut CellWork, sr: &RowSeries, n: usize, sc: f64, delta: f64) ->
             amp_sum += mult * amp;
         }
     }
-    super::fft::cis_scaled(&cw.w[..n], &cw.amp[..n], &mut cw.field[..n]);
+    // Phasors up to the last cell inside (zeros beyond).
+    let m = cw.amp[..n].iter().rposition(|&a| a > 0.0).map_or(0, |i| i + 1);
+    super::fft::cis_scaled(&cw.w[..m], &cw.amp[..m], &mut cw.field[..m]);
+    cw.field[m..n].iter_mut().for_each(|z| *z = Complex64::new(0.0, 0.0));
     (area * sc * sc, amp_sum, energy * sc * sc)
 }
 
