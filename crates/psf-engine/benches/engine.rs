@@ -1,12 +1,14 @@
 //! Criterion benchmarks of the core: ray throughput through the Cooke triplet at full
-//! field, FFT PSF (64 pupil samples, 256 grid) and Huygens PSF (64 samples, 128x128).
-//! Uses the reference Cooke triplet in ../shared/reference.
+//! field, FFT PSF (64 pupil samples, 256 grid) and Huygens PSF (64 samples, 128x128), and
+//! the dataset batch (paper-triplet, 13 fields x 3 channels, 128 x 128 at 1 um).
+//! Uses the reference Cooke triplet in ../shared/reference and the bundled paper-triplet.
 
 #[path = "../tests/common/mod.rs"]
 mod common;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use psf_engine::psf::{psf, Method, PsfOptions};
+use psf_engine::rgb::psf_batch;
 use psf_engine::{Aiming, Beam, System};
 use std::hint::black_box;
 
@@ -52,5 +54,29 @@ fn bench_psf(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench_trace, bench_psf);
+/// The dataset generator's call: designs x 13 fields (0-14.9 deg) x R/G/B (650/550/470 nm),
+/// 128 x 128 pixels at 1 um, point sampling, fast path, pupil_samples 64; throughput in
+/// designs (the batch runs on every thread of the pool).
+fn bench_dataset(c: &mut Criterion) {
+    let nd = 16;
+    let lenses = vec![common::paper_triplet(); nd];
+    let fields: Vec<f64> = (0..13).map(|i| 14.9 * i as f64 / 12.0).collect();
+    let ch = vec![vec![(650.0, 1.0)], vec![(550.0, 1.0)], vec![(470.0, 1.0)]];
+    let o = PsfOptions { method: Method::Fft, pupil_samples: 64, size: 128, pixel_mm: 1e-3, fast: true, ..Default::default() };
+    let mut g = c.benchmark_group("dataset");
+    g.sample_size(10);
+    g.throughput(Throughput::Elements(nd as u64));
+    g.bench_function("paper_triplet_13x3", |b| b.iter(|| black_box(psf_batch(&lenses, &fields, &ch, &o).unwrap())));
+    g.finish();
+    // Designs per second, printed plainly (criterion reports elements/s as well).
+    let t = std::time::Instant::now();
+    let reps = 5;
+    for _ in 0..reps {
+        black_box(psf_batch(&lenses, &fields, &ch, &o).unwrap());
+    }
+    let dt = t.elapsed().as_secs_f64() / reps as f64;
+    println!("dataset/paper_triplet_13x3: {:.1} designs/s on {} threads ({:.0} us per PSF of wall time)", nd as f64 / dt, rayon::current_num_threads(), dt * 1e6 / (nd * 39) as f64);
+}
+
+criterion_group!(benches, bench_trace, bench_psf, bench_dataset);
 criterion_main!(benches);
