@@ -561,9 +561,10 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
     let (mut cw, mut cwv, mut cy, mut cyv, mut cx, mut cxv) = (z, z, z, z, z, z);
     let (mut area, mut amp_sum, mut energy) = (0.0f64, 0.0f64, 0.0f64);
     let mut cw_ = CellWork::default();
-    // The pupil radius changes by about sc |d(px, py)/d(u, v)| per cell; twice that (the
-    // cover is partial within 0.71 of it) bounds the rim zone.
-    let delta = 2.0 * sc * pxu.abs().max(pyv.abs());
+    // The pupil radius changes by at most about sc |d(px, py)/d(u, v)| per cell (the affine
+    // scale, within the map's ~1% distortion), and a cell is partly covered only within
+    // 0.71 of that from the edge: delta = one cell's change bounds the rim zone.
+    let delta = sc * pxu.abs().max(pyv.abs());
     for (ri, row) in rows.chunks_exact_mut(g).enumerate() {
         let vb = ((b_lo + ri) as f64 - half) * sc;
         legendre(vb, deg, &mut pv, &mut dpv);
