@@ -187,11 +187,12 @@ def psf_batch(
     with the reason a design failed (its PSFs are zeros and ok is False).
 
     ``fast=True`` (default; method "fft" with paraxial aiming and point sampling): the
-    pupil function is fitted (Legendre polynomials of degree 8-12, residual <= 1e-3 waves
-    at ~130 traced rays) and resampled onto a grid of image-space direction cosines whose
-    FFT lands directly on the output pixels (FFT field >= 2 x the window, no Taylor
-    series, no resampling, anti-aliased pupil edge); ``pupil_samples`` is then the least
-    number of grid cells across the pupil. Relative L1 error <= 1% against a 256-sample
+    pupil function is fitted from ~80 traced rays (half the pupil and its rim; Legendre
+    polynomials, the lowest degree of 8, 10, 12 whose residual is <= 1e-3 waves) and
+    resampled onto a grid of image-space direction cosines whose FFT lands directly on
+    the output pixels (FFT field >= 2 x the window and >= 4 x the geometric spot, no
+    Taylor series, no resampling, anti-aliased pupil edge), each PSF single threaded;
+    ``pupil_samples`` is then the least number of grid cells across the pupil. Relative L1 error <= 1% against a 256-sample
     general FFT on the bundled paper-triplet (tested). Where it does not apply (vignetting
     or TIR in its ray set, a fit out of tolerance, Real aiming, integrate=True) the
     general FFT runs, with ``pupil_samples`` rays across the pupil. Relative illumination:

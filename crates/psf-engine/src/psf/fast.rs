@@ -517,10 +517,15 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
         return Ok(Err("the pupil polynomial fits miss their tolerance"));
     };
     // Affine fits (degree 1) guard against the polynomials' excursions far outside the pupil.
-    let (Some((ae, _)), Some((ao, _))) = (lsq(&u, &v, &[&s.py], 1, &terms(1, 0)), lsq(&u, &v, &[&s.px], 1, &terms(1, 1))) else {
+    // (px = pxu u, py = py0 + pyv v by least squares: the degree-1 fits in closed form.)
+    let pxu = u.iter().zip(&s.px).map(|(a, b)| a * b).sum::<f64>() / u.iter().map(|a| a * a).sum::<f64>();
+    let (nv, sv, svv) = (v.len() as f64, v.iter().sum::<f64>(), v.iter().map(|a| a * a).sum::<f64>());
+    let (sy, svy) = (s.py.iter().sum::<f64>(), v.iter().zip(&s.py).map(|(a, b)| a * b).sum::<f64>());
+    let det = nv * svv - sv * sv;
+    let (py0, pyv) = ((svv * sy - sv * svy) / det, (nv * svy - sv * sy) / det);
+    if !(pxu.is_finite() && pxu != 0.0 && py0.is_finite() && pyv.is_finite() && pyv != 0.0) {
         return Ok(Err("degenerate pupil"));
-    };
-    let (py0, pyv, pxu) = (ae[0][0], ae[0][1], ao[0][0]);
+    }
 
     // Grid: window within half the FFT field, spot within a quarter, pupil_samples across.
     let pix = o.pixel_mm;
