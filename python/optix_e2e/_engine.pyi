@@ -166,6 +166,21 @@ def psf_rgb(
     relative illumination (C,). ``channels[c]`` lists (wavelength_nm, weight) pairs.
     ``fast`` as in :func:`psf_batch` (the same computation, so the two agree)."""
 
+def best_focus_batch(
+    lens_jsons: Sequence[str],
+    fields_deg: Sequence[float],
+    wavelengths: Sequence[tuple[float, float]],
+    rings: int = 8,
+    aiming: str = "paraxial",
+) -> dict[str, Any]:
+    """Best focus of many designs (parallel, GIL released): the image-plane shift (mm,
+    positive = away from the lens) minimizing the mean over ``fields_deg`` of the
+    polychromatic centroid RMS spot squared, closed-form from one trace per field and
+    wavelength (``wavelengths``: (nm, weight) pairs; polar pupil grid of ``rings`` rings).
+    Returns shift_mm (D,) float64, ok (D,) bool, errors (list[str | None]); a failed
+    design has shift 0.
+    """
+
 def psf_batch(
     lens_jsons: Sequence[str],
     fields_deg: Sequence[float],
@@ -183,8 +198,11 @@ def psf_batch(
     of threads).
 
     Returns psf (D, F, C, size, size) float32 (unit sum per channel),
-    relative_illumination (D, F, C) float64, ok (D,) bool, errors (list[str | None])
-    with the reason a design failed (its PSFs are zeros and ok is False).
+    relative_illumination (D, F, C) float64, energy_in_window (D, F, C) float64 (the
+    fraction of the transmitted energy inside the window, the channel's wavelengths
+    weighted), warnings (list per design of the PSFs' warnings, each prefixed "field F deg,
+    W nm: "), ok (D,) bool, errors (list[str | None]) with the reason a design failed (its
+    PSFs are zeros and ok is False).
 
     ``fast=True`` (default; method "fft" with paraxial aiming and point sampling): the
     pupil function is fitted from ~80 traced rays (half the pupil and its rim; Legendre

@@ -3,7 +3,8 @@
 
 Behind the last surface every ray is a straight line, so the spot at a shifted image plane
 follows from one trace: x(d) = x + d ux/uz.  The weighted RMS spot squared about the
-centroid is then a quadratic in d, summed over fields and minimized in closed form.
+centroid is then a quadratic in d, summed over fields and minimized in closed form (in the
+engine: crates/psf-engine/src/focus.rs).
 """
 
 from __future__ import annotations
@@ -11,43 +12,21 @@ from __future__ import annotations
 import json
 from typing import Sequence
 
-import numpy as np
-
-from .lens_optimizer import pupil_quadrature
-
 
 def best_focus_shift(lens_json: str, fields_deg: Sequence[float], wavelengths_nm: Sequence[float],
-                     weights: Sequence[float] | None = None, rings: int = 6, arms: int = 12,
-                     aiming: str = "paraxial") -> float:
+                     weights: Sequence[float] | None = None, rings: int = 8, aiming: str = "paraxial") -> float:
     """Image-plane shift (mm; positive = away from the lens) minimizing the mean over
-    ``fields_deg`` of the polychromatic centroid RMS spot squared.  Rays that fail are
-    left out; a field with no ray through contributes nothing."""
+    ``fields_deg`` of the polychromatic centroid RMS spot squared (the engine's
+    ``best_focus_batch``: polar pupil grid of ``rings`` rings; failed rays left out).
+    Raises the engine's error if the lens cannot be traced."""
     from . import _engine
 
-    px, py, pw = pupil_quadrature(rings, arms)
-    ww = np.ones(len(wavelengths_nm)) if weights is None else np.asarray(weights, float)
-    ww = ww / ww.sum()
-    A = B = 0.0
-    for f in fields_deg:
-        xs, ss, ws = [], [], []
-        for wl, wt in zip(wavelengths_nm, ww):
-            tr = _engine.trace_field(lens_json, float(f), px, py, float(wl), aiming)
-            ok = tr["status"] == 0
-            if not ok.any():
-                continue
-            d = tr["direction"][ok]
-            xs.append(tr["position"][ok, :2])
-            ss.append(d[:, :2] / d[:, 2:3])          # dx/dz, dy/dz
-            ws.append(wt * pw[ok])
-        if not ws:
-            continue
-        x, s, w = np.concatenate(xs), np.concatenate(ss), np.concatenate(ws)
-        w = w / w.sum()
-        a = x - w @ x                                # deviation from the centroid
-        b = s - w @ s                                # its rate of change with the shift
-        A += float(np.sum(w[:, None] * a * b))
-        B += float(np.sum(w[:, None] * b * b))
-    return -A / B if B > 0 else 0.0
+    ww = [1.0] * len(wavelengths_nm) if weights is None else list(weights)
+    r = _engine.best_focus_batch([lens_json], [float(f) for f in fields_deg],
+                                 [(float(w), float(x)) for w, x in zip(wavelengths_nm, ww)], rings, aiming)
+    if not r["ok"][0]:
+        raise _engine.EngineError(r["errors"][0])
+    return float(r["shift_mm"][0])
 
 
 def refocus(lens: dict, mode: str, fields_deg: Sequence[float], wavelengths_nm: Sequence[float],

@@ -25,7 +25,6 @@ lens's name to its space and base lens.
 
 from __future__ import annotations
 
-import copy
 import json
 import math
 import re
@@ -345,10 +344,17 @@ class ParameterSpace:
         return [p.get(lens) for p in self.params]
 
     def apply(self, lens: dict, values: Sequence[float]) -> dict:
-        """A new lens dict with ``values`` written in (the input is not modified)."""
+        """A new lens dict with ``values`` written in (the input is not modified).  Its
+        surface dicts (with their aspheric terms) and aperture are its own; materials and the
+        field and wavelength lists are shared with ``lens`` (nothing here changes them), which
+        keeps this cheap for the dataset generator's thousands of designs."""
         if len(values) != len(self.params):
             raise SpaceError(f"{self.source}: {len(values)} values for {len(self.params)} parameters")
-        out = copy.deepcopy(lens)
+        out = dict(lens)
+        out["surfaces"] = [dict(sf, aspheric=dict(sf["aspheric"])) if sf.get("aspheric") else dict(sf)
+                           for sf in lens["surfaces"]]
+        if "aperture" in out:
+            out["aperture"] = dict(out["aperture"])
         for p, v in zip(self.params, values):
             if not math.isfinite(float(v)):
                 raise SpaceError(f"{self.source}: parameter {p.name}: value {v!r} is not finite")

@@ -248,7 +248,7 @@ fn psf_batch<'py>(py: Python<'py>, lens_jsons: Vec<String>, fields_deg: Vec<f64>
         };
         let errs: Vec<Option<String>> = parsed.iter().map(|r| r.as_ref().err().map(|e| e.to_string())).collect();
         let b = if lenses.is_empty() {
-            psf_engine::rgb::Batch { psf: vec![0.0; nd * nf * nc * size * size], relative_illumination: vec![0.0; nd * nf * nc], errors: vec![None; nd] }
+            psf_engine::rgb::Batch { psf: vec![0.0; nd * nf * nc * size * size], relative_illumination: vec![0.0; nd * nf * nc], energy_in_window: vec![0.0; nd * nf * nc], warnings: vec![vec![]; nd], errors: vec![None; nd] }
         } else {
             psf_engine::rgb::psf_batch(&lenses, &fields_deg, &channels, &o)?
         };
@@ -257,17 +257,49 @@ fn psf_batch<'py>(py: Python<'py>, lens_jsons: Vec<String>, fields_deg: Vec<f64>
     let mut errors = batch.errors;
     let mut psfv = batch.psf;
     let mut ri = batch.relative_illumination;
+    let mut energy = batch.energy_in_window;
+    let mut warnings = batch.warnings;
     let per = nf * nc * size * size;
     for (i, e) in parse_errors.into_iter().enumerate() {
         if let Some(msg) = e {
             errors[i] = Some(msg);
             psfv[i * per..(i + 1) * per].iter_mut().for_each(|v| *v = 0.0);
             ri[i * nf * nc..(i + 1) * nf * nc].iter_mut().for_each(|v| *v = 0.0);
+            energy[i * nf * nc..(i + 1) * nf * nc].iter_mut().for_each(|v| *v = 0.0);
+            warnings[i].clear();
         }
     }
     let d = PyDict::new(py);
     d.set_item("psf", psfv.into_pyarray(py).reshape([nd, nf, nc, size, size])?)?;
     d.set_item("relative_illumination", ri.into_pyarray(py).reshape([nd, nf, nc])?)?;
+    d.set_item("energy_in_window", energy.into_pyarray(py).reshape([nd, nf, nc])?)?;
+    d.set_item("warnings", warnings)?;
+    d.set_item("ok", errors.iter().map(|e| e.is_none()).collect::<Vec<_>>().into_pyarray(py))?;
+    d.set_item("errors", errors)?;
+    Ok(d)
+}
+
+#[pyfunction]
+#[pyo3(signature = (lens_jsons, fields_deg, wavelengths, rings=8, aiming="paraxial"))]
+fn best_focus_batch<'py>(py: Python<'py>, lens_jsons: Vec<String>, fields_deg: Vec<f64>, wavelengths: Vec<(f64, f64)>, rings: usize, aiming: &str) -> PyResult<Bound<'py, PyDict>> {
+    let aiming: Aiming = aiming.parse().map_err(to_py)?;
+    let results: Vec<Result<f64, String>> = run(py, || {
+        // a design that does not parse is that design's failure, not the call's
+        let parsed: Vec<psf_engine::Result<Lens>> = lens_jsons.iter().map(|t| parse_lens(t)).collect();
+        let good: Vec<Lens> = parsed.iter().filter_map(|r| r.as_ref().ok().cloned()).collect();
+        let mut shifts = psf_engine::focus::best_focus_each(&good, &fields_deg, &wavelengths, rings, aiming).into_iter();
+        Ok(parsed
+            .into_iter()
+            .map(|r| match r {
+                Ok(_) => shifts.next().expect("one result per parsed design").map_err(|e| e.to_string()),
+                Err(e) => Err(e.to_string()),
+            })
+            .collect())
+    })?;
+    let shift: Vec<f64> = results.iter().map(|r| *r.as_ref().unwrap_or(&0.0)).collect();
+    let errors: Vec<Option<String>> = results.into_iter().map(|r| r.err()).collect();
+    let d = PyDict::new(py);
+    d.set_item("shift_mm", shift.into_pyarray(py))?;
     d.set_item("ok", errors.iter().map(|e| e.is_none()).collect::<Vec<_>>().into_pyarray(py))?;
     d.set_item("errors", errors)?;
     Ok(d)
@@ -295,6 +327,7 @@ fn _engine(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(trace_field, m)?)?;
     m.add_function(wrap_pyfunction!(trace_field_path, m)?)?;
     m.add_function(wrap_pyfunction!(spot, m)?)?;
+    m.add_function(wrap_pyfunction!(best_focus_batch, m)?)?;
     m.add_function(wrap_pyfunction!(psf, m)?)?;
     m.add_function(wrap_pyfunction!(psf_rgb, m)?)?;
     m.add_function(wrap_pyfunction!(psf_batch, m)?)?;

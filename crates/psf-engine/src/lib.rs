@@ -8,6 +8,7 @@ extern crate self as psf_engine;
 
 pub mod aim;
 pub mod error;
+pub mod focus;
 pub mod kernel;
 pub mod lens;
 pub mod material;

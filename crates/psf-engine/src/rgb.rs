@@ -95,6 +95,11 @@ pub struct Batch {
     /// designs x fields x channels x size x size.
     pub psf: Vec<f32>,
     pub relative_illumination: Vec<f64>,
+    /// designs x fields x channels: the fraction of the transmitted energy inside the
+    /// window (the channel's wavelengths weighted as in its PSF).
+    pub energy_in_window: Vec<f64>,
+    /// Per design: the PSFs' warnings, each prefixed with its field and wavelength.
+    pub warnings: Vec<Vec<String>>,
     pub errors: Vec<Option<String>>,
 }
 
@@ -117,20 +122,41 @@ pub fn psf_batch(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &PsfOp
     let axis_known = fast::applies(o);
     let mut psfv = crate::trace::huge_pages(vec![0.0f32; nd * nf * per]);
     let mut ri = vec![0.0; nd * nf * nc];
-    let results: Vec<Option<String>> = psfv
+    let mut energy = vec![0.0; nd * nf * nc];
+    // channel and weight of each wavelength, in the order rgb_core visits them
+    let visits: Vec<(usize, f64, f64)> = channels
+        .iter()
+        .enumerate()
+        .flat_map(|(c, list)| {
+            let wsum: f64 = list.iter().map(|p| p.1).sum();
+            list.iter().map(move |&(wl, w)| (c, wl, w / wsum))
+        })
+        .collect();
+    let results: Vec<(Option<String>, Vec<String>)> = psfv
         .par_chunks_mut(per)
         .zip(ri.par_chunks_mut(nc))
+        .zip(energy.par_chunks_mut(nc))
         .enumerate()
-        .map(|(i, (out, ri))| {
+        .map(|(i, ((out, ri), en))| {
             let (d, f) = (i / nf, fields[i % nf]);
             let axis = axis_known.then_some(&axis[d][..]);
-            rgb_core(&lenses[d], f, channels, o, axis, ri, |c, v, k| out[c * s * s..(c + 1) * s * s].iter_mut().zip(v).for_each(|(o, v)| *o = (v * k) as f32), |_| {})
-                .err()
-                .map(|e| format!("field {f} deg: {e}"))
+            let mut warnings = vec![];
+            let mut k = 0;
+            let err = rgb_core(&lenses[d], f, channels, o, axis, ri, |c, v, k| out[c * s * s..(c + 1) * s * s].iter_mut().zip(v).for_each(|(o, v)| *o = (v * k) as f32), |dg| {
+                let (c, wl, w) = visits[k];
+                k += 1;
+                en[c] += w * dg.values.get("energy_in_window").and_then(|v| v.as_f64()).unwrap_or(0.0);
+                warnings.extend(dg.warnings.iter().map(|m| format!("field {f} deg, {wl} nm: {m}")));
+            })
+            .err()
+            .map(|e| format!("field {f} deg: {e}"));
+            (err, warnings)
         })
         .collect();
     let mut errors: Vec<Option<String>> = vec![None; nd];
-    for (i, e) in results.into_iter().enumerate() {
+    let mut warnings: Vec<Vec<String>> = vec![vec![]; nd];
+    for (i, (e, w)) in results.into_iter().enumerate() {
+        warnings[i / nf].extend(w);
         if let (Some(e), None) = (e, &errors[i / nf]) {
             errors[i / nf] = Some(e);
         }
@@ -139,7 +165,8 @@ pub fn psf_batch(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &PsfOp
         if e.is_some() {
             psfv[d * nf * per..(d + 1) * nf * per].iter_mut().for_each(|v| *v = 0.0);
             ri[d * nf * nc..(d + 1) * nf * nc].iter_mut().for_each(|v| *v = 0.0);
+            energy[d * nf * nc..(d + 1) * nf * nc].iter_mut().for_each(|v| *v = 0.0);
         }
     }
-    Ok(Batch { psf: psfv, relative_illumination: ri, errors })
+    Ok(Batch { psf: psfv, relative_illumination: ri, energy_in_window: energy, warnings, errors })
 }

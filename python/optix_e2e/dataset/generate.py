@@ -108,25 +108,28 @@ def _save_npy(path: Path, arr: np.ndarray) -> str:
 
 
 def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace, base: Lens,
-                  batch: int = 8, on_batch: Callable[[int, int], None] | None = None,
-                  psf_buffer: np.ndarray | None = None) -> tuple[dict, dict]:
+                  batch: int = 16, on_batch: Callable[[int, int], None] | None = None,
+                  psf_buffer: np.ndarray | None = None, checked: bool = False,
+                  defer_sensor: bool = False) -> tuple[dict, dict]:
     """Arrays and metadata of shard ``k`` (nothing written).  ``psf_buffer``: a float32
     array of at least shard_size x K x C x S x S to hold the PSFs (saves the page faults
-    of a fresh 160 MB array per shard)."""
+    of a fresh 160 MB array per shard).  ``checked``: the designs passed the sampler's
+    geometry check already (same apertures), so it is not repeated.  ``defer_sensor``:
+    leave ``psf_sensor`` to :func:`write_shard` (the writer thread)."""
     from .. import _engine
 
     s = DatasetSettings(**man["settings"])
     a = k * s.shard_size
     b = min(man["n_designs"], a + s.shard_size)
     fields, channels = man["fields_deg"], [[tuple(p) for p in c] for c in man["channels"]]
-    K, C, S, s2 = len(fields), len(channels), s.size, s.sensor_size
+    K, C, S = len(fields), len(channels), s.size
     ok_idx, failures = [], []
     shape = (b - a, K, C, S, S)
     if psf_buffer is not None and psf_buffer.shape[1:] == shape[1:] and len(psf_buffer) >= b - a:
         psf_arr = psf_buffer[: b - a]                      # rows filled in order, trimmed to m
     else:
         psf_arr = np.empty(shape, np.float32)
-    ri, image = [], []
+    ri, image, energy, warnings = [], [], [], {}
     wavelengths = sorted({wl for c in channels for wl, _ in c})
     # best focus from 7 of the K fields (the RMS spot varies smoothly over the field)
     focus_fields = [fields[i] for i in np.unique(np.linspace(0, K - 1, min(K, 7)).round().astype(int))]
@@ -137,19 +140,33 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
     def fail(i, reason):
         failures.append({"design": i, "reason": reason, "params": dict(zip(space.names, map(float, designs[i])))})
 
+    wl_weights = [(float(wl), 1.0) for wl in wavelengths]
     for lo in range(a, b, batch):
         hi = min(b, lo + batch)
-        todo, jsons = [], []
+        cand = []                     # (design index, lens dict) past the geometry check
         for i in range(lo, hi):
             d = space.apply(traced, designs[i])
-            bad = geometry_problem(d, sd)  # the engine would trace these without complaint
+            bad = None if checked else geometry_problem(d, sd)  # the engine would trace these
             if bad is not None:
                 fail(i, f"{bad[0]}: {bad[1]}")
-                continue
-            try:
-                refocus(d, s.focus, focus_fields, wavelengths, primary_nm=base.primary_wavelength_nm)
-            except _engine.EngineError as exc:
-                fail(i, f"focus: {exc}")
+            else:
+                cand.append((i, d))
+        if s.focus == "best" and cand:  # one parallel engine call for the batch's refocusing
+            fr = _engine.best_focus_batch([json.dumps(d) for _, d in cand], focus_fields, wl_weights, 6, s.aiming)
+            for (i, d), dz, err in zip(cand, fr["shift_mm"], fr["errors"]):
+                d["surfaces"][-1]["thickness"] = float(d["surfaces"][-1]["thickness"]) + float(dz)
+                if err:
+                    d["_focus_error"] = err
+        todo, jsons = [], []
+        for i, d in cand:
+            err = d.pop("_focus_error", None)
+            if s.focus == "paraxial":
+                try:
+                    refocus(d, "paraxial", focus_fields, wavelengths, primary_nm=base.primary_wavelength_nm)
+                except _engine.EngineError as exc:
+                    err = str(exc)
+            if err:
+                fail(i, f"focus: {err}")
                 continue
             if not float(d["surfaces"][-1]["thickness"]) > 0.0:
                 fail(i, f"focus: the {s.focus} focus lies {-d['surfaces'][-1]['thickness']:.4g} mm inside "
@@ -164,7 +181,10 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
                 psf_arr[len(ok_idx)] = r["psf"][j]
                 ok_idx.append(i)
                 ri.append(r["relative_illumination"][j])
+                energy.append(r["energy_in_window"][j])
                 image.append(image_mm)
+                if r["warnings"][j]:
+                    warnings[str(i)] = r["warnings"][j]
             else:
                 fail(i, r["errors"][j] or "engine error")
         failures.sort(key=lambda f: f["design"])
@@ -172,19 +192,28 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
             on_batch(hi - lo, sum(1 for f in failures if lo <= f["design"] < hi))
     m = len(ok_idx)
     psf_arr = psf_arr[:m]
-    w = sensor_binning(S, s.pixel_um, s2, s.sensor_pixel_um)
-    sensor = bin_to_sensor(psf_arr, w).astype(np.float32)
+    sensor = None if defer_sensor else sensor_psfs(psf_arr, s)
     arrays = {"design": np.array(ok_idx, np.int64), "params": designs[ok_idx].astype(np.float64).reshape(m, designs.shape[1]),
               "psf": psf_arr, "psf_sensor": sensor,
               "relative_illumination": (np.stack(ri).astype(np.float64) if m else np.zeros((0, K, C))),
-              "image_distance": np.array(image, np.float64)}
+              "image_distance": np.array(image, np.float64),
+              "energy_in_window": (np.stack(energy).astype(np.float32) if m else np.zeros((0, K, C), np.float32))}
     meta = {"format": FORMAT, "shard": k, "designs": [a, b], "n_ok": m, "n_failed": len(failures),
-            "failures": failures, "seconds": time.perf_counter() - t0}
+            "failures": failures, "warnings": warnings, "seconds": time.perf_counter() - t0}
     return arrays, meta
 
 
-def write_shard(root: Path, k: int, arrays: dict, meta: dict) -> bool:
-    """Write shard ``k`` atomically; False if another process finished it first."""
+def sensor_psfs(psf: np.ndarray, s: DatasetSettings) -> np.ndarray:
+    """The sensor-pitch version of super-resolved PSFs (..., S, S) -> (..., s, s)."""
+    w = sensor_binning(s.size, s.pixel_um, s.sensor_size, s.sensor_pixel_um)
+    return bin_to_sensor(psf, w).astype(np.float32)
+
+
+def write_shard(root: Path, k: int, arrays: dict, meta: dict, settings: DatasetSettings | None = None) -> bool:
+    """Write shard ``k`` atomically; False if another process finished it first.  A
+    ``psf_sensor`` left as None is computed here (from ``settings``)."""
+    if arrays.get("psf_sensor") is None:
+        arrays = {**arrays, "psf_sensor": sensor_psfs(arrays["psf"], settings)}
     sdir = shards_dir(root)
     sdir.mkdir(parents=True, exist_ok=True)
     final = sdir / shard_name(k)
@@ -282,10 +311,10 @@ def generate(space_spec: "str | Path", n: int, seed: int, out: "str | Path",
                     buffers[n_done % 2] = np.empty((s.shard_size, s.n_fields, len(man["channels"]), s.size, s.size),
                                                    np.float32)
                 arrays, meta = compute_shard(k, man, designs, space, base, on_batch=on_batch,
-                                             psf_buffer=buffers[n_done % 2])
+                                             psf_buffer=buffers[n_done % 2], checked=True, defer_sensor=True)
                 if writing is not None:
                     finish(writing)
-                writing = (k, meta, pool.submit(write_shard, out, k, arrays, meta))
+                writing = (k, meta, pool.submit(write_shard, out, k, arrays, meta, s))
             if writing is not None:
                 finish(writing)
     finally:

@@ -10,7 +10,9 @@ DIR/shards/00000/          one shard: designs [k*shard_size, (k+1)*shard_size)
     psf_sensor.npy         (m, K, C, s, s) float32 the same integrated over sensor pixels
     relative_illumination.npy  (m, K, C) float64
     image_distance.npy     (m,) float64 last vertex to image plane after refocusing (mm)
-    shard.json             failures with reasons, shapes, CRC-32 of every .npy file
+    energy_in_window.npy   (m, K, C) float32 fraction of the transmitted energy inside the window
+    shard.json             failures with reasons, the engine's warnings per design, shapes,
+                           CRC-32 of every .npy file
 ```
 
 A shard is written into a hidden temporary directory and renamed into place when complete,
@@ -27,7 +29,8 @@ import zlib
 from pathlib import Path
 
 FORMAT = "optix-psf-dataset/1"
-ARRAYS = ("design", "params", "psf", "psf_sensor", "relative_illumination", "image_distance")
+ARRAYS = ("design", "params", "psf", "psf_sensor", "relative_illumination", "image_distance",
+          "energy_in_window")
 
 
 class DatasetError(RuntimeError):

@@ -16,7 +16,8 @@ def expected_shapes(man: dict, m: int) -> dict:
     P = len(man["space"]["parameters"])
     return {"design": ((m,), "int64"), "params": ((m, P), "float64"),
             "psf": ((m, K, C, S, S), "float32"), "psf_sensor": ((m, K, C, s, s), "float32"),
-            "relative_illumination": ((m, K, C), "float64"), "image_distance": ((m,), "float64")}
+            "relative_illumination": ((m, K, C), "float64"), "image_distance": ((m,), "float64"),
+            "energy_in_window": ((m, K, C), "float32")}
 
 
 def open_shard(root: Path, k: int, man: dict, check_hashes: bool = True) -> tuple[dict, dict]:
@@ -60,14 +61,17 @@ def open_shard(root: Path, k: int, man: dict, check_hashes: bool = True) -> tupl
 def verify(root: "str | Path", check_hashes: bool = True) -> dict:
     """Check every shard; returns a JSON-able report.  ``digest`` is a sha256 over the
     contents in canonical order (per design by index: index, parameters, PSFs, sensor PSFs,
-    relative illumination, image distance; then the failed indices), independent of the
-    shard layout."""
+    relative illumination, image distance, energy in the window; then the failed indices),
+    independent of the shard layout.  ``n_with_warnings`` counts designs whose PSFs carry
+    an engine warning (shard.json lists them), ``min_energy_in_window`` is the smallest
+    fraction of a PSF's energy inside the window."""
     root = Path(root)
     man = read_json(root / "manifest.json", "manifest")
     if man.get("format") != FORMAT:
         raise DatasetError(f"{root / 'manifest.json'}: not a {FORMAT} manifest")
     problems, missing = [], []
-    n_ok = n_failed = 0
+    n_ok = n_failed = n_warn = 0
+    min_energy = 1.0
     failed_idx = []
     h = hashlib.sha256()
     for k in range(man["n_shards"]):
@@ -76,7 +80,8 @@ def verify(root: "str | Path", check_hashes: bool = True) -> dict:
             continue
         try:
             arrays, meta = open_shard(root, k, man, check_hashes)
-            for name in ("params", "psf", "psf_sensor", "relative_illumination", "image_distance"):
+            for name in ("params", "psf", "psf_sensor", "relative_illumination", "image_distance",
+                         "energy_in_window"):
                 if not np.all(np.isfinite(arrays[name])):
                     raise DatasetError(f"{shards_dir(root) / shard_name(k) / (name + '.npy')}: non-finite values")
         except DatasetError as exc:
@@ -84,13 +89,18 @@ def verify(root: "str | Path", check_hashes: bool = True) -> dict:
             continue
         for j, i in enumerate(np.asarray(arrays["design"])):
             h.update(np.int64(i).tobytes())
-            for name in ("params", "psf", "psf_sensor", "relative_illumination", "image_distance"):
+            for name in ("params", "psf", "psf_sensor", "relative_illumination", "image_distance",
+                         "energy_in_window"):
                 h.update(np.ascontiguousarray(arrays[name][j]).astype(arrays[name].dtype.newbyteorder("<")).tobytes())
         n_ok += meta["n_ok"]
         n_failed += meta["n_failed"]
+        n_warn += len(meta.get("warnings", {}))
+        if meta["n_ok"]:
+            min_energy = min(min_energy, float(np.min(arrays["energy_in_window"])))
         failed_idx += [f["design"] for f in meta["failures"]]
     for i in sorted(failed_idx):
         h.update(b"failed" + np.int64(i).tobytes())
     return {"ok": not problems and not missing, "n_designs": n_ok, "n_failed": n_failed,
+            "n_with_warnings": n_warn, "min_energy_in_window": min_energy,
             "n_shards": man["n_shards"], "missing_shards": missing, "problems": problems,
             "digest": h.hexdigest()}
