@@ -5,8 +5,9 @@ settings (13 fields x RGB, 128 um window at 1 um, sensor-pitch copy, FFT PSFs).
     python benches/dataset.py [--space paper-triplet] [-n 256] [--json]
 
 Runs ``optix_e2e.dataset.generate`` into a temporary directory and prints one JSON object:
-designs_per_s (PSF computation and shard writing; the up-front sampling is timed apart as
-sampling_s), n, n_failed, seconds, the settings and the machine.  It measures; it asserts
+designs_per_s (refocusing, PSF computation and shard writing; the up-front sampling is
+timed apart as sampling_s), engine_designs_per_s (the engine's psf_batch alone on the same
+refocused designs, 16 per call), n, n_failed, seconds, the settings and the machine.  It measures; it asserts
 nothing.  For comparison, the issue quotes optiland 0.6.3 at about 0.87 s per design for
 13 fields x 3 wavelengths of FFT PSFs on this 2-core machine (1.15 designs/s).
 """
@@ -26,6 +27,32 @@ from optix_e2e.dataset.manifest import prepare
 from optix_e2e.space import load_space
 
 
+def engine_only(root: str, space, base, s: DatasetSettings) -> float:
+    """psf_batch alone over the dataset's refocused designs (16 per call)."""
+    import json
+    from pathlib import Path
+
+    import numpy as np
+
+    from optix_e2e import _engine
+    from optix_e2e.dataset.settings import engine_base
+
+    man = json.loads((Path(root) / "manifest.json").read_text())
+    traced = engine_base(base, s.apertures)
+    jsons = []
+    for d in sorted((Path(root) / "shards").iterdir()):
+        for x, z in zip(np.load(d / "params.npy"), np.load(d / "image_distance.npy")):
+            lens = space.apply(traced, x)
+            lens["surfaces"][-1]["thickness"] = float(z)
+            jsons.append(json.dumps(lens))
+    channels = [[tuple(p) for p in c] for c in man["channels"]]
+    t = time.perf_counter()
+    for i in range(0, len(jsons), 16):
+        _engine.psf_batch(jsons[i:i + 16], man["fields_deg"], channels, s.psf_method, s.pixel_um, s.size,
+                          s.pupil_samples, s.aiming, False)
+    return len(jsons) / (time.perf_counter() - t)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--space", default="paper-triplet")
@@ -41,8 +68,10 @@ def main() -> None:
         prepare(__import__("pathlib").Path(tmp), space, base, a.n, a.seed, s)
         sampling_s = time.perf_counter() - t
         rep = generate(a.space, a.n, a.seed, tmp, s, progress=not a.json)
+        engine_rate = engine_only(tmp, space, base, s)
     out = {"space": a.space, "n": a.n, "n_failed": rep.n_failed, "seconds": rep.seconds,
-           "designs_per_s": rep.designs_per_s, "sampling_s": sampling_s, "settings": asdict(s),
+           "designs_per_s": rep.designs_per_s, "engine_designs_per_s": engine_rate,
+           "sampling_s": sampling_s, "settings": asdict(s),
            "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
                        "rayon_threads": os.environ.get("RAYON_NUM_THREADS", "all")}}
     print(json.dumps(out, indent=None if a.json else 2))
