@@ -33,7 +33,7 @@
 //! fft_grid, where every ray of the coarse set reaches the image (no vignetting, no TIR)
 //! and the fits hold; otherwise `fast_psf` says why and the caller runs fft.rs.
 
-use super::fft::{buffer, plan, recycle, zero_fill};
+use super::fft::{buffer, plan, recycle, report_grid, zero_fill};
 use super::{Diagnostics, Method, PsfOptions};
 use crate::aim::{Aiming, Beam};
 use crate::error::Result;
@@ -702,23 +702,7 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
     if window_energy > 1.0 + 1e-2 {
         d.warn(format!("the {size}x{size} window holds {window_energy:.3} times the transmitted energy: the FFT PSF is wrong here (aliasing or pupil distortion)"));
     }
-    if ex > 0.5 * period || ey > 0.5 * period {
-        d.warn(format!(
-            "spot extends to {:.1} x {:.1} um from the chief ray, beyond half the FFT field ({:.1} x {:.1} um): energy wraps around; increase pupil_samples",
-            ex * 1e3,
-            ey * 1e3,
-            0.5 * period * 1e3,
-            0.5 * period * 1e3
-        ));
-    }
-    d.set("fft_grid", g as f64);
-    d.set("native_pitch_x_um", pix * 1e3);
-    d.set("native_pitch_y_um", pix * 1e3);
-    d.set("fft_field_x_um", period * 1e3);
-    d.set("fft_field_y_um", period * 1e3);
-    d.set("spot_extent_x_um", ex * 1e3);
-    d.set("spot_extent_y_um", ey * 1e3);
-    d.set("energy_in_window", window_energy);
+    report_grid(d, g, (pix, pix), (period, period), (ex, ey), window_energy);
     // The sampled pupil's energy over the whole FFT field (Parseval; the anti-aliased rim
     // sends a little less there than the unit pupil's 1).
     d.set("fft_field_energy", energy / PI);

@@ -388,6 +388,29 @@ fn mirror_symmetric(n: usize, valid: &[bool], field: &[Complex64], res_l: &[f64]
 const ROWS_PER_TASK: usize = 32;
 const COLS_PER_TASK: usize = 24;
 
+/// The FFT grid's diagnostics (mm in, um out), with the warning that the geometric spot
+/// reaches past half the FFT field (its light wraps around); shared with the fast path.
+pub(super) fn report_grid(d: &mut Diagnostics, g: usize, pitch: (f64, f64), period: (f64, f64), extent: (f64, f64), energy_in_window: f64) {
+    let ((dx, dy), (px, py), (ex, ey)) = (pitch, period, extent);
+    if ex > 0.5 * px || ey > 0.5 * py {
+        d.warn(format!(
+            "spot extends to {:.1} x {:.1} um from the chief ray, beyond half the FFT field ({:.1} x {:.1} um): energy wraps around; increase pupil_samples",
+            ex * 1e3,
+            ey * 1e3,
+            0.5 * px * 1e3,
+            0.5 * py * 1e3
+        ));
+    }
+    d.set("fft_grid", g as f64);
+    d.set("native_pitch_x_um", dx * 1e3);
+    d.set("native_pitch_y_um", dy * 1e3);
+    d.set("fft_field_x_um", px * 1e3);
+    d.set("fft_field_y_um", py * 1e3);
+    d.set("spot_extent_x_um", ex * 1e3);
+    d.set("spot_extent_y_um", ey * 1e3);
+    d.set("energy_in_window", energy_in_window);
+}
+
 pub fn fft_psf(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics) -> Result<(Vec<f64>, Option<f64>)> {
     fft_psf_impl::<f32>(p, o, d, true)
 }
@@ -742,23 +765,7 @@ fn fft_psf_impl<T: Real>(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mir
             period_y * 1e3
         ));
     }
-    if ex > 0.5 * period_x || ey > 0.5 * period_y {
-        d.warn(format!(
-            "spot extends to {:.1} x {:.1} um from the chief ray, beyond half the FFT field ({:.1} x {:.1} um): energy wraps around; increase pupil_samples",
-            ex * 1e3,
-            ey * 1e3,
-            0.5 * period_x * 1e3,
-            0.5 * period_y * 1e3
-        ));
-    }
-    d.set("fft_grid", g as f64);
-    d.set("native_pitch_x_um", dx * 1e3);
-    d.set("native_pitch_y_um", dy * 1e3);
-    d.set("fft_field_x_um", period_x * 1e3);
-    d.set("fft_field_y_um", period_y * 1e3);
-    d.set("spot_extent_x_um", ex * 1e3);
-    d.set("spot_extent_y_um", ey * 1e3);
-    d.set("energy_in_window", if transmitted > 0.0 { window_energy / transmitted } else { 0.0 });
+    report_grid(d, g, (dx, dy), (period_x, period_y), (ex, ey), if transmitted > 0.0 { window_energy / transmitted } else { 0.0 });
     Ok((out, strehl))
 }
 
