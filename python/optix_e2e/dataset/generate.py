@@ -99,9 +99,14 @@ def _clean_stale(sdir: Path, k: int) -> None:
 
 def _save_npy(path: Path, arr: np.ndarray) -> str:
     """Write ``arr`` as .npy, synced; returns the file's CRC-32 (computed on the way out)."""
+    arr = np.ascontiguousarray(arr)
     with open(path, "wb") as f:
         w = Crc32Writer(f)
-        np.save(w, arr, allow_pickle=False)
+        # what np.save writes (a version 1.0 header, then the raw C-order data), without
+        # np.save's copy of the data into bytes for a file-like object
+        np.lib.format.write_array_header_1_0(w, np.lib.format.header_data_from_array_1_0(arr))
+        if arr.size:
+            w.write(memoryview(arr).cast("B"))
         f.flush()
         os.fsync(f.fileno())
     return w.hex
@@ -131,7 +136,8 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
         psf_arr = np.empty(shape, np.float32)
     ri, image, energy, warnings = [], [], [], {}
     wavelengths = sorted({wl for c in channels for wl, _ in c})
-    # best focus from 7 of the K fields (the RMS spot varies smoothly over the field)
+    # best focus from 7 of the K fields and a 4-ring polar pupil (96 rays per field and
+    # wavelength; within 1 um of 8 rings, against a depth of focus of +-20 um at f/4.4)
     focus_fields = [fields[i] for i in np.unique(np.linspace(0, K - 1, min(K, 7)).round().astype(int))]
     sd = apertures(base)
     traced = engine_base(base, s.apertures)
@@ -152,7 +158,7 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
             else:
                 cand.append((i, d))
         if s.focus == "best" and cand:  # one parallel engine call for the batch's refocusing
-            fr = _engine.best_focus_batch([json.dumps(d) for _, d in cand], focus_fields, wl_weights, 6, s.aiming)
+            fr = _engine.best_focus_batch([json.dumps(d) for _, d in cand], focus_fields, wl_weights, 4, s.aiming)
             for (i, d), dz, err in zip(cand, fr["shift_mm"], fr["errors"]):
                 d["surfaces"][-1]["thickness"] = float(d["surfaces"][-1]["thickness"]) + float(dz)
                 if err:
