@@ -221,36 +221,62 @@ fn lsq(u: &[f64], v: &[f64], ys: &[&[f64]], deg: usize, tm: &[(usize, usize)]) -
     Some((coefs, worst))
 }
 
-/// A fitted function f(u, v) = sum c_ij P_i(u) P_j(v) of one parity in u.
-struct Poly<'a> {
-    c: &'a [f64],
-    tm: &'a [(usize, usize)],
-    parity: usize,
+/// Lanes of the per-row series in s = u^2 (at most MAX_DEGREE / 2 + 1 terms used).
+const NL: usize = 8;
+type Lanes = [f64; NL];
+
+/// A fitted function f(u, v) = sum c_ij P_i(u) P_j(v) of one parity in u, as monomials:
+/// f = u^parity sum_q s^q sum_k t[k][q] v^k (s = u^2), and df/dv from `dt`.
+struct Table {
+    t: [Lanes; MAX_DEGREE + 1],
+    dt: [Lanes; MAX_DEGREE + 1],
+    deg: usize,
 }
 
-impl Poly<'_> {
-    /// Monomial coefficients in u of f(., v) (`val`) and of df/dv(., v) (`dv`) for the row
-    /// at v, compacted to the terms of its parity: f = u^parity sum_q val[q] u^(2q).
-    fn row(&self, pv: &[f64], dpv: &[f64], val: &mut [f64; MAX_DEGREE / 2 + 1], dv: &mut [f64; MAX_DEGREE / 2 + 1]) {
+impl Table {
+    fn new(c: &[f64], tm: &[(usize, usize)], parity: usize, deg: usize) -> Table {
         let leg = legendre_monomials();
-        let (mut e, mut ed) = ([0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1]);
-        for (&c, &(i, j)) in self.c.iter().zip(self.tm) {
-            e[i] += c * pv[j];
-            ed[i] += c * dpv[j];
+        let mut t = [[0.0; NL]; MAX_DEGREE + 1];
+        for (&c, &(i, j)) in c.iter().zip(tm) {
+            for k in (parity..=i).step_by(2) {
+                let a = c * leg[i][k];
+                let q = (k - parity) / 2;
+                for (kk, tk) in t.iter_mut().enumerate().take(j + 1) {
+                    tk[q] += a * leg[j][kk];
+                }
+            }
         }
-        val.fill(0.0);
-        dv.fill(0.0);
-        for i in (self.parity..=MAX_DEGREE).step_by(2) {
-            if e[i] == 0.0 && ed[i] == 0.0 {
-                continue;
+        let mut dt = [[0.0; NL]; MAX_DEGREE + 1];
+        for k in 0..deg {
+            for q in 0..NL {
+                dt[k][q] = (k + 1) as f64 * t[k + 1][q];
             }
-            for k in (self.parity..=i).step_by(2) {
-                let q = (k - self.parity) / 2;
-                val[q] += e[i] * leg[i][k];
-                dv[q] += ed[i] * leg[i][k];
-            }
+        }
+        Table { t, dt, deg }
+    }
+
+    /// The row at v: f(., v) = u^parity sum_q val[q] s^q.
+    #[inline(always)]
+    fn val(&self, v: f64) -> Lanes {
+        horner_lanes(&self.t[..=self.deg], v)
+    }
+
+    /// df/dv(., v) = u^parity sum_q dv[q] s^q.
+    #[inline(always)]
+    fn dv(&self, v: f64) -> Lanes {
+        horner_lanes(&self.dt[..self.deg.max(1)], v)
+    }
+}
+
+#[inline(always)]
+fn horner_lanes(t: &[Lanes], v: f64) -> Lanes {
+    let mut a = [0.0; NL];
+    for tk in t.iter().rev() {
+        for q in 0..NL {
+            a[q] = a[q] * v + tk[q];
         }
     }
+    a
 }
 
 /// Smallest FFT size 2^k or 3 * 2^k (k >= 1) at least n.
@@ -263,48 +289,73 @@ fn fast_len(n: usize) -> usize {
     }
 }
 
-/// One row's series in u: f = u^parity sum_q c[q] u^(2q) for W (even), py (even), its
-/// d/dv (even) and d/du (odd), px (odd), its d/dv (odd) and d/du (even).
-struct RowSeries<'a> {
-    w: &'a [f64],
-    y: &'a [f64],
-    yv: &'a [f64],
-    yd: &'a [f64],
-    x: &'a [f64],
-    xv: &'a [f64],
-    xd: &'a [f64],
+/// One row's series in s = u^2 (u >= 0): W = W(s); px = u X(s), d px/du = XD(s),
+/// d px/dv = u XV(s); py = Y(s), d py/du = u YD(s), d py/dv = YV(s); and the products
+/// J = XD YV - s XV YD (the Jacobian d(px, py)/d(u, v)) and R = s X^2 + Y^2 (r^2).
+/// `nq` terms in W, X, Y, ...; 2 nq - 1 in J, 2 nq in R.
+struct RowSeries {
+    w: Lanes,
+    x: Lanes,
+    xd: Lanes,
+    xv: Lanes,
+    y: Lanes,
+    yd: Lanes,
+    yv: Lanes,
+    j: [f64; 2 * NL],
+    r: [f64; 2 * NL],
 }
 
-/// Per-cell work arrays of one row, reused from row to row.
+impl RowSeries {
+    #[inline(always)]
+    fn new(tw: &Table, tx: &Table, ty: &Table, v: f64, nq: usize) -> RowSeries {
+        let (w, x, xv, y, yv) = (tw.val(v), tx.val(v), tx.dv(v), ty.val(v), ty.dv(v));
+        let (mut xd, mut yd) = ([0.0; NL], [0.0; NL]);
+        for q in 0..nq {
+            xd[q] = (2 * q + 1) as f64 * x[q];
+            if q + 1 < nq {
+                yd[q] = 2.0 * (q + 1) as f64 * y[q + 1];
+            }
+        }
+        let (mut j, mut r) = ([0.0; 2 * NL], [0.0; 2 * NL]);
+        for a in 0..nq {
+            for b in 0..nq {
+                j[a + b] += xd[a] * yv[b];
+                j[a + b + 1] -= xv[a] * yd[b];
+                r[a + b + 1] += x[a] * x[b];
+                r[a + b] += y[a] * y[b];
+            }
+        }
+        RowSeries { w, x, xd, xv, y, yd, yv, j, r }
+    }
+}
+
+/// Per-cell work arrays of one row, reused from row to row (and PSF to PSF on a thread).
 #[derive(Default)]
 struct CellWork {
-    u: Vec<f64>,
-    u2: Vec<f64>,
+    /// s = u^2 of cells t = 0..: the same for every row of a PSF.
+    s: Vec<f64>,
     w: Vec<f64>,
-    px: Vec<f64>,
-    py: Vec<f64>,
-    xu: Vec<f64>,
-    xv: Vec<f64>,
-    yu: Vec<f64>,
-    yv: Vec<f64>,
     amp: Vec<f64>,
     jac: Vec<f64>,
     r2: Vec<f64>,
+    jin: Vec<f64>,
     field: Vec<Complex64>,
 }
 
-/// out[i] = (odd ? u[i] : 1) sum_q c[q] u2[i]^q, element-wise (Horner across the cells).
 #[inline(always)]
-fn horner_cells(c: &[f64], u2: &[f64], u: Option<&[f64]>, out: &mut [f64]) {
-    out.iter_mut().for_each(|o| *o = 0.0);
-    for &cq in c.iter().rev() {
-        for (o, &x) in out.iter_mut().zip(u2) {
-            *o = *o * x + cq;
-        }
+fn horner<const L: usize>(c: &[f64], x: f64) -> f64 {
+    let c: &[f64; L] = c[..L].try_into().unwrap();
+    let mut a = c[L - 1];
+    for k in (0..L - 1).rev() {
+        a = a * x + c[k];
     }
-    if let Some(u) = u {
-        out.iter_mut().zip(u).for_each(|(o, &x)| *o *= x);
-    }
+    a
+}
+
+/// Scalar Horner in s over the first `n` terms.
+#[inline(always)]
+fn horner_n(c: &[f64], n: usize, x: f64) -> f64 {
+    c[..n].iter().rev().fold(0.0, |a, &c| a * x + c)
 }
 
 /// Area fraction of the unit cell inside the pupil edge, branch free: d = signed distance
@@ -332,9 +383,30 @@ fn cover_cell(r: f64, gx: f64, gy: f64) -> f64 {
     }
 }
 
+/// W, |J|, r^2, the interior amplitude sqrt|J| and area |J| of cells 0..n (one pass,
+/// vectorized across the cells).
 #[inline(always)]
-fn row_body(cw: &mut CellWork, sr: &RowSeries, n: usize, sc: f64, delta: f64) -> (f64, f64, f64) {
-    for v in [&mut cw.u, &mut cw.u2, &mut cw.w, &mut cw.px, &mut cw.py, &mut cw.xu, &mut cw.xv, &mut cw.yu, &mut cw.yv, &mut cw.amp, &mut cw.jac, &mut cw.r2] {
+fn cells<const NQ: usize, const NJ: usize, const NR: usize>(sr: &RowSeries, s: &[f64], r_in2: f64, w: &mut [f64], amp: &mut [f64], jac: &mut [f64], r2: &mut [f64], jin: &mut [f64]) {
+    let n = s.len();
+    let (w, amp, jac, r2, jin) = (&mut w[..n], &mut amp[..n], &mut jac[..n], &mut r2[..n], &mut jin[..n]);
+    for i in 0..n {
+        let x = s[i];
+        let wv = horner::<NQ>(&sr.w, x);
+        let j = horner::<NJ>(&sr.j, x).abs();
+        let rr = horner::<NR>(&sr.r, x);
+        let inside = if rr <= r_in2 { 1.0 } else { 0.0 };
+        w[i] = wv;
+        jac[i] = j;
+        r2[i] = rr;
+        amp[i] = j.sqrt() * inside;
+        jin[i] = j * inside;
+    }
+}
+
+#[inline(always)]
+fn row_body(cw: &mut CellWork, tab: [&Table; 3], v: f64, nq: usize, n: usize, sc: f64, delta: f64) -> (f64, f64, f64) {
+    let sr = &RowSeries::new(tab[0], tab[1], tab[2], v, nq);
+    for v in [&mut cw.w, &mut cw.amp, &mut cw.jac, &mut cw.r2, &mut cw.jin] {
         if v.len() < n {
             v.resize(n, 0.0);
         }
@@ -342,56 +414,47 @@ fn row_body(cw: &mut CellWork, sr: &RowSeries, n: usize, sc: f64, delta: f64) ->
     if cw.field.len() < n {
         cw.field.resize(n, Complex64::new(0.0, 0.0));
     }
-    let (u, u2) = (&mut cw.u[..n], &mut cw.u2[..n]);
-    for (i, (u, u2)) in u.iter_mut().zip(u2.iter_mut()).enumerate() {
-        *u = i as f64 * sc;
-        *u2 = *u * *u;
-    }
-    let (u, u2) = (&cw.u[..n], &cw.u2[..n]);
-    horner_cells(sr.w, u2, None, &mut cw.w[..n]);
-    horner_cells(sr.y, u2, None, &mut cw.py[..n]);
-    horner_cells(sr.yv, u2, None, &mut cw.yv[..n]);
-    horner_cells(sr.yd, u2, Some(u), &mut cw.yu[..n]);
-    horner_cells(sr.x, u2, Some(u), &mut cw.px[..n]);
-    horner_cells(sr.xv, u2, Some(u), &mut cw.xv[..n]);
-    horner_cells(sr.xd, u2, None, &mut cw.xu[..n]);
     // Cells well inside the edge (r <= 1 - delta) are fully covered, cells beyond 1 + delta
     // empty: one branch-free pass, then the few rim cells one by one.
     let (r_in2, r_out2) = ((1.0 - delta).max(0.0).powi(2), (1.0 + delta).powi(2));
     {
-        // Slices of one length, so that the loop is free of bounds checks and vectorizes.
-        let CellWork { px, py, xu, xv, yu, yv, jac, r2, amp, u, .. } = &mut *cw;
-        let (px, py, xu, xv, yu, yv) = (&px[..n], &py[..n], &xu[..n], &xv[..n], &yu[..n], &yv[..n]);
-        let (jac, r2, amp, jin) = (&mut jac[..n], &mut r2[..n], &mut amp[..n], &mut u[..n]);
-        for i in 0..n {
-            let rr = px[i] * px[i] + py[i] * py[i];
-            let inside = if rr <= r_in2 { 1.0 } else { 0.0 };
-            let j = (xu[i] * yv[i] - xv[i] * yu[i]).abs();
-            jac[i] = j;
-            r2[i] = rr;
-            amp[i] = j.sqrt() * inside;
-            jin[i] = j * inside; // (u is no longer needed: it holds the interior's area)
+        let CellWork { s, w, amp, jac, r2, jin, .. } = &mut *cw;
+        let s = &s[..n];
+        match nq {
+            5 => cells::<5, 9, 10>(sr, s, r_in2, w, amp, jac, r2, jin),
+            6 => cells::<6, 11, 12>(sr, s, r_in2, w, amp, jac, r2, jin),
+            _ => cells::<7, 13, 14>(sr, s, r_in2, w, amp, jac, r2, jin),
         }
     }
     // Interior sums in four fixed lanes (vectorizable, same order every run); the first
     // cell (t = 0) counts once, the others twice (their mirror images).
     let lanes = |v: &[f64]| -> f64 {
-        let mut acc = [0.0; 4];
-        for c in v.chunks(4) {
-            for (a, x) in acc.iter_mut().zip(c) {
-                *a += x;
-            }
+        let (mut a0, mut a1, mut a2, mut a3) = (0.0, 0.0, 0.0, 0.0);
+        let mut it = v.chunks_exact(4);
+        for c in &mut it {
+            a0 += c[0];
+            a1 += c[1];
+            a2 += c[2];
+            a3 += c[3];
+        }
+        let mut acc = [a0, a1, a2, a3];
+        for (a, x) in acc.iter_mut().zip(it.remainder()) {
+            *a += x;
         }
         (acc[0] + acc[1]) + (acc[2] + acc[3])
     };
-    let (a_in, m_in) = (2.0 * lanes(&cw.u[..n]) - cw.u[0], 2.0 * lanes(&cw.amp[..n]) - cw.amp[0]);
+    let (a_in, m_in) = (2.0 * lanes(&cw.jin[..n]) - cw.jin[0], 2.0 * lanes(&cw.amp[..n]) - cw.amp[0]);
     let (mut area, mut amp_sum, mut energy) = (a_in, m_in, a_in);
     // The rim cells one by one.
     for i in 0..n {
         let (r2, jac) = (cw.r2[i], cw.jac[i]);
         if r2 > r_in2 && r2 < r_out2 {
             let mult = if i == 0 { 1.0 } else { 2.0 };
-            let (px, py, xu, xv, yu, yv) = (cw.px[i], cw.py[i], cw.xu[i], cw.xv[i], cw.yu[i], cw.yv[i]);
+            let (s, u) = (cw.s[i], i as f64 * sc);
+            let px = u * horner_n(&sr.x, nq, s);
+            let py = horner_n(&sr.y, nq, s);
+            let (xu, xv) = (horner_n(&sr.xd, nq, s), u * horner_n(&sr.xv, nq, s));
+            let (yu, yv) = (u * horner_n(&sr.yd, nq, s), horner_n(&sr.yv, nq, s));
             let r = r2.sqrt();
             let ir = sc / r.max(1e-300);
             let cov = cover_cell(r, (px * xu + py * yu) * ir, (px * xv + py * yv) * ir);
@@ -411,25 +474,28 @@ fn row_body(cw: &mut CellWork, sr: &RowSeries, n: usize, sc: f64, delta: f64) ->
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn row_avx2(cw: &mut CellWork, sr: &RowSeries, n: usize, sc: f64, delta: f64) -> (f64, f64, f64) {
-    row_body(cw, sr, n, sc, delta)
+unsafe fn row_avx2(cw: &mut CellWork, tab: [&Table; 3], v: f64, nq: usize, n: usize, sc: f64, delta: f64) -> (f64, f64, f64) {
+    row_body(cw, tab, v, nq, n, sc, delta)
 }
 
 impl CellWork {
     /// The pupil field of cells t = 0..n of a row (amplitude `amp`, complex `field`);
     /// returns the row's pupil area, amplitude sum and energy, mirrored cells included.
     /// `delta`: bound on the change of the pupil radius over one cell (the edge zone).
-    fn row(&mut self, sr: &RowSeries, n: usize, sc: f64, delta: f64) -> (f64, f64, f64) {
+    /// `tab`: the tables of W, px and py; `v` the row.
+    fn row(&mut self, tab: [&Table; 3], v: f64, nq: usize, n: usize, sc: f64, delta: f64) -> (f64, f64, f64) {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2 (checked just above).
-            return unsafe { row_avx2(self, sr, n, sc, delta) };
+            return unsafe { row_avx2(self, tab, v, nq, n, sc, delta) };
         }
-        row_body(self, sr, n, sc, delta)
+        row_body(self, tab, v, nq, n, sc, delta)
     }
 }
 
 thread_local! {
+    /// The per-cell work arrays, kept between calls on this thread.
+    static CELL_WORK: std::cell::RefCell<CellWork> = std::cell::RefCell::new(CellWork::default());
     /// f64 buffers kept between calls on this thread (window-sized buffers are at the
     /// allocator's mmap threshold: fresh pages, faulted in and zeroed, on every call).
     static F64_POOL: std::cell::RefCell<Vec<Vec<f64>>> = const { std::cell::RefCell::new(Vec::new()) };
@@ -563,31 +629,18 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
     let scratch_len = fft.get_inplace_scratch_len();
     let mut rows_v = buffer::<f32>(nrow * g);
     let rows = &mut rows_v[..nrow * g];
-    let (pw, ppy, ppx) = (Poly { c: &ce[0], tm: &te, parity: 0 }, Poly { c: &ce[1], tm: &te, parity: 0 }, Poly { c: &co[0], tm: &to, parity: 1 });
+    let (tw, ty, tx) = (Table::new(&ce[0], &te, 0, deg), Table::new(&ce[1], &te, 0, deg), Table::new(&co[0], &to, 1, deg));
     let nq = deg / 2 + 1;
-    let (mut pv, mut dpv) = ([0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1]);
-    let z = [0.0; MAX_DEGREE / 2 + 1];
-    let (mut cw, mut cwv, mut cy, mut cyv, mut cx, mut cxv) = (z, z, z, z, z, z);
     let (mut area, mut amp_sum, mut energy) = (0.0f64, 0.0f64, 0.0f64);
-    let mut cw_ = CellWork::default();
+    let mut cw_ = CELL_WORK.with(|c| std::mem::take(&mut *c.borrow_mut()));
+    cw_.s.clear();
+    cw_.s.extend((0..=t_hi).map(|t| (t as f64 * sc) * (t as f64 * sc)));
     // The pupil radius changes by at most about sc |d(px, py)/d(u, v)| per cell (the affine
     // scale, within the map's ~1% distortion), and a cell is partly covered only within
     // 0.71 of that from the edge: delta = one cell's change bounds the rim zone.
     let delta = sc * pxu.abs().max(pyv.abs());
     for (ri, row) in rows.chunks_exact_mut(g).enumerate() {
         let vb = ((b_lo + ri) as f64 - half) * sc;
-        legendre(vb, deg, &mut pv, &mut dpv);
-        pw.row(&pv, &dpv, &mut cw, &mut cwv);
-        ppy.row(&pv, &dpv, &mut cy, &mut cyv);
-        ppx.row(&pv, &dpv, &mut cx, &mut cxv);
-        // d/du of the even py and the odd px, as compact series.
-        let (mut cyd, mut cxd) = (z, z);
-        for q in 0..nq {
-            if q + 1 < nq {
-                cyd[q] = 2.0 * (q + 1) as f64 * cy[q + 1];
-            }
-            cxd[q] = (2 * q + 1) as f64 * cx[q];
-        }
         // Cells t = 0..n: within GUARD pupil radii of the affine map (x grows with t).
         let pya = py0 + pyv * vb;
         let room = GUARD * GUARD - pya * pya;
@@ -596,21 +649,22 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
             continue;
         }
         let n = ((room.sqrt() / (pxu.abs() * sc)).floor() as usize + 1).min(t_hi + 1);
-        let series = RowSeries { w: &cw[..nq], y: &cy[..nq], yv: &cyv[..nq], yd: &cyd[..nq], x: &cx[..nq], xv: &cxv[..nq], xd: &cxd[..nq] };
-        let (a, am, e) = cw_.row(&series, n, sc, delta);
+        let (a, am, e) = cw_.row([&tw, &tx, &ty], vb, nq, n, sc, delta);
         area += a;
         amp_sum += am;
         energy += e;
         // Cells 0..n and their mirror images g - t; zeros between.
-        for (tc, (&amp, zc)) in cw_.amp[..n].iter().zip(&cw_.field[..n]).enumerate() {
-            let zf = if amp > 0.0 { Complex32::new(zc.re as f32, zc.im as f32) } else { Complex32::new(0.0, 0.0) };
-            row[tc] = zf;
-            if tc > 0 {
-                row[g - tc] = zf;
-            }
+        let (head, tail) = row.split_at_mut(n);
+        for ((o, &amp), zc) in head.iter_mut().zip(&cw_.amp[..n]).zip(&cw_.field[..n]) {
+            *o = if amp > 0.0 { Complex32::new(zc.re as f32, zc.im as f32) } else { Complex32::new(0.0, 0.0) };
         }
-        zero_fill(&mut row[n..g + 1 - n]);
+        let tl = tail.len();
+        zero_fill(&mut tail[..tl + 1 - n]);
+        for (o, z) in tail[tl + 1 - n..].iter_mut().rev().zip(&head[1..]) {
+            *o = *z;
+        }
     }
+    CELL_WORK.with(|c| *c.borrow_mut() = cw_);
     if !((area / PI - 1.0).abs() <= AREA_TOL) {
         recycle(rows_v);
         return Ok(Err("the fitted pupil's area differs from the unit circle's"));
