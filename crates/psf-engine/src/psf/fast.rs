@@ -340,6 +340,8 @@ struct CellWork {
     r2: Vec<f64>,
     jin: Vec<f64>,
     field: Vec<Complex64>,
+    /// Output rows of one tile.
+    tile: Vec<f64>,
 }
 
 #[inline(always)]
@@ -664,8 +666,8 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
             *o = *z;
         }
     }
-    CELL_WORK.with(|c| *c.borrow_mut() = cw_);
     if !((area / PI - 1.0).abs() <= AREA_TOL) {
+        CELL_WORK.with(|c| *c.borrow_mut() = cw_);
         recycle(rows_v);
         return Ok(Err("the fitted pupil's area differs from the unit circle's"));
     }
@@ -686,47 +688,55 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
             zero_fill(&mut col[k1 - g..k0]);
         }
     }
-    for (ri, row) in rows.chunks_exact(g).enumerate() {
-        let k = (k0 + ri) % g;
+    // By tiles of TILE rows: each column receives a contiguous run (one cache line).
+    const TILE: usize = 8;
+    for (t, tile) in rows.chunks(TILE * g).enumerate() {
+        let ri0 = t * TILE;
+        let nt = tile.len() / g;
         for (mx, col) in cols.chunks_exact_mut(g).enumerate() {
-            col[k] = row[mx];
+            for i in 0..nt {
+                let k = k0 + ri0 + i;
+                col[if k >= g { k - g } else { k }] = tile[i * g + mx];
+            }
         }
     }
     fft.process_with_scratch(cols, scratch);
     recycle(scratch_v);
     recycle(rows_v);
     // Intensity times pixel area, as a fraction of the entrance-pupil flux:
-    // |U|^2 pix^2 = |sum A exp(i phi)|^2 sc^2 / (pi g^2); per column first (contiguous),
-    // then into row-major order by tiles.
+    // |U|^2 pix^2 = |sum A exp(i phi)|^2 sc^2 / (pi g^2). By tiles of TILE output rows:
+    // the columns' runs into a small row-major buffer, then each row with its mirror image
+    // (column h + mx and h - mx share the intensity of bin mx).
     let scale = sc * sc / (PI * (g * g) as f64);
     let size = o.size;
-    let mut inten = take_f64(ncol * size);
-    for (col, dst) in cols.chunks_exact(g).zip(inten.chunks_exact_mut(size)) {
-        // Row r holds bin r - h: bins g - h..g, then 0..size - h.
-        let (lo, hi) = dst.split_at_mut(h);
-        for (v, zc) in lo.iter_mut().zip(&col[g - h..]).chain(hi.iter_mut().zip(&col[..size - h])) {
-            let (re, im) = (zc.re as f64, zc.im as f64);
-            *v = (re * re + im * im) * scale;
-        }
-    }
     let mut out = take_f64(size * size);
-    const TILE: usize = 16;
-    for r0 in (0..size).step_by(TILE) {
-        let r1 = (r0 + TILE).min(size);
-        for c in 0..size {
-            let src = &inten[c.abs_diff(h) * size..][r0..r1];
-            for (i, &v) in src.iter().enumerate() {
-                out[(r0 + i) * size + c] = v;
+    let tbuf = &mut cw_.tile;
+    tbuf.resize(TILE * ncol, 0.0);
+    // Row r holds bin r - h: bins g - h..g for rows 0..h, then 0..size - h.
+    for (r_lo, r_hi, k_lo) in [(0, h, g - h), (h, size, 0)] {
+        for r0 in (r_lo..r_hi).step_by(TILE) {
+            let nt = (r_hi - r0).min(TILE);
+            let k = k_lo + r0 - r_lo;
+            for (mx, col) in cols.chunks_exact(g).enumerate() {
+                for (i, zc) in col[k..k + nt].iter().enumerate() {
+                    let (re, im) = (zc.re as f64, zc.im as f64);
+                    tbuf[i * ncol + mx] = (re * re + im * im) * scale;
+                }
+            }
+            for (i, b) in tbuf.chunks_exact(ncol).enumerate().take(nt) {
+                let row = &mut out[(r0 + i) * size..][..size];
+                let (left, right) = row.split_at_mut(h);
+                right.copy_from_slice(&b[..size - h]);
+                for (o, &v) in left.iter_mut().rev().zip(&b[1..=h]) {
+                    *o = v;
+                }
             }
         }
     }
+    CELL_WORK.with(|c| *c.borrow_mut() = cw_);
     recycle(cols_v);
-    // Energy in the window (the columns c and 2h - c share their intensity).
-    let window_energy: f64 = inten.chunks_exact(size).enumerate().map(|(mx, col)| {
-        let copies = if mx == 0 || (mx == h && size % 2 == 0) { 1.0 } else { 2.0 };
-        copies * super::sum_lanes(col)
-    }).sum();
-    give_f64(inten);
+    // Energy in the window.
+    let window_energy = super::sum_lanes(&out);
 
     // Diagnostics and checks, as fft.rs reports them.
     let period = g as f64 * pix;
