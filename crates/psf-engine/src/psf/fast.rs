@@ -353,12 +353,6 @@ fn horner<const L: usize>(c: &[f64], x: f64) -> f64 {
     a
 }
 
-/// Scalar Horner in s over the first `n` terms.
-#[inline(always)]
-fn horner_n(c: &[f64], n: usize, x: f64) -> f64 {
-    c[..n].iter().rev().fold(0.0, |a, &c| a * x + c)
-}
-
 /// Area fraction of the unit cell inside the pupil edge, branch free: d = signed distance
 /// (cells) from the cell centre to the edge (> 0 inside), (gx, gy) the gradient of r in
 /// cells (n = g / |g|), r the pupil radius at the centre.
@@ -404,6 +398,33 @@ fn cells<const NQ: usize, const NJ: usize, const NR: usize>(sr: &RowSeries, s: &
     }
 }
 
+/// The partly covered cells of a row (r^2 within (r_in2, r_out2)): their amplitude, and
+/// their area, energy and amplitude sums (mirror images included).
+#[inline(always)]
+fn rim<const NQ: usize>(cw: &mut CellWork, sr: &RowSeries, n: usize, sc: f64, r_in2: f64, r_out2: f64) -> (f64, f64, f64) {
+    let (mut area, mut energy, mut amp_sum) = (0.0, 0.0, 0.0);
+    for i in 0..n {
+        let (r2, jac) = (cw.r2[i], cw.jac[i]);
+        if r2 > r_in2 && r2 < r_out2 {
+            let mult = if i == 0 { 1.0 } else { 2.0 };
+            let (s, u) = (cw.s[i], i as f64 * sc);
+            let px = u * horner::<NQ>(&sr.x, s);
+            let py = horner::<NQ>(&sr.y, s);
+            let (xu, xv) = (horner::<NQ>(&sr.xd, s), u * horner::<NQ>(&sr.xv, s));
+            let (yu, yv) = (u * horner::<NQ>(&sr.yd, s), horner::<NQ>(&sr.yv, s));
+            let r = r2.sqrt();
+            let ir = sc / r.max(1e-300);
+            let cov = cover_cell(r, (px * xu + py * yu) * ir, (px * xv + py * yv) * ir);
+            let amp = jac.sqrt() * cov;
+            cw.amp[i] = amp;
+            area += mult * jac * cov;
+            energy += mult * jac * cov * cov;
+            amp_sum += mult * amp;
+        }
+    }
+    (area, energy, amp_sum)
+}
+
 #[inline(always)]
 fn row_body(cw: &mut CellWork, row: &mut [Complex32], tab: [&Table; 3], v: f64, nq: usize, n: usize, sc: f64, delta: f64) -> (f64, f64, f64) {
     let sr = &RowSeries::new(tab[0], tab[1], tab[2], v, nq);
@@ -444,25 +465,14 @@ fn row_body(cw: &mut CellWork, row: &mut [Complex32], tab: [&Table; 3], v: f64, 
     let (a_in, m_in) = (2.0 * lanes(&cw.jin[..n]) - cw.jin[0], 2.0 * lanes(&cw.amp[..n]) - cw.amp[0]);
     let (mut area, mut amp_sum, mut energy) = (a_in, m_in, a_in);
     // The rim cells one by one.
-    for i in 0..n {
-        let (r2, jac) = (cw.r2[i], cw.jac[i]);
-        if r2 > r_in2 && r2 < r_out2 {
-            let mult = if i == 0 { 1.0 } else { 2.0 };
-            let (s, u) = (cw.s[i], i as f64 * sc);
-            let px = u * horner_n(&sr.x, nq, s);
-            let py = horner_n(&sr.y, nq, s);
-            let (xu, xv) = (horner_n(&sr.xd, nq, s), u * horner_n(&sr.xv, nq, s));
-            let (yu, yv) = (u * horner_n(&sr.yd, nq, s), horner_n(&sr.yv, nq, s));
-            let r = r2.sqrt();
-            let ir = sc / r.max(1e-300);
-            let cov = cover_cell(r, (px * xu + py * yu) * ir, (px * xv + py * yv) * ir);
-            let amp = jac.sqrt() * cov;
-            cw.amp[i] = amp;
-            area += mult * jac * cov;
-            energy += mult * jac * cov * cov;
-            amp_sum += mult * amp;
-        }
-    }
+    let (a, e, m) = match nq {
+        5 => rim::<5>(cw, sr, n, sc, r_in2, r_out2),
+        6 => rim::<6>(cw, sr, n, sc, r_in2, r_out2),
+        _ => rim::<7>(cw, sr, n, sc, r_in2, r_out2),
+    };
+    area += a;
+    energy += e;
+    amp_sum += m;
     // Phasors up to the last cell inside (zeros beyond), in single precision, and their
     // mirror images g - t; zeros between.
     let m = cw.amp[..n].iter().rposition(|&a| a > 0.0).map_or(0, |i| i + 1);
