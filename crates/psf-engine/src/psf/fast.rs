@@ -142,17 +142,27 @@ fn terms(deg: usize, parity: usize) -> Vec<(usize, usize)> {
     (parity..=deg).step_by(2).flat_map(|i| (0..=deg - i).map(move |j| (i, j))).collect()
 }
 
-/// Least squares of each of `ys` on the terms at the points (u, v), by the normal
-/// equations (well conditioned in this basis) and Cholesky. Returns the coefficients per
+/// P_0..=P_MAX_DEGREE at one point.
+type Leg = [f64; MAX_DEGREE + 1];
+
+/// Legendre values at each of `x`.
+fn legendre_table(x: &[f64]) -> Vec<Leg> {
+    let mut d = [0.0; MAX_DEGREE + 1];
+    x.iter().map(|&x| {
+        let mut p = [0.0; MAX_DEGREE + 1];
+        legendre(x, MAX_DEGREE, &mut p, &mut d);
+        p
+    }).collect()
+}
+
+/// Least squares of each of `ys` on the terms at the points (u, v) (their Legendre values
+/// `pu`, `pv`), by the normal equations (well conditioned in this basis) and Cholesky. Returns the coefficients per
 /// function and the largest |residual| per function; None if the system is singular.
-fn lsq(u: &[f64], v: &[f64], ys: &[&[f64]], deg: usize, tm: &[(usize, usize)]) -> Option<(Vec<Vec<f64>>, Vec<f64>)> {
-    let (t, m, nf) = (tm.len(), u.len(), ys.len());
+fn lsq(pu: &[Leg], pv: &[Leg], ys: &[&[f64]], tm: &[(usize, usize)]) -> Option<(Vec<Vec<f64>>, Vec<f64>)> {
+    let (t, m, nf) = (tm.len(), pu.len(), ys.len());
     // Basis matrix phi (m x t, row-major) and the values (m x nf).
-    let (mut pu, mut pv, mut du, mut dv) = ([0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1]);
     let mut phi = vec![0.0; m * t];
-    for (row, (&uu, &vv)) in phi.chunks_exact_mut(t).zip(u.iter().zip(v)) {
-        legendre(uu, deg, &mut pu, &mut du);
-        legendre(vv, deg, &mut pv, &mut dv);
+    for (row, (pu, pv)) in phi.chunks_exact_mut(t).zip(pu.iter().zip(pv)) {
         for (f, &(i, j)) in row.iter_mut().zip(tm) {
             *f = pu[i] * pv[j];
         }
@@ -614,9 +624,10 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
     // Fits of the lowest degree within tolerance.
     let mut fit = None;
     let mut last_resid = (f64::INFINITY, f64::INFINITY);
+    let (pu, pv) = (legendre_table(&u), legendre_table(&v));
     for deg in DEGREES {
         let (te, to) = (terms(deg, 0), terms(deg, 1));
-        let (Some((ce, re)), Some((co, ro))) = (lsq(&u, &v, &[&w, &s.py], deg, &te), lsq(&u, &v, &[&s.px], deg, &to)) else {
+        let (Some((ce, re)), Some((co, ro))) = (lsq(&pu, &pv, &[&w, &s.py], &te), lsq(&pu, &pv, &[&s.px], &to)) else {
             continue;
         };
         last_resid = (re[0], re[1].max(ro[0]));
