@@ -88,3 +88,25 @@ def test_psf_batch_contract(cooke):
     assert np.all(out["psf"][1] == 0)
     single, _, _ = cooke.psf_rgb(20.0, cooke.rgb_channels("lens"), size=16, pupil_samples=32)
     assert np.allclose(out["psf"][0, 1], single, atol=1e-6)
+
+
+def test_psf_batch_into_a_callers_buffer():
+    """psf_batch(out=...) overwrites every value of the caller's array (stale data, a
+    design that does not parse -> zeros) with what it would have returned, and refuses
+    an array of the wrong shape or dtype."""
+    import numpy as np
+
+    from optix_e2e import _engine
+    from optix_e2e.lens import Lens
+
+    js = Lens.load("paper-triplet").to_engine_json()
+    ch = [[(650.0, 1.0)], [(550.0, 1.0)], [(470.0, 1.0)]]
+    buf = np.full((3, 2, 3, 48, 48), 7.0, np.float32)
+    r = _engine.psf_batch([js, "not json", js], [0.0, 14.9], ch, "fft", 1.0, 48, 48, out=buf)
+    ref = _engine.psf_batch([js, "not json", js], [0.0, 14.9], ch, "fft", 1.0, 48, 48)
+    assert r["psf"] is buf and np.array_equal(buf, ref["psf"])
+    assert list(r["ok"]) == [True, False, True] and not buf[1].any()
+    with pytest.raises(ValueError, match=r"out: need a C-contiguous float32 array of shape \[1, 1, 3, 48, 48\]"):
+        _engine.psf_batch([js], [0.0], ch, "fft", 1.0, 48, 48, out=np.zeros((1, 1, 3, 32, 32), np.float32))
+    with pytest.raises(TypeError):
+        _engine.psf_batch([js], [0.0], ch, "fft", 1.0, 48, 48, out=np.zeros((1, 1, 3, 48, 48)))

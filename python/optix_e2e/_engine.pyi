@@ -192,10 +192,12 @@ def psf_batch(
     aiming: str = "paraxial",
     integrate: bool = False,
     fast: bool = True,
+    out: NDArray[np.float32] | None = None,
 ) -> dict[str, Any]:
     """Many designs x fields x channels in one call (GIL released, parallel over
     design x field, each PSF single threaded; the output does not depend on the number
-    of threads).
+    of threads).  ``out``: a C-contiguous float32 array (D, F, C, size, size) to write the
+    PSFs into (every value overwritten; returned as ``psf``), e.g. a reused buffer.
 
     Returns psf (D, F, C, size, size) float32 (unit sum per channel),
     relative_illumination (D, F, C) float64, energy_in_window (D, F, C) float64 (the

@@ -233,12 +233,28 @@ fn psf_rgb<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, channels: Vec<
 }
 
 #[pyfunction]
-#[pyo3(signature = (lens_jsons, fields_deg, channels, method="fft", pixel_um=1.0, size=64, pupil_samples=64, aiming="paraxial", integrate=false, fast=true))]
+#[pyo3(signature = (lens_jsons, fields_deg, channels, method="fft", pixel_um=1.0, size=64, pupil_samples=64, aiming="paraxial", integrate=false, fast=true, out=None))]
 #[allow(clippy::too_many_arguments)]
-fn psf_batch<'py>(py: Python<'py>, lens_jsons: Vec<String>, fields_deg: Vec<f64>, channels: Vec<Vec<(f64, f64)>>, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, aiming: &str, integrate: bool, fast: bool) -> PyResult<Bound<'py, PyDict>> {
+fn psf_batch<'py>(py: Python<'py>, lens_jsons: Vec<String>, fields_deg: Vec<f64>, channels: Vec<Vec<(f64, f64)>>, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, aiming: &str, integrate: bool, fast: bool, out: Option<numpy::PyReadwriteArrayDyn<'py, f32>>) -> PyResult<Bound<'py, PyDict>> {
     let o = options(method, pixel_um, size, pupil_samples, None, aiming, integrate, false, fast)?;
     let (nd, nf, nc) = (lens_jsons.len(), fields_deg.len(), channels.len());
-    let (batch, parse_errors) = run(py, || {
+    let shape = [nd, nf, nc, size, size];
+    let mut out = out;
+    if let Some(a) = &out {
+        if a.shape() != shape || !a.is_c_contiguous() {
+            return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                "out: need a C-contiguous float32 array of shape {shape:?}, got shape {:?}{}",
+                a.shape(),
+                if a.is_c_contiguous() { "" } else { " (not C-contiguous)" }
+            )));
+        }
+    }
+    let out_array: Option<Bound<'py, PyAny>> = out.as_ref().map(|a| a.as_any().clone());
+    let slice: Option<&mut [f32]> = match out.as_mut() {
+        Some(a) => Some(a.as_slice_mut().map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("out: {e}")))?),
+        None => None,
+    };
+    let (batch, owned, parse_errors) = run(py, move || {
         // Designs that do not parse are failures of that design, not of the call.
         let parsed: Vec<psf_engine::Result<Lens>> = lens_jsons.iter().map(|t| parse_lens(t)).collect();
         let placeholder = parsed.iter().find_map(|r| r.as_ref().ok().cloned());
@@ -247,30 +263,57 @@ fn psf_batch<'py>(py: Python<'py>, lens_jsons: Vec<String>, fields_deg: Vec<f64>
             None => vec![],
         };
         let errs: Vec<Option<String>> = parsed.iter().map(|r| r.as_ref().err().map(|e| e.to_string())).collect();
-        let b = if lenses.is_empty() {
-            psf_engine::rgb::Batch { psf: vec![0.0; nd * nf * nc * size * size], relative_illumination: vec![0.0; nd * nf * nc], energy_in_window: vec![0.0; nd * nf * nc], warnings: vec![vec![]; nd], errors: vec![None; nd] }
-        } else {
-            psf_engine::rgb::psf_batch(&lenses, &fields_deg, &channels, &o)?
+        let per = nf * nc * size * size;
+        let (b, owned) = match slice {
+            Some(buf) => {
+                let b = if lenses.is_empty() {
+                    buf.iter_mut().for_each(|v| *v = 0.0);
+                    psf_engine::rgb::Batch { psf: vec![], relative_illumination: vec![0.0; nd * nf * nc], energy_in_window: vec![0.0; nd * nf * nc], warnings: vec![vec![]; nd], errors: vec![None; nd] }
+                } else {
+                    psf_engine::rgb::psf_batch_into(&lenses, &fields_deg, &channels, &o, buf)?
+                };
+                for (i, e) in errs.iter().enumerate() {
+                    if e.is_some() {
+                        buf[i * per..(i + 1) * per].iter_mut().for_each(|v| *v = 0.0);
+                    }
+                }
+                (b, None)
+            }
+            None => {
+                let mut b = if lenses.is_empty() {
+                    psf_engine::rgb::Batch { psf: vec![0.0; nd * per], relative_illumination: vec![0.0; nd * nf * nc], energy_in_window: vec![0.0; nd * nf * nc], warnings: vec![vec![]; nd], errors: vec![None; nd] }
+                } else {
+                    psf_engine::rgb::psf_batch(&lenses, &fields_deg, &channels, &o)?
+                };
+                let mut v = std::mem::take(&mut b.psf);
+                for (i, e) in errs.iter().enumerate() {
+                    if e.is_some() {
+                        v[i * per..(i + 1) * per].iter_mut().for_each(|x| *x = 0.0);
+                    }
+                }
+                (b, Some(v))
+            }
         };
-        Ok((b, errs))
+        Ok((b, owned, errs))
     })?;
     let mut errors = batch.errors;
-    let mut psfv = batch.psf;
     let mut ri = batch.relative_illumination;
     let mut energy = batch.energy_in_window;
     let mut warnings = batch.warnings;
-    let per = nf * nc * size * size;
     for (i, e) in parse_errors.into_iter().enumerate() {
         if let Some(msg) = e {
             errors[i] = Some(msg);
-            psfv[i * per..(i + 1) * per].iter_mut().for_each(|v| *v = 0.0);
             ri[i * nf * nc..(i + 1) * nf * nc].iter_mut().for_each(|v| *v = 0.0);
             energy[i * nf * nc..(i + 1) * nf * nc].iter_mut().for_each(|v| *v = 0.0);
             warnings[i].clear();
         }
     }
     let d = PyDict::new(py);
-    d.set_item("psf", psfv.into_pyarray(py).reshape([nd, nf, nc, size, size])?)?;
+    match (owned, out_array) {
+        (Some(v), _) => d.set_item("psf", v.into_pyarray(py).reshape(shape)?)?,
+        (None, Some(a)) => d.set_item("psf", a)?,
+        (None, None) => unreachable!("either the engine's buffer or the caller's"),
+    }
     d.set_item("relative_illumination", ri.into_pyarray(py).reshape([nd, nf, nc])?)?;
     d.set_item("energy_in_window", energy.into_pyarray(py).reshape([nd, nf, nc])?)?;
     d.set_item("warnings", warnings)?;

@@ -109,8 +109,24 @@ pub struct Batch {
 pub fn psf_batch(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &PsfOptions) -> Result<Batch> {
     check_channels(channels)?;
     o.check()?;
+    let mut psfv = crate::trace::huge_pages(vec![0.0f32; lenses.len() * fields.len() * channels.len() * o.size * o.size]);
+    let mut b = psf_batch_into(lenses, fields, channels, o, &mut psfv)?;
+    b.psf = psfv;
+    Ok(b)
+}
+
+/// [`psf_batch`] writing the PSFs into `out` (designs x fields x channels x size x size,
+/// every value overwritten; a failed design's are zeros), e.g. a caller's reused buffer:
+/// no fresh memory to fault in and zero. The returned `Batch` has an empty `psf`.
+pub fn psf_batch_into(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &PsfOptions, out: &mut [f32]) -> Result<Batch> {
+    check_channels(channels)?;
+    o.check()?;
     let (nd, nf, nc, s) = (lenses.len(), fields.len(), channels.len(), o.size);
     let per = nc * s * s;
+    if out.len() != nd * nf * per {
+        return arg(format!("psf_batch: output holds {} values, expected {nd} x {nf} x {nc} x {s} x {s}", out.len()));
+    }
+    let psfv = out;
     // Whether each design's axial beam passes the fast path's ray set, per wavelength
     // (shared by its fields; an error here is left for the PSF itself to report).
     let wls: Vec<f64> = channels.iter().flatten().map(|p| p.0).collect();
@@ -120,7 +136,6 @@ pub fn psf_batch(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &PsfOp
         vec![vec![false; wls.len()]; nd]
     };
     let axis_known = fast::applies(o);
-    let mut psfv = crate::trace::huge_pages(vec![0.0f32; nd * nf * per]);
     let mut ri = vec![0.0; nd * nf * nc];
     let mut energy = vec![0.0; nd * nf * nc];
     // channel and weight of each wavelength, in the order rgb_core visits them
@@ -168,5 +183,5 @@ pub fn psf_batch(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &PsfOp
             energy[d * nf * nc..(d + 1) * nf * nc].iter_mut().for_each(|v| *v = 0.0);
         }
     }
-    Ok(Batch { psf: psfv, relative_illumination: ri, energy_in_window: energy, warnings, errors })
+    Ok(Batch { psf: vec![], relative_illumination: ri, energy_in_window: energy, warnings, errors })
 }

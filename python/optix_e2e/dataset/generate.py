@@ -180,11 +180,15 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
                 continue
             todo.append((i, float(d["surfaces"][-1]["thickness"])))
             jsons.append(json.dumps(d))
+        # the engine writes straight into the shard's rows from row0 on; a failed design's
+        # rows are zeros and the later ones move up over them
+        row0 = len(ok_idx)
         r = _engine.psf_batch(jsons, fields, channels, s.psf_method, s.pixel_um, S, s.pupil_samples,
-                              s.aiming, False) if jsons else {"ok": []}
+                              s.aiming, False, True, psf_arr[row0:row0 + len(jsons)]) if jsons else {"ok": []}
         for j, (i, image_mm) in enumerate(todo):
             if r["ok"][j]:
-                psf_arr[len(ok_idx)] = r["psf"][j]
+                if len(ok_idx) != row0 + j:
+                    psf_arr[len(ok_idx)] = psf_arr[row0 + j]
                 ok_idx.append(i)
                 ri.append(r["relative_illumination"][j])
                 energy.append(r["energy_in_window"][j])
