@@ -33,7 +33,7 @@
 //! fft_grid, where every ray of the coarse set reaches the image (no vignetting, no TIR)
 //! and the fits hold; otherwise `fast_psf` says why and the caller runs fft.rs.
 
-use super::fft::{buffer, plan, recycle, report_grid, zero_fill};
+use super::fft::{buffer, octant, plan, quarter_turns, recycle, report_grid, zero_fill};
 use super::{Diagnostics, Method, PsfOptions};
 use crate::aim::{Aiming, Beam};
 use crate::error::Result;
@@ -501,32 +501,19 @@ fn row_body(cw: &mut CellWork, row: &mut [Complex32], tab: [&Table; 3], v: f64, 
     (area * sc * sc, amp_sum, energy * sc * sc)
 }
 
-/// Round to nearest (ties to even) without a libm call, for |x| < 2^51.
-#[inline(always)]
-fn rne(x: f64) -> f64 {
-    const MAGIC: f64 = 6755399441055744.0; // 1.5 * 2^52
-    (x + MAGIC) - MAGIC
-}
-
 /// (cos, sin)(2 pi t) for t in turns: reduction to an octant and near-minimax polynomials
 /// in th^2 of six terms each on |th| <= pi/4 (error below 1e-13, far below the
 /// single-precision field's rounding), branch free so that loops over it vectorize.
 #[inline(always)]
 fn cis_turns(t: f64) -> (f64, f64) {
-    let q = rne(4.0 * t);
-    let th = (t - 0.25 * q) * (2.0 * PI);
+    let (q, th) = octant(t);
     let x2 = th * th;
     // sin(th) / th and cos(th) fitted in x2 on [0, (pi/4)^2] (errors 6e-15 and 6e-14).
     const S: [f64; 6] = [0.9999999999999961, -0.16666666666617147, 0.008333333323944567, -0.00019841263326625605, 2.7555276987761723e-06, -2.475688510829627e-08];
     const C: [f64; 6] = [0.999999999999938, -0.4999999999934691, 0.04166666654360046, -0.0013888880383500714, 2.479892728171647e-05, -2.7173353223481015e-07];
     let s = th * S.iter().rev().fold(0.0, |acc, &c| acc * x2 + c);
     let c = C.iter().rev().fold(0.0, |acc, &c| acc * x2 + c);
-    // Rotate by q quarter turns: r = q mod 4 (q / 4 - 3/8 never ties, so rne floors it).
-    let r = q - 4.0 * rne(0.25 * q - 0.375);
-    let swap = r == 1.0 || r == 3.0;
-    let (re, im) = (if swap { -s } else { c }, if swap { c } else { s });
-    let sign = if r >= 2.0 { -1.0 } else { 1.0 };
-    (sign * re, sign * im)
+    quarter_turns(q, c, s)
 }
 
 #[cfg(target_arch = "x86_64")]

@@ -273,12 +273,29 @@ fn rne(x: f64) -> f64 {
     (x + MAGIC) - MAGIC
 }
 
+/// exp(i 2 pi t) reduced to an octant: (q, th) with 2 pi t = q pi / 2 + th, |th| <= pi / 4.
+#[inline(always)]
+pub(crate) fn octant(t: f64) -> (f64, f64) {
+    let q = rne(4.0 * t);
+    (q, (t - 0.25 * q) * (2.0 * PI))
+}
+
+/// (cos, sin) of th + q pi / 2 from c = cos th and s = sin th, branch free.
+#[inline(always)]
+pub(crate) fn quarter_turns(q: f64, c: f64, s: f64) -> (f64, f64) {
+    // r = q mod 4 (q / 4 - 3/8 never ties, so rne floors it).
+    let r = q - 4.0 * rne(0.25 * q - 0.375);
+    let swap = r == 1.0 || r == 3.0;
+    let (re, im) = (if swap { -s } else { c }, if swap { c } else { s });
+    let sign = if r >= 2.0 { -1.0 } else { 1.0 };
+    (sign * re, sign * im)
+}
+
 /// exp(i 2 pi t) for t in turns: reduction to an octant and Taylor polynomials (error
 /// below 1e-16), branch free so that loops over it vectorize.
 #[inline(always)]
 pub(crate) fn cis_turns(t: f64) -> Complex64 {
-    let q = rne(4.0 * t);
-    let th = (t - 0.25 * q) * (2.0 * PI);
+    let (q, th) = octant(t);
     let x2 = th * th;
     // Taylor coefficients (-1)^k / (2k+1)! and (-1)^k / (2k)!, Horner in x^2.
     const S: [f64; 8] = [1.0, -1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0, 1.0 / 362880.0, -1.0 / 39916800.0, 1.0 / 6227020800.0, -1.0 / 1307674368000.0];
@@ -295,12 +312,8 @@ pub(crate) fn cis_turns(t: f64) -> Complex64 {
     ];
     let s = th * S.iter().rev().fold(0.0, |acc, &c| acc * x2 + c);
     let c = C.iter().rev().fold(0.0, |acc, &c| acc * x2 + c);
-    // Rotate by q quarter turns: r = q mod 4 (q / 4 - 3/8 never ties, so rne floors it).
-    let r = q - 4.0 * rne(0.25 * q - 0.375);
-    let swap = r == 1.0 || r == 3.0;
-    let (re, im) = (if swap { -s } else { c }, if swap { c } else { s });
-    let sign = if r >= 2.0 { -1.0 } else { 1.0 };
-    Complex64::new(sign * re, sign * im)
+    let (re, im) = quarter_turns(q, c, s);
+    Complex64::new(re, im)
 }
 
 #[inline(always)]
