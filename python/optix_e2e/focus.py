@@ -13,6 +13,11 @@ import json
 from typing import Sequence
 
 
+def _pairs(wavelengths_nm: Sequence[float], weights: Sequence[float] | None) -> list[tuple[float, float]]:
+    ww = [1.0] * len(wavelengths_nm) if weights is None else list(weights)
+    return [(float(w), float(x)) for w, x in zip(wavelengths_nm, ww)]
+
+
 def best_focus_shift(lens_json: str, fields_deg: Sequence[float], wavelengths_nm: Sequence[float],
                      weights: Sequence[float] | None = None, rings: int = 8, aiming: str = "paraxial") -> float:
     """Image-plane shift (mm; positive = away from the lens) minimizing the mean over
@@ -21,29 +26,49 @@ def best_focus_shift(lens_json: str, fields_deg: Sequence[float], wavelengths_nm
     Raises the engine's error if the lens cannot be traced."""
     from . import _engine
 
-    ww = [1.0] * len(wavelengths_nm) if weights is None else list(weights)
-    r = _engine.best_focus_batch([lens_json], [float(f) for f in fields_deg],
-                                 [(float(w), float(x)) for w, x in zip(wavelengths_nm, ww)], rings, aiming)
+    r = _engine.best_focus_batch([lens_json], [float(f) for f in fields_deg], _pairs(wavelengths_nm, weights),
+                                 rings, aiming)
     if not r["ok"][0]:
         raise _engine.EngineError(r["errors"][0])
     return float(r["shift_mm"][0])
 
 
+def refocus_many(lenses: Sequence[dict], mode: str, fields_deg: Sequence[float], wavelengths_nm: Sequence[float],
+                 weights: Sequence[float] | None = None, primary_nm: float | None = None, rings: int = 8,
+                 aiming: str = "paraxial") -> list[str | None]:
+    """Set each resolved lens dict's image distance by ``mode`` (in place): "best"
+    (:func:`best_focus_shift`, one parallel engine call for all), "paraxial" (the paraxial
+    focus at ``primary_nm``) or "fixed" (unchanged).  Returns, per lens, the engine's
+    error message where it could not be refocused (that lens is left unchanged), else None."""
+    from . import _engine
+
+    if mode not in ("best", "paraxial", "fixed"):
+        raise ValueError(f"focus must be 'best', 'paraxial' or 'fixed', got {mode!r}")
+    errors: list[str | None] = [None] * len(lenses)
+    if mode == "paraxial":
+        for k, lens in enumerate(lenses):
+            try:
+                lens["surfaces"][-1]["thickness"] = float(_engine.paraxial(json.dumps(lens), primary_nm)["bfl_mm"])
+            except _engine.EngineError as exc:
+                errors[k] = str(exc)
+    elif mode == "best" and lenses:
+        r = _engine.best_focus_batch([json.dumps(d) for d in lenses], [float(f) for f in fields_deg],
+                                     _pairs(wavelengths_nm, weights), rings, aiming)
+        for k, (lens, dz, err) in enumerate(zip(lenses, r["shift_mm"], r["errors"])):
+            if err:
+                errors[k] = err
+            else:
+                lens["surfaces"][-1]["thickness"] = float(lens["surfaces"][-1]["thickness"]) + float(dz)
+    return errors
+
+
 def refocus(lens: dict, mode: str, fields_deg: Sequence[float], wavelengths_nm: Sequence[float],
             weights: Sequence[float] | None = None, primary_nm: float | None = None) -> dict:
     """``lens`` (a resolved lens dict, changed in place and returned) with its image
-    distance set by ``mode``: "best" (:func:`best_focus_shift`), "paraxial" (the paraxial
-    focus at ``primary_nm``) or "fixed" (unchanged)."""
+    distance set by ``mode`` (see :func:`refocus_many`); raises the engine's error."""
     from . import _engine
 
-    if mode == "fixed":
-        return lens
-    last = lens["surfaces"][-1]
-    if mode == "paraxial":
-        last["thickness"] = float(_engine.paraxial(json.dumps(lens), primary_nm)["bfl_mm"])
-    elif mode == "best":
-        last["thickness"] = float(last["thickness"]) + best_focus_shift(
-            json.dumps(lens), fields_deg, wavelengths_nm, weights)
-    else:
-        raise ValueError(f"focus must be 'best', 'paraxial' or 'fixed', got {mode!r}")
+    err = refocus_many([lens], mode, fields_deg, wavelengths_nm, weights, primary_nm)[0]
+    if err:
+        raise _engine.EngineError(err)
     return lens

@@ -21,8 +21,12 @@ or, where it gives none, its ray footprint.
 
 from __future__ import annotations
 
+import csv
+import io
 import math
+import os
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -195,3 +199,27 @@ def sample_designs(space: ParameterSpace, base: Lens, n: int, seed: int = 0, met
             if progress:
                 progress(drawn, len(accepted))
     return SampleResult(space, np.array(accepted), drawn, rejected, n_rej, limits, method, seed)
+
+
+def write_designs_csv(path: "str | Path", names: Sequence[str], values: np.ndarray) -> None:
+    """designs.csv: a header ``design, <parameter names>`` and one row per design (its
+    index and the values at full precision), written to a temporary file and renamed, so
+    a reader never sees half a file."""
+    path = Path(path)
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["design", *names])
+    for i, row in enumerate(values):
+        w.writerow([i, *(repr(float(v)) for v in row)])
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_text(buf.getvalue(), encoding="utf-8", newline="")
+    os.replace(tmp, path)
+
+
+def read_designs_csv(path: "str | Path", names: Sequence[str]) -> np.ndarray:
+    """The (n, P) values of a designs.csv whose header lists ``names``."""
+    with open(path, newline="", encoding="utf-8") as f:
+        rows = list(csv.reader(f))
+    if not rows or rows[0] != ["design", *names]:
+        raise SpaceError(f"{path}: header does not list the parameters {', '.join(names)}")
+    return np.array([[float(v) for v in r[1:]] for r in rows[1:]], float).reshape(len(rows) - 1, len(names))

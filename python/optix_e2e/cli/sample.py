@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import csv
-import os
 import sys
 from pathlib import Path
 
 import click
 
-from ..sampling import METHODS, Limits, SampleResult, sample_designs
+from ..sampling import METHODS, Limits, sample_designs, write_designs_csv
 from ..space import load_space
 from ._common import dumps, friendly_errors
 
@@ -21,19 +19,6 @@ def limit_options(fn):
         fn = click.option(f"--{name}", type=float, default=None,
                           help=f"Minimum {what} (mm); default: the space's [constraints].")(fn)
     return fn
-
-
-def write_designs_csv(path: "str | Path", result: SampleResult) -> None:
-    """One row per design: its index and the parameter values (full precision), written
-    to a temporary file first and renamed, so a reader never sees half a file."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "w", newline="", encoding="utf-8") as f:
-        w = csv.writer(f)
-        w.writerow(["design", *result.space.names])
-        for i, row in enumerate(result.values):
-            w.writerow([i, *(repr(float(v)) for v in row)])
-    os.replace(tmp, path)
 
 
 @click.command("sample")
@@ -66,7 +51,7 @@ def sample(space_spec, n, seed, method, out_path, min_air_gap, min_center, min_e
         res = sample_designs(space, base, n, seed=seed, method=method, limits=limits, progress=progress)
     finally:
         bar.close()
-    write_designs_csv(out_path, res)
+    write_designs_csv(out_path, space.names, res.values)
     summary = {"out": str(out_path), "lens": base.name, **res.summary()}
     Path(out_path).with_suffix(".summary.json").write_text(dumps(summary, indent=2) + "\n", encoding="utf-8")
     click.echo(dumps(summary))

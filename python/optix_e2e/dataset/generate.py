@@ -22,7 +22,7 @@ from typing import Callable
 import numpy as np
 
 from ..lens import Lens
-from ..focus import refocus
+from ..focus import refocus_many
 from ..sampling import apertures, geometry_problem
 from ..space import ParameterSpace, load_space
 from .layout import ARRAYS, FORMAT, Crc32Writer, fsync_dir, shard_name, shards_dir, write_json_atomic
@@ -146,7 +146,6 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
     def fail(i, reason):
         failures.append({"design": i, "reason": reason, "params": dict(zip(space.names, map(float, designs[i])))})
 
-    wl_weights = [(float(wl), 1.0) for wl in wavelengths]
     for lo in range(a, b, batch):
         hi = min(b, lo + batch)
         cand = []                     # (design index, lens dict) past the geometry check
@@ -157,20 +156,10 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
                 fail(i, f"{bad[0]}: {bad[1]}")
             else:
                 cand.append((i, d))
-        if s.focus == "best" and cand:  # one parallel engine call for the batch's refocusing
-            fr = _engine.best_focus_batch([json.dumps(d) for _, d in cand], focus_fields, wl_weights, 4, s.aiming)
-            for (i, d), dz, err in zip(cand, fr["shift_mm"], fr["errors"]):
-                d["surfaces"][-1]["thickness"] = float(d["surfaces"][-1]["thickness"]) + float(dz)
-                if err:
-                    d["_focus_error"] = err
+        focus_errors = refocus_many([d for _, d in cand], s.focus, focus_fields, wavelengths,
+                                    primary_nm=base.primary_wavelength_nm, rings=4, aiming=s.aiming)
         todo, jsons = [], []
-        for i, d in cand:
-            err = d.pop("_focus_error", None)
-            if s.focus == "paraxial":
-                try:
-                    refocus(d, "paraxial", focus_fields, wavelengths, primary_nm=base.primary_wavelength_nm)
-                except _engine.EngineError as exc:
-                    err = str(exc)
+        for (i, d), err in zip(cand, focus_errors):
             if err:
                 fail(i, f"focus: {err}")
                 continue

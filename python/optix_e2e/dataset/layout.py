@@ -31,6 +31,7 @@ from pathlib import Path
 FORMAT = "optix-psf-dataset/1"
 ARRAYS = ("design", "params", "psf", "psf_sensor", "relative_illumination", "image_distance",
           "energy_in_window")
+VALUES = ARRAYS[1:]  # the per-design data, after the design index
 
 
 class DatasetError(RuntimeError):
@@ -109,6 +110,12 @@ def write_json_atomic(path: Path, obj) -> None:
         os.fsync(f.fileno())
     os.replace(tmp, path)
     fsync_dir(path.parent)
+
+
+def differing_keys(a: dict, b: dict, keys) -> list[str]:
+    """The keys among ``keys`` whose values differ between two manifests (JSON-equal
+    values are equal)."""
+    return sorted(k for k in keys if json.dumps(a.get(k), sort_keys=True) != json.dumps(b.get(k), sort_keys=True))
 
 
 def read_json(path: Path, what: str) -> dict:

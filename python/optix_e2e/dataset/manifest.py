@@ -3,23 +3,20 @@ checked against the request on every later run (docs/dataset.md)."""
 
 from __future__ import annotations
 
-import csv
-import io
-import json
 import math
-import os
 import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable
 
 import numpy as np
 
 from ..lens import Lens
-from ..sampling import Limits, sample_designs
-from ..space import ParameterSpace
-from .layout import FORMAT, DatasetError, read_json, sha256_file, write_json_atomic
+from ..sampling import Limits, read_designs_csv, sample_designs, write_designs_csv
+from ..space import ParameterSpace, SpaceError
+from .layout import FORMAT, DatasetError, differing_keys, read_json, sha256_file, write_json_atomic
 from .settings import DatasetSettings, field_positions
+
 
 def _request(space: ParameterSpace, base: Lens, n: int, seed: int, s: DatasetSettings,
              fields: list[float], channels) -> dict:
@@ -48,23 +45,6 @@ def _versions() -> dict:
     return out
 
 
-def _read_designs(path: Path, names: Sequence[str]) -> np.ndarray:
-    with open(path, newline="", encoding="utf-8") as f:
-        rows = list(csv.reader(f))
-    if not rows or rows[0] != ["design", *names]:
-        raise DatasetError(f"{path}: header does not list the manifest's parameters")
-    return np.array([[float(v) for v in r[1:]] for r in rows[1:]], float)
-
-
-def _designs_csv_bytes(names: Sequence[str], values: np.ndarray) -> bytes:
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["design", *names])
-    for i, row in enumerate(values):
-        w.writerow([i, *(repr(float(v)) for v in row)])
-    return buf.getvalue().encode("utf-8")
-
-
 def prepare(out: Path, space: ParameterSpace, base: Lens, n: int, seed: int, s: DatasetSettings,
             log: Callable[[str], None] = lambda m: None) -> tuple[dict, np.ndarray]:
     """Create or check ``out``'s manifest and designs; returns (manifest, designs (n, P))."""
@@ -74,22 +54,22 @@ def prepare(out: Path, space: ParameterSpace, base: Lens, n: int, seed: int, s: 
     mpath = out / "manifest.json"
     if mpath.exists():
         man = read_json(mpath, "manifest")
-        diff = sorted(k for k in req if json.dumps(man.get(k), sort_keys=True) != json.dumps(req[k], sort_keys=True))
+        diff = differing_keys(man, req, req)
         if diff:
             raise DatasetError(f"{mpath}: this directory holds a different dataset (differs in: "
                                f"{', '.join(diff)}); use another --out or the same arguments")
         dpath = out / "designs.csv"
         if not dpath.exists() or sha256_file(dpath) != man["designs_csv_sha256"]:
             raise DatasetError(f"{dpath}: missing or changed since the manifest was written")
-        return man, _read_designs(dpath, space.names)
+        try:
+            return man, read_designs_csv(dpath, space.names)
+        except SpaceError as exc:
+            raise DatasetError(str(exc)) from None
     log(f"sampling {n} designs ({s.sampling}, seed {seed})")
     limits = Limits.from_dict(space.constraints, f"{space.source}: [constraints]")
     res = sample_designs(space, base, n, seed=seed, method=s.sampling, limits=limits)
     out.mkdir(parents=True, exist_ok=True)
-    data = _designs_csv_bytes(space.names, res.values)
-    tmp = out / f".designs.csv.tmp{os.getpid()}"
-    tmp.write_bytes(data)
-    os.replace(tmp, out / "designs.csv")
+    write_designs_csv(out / "designs.csv", space.names, res.values)
     man = {**req,
            "sampling_summary": res.summary(),
            # the paper normalizes parameters by their mean and standard deviation over the designs

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 from pathlib import Path
 from typing import Sequence
 
-from .layout import DatasetError, read_json, shard_name, shards_dir, write_json_atomic
+from .layout import DatasetError, differing_keys, read_json, shard_name, shards_dir, write_json_atomic
 
 # manifest keys that may differ between processes of one dataset
 _LOCAL = {"created_unix", "versions"}
@@ -25,14 +24,13 @@ def merge(out: "str | Path", parts: Sequence["str | Path"]) -> dict:
     mans = [read_json(p / "manifest.json", "manifest") for p in parts]
     ref = {k: v for k, v in mans[0].items() if k not in _LOCAL}
     for p, m in zip(parts[1:], mans[1:]):
-        diff = sorted(k for k in set(ref) | set(m) if k not in _LOCAL
-                      and json.dumps(ref.get(k), sort_keys=True) != json.dumps(m.get(k), sort_keys=True))
+        diff = differing_keys(ref, m, (set(ref) | set(m)) - _LOCAL)
         if diff:
             raise DatasetError(f"{p / 'manifest.json'}: a different dataset from {parts[0]} (differs in: {', '.join(diff)})")
     out.mkdir(parents=True, exist_ok=True)
     if (out / "manifest.json").exists():
         m = read_json(out / "manifest.json", "manifest")
-        diff = sorted(k for k in ref if json.dumps(ref[k], sort_keys=True) != json.dumps(m.get(k), sort_keys=True))
+        diff = differing_keys(ref, m, ref)
         if diff:
             raise DatasetError(f"{out / 'manifest.json'}: a different dataset (differs in: {', '.join(diff)})")
     else:

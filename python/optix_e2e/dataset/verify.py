@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .layout import FORMAT, DatasetError, crc32_file, read_json, shard_name, shards_dir
+from .layout import FORMAT, VALUES, DatasetError, crc32_file, read_json, shard_name, shards_dir
 
 
 def expected_shapes(man: dict, m: int) -> dict:
@@ -80,8 +80,7 @@ def verify(root: "str | Path", check_hashes: bool = True) -> dict:
             continue
         try:
             arrays, meta = open_shard(root, k, man, check_hashes)
-            for name in ("params", "psf", "psf_sensor", "relative_illumination", "image_distance",
-                         "energy_in_window"):
+            for name in VALUES:
                 if not np.all(np.isfinite(arrays[name])):
                     raise DatasetError(f"{shards_dir(root) / shard_name(k) / (name + '.npy')}: non-finite values")
         except DatasetError as exc:
@@ -89,8 +88,7 @@ def verify(root: "str | Path", check_hashes: bool = True) -> dict:
             continue
         for j, i in enumerate(np.asarray(arrays["design"])):
             h.update(np.int64(i).tobytes())
-            for name in ("params", "psf", "psf_sensor", "relative_illumination", "image_distance",
-                         "energy_in_window"):
+            for name in VALUES:
                 h.update(np.ascontiguousarray(arrays[name][j]).astype(arrays[name].dtype.newbyteorder("<")).tobytes())
         n_ok += meta["n_ok"]
         n_failed += meta["n_failed"]
