@@ -264,36 +264,23 @@ fn psf_batch<'py>(py: Python<'py>, lens_jsons: Vec<String>, fields_deg: Vec<f64>
         };
         let errs: Vec<Option<String>> = parsed.iter().map(|r| r.as_ref().err().map(|e| e.to_string())).collect();
         let per = nf * nc * size * size;
-        let (b, owned) = match slice {
-            Some(buf) => {
-                let b = if lenses.is_empty() {
-                    buf.iter_mut().for_each(|v| *v = 0.0);
-                    psf_engine::rgb::Batch { psf: vec![], relative_illumination: vec![0.0; nd * nf * nc], energy_in_window: vec![0.0; nd * nf * nc], warnings: vec![vec![]; nd], errors: vec![None; nd] }
-                } else {
-                    psf_engine::rgb::psf_batch_into(&lenses, &fields_deg, &channels, &o, buf)?
-                };
-                for (i, e) in errs.iter().enumerate() {
-                    if e.is_some() {
-                        buf[i * per..(i + 1) * per].iter_mut().for_each(|v| *v = 0.0);
-                    }
-                }
-                (b, None)
-            }
-            None => {
-                let mut b = if lenses.is_empty() {
-                    psf_engine::rgb::Batch { psf: vec![0.0; nd * per], relative_illumination: vec![0.0; nd * nf * nc], energy_in_window: vec![0.0; nd * nf * nc], warnings: vec![vec![]; nd], errors: vec![None; nd] }
-                } else {
-                    psf_engine::rgb::psf_batch(&lenses, &fields_deg, &channels, &o)?
-                };
-                let mut v = std::mem::take(&mut b.psf);
-                for (i, e) in errs.iter().enumerate() {
-                    if e.is_some() {
-                        v[i * per..(i + 1) * per].iter_mut().for_each(|x| *x = 0.0);
-                    }
-                }
-                (b, Some(v))
-            }
+        // the caller's array, or one of our own returned as a new array
+        let mut owned: Option<Vec<f32>> = None;
+        let buf: &mut [f32] = match slice {
+            Some(b) => b,
+            None => owned.insert(psf_engine::rgb::output_buffer(nd * per)),
         };
+        let b = if lenses.is_empty() {
+            buf.iter_mut().for_each(|v| *v = 0.0);
+            psf_engine::rgb::Batch { psf: vec![], relative_illumination: vec![0.0; nd * nf * nc], energy_in_window: vec![0.0; nd * nf * nc], warnings: vec![vec![]; nd], errors: vec![None; nd] }
+        } else {
+            psf_engine::rgb::psf_batch_into(&lenses, &fields_deg, &channels, &o, buf)?
+        };
+        for (i, e) in errs.iter().enumerate() {
+            if e.is_some() {
+                buf[i * per..(i + 1) * per].iter_mut().for_each(|v| *v = 0.0);
+            }
+        }
         Ok((b, owned, errs))
     })?;
     let mut errors = batch.errors;

@@ -109,10 +109,15 @@ pub struct Batch {
 pub fn psf_batch(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &PsfOptions) -> Result<Batch> {
     check_channels(channels)?;
     o.check()?;
-    let mut psfv = crate::trace::huge_pages(vec![0.0f32; lenses.len() * fields.len() * channels.len() * o.size * o.size]);
+    let mut psfv = output_buffer(lenses.len() * fields.len() * channels.len() * o.size * o.size);
     let mut b = psf_batch_into(lenses, fields, channels, o, &mut psfv)?;
     b.psf = psfv;
     Ok(b)
+}
+
+/// A zeroed PSF output buffer of `len` values (huge-page backed where the system allows).
+pub fn output_buffer(len: usize) -> Vec<f32> {
+    crate::trace::huge_pages(vec![0.0f32; len])
 }
 
 /// [`psf_batch`] writing the PSFs into `out` (designs x fields x channels x size x size,
