@@ -25,7 +25,7 @@ from ..lens import Lens
 from ..focus import refocus_many
 from ..sampling import apertures, geometry_problem
 from ..space import ParameterSpace, load_space
-from .layout import ARRAYS, FORMAT, Crc32Writer, fsync_dir, shard_name, shards_dir, write_json_atomic
+from .layout import ARRAYS, FORMAT, aligned_empty, fsync_dir, save_npy, shard_name, shards_dir, write_json_atomic
 from .manifest import prepare
 from .settings import DatasetSettings, engine_base
 
@@ -95,21 +95,6 @@ def _clean_stale(sdir: Path, k: int) -> None:
             pid = -1
         if pid != os.getpid() and not _pid_alive(pid):
             shutil.rmtree(p, ignore_errors=True)
-
-
-def _save_npy(path: Path, arr: np.ndarray) -> str:
-    """Write ``arr`` as .npy, synced; returns the file's CRC-32 (computed on the way out)."""
-    arr = np.ascontiguousarray(arr)
-    with open(path, "wb") as f:
-        w = Crc32Writer(f)
-        # what np.save writes (a version 1.0 header, then the raw C-order data), without
-        # np.save's copy of the data into bytes for a file-like object
-        np.lib.format.write_array_header_1_0(w, np.lib.format.header_data_from_array_1_0(arr))
-        if arr.size:
-            w.write(memoryview(arr).cast("B"))
-        f.flush()
-        os.fsync(f.fileno())
-    return w.hex
 
 
 def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace, base: Lens,
@@ -223,7 +208,7 @@ def write_shard(root: Path, k: int, arrays: dict, meta: dict, settings: DatasetS
     files = {}
     for name in ARRAYS:
         p = tmp / f"{name}.npy"
-        crc = _save_npy(p, np.ascontiguousarray(arrays[name]))
+        crc = save_npy(p, arrays[name])
         files[name] = {"crc32": crc, "shape": list(arrays[name].shape),
                        "dtype": str(arrays[name].dtype)}
     write_json_atomic(tmp / "shard.json", {**meta, "files": files})
@@ -307,8 +292,8 @@ def generate(space_spec: "str | Path", n: int, seed: int, out: "str | Path",
                 if sdir.exists():
                     _clean_stale(sdir, k)
                 if buffers[n_done % 2] is None and len(pending) > 1:
-                    buffers[n_done % 2] = np.empty((s.shard_size, s.n_fields, len(man["channels"]), s.size, s.size),
-                                                   np.float32)
+                    buffers[n_done % 2] = aligned_empty((s.shard_size, s.n_fields, len(man["channels"]), s.size, s.size),
+                                                        np.float32)
                 arrays, meta = compute_shard(k, man, designs, space, base, on_batch=on_batch,
                                              psf_buffer=buffers[n_done % 2], checked=True, defer_sensor=True)
                 if writing is not None:

@@ -22,11 +22,15 @@ temporary directory, removed and redone by the next run.
 
 from __future__ import annotations
 
+import errno
+import fcntl
 import hashlib
 import json
 import os
 import zlib
 from pathlib import Path
+
+import numpy as np
 
 FORMAT = "optix-psf-dataset/1"
 ARRAYS = ("design", "params", "psf", "psf_sensor", "relative_illumination", "image_distance",
@@ -71,19 +75,84 @@ def crc32_file(path: Path, chunk: int = 1 << 22) -> str:
     return f"{crc:08x}"
 
 
-class Crc32Writer:
-    """A write-only file wrapper that keeps the CRC-32 of what passes through."""
+ALIGN = 4096  # direct I/O: buffer addresses, file offsets and lengths in these units
+DIRECT_MIN_BYTES = 1 << 20
 
-    def __init__(self, f):
-        self.f, self.crc = f, 0
 
-    def write(self, b) -> int:
-        self.crc = zlib.crc32(b, self.crc)
-        return self.f.write(b)
+def aligned_empty(shape, dtype) -> np.ndarray:
+    """An uninitialized C-contiguous array whose data starts on an ``ALIGN`` boundary (so
+    :func:`save_npy` can write it with direct I/O)."""
+    dtype = np.dtype(dtype)
+    n = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    raw = np.empty(n + ALIGN, np.uint8)
+    off = (-raw.ctypes.data) % ALIGN
+    return raw[off:off + n].view(dtype).reshape(shape)
 
-    @property
-    def hex(self) -> str:
-        return f"{self.crc:08x}"
+
+def npy_header(arr: np.ndarray, pad_to: int = 64) -> bytes:
+    """The .npy version 1.0 header of ``arr`` (magic, length, dict), padded with spaces to a
+    multiple of ``pad_to`` bytes as the format allows; numpy reads any such header."""
+    d = np.lib.format.header_data_from_array_1_0(arr)
+    text = "{" + "".join(f"'{k}': {d[k]!r}, " for k in sorted(d)) + "}"
+    n = 10 + len(text) + 1
+    text += " " * ((-n) % pad_to) + "\n"
+    if len(text) > 65535:
+        raise ValueError(f"npy header of {len(text)} bytes")
+    return b"\x93NUMPY\x01\x00" + len(text).to_bytes(2, "little") + text.encode("latin1")
+
+
+def _write_all(fd: int, mv: memoryview) -> None:
+    while len(mv):
+        mv = mv[os.write(fd, mv):]
+
+
+def save_npy(path: Path, arr: np.ndarray) -> str:
+    """Write ``arr`` as a .npy file, synced to disk; returns its CRC-32 (hex).
+
+    A large array whose data is ``ALIGN``-aligned goes to disk with direct I/O (O_DIRECT):
+    its header is padded to ``ALIGN`` bytes, and the data goes from the array's own pages to
+    the device without a copy into the page cache.  A dataset writes GBs it will not read
+    back soon: buffered, each MB costs the kernel fresh page-cache pages (in a VM, ~2.5 ms
+    of CPU per MB here, taken from the engine's two cores); direct, almost nothing.  Where
+    the file system refuses direct I/O (tmpfs), or for small or unaligned arrays, it writes
+    through the page cache; the file's bytes are the same either way for a given header."""
+    arr = np.ascontiguousarray(arr)
+    data = memoryview(arr.reshape(-1).view(np.uint8)) if arr.size else memoryview(b"")
+    direct = (getattr(os, "O_DIRECT", 0) and arr.nbytes >= DIRECT_MIN_BYTES
+              and arr.ctypes.data % ALIGN == 0)
+    header = npy_header(arr, ALIGN if direct else 64)
+    crc = zlib.crc32(data, zlib.crc32(header))
+    if direct:
+        try:
+            _save_direct(path, header, data)
+            return f"{crc:08x}"
+        except OSError as exc:
+            if exc.errno != errno.EINVAL:
+                raise
+    with open(path, "wb") as f:
+        f.write(header)
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    return f"{crc:08x}"
+
+
+def _save_direct(path: Path, header: bytes, data: memoryview) -> None:
+    """Header (one ``ALIGN`` block) and the aligned body with O_DIRECT, the tail (under one
+    block) buffered; then fsync (file size and metadata).  EINVAL: no direct I/O here."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_DIRECT, 0o644)
+    try:
+        hbuf = aligned_empty((len(header),), np.uint8)
+        hbuf[:] = np.frombuffer(header, np.uint8)
+        _write_all(fd, memoryview(hbuf))
+        body = len(data) - len(data) % ALIGN
+        _write_all(fd, data[:body])
+        if body < len(data):
+            fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~os.O_DIRECT)
+            _write_all(fd, data[body:])
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def fsync_dir(path: Path) -> None:
