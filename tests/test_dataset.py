@@ -20,7 +20,6 @@ from click.testing import CliRunner
 
 from optix_e2e.cli.dataset import dataset
 from optix_e2e.dataset import DatasetError, DatasetSettings, generate, verify
-from optix_e2e.dataset.generate import sensor_binning
 from optix_e2e.dataset.merge import merge
 from optix_e2e.dataset.torch_dataset import PsfDataset
 from optix_e2e.lens import Lens
@@ -34,6 +33,17 @@ def _cli(*args, env=None):
     """Run ``optix dataset ...`` in a subprocess (so it can be killed)."""
     return subprocess.Popen([sys.executable, "-m", "optix_e2e", "dataset", *map(str, args)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+
+
+def sensor_binning(size: int, pitch_um: float, s_size: int, s_pitch_um: float) -> np.ndarray:
+    """(s_size, size) weights, independently of the engine: the overlap of each fine pixel
+    (a box of one pitch around its centre) with each sensor pixel, as a fraction of the
+    fine pixel; both grids centred on pixel size // 2."""
+    x = (np.arange(size) - size // 2) * pitch_um
+    c = (np.arange(s_size) - s_size // 2) * s_pitch_um
+    ov = (np.minimum(x[None, :] + pitch_um / 2, c[:, None] + s_pitch_um / 2)
+          - np.maximum(x[None, :] - pitch_um / 2, c[:, None] - s_pitch_um / 2))
+    return np.clip(ov, 0.0, None) / pitch_um
 
 
 def _arrays(root: Path) -> dict:
@@ -72,6 +82,9 @@ def test_layout_shapes_and_physics(reference):
     np.testing.assert_allclose(w.sum(axis=0)[2:30], 1.0, atol=1e-12)
     np.testing.assert_allclose(sens.sum(axis=(-1, -2)), np.einsum("mkcyx,x,y->mkc", psf.astype(float),
                                w.sum(axis=0), w.sum(axis=0)), rtol=1e-5)
+    # pixel by pixel: the engine bins the double-precision PSF; the float32 one binned here
+    # agrees to float32 rounding
+    np.testing.assert_allclose(sens, np.einsum("iy,mkcyx,jx->mkcij", w, psf.astype(float), w), rtol=2e-6, atol=1e-9)
 
 
 def test_designs_match_the_sampler_and_psfs_match_the_engine(reference):

@@ -110,3 +110,34 @@ def test_psf_batch_into_a_callers_buffer():
         _engine.psf_batch([js], [0.0], ch, "fft", 1.0, 48, 48, out=np.zeros((1, 1, 3, 32, 32), np.float32))
     with pytest.raises(TypeError):
         _engine.psf_batch([js], [0.0], ch, "fft", 1.0, 48, 48, out=np.zeros((1, 1, 3, 48, 48)))
+
+
+def test_psf_batch_sensor_pixels():
+    """psf_batch(sensor=(pitch_um, m)): each PSF also integrated over m x m sensor pixels
+    (the dataset's psf_sensor), the same into a caller's buffer (stale values and a design
+    that does not parse -> zeros); against the box-overlap weights built here in numpy."""
+    import numpy as np
+
+    from optix_e2e import _engine
+    from optix_e2e.lens import Lens
+
+    js = Lens.load("paper-triplet").to_engine_json()
+    ch = [[(650.0, 1.0)], [(550.0, 1.0)], [(470.0, 1.0)]]
+    r = _engine.psf_batch([js, "not json"], [0.0, 14.9], ch, "fft", 1.0, 48, 48, sensor=(5.86, 7))
+    sens = r["psf_sensor"]
+    assert sens.shape == (2, 2, 3, 7, 7) and sens.dtype == np.float32 and not sens[1].any()
+    x, c = np.arange(48) - 24.0, (np.arange(7) - 3) * 5.86
+    w = np.clip(np.minimum(x + 0.5, c[:, None] + 2.93) - np.maximum(x - 0.5, c[:, None] - 2.93), 0, None)
+    np.testing.assert_allclose(sens[0], np.einsum("iy,kcyx,jx->kcij", w, r["psf"][0].astype(float), w), rtol=2e-6, atol=1e-9)
+    # the 7 x 7 block (41 um) holds less than the 48 um window, most of an on-axis PSF
+    assert np.all(sens[0].sum(axis=(-1, -2)) < r["psf"][0].sum(axis=(-1, -2)))
+    assert np.all(sens[0, 0].sum(axis=(-1, -2)) > 0.9)
+    buf = np.full((2, 2, 3, 7, 7), 7.0, np.float32)
+    r2 = _engine.psf_batch([js, "not json"], [0.0, 14.9], ch, "fft", 1.0, 48, 48, sensor=(5.86, 7), sensor_out=buf)
+    assert r2["psf_sensor"] is buf and np.array_equal(buf, sens)
+    with pytest.raises(ValueError, match=r"sensor_out: need a C-contiguous float32 array of shape \[2, 2, 3, 7, 7\]"):
+        _engine.psf_batch([js, "not json"], [0.0, 14.9], ch, "fft", 1.0, 48, 48, sensor=(5.86, 7), sensor_out=buf[:, :, :, :5])
+    with pytest.raises(ValueError, match="sensor_out without sensor"):
+        _engine.psf_batch([js], [0.0], ch, "fft", 1.0, 48, 48, sensor_out=buf[:1, :1])
+    with pytest.raises(ValueError, match="positive pitches"):
+        _engine.psf_batch([js], [0.0], ch, "fft", 1.0, 48, 48, sensor=(0.0, 7))

@@ -232,29 +232,75 @@ fn psf_rgb<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, channels: Vec<
     Ok((arr, ri, json_to_py(py, &serde_json::json!({"per_wavelength": diags}))?))
 }
 
-#[pyfunction]
-#[pyo3(signature = (lens_jsons, fields_deg, channels, method="fft", pixel_um=1.0, size=64, pupil_samples=64, aiming="paraxial", integrate=false, fast=true, out=None))]
-#[allow(clippy::too_many_arguments)]
-fn psf_batch<'py>(py: Python<'py>, lens_jsons: Vec<String>, fields_deg: Vec<f64>, channels: Vec<Vec<(f64, f64)>>, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, aiming: &str, integrate: bool, fast: bool, out: Option<numpy::PyReadwriteArrayDyn<'py, f32>>) -> PyResult<Bound<'py, PyDict>> {
-    let o = options(method, pixel_um, size, pupil_samples, None, aiming, integrate, false, fast)?;
-    let (nd, nf, nc) = (lens_jsons.len(), fields_deg.len(), channels.len());
-    let shape = [nd, nf, nc, size, size];
-    let mut out = out;
-    if let Some(a) = &out {
+/// A caller's output array must be C-contiguous with this shape.
+fn check_out(name: &str, a: Option<&numpy::PyReadwriteArrayDyn<'_, f32>>, shape: &[usize]) -> PyResult<()> {
+    if let Some(a) = a {
         if a.shape() != shape || !a.is_c_contiguous() {
             return Err(pyo3::exceptions::PyValueError::new_err(format!(
-                "out: need a C-contiguous float32 array of shape {shape:?}, got shape {:?}{}",
+                "{name}: need a C-contiguous float32 array of shape {shape:?}, got shape {:?}{}",
                 a.shape(),
                 if a.is_c_contiguous() { "" } else { " (not C-contiguous)" }
             )));
         }
     }
-    let out_array: Option<Bound<'py, PyAny>> = out.as_ref().map(|a| a.as_any().clone());
-    let slice: Option<&mut [f32]> = match out.as_mut() {
-        Some(a) => Some(a.as_slice_mut().map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("out: {e}")))?),
+    Ok(())
+}
+
+fn out_slice<'a>(name: &str, a: Option<&'a mut numpy::PyReadwriteArrayDyn<'_, f32>>) -> PyResult<Option<&'a mut [f32]>> {
+    a.map(|a| a.as_slice_mut().map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("{name}: {e}")))).transpose()
+}
+
+/// CRC-32 (IEEE, as zlib's) of a byte array, continuing from `crc`; GIL released.
+#[pyfunction]
+#[pyo3(signature = (data, crc=0))]
+fn crc32(py: Python<'_>, data: numpy::PyReadonlyArrayDyn<'_, u8>, crc: u32) -> PyResult<u32> {
+    let bytes = data.as_slice().map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("crc32: {e}")))?;
+    Ok(py.detach(|| {
+        let mut h = crc32fast::Hasher::new_with_initial(crc);
+        h.update(bytes);
+        h.finalize()
+    }))
+}
+
+#[pyfunction]
+#[pyo3(signature = (lens_jsons, fields_deg, channels, method="fft", pixel_um=1.0, size=64, pupil_samples=64, aiming="paraxial", integrate=false, fast=true, out=None, sensor=None, sensor_out=None))]
+#[allow(clippy::too_many_arguments)]
+fn psf_batch<'py>(
+    py: Python<'py>,
+    lens_jsons: Vec<String>,
+    fields_deg: Vec<f64>,
+    channels: Vec<Vec<(f64, f64)>>,
+    method: &str,
+    pixel_um: f64,
+    size: usize,
+    pupil_samples: usize,
+    aiming: &str,
+    integrate: bool,
+    fast: bool,
+    out: Option<numpy::PyReadwriteArrayDyn<'py, f32>>,
+    sensor: Option<(f64, usize)>,
+    sensor_out: Option<numpy::PyReadwriteArrayDyn<'py, f32>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let o = options(method, pixel_um, size, pupil_samples, None, aiming, integrate, false, fast)?;
+    let (nd, nf, nc) = (lens_jsons.len(), fields_deg.len(), channels.len());
+    let shape = [nd, nf, nc, size, size];
+    let binning = match sensor {
+        Some((pitch_um, m)) => Some(psf_engine::rgb::SensorBinning::new(size, pixel_um * 1e-3, m, pitch_um * 1e-3).map_err(to_py)?),
+        None if sensor_out.is_some() => return Err(pyo3::exceptions::PyValueError::new_err("sensor_out without sensor=(pitch_um, size)")),
         None => None,
     };
-    let (batch, owned, parse_errors) = run(py, move || {
+    let sshape = binning.as_ref().map(|b| [nd, nf, nc, b.size(), b.size()]);
+    let mut out = out;
+    let mut sensor_out = sensor_out;
+    check_out("out", out.as_ref(), &shape)?;
+    if let Some(ss) = &sshape {
+        check_out("sensor_out", sensor_out.as_ref(), ss)?;
+    }
+    let out_array: Option<Bound<'py, PyAny>> = out.as_ref().map(|a| a.as_any().clone());
+    let sensor_array: Option<Bound<'py, PyAny>> = sensor_out.as_ref().map(|a| a.as_any().clone());
+    let slice = out_slice("out", out.as_mut())?;
+    let sensor_slice = out_slice("sensor_out", sensor_out.as_mut())?;
+    let (batch, owned, owned_sensor, parse_errors) = run(py, move || {
         // Designs that do not parse are failures of that design, not of the call.
         let parsed: Vec<psf_engine::Result<Lens>> = lens_jsons.iter().map(|t| parse_lens(t)).collect();
         let placeholder = parsed.iter().find_map(|r| r.as_ref().ok().cloned());
@@ -270,18 +316,37 @@ fn psf_batch<'py>(py: Python<'py>, lens_jsons: Vec<String>, fields_deg: Vec<f64>
             Some(b) => b,
             None => owned.insert(psf_engine::rgb::output_buffer(nd * per)),
         };
+        let mut owned_sensor: Option<Vec<f32>> = None;
+        let sensor: Option<(&psf_engine::rgb::SensorBinning, &mut [f32])> = match (&binning, sensor_slice) {
+            (Some(b), Some(sb)) => Some((b, sb)),
+            (Some(b), None) => Some((b, owned_sensor.insert(vec![0.0; nd * nf * nc * b.size() * b.size()]))),
+            _ => None,
+        };
+        let sper = binning.as_ref().map_or(0, |b| nf * nc * b.size() * b.size());
         let b = if lenses.is_empty() {
             buf.iter_mut().for_each(|v| *v = 0.0);
+            if let Some((_, sb)) = sensor {
+                sb.iter_mut().for_each(|v| *v = 0.0);
+            }
             psf_engine::rgb::Batch { psf: vec![], relative_illumination: vec![0.0; nd * nf * nc], energy_in_window: vec![0.0; nd * nf * nc], warnings: vec![vec![]; nd], errors: vec![None; nd] }
         } else {
-            psf_engine::rgb::psf_batch_into(&lenses, &fields_deg, &channels, &o, buf)?
+            let mut sensor = sensor;
+            let b = psf_engine::rgb::psf_batch_into(&lenses, &fields_deg, &channels, &o, buf, sensor.as_mut().map(|(b, s)| (*b, &mut **s)))?;
+            if let Some((_, sb)) = sensor {
+                for (i, e) in errs.iter().enumerate() {
+                    if e.is_some() {
+                        sb[i * sper..(i + 1) * sper].iter_mut().for_each(|v| *v = 0.0);
+                    }
+                }
+            }
+            b
         };
         for (i, e) in errs.iter().enumerate() {
             if e.is_some() {
                 buf[i * per..(i + 1) * per].iter_mut().for_each(|v| *v = 0.0);
             }
         }
-        Ok((b, owned, errs))
+        Ok((b, owned, owned_sensor, errs))
     })?;
     let mut errors = batch.errors;
     let mut ri = batch.relative_illumination;
@@ -300,6 +365,13 @@ fn psf_batch<'py>(py: Python<'py>, lens_jsons: Vec<String>, fields_deg: Vec<f64>
         (Some(v), _) => d.set_item("psf", v.into_pyarray(py).reshape(shape)?)?,
         (None, Some(a)) => d.set_item("psf", a)?,
         (None, None) => unreachable!("either the engine's buffer or the caller's"),
+    }
+    if let Some(ss) = sshape {
+        match (owned_sensor, sensor_array) {
+            (Some(v), _) => d.set_item("psf_sensor", v.into_pyarray(py).reshape(ss)?)?,
+            (None, Some(a)) => d.set_item("psf_sensor", a)?,
+            (None, None) => unreachable!("either the engine's sensor buffer or the caller's"),
+        }
     }
     d.set_item("relative_illumination", ri.into_pyarray(py).reshape([nd, nf, nc])?)?;
     d.set_item("energy_in_window", energy.into_pyarray(py).reshape([nd, nf, nc])?)?;
@@ -361,5 +433,6 @@ fn _engine(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(psf, m)?)?;
     m.add_function(wrap_pyfunction!(psf_rgb, m)?)?;
     m.add_function(wrap_pyfunction!(psf_batch, m)?)?;
+    m.add_function(wrap_pyfunction!(crc32, m)?)?;
     Ok(())
 }

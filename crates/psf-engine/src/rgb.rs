@@ -91,6 +91,62 @@ fn illumination(lens: &Lens, field_deg: f64, wl: f64, o: &PsfOptions, clear: boo
     relative_illumination(lens, field_deg, wl, RI_RINGS, o.aiming)
 }
 
+/// Integration of a super-resolved PSF over sensor pixels: each fine pixel is a box of one
+/// pitch around its centre, each sensor pixel one of its pitch; both grids are centred on
+/// pixel `size / 2` (the chief ray's). A sensor pixel sums the fine pixels it overlaps,
+/// each weighted by the fraction of its area inside (separable in x and y).
+pub struct SensorBinning {
+    fine: usize,
+    size: usize,
+    /// Per sensor pixel (either axis): the first fine pixel it overlaps and the weights.
+    taps: Vec<(usize, Vec<f64>)>,
+}
+
+impl SensorBinning {
+    pub fn new(fine: usize, pitch_mm: f64, size: usize, sensor_pitch_mm: f64) -> Result<SensorBinning> {
+        if !(pitch_mm > 0.0 && sensor_pitch_mm > 0.0 && pitch_mm.is_finite() && sensor_pitch_mm.is_finite()) || fine == 0 || size == 0 {
+            return arg(format!("sensor binning: need positive pitches and sizes (fine {fine} x {pitch_mm} mm, sensor {size} x {sensor_pitch_mm} mm)"));
+        }
+        let taps = (0..size)
+            .map(|j| {
+                let c = (j as f64 - (size / 2) as f64) * sensor_pitch_mm;
+                let (lo, hi) = (c - sensor_pitch_mm / 2.0, c + sensor_pitch_mm / 2.0);
+                let w: Vec<(usize, f64)> = (0..fine)
+                    .filter_map(|i| {
+                        let x = (i as f64 - (fine / 2) as f64) * pitch_mm;
+                        let ov = hi.min(x + pitch_mm / 2.0) - lo.max(x - pitch_mm / 2.0);
+                        (ov > 0.0).then_some((i, ov / pitch_mm))
+                    })
+                    .collect();
+                (w.first().map_or(0, |p| p.0), w.iter().map(|p| p.1).collect())
+            })
+            .collect();
+        Ok(SensorBinning { fine, size, taps })
+    }
+
+    /// Sensor pixels (size x size) of one fine PSF (fine x fine, row-major) times `k`.
+    pub fn apply(&self, psf: &[f64], k: f64, out: &mut [f32]) {
+        let (n, m) = (self.fine, self.size);
+        // x first: every fine row into sensor columns; then y.
+        let mut rows = vec![0.0; n * m];
+        for (r, row) in psf.chunks_exact(n).enumerate() {
+            for (j, (i0, w)) in self.taps.iter().enumerate() {
+                rows[r * m + j] = w.iter().zip(&row[*i0..]).map(|(a, b)| a * b).sum::<f64>();
+            }
+        }
+        for (i, (r0, w)) in self.taps.iter().enumerate() {
+            for j in 0..m {
+                let v: f64 = w.iter().enumerate().map(|(t, a)| a * rows[(r0 + t) * m + j]).sum();
+                out[i * m + j] = (v * k) as f32;
+            }
+        }
+    }
+
+    pub fn size(&self) -> usize {
+        self.size
+    }
+}
+
 pub struct Batch {
     /// designs x fields x channels x size x size.
     pub psf: Vec<f32>,
@@ -110,7 +166,7 @@ pub fn psf_batch(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &PsfOp
     check_channels(channels)?;
     o.check()?;
     let mut psfv = output_buffer(lenses.len() * fields.len() * channels.len() * o.size * o.size);
-    let mut b = psf_batch_into(lenses, fields, channels, o, &mut psfv)?;
+    let mut b = psf_batch_into(lenses, fields, channels, o, &mut psfv, None)?;
     b.psf = psfv;
     Ok(b)
 }
@@ -123,7 +179,9 @@ pub fn output_buffer(len: usize) -> Vec<f32> {
 /// [`psf_batch`] writing the PSFs into `out` (designs x fields x channels x size x size,
 /// every value overwritten; a failed design's are zeros), e.g. a caller's reused buffer:
 /// no fresh memory to fault in and zero. The returned `Batch` has an empty `psf`.
-pub fn psf_batch_into(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &PsfOptions, out: &mut [f32]) -> Result<Batch> {
+/// `sensor`: also the sensor-pixel version of every PSF (designs x fields x channels x
+/// m x m, m = the binning's size), binned from the double-precision PSF.
+pub fn psf_batch_into(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &PsfOptions, out: &mut [f32], sensor: Option<(&SensorBinning, &mut [f32])>) -> Result<Batch> {
     check_channels(channels)?;
     o.check()?;
     let (nd, nf, nc, s) = (lenses.len(), fields.len(), channels.len(), o.size);
@@ -131,6 +189,20 @@ pub fn psf_batch_into(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &
     if out.len() != nd * nf * per {
         return arg(format!("psf_batch: output holds {} values, expected {nd} x {nf} x {nc} x {s} x {s}", out.len()));
     }
+    let mut no_sensor = vec![0.0f32; nd * nf];
+    let (bin, sensor_buf, sper) = match sensor {
+        Some((b, buf)) => {
+            if b.fine != s {
+                return arg(format!("psf_batch: sensor binning made for {}x{} PSFs, not {s}x{s}", b.fine, b.fine));
+            }
+            let sper = nc * b.size * b.size;
+            if buf.len() != nd * nf * sper {
+                return arg(format!("psf_batch: sensor output holds {} values, expected {nd} x {nf} x {nc} x {m} x {m}", buf.len(), m = b.size));
+            }
+            (Some(b), buf, sper)
+        }
+        None => (None, &mut no_sensor[..], 1),
+    };
     let psfv = out;
     // Whether each design's axial beam passes the fast path's ray set, per wavelength
     // (shared by its fields; an error here is left for the PSF itself to report).
@@ -154,15 +226,23 @@ pub fn psf_batch_into(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &
         .collect();
     let results: Vec<(Option<String>, Vec<String>)> = psfv
         .par_chunks_mut(per)
+        .zip(sensor_buf.par_chunks_mut(sper))
         .zip(ri.par_chunks_mut(nc))
         .zip(energy.par_chunks_mut(nc))
         .enumerate()
-        .map(|(i, ((out, ri), en))| {
+        .map(|(i, (((out, sout), ri), en))| {
             let (d, f) = (i / nf, fields[i % nf]);
             let axis = axis_known.then_some(&axis[d][..]);
             let mut warnings = vec![];
             let mut k = 0;
-            let err = rgb_core(&lenses[d], f, channels, o, axis, ri, |c, v, k| out[c * s * s..(c + 1) * s * s].iter_mut().zip(v).for_each(|(o, v)| *o = (v * k) as f32), |dg| {
+            let sink = |c: usize, v: &[f64], k: f64| {
+                out[c * s * s..(c + 1) * s * s].iter_mut().zip(v).for_each(|(o, v)| *o = (v * k) as f32);
+                if let Some(b) = bin {
+                    let ss = b.size * b.size;
+                    b.apply(v, k, &mut sout[c * ss..(c + 1) * ss]);
+                }
+            };
+            let err = rgb_core(&lenses[d], f, channels, o, axis, ri, sink, |dg| {
                 let (c, wl, w) = visits[k];
                 k += 1;
                 en[c] += w * dg.values.get("energy_in_window").and_then(|v| v.as_f64()).unwrap_or(0.0);
@@ -184,6 +264,9 @@ pub fn psf_batch_into(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &
     for (d, e) in errors.iter().enumerate() {
         if e.is_some() {
             psfv[d * nf * per..(d + 1) * nf * per].iter_mut().for_each(|v| *v = 0.0);
+            if bin.is_some() {
+                sensor_buf[d * nf * sper..(d + 1) * nf * sper].iter_mut().for_each(|v| *v = 0.0);
+            }
             ri[d * nf * nc..(d + 1) * nf * nc].iter_mut().for_each(|v| *v = 0.0);
             energy[d * nf * nc..(d + 1) * nf * nc].iter_mut().for_each(|v| *v = 0.0);
         }

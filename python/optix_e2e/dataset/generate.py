@@ -30,32 +30,6 @@ from .manifest import prepare
 from .settings import DatasetSettings, engine_base
 
 
-def sensor_binning(size: int, pitch_um: float, s_size: int, s_pitch_um: float) -> np.ndarray:
-    """(s_size, size) weights: the overlap of each fine pixel (a box of one pitch around
-    its centre) with each sensor pixel, as a fraction of the fine pixel; both grids are
-    centred on pixel size // 2 (the engine's chief-ray pixel)."""
-    x = (np.arange(size) - size // 2) * pitch_um
-    lo_f, hi_f = x - pitch_um / 2, x + pitch_um / 2
-    c = (np.arange(s_size) - s_size // 2) * s_pitch_um
-    lo_s, hi_s = c - s_pitch_um / 2, c + s_pitch_um / 2
-    ov = np.minimum(hi_f[None, :], hi_s[:, None]) - np.maximum(lo_f[None, :], lo_s[:, None])
-    return np.clip(ov, 0.0, None) / pitch_um
-
-
-def bin_to_sensor(psf: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """(..., S, S) -> (..., s, s): sum fine pixels into sensor pixels with the weights of
-    :func:`sensor_binning`, as two single-precision matrix products over all PSFs at once
-    (within 1e-6 of the double-precision sums; BLAS splits a product between threads by
-    rows and columns, never along the summed axis, so the bits do not depend on the
-    thread count)."""
-    S, s = w.shape[1], w.shape[0]
-    lead = psf.shape[:-2]
-    w = w.astype(np.float32)
-    a = np.ascontiguousarray(psf, np.float32).reshape(-1, S) @ w.T       # x: (M*S, s)
-    a = a.reshape(-1, S, s).transpose(0, 2, 1).reshape(-1, S) @ w.T      # y: (M*s, s), rows = x
-    return a.reshape(-1, s, s).transpose(0, 2, 1).reshape(*lead, s, s)
-
-
 @dataclass
 class GenerateReport:
     out: str
@@ -99,13 +73,13 @@ def _clean_stale(sdir: Path, k: int) -> None:
 
 def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace, base: Lens,
                   batch: int = 16, on_batch: Callable[[int, int], None] | None = None,
-                  psf_buffer: np.ndarray | None = None, checked: bool = False,
-                  defer_sensor: bool = False) -> tuple[dict, dict]:
-    """Arrays and metadata of shard ``k`` (nothing written).  ``psf_buffer``: a float32
-    array of at least shard_size x K x C x S x S to hold the PSFs (saves the page faults
-    of a fresh 160 MB array per shard).  ``checked``: the designs passed the sampler's
-    geometry check already (same apertures), so it is not repeated.  ``defer_sensor``:
-    leave ``psf_sensor`` to :func:`write_shard` (the writer thread)."""
+                  psf_buffer: np.ndarray | None = None, sensor_buffer: np.ndarray | None = None,
+                  checked: bool = False) -> tuple[dict, dict]:
+    """Arrays and metadata of shard ``k`` (nothing written).  ``psf_buffer``,
+    ``sensor_buffer``: float32 arrays of at least shard_size x K x C x S x S (s x s) to hold
+    the PSFs and their sensor-pixel versions (saves the page faults of fresh arrays per
+    shard).  ``checked``: the designs passed the sampler's geometry check already (same
+    apertures), so it is not repeated.  The engine computes both versions of each PSF."""
     from .. import _engine
 
     s = DatasetSettings(**man["settings"])
@@ -114,11 +88,14 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
     fields, channels = man["fields_deg"], [[tuple(p) for p in c] for c in man["channels"]]
     K, C, S = len(fields), len(channels), s.size
     ok_idx, failures = [], []
-    shape = (b - a, K, C, S, S)
-    if psf_buffer is not None and psf_buffer.shape[1:] == shape[1:] and len(psf_buffer) >= b - a:
-        psf_arr = psf_buffer[: b - a]                      # rows filled in order, trimmed to m
-    else:
-        psf_arr = np.empty(shape, np.float32)
+
+    def rows(buf, shape):  # rows filled in order, trimmed to m at the end
+        if buf is not None and buf.shape[1:] == shape[1:] and len(buf) >= shape[0]:
+            return buf[: shape[0]]
+        return np.empty(shape, np.float32)
+
+    psf_arr = rows(psf_buffer, (b - a, K, C, S, S))
+    sensor_arr = rows(sensor_buffer, (b - a, K, C, s.sensor_size, s.sensor_size))
     ri, image, energy, warnings = [], [], [], {}
     wavelengths = sorted({wl for c in channels for wl, _ in c})
     # best focus from 7 of the K fields and a 4-ring polar pupil (96 rays per field and
@@ -158,11 +135,13 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
         # rows are zeros and the later ones move up over them
         row0 = len(ok_idx)
         r = _engine.psf_batch(jsons, fields, channels, s.psf_method, s.pixel_um, S, s.pupil_samples,
-                              s.aiming, False, True, psf_arr[row0:row0 + len(jsons)]) if jsons else {"ok": []}
+                              s.aiming, False, True, psf_arr[row0:row0 + len(jsons)],
+                              (s.sensor_pixel_um, s.sensor_size), sensor_arr[row0:row0 + len(jsons)]) if jsons else {"ok": []}
         for j, (i, image_mm) in enumerate(todo):
             if r["ok"][j]:
                 if len(ok_idx) != row0 + j:
                     psf_arr[len(ok_idx)] = psf_arr[row0 + j]
+                    sensor_arr[len(ok_idx)] = sensor_arr[row0 + j]
                 ok_idx.append(i)
                 ri.append(r["relative_illumination"][j])
                 energy.append(r["energy_in_window"][j])
@@ -175,10 +154,8 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
         if on_batch:
             on_batch(hi - lo, sum(1 for f in failures if lo <= f["design"] < hi))
     m = len(ok_idx)
-    psf_arr = psf_arr[:m]
-    sensor = None if defer_sensor else sensor_psfs(psf_arr, s)
     arrays = {"design": np.array(ok_idx, np.int64), "params": designs[ok_idx].astype(np.float64).reshape(m, designs.shape[1]),
-              "psf": psf_arr, "psf_sensor": sensor,
+              "psf": psf_arr[:m], "psf_sensor": sensor_arr[:m],
               "relative_illumination": (np.stack(ri).astype(np.float64) if m else np.zeros((0, K, C))),
               "image_distance": np.array(image, np.float64),
               "energy_in_window": (np.stack(energy).astype(np.float32) if m else np.zeros((0, K, C), np.float32))}
@@ -187,17 +164,8 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
     return arrays, meta
 
 
-def sensor_psfs(psf: np.ndarray, s: DatasetSettings) -> np.ndarray:
-    """The sensor-pitch version of super-resolved PSFs (..., S, S) -> (..., s, s)."""
-    w = sensor_binning(s.size, s.pixel_um, s.sensor_size, s.sensor_pixel_um)
-    return bin_to_sensor(psf, w).astype(np.float32)
-
-
-def write_shard(root: Path, k: int, arrays: dict, meta: dict, settings: DatasetSettings | None = None) -> bool:
-    """Write shard ``k`` atomically; False if another process finished it first.  A
-    ``psf_sensor`` left as None is computed here (from ``settings``)."""
-    if arrays.get("psf_sensor") is None:
-        arrays = {**arrays, "psf_sensor": sensor_psfs(arrays["psf"], settings)}
+def write_shard(root: Path, k: int, arrays: dict, meta: dict) -> bool:
+    """Write shard ``k`` atomically; False if another process finished it first."""
     sdir = shards_dir(root)
     sdir.mkdir(parents=True, exist_ok=True)
     final = sdir / shard_name(k)
@@ -285,20 +253,22 @@ def generate(space_spec: "str | Path", n: int, seed: int, out: "str | Path",
     # shard k + 1; at most one shard waits, and an interruption lets its write finish
     t0 = time.perf_counter()
     writing = None
-    buffers = [None, None]  # the shard being computed and the one being written
+    buffers = [None, None]  # the shard being computed and the one being written: (psf, sensor)
     try:
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="shard-writer") as pool:
             for n_done, k in enumerate(pending):
                 if sdir.exists():
                     _clean_stale(sdir, k)
                 if buffers[n_done % 2] is None and len(pending) > 1:
-                    buffers[n_done % 2] = aligned_empty((s.shard_size, s.n_fields, len(man["channels"]), s.size, s.size),
-                                                        np.float32)
-                arrays, meta = compute_shard(k, man, designs, space, base, on_batch=on_batch,
-                                             psf_buffer=buffers[n_done % 2], checked=True, defer_sensor=True)
+                    lead = (s.shard_size, s.n_fields, len(man["channels"]))
+                    buffers[n_done % 2] = (aligned_empty(lead + (s.size, s.size), np.float32),
+                                           aligned_empty(lead + (s.sensor_size, s.sensor_size), np.float32))
+                psf_buf, sensor_buf = buffers[n_done % 2] or (None, None)
+                arrays, meta = compute_shard(k, man, designs, space, base, on_batch=on_batch, psf_buffer=psf_buf,
+                                             sensor_buffer=sensor_buf, checked=True)
                 if writing is not None:
                     finish(writing)
-                writing = (k, meta, pool.submit(write_shard, out, k, arrays, meta, s))
+                writing = (k, meta, pool.submit(write_shard, out, k, arrays, meta))
             if writing is not None:
                 finish(writing)
     finally:

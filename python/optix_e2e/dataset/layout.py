@@ -62,6 +62,16 @@ def sha256_file(path: Path, chunk: int = 1 << 22) -> str:
     return h.hexdigest()
 
 
+def crc32(data, crc: int = 0) -> int:
+    """CRC-32 (zlib's) of a bytes-like object, continuing from ``crc``: the engine's
+    (crc32fast, ~10 GB/s, GIL released) for large buffers, zlib's for small ones."""
+    if len(data) < 1 << 16:
+        return zlib.crc32(data, crc)
+    from .. import _engine
+
+    return _engine.crc32(np.frombuffer(data, np.uint8), crc)
+
+
 def crc32_file(path: Path, chunk: int = 1 << 22) -> str:
     """CRC-32 of a file (hex): the shards' checksums, cheap enough (GB/s) to check every
     shard on every read; the dataset digest of ``verify`` is a sha256."""
@@ -71,7 +81,7 @@ def crc32_file(path: Path, chunk: int = 1 << 22) -> str:
             b = f.read(chunk)
             if not b:
                 break
-            crc = zlib.crc32(b, crc)
+            crc = crc32(b, crc)
     return f"{crc:08x}"
 
 
@@ -121,7 +131,7 @@ def save_npy(path: Path, arr: np.ndarray) -> str:
     direct = (getattr(os, "O_DIRECT", 0) and arr.nbytes >= DIRECT_MIN_BYTES
               and arr.ctypes.data % ALIGN == 0)
     header = npy_header(arr, ALIGN if direct else 64)
-    crc = zlib.crc32(data, zlib.crc32(header))
+    crc = crc32(data, crc32(header))
     if direct:
         try:
             _save_direct(path, header, data)
