@@ -41,6 +41,8 @@ pub(crate) struct SurfConst {
     pub mu: f64,
     /// The indices on both sides are equal: the direction does not change.
     pub same: bool,
+    /// Aspheric terms up to the last nonzero one.
+    pub nterms: usize,
 }
 
 impl SurfConst {
@@ -63,6 +65,7 @@ impl SurfConst {
             n1,
             mu: n1 / n2,
             same: n1 == n2,
+            nterms: s.asphere_terms(),
         }
     }
 }
@@ -160,7 +163,13 @@ fn verdict(hit: bool, inside: bool, no_tir: bool) -> u8 {
 /// trace stops at this surface or the index does not change).
 #[inline(always)]
 pub(crate) fn step(sc: &SurfConst, s: &Surface, kind: Kind, r: &mut Ray, clip: bool, refract_here: bool) -> u8 {
-    let (t, nx, ny, nz, hit) = if kind == Kind::Asphere { asphere_hit(sc, s, r) } else { hit_conic(sc, kind, r) };
+    let hit = if kind == Kind::Asphere { asphere_hit(sc, s, r) } else { hit_conic(sc, kind, r) };
+    step_with(sc, hit, r, clip, refract_here)
+}
+
+/// [`step`] given the intersection (t, normal, hit).
+#[inline(always)]
+fn step_with(sc: &SurfConst, (t, nx, ny, nz, hit): (f64, f64, f64, f64, bool), r: &mut Ray, clip: bool, refract_here: bool) -> u8 {
     // A surface met behind the ray (it would have had to cross it already) is a miss.
     let hit = hit & (t >= -BEHIND_TOL_MM);
     r.x += t * r.dx;
@@ -172,7 +181,7 @@ pub(crate) fn step(sc: &SurfConst, s: &Surface, kind: Kind, r: &mut Ray, clip: b
     verdict(hit, inside, no_tir)
 }
 
-/// Even asphere: Newton iteration from the conic's root (surface::intersect), per lane.
+/// Even asphere on one ray: the block's lane code on one lane (surface::intersect).
 #[inline(never)]
 fn asphere_hit(sc: &SurfConst, s: &Surface, r: &Ray) -> (f64, f64, f64, f64, bool) {
     let p = glam::DVec3::new(r.x, r.y, r.z - sc.z);
@@ -180,6 +189,26 @@ fn asphere_hit(sc: &SurfConst, s: &Surface, r: &Ray) -> (f64, f64, f64, f64, boo
         Some((t, n)) => (t, n.x, n.y, n.z, true),
         None => (0.0, 0.0, 0.0, 1.0, false),
     }
+}
+
+/// Even asphere over a block: Newton in lockstep over the lanes still Ok (surface.rs).
+#[inline(always)]
+fn asphere_block(b: &Block, sc: &SurfConst, s: &Surface) -> surface::AsphereHits<LANES> {
+    let (mut p, mut d) = ([[0.0; LANES]; 3], [[0.0; LANES]; 3]);
+    let (mut t0, mut active) = ([0.0; LANES], [false; LANES]);
+    for j in 0..LANES {
+        let (pj, dj) = ([b.x[j], b.y[j], b.z[j] - sc.z], [b.dx[j], b.dy[j], b.dz[j]]);
+        let (t, ok) = surface::conic_start(sc.c, sc.kk, pj, dj);
+        for k in 0..3 {
+            p[k][j] = pj[k];
+            d[k][j] = dj[k];
+        }
+        t0[j] = t;
+        active[j] = ok & (b.status[j] == 0);
+    }
+    let mut h = surface::AsphereHits::default();
+    surface::asphere_lanes(s, sc.nterms, &p, &d, &t0, &active, &mut h);
+    h
 }
 
 /// The image plane on one ray.
@@ -311,6 +340,16 @@ fn lanes<const KIND: u8, const CLIP: bool, const REFRACT: bool>(b: &mut Block, i
         2 => Kind::Conic,
         _ => Kind::Asphere,
     };
+    if kind == Kind::Asphere {
+        let h = asphere_block(b, sc, s);
+        for j in 0..LANES {
+            let mut r = b.get(j);
+            let st = step_with(sc, (h.t[j], h.nx[j], h.ny[j], h.nz[j], h.hit[j]), &mut r, CLIP, REFRACT);
+            b.put(j, &r);
+            b.record(j, st, i as i32);
+        }
+        return;
+    }
     for j in 0..LANES {
         let mut r = b.get(j);
         let st = step(sc, s, kind, &mut r, CLIP, REFRACT);
@@ -415,6 +454,61 @@ pub(crate) fn run(plan: &Plan, b: &mut Block) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A block's lockstep asphere Newton gives every ray the bits it gets traced alone
+    /// (surface by surface with `step`), with rays failing early and padding lanes mixed in.
+    #[test]
+    fn asphere_block_matches_single_rays_bit_for_bit() {
+        let lens = Lens::from_json(
+            r#"{"aperture": {"type": "epd", "value": 10}, "wavelengths_nm": [550],
+                "surfaces": [
+                  {"radius": 12, "conic": -0.6, "aspheric": {"a4": -2e-5, "a6": 3e-7, "a10": -1e-11}, "thickness": 6, "material": {"n": 1.7}, "semi_diameter": 6},
+                  {"radius": -30, "thickness": 2, "material": "air", "semi_diameter": 8},
+                  {"radius": 25, "conic": 0.5, "aspheric": {"a4": 1e-4}, "thickness": 3, "material": {"n": 1.6}, "stop": true},
+                  {"radius": -40, "thickness": 35, "material": "air", "semi_diameter": 7}]}"#,
+        )
+        .unwrap();
+        let n = lens.indices(550.0).unwrap();
+        let (consts, image) = constants(&lens, &n);
+        let plan = Plan { consts: &consts, surfaces: &lens.surfaces, image: &image, stop_at: None, clip: true };
+        let mut b = Block::default();
+        let len = LANES - 5; // the last lanes are padding
+        for j in 0..LANES {
+            let a = (j as f64 / LANES as f64 - 0.5) * 1.2;
+            b.set(j, [0.3 * j as f64 % 9.0 - 4.5, (j as f64 * 0.77) % 15.0 - 7.5, -3.0], [0.1 * a.sin(), a.sin(), (1.0 - 0.01 * a.sin().powi(2) - a.sin().powi(2)).sqrt()]);
+        }
+        b.reset(len);
+        let start = b.clone();
+        run(&plan, &mut b);
+        let (mut ok, mut failed) = (0, 0);
+        for j in 0..len {
+            let mut r = start.get(j);
+            let mut single = (0u8, -1i32);
+            for i in 0..plan.last() {
+                let st = step(&consts[i], &lens.surfaces[i], consts[i].kind, &mut r, true, plan.refracts(i));
+                if st != 0 {
+                    single = (st, i as i32);
+                    break;
+                }
+            }
+            if single.0 == 0 {
+                let st = step_image(&image, &mut r, true);
+                if st != 0 {
+                    single = (st, consts.len() as i32);
+                }
+            }
+            assert_eq!((b.status[j], b.surface[j]), single, "lane {j}");
+            if single.0 == 0 {
+                ok += 1;
+                let e = b.get(j);
+                assert_eq!([r.x, r.y, r.z, r.dx, r.dy, r.dz, r.opl], [e.x, e.y, e.z, e.dx, e.dy, e.dz, e.opl], "lane {j}");
+            } else {
+                failed += 1;
+            }
+        }
+        assert!(ok > 10 && failed > 3, "{ok} rays through, {failed} failed: the test needs both");
+        assert!(b.status[len..].iter().all(|&s| s == Status::Invalid as u8));
+    }
 
     /// Every compiled variant the CPU can run gives the same bits as the baseline.
     #[test]

@@ -30,6 +30,11 @@ impl Surface {
     pub fn has_asphere(&self) -> bool {
         self.aspheric.iter().any(|a| *a != 0.0)
     }
+
+    /// Aspheric terms up to the last nonzero one (the rest add nothing).
+    pub fn asphere_terms(&self) -> usize {
+        self.aspheric.iter().rposition(|a| *a != 0.0).map_or(0, |i| i + 1)
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -23,27 +23,6 @@ pub fn sag(s: &Surface, rho: f64) -> Option<f64> {
     Some(z)
 }
 
-/// Sag and its derivative with respect to rho = r^2.
-#[inline]
-fn sag_and_slope(s: &Surface, rho: f64) -> Option<(f64, f64)> {
-    let c = s.curvature;
-    let arg = 1.0 - (1.0 + s.conic) * c * c * rho;
-    if arg < 0.0 {
-        return None;
-    }
-    let q = arg.sqrt();
-    let mut z = c * rho / (1.0 + q);
-    let mut dz = if q > 0.0 { c / (2.0 * q) } else { f64::INFINITY };
-    let mut p = 1.0;
-    for (i, a) in s.aspheric.iter().enumerate() {
-        // term a * rho^(i+1)
-        dz += a * (i as f64 + 1.0) * p;
-        p *= rho;
-        z += a * p;
-    }
-    Some((z, dz))
-}
-
 /// Unit normal (pointing towards +z) at a point (x, y) given dz/d(rho).
 #[inline]
 fn normal_from_slope(x: f64, y: f64, dz: f64) -> DVec3 {
@@ -56,28 +35,10 @@ fn normal_from_slope(x: f64, y: f64, dz: f64) -> DVec3 {
 #[inline]
 pub fn intersect(s: &Surface, p: DVec3, d: DVec3) -> Option<(f64, DVec3)> {
     let c = s.curvature;
-    let t0 = if c == 0.0 {
-        if d.z == 0.0 {
-            return None;
-        }
-        -p.z / d.z
-    } else {
-        // Conic c(x^2 + y^2 + (1+k) z^2) - 2z = 0 along p + t d: A t^2 + 2 b t + C = 0.
-        let kk = 1.0 + s.conic;
-        let a = c * (d.x * d.x + d.y * d.y + kk * d.z * d.z);
-        let b = c * (p.x * d.x + p.y * d.y + kk * p.z * d.z) - d.z;
-        let cc = c * (p.x * p.x + p.y * p.y + kk * p.z * p.z) - 2.0 * p.z;
-        let disc = b * b - a * cc;
-        if disc < 0.0 {
-            return None;
-        }
-        // Root on the sheet through the vertex, in the form stable for c -> 0.
-        let den = -b + (-b).signum() * disc.sqrt();
-        if den == 0.0 {
-            return None;
-        }
-        cc / den
-    };
+    let (t0, ok) = conic_start(c, 1.0 + s.conic, [p.x, p.y, p.z], [d.x, d.y, d.z]);
+    if !ok {
+        return None;
+    }
     if !s.has_asphere() {
         let h = p + t0 * d;
         let rho = h.x * h.x + h.y * h.y;
@@ -93,29 +54,118 @@ pub fn intersect(s: &Surface, p: DVec3, d: DVec3) -> Option<(f64, DVec3)> {
         let dz = if q > 0.0 { c / (2.0 * q) } else { return None };
         return Some((t0, normal_from_slope(h.x, h.y, dz)));
     }
-    // Newton on F(t) = z(t) - sag(rho(t)) from the conic's root.
-    let mut t = if t0.is_finite() { t0 } else { -p.z / d.z };
-    for _ in 0..30 {
-        let h = p + t * d;
-        let rho = h.x * h.x + h.y * h.y;
-        let (z, dz) = sag_and_slope(s, rho)?;
-        let f = h.z - z;
-        let fp = d.z - dz * 2.0 * (h.x * d.x + h.y * d.y);
-        if fp == 0.0 || !fp.is_finite() {
-            return None;
+    // Newton on F(t) = z(t) - sag(rho(t)) from the conic's root (the lane code, one lane).
+    let mut h = AsphereHits::<1>::default();
+    asphere_lanes(s, s.asphere_terms(), &[[p.x], [p.y], [p.z]], &[[d.x], [d.y], [d.z]], &[t0], &[true], &mut h);
+    h.hit[0].then(|| (h.t[0], DVec3::new(h.nx[0], h.ny[0], h.nz[0])))
+}
+
+/// The base conic's (or plane's) intersection parameter along p + t d (p in the surface's
+/// frame, `kk` = 1 + conic), branch free apart from the plane case: `ok` false where the
+/// ray misses it (a negative discriminant, a ray parallel to a plane).
+#[inline(always)]
+pub(crate) fn conic_start(c: f64, kk: f64, p: [f64; 3], d: [f64; 3]) -> (f64, bool) {
+    let ([px, py, pz], [dx, dy, dz]) = (p, d);
+    if c == 0.0 {
+        return (-pz / dz, dz != 0.0);
+    }
+    // Conic c(x^2 + y^2 + (1+k) z^2) - 2z = 0 along p + t d: A t^2 + 2 b t + C = 0.
+    let a = c * (dx * dx + dy * dy + kk * dz * dz);
+    let b = c * (px * dx + py * dy + kk * pz * dz) - dz;
+    let cc = c * (px * px + py * py + kk * pz * pz) - 2.0 * pz;
+    let disc = b * b - a * cc;
+    // Root on the sheet through the vertex, in the form stable for c -> 0.
+    let den = -b + (-b).signum() * disc.max(0.0).sqrt();
+    (cc / den, (disc >= 0.0) & (den != 0.0))
+}
+
+/// Newton iterations allowed to an even-asphere intersection (a ray not converged by then
+/// misses) and the step that counts as converged (mm).
+const NEWTON_MAX: usize = 30;
+const NEWTON_TOL: f64 = 1e-13;
+
+/// Sag and its derivative with respect to rho = r^2 over the first `a.len()` aspheric terms
+/// (the others zero), branch free: `ok` false where the base conic is undefined there.
+#[inline(always)]
+fn sag_slope(c: f64, kk: f64, a: &[f64], rho: f64) -> (f64, f64, bool) {
+    let arg = 1.0 - kk * c * c * rho;
+    let q = arg.max(0.0).sqrt();
+    let mut z = c * rho / (1.0 + q);
+    let mut dz = if q > 0.0 { c / (2.0 * q) } else { f64::INFINITY };
+    let mut p = 1.0;
+    for (i, &ai) in a.iter().enumerate() {
+        // term ai * rho^(i+1)
+        dz += ai * (i as f64 + 1.0) * p;
+        p *= rho;
+        z += ai * p;
+    }
+    (z, dz, arg >= 0.0)
+}
+
+/// Even-asphere intersections of N rays, for the kernel's blocks and single rays alike.
+#[derive(Clone, Copy)]
+pub(crate) struct AsphereHits<const N: usize> {
+    pub t: [f64; N],
+    pub nx: [f64; N],
+    pub ny: [f64; N],
+    pub nz: [f64; N],
+    pub hit: [bool; N],
+}
+
+impl<const N: usize> Default for AsphereHits<N> {
+    fn default() -> Self {
+        AsphereHits { t: [0.0; N], nx: [0.0; N], ny: [0.0; N], nz: [1.0; N], hit: [false; N] }
+    }
+}
+
+/// Newton on F(t) = z(t) - sag(rho(t)) for N rays in lockstep (points `p` in the surface's
+/// frame, unit directions `d`, starting parameters `t0`, e.g. the base conic's root): each
+/// iteration updates every ray still iterating in one branch-free pass over the lanes, so
+/// the loop vectorizes and the rays' latency chains overlap; a ray's arithmetic is the
+/// same as alone, so a block and a single ray give the same bits. Rays not `active` (failed
+/// already, padding) are skipped. `nterms`: aspheric terms up to the last nonzero one.
+#[inline(always)]
+#[allow(clippy::needless_range_loop)]
+pub(crate) fn asphere_lanes<const N: usize>(s: &Surface, nterms: usize, p: &[[f64; N]; 3], d: &[[f64; N]; 3], t0: &[f64; N], active: &[bool; N], out: &mut AsphereHits<N>) {
+    let (c, kk, a) = (s.curvature, 1.0 + s.conic, &s.aspheric[..nterms]);
+    let ([px, py, pz], [dx, dy, dz]) = (p, d);
+    let mut t = [0.0; N];
+    let mut live = *active;
+    let mut conv = [false; N];
+    for j in 0..N {
+        t[j] = if t0[j].is_finite() { t0[j] } else { -pz[j] / dz[j] };
+    }
+    for _ in 0..NEWTON_MAX {
+        let mut any = false;
+        for j in 0..N {
+            let (hx, hy, hz) = (px[j] + t[j] * dx[j], py[j] + t[j] * dy[j], pz[j] + t[j] * dz[j]);
+            let (z, dzr, ok) = sag_slope(c, kk, a, hx * hx + hy * hy);
+            let f = hz - z;
+            let fp = dz[j] - dzr * 2.0 * (hx * dx[j] + hy * dy[j]);
+            let ok = ok & (fp != 0.0) & fp.is_finite();
+            let step = f / fp;
+            let go = live[j] & ok;
+            t[j] = if go { t[j] - step } else { t[j] };
+            let done = go & (step.abs() < NEWTON_TOL);
+            conv[j] |= done;
+            live[j] = go & !done;
+            any |= live[j];
         }
-        let step = f / fp;
-        t -= step;
-        if step.abs() < 1e-13 {
-            let h = p + t * d;
-            let (_, dz) = sag_and_slope(s, h.x * h.x + h.y * h.y)?;
-            if !dz.is_finite() {
-                return None;
-            }
-            return Some((t, normal_from_slope(h.x, h.y, dz)));
+        if !any {
+            break;
         }
     }
-    None
+    for j in 0..N {
+        let (hx, hy) = (px[j] + t[j] * dx[j], py[j] + t[j] * dy[j]);
+        let (_, dzr, ok) = sag_slope(c, kk, a, hx * hx + hy * hy);
+        let n = normal_from_slope(hx, hy, dzr);
+        let hit = conv[j] & ok & dzr.is_finite();
+        out.hit[j] = hit;
+        out.t[j] = if hit { t[j] } else { 0.0 };
+        out.nx[j] = if hit { n.x } else { 0.0 };
+        out.ny[j] = if hit { n.y } else { 0.0 };
+        out.nz[j] = if hit { n.z } else { 1.0 };
+    }
 }
 
 /// Vector Snell's law. `nrm` is a unit normal of either orientation. Returns None on
