@@ -23,7 +23,6 @@ temporary directory, removed and redone by the next run.
 from __future__ import annotations
 
 import errno
-import fcntl
 import hashlib
 import json
 import os
@@ -150,6 +149,8 @@ def save_npy(path: Path, arr: np.ndarray) -> str:
 def _save_direct(path: Path, header: bytes, data: memoryview) -> None:
     """Header (one ``ALIGN`` block) and the aligned body with O_DIRECT, the tail (under one
     block) buffered; then fsync (file size and metadata).  EINVAL: no direct I/O here."""
+    import fcntl  # POSIX only, like O_DIRECT itself
+
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_DIRECT, 0o644)
     try:
         hbuf = aligned_empty((len(header),), np.uint8)
