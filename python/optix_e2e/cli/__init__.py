@@ -2,6 +2,7 @@
 
 import click
 
+from .bench import bench
 from .dataset import dataset
 from .demo import demo
 from .lens import lens
@@ -26,3 +27,4 @@ main.add_command(demo)
 main.add_command(sample)
 main.add_command(dataset)
 main.add_command(tolerance)
+main.add_command(bench)
