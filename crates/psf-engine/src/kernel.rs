@@ -115,7 +115,9 @@ fn hit_conic(sc: &SurfConst, kind: Kind, r: &Ray) -> (f64, f64, f64, f64, bool) 
     let cc = c * (x * x + y * y + kk * z * z) - 2.0 * z;
     let disc = b * b - a * cc;
     let den = -b + disc.max(0.0).sqrt().copysign(-b);
-    let t = cc / den;
+    // (The other root where this one lands on the far sheet: a ray from beyond the centre
+    // of curvature.)
+    let t = surface::far_sheet_other_root(c, kk, z, dz, cc / den, den / a);
     let (hx, hy, hz) = (x + t * dx, y + t * dy, z + t * dz);
     // On the conic, sqrt(1 - (1+k) c^2 r^2) = 1 - (1+k) c z; it is positive only on the
     // vertex sheet (the far sheet of a closed conic is a miss).

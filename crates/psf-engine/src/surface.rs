@@ -74,9 +74,23 @@ pub(crate) fn conic_start(c: f64, kk: f64, p: [f64; 3], d: [f64; 3]) -> (f64, bo
     let b = c * (px * dx + py * dy + kk * pz * dz) - dz;
     let cc = c * (px * px + py * py + kk * pz * pz) - 2.0 * pz;
     let disc = b * b - a * cc;
-    // Root on the sheet through the vertex, in the form stable for c -> 0.
+    // Root on the sheet through the vertex, in the form stable for c -> 0: cc / den; where
+    // that lands on the far sheet (1 - (1+k) c z <= 0: a ray starting beyond the centre of
+    // curvature), the other root, den / a.
     let den = -b + (-b).signum() * disc.max(0.0).sqrt();
-    (cc / den, (disc >= 0.0) & (den != 0.0))
+    let t = far_sheet_other_root(c, kk, pz, dz, cc / den, den / a);
+    (t, (disc >= 0.0) & (den != 0.0))
+}
+
+/// `t` unless the point it reaches lies on the far sheet of the conic (1 - (1+k) c z <= 0),
+/// then `other` (the quadratic's other root).
+#[inline(always)]
+pub(crate) fn far_sheet_other_root(c: f64, kk: f64, pz: f64, dz: f64, t: f64, other: f64) -> f64 {
+    if 1.0 - kk * c * (pz + t * dz) <= 0.0 {
+        other
+    } else {
+        t
+    }
 }
 
 /// Newton iterations allowed to an even-asphere intersection (a ray not converged by then

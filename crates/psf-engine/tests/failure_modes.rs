@@ -461,18 +461,15 @@ fn geometric_psf_near_the_diffraction_limit_is_reported() {
 
 /// Not a failure of a PSF method but of the trace under it, found while building case 4c:
 /// a spherical surface with its centre of curvature on the incoming side (radius < 0)
-/// that is reached from beyond that centre (the previous surface, here a stop, at least
-/// |R| before its vertex) is reported as missed by every ray, the axial one included: the
-/// quadratic's root taken (surface.rs conic_start) is then the far sheet's, which the
-/// hemisphere test rejects. A stop 9.9 mm before a -10 mm surface loses ~16% of the pupil
-/// at 5 deg to false misses (reported as a partial pupil); at 10 mm and beyond the chief
-/// ray itself "misses" (an error). A stop at a meniscus's centre of curvature is a classic
-/// layout (landscape lens, concentric designs). Fix belongs in surface.rs / kernel.rs
-/// (not this file's scope): take the other root where the stable one lands on the far
-/// sheet. Ignored until then: `cargo test --release -p psf-engine --test failure_modes --
-/// --ignored`.
+/// reached from beyond that centre (the previous surface, here a stop, at least |R|
+/// before its vertex). The quadratic's numerically stable root is then the far sheet's,
+/// which the hemisphere test rejects: a stop 9.9 mm before a -10 mm surface lost ~16% of
+/// the pupil at 5 deg to false misses, and from 10 mm on the chief ray itself "missed".
+/// A stop at a meniscus's centre of curvature is a classic layout (landscape lens,
+/// concentric designs). Fixed in surface.rs (`far_sheet_other_root`, used by the kernel's
+/// conic hit and the asphere start): the other root where the stable one lands on the far
+/// sheet.
 #[test]
-#[ignore = "engine bug: surface.rs conic_start takes the far-sheet root when the ray starts beyond the centre of curvature"]
 fn rays_from_beyond_the_centre_of_curvature_meet_the_surface() {
     for gap in [9.9, 10.0, 15.0] {
         let l = lens(&json!({"aperture": {"type": "epd", "value": 4.0}, "wavelengths_nm": [550.0], "surfaces": [
