@@ -63,6 +63,15 @@ def test_psf_other_methods(tmp_path, method):
     assert json.loads(r.stdout)["method"] == method and np.load(out).shape == (16, 16)
 
 
+def test_huygens_refuses_to_integrate_over_pixels(tmp_path):
+    """Huygens samples pixel centres; asked to integrate it says so rather than returning
+    point samples labelled as integrated."""
+    r = run("psf", "cooke-f50", "--method", "huygens", "--integrate", "--size", 16, "--pupil-samples", 32,
+            "--out", tmp_path / "p.npy")
+    assert r.exit_code != 0 and "integrate: the Huygens PSF samples pixel centres" in r.output
+    assert "Traceback" not in r.output and not (tmp_path / "p.npy").exists()
+
+
 def test_bad_lens_path_is_one_line_error(tmp_path):
     r = run("lens", "info", tmp_path / "missing.json")
     assert r.exit_code != 0

@@ -63,7 +63,7 @@ pub struct PsfOptions {
     pub huygens_exact: bool,
     /// Pixel values: false = intensity at the pixel centre x pixel area (default, what a
     /// super-resolved PSF needs); true = energy integrated over the pixel area (what a
-    /// detector pixel collects; the geometric method always integrates).
+    /// detector pixel collects; the geometric method always integrates; Huygens refuses).
     pub integrate: bool,
     /// FFT method: compute on a grid of direction cosines whose FFT lands on the output
     /// pixels (psf/fast.rs) wherever that applies (paraxial aiming, point sampling, no
@@ -89,6 +89,10 @@ impl PsfOptions {
         }
         if self.pupil_samples < 4 || self.pupil_samples > 4096 {
             return arg(format!("pupil_samples {} must be within 4..4096", self.pupil_samples));
+        }
+        if self.method == Method::Huygens && self.integrate {
+            // (It evaluates the field at pixel centres only; said rather than ignored.)
+            return arg("integrate: the Huygens PSF samples pixel centres and does not integrate over pixels; use method fft, or a finer pixel and sum blocks");
         }
         Ok(())
     }
