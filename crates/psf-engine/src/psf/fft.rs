@@ -425,7 +425,6 @@ pub(super) fn report_grid(d: &mut Diagnostics, g: usize, pitch: (f64, f64), peri
 }
 
 pub fn fft_psf(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics) -> Result<(Vec<f64>, Option<f64>)> {
-    super::pupil::check_samples_across(p, d);
     fft_psf_impl::<f32>(p, o, d, true)
 }
 

@@ -5,7 +5,6 @@ use super::pupil::Pupil;
 use super::{Diagnostics, PsfOptions};
 
 pub fn geometric_psf(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics) -> (Vec<f64>, f64) {
-    super::pupil::check_samples_across(p, d);
     let s = o.size;
     let h = (s / 2) as f64;
     let mut out = vec![0.0; s * s];

@@ -71,7 +71,6 @@ fn chirp(out: &mut [Complex32], a: f64, b: f64, h: f64, pitch: f64) {
 }
 
 pub fn huygens_psf(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics) -> Result<(Vec<f64>, f64)> {
-    super::pupil::check_samples_across(p, d);
     let s = o.size;
     let pitch = o.pixel_mm;
     let k = 2.0 * PI * p.n_image / p.wavelength_mm;

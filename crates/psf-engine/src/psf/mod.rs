@@ -243,6 +243,7 @@ fn psf_in_pool(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) 
             "pupil undersampled: the wavefront changes by {step:.2} waves between neighbouring samples (> 0.5); the PSF aliases: increase pupil_samples"
         ));
     }
+    pupil::check_samples_across(&p, &mut d);
     let (data, strehl) = match o.method {
         Method::Geometric => {
             let (data, s) = geometric::geometric_psf(&p, o, &mut d);
