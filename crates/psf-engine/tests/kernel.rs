@@ -6,8 +6,10 @@ use glam::DVec3;
 use psf_engine::{End, Lens, RayState, Status, System};
 use serde_json::json;
 
-/// Sphere, plane, conic and even-asphere surfaces, clear apertures, a dense glass that
-/// gives TIR at steep incidence, and an image semi-diameter.
+/// Plane, conic and even-asphere surfaces, clear apertures, a dense glass that gives TIR
+/// at steep incidence, and an image semi-diameter. The last surface is an asphere too, so
+/// that rays that failed earlier reach the block's lockstep asphere iteration (which skips
+/// them) beside live ones.
 fn mixed_lens() -> Lens {
     Lens::from_json(
         &json!({
@@ -16,7 +18,7 @@ fn mixed_lens() -> Lens {
                 {"radius": 12.0, "conic": -0.6, "aspheric": {"a4": -2e-5, "a6": 1e-8}, "thickness": 6.0, "material": {"n": 1.9}, "semi_diameter": 8.0},
                 {"radius": "inf", "thickness": 2.0, "material": "air", "semi_diameter": 8.0},
                 {"radius": 25.0, "conic": 0.5, "thickness": 3.0, "material": {"n": 1.6}, "stop": true, "semi_diameter": 6.0},
-                {"radius": -40.0, "thickness": 35.0, "material": "air", "semi_diameter": 7.0}
+                {"radius": -40.0, "aspheric": {"a4": 1e-5}, "thickness": 35.0, "material": "air", "semi_diameter": 7.0}
             ],
             "image": {"semi_diameter": 12.0}
         })
