@@ -232,6 +232,16 @@ fn psf_rgb<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, channels: Vec<
     Ok((arr, ri, json_to_py(py, &serde_json::json!({"per_wavelength": diags}))?))
 }
 
+/// Zeros over the rows (equal slices of `buf`, one per design) of the designs with an error.
+fn zero_failed<T: Default + Copy>(buf: &mut [T], errs: &[Option<String>]) {
+    let per = buf.len() / errs.len().max(1);
+    for (row, e) in buf.chunks_mut(per.max(1)).zip(errs) {
+        if e.is_some() {
+            row.fill(T::default());
+        }
+    }
+}
+
 /// A caller's output array must be C-contiguous with this shape.
 fn check_out(name: &str, a: Option<&numpy::PyReadwriteArrayDyn<'_, f32>>, shape: &[usize]) -> PyResult<()> {
     if let Some(a) = a {
@@ -317,34 +327,20 @@ fn psf_batch<'py>(
             None => owned.insert(psf_engine::rgb::output_buffer(nd * per)),
         };
         let mut owned_sensor: Option<Vec<f32>> = None;
-        let sensor: Option<(&psf_engine::rgb::SensorBinning, &mut [f32])> = match (&binning, sensor_slice) {
+        let mut sensor: Option<(&psf_engine::rgb::SensorBinning, &mut [f32])> = match (&binning, sensor_slice) {
             (Some(b), Some(sb)) => Some((b, sb)),
             (Some(b), None) => Some((b, owned_sensor.insert(vec![0.0; nd * nf * nc * b.size() * b.size()]))),
             _ => None,
         };
-        let sper = binning.as_ref().map_or(0, |b| nf * nc * b.size() * b.size());
         let b = if lenses.is_empty() {
-            buf.iter_mut().for_each(|v| *v = 0.0);
-            if let Some((_, sb)) = sensor {
-                sb.iter_mut().for_each(|v| *v = 0.0);
-            }
             psf_engine::rgb::Batch { psf: vec![], relative_illumination: vec![0.0; nd * nf * nc], energy_in_window: vec![0.0; nd * nf * nc], warnings: vec![vec![]; nd], errors: vec![None; nd] }
         } else {
-            let mut sensor = sensor;
-            let b = psf_engine::rgb::psf_batch_into(&lenses, &fields_deg, &channels, &o, buf, sensor.as_mut().map(|(b, s)| (*b, &mut **s)))?;
-            if let Some((_, sb)) = sensor {
-                for (i, e) in errs.iter().enumerate() {
-                    if e.is_some() {
-                        sb[i * sper..(i + 1) * sper].iter_mut().for_each(|v| *v = 0.0);
-                    }
-                }
-            }
-            b
+            psf_engine::rgb::psf_batch_into(&lenses, &fields_deg, &channels, &o, buf, sensor.as_mut().map(|(b, s)| (*b, &mut **s)))?
         };
-        for (i, e) in errs.iter().enumerate() {
-            if e.is_some() {
-                buf[i * per..(i + 1) * per].iter_mut().for_each(|v| *v = 0.0);
-            }
+        // A design that does not parse was traced as a placeholder (or not at all): zeros.
+        zero_failed(buf, &errs);
+        if let Some((_, sb)) = sensor {
+            zero_failed(sb, &errs);
         }
         Ok((b, owned, owned_sensor, errs))
     })?;
@@ -352,11 +348,11 @@ fn psf_batch<'py>(
     let mut ri = batch.relative_illumination;
     let mut energy = batch.energy_in_window;
     let mut warnings = batch.warnings;
+    zero_failed(&mut ri, &parse_errors);
+    zero_failed(&mut energy, &parse_errors);
     for (i, e) in parse_errors.into_iter().enumerate() {
         if let Some(msg) = e {
             errors[i] = Some(msg);
-            ri[i * nf * nc..(i + 1) * nf * nc].iter_mut().for_each(|v| *v = 0.0);
-            energy[i * nf * nc..(i + 1) * nf * nc].iter_mut().for_each(|v| *v = 0.0);
             warnings[i].clear();
         }
     }
