@@ -95,15 +95,15 @@ def _costs(s: Setting, diag: dict, n_surfaces: int, size: int) -> dict:
             "wavelet_terms": rays * size * size if s.method == "huygens" else 0}
 
 
-def _errors(psf: np.ndarray, strehl, ref, cfg: Config) -> dict:
-    centre = _centroid(ref.psf)
-    ee, ee_ref = ee_radius(psf, cfg.pixel_um, 0.8, centre), ee_radius(ref.psf, cfg.pixel_um, 0.8, centre)
-    s_err = abs(strehl - ref.strehl) if strehl is not None and ref.strehl is not None else float("nan")
-    return {"rel_l1": rel_l1(psf, ref.psf), "rel_l2": rel_l2(psf, ref.psf),
+def _errors(psf: np.ndarray, ref: np.ndarray, cfg: Config, strehl=None, strehl_ref=None) -> dict:
+    centre = _centroid(ref)
+    ee, ee_ref = ee_radius(psf, cfg.pixel_um, 0.8, centre), ee_radius(ref, cfg.pixel_um, 0.8, centre)
+    s_err = abs(strehl - strehl_ref) if strehl is not None and strehl_ref is not None else float("nan")
+    return {"rel_l1": rel_l1(psf, ref), "rel_l2": rel_l2(psf, ref),
             "strehl": strehl if strehl is not None else float("nan"),
-            "strehl_ref": ref.strehl if ref.strehl is not None else float("nan"), "strehl_err": s_err,
+            "strehl_ref": strehl_ref if strehl_ref is not None else float("nan"), "strehl_err": s_err,
             "ee80_um": ee, "ee80_ref_um": ee_ref, "ee80_err_um": abs(ee - ee_ref),
-            "image_rel_l2": render_error(psf, ref.psf, cfg.chart)}
+            "image_rel_l2": render_error(psf, ref, cfg.chart)}
 
 
 def _centroid(p: np.ndarray) -> tuple[float, float]:
@@ -128,7 +128,7 @@ def method_rows(lens: Lens, field_deg: float, wavelength_nm: float, settings: li
         except Exception as exc:  # an engine refusal is a result too
             rows.append({**row, "error": f"{type(exc).__name__}: {exc}"})
             continue
-        row.update(time_s=dt, **_costs(s, diag, len(lens.surfaces), cfg.size), **_errors(psf, diag.get("strehl"), ref, cfg),
+        row.update(time_s=dt, **_costs(s, diag, len(lens.surfaces), cfg.size), **_errors(psf, ref.psf, cfg, diag.get("strehl"), ref.strehl),
                    n_warnings=len(diag.get("warnings", [])), warnings=" | ".join(diag.get("warnings", [])),
                    fft_mode=diag.get("fft_mode", ""))
         rows.append(row)
@@ -164,24 +164,17 @@ def spectral_rows(lens: Lens, field_deg: float, cfg: Config) -> list[dict]:
 
     def run(ch):
         p, ri, _ = _engine.psf_rgb(js, field_deg, [ch], "fft", cfg.pixel_um, cfg.size, 64, "paraxial", False, True)
-        return p[0], None
+        return p[0]
 
     for name in CHANNEL_RESPONSE:
-        ref_psf, _ = run(channel_wavelengths(name, cfg.spectral_reference))
-        ref = _Ref(ref_psf)
+        ref = run(channel_wavelengths(name, cfg.spectral_reference))
         for k in cfg.wavelengths_per_channel:
-            (psf, _), dt = _timed(lambda: run(channel_wavelengths(name, k)), cfg)
-            err = _errors(psf, None, ref, cfg)
+            psf, dt = _timed(lambda: run(channel_wavelengths(name, k)), cfg)
+            err = _errors(psf, ref, cfg)
             rows.append({"experiment": "spectral", "lens": lens.name, "field_deg": field_deg, "channel": name,
                          "method": "fft-fast", "setting": f"{k} wavelengths", "n_wavelengths": k, "time_s": dt,
                          "reference_wavelengths": cfg.spectral_reference, **err})
     return rows
-
-
-@dataclass
-class _Ref:
-    psf: np.ndarray
-    strehl: float | None = None
 
 
 def field_rows(lens: Lens, wavelength_nm: float, cfg: Config) -> list[dict]:
@@ -202,12 +195,12 @@ def field_rows(lens: Lens, wavelength_nm: float, cfg: Config) -> list[dict]:
     rows = []
     for k in cfg.k_fields:
         samples = np.linspace(0.0, fmax, k)
-        (psfs, _), dt = _timed(lambda: ([one(f) for f in samples], None), cfg)
+        psfs, dt = _timed(lambda: [one(f) for f in samples], cfg)
         errs = []
         for f, ref in zip(dense, exact):
             i = min(int(np.searchsorted(samples, f, side="right")) - 1, k - 2)
             a = (f - samples[i]) / (samples[i + 1] - samples[i])
-            errs.append(_errors((1 - a) * psfs[i] + a * psfs[i + 1], None, _Ref(ref), cfg))
+            errs.append(_errors((1 - a) * psfs[i] + a * psfs[i + 1], ref, cfg))
         mean = {key: _nanmean([e[key] for e in errs]) for key in errs[0]}
         rows.append({"experiment": "fields", "lens": lens.name, "wavelength_nm": wavelength_nm, "method": "fft-fast",
                      "setting": f"K={k}", "k_fields": k, "time_s": dt, "dense_fields": cfg.dense_fields,
