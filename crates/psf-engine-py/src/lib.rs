@@ -232,16 +232,6 @@ fn psf_rgb<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, channels: Vec<
     Ok((arr, ri, json_to_py(py, &serde_json::json!({"per_wavelength": diags}))?))
 }
 
-/// Zeros over the rows (equal slices of `buf`, one per design) of the designs with an error.
-fn zero_failed<T: Default + Copy>(buf: &mut [T], errs: &[Option<String>]) {
-    let per = buf.len() / errs.len().max(1);
-    for (row, e) in buf.chunks_mut(per.max(1)).zip(errs) {
-        if e.is_some() {
-            row.fill(T::default());
-        }
-    }
-}
-
 /// A caller's output array must be C-contiguous with this shape.
 fn check_out(name: &str, a: Option<&numpy::PyReadwriteArrayDyn<'_, f32>>, shape: &[usize]) -> PyResult<()> {
     if let Some(a) = a {
@@ -338,9 +328,9 @@ fn psf_batch<'py>(
             psf_engine::rgb::psf_batch_into(&lenses, &fields_deg, &channels, &o, buf, sensor.as_mut().map(|(b, s)| (*b, &mut **s)))?
         };
         // A design that does not parse was traced as a placeholder (or not at all): zeros.
-        zero_failed(buf, &errs);
+        psf_engine::rgb::zero_failed(buf, &errs);
         if let Some((_, sb)) = sensor {
-            zero_failed(sb, &errs);
+            psf_engine::rgb::zero_failed(sb, &errs);
         }
         Ok((b, owned, owned_sensor, errs))
     })?;
@@ -348,8 +338,8 @@ fn psf_batch<'py>(
     let mut ri = batch.relative_illumination;
     let mut energy = batch.energy_in_window;
     let mut warnings = batch.warnings;
-    zero_failed(&mut ri, &parse_errors);
-    zero_failed(&mut energy, &parse_errors);
+    psf_engine::rgb::zero_failed(&mut ri, &parse_errors);
+    psf_engine::rgb::zero_failed(&mut energy, &parse_errors);
     for (i, e) in parse_errors.into_iter().enumerate() {
         if let Some(msg) = e {
             errors[i] = Some(msg);

@@ -171,6 +171,16 @@ pub fn psf_batch(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &PsfOp
     Ok(b)
 }
 
+/// Zeros over the rows (equal slices of `buf`, one per design) of the designs with an error.
+pub fn zero_failed<T: Default + Copy>(buf: &mut [T], errors: &[Option<String>]) {
+    let per = buf.len() / errors.len().max(1);
+    for (row, e) in buf.chunks_mut(per.max(1)).zip(errors) {
+        if e.is_some() {
+            row.fill(T::default());
+        }
+    }
+}
+
 /// A zeroed PSF output buffer of `len` values (huge-page backed where the system allows).
 pub fn output_buffer(len: usize) -> Vec<f32> {
     crate::trace::huge_pages(vec![0.0f32; len])
@@ -261,15 +271,9 @@ pub fn psf_batch_into(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &
             errors[i / nf] = Some(e);
         }
     }
-    for (d, e) in errors.iter().enumerate() {
-        if e.is_some() {
-            psfv[d * nf * per..(d + 1) * nf * per].iter_mut().for_each(|v| *v = 0.0);
-            if bin.is_some() {
-                sensor_buf[d * nf * sper..(d + 1) * nf * sper].iter_mut().for_each(|v| *v = 0.0);
-            }
-            ri[d * nf * nc..(d + 1) * nf * nc].iter_mut().for_each(|v| *v = 0.0);
-            energy[d * nf * nc..(d + 1) * nf * nc].iter_mut().for_each(|v| *v = 0.0);
-        }
-    }
+    zero_failed(psfv, &errors);
+    zero_failed(sensor_buf, &errors);
+    zero_failed(&mut ri, &errors);
+    zero_failed(&mut energy, &errors);
     Ok(Batch { psf: vec![], relative_illumination: ri, energy_in_window: energy, warnings, errors })
 }
