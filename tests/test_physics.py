@@ -130,3 +130,18 @@ def test_third_order_spherical_aberration(curved_first):
         other, _ = plano_convex(epd, False)
         y_flat_first = _engine.trace(other.to_engine_json(), origins, directions, WL_NM)["position"][0, 1]
         assert abs(y_flat_first) > 3 * abs(y_edge)
+
+
+@pytest.mark.parametrize("field_deg", [0.0, 14.9])
+def test_fft_and_huygens_agree_on_a_strongly_aberrated_pupil(field_deg):
+    """The paper triplet at 550 nm (Strehl 0.016 on axis): two independent evaluations of
+    the diffraction integral over the reference sphere, both converged in sampling, agree
+    to 0.2% relative L1. The FFT integrates over the directions from each sphere point to
+    the sphere's centre; with the rays' own directions instead (the transverse aberration
+    over R off) they differed by 2.2% here."""
+    lens = Lens.load("paper-triplet")
+    kw = dict(pixel_um=1.0, size=128, pupil_samples=256)
+    huy, _ = lens.psf(field_deg, WL_NM, "huygens", **kw)
+    fft, d = lens.psf(field_deg, WL_NM, "fft", fft_grid=2048, **kw)
+    assert d["warnings"] == []
+    assert np.abs(fft - huy).sum() / huy.sum() < 2e-3

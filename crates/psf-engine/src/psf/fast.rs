@@ -596,8 +596,11 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
         };
         let opl = t.opl[k] + beam.wavefront_offset(v3(&t.origin, k)) + n_img * tt;
         w[k] = (opl - chief_sphere_opl) / wl_mm;
-        l[k] = dir.x;
-        m[k] = dir.y;
+        // Debye's integral runs over the directions from the sphere point to its centre
+        // (not the ray's own direction, which differs by its transverse aberration / R).
+        let u = (chief.p - (pos + tt * dir)) / radius;
+        l[k] = u.x;
+        m[k] = u.y;
         ex = ex.max((pos.x - chief.p.x).abs());
         ey = ey.max((pos.y - chief.p.y).abs());
     }

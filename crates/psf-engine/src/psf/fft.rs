@@ -870,7 +870,7 @@ mod tests {
     fn mirror_symmetry_shortcut_matches_the_general_path() {
         let lens = cooke();
         let sys = System::new(&lens, 550.0).unwrap();
-        for (field, integrate, size) in [(0.0, false, 64), (20.0, false, 64), (14.0, true, 48), (20.0, false, 33)] {
+        for (field, integrate, size) in [(0.0, false, 256), (20.0, false, 64), (14.0, true, 48), (20.0, false, 33)] {
             let o = PsfOptions { integrate, size, ..opts() };
             let p = pupil::sample_pupil(&sys, field, Aiming::Paraxial, 64).unwrap();
             let (mut d1, mut d2) = (Diagnostics::default(), Diagnostics::default());
@@ -880,12 +880,13 @@ mod tests {
             let (b, sb) = fft_psf_impl::<f64>(&p, &o, &mut d2, false).unwrap();
             assert_eq!(d1.values["fft_mirror_symmetry"], true);
             assert_eq!(d2.values["fft_mirror_symmetry"], false);
+            // (On axis the map is nearly affine: the 256-pixel window needs order 2.)
             assert!(d1.values["distortion_order"].as_f64().unwrap() >= 2.0);
             let peak = b.iter().cloned().fold(0.0, f64::max);
             let diff = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
-            assert!(diff < 1e-12 * peak, "{field} deg: max difference {diff:e} of peak {peak:e}");
+            assert!(diff < 1e-11 * peak, "{field} deg: max difference {diff:e} of peak {peak:e}");
             let (sa, sb) = (sa.unwrap(), sb.unwrap());
-            assert!((sa / sb - 1.0).abs() < 1e-12, "{field} deg: Strehl {sa} vs {sb}");
+            assert!((sa / sb - 1.0).abs() < 1e-11, "{field} deg: Strehl {sa} vs {sb}");
         }
     }
 

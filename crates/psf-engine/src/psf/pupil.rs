@@ -337,10 +337,14 @@ fn take_ray(p: &mut Pupil, c: &RayCtx, j: usize, origin: DVec3, weight: f64, sta
     };
     let opl = opl + c.beam.wavefront_offset(origin) + c.n_img * t;
     p.valid[j] = true;
-    p.sphere[j] = pos + t * dir;
+    let s = pos + t * dir;
+    p.sphere[j] = s;
     p.image[j] = pos;
-    p.l[j] = dir.x;
-    p.m[j] = dir.y;
+    // Debye's integral runs over the directions from the sphere point to its centre (not
+    // the ray's own direction, which differs by the transverse ray aberration / R).
+    let u = (c.chief - s) / c.radius;
+    p.l[j] = u.x;
+    p.m[j] = u.y;
     p.opd_waves[j] = (opl - c.chief_sphere_opl) / p.wavelength_mm;
     f
 }
