@@ -134,8 +134,16 @@ def psf(
     integrate: bool = False,
     exact: bool = False,
     fast: bool = False,
+    accuracy: float = 0.02,
 ) -> tuple[NDArray[np.float64], dict[str, Any]]:
-    """Monochromatic PSF with method "geometric", "fft" or "huygens".
+    """Monochromatic PSF with method "geometric", "fft", "huygens" or "auto".
+
+    "auto": the cheapest method and sampling predicted to meet ``accuracy`` (relative L1
+    error against the converged Huygens PSF) for this lens, field and wavelength
+    (crates/psf-engine/src/psf/auto.rs); ``pupil_samples`` and ``fast`` are then chosen,
+    and the diagnostics hold ``requested_method`` = "auto" and ``auto`` (the choice, its
+    predicted error and cost, the probe's measurements; a warning if nothing is predicted
+    to meet the target).
 
     Diagnostics keys: method, strehl, warnings (list[str]), time_s, chief_x_mm,
     chief_y_mm, transmitted_fraction, energy_in_window, pupil_samples, and the
@@ -161,10 +169,23 @@ def psf_rgb(
     aiming: str = "paraxial",
     integrate: bool = False,
     fast: bool = True,
+    accuracy: float = 0.02,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], dict[str, Any]]:
     """Per-channel PSF (C, size, size), each normalized to unit sum, and the per-channel
     relative illumination (C,). ``channels[c]`` lists (wavelength_nm, weight) pairs.
     ``fast`` as in :func:`psf_batch` (the same computation, so the two agree)."""
+
+def auto_candidates(
+    lens_json: str,
+    field_deg: float,
+    wavelength_nm: float,
+    pixel_um: float = 1.0,
+    size: int = 64,
+    aiming: str = "paraxial",
+    integrate: bool = False,
+) -> dict[str, Any]:
+    """What method "auto" sees: ``probe`` (its measurements) and ``candidates`` (name,
+    method, fast, pupil_samples, predicted_rel_l1, predicted_cost_s; cheapest first)."""
 
 def best_focus_batch(
     lens_jsons: Sequence[str],

@@ -208,7 +208,9 @@ class Lens:
 
     def psf(self, field_deg: float, wavelength_nm: float | None = None, method: str = "fft",
             **kwargs) -> tuple[np.ndarray, dict[str, Any]]:
-        """Monochromatic PSF; keyword arguments as :func:`optix_e2e._engine.psf`."""
+        """Monochromatic PSF; keyword arguments as :func:`optix_e2e._engine.psf`.  ``method``
+        "auto" picks the cheapest method and sampling predicted to meet
+        ``accuracy`` (relative L1, default 0.02) and records its choice under ``"auto"``."""
         wl = self.primary_wavelength_nm if wavelength_nm is None else wavelength_nm
         return _engine_fn("psf")(self.to_engine_json(), float(field_deg), float(wl), method, **kwargs)
 

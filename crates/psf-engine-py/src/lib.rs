@@ -39,7 +39,7 @@ fn parse_lens(text: &str) -> psf_engine::Result<Lens> {
 }
 
 #[allow(clippy::too_many_arguments)]
-fn options(method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_grid: Option<usize>, aiming: &str, integrate: bool, exact: bool, fast: bool) -> PyResult<PsfOptions> {
+fn options(method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_grid: Option<usize>, aiming: &str, integrate: bool, exact: bool, fast: bool, accuracy: f64) -> PyResult<PsfOptions> {
     Ok(PsfOptions {
         method: method.parse::<Method>().map_err(to_py)?,
         pixel_mm: pixel_um * 1e-3,
@@ -50,6 +50,7 @@ fn options(method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_g
         huygens_exact: exact,
         integrate,
         fast,
+        accuracy,
     })
 }
 
@@ -210,20 +211,20 @@ fn spot<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavelengths_nm: V
 }
 
 #[pyfunction]
-#[pyo3(signature = (lens_json, field_deg, wavelength_nm, method="fft", pixel_um=1.0, size=64, pupil_samples=64, fft_grid=None, aiming="paraxial", integrate=false, exact=false, fast=false))]
+#[pyo3(signature = (lens_json, field_deg, wavelength_nm, method="fft", pixel_um=1.0, size=64, pupil_samples=64, fft_grid=None, aiming="paraxial", integrate=false, exact=false, fast=false, accuracy=0.02))]
 #[allow(clippy::too_many_arguments)]
-fn psf<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavelength_nm: f64, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_grid: Option<usize>, aiming: &str, integrate: bool, exact: bool, fast: bool) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-    let o = options(method, pixel_um, size, pupil_samples, fft_grid, aiming, integrate, exact, fast)?;
+fn psf<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavelength_nm: f64, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_grid: Option<usize>, aiming: &str, integrate: bool, exact: bool, fast: bool, accuracy: f64) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let o = options(method, pixel_um, size, pupil_samples, fft_grid, aiming, integrate, exact, fast, accuracy)?;
     let p = run(py, || psf_engine::psf::psf(&parse_lens(lens_json)?, field_deg, wavelength_nm, &o))?;
     let arr = p.data.into_pyarray(py).reshape([size, size])?.into_any();
     Ok((arr, json_to_py(py, &p.diagnostics.to_json())?))
 }
 
 #[pyfunction]
-#[pyo3(signature = (lens_json, field_deg, channels, method="fft", pixel_um=1.0, size=64, pupil_samples=64, aiming="paraxial", integrate=false, fast=true))]
+#[pyo3(signature = (lens_json, field_deg, channels, method="fft", pixel_um=1.0, size=64, pupil_samples=64, aiming="paraxial", integrate=false, fast=true, accuracy=0.02))]
 #[allow(clippy::too_many_arguments)]
-fn psf_rgb<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, channels: Vec<Vec<(f64, f64)>>, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, aiming: &str, integrate: bool, fast: bool) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-    let o = options(method, pixel_um, size, pupil_samples, None, aiming, integrate, false, fast)?;
+fn psf_rgb<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, channels: Vec<Vec<(f64, f64)>>, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, aiming: &str, integrate: bool, fast: bool, accuracy: f64) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let o = options(method, pixel_um, size, pupil_samples, None, aiming, integrate, false, fast, accuracy)?;
     let nc = channels.len();
     let r = run(py, || psf_engine::rgb::psf_rgb(&parse_lens(lens_json)?, field_deg, &channels, &o))?;
     let arr = r.data.into_pyarray(py).reshape([nc, size, size])?.into_any();
@@ -263,7 +264,7 @@ fn crc32(py: Python<'_>, data: numpy::PyReadonlyArrayDyn<'_, u8>, crc: u32) -> P
 }
 
 #[pyfunction]
-#[pyo3(signature = (lens_jsons, fields_deg, channels, method="fft", pixel_um=1.0, size=64, pupil_samples=64, aiming="paraxial", integrate=false, fast=true, out=None, sensor=None, sensor_out=None))]
+#[pyo3(signature = (lens_jsons, fields_deg, channels, method="fft", pixel_um=1.0, size=64, pupil_samples=64, aiming="paraxial", integrate=false, fast=true, out=None, sensor=None, sensor_out=None, accuracy=0.02))]
 #[allow(clippy::too_many_arguments)]
 fn psf_batch<'py>(
     py: Python<'py>,
@@ -280,8 +281,9 @@ fn psf_batch<'py>(
     out: Option<numpy::PyReadwriteArrayDyn<'py, f32>>,
     sensor: Option<(f64, usize)>,
     sensor_out: Option<numpy::PyReadwriteArrayDyn<'py, f32>>,
+    accuracy: f64,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let o = options(method, pixel_um, size, pupil_samples, None, aiming, integrate, false, fast)?;
+    let o = options(method, pixel_um, size, pupil_samples, None, aiming, integrate, false, fast, accuracy)?;
     let (nd, nf, nc) = (lens_jsons.len(), fields_deg.len(), channels.len());
     let shape = [nd, nf, nc, size, size];
     let binning = match sensor {
@@ -323,7 +325,7 @@ fn psf_batch<'py>(
             _ => None,
         };
         let b = if lenses.is_empty() {
-            psf_engine::rgb::Batch { psf: vec![], relative_illumination: vec![0.0; nd * nf * nc], energy_in_window: vec![0.0; nd * nf * nc], warnings: vec![vec![]; nd], errors: vec![None; nd] }
+            psf_engine::rgb::Batch { psf: vec![], relative_illumination: vec![0.0; nd * nf * nc], energy_in_window: vec![0.0; nd * nf * nc], warnings: vec![vec![]; nd], errors: vec![None; nd], methods: vec![String::new(); nd * nf * channels.iter().map(|c| c.len()).sum::<usize>()] }
         } else {
             psf_engine::rgb::psf_batch_into(&lenses, &fields_deg, &channels, &o, buf, sensor.as_mut().map(|(b, s)| (*b, &mut **s)))?
         };
@@ -362,9 +364,29 @@ fn psf_batch<'py>(
     d.set_item("relative_illumination", ri.into_pyarray(py).reshape([nd, nf, nc])?)?;
     d.set_item("energy_in_window", energy.into_pyarray(py).reshape([nd, nf, nc])?)?;
     d.set_item("warnings", warnings)?;
+    d.set_item("methods", batch.methods)?;
     d.set_item("ok", errors.iter().map(|e| e.is_none()).collect::<Vec<_>>().into_pyarray(py))?;
     d.set_item("errors", errors)?;
     Ok(d)
+}
+
+/// method = auto's probe and its candidates (predicted error and cost, cheapest first), for
+/// calibration and inspection.
+#[pyfunction]
+#[pyo3(signature = (lens_json, field_deg, wavelength_nm, pixel_um=1.0, size=64, aiming="paraxial", integrate=false))]
+#[allow(clippy::too_many_arguments)]
+fn auto_candidates<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavelength_nm: f64, pixel_um: f64, size: usize, aiming: &str, integrate: bool) -> PyResult<Bound<'py, PyAny>> {
+    let o = options("auto", pixel_um, size, 64, None, aiming, integrate, false, false, 0.02)?;
+    let v = run(py, || {
+        let lens = parse_lens(lens_json)?;
+        let pr = psf_engine::psf::auto::probe(&lens, field_deg, wavelength_nm, o.aiming)?;
+        let c = psf_engine::psf::auto::candidates(&pr, &o, lens.surfaces.len());
+        Ok(serde_json::json!({
+            "probe": psf_engine::psf::auto::probe_json(&pr),
+            "candidates": c.iter().map(psf_engine::psf::auto::candidate_json).collect::<Vec<_>>(),
+        }))
+    })?;
+    json_to_py(py, &v)
 }
 
 #[pyfunction]
@@ -420,5 +442,6 @@ fn _engine(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(psf_rgb, m)?)?;
     m.add_function(wrap_pyfunction!(psf_batch, m)?)?;
     m.add_function(wrap_pyfunction!(crc32, m)?)?;
+    m.add_function(wrap_pyfunction!(auto_candidates, m)?)?;
     Ok(())
 }

@@ -157,6 +157,19 @@ pub struct Batch {
     /// Per design: the PSFs' warnings, each prefixed with its field and wavelength.
     pub warnings: Vec<Vec<String>>,
     pub errors: Vec<Option<String>>,
+    /// designs x fields x wavelengths (channels flattened): the method and sampling each
+    /// PSF was computed with (`method_used`), what `method = auto` chose included.
+    pub methods: Vec<String>,
+}
+
+/// The method and sampling a PSF was computed with, from its diagnostics: "fft-fast N=64"
+/// (the direction-grid FFT), "fft N=128", "huygens N=256", "geometric N=128".
+pub fn method_used(d: &Diagnostics) -> String {
+    let v = &d.values;
+    let m = v.get("method").and_then(|x| x.as_str()).unwrap_or("?");
+    let fast = v.get("fft_mode").and_then(|x| x.as_str()) == Some("direction_grid");
+    let n = v.get("pupil_samples").and_then(|x| x.as_f64()).unwrap_or(0.0);
+    format!("{}{} N={n}", m, if fast { "-fast" } else { "" })
 }
 
 /// Every (design, field) pair in parallel, each PSF single threaded where the fast path
@@ -234,13 +247,16 @@ pub fn psf_batch_into(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &
             list.iter().map(move |&(wl, w)| (c, wl, w / wsum))
         })
         .collect();
+    let nw = visits.len();
+    let mut methods = vec![String::new(); nd * nf * nw];
     let results: Vec<(Option<String>, Vec<String>)> = psfv
         .par_chunks_mut(per)
         .zip(sensor_buf.par_chunks_mut(sper))
         .zip(ri.par_chunks_mut(nc))
         .zip(energy.par_chunks_mut(nc))
+        .zip(methods.par_chunks_mut(nw))
         .enumerate()
-        .map(|(i, (((out, sout), ri), en))| {
+        .map(|(i, ((((out, sout), ri), en), used))| {
             let (d, f) = (i / nf, fields[i % nf]);
             let axis = axis_known.then_some(&axis[d][..]);
             let mut warnings = vec![];
@@ -254,6 +270,7 @@ pub fn psf_batch_into(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &
             };
             let err = rgb_core(&lenses[d], f, channels, o, axis, ri, sink, |dg| {
                 let (c, wl, w) = visits[k];
+                used[k] = method_used(&dg);
                 k += 1;
                 en[c] += w * dg.values.get("energy_in_window").and_then(|v| v.as_f64()).unwrap_or(0.0);
                 warnings.extend(dg.warnings.iter().map(|m| format!("field {f} deg, {wl} nm: {m}")));
@@ -275,5 +292,5 @@ pub fn psf_batch_into(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &
     zero_failed(sensor_buf, &errors);
     zero_failed(&mut ri, &errors);
     zero_failed(&mut energy, &errors);
-    Ok(Batch { psf: vec![], relative_illumination: ri, energy_in_window: energy, warnings, errors })
+    Ok(Batch { psf: vec![], relative_illumination: ri, energy_in_window: energy, warnings, errors, methods })
 }

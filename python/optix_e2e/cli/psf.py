@@ -14,7 +14,10 @@ from ._common import AIMING, dumps, friendly_errors, load_lens
 @click.argument("lens_spec", metavar="LENS")
 @click.option("--field-deg", type=float, default=0.0, show_default=True, help="Field angle along +y.")
 @click.option("--wavelength-nm", type=float, default=None, help="Default: the lens's primary wavelength.")
-@click.option("--method", type=click.Choice(["geometric", "fft", "huygens"]), default="fft", show_default=True)
+@click.option("--method", type=click.Choice(["auto", "geometric", "fft", "huygens"]), default="auto", show_default=True,
+              help="auto: the cheapest method and sampling predicted to meet --accuracy (recorded under 'auto').")
+@click.option("--accuracy", type=click.FloatRange(min=0, min_open=True), default=0.02, show_default=True,
+              help="method auto: target relative L1 error of the PSF against the converged Huygens PSF.")
 @click.option("--pixel-um", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True)
 @click.option("--size", type=click.IntRange(min=1), default=64, show_default=True, help="Window is SIZE x SIZE pixels.")
 @click.option("--pupil-samples", type=click.IntRange(min=2), default=64, show_default=True,
@@ -29,7 +32,7 @@ from ._common import AIMING, dumps, friendly_errors, load_lens
 @click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Also write a PNG image.")
 @click.option("--log/--linear", "log", default=False, help="PNG intensity scale.")
 @friendly_errors
-def psf(lens_spec, field_deg, wavelength_nm, method, pixel_um, size, pupil_samples, fft_grid, integrate,
+def psf(lens_spec, field_deg, wavelength_nm, method, accuracy, pixel_um, size, pupil_samples, fft_grid, integrate,
         exact, aiming, out, png, log):
     """Compute the PSF of LENS at one field and wavelength and save it as .npy.
 
@@ -38,7 +41,7 @@ def psf(lens_spec, field_deg, wavelength_nm, method, pixel_um, size, pupil_sampl
     """
     lens_ = load_lens(lens_spec)
     wl = lens_.primary_wavelength_nm if wavelength_nm is None else wavelength_nm
-    kwargs = dict(pixel_um=pixel_um, size=size, pupil_samples=pupil_samples, aiming=aiming)
+    kwargs = dict(pixel_um=pixel_um, size=size, pupil_samples=pupil_samples, aiming=aiming, accuracy=accuracy)
     if fft_grid is not None:
         kwargs["fft_grid"] = fft_grid
     if integrate:
@@ -48,8 +51,8 @@ def psf(lens_spec, field_deg, wavelength_nm, method, pixel_um, size, pupil_sampl
     image, diag = lens_.psf(field_deg, wl, method, **kwargs)
     out.parent.mkdir(parents=True, exist_ok=True)
     np.save(out, image)
-    line = {"method": method, "strehl": diag.get("strehl"), "time_s": diag.get("time_s"),
-            "warnings": list(diag.get("warnings", [])), **diag,
+    line = {"strehl": diag.get("strehl"), "time_s": diag.get("time_s"),
+            "warnings": list(diag.get("warnings", [])), **diag, "requested_method": method,
             "lens": lens_.name, "field_deg": field_deg, "wavelength_nm": wl,
             "pixel_um": pixel_um, "size": size, "sum": float(np.sum(image)), "out": str(out)}
     if png is not None:

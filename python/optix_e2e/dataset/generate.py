@@ -97,6 +97,8 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
     psf_arr = rows(psf_buffer, (b - a, K, C, S, S))
     sensor_arr = rows(sensor_buffer, (b - a, K, C, s.sensor_size, s.sensor_size))
     ri, image, energy, warnings = [], [], [], {}
+    legend: dict[str, int] = {}
+    methods: dict[str, list[int]] = {}
     wavelengths = sorted({wl for c in channels for wl, _ in c})
     # best focus from 7 of the K fields and a 4-ring polar pupil (96 rays per field and
     # wavelength; within 1 um of 8 rings, against a depth of focus of +-20 um at f/4.4)
@@ -136,7 +138,9 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
         row0 = len(ok_idx)
         r = _engine.psf_batch(jsons, fields, channels, s.psf_method, s.pixel_um, S, s.pupil_samples,
                               s.aiming, False, True, psf_arr[row0:row0 + len(jsons)],
-                              (s.sensor_pixel_um, s.sensor_size), sensor_arr[row0:row0 + len(jsons)]) if jsons else {"ok": []}
+                              (s.sensor_pixel_um, s.sensor_size), sensor_arr[row0:row0 + len(jsons)],
+                              s.accuracy) if jsons else {"ok": []}
+        n_wl = sum(len(c) for c in channels)
         for j, (i, image_mm) in enumerate(todo):
             if r["ok"][j]:
                 if len(ok_idx) != row0 + j:
@@ -148,6 +152,9 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
                 image.append(image_mm)
                 if r["warnings"][j]:
                     warnings[str(i)] = r["warnings"][j]
+                # method and sampling of each PSF (fields x wavelengths), as codes into a legend
+                per = r["methods"][j * K * n_wl:(j + 1) * K * n_wl]
+                methods[str(i)] = [legend.setdefault(m, len(legend)) for m in per]
             else:
                 fail(i, r["errors"][j] or "engine error")
         failures.sort(key=lambda f: f["design"])
@@ -160,7 +167,9 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
               "image_distance": np.array(image, np.float64),
               "energy_in_window": (np.stack(energy).astype(np.float32) if m else np.zeros((0, K, C), np.float32))}
     meta = {"format": FORMAT, "shard": k, "designs": [a, b], "n_ok": m, "n_failed": len(failures),
-            "failures": failures, "warnings": warnings, "seconds": time.perf_counter() - t0}
+            "failures": failures, "warnings": warnings, "seconds": time.perf_counter() - t0,
+            "psf_methods": {"legend": list(legend), "order": "fields x wavelengths (channels flattened)",
+                            "codes": methods}}
     return arrays, meta
 
 
@@ -260,7 +269,7 @@ def generate(space_spec: "str | Path", n: int, seed: int, out: "str | Path",
                 if sdir.exists():
                     _clean_stale(sdir, k)
                 if buffers[n_done % 2] is None and len(pending) > 1:
-                    lead = (s.shard_size, s.n_fields, len(man["channels"]))
+                    lead = (s.shard_size, len(man["fields_deg"]), len(man["channels"]))
                     buffers[n_done % 2] = (aligned_empty(lead + (s.size, s.size), np.float32),
                                            aligned_empty(lead + (s.sensor_size, s.sensor_size), np.float32))
                 psf_buf, sensor_buf = buffers[n_done % 2] or (None, None)

@@ -3,6 +3,7 @@ checked against the request on every later run (docs/dataset.md)."""
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from dataclasses import asdict
@@ -32,6 +33,37 @@ def _request(space: ParameterSpace, base: Lens, n: int, seed: int, s: DatasetSet
     }
 
 
+def resolve_fields_and_channels(base: Lens, s: DatasetSettings,
+                                log: Callable[[str], None] = lambda m: None) -> tuple[list[float], list, dict]:
+    """The K field positions and the channels' (wavelength, weight) lists.  ``n_fields`` 0
+    and ``channels`` "auto" are chosen for ``s.accuracy`` on the base design (optix_e2e.auto;
+    deterministic, so a resumed run recomputes and checks them); the choice and its
+    estimated errors are returned for the manifest's ``auto`` entry."""
+    from .. import auto as _auto
+    from .settings import engine_base
+
+    info: dict = {}
+    js = [json.dumps(engine_base(base, s.apertures))]
+    if s.channels == "auto":
+        ch = _auto.choose_wavelengths(js, base.max_field_deg, s.accuracy, size=s.size, pixel_um=s.pixel_um)
+        channels = [c["wavelengths"] for c in ch.values()]
+        info["channels"] = {k: {"k": v["k"], "estimated_rel_l1": v["estimated_rel_l1"]} for k, v in ch.items()}
+    else:
+        channels = base.rgb_channels(s.channels)
+    k = s.n_fields
+    if k == 0:
+        fk = _auto.choose_fields(js, base.max_field_deg, base.primary_wavelength_nm, s.accuracy,
+                                 size=s.size, pixel_um=s.pixel_um)
+        k = fk["K"]
+        info["fields"] = fk
+        if not fk["met"]:
+            log(f"fields auto: no K up to {max(_auto.K_FIELDS)} interpolates within {s.accuracy:.1%} "
+                f"(K={max(_auto.K_FIELDS)}: {fk['mean_rel_l1'][str(max(_auto.K_FIELDS))]:.1%}); using {k} fields")
+    if info:
+        info["target_rel_l1"] = s.accuracy
+    return field_positions(base, k), channels, info
+
+
 def _versions() -> dict:
     import importlib.metadata as md
     import platform
@@ -48,9 +80,10 @@ def _versions() -> dict:
 def prepare(out: Path, space: ParameterSpace, base: Lens, n: int, seed: int, s: DatasetSettings,
             log: Callable[[str], None] = lambda m: None) -> tuple[dict, np.ndarray]:
     """Create or check ``out``'s manifest and designs; returns (manifest, designs (n, P))."""
-    fields = field_positions(base, s.n_fields)
-    channels = base.rgb_channels(s.channels)
+    fields, channels, auto = resolve_fields_and_channels(base, s, log)
     req = _request(space, base, n, seed, s, fields, channels)
+    if auto:
+        req["auto"] = auto
     mpath = out / "manifest.json"
     if mpath.exists():
         man = read_json(mpath, "manifest")

@@ -15,12 +15,13 @@ from ..lens import Lens
 class DatasetSettings:
     """What each design's record holds and how it is computed."""
 
-    n_fields: int = 13              # K field positions, uniform along +y from 0 to the full field
+    n_fields: int = 13              # K field positions, uniform along +y from 0 to the full field; 0: auto
     window_um: float = 128.0        # super-resolved PSF window (side)
     pixel_um: float = 1.0           # ... and its pitch
     sensor_pixel_um: float = 5.86   # the sensor-pitch version (IMX249 pixels)
     pupil_samples: int = 64
-    psf_method: str = "fft"
+    psf_method: str = "auto"        # per PSF: the cheapest method and sampling predicted to meet `accuracy`
+    accuracy: float = 0.02          # method auto: target relative L1 error of each monochromatic PSF
     aiming: str = "paraxial"
     channels: str = "lens"          # "lens": the lens's three wavelengths -> R, G, B; "rgb": 3 per channel
     shard_size: int = 64
@@ -31,8 +32,8 @@ class DatasetSettings:
                                     # and the channels' wavelengths), "paraxial", or "fixed" (the base's)
 
     def check(self) -> None:
-        if self.n_fields < 1:
-            raise ValueError(f"n_fields must be >= 1, got {self.n_fields}")
+        if self.n_fields < 0:
+            raise ValueError(f"n_fields must be >= 1 (or 0: auto), got {self.n_fields}")
         if not (self.window_um > 0 and self.pixel_um > 0 and self.sensor_pixel_um > 0):
             raise ValueError("window_um, pixel_um and sensor_pixel_um must be positive")
         if self.size < 8:
@@ -45,8 +46,12 @@ class DatasetSettings:
             raise ValueError(f"apertures must be 'auto' or 'fixed', got {self.apertures!r}")
         if self.focus not in ("best", "paraxial", "fixed"):
             raise ValueError(f"focus must be 'best', 'paraxial' or 'fixed', got {self.focus!r}")
-        if self.channels not in ("lens", "rgb"):
-            raise ValueError(f"channels must be 'lens' or 'rgb', got {self.channels!r}")
+        if self.psf_method not in ("auto", "fft", "huygens", "geometric"):
+            raise ValueError(f"psf_method must be auto, fft, huygens or geometric, got {self.psf_method!r}")
+        if not self.accuracy > 0:
+            raise ValueError(f"accuracy must be a positive relative L1 error, got {self.accuracy}")
+        if self.channels not in ("lens", "rgb", "auto"):
+            raise ValueError(f"channels must be 'lens', 'rgb' or 'auto', got {self.channels!r}")
 
     @property
     def size(self) -> int:

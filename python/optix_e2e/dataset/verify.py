@@ -64,7 +64,8 @@ def verify(root: "str | Path", check_hashes: bool = True) -> dict:
     relative illumination, image distance, energy in the window; then the failed indices),
     independent of the shard layout.  ``n_with_warnings`` counts designs whose PSFs carry
     an engine warning (shard.json lists them), ``min_energy_in_window`` is the smallest
-    fraction of a PSF's energy inside the window."""
+    fraction of a PSF's energy inside the window, ``psf_methods`` how many PSFs each method
+    and sampling computed (what method auto chose, from each shard's meta.json)."""
     root = Path(root)
     man = read_json(root / "manifest.json", "manifest")
     if man.get("format") != FORMAT:
@@ -73,6 +74,7 @@ def verify(root: "str | Path", check_hashes: bool = True) -> dict:
     n_ok = n_failed = n_warn = 0
     min_energy = 1.0
     failed_idx = []
+    methods: dict[str, int] = {}
     h = hashlib.sha256()
     for k in range(man["n_shards"]):
         if not (shards_dir(root) / shard_name(k)).is_dir():
@@ -96,9 +98,14 @@ def verify(root: "str | Path", check_hashes: bool = True) -> dict:
         if meta["n_ok"]:
             min_energy = min(min_energy, float(np.min(arrays["energy_in_window"])))
         failed_idx += [f["design"] for f in meta["failures"]]
+        pm = meta.get("psf_methods")
+        if pm:
+            for codes in pm["codes"].values():
+                for c in codes:
+                    methods[pm["legend"][c]] = methods.get(pm["legend"][c], 0) + 1
     for i in sorted(failed_idx):
         h.update(b"failed" + np.int64(i).tobytes())
     return {"ok": not problems and not missing, "n_designs": n_ok, "n_failed": n_failed,
             "n_with_warnings": n_warn, "min_energy_in_window": min_energy,
             "n_shards": man["n_shards"], "missing_shards": missing, "problems": problems,
-            "digest": h.hexdigest()}
+            "psf_methods": dict(sorted(methods.items())), "digest": h.hexdigest()}

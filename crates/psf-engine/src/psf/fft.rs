@@ -95,8 +95,8 @@ pub(super) fn plan<T: Real>(len: usize) -> Arc<dyn Fft<T>> {
 }
 
 /// Largest Taylor order for the pupil-distortion correction, and its target phase error.
-const MAX_ORDER: usize = 8;
-const TAYLOR_TOL_RAD: f64 = 1e-3;
+pub(crate) const MAX_ORDER: usize = 8;
+pub(crate) const TAYLOR_TOL_RAD: f64 = 1e-3;
 const MAX_GRID: usize = 8192;
 /// Taylor error at the PSF peak beyond which the sampled peak (and the Strehl) is unreliable.
 const STREHL_TAYLOR_TOL_RAD: f64 = 1e-2;

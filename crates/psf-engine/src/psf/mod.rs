@@ -4,6 +4,7 @@
 //! centred on the chief-ray image point, each pixel the fraction of the entrance-pupil
 //! flux landing in it.
 
+pub mod auto;
 pub mod fast;
 pub mod fft;
 pub mod geometric;
@@ -23,6 +24,9 @@ pub enum Method {
     Geometric,
     Fft,
     Huygens,
+    /// The cheapest of the three (and its sampling) predicted to meet
+    /// `PsfOptions::accuracy` (psf/auto.rs); resolved per lens, field and wavelength.
+    Auto,
 }
 
 impl std::str::FromStr for Method {
@@ -32,7 +36,8 @@ impl std::str::FromStr for Method {
             "geometric" => Ok(Method::Geometric),
             "fft" => Ok(Method::Fft),
             "huygens" => Ok(Method::Huygens),
-            _ => arg(format!("method must be \"geometric\", \"fft\" or \"huygens\", got \"{s}\"")),
+            "auto" => Ok(Method::Auto),
+            _ => arg(format!("method must be \"auto\", \"geometric\", \"fft\" or \"huygens\", got \"{s}\"")),
         }
     }
 }
@@ -43,6 +48,7 @@ impl Method {
             Method::Geometric => "geometric",
             Method::Fft => "fft",
             Method::Huygens => "huygens",
+            Method::Auto => "auto",
         }
     }
 }
@@ -71,11 +77,13 @@ pub struct PsfOptions {
     /// least number of grid cells across the pupil. Off by default here; the RGB and batch
     /// bindings turn it on.
     pub fast: bool,
+    /// method = auto: the accuracy target, relative L1 error of the PSF.
+    pub accuracy: f64,
 }
 
 impl Default for PsfOptions {
     fn default() -> Self {
-        PsfOptions { method: Method::Fft, pixel_mm: 1e-3, size: 64, pupil_samples: 64, fft_grid: None, aiming: Aiming::Paraxial, huygens_exact: false, integrate: false, fast: false }
+        PsfOptions { method: Method::Fft, pixel_mm: 1e-3, size: 64, pupil_samples: 64, fft_grid: None, aiming: Aiming::Paraxial, huygens_exact: false, integrate: false, fast: false, accuracy: auto::DEFAULT_TARGET }
     }
 }
 
@@ -89,6 +97,9 @@ impl PsfOptions {
         }
         if self.pupil_samples < 4 || self.pupil_samples > 4096 {
             return arg(format!("pupil_samples {} must be within 4..4096", self.pupil_samples));
+        }
+        if !(self.accuracy.is_finite() && self.accuracy > 0.0) {
+            return arg(format!("accuracy target {} must be a positive relative L1 error (e.g. 0.02)", self.accuracy));
         }
         if self.method == Method::Huygens && self.integrate {
             // (It evaluates the field at pixel centres only; said rather than ignored.)
@@ -165,6 +176,17 @@ pub fn psf(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) -> R
 /// pupil set reached the image (no vignetting).
 pub(crate) fn psf_path(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) -> Result<(Psf, bool)> {
     o.check()?;
+    if o.method == Method::Auto {
+        let t0 = Instant::now();
+        let pr = auto::probe(lens, field_deg, wavelength_nm, o.aiming)?;
+        let (c, met) = auto::choose(&auto::candidates(&pr, o, lens.surfaces.len()), o.accuracy);
+        let probe_s = t0.elapsed().as_secs_f64();
+        let chosen = PsfOptions { method: c.method, fast: c.fast, pupil_samples: c.pupil_samples, ..o.clone() };
+        let (mut p, clear) = psf_path(lens, field_deg, wavelength_nm, &chosen)?;
+        auto::record(&mut p.diagnostics, &c, met, &pr, o.accuracy, probe_s);
+        p.diagnostics.set("time_s", t0.elapsed().as_secs_f64());
+        return Ok((p, clear));
+    }
     if fast::applies(o) {
         // Single threaded (the batch runs many of these side by side).
         let t0 = Instant::now();
@@ -254,6 +276,7 @@ fn psf_in_pool(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) 
             let (data, s) = huygens::huygens_psf(&p, o, &mut d)?;
             (data, Some(s))
         }
+        Method::Auto => unreachable!("method auto is resolved in psf_path"),
     };
     // A Strehl ratio above 1 (or not finite) means the sampled field is wrong: no number.
     let strehl = match strehl {

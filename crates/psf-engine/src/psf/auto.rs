@@ -1,0 +1,292 @@
+//! `method = "auto"`: the cheapest PSF method and setting predicted to meet an accuracy
+//! target (relative L1 of the PSF against the converged Huygens PSF) for this lens, field
+//! and wavelength.
+//!
+//! A probe traces a 16 x 16 pupil grid (about 200 rays) and measures what decides each
+//! method's error:
+//! - the pupil's direction-cosine radius `na` (Airy scale lambda / (n na));
+//! - the geometric spot's extent about the chief ray;
+//! - the largest wavefront step between neighbouring samples, which scales as 1 / N;
+//! - vignetting, TIR and missed rays (the fast FFT needs a whole pupil; a sliver needs
+//!   more samples);
+//! - the pupil map's departure from affine over the window (the FFT's Taylor terms).
+//!
+//! Each candidate's error is predicted by one model for every sampled method: a sampled
+//! pupil repeats the PSF with period D = N lambda / (2 n na) (the FFT field for the fast
+//! path), so the error is the diffraction tail that the neighbouring copies put into the
+//! window, ~ (lambda / (n na)) / (D - window/2 - spot), plus the quadrature error of the
+//! wavefront, ~ step^2, plus a floor (the fast path's fits):
+//!
+//!   e = a_m tail + b_m step_N^2 + c_m.
+//!
+//! The geometric PSF lacks diffraction: e = a_g lambda / (n na) / spot_rms (+ ray noise).
+//! The constants (`MODELS`) are fitted to the bundled lenses' measured errors
+//! (`optix bench auto --calibrate`) times a safety margin, and checked on random designs the
+//! fit never saw (tests/test_auto.py, docs/accuracy.md). Costs are op counts times constants
+//! fitted to this engine's timings; only their order matters for the choice.
+
+use super::fft::{fit_affine, MAX_ORDER, TAYLOR_TOL_RAD};
+use super::{pupil, Diagnostics, Method, PsfOptions};
+use crate::aim::Aiming;
+use crate::error::Result;
+use crate::trace::System;
+use crate::Lens;
+use serde_json::{json, Value};
+
+pub const PROBE_SAMPLES: usize = 16;
+/// Default accuracy target: relative L1 error of the PSF.
+pub const DEFAULT_TARGET: f64 = 0.02;
+
+/// What the probe measured.
+#[derive(Clone, Debug)]
+pub struct Probe {
+    pub wavelength_mm: f64,
+    pub n_image: f64,
+    /// Largest |L - L_chief|, |M - M_chief| over the pupil (image-space numerical aperture).
+    pub na: f64,
+    /// Largest distance of a probe ray's image point from the chief ray's (mm).
+    pub spot_extent_mm: f64,
+    /// RMS distance of the image points from their centroid (mm).
+    pub spot_rms_mm: f64,
+    /// Largest wavefront change between neighbouring samples at PROBE_SAMPLES (waves).
+    pub step_waves: f64,
+    /// Samples across the transmitted pupil at PROBE_SAMPLES.
+    pub samples_across: usize,
+    pub transmitted: f64,
+    /// Rays lost to vignetting (clipped), or to TIR / missed surfaces.
+    pub vignetted: bool,
+    pub partial: bool,
+    /// Largest departure of (L, M) from the pupil's affine map (direction cosines).
+    pub map_residual: f64,
+}
+
+/// A method and setting with its predicted error and cost.
+#[derive(Clone, Debug)]
+pub struct Candidate {
+    pub method: Method,
+    pub fast: bool,
+    pub pupil_samples: usize,
+    pub predicted_error: f64,
+    pub predicted_cost_s: f64,
+}
+
+impl Candidate {
+    pub fn name(&self) -> String {
+        let m = if self.fast { "fft-fast" } else { self.method.name() };
+        format!("{m} N={}", self.pupil_samples)
+    }
+}
+
+pub fn probe(lens: &Lens, field_deg: f64, wavelength_nm: f64, aiming: Aiming) -> Result<Probe> {
+    let sys = System::new(lens, wavelength_nm)?;
+    let p = pupil::sample_pupil(&sys, field_deg, aiming, PROBE_SAMPLES)?;
+    let (lc, mc) = (p.chief_dir.x, p.chief_dir.y);
+    let (mut na, mut ext, mut n, mut sx, mut sy, mut sxx) = (0.0f64, 0.0f64, 0.0, 0.0, 0.0, 0.0);
+    for j in 0..p.valid.len() {
+        if !p.valid[j] {
+            continue;
+        }
+        na = na.max((p.l[j] - lc).abs()).max((p.m[j] - mc).abs());
+        let (dx, dy) = (p.image[j].x - p.chief.x, p.image[j].y - p.chief.y);
+        ext = ext.max(dx.abs()).max(dy.abs());
+        n += 1.0;
+        sx += dx;
+        sy += dy;
+        sxx += dx * dx + dy * dy;
+    }
+    let rms = if n > 0.0 { (sxx / n - (sx / n).powi(2) - (sy / n).powi(2)).max(0.0).sqrt() } else { 0.0 };
+    let map = fit_affine(&p);
+    let mut resid = 0.0f64;
+    for b in 0..p.n {
+        for a in 0..p.n {
+            let j = b * p.n + a;
+            if p.valid[j] {
+                let r = (p.l[j] - map.l0 - map.lx * a as f64).abs() + (p.m[j] - map.m0 - map.my * b as f64).abs();
+                resid = resid.max(r);
+            }
+        }
+    }
+    let [_, missed, clipped, tir, invalid] = p.status_counts;
+    let out = Probe {
+        wavelength_mm: p.wavelength_mm,
+        n_image: p.n_image,
+        na,
+        spot_extent_mm: ext,
+        spot_rms_mm: rms,
+        step_waves: p.max_phase_step(),
+        samples_across: p.samples_across(),
+        transmitted: p.transmitted_fraction(),
+        vignetted: clipped > 0,
+        partial: missed + tir + invalid > 0,
+        map_residual: resid,
+    };
+    pupil::recycle(p);
+    Ok(out)
+}
+
+/// Error model per method: e = safety (a tail + b step^2 + c). a, b, c: least squares in
+/// log error over the tuning set's candidates (the bundled lenses, 27 cases x 3-4
+/// settings); safety: the largest ratio of measured to fitted error there.
+struct Model {
+    a: f64,
+    b: f64,
+    c: f64,
+    safety: f64,
+}
+const FAST: Model = Model { a: 0.052, b: 0.124, c: 4.5e-4, safety: 1.6 };
+const FFT: Model = Model { a: 0.106, b: 0.362, c: 6.5e-4, safety: 2.6 };
+const HUYGENS: Model = Model { a: 0.209, b: 0.225, c: 1e-4, safety: 1.6 };
+/// Geometric: e = GEO_SAFETY (GEO_A airy / spot_rms + GEO_NOISE sqrt(spot pixels / rays)).
+const GEO_A: f64 = 0.70;
+const GEO_NOISE: f64 = 0.48;
+const GEO_SAFETY: f64 = 2.1;
+
+impl Model {
+    fn error(&self, tail: f64, step: f64) -> f64 {
+        self.safety * (self.a * tail + self.b * step * step + self.c)
+    }
+}
+/// Fewest samples across the transmitted pupil (pupil::MIN_SAMPLES_ACROSS, with margin).
+const MIN_ACROSS: f64 = 12.0;
+/// Cost = per call + per unit of work (seconds), fitted to the tuning set's timings: fast
+/// FFT per g^2 log2(g) / 2, general FFT per G^2 log2(G), Huygens per wavelet term (rays x
+/// pixels), geometric per ray-surface intersection.
+const COST_FAST: (f64, f64) = (1.8e-4, 2.0e-10);
+const COST_FFT: (f64, f64) = (4.7e-4, 7.8e-10);
+const COST_HUYGENS: (f64, f64) = (2e-3, 3.5e-10);
+const COST_GEO: (f64, f64) = (2.1e-4, 8.4e-9);
+
+const FAST_N: [usize; 3] = [64, 128, 256];
+const FFT_N: [usize; 4] = [32, 64, 128, 256];
+const HUYGENS_N: [usize; 3] = [64, 128, 256];
+const GEO_N: [usize; 3] = [64, 128, 256];
+
+fn fast_len(n: usize) -> usize {
+    let p = n.max(2).next_power_of_two();
+    if p / 4 * 3 >= n && p / 4 * 3 >= 2 {
+        p / 4 * 3
+    } else {
+        p
+    }
+}
+
+/// The diffraction tail that copies of the PSF at period `period` put into the window.
+fn tail(pr: &Probe, period_mm: f64, o: &PsfOptions) -> f64 {
+    let airy = pr.wavelength_mm / (pr.n_image * pr.na.max(1e-6));
+    let clear = period_mm - 0.5 * o.size as f64 * o.pixel_mm - pr.spot_extent_mm;
+    if clear <= airy {
+        return 1.0;
+    }
+    (airy / clear).min(1.0)
+}
+
+/// Every candidate with its predicted error and cost, cheapest first.
+pub fn candidates(pr: &Probe, o: &PsfOptions, n_surfaces: usize) -> Vec<Candidate> {
+    let mut out = vec![];
+    let lam = pr.wavelength_mm / pr.n_image;
+    let na = pr.na.max(1e-6);
+    let step = |n: usize| pr.step_waves * PROBE_SAMPLES as f64 / n as f64;
+    let across_ok = |n: usize| pr.samples_across as f64 * n as f64 / PROBE_SAMPLES as f64 >= MIN_ACROSS;
+    let rays = |n: usize| 0.785 * (n * n) as f64;
+    // The general FFT's Taylor expansion must converge over the window.
+    let half = (o.size as f64 / 2.0 + 0.5) * o.pixel_mm;
+    let eps = 2.0 * std::f64::consts::PI / lam * pr.map_residual * half;
+    let taylor_ok = eps.powi(MAX_ORDER as i32 + 1) / (1..=MAX_ORDER + 1).map(|i| i as f64).product::<f64>() <= TAYLOR_TOL_RAD;
+    let fast_ok = o.aiming == Aiming::Paraxial && !o.integrate && o.fft_grid.is_none() && !pr.vignetted && !pr.partial;
+    if fast_ok {
+        for n in FAST_N {
+            // The grid rule of psf/fast.rs: N cells across the pupil, the spot and twice the window.
+            let want = (n as f64 * lam / (o.pixel_mm * 2.0 * na)).max(2.0 * pr.spot_extent_mm / o.pixel_mm + o.size as f64).max(2.0 * o.size as f64);
+            let g = fast_len(want.ceil() as usize);
+            let cells = 2.0 * na * g as f64 * o.pixel_mm / lam;
+            let e = FAST.error(tail(pr, g as f64 * o.pixel_mm, o), step(cells as usize));
+            let cost = COST_FAST.0 + COST_FAST.1 * (g * g) as f64 * (g as f64).log2() * 0.5;
+            out.push(Candidate { method: Method::Fft, fast: true, pupil_samples: n, predicted_error: e, predicted_cost_s: cost });
+        }
+    }
+    for n in FFT_N {
+        let period = n as f64 * lam / (2.0 * na);
+        let ok = taylor_ok && across_ok(n);
+        let e = if ok { FFT.error(tail(pr, period, o), step(n)) } else { f64::INFINITY };
+        let want = (2.0 * (o.size as f64 * o.pixel_mm * 0.5 + pr.spot_extent_mm) / o.pixel_mm).ceil() as usize;
+        let g = (4 * n).max(want.next_power_of_two()).min(8192.max(4 * n));
+        let cost = COST_FFT.0 + COST_FFT.1 * (g * g) as f64 * (g as f64).log2();
+        out.push(Candidate { method: Method::Fft, fast: false, pupil_samples: n, predicted_error: e, predicted_cost_s: cost });
+    }
+    if !o.integrate {
+        for n in HUYGENS_N {
+            let period = n as f64 * lam / (2.0 * na);
+            let e = if across_ok(n) { HUYGENS.error(tail(pr, period, o), step(n)) } else { f64::INFINITY };
+            let cost = COST_HUYGENS.0 + COST_HUYGENS.1 * rays(n) * (o.size * o.size) as f64;
+            out.push(Candidate { method: Method::Huygens, fast: false, pupil_samples: n, predicted_error: e, predicted_cost_s: cost });
+        }
+    }
+    let airy = lam / na;
+    let spot_px = (std::f64::consts::PI * (2.0 * pr.spot_rms_mm / o.pixel_mm).powi(2)).max(1.0);
+    for n in GEO_N {
+        let e = GEO_SAFETY * (GEO_A * airy / pr.spot_rms_mm.max(1e-9) + GEO_NOISE * (spot_px / rays(n)).sqrt());
+        let cost = COST_GEO.0 + COST_GEO.1 * rays(n) * (n_surfaces as f64 + 1.0);
+        out.push(Candidate { method: Method::Geometric, fast: false, pupil_samples: n, predicted_error: e, predicted_cost_s: cost });
+    }
+    out.sort_by(|a, b| a.predicted_cost_s.total_cmp(&b.predicted_cost_s));
+    out
+}
+
+/// The cheapest candidate predicted to meet `target`; where none is, the one predicted
+/// most accurate (and `false`).
+pub fn choose(cands: &[Candidate], target: f64) -> (Candidate, bool) {
+    if let Some(c) = cands.iter().find(|c| c.predicted_error <= target) {
+        return (c.clone(), true);
+    }
+    let best = cands.iter().min_by(|a, b| a.predicted_error.total_cmp(&b.predicted_error)).expect("candidates");
+    (best.clone(), false)
+}
+
+/// Records the choice, the probe and the target in the PSF's diagnostics.
+pub fn record(d: &mut Diagnostics, c: &Candidate, met: bool, pr: &Probe, target: f64, probe_s: f64) {
+    d.set("requested_method", "auto");
+    d.set(
+        "auto",
+        json!({
+            "target_rel_l1": target,
+            "choice": c.name(),
+            "method": c.method.name(),
+            "fast": c.fast,
+            "pupil_samples": c.pupil_samples,
+            "predicted_rel_l1": finite(c.predicted_error),
+            "predicted_cost_s": c.predicted_cost_s,
+            "probe_s": probe_s,
+            "probe": probe_json(pr),
+        }),
+    );
+    if !met {
+        d.warn(format!(
+            "auto: no method is predicted to meet the accuracy target {:.2}% (relative L1); used the most accurate, {} (predicted {:.2}%)",
+            100.0 * target,
+            c.name(),
+            100.0 * c.predicted_error
+        ));
+    }
+}
+
+pub fn probe_json(pr: &Probe) -> Value {
+    json!({
+        "na": pr.na, "spot_extent_um": pr.spot_extent_mm * 1e3, "spot_rms_um": pr.spot_rms_mm * 1e3,
+        "probe_samples": PROBE_SAMPLES as f64, "step_waves": pr.step_waves, "samples_across": pr.samples_across as f64,
+        "transmitted_fraction": pr.transmitted, "vignetted": pr.vignetted, "partial": pr.partial,
+        "map_residual": pr.map_residual,
+    })
+}
+
+pub fn candidate_json(c: &Candidate) -> Value {
+    json!({"name": c.name(), "method": c.method.name(), "fast": c.fast, "pupil_samples": c.pupil_samples,
+           "predicted_rel_l1": finite(c.predicted_error), "predicted_cost_s": c.predicted_cost_s})
+}
+
+fn finite(x: f64) -> Value {
+    if x.is_finite() {
+        Value::from(x)
+    } else {
+        Value::Null
+    }
+}
