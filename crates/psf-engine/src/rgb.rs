@@ -162,14 +162,14 @@ pub struct Batch {
     pub methods: Vec<String>,
 }
 
-/// The method and sampling a PSF was computed with, from its diagnostics: "fft-fast N=64"
-/// (the direction-grid FFT), "fft N=128", "huygens N=256", "geometric N=128".
+/// The method and sampling a PSF was computed with, from its diagnostics (named as
+/// `auto::label`).
 pub fn method_used(d: &Diagnostics) -> String {
     let v = &d.values;
     let m = v.get("method").and_then(|x| x.as_str()).unwrap_or("?");
     let fast = v.get("fft_mode").and_then(|x| x.as_str()) == Some("direction_grid");
     let n = v.get("pupil_samples").and_then(|x| x.as_f64()).unwrap_or(0.0);
-    format!("{}{} N={n}", m, if fast { "-fast" } else { "" })
+    crate::psf::auto::label(m, fast, n as usize)
 }
 
 /// Every (design, field) pair in parallel, each PSF single threaded where the fast path

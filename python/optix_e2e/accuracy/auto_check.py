@@ -5,13 +5,13 @@ the cheapest candidate that meets the target in hindsight (docs/accuracy.md)."""
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from .metrics import rel_l1
 from .reference import converged_reference
+from .sweep import timed
 
 
 @dataclass(frozen=True)
@@ -20,17 +20,6 @@ class Case:
     lens_json: str
     field_deg: float
     wavelength_nm: float
-
-
-def _timed(fn, repeats: int):
-    """(result, median seconds) of ``repeats`` calls after one warm-up call."""
-    out = fn()
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn()
-        ts.append(time.perf_counter() - t0)
-    return out, float(np.median(ts)) if ts else float("nan")
 
 
 def check_case(case: Case, *, target: float, size: int = 128, pixel_um: float = 1.0,
@@ -45,11 +34,11 @@ def check_case(case: Case, *, target: float, size: int = 128, pixel_um: float = 
     cands = []
     for c in info["candidates"]:
         reps = repeats if (c["predicted_cost_s"] or 0) < 0.05 else 1
-        (psf, diag), t = _timed(lambda: _engine.psf(js, f, wl, c["method"], pixel_um, size, c["pupil_samples"], None,
+        (psf, diag), t = timed(lambda: _engine.psf(js, f, wl, c["method"], pixel_um, size, c["pupil_samples"], None,
                                                     "paraxial", False, False, c["fast"]), reps)
         cands.append({**c, "rel_l1": rel_l1(psf, ref.psf), "time_s": t,
                       "ran_as": diag.get("fft_mode") or diag["method"]})
-    (psf, diag), t_auto = _timed(lambda: _engine.psf(js, f, wl, "auto", pixel_um, size, 64, None, "paraxial",
+    (psf, diag), t_auto = timed(lambda: _engine.psf(js, f, wl, "auto", pixel_um, size, 64, None, "paraxial",
                                                       False, False, False, target), repeats)
     auto = diag["auto"]
     meeting = [c for c in cands if c["rel_l1"] <= target]

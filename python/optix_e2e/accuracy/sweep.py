@@ -59,12 +59,13 @@ class Config:
     chart: np.ndarray = field(default_factory=lambda: scene_chart(192))
 
 
-def _timed(fn, cfg: Config):
-    """(result of the last call, median seconds) over up to ``cfg.repeats`` calls after a warm-up."""
+def timed(fn, repeats: int, max_s: float = float("inf")):
+    """(result of the last call, median seconds) over up to ``repeats`` calls after a
+    warm-up, stopping early once ``max_s`` seconds are spent."""
     res = fn()
     times = []
     spent = 0.0
-    while len(times) < cfg.repeats and (not times or spent < cfg.max_repeat_s):
+    while len(times) < repeats and (not times or spent < max_s):
         t = time.perf_counter()
         res = fn()
         dt = time.perf_counter() - t
@@ -124,7 +125,7 @@ def method_rows(lens: Lens, field_deg: float, wavelength_nm: float, settings: li
     for s in settings:
         row = {**base, "method": s.method, "setting": s.name, "pupil_samples": s.pupil_samples, "pad": s.pad or ""}
         try:
-            (psf, diag), dt = _timed(lambda: _engine_psf(js, field_deg, wavelength_nm, s, cfg), cfg)
+            (psf, diag), dt = timed(lambda: _engine_psf(js, field_deg, wavelength_nm, s, cfg), cfg.repeats, cfg.max_repeat_s)
         except Exception as exc:  # an engine refusal is a result too
             rows.append({**row, "error": f"{type(exc).__name__}: {exc}"})
             continue
@@ -169,7 +170,7 @@ def spectral_rows(lens: Lens, field_deg: float, cfg: Config) -> list[dict]:
     for name in CHANNEL_RESPONSE:
         ref = run(channel_wavelengths(name, cfg.spectral_reference))
         for k in cfg.wavelengths_per_channel:
-            psf, dt = _timed(lambda: run(channel_wavelengths(name, k)), cfg)
+            psf, dt = timed(lambda: run(channel_wavelengths(name, k)), cfg.repeats, cfg.max_repeat_s)
             err = _errors(psf, ref, cfg)
             rows.append({"experiment": "spectral", "lens": lens.name, "field_deg": field_deg, "channel": name,
                          "method": "fft-fast", "setting": f"{k} wavelengths", "n_wavelengths": k, "time_s": dt,
@@ -195,7 +196,7 @@ def field_rows(lens: Lens, wavelength_nm: float, cfg: Config) -> list[dict]:
     rows = []
     for k in cfg.k_fields:
         samples = np.linspace(0.0, fmax, k)
-        psfs, dt = _timed(lambda: [one(f) for f in samples], cfg)
+        psfs, dt = timed(lambda: [one(f) for f in samples], cfg.repeats, cfg.max_repeat_s)
         errs = []
         for f, ref in zip(dense, exact):
             i = min(int(np.searchsorted(samples, f, side="right")) - 1, k - 2)

@@ -25,8 +25,9 @@
 //! fit never saw (tests/test_auto.py, docs/accuracy.md). Costs are op counts times constants
 //! fitted to this engine's timings; only their order matters for the choice.
 
+use super::fast::{fast_len, grid_want};
 use super::fft::{fit_affine, MAX_ORDER, TAYLOR_TOL_RAD};
-use super::{pupil, Diagnostics, Method, PsfOptions};
+use super::{factorial, pupil, Diagnostics, Method, PsfOptions};
 use crate::aim::Aiming;
 use crate::error::Result;
 use crate::trace::System;
@@ -70,10 +71,15 @@ pub struct Candidate {
     pub predicted_cost_s: f64,
 }
 
+/// How a PSF's method and sampling are named in choices and records: "fft-fast N=64"
+/// (the direction-grid FFT), "fft N=128", "huygens N=256", "geometric N=128".
+pub fn label(method: &str, fast: bool, pupil_samples: usize) -> String {
+    format!("{method}{} N={pupil_samples}", if fast { "-fast" } else { "" })
+}
+
 impl Candidate {
     pub fn name(&self) -> String {
-        let m = if self.fast { "fft-fast" } else { self.method.name() };
-        format!("{m} N={}", self.pupil_samples)
+        label(self.method.name(), self.fast, self.pupil_samples)
     }
 }
 
@@ -161,15 +167,6 @@ const FFT_N: [usize; 4] = [32, 64, 128, 256];
 const HUYGENS_N: [usize; 3] = [64, 128, 256];
 const GEO_N: [usize; 3] = [64, 128, 256];
 
-fn fast_len(n: usize) -> usize {
-    let p = n.max(2).next_power_of_two();
-    if p / 4 * 3 >= n && p / 4 * 3 >= 2 {
-        p / 4 * 3
-    } else {
-        p
-    }
-}
-
 /// The diffraction tail that copies of the PSF at period `period` put into the window.
 fn tail(pr: &Probe, period_mm: f64, o: &PsfOptions) -> f64 {
     let airy = pr.wavelength_mm / (pr.n_image * pr.na.max(1e-6));
@@ -191,13 +188,12 @@ pub fn candidates(pr: &Probe, o: &PsfOptions, n_surfaces: usize) -> Vec<Candidat
     // The general FFT's Taylor expansion must converge over the window.
     let half = (o.size as f64 / 2.0 + 0.5) * o.pixel_mm;
     let eps = 2.0 * std::f64::consts::PI / lam * pr.map_residual * half;
-    let taylor_ok = eps.powi(MAX_ORDER as i32 + 1) / (1..=MAX_ORDER + 1).map(|i| i as f64).product::<f64>() <= TAYLOR_TOL_RAD;
+    let taylor_ok = eps.powi(MAX_ORDER as i32 + 1) / factorial(MAX_ORDER + 1) <= TAYLOR_TOL_RAD;
     let fast_ok = o.aiming == Aiming::Paraxial && !o.integrate && o.fft_grid.is_none() && !pr.vignetted && !pr.partial;
     if fast_ok {
         for n in FAST_N {
             // The grid rule of psf/fast.rs: N cells across the pupil, the spot and twice the window.
-            let want = (n as f64 * lam / (o.pixel_mm * 2.0 * na)).max(2.0 * pr.spot_extent_mm / o.pixel_mm + o.size as f64).max(2.0 * o.size as f64);
-            let g = fast_len(want.ceil() as usize);
+            let g = fast_len(grid_want(n, pr.wavelength_mm, pr.n_image, 2.0 * na, pr.spot_extent_mm, o) as usize);
             let cells = 2.0 * na * g as f64 * o.pixel_mm / lam;
             let e = FAST.error(tail(pr, g as f64 * o.pixel_mm, o), step(cells as usize));
             let cost = COST_FAST.0 + COST_FAST.1 * (g * g) as f64 * (g as f64).log2() * 0.5;

@@ -20,7 +20,7 @@
 //! x >= 0 are transformed (the intensity is even in x).
 
 use super::pupil::Pupil;
-use super::{resample, Diagnostics, PsfOptions};
+use super::{factorial, resample, Diagnostics, PsfOptions};
 use crate::error::{EngineError, Result};
 use num_complex::{Complex, Complex32, Complex64};
 use rayon::prelude::*;
@@ -152,10 +152,6 @@ pub fn fit_affine(p: &Pupil) -> AffineMap {
             AffineMap { l0: 0.0, lx: jm, m0: 0.0, my: jm }
         }
     }
-}
-
-fn factorial(k: usize) -> f64 {
-    (1..=k).map(|i| i as f64).product()
 }
 
 /// Contiguous range of native indices (start, length) that a set of resampling weights

@@ -12,7 +12,7 @@
 //! Where the neglected cubic term could exceed 0.01 rad the exact sum is evaluated instead.
 
 use super::pupil::Pupil;
-use super::{Diagnostics, PsfOptions};
+use super::{factorial, Diagnostics, PsfOptions};
 use crate::error::Result;
 use glam::DVec3;
 use num_complex::{Complex32, Complex64};
@@ -51,10 +51,6 @@ fn wavelets(p: &Pupil, k: f64) -> Vec<Wavelet> {
 
 fn exact_field(ws: &[Wavelet], k: f64, x: DVec3) -> Complex64 {
     ws.iter().map(|w| Complex64::from_polar(w.w, w.base + k * ((x - w.s).length() - w.r0))).sum()
-}
-
-fn factorial(k: usize) -> f64 {
-    (1..=k).map(|i| i as f64).product()
 }
 
 /// Phasors exp(i (a t + b t^2)) for t = (c - h) * pitch, c = 0..len, by recurrence.

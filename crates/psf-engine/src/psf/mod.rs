@@ -157,6 +157,11 @@ pub(crate) fn sum_lanes(v: &[f64]) -> f64 {
     ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
 }
 
+/// k! as a float (the Taylor coefficients of the FFT and Huygens expansions).
+pub(crate) fn factorial(k: usize) -> f64 {
+    (1..=k).map(|i| i as f64).product()
+}
+
 /// Sub-sample offset of a peak from three samples (parabola vertex), within +-0.5.
 pub(crate) fn parabolic_offset(l: f64, c: f64, r: f64) -> f64 {
     let den = l - 2.0 * c + r;
