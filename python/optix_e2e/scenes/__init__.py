@@ -1,0 +1,10 @@
+"""Scenes for training and evaluation, all offline: bundled photos, procedural charts, user folders."""
+
+from .folder import ImageFolder
+from .photos import bundled_photos, fit_size, load_photo, to_image_tensor
+from .procedural import (chart_patch_boxes, color_chart, dead_leaves, mixed_scene, random_crops,
+                         slanted_edge)
+
+__all__ = ["ImageFolder", "bundled_photos", "load_photo", "fit_size", "to_image_tensor",
+           "dead_leaves", "slanted_edge", "color_chart", "chart_patch_boxes", "mixed_scene",
+           "random_crops"]
