@@ -5,9 +5,11 @@ import click
 from .bench import bench
 from .dataset import dataset
 from .demo import demo
+from .isp import isp
 from .lens import lens
 from .psf import psf
 from .sample import sample
+from .sensor import sensor
 from .tolerance import tolerance
 
 
@@ -28,3 +30,5 @@ main.add_command(sample)
 main.add_command(dataset)
 main.add_command(tolerance)
 main.add_command(bench)
+main.add_command(sensor)
+main.add_command(isp)

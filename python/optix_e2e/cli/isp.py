@@ -1,0 +1,176 @@
+"""``optix isp ...``: the reference ISP, its learned proxy and the software ISP.
+
+  train-proxy     train the proxy on procedural scenes (TensorBoard logs in OUT/tb)
+  eval [PROXY]    proxy fidelity on held-out photos and hyperparameters (default: shipped proxy)
+  tune            tune the ISP hyperparameters through the proxy; check with the true ISP
+  train-software  train the software ISP (RAW -> ideal rendering)
+  params          the hyperparameters, their ranges and defaults
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from ._common import dumps, friendly_errors
+
+OUT = click.Path(file_okay=False, path_type=Path)
+
+
+@click.group("isp")
+def isp():
+    """Reference "hardware" ISP, its differentiable proxy, and the software ISP."""
+
+
+def _train_options(fn):
+    for opt in reversed([
+        click.option("--out", "out_dir", type=OUT, required=True, help="Output directory."),
+        click.option("--steps", type=click.IntRange(min=1), default=8000, show_default=True),
+        click.option("--minutes", type=click.FloatRange(min=0), default=0.0, show_default=True,
+                     help="Wall-time budget; the learning rate anneals over it (0 = no limit)."),
+        click.option("--batch", type=click.IntRange(min=1), default=16, show_default=True),
+        click.option("--patch", type=click.IntRange(min=16), default=64, show_default=True,
+                     help="Training patch size (px, multiple of 16)."),
+        click.option("--pool", type=click.IntRange(min=16), default=3072, show_default=True,
+                     help="Training pairs per pool; a fresh pool every --refresh steps."),
+        click.option("--refresh", "refresh_every", type=click.IntRange(min=1), default=1500, show_default=True),
+        click.option("--lr", type=float, default=2e-3, show_default=True),
+        click.option("--perceptual-weight", type=float, default=0.1, show_default=True,
+                     help="Weight of the perceptual term (1 - HaarPSI) next to L1."),
+        click.option("--base", type=click.IntRange(min=4), default=32, show_default=True,
+                     help="UNet width (channels of the first level)."),
+        click.option("--seed", type=int, default=0, show_default=True),
+        click.option("--threads", type=click.IntRange(min=0), default=0, help="torch threads (0 = default)."),
+        click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON."),
+    ]):
+        fn = opt(fn)
+    return fn
+
+
+def _config(kw):
+    from ..isp.train import TrainConfig
+    if kw["patch"] % 16:
+        raise click.BadParameter(f"{kw['patch']} is not a multiple of 16", param_hint="--patch")
+    return TrainConfig(**{k: kw[k] for k in ("steps", "minutes", "batch", "patch", "pool", "refresh_every",
+                                             "lr", "perceptual_weight", "base", "seed", "threads")})
+
+
+def _report(summary: dict, as_json: bool, out_dir: Path, name: str) -> None:
+    if as_json:
+        click.echo(dumps({k: v for k, v in summary.items() if k != "history"}))
+        return
+    val = summary["final_val"] or {}
+    click.echo(f"{summary['steps_done']} steps in {summary['seconds']:.0f} s; validation "
+               f"PSNR {val.get('psnr_db', float('nan')):.2f} dB, SSIM {val.get('ssim', float('nan')):.4f}")
+    click.echo(f"wrote {out_dir / name}, {out_dir / 'train.json'}, TensorBoard logs in {out_dir / 'tb'}")
+
+
+@isp.command("train-proxy")
+@_train_options
+@click.option("--init", type=click.Path(dir_okay=False, exists=True, path_type=Path), default=None,
+              help="Continue training this proxy checkpoint.")
+@friendly_errors
+def train_proxy_cmd(out_dir, as_json, init, **kw):
+    """Train the ISP proxy (Tseng et al. 2019) to imitate the reference ISP (L1 + perceptual).
+
+    The shipped proxy was trained with: optix isp train-proxy --out runs/proxy --minutes 45
+    --steps 100000 --threads 2 (see docs/isp.md)."""
+    from ..isp.train import train_proxy
+    summary = train_proxy(_config(kw), out_dir, init=init)
+    _report(summary, as_json, out_dir, "proxy.pt")
+
+
+@isp.command("train-software")
+@_train_options
+@friendly_errors
+def train_software_cmd(out_dir, as_json, **kw):
+    """Train the software ISP: a UNet from RAW to the ideal rendering of the scene."""
+    from ..isp.train import train_software
+    summary = train_software(_config(kw), out_dir)
+    _report(summary, as_json, out_dir, "software_isp.pt")
+
+
+@isp.command("eval")
+@click.argument("proxy", required=False, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--size", type=click.IntRange(min=32), default=256, show_default=True, help="Photo size (px).")
+@click.option("--param-sets", type=click.IntRange(min=0), default=4, show_default=True,
+              help="Random held-out hyperparameter sets per photo (plus the defaults).")
+@click.option("--photo", "photos", multiple=True, help="Restrict to these bundled photos (repeatable).")
+@click.option("--out", "out_dir", type=OUT, default=None, help="Write eval.json here.")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
+@friendly_errors
+def eval_cmd(proxy, size, param_sets, photos, out_dir, as_json):
+    """Proxy fidelity against the true ISP on held-out photos and hyperparameters.
+
+    PROXY defaults to the proxy shipped inside the package."""
+    from ..isp.evaluate import evaluate_proxy
+    from ..isp.proxy import BUNDLED, ISPProxy
+    model = ISPProxy.load(proxy)
+    res = evaluate_proxy(model, size=size, n_param_sets=param_sets, photos=list(photos) or None)
+    res["proxy"] = str(proxy or BUNDLED)
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / "eval.json").write_text(dumps(res, indent=2))
+    if as_json:
+        click.echo(dumps(res))
+        return
+    click.echo(f"proxy {res['proxy']}: PSNR {res['proxy_psnr_db']:.2f} dB (min {res['min_psnr_db']:.2f}), "
+               f"SSIM {res['proxy_ssim']:.4f}, HaarPSI {res['proxy_haarpsi']:.4f} over "
+               f"{res['n_photos']} photos x {res['n_param_sets']} hyperparameter sets")
+
+
+@isp.command("tune")
+@click.option("--proxy", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Proxy checkpoint (default: the shipped one).")
+@click.option("--steps", type=click.IntRange(min=1), default=200, show_default=True)
+@click.option("--scenes", "n_scenes", type=click.IntRange(min=1), default=48, show_default=True,
+              help="Procedural training scenes to tune on.")
+@click.option("--perceptual-weight", type=float, default=1.0, show_default=True)
+@click.option("--size", type=click.IntRange(min=32), default=256, show_default=True,
+              help="Held-out photo size for the true-ISP check.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--out", "out_dir", type=OUT, default=None, help="Write tune.json here.")
+@click.option("--json", "as_json", is_flag=True)
+@friendly_errors
+def tune_cmd(proxy, steps, n_scenes, perceptual_weight, size, seed, out_dir, as_json):
+    """Optimize the ISP hyperparameters through the proxy for image quality (L1 + perceptual
+    against the ideal rendering), then compare default and tuned settings on the TRUE ISP over
+    held-out photos."""
+    from ..isp import params as hp
+    from ..isp.proxy import ISPProxy
+    from ..isp.tune import true_isp_quality, tune_params
+    model = ISPProxy.load(proxy)
+    tuned, history = tune_params(model, steps=steps, n_scenes=n_scenes, perceptual_weight=perceptual_weight,
+                                 seed=seed)
+    before, after = true_isp_quality(hp.defaults(), size=size), true_isp_quality(tuned, size=size)
+    res = {"default_params": hp.describe(hp.defaults()), "tuned_params": hp.describe(tuned),
+           "true_isp_default": before, "true_isp_tuned": after,
+           "improvement": {k: after[k] - before[k] for k in ("psnr_db", "ssim", "haarpsi")},
+           "loss_first": history[0], "loss_last": history[-1], "steps": steps, "seed": seed}
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / "tune.json").write_text(dumps(res, indent=2))
+    if as_json:
+        click.echo(dumps(res))
+        return
+    for label, r in (("default", before), ("tuned", after)):
+        click.echo(f"true ISP, {label:7s}: PSNR {r['psnr_db']:.2f} dB, SSIM {r['ssim']:.4f}, "
+                   f"HaarPSI {r['haarpsi']:.4f}")
+    click.echo("tuned: " + json.dumps(hp.describe(tuned)))
+
+
+@isp.command("params")
+@click.option("--json", "as_json", is_flag=True)
+def params_cmd(as_json):
+    """List the reference ISP's hyperparameters with their ranges and defaults."""
+    from ..isp.params import SPACE
+    rows = [{"name": p.name, "low": p.low, "high": p.high, "default": p.default, "unit": p.unit,
+             "choices": list(p.choices), "doc": p.doc} for p in SPACE]
+    if as_json:
+        click.echo(dumps(rows))
+        return
+    for r in rows:
+        rng = "|".join(r["choices"]) if r["choices"] else f"[{r['low']:g}, {r['high']:g}] {r['unit']}"
+        click.echo(f"{r['name']:18s} {rng:24s} default {r['default']:g}  {r['doc']}")

@@ -1,0 +1,155 @@
+"""Training of the ISP networks with TensorBoard logs and a tqdm progress bar:
+
+- the proxy (Eq. 9): L1 + perceptual loss against the reference ISP's output on sensor RAW
+  over random hyperparameters;
+- the software ISP (Eq. 11's f_NN): the same loss against the ideal rendering of the scene.
+
+Data stream: pools of procedural scenes captured by the simulated sensor and rendered by the
+reference ISP under random hyperparameters (``data.make_pool``); a fresh pool replaces the
+old one every ``refresh_every`` steps, so the network rarely sees a pair twice.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.tensorboard import SummaryWriter
+from tqdm import tqdm
+
+from .. import metrics
+from . import data
+from .proxy import ISPProxy
+from .software import SoftwareISP
+
+
+@dataclass
+class TrainConfig:
+    steps: int = 8000
+    batch: int = 16
+    patch: int = 64
+    pool: int = 3072
+    refresh_every: int = 1500
+    lr: float = 2e-3
+    perceptual_weight: float = 0.1   # weight of (1 - HaarPSI) next to L1
+    crop: int = 4                    # border pixels left out of loss and metrics
+    base: int = 32
+    depth: int = 3
+    seed: int = 0
+    minutes: float = 0.0             # stop after this wall time (0 = run all steps)
+    val_every: int = 250
+    val_size: int = 128
+    threads: int = 0                 # torch threads (0 = torch's default)
+
+
+def _crop(x: torch.Tensor, c: int) -> torch.Tensor:
+    return x[..., c:x.shape[-2] - c, c:x.shape[-1] - c] if c else x
+
+
+def image_loss(pred: torch.Tensor, target: torch.Tensor, perceptual_weight: float, crop: int) -> torch.Tensor:
+    pred, target = _crop(pred, crop), _crop(target, crop)
+    loss = (pred - target).abs().mean()
+    if perceptual_weight:
+        loss = loss + perceptual_weight * metrics.perceptual_distance(pred, target).mean()
+    return loss
+
+
+def _cosine_lr(cfg: TrainConfig, step: int, seconds: float) -> float:
+    """Cosine decay to 2% of the initial rate over the steps, or over the wall-time budget
+    when that runs out first (so a time-boxed CPU run still anneals)."""
+    frac = step / max(cfg.steps, 1)
+    if cfg.minutes:
+        frac = max(frac, seconds / (60 * cfg.minutes))
+    return cfg.lr * (0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * min(frac, 1.0))))
+
+
+def _predict(model, kind: str, pool: data.Pool, idx) -> tuple[torch.Tensor, torch.Tensor]:
+    """(prediction, target) of a batch: the proxy imitates the ISP, the software ISP the ideal."""
+    raw, u, target = pool.batch(idx)
+    if kind == "proxy":
+        return model(raw, u), target
+    return model(raw), pool.ideal[idx].float() / 255
+
+
+@torch.no_grad()
+def validate(model, pool: data.Pool, crop: int, batch: int = 16, kind: str = "proxy") -> dict:
+    model.eval()
+    ps, ss = [], []
+    for i in range(0, pool.raw.shape[0], batch):
+        pred, target = _predict(model, kind, pool, slice(i, i + batch))
+        pred = pred.clamp(0, 1)
+        ps.append(metrics.psnr(pred, target, crop=crop))
+        ss.append(metrics.ssim(pred, target, crop=crop))
+    model.train()
+    return {"psnr_db": float(torch.cat(ps).mean()), "ssim": float(torch.cat(ss).mean())}
+
+
+def train_proxy(cfg: TrainConfig, out_dir: Path, *, init: Path | None = None,
+                progress: bool = True) -> dict:
+    """Train (or continue training ``init``) and write proxy.pt, train.json and tb/ to out_dir."""
+    model = ISPProxy.load(init) if init else ISPProxy(base=cfg.base, depth=cfg.depth)
+    return _train(model, "proxy", cfg, Path(out_dir), progress)
+
+
+def train_software(cfg: TrainConfig, out_dir: Path, *, progress: bool = True) -> dict:
+    """Train a software ISP from RAW to the ideal rendering; writes software_isp.pt, train.json, tb/."""
+    model = SoftwareISP(base=cfg.base, depth=cfg.depth)
+    return _train(model, "software", cfg, Path(out_dir), progress)
+
+
+def _save(model, kind: str, out_dir: Path, **meta) -> None:
+    if kind == "proxy":
+        model.save(out_dir / "proxy.pt", **meta)
+    else:
+        torch.save({"format": "optix-software-isp/1", "config": model.net.config(),
+                    "state_dict": model.state_dict(), "meta": meta}, out_dir / "software_isp.pt")
+
+
+def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) -> dict:
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+    model.train()
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    writer = SummaryWriter(str(out_dir / "tb"))
+    val_pool = data.make_pool(64, cfg.val_size, seed=10_000 + cfg.seed, progress=False)
+    rng = np.random.default_rng(cfg.seed)
+    history, t0, pool, step = [], time.time(), None, 0
+    bar = tqdm(total=cfg.steps, desc=f"train {kind}", unit="step", disable=not progress)
+    for step in range(1, cfg.steps + 1):
+        if pool is None or (step - 1) % cfg.refresh_every == 0:
+            pool = data.make_pool(cfg.pool, cfg.patch, seed=int(rng.integers(2**31)), progress=progress)
+        pred, target = _predict(model, kind, pool, torch.as_tensor(rng.integers(pool.raw.shape[0], size=cfg.batch)))
+        loss = image_loss(pred, target, cfg.perceptual_weight, cfg.crop)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        lr = _cosine_lr(cfg, step, time.time() - t0)
+        for group in opt.param_groups:
+            group["lr"] = lr
+        writer.add_scalar("train/loss", loss.item(), step)
+        bar.update(1)
+        bar.set_postfix(loss=f"{loss.item():.4f}")
+        out_of_time = cfg.minutes and (time.time() - t0) > 60 * cfg.minutes
+        if step % cfg.val_every == 0 or step == cfg.steps or out_of_time:
+            val = validate(model, val_pool, cfg.crop, kind=kind)
+            writer.add_scalar("val/psnr_db", val["psnr_db"], step)
+            writer.add_scalar("val/ssim", val["ssim"], step)
+            writer.add_scalar("train/lr", lr, step)
+            history.append({"step": step, "loss": loss.item(), **val, "seconds": time.time() - t0})
+            _save(model, kind, out_dir, training={"config": asdict(cfg), "steps_done": step, "val": val})
+        if out_of_time:
+            break
+    bar.close()
+    writer.close()
+    summary = {"steps_done": step, "seconds": round(time.time() - t0, 1), "config": asdict(cfg),
+               "final_val": history[-1] if history else None, "history": history}
+    (out_dir / "train.json").write_text(json.dumps(summary, indent=2))
+    return summary
