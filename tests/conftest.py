@@ -50,3 +50,13 @@ def cooke():
     from optix_e2e.lens import Lens
 
     return Lens.load("cooke-f50")
+
+
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """Small tensors: one torch thread is fastest and immune to a busy shared CPU."""
+    import torch
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)

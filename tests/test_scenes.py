@@ -18,13 +18,7 @@ from optix_e2e.scenes import (ImageFolder, bundled_photos, chart_patch_boxes, co
 from optix_e2e.scenes.procedural import _disk_radii, _power_law
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """Tiny tensors: one thread is fastest, and immune to a busy shared CPU."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 # ---------------------------------------------------------------------------------- colour
 

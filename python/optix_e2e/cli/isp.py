@@ -36,7 +36,7 @@ def _train_options(fn):
         click.option("--pool", type=click.IntRange(min=16), default=3072, show_default=True,
                      help="Training pairs per pool; a fresh pool every --refresh steps."),
         click.option("--refresh", "refresh_every", type=click.IntRange(min=1), default=1500, show_default=True),
-        click.option("--lr", type=float, default=2e-3, show_default=True),
+        click.option("--lr", type=float, default=1e-3, show_default=True),
         click.option("--perceptual-weight", type=float, default=0.1, show_default=True,
                      help="Weight of the perceptual term (1 - HaarPSI) next to L1."),
         click.option("--base", type=click.IntRange(min=4), default=32, show_default=True,

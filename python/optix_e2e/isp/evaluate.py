@@ -5,6 +5,8 @@ with the true reference ISP's output (PSNR, SSIM, HaarPSI; ``crop`` border pixel
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import torch
 from tqdm import tqdm
@@ -37,12 +39,15 @@ def evaluate_proxy(proxy: ISPProxy, *, size: int = 256, n_param_sets: int = 4, c
     names, raw, _ = held_out_captures(size, photos, seed)
     rng = np.random.default_rng(seed + 1)
     settings = [("default", hp.defaults())] + [(f"random{k}", hp.sample(rng)) for k in range(n_param_sets)]
-    rows = []
+    rows, t_ref, t_proxy = [], 0.0, 0.0
     for i, name in enumerate(tqdm(names, desc="eval proxy", unit="photo", disable=not progress)):
         for label, p in settings:
+            t0 = time.perf_counter()
             truth = torch.from_numpy(reference.run(raw[i, 0].numpy(), p, pattern=preset.cfa,
                                                    adc_bits=preset.adc_bits).transpose(2, 0, 1)).float()[None]
+            t1 = time.perf_counter()
             pred = proxy.render(raw[i:i + 1], p).clamp(0, 1)
+            t_ref, t_proxy = t_ref + t1 - t0, t_proxy + time.perf_counter() - t1
             s = metrics.summarize(pred, truth, crop=crop)
             rows.append({"photo": name, "params": label, **s})
     def mean(key, subset=rows):
@@ -54,6 +59,8 @@ def evaluate_proxy(proxy: ISPProxy, *, size: int = 256, n_param_sets: int = 4, c
         "min_psnr_db": float(min(r["psnr_db"] for r in rows)),
         "random_params": {"psnr_db": mean("psnr_db", random_rows), "ssim": mean("ssim", random_rows)},
         "default_params": {"psnr_db": mean("psnr_db", default_rows), "ssim": mean("ssim", default_rows)},
+        "ms_per_image": {"reference_isp": 1e3 * t_ref / len(rows), "proxy": 1e3 * t_proxy / len(rows),
+                         "torch_threads": torch.get_num_threads()},
         "n_photos": len(names), "n_param_sets": len(settings), "image_size": size, "crop_px": crop,
         "seed": seed, "photos": names, "per_case": rows,
     }

@@ -8,6 +8,7 @@ hyperparameters, which is what end-to-end optimization needs; the reference ISP 
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import torch
@@ -17,6 +18,15 @@ from . import params as hp
 from .rawnet import RawUNet
 
 BUNDLED = Path(__file__).with_name("bundled") / "isp_proxy.pt"
+
+
+def save_atomic(obj, path) -> None:
+    """torch.save through a temporary file and a rename: an interrupted save never leaves a
+    truncated checkpoint where the previous good one was."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
 
 
 class ISPProxy(nn.Module):
@@ -44,10 +54,9 @@ class ISPProxy(nn.Module):
     def save(self, path, **meta) -> None:
         """Weights in float16 (the shipped proxy must stay small) plus everything to rebuild it."""
         state = {k: v.half() if v.is_floating_point() else v for k, v in self.state_dict().items()}
-        torch.save({"format": "optix-isp-proxy/1", "state_dict": state,
-                    "config": self.net.config(),
-                    "space": [(p.name, p.low, p.high) for p in hp.SPACE],
-                    "meta": {**self.meta, **meta}}, path)
+        save_atomic({"format": "optix-isp-proxy/1", "state_dict": state, "config": self.net.config(),
+                     "space": [(p.name, p.low, p.high) for p in hp.SPACE],
+                     "meta": {**self.meta, **meta}}, path)
 
     @classmethod
     def load(cls, path=None, map_location="cpu") -> "ISPProxy":

@@ -18,3 +18,18 @@ class SoftwareISP(nn.Module):
     def forward(self, raw_dn: torch.Tensor) -> torch.Tensor:
         """raw_dn [B, 1, H, W] in digital numbers -> RGB [B, 3, H, W]."""
         return self.net(raw_dn)
+
+    @classmethod
+    def load(cls, path, map_location="cpu") -> "SoftwareISP":
+        """A checkpoint written by ``optix isp train-software`` (software_isp.pt)."""
+        try:
+            ckpt = torch.load(path, map_location=map_location, weights_only=True)
+        except FileNotFoundError:
+            raise FileNotFoundError(f"software ISP checkpoint not found: {path}") from None
+        except Exception as exc:
+            raise ValueError(f"{path}: not a readable software ISP checkpoint ({exc})") from None
+        if not isinstance(ckpt, dict) or ckpt.get("format") != "optix-software-isp/1":
+            raise ValueError(f"{path}: not an optix software ISP checkpoint (format 'optix-software-isp/1')")
+        model = cls(**ckpt["config"])
+        model.load_state_dict(ckpt["state_dict"])
+        return model.eval()

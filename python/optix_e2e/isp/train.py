@@ -24,7 +24,7 @@ from tqdm import tqdm
 
 from .. import metrics
 from . import data
-from .proxy import ISPProxy
+from .proxy import ISPProxy, save_atomic
 from .software import SoftwareISP
 
 
@@ -35,7 +35,8 @@ class TrainConfig:
     patch: int = 64
     pool: int = 3072
     refresh_every: int = 1500
-    lr: float = 2e-3
+    lr: float = 1e-3
+    clip_grad: float = 0.5           # max gradient norm per step
     perceptual_weight: float = 0.1   # weight of (1 - HaarPSI) next to L1
     crop: int = 4                    # border pixels left out of loss and metrics
     base: int = 32
@@ -106,8 +107,8 @@ def _save(model, kind: str, out_dir: Path, **meta) -> None:
     if kind == "proxy":
         model.save(out_dir / "proxy.pt", **meta)
     else:
-        torch.save({"format": "optix-software-isp/1", "config": model.net.config(),
-                    "state_dict": model.state_dict(), "meta": meta}, out_dir / "software_isp.pt")
+        save_atomic({"format": "optix-software-isp/1", "config": model.net.config(),
+                     "state_dict": model.state_dict(), "meta": meta}, out_dir / "software_isp.pt")
 
 
 def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) -> dict:
@@ -116,6 +117,8 @@ def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) ->
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
+    meta = getattr(model, "meta", {})  # a continued proxy keeps the record of its earlier runs
+    earlier = list(meta.get("earlier_training", [])) + ([meta["training"]] if "training" in meta else [])
     model.train()
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     writer = SummaryWriter(str(out_dir / "tb"))
@@ -130,6 +133,9 @@ def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) ->
         loss = image_loss(pred, target, cfg.perceptual_weight, cfg.crop)
         opt.zero_grad(set_to_none=True)
         loss.backward()
+        # The perceptual term's gradient has rare spikes (HaarPSI divides by local similarity
+        # terms); without clipping one of them blew a run up at step ~475.
+        torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip_grad)
         opt.step()
         lr = _cosine_lr(cfg, step, time.time() - t0)
         for group in opt.param_groups:
@@ -144,7 +150,8 @@ def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) ->
             writer.add_scalar("val/ssim", val["ssim"], step)
             writer.add_scalar("train/lr", lr, step)
             history.append({"step": step, "loss": loss.item(), **val, "seconds": time.time() - t0})
-            _save(model, kind, out_dir, training={"config": asdict(cfg), "steps_done": step, "val": val})
+            _save(model, kind, out_dir, training={"config": asdict(cfg), "steps_done": step, "val": val},
+                  earlier_training=earlier)
         if out_of_time:
             break
     bar.close()

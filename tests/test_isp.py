@@ -1,0 +1,209 @@
+"""ISP stage: the reference ISP, the bilinear demosaick layer, the proxy and the software ISP."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from optix_e2e import scenes
+from optix_e2e.isp import ISPProxy, SoftwareISP, bilinear_demosaick, ccm, data, reference
+from optix_e2e.isp import params as hp
+from optix_e2e.sensor import PATTERNS, get_preset, mosaic
+
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+@pytest.fixture(scope="module")
+def raw_scene():
+    """A dead-leaves chart captured by the default sensor: RAW [1, 1, 64, 64] in DN."""
+    scene = scenes.dead_leaves(64, 3, colors="uniform")[None]
+    raw, ideal = data.capture_raw(scene, np.random.default_rng(0), data.Capture(level_min=0.6, level_max=0.6),
+                                  torch.Generator().manual_seed(0))
+    return raw, ideal
+
+
+# --- hyperparameters ---------------------------------------------------------------------
+
+def test_space_has_at_least_eight_hyperparameters_in_physical_ranges():
+    assert len(hp.SPACE) >= 8
+    for p in hp.SPACE:
+        assert p.low < p.high and p.low <= p.default <= p.high, p.name
+    u = hp.to_unit(hp.defaults())
+    assert np.allclose(list(hp.from_unit(u).values()), list(hp.defaults().values()))
+
+
+@pytest.mark.parametrize("bad, match", [({"gamma": 9.0}, "gamma=9.0 outside"), ({"sharpness": 1}, "unknown"),
+                                        ({"demosaick": "ahd"}, "demosaick"), ({"wb_red": float("nan")}, "wb_red")])
+def test_bad_hyperparameters_are_named(bad, match):
+    with pytest.raises(ValueError, match=match):
+        hp.check(bad)
+
+
+def test_reference_isp_rejects_bad_raw():
+    with pytest.raises(ValueError, match="NaN"):
+        reference.run(np.full((8, 8), np.nan))
+    with pytest.raises(ValueError, match="one RAW frame"):
+        reference.run(np.zeros((2, 8, 8)))
+
+
+# --- demosaicking --------------------------------------------------------------------------
+
+@pytest.mark.parametrize("pattern", PATTERNS)
+def test_torch_and_numpy_bilinear_demosaick_agree_and_keep_flat_colour(pattern):
+    rgb = torch.rand(1, 3, 24, 20, dtype=torch.float64)
+    cfa = mosaic(rgb, pattern)
+    ours = bilinear_demosaick(cfa, pattern)[0].permute(1, 2, 0).numpy()
+    ref = reference.demosaick_bilinear(cfa[0, 0].numpy(), pattern)
+    assert np.allclose(ours, ref, atol=1e-12)
+    flat = torch.tensor([0.2, 0.5, 0.9], dtype=torch.float64)[None, :, None, None].expand(1, 3, 12, 12)
+    out = bilinear_demosaick(mosaic(flat, pattern), pattern)
+    assert torch.allclose(out, flat, atol=1e-12)  # border included: reflect padding keeps the phase
+
+
+@pytest.mark.parametrize("pattern", PATTERNS)
+def test_malvar_is_exact_on_linear_ramps(pattern):
+    # Bilinear interpolation is exact on a linear ramp and Malvar's Laplacian correction vanishes
+    # there, so the interior must be reproduced to rounding error.
+    y, x = np.mgrid[0:20, 0:20].astype(float)
+    rgb = np.stack([0.1 + 0.01 * x, 0.2 + 0.005 * x + 0.01 * y, 0.9 - 0.02 * y], axis=-1)
+    cfa = mosaic(torch.from_numpy(rgb.transpose(2, 0, 1)), pattern)[0].numpy()
+    out = reference.demosaick_malvar(cfa, pattern)
+    assert np.abs(out[3:-3, 3:-3] - rgb[3:-3, 3:-3]).max() < 1e-12
+
+
+def test_bilinear_demosaick_gradcheck():
+    cfa = torch.rand(1, 1, 6, 8, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda c: bilinear_demosaick(c, "GRBG"), (cfa,))
+
+
+# --- the reference ISP -----------------------------------------------------------------------
+
+def test_colour_matrix_maps_the_chart_close_to_its_true_colours():
+    m = ccm.sensor_ccm()
+    assert np.allclose(m.sum(axis=1), 1.0)
+    from optix_e2e import color
+    target = color.colorchecker_srgb(linear=True).double().numpy()
+    cam = ccm.camera_rgb(target * 0.8)
+    white = int(np.argmax(target.sum(1)))
+    cam = cam / cam[white] * target[white]
+    before = np.abs(cam - target).mean()
+    after = np.abs(cam @ m.T - target).mean()
+    assert after < 0.5 * before and after < 0.02, (before, after)
+
+
+def test_every_hyperparameter_changes_the_output(raw_scene):
+    raw = raw_scene[0][0, 0].numpy()
+    base = hp.defaults()
+    ref = reference.run(raw, base)
+    assert ref.shape == (64, 64, 3) and ref.min() >= 0 and ref.max() <= 1
+    assert np.allclose(ref * 255, np.round(ref * 255))  # 8-bit output
+    for p in hp.SPACE:
+        lo, hi = reference.run(raw, {**base, p.name: p.low}), reference.run(raw, {**base, p.name: p.high})
+        assert np.abs(lo - hi).mean() > 2e-3, p.name
+
+
+def test_flat_field_stays_flat_under_every_stage():
+    # Denoising, sharpening, colour matrix and tone curve must not invent structure on a flat
+    # field (this caught scikit-image's unsharp_mask slicing the wrong axis for channel_axis=-1).
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        p = hp.sample(rng)
+        p["wb_red"] = p["wb_blue"] = 1.0
+        out = reference.run(np.full((32, 32), 1500.0), p)
+        assert np.ptp(out.reshape(-1, 3), axis=0).max() <= 1 / 255 + 1e-9, p
+
+
+def test_default_isp_with_white_balance_renders_a_grey_card_neutral():
+    preset = get_preset("imx249")
+    grey = torch.full((1, 3, 16, 16), 0.18)
+    raw = data.simulate_raw(grey, preset, noise=False, quantize="none")[0, 0].numpy()
+    resp = ccm.camera_rgb(np.array([[0.18, 0.18, 0.18]]))[0]
+    wb = {"wb_red": resp[1] / resp[0], "wb_blue": resp[1] / resp[2], "sharpen_amount": 0.0}
+    out = reference.run(raw, wb)[4:-4, 4:-4].reshape(-1, 3).mean(0)
+    assert np.ptp(out) < 0.01, out
+    # green signal above black, over the ISP's white level, through the 2.2 tone curve
+    expected = (resp[1] / (2 ** preset.adc_bits - 1 - preset.black_level_dn)) ** (1 / 2.2)
+    assert abs(out.mean() - expected) < 0.01, (out.mean(), expected)
+
+
+# --- proxy and software ISP -------------------------------------------------------------------
+
+def test_proxy_gradients_reach_raw_and_hyperparameters():
+    torch.manual_seed(0)
+    model = ISPProxy(base=8, depth=2)
+    raw = (torch.rand(2, 1, 20, 28) * 4000).requires_grad_(True)  # not a multiple of 8: padded
+    u = torch.rand(2, len(hp.SPACE), requires_grad=True)
+    out = model(raw, u)
+    assert out.shape == (2, 3, 20, 28)
+    out.mean().backward()
+    assert torch.isfinite(raw.grad).all() and raw.grad.abs().sum() > 0
+    assert torch.isfinite(u.grad).all() and (u.grad.abs() > 0).all()
+
+
+def test_proxy_rejects_wrong_hyperparameter_shape():
+    with pytest.raises(ValueError, match="hyperparameters"):
+        ISPProxy(base=8, depth=2)(torch.zeros(1, 1, 16, 16), torch.zeros(1, 3))
+
+
+def test_proxy_save_load_round_trip_and_bad_files(tmp_path):
+    model = ISPProxy(base=8, depth=2)
+    model.save(tmp_path / "p.pt", note="x")
+    back = ISPProxy.load(tmp_path / "p.pt")
+    raw, u = torch.rand(1, 1, 16, 16) * 4000, torch.rand(1, len(hp.SPACE))
+    with torch.no_grad():
+        assert torch.allclose(model.half().float()(raw, u), back(raw, u), atol=1e-3)
+    assert back.meta["note"] == "x"
+    (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="bad.pt"):
+        ISPProxy.load(tmp_path / "bad.pt")
+    with pytest.raises(FileNotFoundError, match="missing.pt"):
+        ISPProxy.load(tmp_path / "missing.pt")
+
+
+def test_software_isp_learns(tmp_path):
+    from optix_e2e.isp.train import TrainConfig, train_software
+    cfg = TrainConfig(steps=30, batch=4, patch=32, pool=32, base=8, depth=2, val_every=30, val_size=32,
+                      perceptual_weight=0.0, lr=3e-3)
+    summary = train_software(cfg, tmp_path, progress=False)
+    assert (tmp_path / "software_isp.pt").is_file() and list((tmp_path / "tb").iterdir())
+    assert summary["history"][-1]["loss"] < 0.6 * 0.5  # an untrained net is off by ~0.5 per pixel
+    back = SoftwareISP.load(tmp_path / "software_isp.pt")
+    assert back(torch.rand(1, 1, 16, 16)).shape == (1, 3, 16, 16)
+
+
+# --- the shipped proxy -------------------------------------------------------------------------
+
+def test_shipped_proxy_imitates_the_reference_isp_on_held_out_photos():
+    from optix_e2e.isp.evaluate import evaluate_proxy
+    res = evaluate_proxy(ISPProxy.load(), size=128, n_param_sets=2, photos=["coffee", "rocket"], progress=False)
+    assert res["n_param_sets"] == 3 and len(res["per_case"]) == 6
+    assert res["proxy_psnr_db"] > 30.0 and res["proxy_ssim"] > 0.9, res
+
+
+def test_tuning_through_the_proxy_improves_the_true_isp():
+    from optix_e2e.isp.tune import true_isp_quality, tune_params
+    tuned, history = tune_params(ISPProxy.load(), steps=60, n_scenes=16, size=64, progress=False)
+    assert np.mean(history[-10:]) < np.mean(history[:10])
+    photos = ["astronaut", "chelsea"]
+    before = true_isp_quality(hp.defaults(), size=128, photos=photos)
+    after = true_isp_quality(tuned, size=128, photos=photos)
+    assert after["psnr_db"] > before["psnr_db"] + 1.0, (before["psnr_db"], after["psnr_db"])
+
+
+def test_cli_isp_eval_json_and_errors(tmp_path):
+    import json
+
+    from click.testing import CliRunner
+
+    from optix_e2e.cli import main
+    r = CliRunner().invoke(main, ["isp", "eval", "--json", "--photo", "coffee", "--size", "64",
+                                  "--param-sets", "1"])
+    assert r.exit_code == 0, r.output
+    res = json.loads(r.stdout)
+    assert {"proxy_psnr_db", "proxy_ssim", "proxy_haarpsi", "per_case"} <= set(res)
+    r = CliRunner().invoke(main, ["isp", "eval", str(tmp_path / "nope.pt")])
+    assert r.exit_code == 1 and "nope.pt" in r.output
+    r = CliRunner().invoke(main, ["isp", "params", "--json"])
+    assert r.exit_code == 0 and len(json.loads(r.stdout)) >= 8
