@@ -15,7 +15,6 @@ analysis uses the green pixels of the CFA:
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -117,23 +116,11 @@ def photon_transfer(preset="imx249", *, exposure_s=None, gain=None, temperature_
     }
 
 
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {k: _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
-def ptc_json(result: dict, **kw) -> str:
-    return json.dumps(_jsonable(result), allow_nan=False, **kw)
-
-
 def save_ptc(result: dict, out_dir) -> dict:
     """Write ptc.json and ptc.png (variance vs mean with the fit; linearity) to out_dir; returns the paths."""
     import matplotlib
+
+    from ..cli._common import dumps  # the project's strict JSON (non-finite -> null)
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -141,7 +128,7 @@ def save_ptc(result: dict, out_dir) -> dict:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"json": str(out / "ptc.json"), "png": str(out / "ptc.png")}
-    Path(paths["json"]).write_text(ptc_json(result, indent=2) + "\n", encoding="utf-8")
+    Path(paths["json"]).write_text(dumps(result, indent=2) + "\n", encoding="utf-8")
 
     c = result["curves"]
     x, var = np.array(c["mean_minus_dark_dn"]), np.array(c["variance_dn2"])
