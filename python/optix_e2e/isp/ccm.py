@@ -1,7 +1,7 @@
 """The sensor's colour-correction matrix: camera RGB -> linear sRGB, fitted on a ColorChecker.
 
-The 24 patches (linear sRGB) go through the noise-free sensor model; each patch's mean R, G
-and B site values (black level removed, white-balanced on the white patch) are the camera RGB.
+The 24 patches (linear sRGB) go through the noise-free sensor model; the R, G and B pixels'
+responses (black level removed, white-balanced on the white patch) are the camera RGB.
 Least squares gives the 3x3 matrix; its rows are then scaled to sum to 1 so that neutrals
 stay neutral, as an ISP's CCM does.
 """
@@ -14,18 +14,17 @@ import numpy as np
 import torch
 
 from .. import color
-from ..sensor import get_preset, simulate_raw
-from ..sensor.cfa import bayer_masks
+from ..sensor import get_preset
+from ..sensor.emva import expected_electrons, raw_from_electrons
 
 
 def camera_rgb(linear_rgb: np.ndarray, preset_name: str = "imx249") -> np.ndarray:
-    """Noise-free camera response (DN above black) to uniform patches [N, 3] -> [N, 3]."""
+    """Noise-free camera response (DN above black) of the R, G and B pixels to patches [N, 3] -> [N, 3]."""
     preset = get_preset(preset_name)
-    patches = torch.as_tensor(linear_rgb, dtype=torch.float32)[:, :, None, None].expand(-1, -1, 4, 4)
-    raw = simulate_raw(patches.contiguous(), preset, noise=False, quantize="none")[:, 0].double()
-    m = bayer_masks(preset.cfa, 4, 4, dtype=torch.float64)
-    resp = torch.stack([(raw * m[c]).sum((-2, -1)) / m[c].sum() for c in range(3)], dim=1)
-    return (resp - preset.black_level_dn).numpy()
+    patches = torch.as_tensor(linear_rgb, dtype=torch.float32)[:, :, None, None]
+    electrons = expected_electrons(patches, preset)  # per channel, before the CFA picks one
+    raw = raw_from_electrons(electrons, preset, noise=False, quantize="none")[:, :, 0, 0].double()
+    return (raw - preset.black_level_dn).numpy()
 
 
 @functools.lru_cache(maxsize=8)
