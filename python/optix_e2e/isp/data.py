@@ -30,6 +30,12 @@ class Capture:
     tint: float = 0.25          # per-channel illuminant gain in [1 - tint, 1 + tint]
 
 
+def reference_isp(capture: Capture = Capture()) -> reference.ReferenceISP:
+    """The reference ISP set up for the capture's sensor (its CFA pattern and ADC depth)."""
+    preset = get_preset(capture.preset)
+    return reference.ReferenceISP(preset.cfa, preset.adc_bits)
+
+
 def training_scene(size: int, rng: np.random.Generator) -> torch.Tensor:
     """One procedural sRGB scene [3, size, size]: mostly dead leaves, some edges and charts."""
     u = rng.random()
@@ -81,7 +87,7 @@ def make_pool(n: int, size: int, seed: int, capture: Capture = Capture(), *,
         raise ValueError(f"patch size must be even (whole CFA periods), got {size}")
     rng = np.random.default_rng(seed)
     gen = torch.Generator().manual_seed(seed)
-    preset = get_preset(capture.preset)
+    isp = reference_isp(capture)
     raws, units, targets, ideals = [], [], [], []
     with tqdm(total=n, desc="ISP pairs", unit="img", disable=not progress, leave=False) as bar:
         for start in range(0, n, chunk):
@@ -89,10 +95,10 @@ def make_pool(n: int, size: int, seed: int, capture: Capture = Capture(), *,
             scene = torch.stack([scene_fn(size, rng) for _ in range(m)])
             raw, ideal = capture_raw(scene, rng, capture, gen)
             plist = [hp.sample(rng) for _ in range(m)]
-            out = reference.run_batch(raw, plist, pattern=preset.cfa, adc_bits=preset.adc_bits)
+            out = isp(raw, plist)
             raws.append(raw.float())
             units.append(hp.unit_tensor(plist))
-            targets.append(torch.from_numpy(np.round(out * 255)).to(torch.uint8))
+            targets.append((out * 255).round().to(torch.uint8))
             ideals.append((ideal.clamp(0, 1) * 255).round().to(torch.uint8))
             bar.update(m)
     return Pool(torch.cat(raws), torch.cat(units), torch.cat(targets), torch.cat(ideals))

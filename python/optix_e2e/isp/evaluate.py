@@ -12,10 +12,8 @@ import torch
 from tqdm import tqdm
 
 from .. import metrics, scenes
-from ..sensor import get_preset
 from . import data
 from . import params as hp
-from . import reference
 from .proxy import ISPProxy
 
 HELD_OUT_SEED = 20_261_121  # hyperparameter draws and sensor noise for evaluation
@@ -35,7 +33,7 @@ def held_out_captures(size: int = 256, photos: list[str] | None = None, seed: in
 def evaluate_proxy(proxy: ISPProxy, *, size: int = 256, n_param_sets: int = 4, crop: int = 4,
                    photos: list[str] | None = None, seed: int = HELD_OUT_SEED, progress: bool = True) -> dict:
     proxy.eval()
-    preset = get_preset(data.Capture().preset)
+    isp = data.reference_isp()
     names, raw, _ = held_out_captures(size, photos, seed)
     rng = np.random.default_rng(seed + 1)
     settings = [("default", hp.defaults())] + [(f"random{k}", hp.sample(rng)) for k in range(n_param_sets)]
@@ -43,8 +41,7 @@ def evaluate_proxy(proxy: ISPProxy, *, size: int = 256, n_param_sets: int = 4, c
     for i, name in enumerate(tqdm(names, desc="eval proxy", unit="photo", disable=not progress)):
         for label, p in settings:
             t0 = time.perf_counter()
-            truth = torch.from_numpy(reference.run(raw[i, 0].numpy(), p, pattern=preset.cfa,
-                                                   adc_bits=preset.adc_bits).transpose(2, 0, 1)).float()[None]
+            truth = isp(raw[i:i + 1], [p])
             t1 = time.perf_counter()
             pred = proxy.render(raw[i:i + 1], p).clamp(0, 1)
             t_ref, t_proxy = t_ref + t1 - t0, t_proxy + time.perf_counter() - t1

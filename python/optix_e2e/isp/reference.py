@@ -16,6 +16,7 @@ Stages, in hardware order:
 from __future__ import annotations
 
 import numpy as np
+import torch
 from scipy.ndimage import convolve
 from skimage.filters import unsharp_mask
 from skimage.restoration import denoise_bilateral
@@ -108,7 +109,6 @@ class ReferenceISP:
     def __init__(self, pattern: str = "RGGB", adc_bits: int = 12, ccm: np.ndarray | None = None):
         self.pattern, self.adc_bits, self.ccm = pattern, adc_bits, ccm
 
-    def __call__(self, raw, params_list):
-        import torch
+    def __call__(self, raw, params_list) -> torch.Tensor:
         out = run_batch(raw, params_list, pattern=self.pattern, adc_bits=self.adc_bits, ccm=self.ccm)
         return torch.from_numpy(out)

@@ -14,10 +14,8 @@ import torch
 from tqdm import tqdm
 
 from .. import metrics
-from ..sensor import get_preset
 from . import data, evaluate
 from . import params as hp
-from . import reference
 from .proxy import ISPProxy
 
 
@@ -53,10 +51,8 @@ def tune_params(proxy: ISPProxy, *, steps: int = 200, n_scenes: int = 48, size: 
 
 def true_isp_quality(params: dict, *, size: int = 256, photos=None, seed: int = evaluate.HELD_OUT_SEED) -> dict:
     """The reference ISP's output on held-out photos against their ideal renderings."""
-    preset = get_preset(data.Capture().preset)
     names, raw, ideal = evaluate.held_out_captures(size, photos, seed)
-    out = torch.from_numpy(reference.run_batch(raw, [params] * len(names), pattern=preset.cfa,
-                                               adc_bits=preset.adc_bits))
+    out = data.reference_isp()(raw, [params] * len(names))
     per = [metrics.summarize(out[i:i + 1], ideal[i:i + 1]) for i in range(len(names))]
     return {"psnr_db": float(np.mean([r["psnr_db"] for r in per])),
             "ssim": float(np.mean([r["ssim"] for r in per])),
