@@ -32,14 +32,21 @@ import torch
 import torch.nn.functional as F
 
 
+def _full_field(h: int, w: int, full_field_px: float | None) -> float:
+    return full_field_px if full_field_px is not None else 0.5 * math.hypot(h - 1, w - 1)
+
+
+def _polar(dy: torch.Tensor, dx: torch.Tensor, full: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Offsets from the axis (rows dy, columns dx) -> normalized radius, azimuth from +y towards +x."""
+    yy, xx = torch.meshgrid(dy, dx, indexing="ij")
+    return torch.hypot(yy, xx) / full, torch.atan2(xx, yy)
+
+
 def pixel_polar(h: int, w: int, full_field_px: float | None = None, *, device=None,
                 dtype=torch.float32) -> tuple[torch.Tensor, torch.Tensor]:
     """Normalized field radius and azimuth (radians from +y towards +x) of pixel centres, [H, W] each."""
-    full = full_field_px if full_field_px is not None else 0.5 * math.hypot(h - 1, w - 1)
-    y = torch.arange(h, device=device, dtype=dtype) - (h - 1) / 2
-    x = torch.arange(w, device=device, dtype=dtype) - (w - 1) / 2
-    yy, xx = torch.meshgrid(y, x, indexing="ij")
-    return torch.hypot(yy, xx) / full, torch.atan2(xx, yy)
+    return _polar(torch.arange(h, device=device, dtype=dtype) - (h - 1) / 2,
+                  torch.arange(w, device=device, dtype=dtype) - (w - 1) / 2, _full_field(h, w, full_field_px))
 
 
 def interpolate_fields(values: torch.Tensor, fields: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
@@ -79,6 +86,25 @@ def _triangle(p: int, dtype, device) -> torch.Tensor:
     return 1 - (2 * n - p + 1).abs() / p  # shifted copies at hop p/2 sum to 1
 
 
+def _prepare(image: torch.Tensor, psfs: torch.Tensor, fields, vignetting: torch.Tensor | None,
+             full_field_px: float | None) -> tuple[torch.Tensor, torch.Tensor, float]:
+    """Checks shared by both renderers; returns (image times the relative illumination at each
+    source pixel, fields as a tensor, full-field radius in pixels)."""
+    if image.dim() != 4 or psfs.dim() != 4 or psfs.shape[1] != image.shape[1]:
+        raise ValueError(f"render expects image [B, C, H, W] and psfs [K, C, S, S] with the same C, "
+                         f"got {tuple(image.shape)} and {tuple(psfs.shape)}")
+    if psfs.shape[-1] != psfs.shape[-2] or psfs.shape[-1] % 2 == 0:
+        raise ValueError(f"PSFs must be square with an odd size (centre pixel on the chief ray), got {tuple(psfs.shape[-2:])}")
+    fields = torch.as_tensor(fields, dtype=image.dtype, device=image.device)
+    if fields.numel() != psfs.shape[0] or (fields.numel() > 1 and bool((fields.diff() <= 0).any())):
+        raise ValueError(f"fields must be {psfs.shape[0]} strictly increasing radii, got {fields.tolist()}")
+    b, c, h, w = image.shape
+    if vignetting is not None:
+        r, _ = pixel_polar(h, w, full_field_px, device=image.device, dtype=image.dtype)
+        image = image * interpolate_fields(vignetting.to(image), fields, r.reshape(-1)).T.reshape(1, c, h, w)
+    return image, fields, _full_field(h, w, full_field_px)
+
+
 def render(image: torch.Tensor, psfs: torch.Tensor, fields, vignetting: torch.Tensor | None = None, *,
            patch: int = 64, full_field_px: float | None = None) -> torch.Tensor:
     """Blur ``image`` [B, C, H, W] with the field-dependent ``psfs`` [K, C, S, S] -> [B, C, H, W].
@@ -86,21 +112,11 @@ def render(image: torch.Tensor, psfs: torch.Tensor, fields, vignetting: torch.Te
     vignetting: [K, C] relative illumination at the K fields (None: 1). patch: even, >= 2.
     Light from outside the frame is not modelled (zero outside); light leaving the frame is lost.
     """
-    if image.dim() != 4 or psfs.dim() != 4 or psfs.shape[1] != image.shape[1]:
-        raise ValueError(f"render expects image [B, C, H, W] and psfs [K, C, S, S] with the same C, "
-                         f"got {tuple(image.shape)} and {tuple(psfs.shape)}")
-    if psfs.shape[-1] != psfs.shape[-2] or psfs.shape[-1] % 2 == 0:
-        raise ValueError(f"PSFs must be square with an odd size (centre pixel on the chief ray), got {tuple(psfs.shape[-2:])}")
     if patch < 2 or patch % 2:
         raise ValueError(f"patch must be an even number >= 2, got {patch}")
-    fields = torch.as_tensor(fields, dtype=image.dtype, device=image.device)
-    if fields.numel() != psfs.shape[0] or (fields.numel() > 1 and bool((fields.diff() <= 0).any())):
-        raise ValueError(f"fields must be {psfs.shape[0]} strictly increasing radii, got {fields.tolist()}")
+    image, fields, full = _prepare(image, psfs, fields, vignetting, full_field_px)
     b, c, h, w = image.shape
     s, hop = psfs.shape[-1], patch // 2
-    r, az = pixel_polar(h, w, full_field_px, device=image.device, dtype=image.dtype)
-    if vignetting is not None:
-        image = image * interpolate_fields(vignetting.to(image), fields, r.reshape(-1)).T.reshape(1, c, h, w)
     # Pad by one hop on each side (every frame pixel then lies under two windows per axis),
     # then up to a whole number of hops.
     hp = -(-(h + 2 * hop - patch) // hop) * hop + patch
@@ -114,9 +130,8 @@ def render(image: torch.Tensor, psfs: torch.Tensor, fields, vignetting: torch.Te
     # PSF of every patch at its centre's field position (in frame coordinates).
     cy = torch.arange(ny, dtype=image.dtype, device=image.device) * hop - hop + (patch - 1) / 2 - (h - 1) / 2
     cx = torch.arange(nx, dtype=image.dtype, device=image.device) * hop - hop + (patch - 1) / 2 - (w - 1) / 2
-    yy, xx = torch.meshgrid(cy, cx, indexing="ij")
-    full = full_field_px if full_field_px is not None else 0.5 * math.hypot(h - 1, w - 1)
-    kern = psf_at(psfs, fields, (torch.hypot(yy, xx) / full).reshape(-1), torch.atan2(xx, yy).reshape(-1))
+    r, az = _polar(cy, cx, full)
+    kern = psf_at(psfs, fields, r.reshape(-1), az.reshape(-1))
     n = patch + s - 1  # linear (not circular) convolution size
     spec = torch.fft.rfft2(blocks, s=(n, n)) * torch.fft.rfft2(kern, s=(n, n)).unsqueeze(0)
     out = torch.fft.irfft2(spec, s=(n, n))  # [B, N, C, n, n], block origin shifted by -(s // 2)
@@ -130,13 +145,11 @@ def render_exact(image: torch.Tensor, psfs: torch.Tensor, fields, vignetting: to
                  full_field_px: float | None = None) -> torch.Tensor:
     """Brute force reference: every source pixel spreads with its own interpolated, rotated PSF.
     O(H W S^2) memory; for tests and small images only."""
+    image, fields, full = _prepare(image, psfs, fields, vignetting, full_field_px)
     b, c, h, w = image.shape
     s = psfs.shape[-1]
-    fields = torch.as_tensor(fields, dtype=image.dtype, device=image.device)
-    r, az = pixel_polar(h, w, full_field_px, device=image.device, dtype=image.dtype)
+    r, az = pixel_polar(h, w, full, device=image.device, dtype=image.dtype)
     kern = psf_at(psfs, fields, r.reshape(-1), az.reshape(-1))  # [H*W, C, S, S]
-    if vignetting is not None:
-        image = image * interpolate_fields(vignetting.to(image), fields, r.reshape(-1)).T.reshape(1, c, h, w)
     src = image.reshape(b, c, h * w).permute(0, 2, 1)  # [B, HW, C]
     contrib = (src[..., None, None] * kern.unsqueeze(0)).permute(0, 2, 3, 4, 1)  # [B, C, S, S, HW]
     canvas = F.fold(contrib.reshape(b, c * s * s, h * w), (h + s - 1, w + s - 1), s)
