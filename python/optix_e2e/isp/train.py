@@ -52,14 +52,6 @@ def _crop(x: torch.Tensor, c: int) -> torch.Tensor:
     return x[..., c:x.shape[-2] - c, c:x.shape[-1] - c] if c else x
 
 
-def image_loss(pred: torch.Tensor, target: torch.Tensor, perceptual_weight: float, crop: int) -> torch.Tensor:
-    pred, target = _crop(pred, crop), _crop(target, crop)
-    loss = (pred - target).abs().mean()
-    if perceptual_weight:
-        loss = loss + perceptual_weight * metrics.perceptual_distance(pred, target).mean()
-    return loss
-
-
 def _cosine_lr(cfg: TrainConfig, step: int, seconds: float) -> float:
     """Cosine decay to 2% of the initial rate over the steps, or over the wall-time budget
     when that runs out first (so a time-boxed CPU run still anneals)."""
@@ -121,6 +113,7 @@ def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) ->
     earlier = list(meta.get("earlier_training", [])) + ([meta["training"]] if "training" in meta else [])
     model.train()
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    loss_fn = metrics.L1PerceptualLoss(cfg.perceptual_weight)
     writer = SummaryWriter(str(out_dir / "tb"))
     val_pool = data.make_pool(64, cfg.val_size, seed=10_000 + cfg.seed, progress=False)
     rng = np.random.default_rng(cfg.seed)
@@ -130,7 +123,7 @@ def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) ->
         if pool is None or (step - 1) % cfg.refresh_every == 0:
             pool = data.make_pool(cfg.pool, cfg.patch, seed=int(rng.integers(2**31)), progress=progress)
         pred, target = _predict(model, kind, pool, torch.as_tensor(rng.integers(pool.raw.shape[0], size=cfg.batch)))
-        loss = image_loss(pred, target, cfg.perceptual_weight, cfg.crop)
+        loss = loss_fn(_crop(pred, cfg.crop), _crop(target, cfg.crop))
         opt.zero_grad(set_to_none=True)
         loss.backward()
         # The perceptual term's gradient has rare spikes (HaarPSI divides by local similarity
