@@ -9,7 +9,7 @@ import torch
 from optix_e2e import scenes
 from optix_e2e.isp import ISPProxy, SoftwareISP, bilinear_demosaick, ccm, data, reference
 from optix_e2e.isp import params as hp
-from optix_e2e.sensor import PATTERNS, get_preset, mosaic
+from optix_e2e.sensor import PATTERNS, get_preset, mosaic, simulate_raw
 
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -118,7 +118,7 @@ def test_flat_field_stays_flat_under_every_stage():
 def test_default_isp_with_white_balance_renders_a_grey_card_neutral():
     preset = get_preset("imx249")
     grey = torch.full((1, 3, 16, 16), 0.18)
-    raw = data.simulate_raw(grey, preset, noise=False, quantize="none")[0, 0].numpy()
+    raw = simulate_raw(grey, preset, noise=False, quantize="none")[0, 0].numpy()
     resp = ccm.camera_rgb(np.array([[0.18, 0.18, 0.18]]))[0]
     wb = {"wb_red": resp[1] / resp[0], "wb_blue": resp[1] / resp[2], "sharpen_amount": 0.0}
     out = reference.run(raw, wb)[4:-4, 4:-4].reshape(-1, 3).mean(0)
