@@ -10,6 +10,7 @@ from .lens import lens
 from .psf import psf
 from .sample import sample
 from .sensor import sensor
+from .surrogate import surrogate
 from .tolerance import tolerance
 
 
@@ -32,3 +33,4 @@ main.add_command(tolerance)
 main.add_command(bench)
 main.add_command(sensor)
 main.add_command(isp)
+main.add_command(surrogate)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 from pathlib import Path
+from typing import Collection
 
 import numpy as np
 
@@ -20,9 +21,10 @@ def expected_shapes(man: dict, m: int) -> dict:
             "energy_in_window": ((m, K, C), "float32")}
 
 
-def open_shard(root: Path, k: int, man: dict, check_hashes: bool = True) -> tuple[dict, dict]:
+def open_shard(root: Path, k: int, man: dict, check_hashes: "bool | Collection[str]" = True) -> tuple[dict, dict]:
     """Memory-mapped arrays and metadata of shard ``k``, checked against the manifest
-    (shapes, dtypes, design ranges, and with ``check_hashes`` the CRC-32 of every file).
+    (shapes, dtypes, design ranges, and with ``check_hashes`` the CRC-32 of every file, or
+    of the named arrays only: a reader of some arrays need not read the others' bytes).
     Raises :class:`DatasetError` naming the file and the problem."""
     d = shards_dir(root) / shard_name(k)
     meta = read_json(d / "shard.json", f"shard {k} metadata")
@@ -41,7 +43,8 @@ def open_shard(root: Path, k: int, man: dict, check_hashes: bool = True) -> tupl
         info = meta.get("files", {}).get(name)
         if info is None or not p.is_file():
             raise DatasetError(f"{p}: missing")
-        if check_hashes and crc32_file(p) != info["crc32"]:
+        check = check_hashes if isinstance(check_hashes, bool) else name in check_hashes
+        if check and crc32_file(p) != info["crc32"]:
             raise DatasetError(f"{p}: checksum mismatch (the file was changed or damaged after it was written)")
         try:
             arr = np.load(p, mmap_mode="r", allow_pickle=False)

@@ -1,0 +1,196 @@
+"""A trained surrogate as one object and one file: the network, the normalization statistics
+of its inputs, the parameter ranges it was trained on, its field positions and output pitch,
+and the manifest of the dataset it learned from.
+
+``OpticsSurrogate`` takes raw lens parameter values (the space's units), normalizes them
+with the training designs' mean and standard deviation (paper Sec. 4.1) and checks them
+against the space's ranges: outside them the network extrapolates, so by default that is an
+error naming the parameter (``out_of_range="warn"`` warns instead, ``"ignore"`` says
+nothing).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from .model import SurrogateConfig, SurrogateNet
+
+FORMAT = "optix-surrogate/1"
+BUNDLED = {"paper-triplet": "surrogate_paper_triplet.pt"}
+
+
+class SurrogateRangeError(ValueError):
+    """Lens parameters outside the ranges the surrogate was trained on."""
+
+
+class SurrogateFileError(RuntimeError):
+    """A checkpoint that cannot be read or is not a surrogate; the message names the file."""
+
+
+def bundled_path(name: str) -> Path:
+    return Path(__file__).resolve().parent.parent / "bundled" / BUNDLED[name]
+
+
+def resolve(spec: "str | Path") -> Path:
+    """A checkpoint path, or the name of a shipped surrogate (``paper-triplet``)."""
+    if str(spec) in BUNDLED:
+        return bundled_path(str(spec))
+    p = Path(spec)
+    if p.is_dir():
+        p = p / "surrogate.pt"
+    if not p.is_file():
+        names = ", ".join(BUNDLED)
+        raise SurrogateFileError(f"{spec}: no such surrogate file (or a shipped one: {names})")
+    return p
+
+
+class OpticsSurrogate(nn.Module):
+    """Raw lens parameters [B, P] + normalized field [B] -> (psf [B, C, S, S] unit sum,
+    vignetting [B, C]). ``psfs(params)`` gives every trained field at once for the renderer."""
+
+    def __init__(self, cfg: SurrogateConfig, *, param_names, param_mean, param_std, param_min, param_max,
+                 fields_deg, pitch_um: float, psf_kind: str = "psf_sensor", bin: int = 1,
+                 channel_names=("R", "G", "B"), manifest: dict | None = None, meta: dict | None = None):
+        super().__init__()
+        self.net = SurrogateNet(cfg)
+        self.cfg = cfg
+        self.param_names = list(param_names)
+        if len(self.param_names) != cfg.n_params:
+            raise ValueError(f"{len(self.param_names)} parameter names for a {cfg.n_params}-parameter network")
+        std = np.asarray(param_std, float)
+        self.register_buffer("param_mean", torch.as_tensor(np.asarray(param_mean, float), dtype=torch.float32))
+        self.register_buffer("param_std", torch.as_tensor(np.where(std > 0, std, 1.0), dtype=torch.float32))
+        self.register_buffer("param_min", torch.as_tensor(np.asarray(param_min, float), dtype=torch.float64))
+        self.register_buffer("param_max", torch.as_tensor(np.asarray(param_max, float), dtype=torch.float64))
+        self.fields_deg = [float(f) for f in fields_deg]
+        self.register_buffer("fields", torch.tensor(self.fields_deg, dtype=torch.float32) / max(max(self.fields_deg), 1e-12))
+        self.pitch_um = float(pitch_um)
+        self.psf_kind, self.bin = psf_kind, int(bin)
+        self.channel_names = list(channel_names)
+        self.manifest = manifest or {}
+        self.meta = meta or {}
+        self.out_of_range = "error"
+
+    # -- inputs -------------------------------------------------------------------------
+    def normalize(self, params: torch.Tensor) -> torch.Tensor:
+        return (params.to(self.param_mean) - self.param_mean) / self.param_std
+
+    def check_params(self, params, mode: str | None = None) -> list[str]:
+        """Problems of raw parameter values [..., P] against the training ranges; raises
+        :class:`SurrogateRangeError` (mode "error"), warns ("warn") or only returns them."""
+        mode = mode or self.out_of_range
+        if mode not in ("error", "warn", "ignore"):
+            raise ValueError(f"out_of_range must be error, warn or ignore, got {mode!r}")
+        p = torch.as_tensor(params).detach().to("cpu", torch.float64).reshape(-1, self.cfg.n_params)
+        lo, hi = self.param_min.cpu(), self.param_max.cpu()
+        tol = 1e-6 * (hi - lo)
+        problems = []
+        if not torch.isfinite(p).all():
+            problems.append("non-finite parameter values")
+        for j, name in enumerate(self.param_names):
+            col = p[:, j]
+            bad = (col < lo[j] - tol[j]) | (col > hi[j] + tol[j])
+            if bad.any():
+                v = float(col[bad][0])
+                problems.append(f"{name} = {v:.6g} outside its training range [{float(lo[j]):.6g}, {float(hi[j]):.6g}]"
+                                + (f" ({int(bad.sum())} rows)" if p.shape[0] > 1 else ""))
+        if problems and mode != "ignore":
+            msg = "surrogate input: " + "; ".join(problems) + " (the network would extrapolate)"
+            if mode == "error":
+                raise SurrogateRangeError(msg)
+            warnings.warn(msg, stacklevel=3)
+        return problems
+
+    # -- outputs ------------------------------------------------------------------------
+    def forward(self, params: torch.Tensor, field: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Raw params [B, P] (or [P]), normalized field [B] in [0, 1] -> (psf [B, C, S, S], vignetting [B, C])."""
+        params = torch.as_tensor(params)
+        if params.dim() == 1:
+            params = params.unsqueeze(0)
+        self.check_params(params)
+        field = torch.as_tensor(field, dtype=self.param_mean.dtype, device=self.param_mean.device).reshape(-1)
+        if field.numel() and (field.min() < -1e-6 or field.max() > 1 + 1e-6) and self.out_of_range != "ignore":
+            msg = f"surrogate input: field {float(field.min()):.4g}..{float(field.max()):.4g} outside [0, 1] of the full field"
+            if self.out_of_range == "error":
+                raise SurrogateRangeError(msg)
+            warnings.warn(msg, stacklevel=2)
+        if field.numel() == 1 and params.shape[0] > 1:
+            field = field.expand(params.shape[0])
+        return self.net(self.normalize(params), field)
+
+    def psfs(self, params: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Every trained field of each design: raw params [P] or [B, P] -> (psf [(B,) K, C, S, S]
+        unit sum per channel, vignetting [(B,) K, C]); the renderer's inputs (with ``fields``)."""
+        params = torch.as_tensor(params)
+        single = params.dim() == 1
+        p = params.reshape(-1, self.cfg.n_params)
+        b, k = p.shape[0], len(self.fields_deg)
+        psf, vig = self(p.repeat_interleave(k, 0), self.fields.repeat(b))
+        psf = psf.reshape(b, k, *psf.shape[1:])
+        vig = vig.reshape(b, k, -1)
+        return (psf[0], vig[0]) if single else (psf, vig)
+
+    # -- files --------------------------------------------------------------------------
+    def state(self, half: bool = False) -> dict:
+        sd = {k: (v.half() if half and v.is_floating_point() else v).cpu() for k, v in self.net.state_dict().items()}
+        return {
+            "format": FORMAT, "config": self.cfg.to_json(), "state_dict": sd, "half": half,
+            "param_names": self.param_names, "param_mean": self.param_mean.tolist(),
+            "param_std": self.param_std.tolist(), "param_min": self.param_min.tolist(),
+            "param_max": self.param_max.tolist(), "fields_deg": self.fields_deg, "pitch_um": self.pitch_um,
+            "psf_kind": self.psf_kind, "bin": self.bin, "channel_names": self.channel_names,
+            "manifest": self.manifest, "meta": self.meta,
+        }
+
+    def save(self, path: "str | Path", half: bool = False, **meta) -> None:
+        """Write atomically (temporary file, fsync, rename); ``half`` stores fp16 weights."""
+        if meta:
+            self.meta = {**self.meta, **meta}
+        save_atomic(self.state(half), path)
+
+    @classmethod
+    def from_state(cls, st: dict, where: str = "<state>") -> "OpticsSurrogate":
+        if not isinstance(st, dict) or st.get("format") != FORMAT:
+            raise SurrogateFileError(f"{where}: not an {FORMAT} checkpoint")
+        try:
+            cfg = SurrogateConfig(**st["config"])
+            m = cls(cfg, param_names=st["param_names"], param_mean=st["param_mean"], param_std=st["param_std"],
+                    param_min=st["param_min"], param_max=st["param_max"], fields_deg=st["fields_deg"],
+                    pitch_um=st["pitch_um"], psf_kind=st["psf_kind"], bin=st["bin"],
+                    channel_names=st["channel_names"], manifest=st.get("manifest"), meta=st.get("meta"))
+            m.net.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in st["state_dict"].items()})
+        except (KeyError, TypeError, RuntimeError) as exc:
+            raise SurrogateFileError(f"{where}: damaged surrogate checkpoint ({exc})") from None
+        return m
+
+    @classmethod
+    def load(cls, spec: "str | Path", map_location="cpu") -> "OpticsSurrogate":
+        """A checkpoint file, a training directory (its surrogate.pt) or a shipped name."""
+        path = resolve(spec)
+        try:
+            st = torch.load(path, map_location=map_location, weights_only=False)
+        except Exception as exc:  # torch raises many kinds for a damaged file
+            raise SurrogateFileError(f"{path}: unreadable checkpoint ({exc})") from None
+        m = cls.from_state(st.get("model", st) if isinstance(st, dict) else st, str(path))
+        m.eval()
+        return m
+
+
+def save_atomic(obj, path: "str | Path") -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    with open(tmp, "wb") as f:
+        f.write(buf.getvalue())
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)

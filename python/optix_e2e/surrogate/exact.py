@@ -1,0 +1,57 @@
+"""The exact engine on the surrogate's terms: PSFs, vignetting and RMS spots of designs given
+by their parameter values, computed exactly as the training dataset's were (same base lens,
+apertures, refocusing, fields, channels, methods), so a surrogate prediction or a render
+through it can be checked against the real optics."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+
+from ..dataset.generate import compute_shard
+from ..dataset.settings import engine_base
+from ..lens import Lens
+from ..space import Parameter, ParameterSpace
+
+
+def space_and_base(manifest: dict) -> tuple[ParameterSpace, Lens]:
+    space = ParameterSpace([Parameter(**p) for p in manifest["space"]["parameters"]],
+                           source=str(manifest["space"].get("source", "<manifest>")))
+    return space, Lens(manifest["base_lens"], source="<manifest base lens>")
+
+
+def exact_arrays(manifest: dict, values) -> tuple[dict, dict]:
+    """The dataset record (arrays as in a shard: psf, psf_sensor, relative_illumination,
+    image_distance, ...) of the designs ``values`` [N, P]; designs the engine rejects are
+    listed in the metadata's ``failures`` and missing from the arrays."""
+    values = np.atleast_2d(np.asarray(values, np.float64))
+    space, base = space_and_base(manifest)
+    man = {**manifest, "settings": {**manifest["settings"], "shard_size": len(values)}, "n_designs": len(values)}
+    arrays, meta = compute_shard(0, man, values, space, base)
+    return arrays, meta
+
+
+def refocused_designs(manifest: dict, values, image_distance) -> list[dict]:
+    """Lens dicts of the designs as the dataset traced them (image plane at the recorded distance)."""
+    space, base = space_and_base(manifest)
+    traced = engine_base(base, manifest["settings"]["apertures"])
+    out = []
+    for v, z in zip(np.atleast_2d(values), np.atleast_1d(image_distance)):
+        d = copy.deepcopy(space.apply(traced, v))
+        d["surfaces"][-1]["thickness"] = float(z)
+        out.append(d)
+    return out
+
+
+def rms_spot_um(manifest: dict, values, rings: int = 32) -> np.ndarray:
+    """Polychromatic RMS spot radius (um, centroid-referenced, over the lens's wavelengths and
+    weights) of each design [N, K] at the dataset's K fields, after the dataset's refocusing."""
+    arrays, meta = exact_arrays(manifest, values)
+    if meta["n_failed"]:
+        raise ValueError("engine rejected designs: " + "; ".join(f["reason"] for f in meta["failures"]))
+    out = []
+    for d in refocused_designs(manifest, arrays["params"], arrays["image_distance"]):
+        lens = Lens(d)
+        out.append([lens.spot(f, rings=rings)["rms_um"] for f in manifest["fields_deg"]])
+    return np.asarray(out, float)

@@ -1,0 +1,236 @@
+"""Training of the optics surrogate (paper Eq. 7-8) with TensorBoard logs, a tqdm bar, a
+held-out validation split, and checkpoints that a later run of the same command resumes.
+
+``out_dir`` holds:
+  surrogate.pt   the model (an ``OpticsSurrogate`` checkpoint), rewritten at every validation
+  state.pt       model + optimizer + step + random state + history: what resuming needs
+  tb/            TensorBoard logs (train/loss and its four terms, val/*, lr)
+  train.json     summary: config, data, steps, time, validation history
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, fields as dc_fields
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.tensorboard import SummaryWriter
+from tqdm import tqdm
+
+from .checkpoint import OpticsSurrogate, save_atomic
+from .data import load_arrays, psf_grid, psf_pitch_um, to_tensors
+from .loss import LossWeights, optics_loss_terms
+from .model import SurrogateConfig
+
+# changing these makes a different model or different data: resuming refuses
+_FIXED = ("psf", "bin", "hidden", "depth", "base_channels", "n_up", "val_designs", "max_designs", "seed",
+          "batch", "loss_pixel", "loss_fourier", "loss_gradient", "loss_vignetting")
+
+
+@dataclass
+class TrainConfig:
+    psf: str = "psf_sensor"        # "psf_sensor" (sensor pitch) or "psf" (super-resolved)
+    bin: int = 1                   # sum bin x bin blocks of the PSFs first
+    hidden: int = 256
+    depth: int = 4
+    base_channels: int = 64
+    n_up: int = 2
+    steps: int = 20000
+    batch: int = 256               # (design, field) samples per step
+    lr: float = 2e-3
+    warmup: int = 200
+    clip_grad: float = 1.0
+    val_designs: int = 256         # designs held out of training (chosen with the seed)
+    max_designs: int = 0           # use only the first N designs (0: all)
+    val_every: int = 500
+    minutes: float = 0.0           # stop after this much training time in all (0: run all steps)
+    seed: int = 0
+    threads: int = 0               # torch CPU threads (0: torch's default)
+    device: str = "auto"           # auto: CUDA when present
+    loss_pixel: float = 1.0
+    loss_fourier: float = 1.0
+    loss_gradient: float = 1.0
+    loss_vignetting: float = 1.0
+
+    @property
+    def weights(self) -> LossWeights:
+        return LossWeights(self.loss_pixel, self.loss_fourier, self.loss_gradient, self.loss_vignetting)
+
+
+def pick_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def _lr(cfg: TrainConfig, step: int, seconds: float) -> float:
+    """Linear warm-up, then cosine decay to 1% over the steps or the time budget, whichever
+    runs out first (so a time-boxed CPU run still anneals)."""
+    if step < cfg.warmup:
+        return cfg.lr * (step + 1) / cfg.warmup
+    frac = step / max(cfg.steps, 1)
+    if cfg.minutes:
+        frac = max(frac, seconds / (60 * cfg.minutes))
+    return cfg.lr * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * min(frac, 1.0))))
+
+
+@torch.no_grad()
+def predict_all(model: OpticsSurrogate, params: torch.Tensor, batch_designs: int = 256):
+    """PSFs and vignetting of every trained field for raw params [N, P] (no range check:
+    the caller's data)."""
+    psf, vig = [], []
+    mode, model.out_of_range = model.out_of_range, "ignore"
+    try:
+        for i in range(0, params.shape[0], batch_designs):
+            p, v = model.psfs(params[i:i + batch_designs])
+            psf.append(p)
+            vig.append(v)
+    finally:
+        model.out_of_range = mode
+    return torch.cat(psf), torch.cat(vig)
+
+
+@torch.no_grad()
+def validate(model: OpticsSurrogate, t: dict) -> dict:
+    model.eval()
+    psf, vig = predict_all(model, t["params"])
+    model.train()
+    rel = (psf - t["psf"]).abs().sum((-2, -1))            # [N, K, C]: relative L1 of unit-sum PSFs
+    verr = (vig - t["vignetting"]).abs()
+    return {"psf_rel_l1_median": float(rel.median()), "psf_rel_l1_mean": float(rel.mean()),
+            "vignetting_abs_err_median": float(verr.median()), "vignetting_abs_err_max": float(verr.max())}
+
+
+def _split(designs: np.ndarray, n_val: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    if not 0 <= n_val < len(designs):
+        raise ValueError(f"val_designs {n_val} must leave training designs out of {len(designs)}")
+    perm = np.random.default_rng(seed).permutation(len(designs))
+    return np.sort(perm[n_val:]), np.sort(perm[:n_val])
+
+
+def build_model(cfg: TrainConfig, man: dict, train_vig: np.ndarray, meta: dict) -> OpticsSurrogate:
+    params = man["space"]["parameters"]
+    mc = SurrogateConfig(n_params=len(params), channels=len(man["channels"]), psf_size=psf_grid(man, cfg.psf, cfg.bin),
+                         hidden=cfg.hidden, depth=cfg.depth, base_channels=cfg.base_channels, n_up=cfg.n_up)
+    model = OpticsSurrogate(
+        mc, param_names=[p["name"] for p in params], param_mean=man["param_mean"], param_std=man["param_std"],
+        param_min=[p["min"] for p in params], param_max=[p["max"] for p in params], fields_deg=man["fields_deg"],
+        pitch_um=psf_pitch_um(man, cfg.psf, cfg.bin), psf_kind=cfg.psf, bin=cfg.bin,
+        channel_names=man["channel_names"], manifest=man, meta=meta)
+    with torch.no_grad():  # start the vignetting head at the data's mean per channel
+        model.net.vignetting_head.weight.mul_(0.1)
+        model.net.vignetting_head.bias.copy_(torch.as_tensor(train_vig.reshape(-1, train_vig.shape[-1]).mean(0)))
+    return model
+
+
+def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, progress: bool = True,
+          log=lambda m: None, stop_after: int | None = None) -> dict:
+    """Train a surrogate on the dataset in ``data_root``, or resume the run in ``out_dir``.
+    ``stop_after``: leave this call after that many steps (as an interruption would; the
+    next call resumes)."""
+    out_dir = Path(out_dir)
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    device = pick_device(cfg.device)
+    state_path = out_dir / "state.pt"
+    resumed = None
+    if state_path.exists():
+        resumed = torch.load(state_path, map_location="cpu", weights_only=False)
+        old = resumed["config"]
+        diff = [k for k in _FIXED if old.get(k) != getattr(cfg, k)]
+        if diff:
+            raise ValueError(f"{state_path}: this run was started with other settings ({', '.join(diff)}); "
+                             f"use the same options or another --out")
+        log(f"resuming {state_path} at step {resumed['step']}")
+
+    arrays, man = load_arrays(data_root, cfg.psf, cfg.bin, max_designs=cfg.max_designs or None,
+                              progress=None)
+    if resumed and resumed["data"]["designs_csv_sha256"] != man["designs_csv_sha256"]:
+        raise ValueError(f"{state_path}: that run trained on another dataset than {data_root}")
+    tr_rows, va_rows = _split(arrays.design, cfg.val_designs, cfg.seed)
+    train_t = to_tensors(arrays.subset(tr_rows), device)
+    val_t = to_tensors(arrays.subset(va_rows), device)
+    data_meta = {"root": str(Path(data_root).resolve()), "designs_csv_sha256": man["designs_csv_sha256"],
+                 "n_train_designs": int(len(tr_rows)), "n_val_designs": int(len(va_rows)),
+                 "val_designs": arrays.design[va_rows].tolist()}
+    del arrays
+
+    torch.manual_seed(cfg.seed)
+    model = build_model(cfg, man, train_t["vignetting"].cpu().numpy(),
+                        {"data": data_meta}).to(device)
+    opt = torch.optim.Adam(model.net.parameters(), lr=cfg.lr)
+    gen = torch.Generator(device="cpu").manual_seed(cfg.seed)
+    step, seconds, history = 0, 0.0, []
+    if resumed:
+        model.net.load_state_dict(resumed["model"])
+        opt.load_state_dict(resumed["optimizer"])
+        gen.set_state(resumed["generator"])
+        step, seconds, history = resumed["step"], resumed["seconds"], resumed["history"]
+    model.train()
+    writer = SummaryWriter(str(out_dir / "tb"))
+    n_tr, k = train_t["params"].shape[0], len(man["fields_deg"])
+    fields = model.fields
+    bar = tqdm(total=cfg.steps, initial=step, desc="train surrogate", unit="step", disable=not progress)
+    t_start = time.time() - seconds
+    first_step = step
+
+    def checkpoint(val: dict | None) -> None:
+        meta = {"data": data_meta, "training": {"config": asdict(cfg), "steps_done": step,
+                                                  "seconds": round(time.time() - t_start, 1),
+                                                  "device": str(device), "val": val}}
+        model.save(out_dir / "surrogate.pt", **meta)
+        save_atomic({"config": asdict(cfg), "model": model.net.state_dict(), "optimizer": opt.state_dict(),
+                     "generator": gen.get_state(), "step": step, "seconds": time.time() - t_start,
+                     "history": history, "data": data_meta}, state_path)
+
+    while step < cfg.steps:
+        d = torch.randint(n_tr, (cfg.batch,), generator=gen).to(device)
+        f = torch.randint(k, (cfg.batch,), generator=gen).to(device)
+        psf, vig = model.net(model.normalize(train_t["params"][d]), fields[f])
+        terms = optics_loss_terms(psf, vig, train_t["psf"][d, f], train_t["vignetting"][d, f])
+        w = cfg.weights
+        loss = (w.pixel * terms["pixel"] + w.fourier * terms["fourier"] + w.gradient * terms["gradient"]
+                + w.vignetting * terms["vignetting"])
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.net.parameters(), cfg.clip_grad)
+        lr = _lr(cfg, step, time.time() - t_start)
+        for group in opt.param_groups:
+            group["lr"] = lr
+        opt.step()
+        step += 1
+        if step % 10 == 0:
+            writer.add_scalar("train/loss", loss.item(), step)
+            for name, v in terms.items():
+                writer.add_scalar(f"train/{name}", v.item(), step)
+            writer.add_scalar("train/lr", lr, step)
+        bar.update(1)
+        if step % 50 == 0:
+            bar.set_postfix(loss=f"{loss.item():.4f}", l1=f"{terms['pixel'].item():.4f}")
+        out_of_time = cfg.minutes and (time.time() - t_start) > 60 * cfg.minutes
+        interrupted = stop_after is not None and step - first_step >= stop_after
+        if step % cfg.val_every == 0 or step >= cfg.steps or out_of_time or interrupted:
+            val = validate(model, val_t)
+            for name, v in val.items():
+                writer.add_scalar(f"val/{name}", v, step)
+            history.append({"step": step, "seconds": round(time.time() - t_start, 1), "loss": loss.item(), **val})
+            checkpoint(val)
+            writer.flush()
+        if out_of_time or interrupted:
+            break
+    bar.close()
+    writer.close()
+    summary = {"steps_done": step, "seconds": round(time.time() - t_start, 1), "device": str(device),
+               "config": asdict(cfg), "data": {k2: v for k2, v in data_meta.items() if k2 != "val_designs"},
+               "final_val": history[-1] if history else None, "history": history}
+    (out_dir / "train.json").write_text(json.dumps(summary, indent=2))
+    return summary
+
+
+def config_from_options(**opts) -> TrainConfig:
+    names = {f.name for f in dc_fields(TrainConfig)}
+    return TrainConfig(**{k: v for k, v in opts.items() if k in names and v is not None})

@@ -1,0 +1,170 @@
+"""The optics surrogate (paper Sec. 4.1, Eq. 6-8): network, loss, checkpoint, training with
+resume, evaluation, and the shipped paper-triplet model against the exact engine."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+from optix_e2e.dataset import DatasetSettings, generate
+from optix_e2e.surrogate import (LossWeights, OpticsSurrogate, SurrogateConfig, SurrogateNet, SurrogateRangeError,
+                                 optics_loss, optics_loss_terms)
+from optix_e2e.surrogate.evaluate import SurrogateDataMismatch, evaluate, sample_metrics
+from optix_e2e.surrogate.exact import exact_arrays
+from optix_e2e.surrogate.train import TrainConfig, train
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+TINY = dict(hidden=32, depth=2, base_channels=16, n_up=2)
+
+
+@pytest.fixture(scope="module")
+def tiny_data(tmp_path_factory):
+    """24 paper-triplet designs at the dataset defaults, in 3 shards."""
+    out = tmp_path_factory.mktemp("surrogate") / "data"
+    generate("paper-triplet", 24, 3, out, DatasetSettings(shard_size=8), progress=False)
+    return out
+
+
+@pytest.fixture(scope="module")
+def held_out(tmp_path_factory):
+    """16 designs the shipped surrogate never saw (another seed than its training data)."""
+    out = tmp_path_factory.mktemp("surrogate") / "held_out"
+    generate("paper-triplet", 16, 7, out, DatasetSettings(shard_size=16), progress=False)
+    return out
+
+
+# ----- network and loss --------------------------------------------------------------------
+def test_network_psf_is_energy_preserving_with_the_configured_shape():
+    net = SurrogateNet(SurrogateConfig(n_params=5, psf_size=21, **TINY))
+    psf, vig = net(torch.randn(7, 5), torch.rand(7))
+    assert psf.shape == (7, 3, 21, 21) and vig.shape == (7, 3)
+    assert torch.all(psf > 0)
+    torch.testing.assert_close(psf.sum((-2, -1)), torch.ones(7, 3))
+    for size, n_up in ((64, 4), (9, 0), (33, 3)):
+        out, _ = SurrogateNet(SurrogateConfig(n_params=2, psf_size=size, hidden=8, depth=1, base_channels=8,
+                                              n_up=n_up))(torch.zeros(1, 2), torch.zeros(1))
+        assert out.shape[-2:] == (size, size)
+    with pytest.raises(ValueError, match=r"params must be \[B, 5\]"):
+        net(torch.randn(2, 4), torch.rand(2))
+
+
+def test_network_gradients_match_finite_differences():
+    torch.manual_seed(0)
+    net = SurrogateNet(SurrogateConfig(n_params=3, psf_size=9, hidden=8, depth=2, base_channels=8, n_up=1)).double()
+    x, f = torch.randn(2, 3, dtype=torch.float64, requires_grad=True), torch.rand(2, dtype=torch.float64)
+    assert torch.autograd.gradcheck(lambda p: torch.cat([o.reshape(-1) for o in net(p, f)]), (x,))
+
+
+def test_loss_is_eq8_and_zero_only_at_the_target():
+    torch.manual_seed(1)
+    a = torch.softmax(torch.randn(4, 3, 81), -1).reshape(4, 3, 9, 9)
+    b = torch.softmax(torch.randn(4, 3, 81), -1).reshape(4, 3, 9, 9)
+    va, vb = torch.rand(4, 3), torch.rand(4, 3)
+    assert optics_loss(a, va, a, va).item() == 0.0
+    t = optics_loss_terms(a, va, b, vb)
+    # the pixel term is the mean relative L1 error of unit-sum PSFs
+    assert t["pixel"].item() == pytest.approx(float((a - b).abs().sum((-2, -1)).mean()))
+    assert t["vignetting"].item() == pytest.approx(float((va - vb).abs().mean()))
+    fa, fb = np.fft.fft2(a.numpy()), np.fft.fft2(b.numpy())
+    assert t["fourier"].item() == pytest.approx(float(np.abs(fa - fb).mean()), rel=1e-5)
+    d = (a - b).numpy()
+    grad = (np.abs(np.diff(d, axis=-2)).sum((-2, -1)) + np.abs(np.diff(d, axis=-1)).sum((-2, -1))).mean()
+    assert t["gradient"].item() == pytest.approx(float(grad), rel=1e-5)
+    total = sum(t.values()).item()
+    assert optics_loss(a, va, b, vb).item() == pytest.approx(total)
+    assert optics_loss(a, va, b, vb, LossWeights(fourier=0, gradient=0)).item() == pytest.approx(
+        (t["pixel"] + t["vignetting"]).item())
+
+
+def test_metrics_of_known_errors():
+    exact = torch.zeros(1, 1, 1, 9, 9)
+    exact[..., 4, 4] = 1.0
+    guess = torch.zeros(1, 1, 1, 9, 9)
+    guess[..., 4, 4], guess[..., 4, 6] = 0.8, 0.2   # 20% of the energy 2 px off
+    m = sample_metrics(guess, torch.full((1, 1, 1), 0.9), exact, torch.ones(1, 1, 1))
+    assert m["psf_rel_l1"].item() == pytest.approx(0.4)
+    assert m["strehl_rel_err"].item() == pytest.approx(0.2)
+    assert m["ee_abs_err"].item() == pytest.approx(0.2)      # EE(1 px): 0.8 vs 1
+    assert m["vignetting_abs_err"].item() == pytest.approx(0.1)
+    assert m["psf_rel_l2"].item() == pytest.approx(float(np.hypot(0.2, 0.2)))
+
+
+# ----- training, checkpoints, evaluation ----------------------------------------------------
+def _cfg(**kw) -> TrainConfig:
+    return TrainConfig(**{**TINY, "steps": 30, "batch": 16, "val_designs": 4, "val_every": 10, "warmup": 5,
+                          "device": "cpu", **kw})
+
+
+def test_train_writes_checkpoints_and_resumes(tiny_data, tmp_path):
+    out = tmp_path / "run"
+    s1 = train(tiny_data, out, _cfg(), progress=False, stop_after=20)   # interrupted at step 20
+    assert s1["steps_done"] == 20 and (out / "surrogate.pt").is_file() and (out / "state.pt").is_file()
+    assert list((out / "tb").glob("events.*"))
+    assert s1["data"]["n_train_designs"] == 20 and s1["data"]["n_val_designs"] == 4
+    logs = []
+    s2 = train(tiny_data, out, _cfg(steps=30), progress=False, log=logs.append)
+    assert s2["steps_done"] == 30 and "at step 20" in logs[0]
+    assert [h["step"] for h in s2["history"]] == [10, 20, 30]
+    # a resumed run follows the same path as an uninterrupted one
+    s3 = train(tiny_data, tmp_path / "straight", _cfg(steps=30), progress=False)
+    assert s3["history"][-1]["psf_rel_l1_median"] == pytest.approx(s2["history"][-1]["psf_rel_l1_median"], rel=1e-4)
+    with pytest.raises(ValueError, match="other settings.*hidden"):
+        train(tiny_data, out, _cfg(steps=40, hidden=48), progress=False)
+
+
+def test_checkpoint_round_trip_and_range_checks(tiny_data, tmp_path):
+    train(tiny_data, tmp_path / "run", _cfg(steps=10), progress=False)
+    m = OpticsSurrogate.load(tmp_path / "run")
+    assert m.manifest["designs_csv_sha256"] == json.loads((tiny_data / "manifest.json").read_text())["designs_csv_sha256"]
+    mid = (m.param_min + m.param_max).float() / 2
+    psf, vig = m.psfs(mid)
+    assert psf.shape == (13, 3, 21, 21) and vig.shape == (13, 3)
+    m.save(tmp_path / "half.pt", half=True)
+    h = OpticsSurrogate.load(tmp_path / "half.pt")
+    psf_h, _ = h.psfs(mid)
+    assert (psf_h - psf).abs().sum((-2, -1)).max() < 0.02          # fp16 weights: < 2% L1
+    bad = mid.clone()
+    bad[2] = float(m.param_max[2]) + 0.5
+    with pytest.raises(SurrogateRangeError, match=m.param_names[2]):
+        m.psfs(bad)
+    m.out_of_range = "warn"
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        m.psfs(bad)
+    assert any(m.param_names[2] in str(x.message) for x in w)
+    with pytest.raises(SurrogateRangeError, match="field"):
+        OpticsSurrogate.load(tmp_path / "run")(mid, torch.tensor([1.5]))
+
+
+def test_eval_uses_held_out_designs_and_writes_a_grid(tiny_data, tmp_path):
+    train(tiny_data, tmp_path / "run", _cfg(steps=10), progress=False)
+    m = OpticsSurrogate.load(tmp_path / "run")
+    rep = evaluate(m, tiny_data, png=tmp_path / "grid.png")
+    assert rep["n_designs"] == 4 and rep["held_out"].startswith("validation")
+    assert set(rep["overall"]) == {"psf_rel_l1", "psf_rel_l2", "strehl_rel_err", "ee_abs_err", "vignetting_abs_err"}
+    assert len(rep["per_field"]) == 13
+    assert rep["psf_rel_l1_median"] == rep["overall"]["psf_rel_l1"]["median"] > 0
+    assert (tmp_path / "grid.png").stat().st_size > 10_000
+
+
+def test_eval_refuses_data_of_other_settings(tiny_data, tmp_path):
+    other = tmp_path / "other"
+    generate("paper-triplet", 4, 0, other, DatasetSettings(shard_size=4, sensor_pixel_um=3.0), progress=False)
+    train(tiny_data, tmp_path / "run", _cfg(steps=5), progress=False)
+    with pytest.raises(SurrogateDataMismatch, match="sensor_pixel_um|grid"):
+        evaluate(OpticsSurrogate.load(tmp_path / "run"), other)
+
+
+def test_exact_engine_reproduces_the_dataset_record(tiny_data):
+    man = json.loads((tiny_data / "manifest.json").read_text())
+    shard = tiny_data / "shards" / "00001"
+    params = np.load(shard / "params.npy")
+    arrays, meta = exact_arrays(man, params[:3])
+    assert meta["n_failed"] == 0
+    np.testing.assert_array_equal(arrays["psf_sensor"], np.load(shard / "psf_sensor.npy")[:3])
+    np.testing.assert_array_equal(arrays["relative_illumination"], np.load(shard / "relative_illumination.npy")[:3])
