@@ -1,0 +1,104 @@
+"""The differentiable optics stage f_OPTIC of the pipeline (paper Eq. 2 and Sec. 4.1): lens
+parameters -> surrogate -> spatially varying render.
+
+The lens parameters are ``nn.Parameter``s kept inside the surrogate's training ranges by a
+sigmoid reparameterization: each value is
+
+    p = lo + (hi - lo) * sigmoid(u),
+
+with ``u`` the free, unconstrained parameter the optimizer moves. Any u gives a p strictly
+inside [lo, hi], so the surrogate never extrapolates, and the gradient dp/du =
+(hi - lo) s (1 - s) fades towards the bounds instead of stopping at a wall (the
+paper's ranges are manufacturing tolerances: a design at a bound is allowed, beyond it not).
+``values`` / ``set_values`` work in the parameters' own units.
+
+The image is in sensor pixels at the surrogate's PSF pitch (5.86 um for the shipped
+paper-triplet surrogate); the K fields span the axis to ``full_field_px`` pixels from the
+image centre (the half-diagonal by default: the corners see the lens's full field).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from .render import render
+from .surrogate.checkpoint import OpticsSurrogate
+
+
+class DifferentiableOptics(nn.Module):
+    """image [B, C, H, W] (scene radiance, linear) -> image through the lens [B, C, H, W].
+
+    ``init``: raw starting values [P] (default: the base lens of the surrogate's space, or
+    the middle of each range where the base lies outside it). The surrogate's weights are
+    frozen (``requires_grad=False``); only the lens parameters learn."""
+
+    def __init__(self, surrogate: "OpticsSurrogate | str", init=None, *, patch: int = 64,
+                 full_field_px: float | None = None, eps: float = 1e-4):
+        super().__init__()
+        if not isinstance(surrogate, OpticsSurrogate):
+            surrogate = OpticsSurrogate.load(surrogate)
+        self.surrogate = surrogate.eval()
+        for p in self.surrogate.parameters():
+            p.requires_grad_(False)
+        self.patch, self.full_field_px, self.eps = patch, full_field_px, eps
+        self.register_buffer("lo", surrogate.param_min.float().clone())
+        self.register_buffer("hi", surrogate.param_max.float().clone())
+        self.u = nn.Parameter(torch.zeros(surrogate.cfg.n_params))
+        self.set_values(self.base_values() if init is None else init)
+
+    @property
+    def names(self) -> list[str]:
+        return self.surrogate.param_names
+
+    def base_values(self) -> torch.Tensor:
+        """The base lens's values of the space's parameters (mid-range where outside the range)."""
+        from .surrogate.exact import space_and_base
+
+        man = self.surrogate.manifest
+        if not man:
+            return (self.lo + self.hi) / 2
+        space, base = space_and_base(man)
+        v = torch.tensor(space.values(base.data), dtype=torch.float32)
+        inside = (v >= self.lo) & (v <= self.hi)
+        return torch.where(inside, v, (self.lo + self.hi) / 2)
+
+    def values(self) -> torch.Tensor:
+        """Lens parameters [P] in their units (differentiable w.r.t. ``u``)."""
+        return self.lo + (self.hi - self.lo) * torch.sigmoid(self.u)
+
+    @torch.no_grad()
+    def set_values(self, values) -> None:
+        """Set the parameters (raw units); values outside the ranges are an error naming them."""
+        v = torch.as_tensor(values, dtype=torch.float32).reshape(-1)
+        self.surrogate.check_params(v, mode="error")
+        t = ((v - self.lo) / (self.hi - self.lo)).clamp(self.eps, 1 - self.eps)
+        self.u.copy_(torch.log(t) - torch.log1p(-t))
+
+    def psfs(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """(psf [K, C, S, S] unit sum per channel, vignetting [K, C]) at the current parameters."""
+        return self.surrogate.psfs(self.values())
+
+    @property
+    def fields(self) -> torch.Tensor:
+        return self.surrogate.fields
+
+    def forward(self, image: torch.Tensor) -> torch.Tensor:
+        psf, vig = self.psfs()
+        return render(image, psf, self.fields, vig, patch=self.patch, full_field_px=self.full_field_px)
+
+    def exact_psfs(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The exact engine's (psf, vignetting) for the current parameters, computed as the
+        surrogate's training data was; ``render(image, *exact_psfs(), fields)`` checks a
+        result against the real optics."""
+        from .surrogate.exact import exact_arrays
+
+        arrays, meta = exact_arrays(self.surrogate.manifest, self.values().detach().double().numpy()[None])
+        if meta["n_failed"]:
+            raise ValueError(f"engine rejected the design: {meta['failures'][0]['reason']}")
+        p = torch.as_tensor(arrays[self.surrogate.psf_kind][0])
+        if self.surrogate.bin > 1:
+            k, c, s, _ = p.shape
+            b = self.surrogate.bin
+            p = p.reshape(k, c, s // b, b, s // b, b).sum((-3, -1))
+        return p, torch.as_tensor(arrays["relative_illumination"][0], dtype=torch.float32)
