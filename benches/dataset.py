@@ -27,25 +27,23 @@ from optix_e2e.dataset.manifest import prepare
 from optix_e2e.space import load_space
 
 
-def engine_only(root: str, space, base, s: DatasetSettings) -> float:
+def engine_only(root: str) -> float:
     """psf_batch alone over the dataset's refocused designs (16 per call, into one reused
     buffer with the sensor-pixel copy, as the generator calls it)."""
-    import json
     from pathlib import Path
 
     import numpy as np
 
     from optix_e2e import _engine
-    from optix_e2e.dataset.settings import engine_base
+    from optix_e2e.dataset.layout import read_manifest
+    from optix_e2e.dataset.manifest import refocused_designs
 
-    man = json.loads((Path(root) / "manifest.json").read_text())
-    traced = engine_base(base, s.apertures)
+    man = read_manifest(root)
+    s = DatasetSettings(**man["settings"])
     jsons = []
     for d in sorted((Path(root) / "shards").iterdir()):
-        for x, z in zip(np.load(d / "params.npy"), np.load(d / "image_distance.npy")):
-            lens = space.apply(traced, x)
-            lens["surfaces"][-1]["thickness"] = float(z)
-            jsons.append(json.dumps(lens))
+        designs = refocused_designs(man, np.load(d / "params.npy"), np.load(d / "image_distance.npy"))
+        jsons += [json.dumps(lens) for lens in designs]
     channels = [[tuple(p) for p in c] for c in man["channels"]]
     lead = (16, len(man["fields_deg"]), len(channels))
     psf = np.zeros(lead + (s.size, s.size), np.float32)
@@ -73,7 +71,7 @@ def main() -> None:
         prepare(__import__("pathlib").Path(tmp), space, base, a.n, a.seed, s)
         sampling_s = time.perf_counter() - t
         rep = generate(a.space, a.n, a.seed, tmp, s, progress=not a.json)
-        engine_rate = engine_only(tmp, space, base, s)
+        engine_rate = engine_only(tmp)
     out = {"space": a.space, "n": a.n, "n_failed": rep.n_failed, "seconds": rep.seconds,
            "designs_per_s": rep.designs_per_s, "engine_designs_per_s": engine_rate,
            "sampling_s": sampling_s, "settings": asdict(s),

@@ -37,7 +37,6 @@ from optix_e2e.dataset import DatasetSettings, generate  # noqa: E402
 from optix_e2e.optics import DifferentiableOptics  # noqa: E402
 from optix_e2e.render import render  # noqa: E402
 from optix_e2e.surrogate import OpticsSurrogate  # noqa: E402
-from optix_e2e.surrogate.exact import space_and_base  # noqa: E402
 
 
 def _median_s(fn, repeat: int) -> float:
@@ -71,8 +70,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         space_spec = man["space"]["lens"] or "paper-triplet"
         generate(space_spec, a.n, 123, tmp, s, progress=False)
-        space, base = space_and_base(man)
-        engine_designs_per_s = engine_only(tmp, space, base, s)
+        engine_designs_per_s = engine_only(tmp)
     lo, hi = model.param_min.float(), model.param_max.float()
     params = lo + (hi - lo) * torch.rand(a.batch, len(lo), generator=torch.Generator().manual_seed(0))
     params = params.to(dev)

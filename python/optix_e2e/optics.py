@@ -24,6 +24,7 @@ from torch import nn
 
 from .render import render
 from .surrogate.checkpoint import OpticsSurrogate
+from .surrogate.data import bin_psf
 
 
 class DifferentiableOptics(nn.Module):
@@ -53,7 +54,7 @@ class DifferentiableOptics(nn.Module):
 
     def base_values(self) -> torch.Tensor:
         """The base lens's values of the space's parameters (mid-range where outside the range)."""
-        from .surrogate.exact import space_and_base
+        from .dataset.manifest import space_and_base
 
         man = self.surrogate.manifest
         if not man:
@@ -77,7 +78,8 @@ class DifferentiableOptics(nn.Module):
 
     def psfs(self) -> tuple[torch.Tensor, torch.Tensor]:
         """(psf [K, C, S, S] unit sum per channel, vignetting [K, C]) at the current parameters."""
-        return self.surrogate.psfs(self.values())
+        # inside the ranges by construction: no per-step range check (a device-to-host copy)
+        return self.surrogate.psfs(self.values(), check=False)
 
     @property
     def fields(self) -> torch.Tensor:
@@ -96,9 +98,5 @@ class DifferentiableOptics(nn.Module):
         arrays, meta = exact_arrays(self.surrogate.manifest, self.values().detach().double().numpy()[None])
         if meta["n_failed"]:
             raise ValueError(f"engine rejected the design: {meta['failures'][0]['reason']}")
-        p = torch.as_tensor(arrays[self.surrogate.psf_kind][0])
-        if self.surrogate.bin > 1:
-            k, c, s, _ = p.shape
-            b = self.surrogate.bin
-            p = p.reshape(k, c, s // b, b, s // b, b).sum((-3, -1))
+        p = bin_psf(torch.as_tensor(arrays[self.surrogate.psf_kind][0]), self.surrogate.bin)
         return p, torch.as_tensor(arrays["relative_illumination"][0], dtype=torch.float32)

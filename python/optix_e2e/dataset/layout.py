@@ -198,6 +198,15 @@ def differing_keys(a: dict, b: dict, keys) -> list[str]:
     return sorted(k for k in keys if json.dumps(a.get(k), sort_keys=True) != json.dumps(b.get(k), sort_keys=True))
 
 
+def read_manifest(root: "str | Path") -> dict:
+    """``root``'s manifest.json, which must be a manifest of this format."""
+    path = Path(root) / "manifest.json"
+    man = read_json(path, "manifest")
+    if man.get("format") != FORMAT:
+        raise DatasetError(f"{path}: not a {FORMAT} manifest")
+    return man
+
+
 def read_json(path: Path, what: str) -> dict:
     try:
         return json.loads(Path(path).read_text(encoding="utf-8"))

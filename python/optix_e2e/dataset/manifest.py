@@ -14,9 +14,9 @@ import numpy as np
 
 from ..lens import Lens
 from ..sampling import Limits, read_designs_csv, sample_designs, write_designs_csv
-from ..space import ParameterSpace, SpaceError
+from ..space import Parameter, ParameterSpace, SpaceError
 from .layout import FORMAT, DatasetError, differing_keys, read_json, sha256_file, write_json_atomic
-from .settings import DatasetSettings, field_positions
+from .settings import DatasetSettings, engine_base, field_positions
 
 
 def _request(space: ParameterSpace, base: Lens, n: int, seed: int, s: DatasetSettings,
@@ -115,3 +115,23 @@ def prepare(out: Path, space: ParameterSpace, base: Lens, n: int, seed: int, s: 
     return man, res.values
 
 
+
+
+def space_and_base(manifest: dict) -> tuple[ParameterSpace, Lens]:
+    """The parameter space and base lens a manifest records (no files needed)."""
+    space = ParameterSpace([Parameter(**p) for p in manifest["space"]["parameters"]],
+                           source=str(manifest["space"].get("source", "<manifest>")))
+    return space, Lens(manifest["base_lens"], source="<manifest base lens>")
+
+
+def refocused_designs(manifest: dict, values, image_distance) -> list[dict]:
+    """Lens dicts of designs as the dataset traced them: parameter values [N, P] written into
+    the base lens with the manifest's apertures, image plane at the recorded distances [N]."""
+    space, base = space_and_base(manifest)
+    traced = engine_base(base, manifest["settings"]["apertures"])
+    out = []
+    for v, z in zip(np.atleast_2d(values), np.atleast_1d(image_distance)):
+        d = space.apply(traced, v)  # its own surface dicts: setting the distance changes only d
+        d["surfaces"][-1]["thickness"] = float(z)
+        out.append(d)
+    return out

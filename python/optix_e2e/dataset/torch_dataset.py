@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from .layout import DatasetError, FORMAT, read_json, shard_name, shards_dir
+from .layout import DatasetError, read_json, read_manifest, shard_name, shards_dir
 from .verify import open_shard
 
 
@@ -38,9 +38,7 @@ class PsfDataset(Dataset):
     def __init__(self, root: "str | Path", psf: str = "psf", designs: Sequence[int] | None = None,
                  verify: bool = True, allow_missing: bool = False):
         self.root = Path(root)
-        self.manifest = man = read_json(self.root / "manifest.json", "manifest")
-        if man.get("format") != FORMAT:
-            raise DatasetError(f"{self.root / 'manifest.json'}: not a {FORMAT} manifest")
+        self.manifest = man = read_manifest(self.root)
         if psf not in ("psf", "psf_sensor"):
             raise ValueError(f"psf must be 'psf' or 'psf_sensor', got {psf!r}")
         self.psf_key = psf

@@ -8,7 +8,7 @@ from typing import Collection
 
 import numpy as np
 
-from .layout import FORMAT, VALUES, DatasetError, crc32_file, read_json, shard_name, shards_dir
+from .layout import FORMAT, VALUES, DatasetError, crc32_file, read_json, read_manifest, shard_name, shards_dir
 
 
 def expected_shapes(man: dict, m: int) -> dict:
@@ -70,9 +70,7 @@ def verify(root: "str | Path", check_hashes: bool = True) -> dict:
     fraction of a PSF's energy inside the window, ``psf_methods`` how many PSFs each method
     and sampling computed (what method auto chose, from each shard's meta.json)."""
     root = Path(root)
-    man = read_json(root / "manifest.json", "manifest")
-    if man.get("format") != FORMAT:
-        raise DatasetError(f"{root / 'manifest.json'}: not a {FORMAT} manifest")
+    man = read_manifest(root)
     problems, missing = [], []
     n_ok = n_failed = n_warn = 0
     min_energy = 1.0

@@ -94,19 +94,22 @@ class OpticsSurrogate(nn.Module):
         problems = []
         if not torch.isfinite(p).all():
             problems.append("non-finite parameter values")
-        for j, name in enumerate(self.param_names):
-            col = p[:, j]
-            bad = (col < lo[j] - tol[j]) | (col > hi[j] + tol[j])
-            if bad.any():
-                v = float(col[bad][0])
-                problems.append(f"{name} = {v:.6g} outside its training range [{float(lo[j]):.6g}, {float(hi[j]):.6g}]"
-                                + (f" ({int(bad.sum())} rows)" if p.shape[0] > 1 else ""))
+        bad = (p < lo - tol) | (p > hi + tol)                 # [N, P]
+        for j in torch.nonzero(bad.any(0)).flatten().tolist():
+            v = float(p[bad[:, j], j][0])
+            problems.append(f"{self.param_names[j]} = {v:.6g} outside its training range "
+                            f"[{float(lo[j]):.6g}, {float(hi[j]):.6g}]"
+                            + (f" ({int(bad[:, j].sum())} rows)" if p.shape[0] > 1 else ""))
+        self._complain(problems, mode, "(the network would extrapolate)")
+        return problems
+
+    @staticmethod
+    def _complain(problems: list[str], mode: str, why: str) -> None:
         if problems and mode != "ignore":
-            msg = "surrogate input: " + "; ".join(problems) + " (the network would extrapolate)"
+            msg = "surrogate input: " + "; ".join(problems) + " " + why
             if mode == "error":
                 raise SurrogateRangeError(msg)
-            warnings.warn(msg, stacklevel=3)
-        return problems
+            warnings.warn(msg, stacklevel=4)
 
     # -- outputs ------------------------------------------------------------------------
     def forward(self, params: torch.Tensor, field: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -116,23 +119,24 @@ class OpticsSurrogate(nn.Module):
             params = params.unsqueeze(0)
         self.check_params(params)
         field = torch.as_tensor(field, dtype=self.param_mean.dtype, device=self.param_mean.device).reshape(-1)
-        if field.numel() and (field.min() < -1e-6 or field.max() > 1 + 1e-6) and self.out_of_range != "ignore":
-            msg = f"surrogate input: field {float(field.min()):.4g}..{float(field.max()):.4g} outside [0, 1] of the full field"
-            if self.out_of_range == "error":
-                raise SurrogateRangeError(msg)
-            warnings.warn(msg, stacklevel=2)
+        if field.numel() and (field.min() < -1e-6 or field.max() > 1 + 1e-6):
+            self._complain([f"field {float(field.min()):.4g}..{float(field.max()):.4g} outside [0, 1]"],
+                           self.out_of_range, "of the full field")
         if field.numel() == 1 and params.shape[0] > 1:
             field = field.expand(params.shape[0])
         return self.net(self.normalize(params), field)
 
-    def psfs(self, params: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def psfs(self, params: torch.Tensor, check: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
         """Every trained field of each design: raw params [P] or [B, P] -> (psf [(B,) K, C, S, S]
-        unit sum per channel, vignetting [(B,) K, C]); the renderer's inputs (with ``fields``)."""
+        unit sum per channel, vignetting [(B,) K, C]); the renderer's inputs (with ``fields``).
+        ``check``: check the parameters against the training ranges (``out_of_range``)."""
         params = torch.as_tensor(params)
         single = params.dim() == 1
         p = params.reshape(-1, self.cfg.n_params)
+        if check:
+            self.check_params(p)
         b, k = p.shape[0], len(self.fields_deg)
-        psf, vig = self(p.repeat_interleave(k, 0), self.fields.repeat(b))
+        psf, vig = self.net(self.normalize(p).repeat_interleave(k, 0), self.fields.repeat(b))
         psf = psf.reshape(b, k, *psf.shape[1:])
         vig = vig.reshape(b, k, -1)
         return (psf[0], vig[0]) if single else (psf, vig)

@@ -17,7 +17,7 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from ..dataset.layout import FORMAT, DatasetError, read_json, shard_name, shards_dir
+from ..dataset.layout import DatasetError, read_manifest, shard_name, shards_dir
 from ..dataset.verify import open_shard
 
 PSF_KINDS = ("psf_sensor", "psf")
@@ -40,6 +40,15 @@ class PsfArrays:
         return PsfArrays(self.params[rows], self.psf[rows], self.vignetting[rows], self.design[rows])
 
 
+def bin_psf(psf, b: int):
+    """Sum b x b pixel blocks of PSFs [..., S, S] (numpy or torch; S divisible by b): the
+    same window at b times the pitch, each block's energy kept."""
+    if b == 1:
+        return psf
+    *lead, s, _ = psf.shape
+    return psf.reshape(*lead, s // b, b, s // b, b).sum((-3, -1))
+
+
 def psf_pitch_um(manifest: dict, psf: str, bin: int = 1) -> float:
     s = manifest["settings"]
     return (s["sensor_pixel_um"] if psf == "psf_sensor" else s["pixel_um"]) * bin
@@ -53,14 +62,6 @@ def psf_grid(manifest: dict, psf: str, bin: int = 1) -> int:
     if bin < 1 or size % bin:
         raise ValueError(f"bin {bin} does not divide the {size}-pixel {psf} window")
     return size // bin
-
-
-def read_manifest(root: "str | Path") -> dict:
-    root = Path(root)
-    man = read_json(root / "manifest.json", "manifest")
-    if man.get("format") != FORMAT:
-        raise DatasetError(f"{root / 'manifest.json'}: not a {FORMAT} manifest")
-    return man
 
 
 def load_arrays(root: "str | Path", psf: str = "psf_sensor", bin: int = 1,
@@ -86,11 +87,7 @@ def load_arrays(root: "str | Path", psf: str = "psf_sensor", bin: int = 1,
         if max_designs is not None:
             rows = rows[:max_designs - n]
         if len(rows):
-            p = np.asarray(arrays[psf][rows], np.float32)
-            if bin > 1:
-                *lead, s, _ = p.shape
-                p = p.reshape(*lead, s // bin, bin, s // bin, bin).sum((-3, -1))
-            parts["psf"].append(p)
+            parts["psf"].append(bin_psf(np.asarray(arrays[psf][rows], np.float32), bin))
             parts["params"].append(np.asarray(arrays["params"][rows], np.float64))
             parts["vignetting"].append(np.asarray(arrays["relative_illumination"][rows], np.float32))
             parts["design"].append(idx[rows])

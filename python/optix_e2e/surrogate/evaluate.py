@@ -24,7 +24,8 @@ import numpy as np
 import torch
 
 from .checkpoint import OpticsSurrogate
-from .data import load_arrays, psf_grid, psf_pitch_um, read_manifest
+from ..dataset.layout import differing_keys, read_manifest
+from .data import load_arrays, psf_grid, psf_pitch_um
 from .train import predict_all
 
 METRICS = ("psf_rel_l1", "psf_rel_l2", "strehl_rel_err", "ee_abs_err", "vignetting_abs_err")
@@ -45,32 +46,21 @@ def check_compatible(model: OpticsSurrogate, man: dict, root) -> None:
     if len(man["channels"]) != model.cfg.channels:
         problems.append(f"{len(man['channels'])} channels vs {model.cfg.channels}")
     trained = model.manifest
-    if trained and json_key(man.get("channels")) != json_key(trained.get("channels")):
+    if trained and differing_keys(man, trained, ["channels"]):
         problems.append("other channel wavelengths")
     try:
-        if psf_grid(man, model.psf_kind, model.bin) != model.cfg.psf_size or \
-                abs(psf_pitch_um(man, model.psf_kind, model.bin) - model.pitch_um) > 1e-9:
-            problems.append(f"{model.psf_kind} grid {psf_grid(man, model.psf_kind, model.bin)} px at "
-                            f"{psf_pitch_um(man, model.psf_kind, model.bin)} um vs {model.cfg.psf_size} px at {model.pitch_um} um")
+        size, pitch = psf_grid(man, model.psf_kind, model.bin), psf_pitch_um(man, model.psf_kind, model.bin)
+        if size != model.cfg.psf_size or abs(pitch - model.pitch_um) > 1e-9:
+            problems.append(f"{model.psf_kind} grid {size} px at {pitch} um vs {model.cfg.psf_size} px at {model.pitch_um} um")
     except ValueError as exc:
         problems.append(str(exc))
     if trained:
-        for key in ("settings",):
-            a, b = dict(man.get(key, {})), dict(trained.get(key, {}))
-            for ignore in ("shard_size",):
-                a.pop(ignore, None)
-                b.pop(ignore, None)
-            if json_key(a) != json_key(b):
-                diff = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
-                problems.append(f"dataset settings differ ({', '.join(diff)})")
+        a, b = man.get("settings", {}), trained.get("settings", {})
+        diff = differing_keys(a, b, (set(a) | set(b)) - {"shard_size"})
+        if diff:
+            problems.append(f"dataset settings differ ({', '.join(diff)})")
     if problems:
         raise SurrogateDataMismatch(f"{root}: not data of this surrogate: " + "; ".join(problems))
-
-
-def json_key(x) -> str:
-    import json
-
-    return json.dumps(x, sort_keys=True)
 
 
 def _ee_curves(p: torch.Tensor) -> torch.Tensor:

@@ -5,20 +5,11 @@ through it can be checked against the real optics."""
 
 from __future__ import annotations
 
-import copy
-
 import numpy as np
 
 from ..dataset.generate import compute_shard
-from ..dataset.settings import engine_base
+from ..dataset.manifest import refocused_designs, space_and_base
 from ..lens import Lens
-from ..space import Parameter, ParameterSpace
-
-
-def space_and_base(manifest: dict) -> tuple[ParameterSpace, Lens]:
-    space = ParameterSpace([Parameter(**p) for p in manifest["space"]["parameters"]],
-                           source=str(manifest["space"].get("source", "<manifest>")))
-    return space, Lens(manifest["base_lens"], source="<manifest base lens>")
 
 
 def exact_arrays(manifest: dict, values) -> tuple[dict, dict]:
@@ -30,18 +21,6 @@ def exact_arrays(manifest: dict, values) -> tuple[dict, dict]:
     man = {**manifest, "settings": {**manifest["settings"], "shard_size": len(values)}, "n_designs": len(values)}
     arrays, meta = compute_shard(0, man, values, space, base)
     return arrays, meta
-
-
-def refocused_designs(manifest: dict, values, image_distance) -> list[dict]:
-    """Lens dicts of the designs as the dataset traced them (image plane at the recorded distance)."""
-    space, base = space_and_base(manifest)
-    traced = engine_base(base, manifest["settings"]["apertures"])
-    out = []
-    for v, z in zip(np.atleast_2d(values), np.atleast_1d(image_distance)):
-        d = copy.deepcopy(space.apply(traced, v))
-        d["surfaces"][-1]["thickness"] = float(z)
-        out.append(d)
-    return out
 
 
 def rms_spot_um(manifest: dict, values, rings: int = 32) -> np.ndarray:

@@ -27,6 +27,11 @@ class LossWeights:
     def to_json(self) -> dict:
         return asdict(self)
 
+    def total(self, terms: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The weighted sum of :func:`optics_loss_terms`."""
+        return (self.pixel * terms["pixel"] + self.fourier * terms["fourier"]
+                + self.gradient * terms["gradient"] + self.vignetting * terms["vignetting"])
+
 
 def optics_loss_terms(psf: torch.Tensor, vignetting: torch.Tensor, psf_true: torch.Tensor,
                       vignetting_true: torch.Tensor) -> dict[str, torch.Tensor]:
@@ -45,9 +50,7 @@ def optics_loss_terms(psf: torch.Tensor, vignetting: torch.Tensor, psf_true: tor
 
 def optics_loss(psf, vignetting, psf_true, vignetting_true, weights: LossWeights = LossWeights()) -> torch.Tensor:
     """Eq. 8 as one scalar (weights 1 as in the paper)."""
-    t = optics_loss_terms(psf, vignetting, psf_true, vignetting_true)
-    return (weights.pixel * t["pixel"] + weights.fourier * t["fourier"]
-            + weights.gradient * t["gradient"] + weights.vignetting * t["vignetting"])
+    return weights.total(optics_loss_terms(psf, vignetting, psf_true, vignetting_true))
 
 
 class OpticsLoss(nn.Module):

@@ -83,14 +83,10 @@ def predict_all(model: OpticsSurrogate, params: torch.Tensor, batch_designs: int
     """PSFs and vignetting of every trained field for raw params [N, P] (no range check:
     the caller's data)."""
     psf, vig = [], []
-    mode, model.out_of_range = model.out_of_range, "ignore"
-    try:
-        for i in range(0, params.shape[0], batch_designs):
-            p, v = model.psfs(params[i:i + batch_designs])
-            psf.append(p)
-            vig.append(v)
-    finally:
-        model.out_of_range = mode
+    for i in range(0, params.shape[0], batch_designs):
+        p, v = model.psfs(params[i:i + batch_designs], check=False)
+        psf.append(p)
+        vig.append(v)
     return torch.cat(psf), torch.cat(vig)
 
 
@@ -192,9 +188,7 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
         f = torch.randint(k, (cfg.batch,), generator=gen).to(device)
         psf, vig = model.net(model.normalize(train_t["params"][d]), fields[f])
         terms = optics_loss_terms(psf, vig, train_t["psf"][d, f], train_t["vignetting"][d, f])
-        w = cfg.weights
-        loss = (w.pixel * terms["pixel"] + w.fourier * terms["fourier"] + w.gradient * terms["gradient"]
-                + w.vignetting * terms["vignetting"])
+        loss = cfg.weights.total(terms)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.net.parameters(), cfg.clip_grad)
