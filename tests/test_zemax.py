@@ -162,9 +162,10 @@ def test_vendor_glass_names_in_zmx(tmp_path):
                    {"glass": "E-FD1", "catalog": "hoya"}, {"glass": "PMMA", "catalog": "organic"},
                    {"glass": "polycarbonate", "catalog": "organic"}, {"glass": "N-BK7", "catalog": "schott"},
                    {"glass": "S-LAH66", "catalog": "ohara"}]
-    # a glass outside the file's catalogs is still found, and the note says where
-    imp = parse_zmx(text.replace("GCAT OHARA CDGM HOYA MISC SCHOTT", "GCAT SCHOTT MISC"), source="<t>")
-    assert "SURF 1: glass S-BSL7 not in the file's catalogs (SCHOTT MISC); found in ohara" in imp.notes
+    # a glass outside the file's catalogs is not substituted: the error says where it is
+    with pytest.raises(ZemaxError, match=r"SURF 1: unknown glass 'S-BSL7' in the file's catalogs "
+                       r"\(GCAT SCHOTT MISC\); not substituted: S-BSL7 exists in catalog ohara"):
+        parse_zmx(text.replace("GCAT OHARA CDGM HOYA MISC SCHOTT", "GCAT SCHOTT MISC"), source="<t>")
     lens = Lens(imp.data)
     _same_optics(lens, _roundtrip(lens, tmp_path))
 
@@ -213,11 +214,13 @@ BROKEN_CASES = {
     "truncated.zmx": r"truncated\.zmx:113: GLAS: SURF 5 is the last surface, taken as the image plane, "
                      r"but has glass after it: the file looks truncated",
     "truncated_utf16.zmx": r"truncated_utf16\.zmx: cannot decode as utf-16 .*truncated file\?",
-    "unknown_surface_type.zmx": r":107: TYPE: SURF 5: unknown surface type 'TOROIDAL'; supported: STANDARD, EVENASPH",
-    "unknown_glass.zmx": r":93: GLAS: SURF 3: unknown glass 'N-SF111'; close matches: N-SF11 \(schott\)",
+    "unknown_surface_type.zmx": r":107: TYPE: SURF 5: toroidal/cylindrical surface \(TOROIDAL\) is not "
+                                r"supported; supported: STANDARD, EVENASPH, ODDASPHE",
+    "unknown_glass.zmx": r":93: GLAS: SURF 3: unknown glass 'N-SF111' in the file's catalogs \(GCAT SCHOTT "
+                         r"HIKARI\); close matches: N-SF11 \(schott\)",
     "missing_stop.zmx": r": STOP: no surface is marked STOP",
-    "coordinate_break.zmx": r":107: TYPE: SURF 5: unknown surface type 'COORDBRK' \(coordinate break: "
-                            r"tilts/decenters are not supported\)",
+    "coordinate_break.zmx": r":107: TYPE: SURF 5: coordinate break \(tilt/decenter\) \(COORDBRK\) is not "
+                            r"supported",
     "decentered_aperture.zmx": r":116: OBDC: SURF 5: decentered aperture is not supported",
     "non_sequential.zmx": r":2: MODE: only sequential files are supported \(MODE SEQ\), got 'NSC'",
     "height_fields.zmx": r":14: FTYP: field type 1 \(object height\); only angle fields",
@@ -384,7 +387,7 @@ def test_cli_convert_errors(tmp_path):
     assert r.exit_code == 2 and "unknown extension '.txt' (use .json or .zmx)" in r.output
     r = _cli("lens", "convert", BROKEN / "unknown_glass.zmx", tmp_path / "x.json")
     assert r.exit_code == 1
-    assert "Error: " in r.output and ":93: GLAS: SURF 3: unknown glass 'N-SF111'" in r.output
+    assert "Error: " in r.output and ":93: GLAS: SURF 3: unknown glass 'N-SF111' in the file's catalogs" in r.output
     r = _cli("lens", "convert", BROKEN / "unknown_keyword.zmx", tmp_path / "x.json", "--lenient")
     assert r.exit_code == 0, r.output
     assert "FROB (line 83)" in r.output

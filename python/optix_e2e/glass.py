@@ -18,6 +18,13 @@ Lookup rules
 * Polymers: ``PMMA`` (alias ``acrylic``), ``polycarbonate`` (aliases ``PC`` and Zemax's
   ``POLYCARB``) and ``polystyrene`` (``PS``, ``POLYSTYR``) map to the pages
   refractiveindex.info shows by default (Sultanova et al. 2009); their catalog is ``organic``.
+* Zemax catalog names the database keeps elsewhere or lacks (:data:`ZEMAX_NAMES`): the
+  crystals and fused silica of Zemax's ``INFRARED`` and ``MISC`` catalogs (``F_SILICA``,
+  ``CAF2``, ``GERMANIUM`` ...) point to the database's ``main`` pages, Corning's ``C79-80``
+  to fused silica, LightPath's ``BD2`` to ``BD-2``, and withdrawn Schott names with
+  published data (``BK7``) to a formula from that data.  Their catalogs are ``infrared``,
+  ``misc``, ``corning``, ``lightpath`` and ``schott``, so a name resolves only where Zemax
+  has it (``BAF2`` under ``infrared`` is the crystal, under ``cdgm`` CDGM's glass).
 * The environment variable ``OPTIX_GLASS_DB`` may point to another copy of the
   database's ``data`` folder.
 """
@@ -56,6 +63,53 @@ _POLYMERS = {
 # Zemax's MISC catalog spells the plastics POLYCARB and POLYSTYR.
 _ALIASES = {"acrylic": "pmma", "pc": "polycarbonate", "ps": "polystyrene",
             "polycarb": "polycarbonate", "polystyr": "polystyrene"}
+
+
+# Zemax catalog -> {Zemax name: page of the database (relative to its data folder), or a
+# ("formula", n, coefficients, range_um, source) entry where the database lacks the material}.
+# Membership follows Zemax's catalogs: INFRARED and MISC both carry the common crystals.
+_CRYSTALS = {
+    "F_SILICA": "main/SiO2/nk/Malitson.yml",   # Zemax's F_SILICA is Malitson's fused silica
+    "CAF2": "main/CaF2/nk/Malitson.yml",
+    "BAF2": "main/BaF2/nk/Malitson.yml",
+    "MGF2": "main/MgF2/nk/Dodge-o.yml",        # ordinary ray
+    "SAPPHIRE": "main/Al2O3/nk/Malitson-o.yml",  # ordinary ray
+    "GERMANIUM": "main/Ge/nk/Burnett.yml",
+    "SILICON": "main/Si/nk/Salzberg.yml",
+    "ZNSE": "main/ZnSe/nk/Connolly.yml",
+    "ZNS": "main/ZnS/nk/Debenham.yml",
+    "GAAS": "main/GaAs/nk/Skauli.yml",
+    "LIF": "main/LiF/nk/Li.yml",
+    "NACL": "main/NaCl/nk/Li.yml",
+    "KBR": "main/KBr/nk/Li.yml",
+    "KCL": "main/KCl/nk/Li.yml",
+    "CSI": "main/CsI/nk/Li.yml",
+    "CSBR": "main/CsBr/nk/Li.yml",
+}
+ZEMAX_NAMES: dict[str, dict[str, "str | tuple"]] = {
+    "infrared": dict(_CRYSTALS),
+    "misc": {**_CRYSTALS, "AL2O3": "main/Al2O3/nk/Malitson-o.yml"},
+    # Corning HPFS 7980 is synthetic fused silica (Corning's data sheet: nd 1.4584).
+    "corning": {"C79-80": "main/SiO2/nk/Malitson.yml", "C7980": "main/SiO2/nk/Malitson.yml"},
+    # Molders' catalogs name the CDGM glass they press with a mold suffix. The pressed glass's
+    # index sits a few 1e-3 below the annealed catalog value; no molded data is published in
+    # the database, so these use CDGM's annealed data (MOLDED_FROM says which; import notes it).
+    "lightpath": {"BD2": "specs/lightpath/infrared/BD-2.yml",
+                  "D-ZK3M": "specs/cdgm/optical/D-ZK3.yml",
+                  "D-ZLAF52LAM": "specs/cdgm/optical/D-ZLAF52LA.yml",
+                  "D-ZLAF52LA_M": "specs/cdgm/optical/D-ZLAF52LA.yml"},
+    "rpo": {"D-LAK6_MOLD": "specs/cdgm/optical/D-LAK6.yml",
+            "H-LAK54_MOLD": "specs/cdgm/optical/H-LAK54.yml"},
+    # BK7, withdrawn for N-BK7: SCHOTT's data sheet gives BK7 the same Sellmeier
+    # coefficients (B1..B3, C1..C3 in um^2) as N-BK7 (nd 1.51680, vd 64.17).
+    "schott": {"BK7": ("formula", 2, (0.0, 1.03961212, 0.00600069867, 0.231792344, 0.0200179144,
+                                      1.01046945, 103.560653), (0.3, 2.5),
+                       "SCHOTT optical glass data sheet, BK7")},
+}
+
+#: Molded glasses above -> the CDGM glass whose annealed data they use.
+MOLDED_FROM = {"D-ZK3M": "D-ZK3", "D-ZLAF52LAM": "D-ZLAF52LA", "D-ZLAF52LA_M": "D-ZLAF52LA",
+               "D-LAK6_MOLD": "D-LAK6", "H-LAK54_MOLD": "H-LAK54"}
 
 
 class GlassError(ValueError):
@@ -168,6 +222,12 @@ def _index() -> dict[str, list[tuple[str, str, str]]]:
         cls = rel.parts[2] if len(rel.parts) > 3 else ""
         key = (_catalog_rank(catalog), _class_rank(cls), str(rel))
         found.setdefault(page.stem.casefold(), []).append((key, page.stem, catalog, rel.as_posix()))
+    for catalog, names in ZEMAX_NAMES.items():
+        for name, rel in names.items():
+            rel = rel if isinstance(rel, str) else f"builtin:{catalog}/{name}"
+            if rel.startswith("builtin:") or (data / rel).is_file():
+                key = (_catalog_rank(catalog), len(CLASS_PREFERENCE) + 1, rel)
+                found.setdefault(name.casefold(), []).append((key, name, catalog, rel))
     for key_name, (name, rel) in _POLYMERS.items():
         found.setdefault(key_name, []).append(((( -1, ""), 0, rel), name, "organic", rel))
     return {k: [(n, c, p) for _, n, c, p in sorted(v)] for k, v in found.items()}
@@ -227,6 +287,9 @@ def resolve(name: str | dict, catalog: str | None = None) -> Glass:
 def _load_page(name: str, catalog: str, rel: str) -> Glass:
     import yaml  # a dependency of refractiveindex; imported lazily (slow import)
 
+    if rel.startswith("builtin:"):
+        _, formula, coefficients, range_um, _source = ZEMAX_NAMES[catalog][name]
+        return Glass(name, catalog, rel, formula, tuple(coefficients), tuple(range_um))
     path = database_dir() / rel
     try:
         page = yaml.safe_load(path.read_text(encoding="utf-8"))

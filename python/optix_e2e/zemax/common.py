@@ -17,6 +17,8 @@ IGNORED = {
     "HIDE", "MIRR", "SLAB", "POPS", "MEMA", "COAT", "FIMP", "MAZH", "DIAZ",
     # tolerancing data, displayed EFL, glass-catalog cache
     "TOLE", "EFFL", "GLCZ",
+    # mechanical semi-apertures and edge data for drawings (OpticStudio 18+), optimization-wizard state
+    "OEMA", "EDGE",
 }
 #: Known keywords whose meaning this reader cannot represent: always an error.
 UNSUPPORTED = {
@@ -29,13 +31,29 @@ UNSUPPORTED = {
     "UDAP": "user-defined aperture", "CLOB": "circular obscuration", "ELOB": "elliptical obscuration",
     "SQOB": "rectangular obscuration", "OBSC": "obscuration",
 }
-SURFACE_TYPES = ("STANDARD", "EVENASPH")
-#: Our catalog folder for a Zemax GCAT name (lower-cased names not listed map to themselves).
-GCAT_TO_CATALOG = {"MISC": "organic"}
+SURFACE_TYPES = ("STANDARD", "EVENASPH", "ODDASPHE")
+#: What an unsupported surface type is, for the error message.
+SURFACE_FEATURES = {
+    "COORDBRK": "coordinate break (tilt/decenter)", "TOROIDAL": "toroidal/cylindrical surface",
+    "BICONICX": "biconic surface", "BICONIC": "biconic surface", "DGRATING": "diffraction grating",
+    "ELGRATIN": "diffraction grating", "BINARY_1": "binary optic (diffractive)",
+    "BINARY_2": "binary optic (diffractive)", "BINARY_3": "binary optic (diffractive)",
+    "FRESNELS": "Fresnel surface", "CFRESNEL": "Fresnel surface", "PARAXIAL": "paraxial (ideal) lens",
+    "PARAX_XY": "paraxial (ideal) lens", "SZERNSAG": "Zernike sag surface",
+    "GRINSUR1": "gradient-index surface", "GRADIENT": "gradient-index surface",
+    "IRREGULA": "irregular (tilted/decentered) surface", "TILTSURF": "tilted surface",
+    "USERSURF": "user-defined surface", "XPOLYNOM": "extended polynomial surface",
+    "EXTASPHE": "extended asphere", "EXTODDAS": "extended odd asphere",
+}
+#: Our catalog folders for a Zemax GCAT name (lower-cased names not listed map to themselves).
+GCAT_TO_CATALOG = {"MISC": ("organic", "misc")}
 CATALOG_TO_GCAT = {"organic": "MISC"}
 #: Zemax MISC-catalog names of our polymers.
 ZEMAX_POLYMER_NAMES = {"PMMA": "PMMA", "polycarbonate": "POLYCARB", "polystyrene": "POLYSTYR"}
 N_EVENASPH = 8  # PARM 1..8 = a2, a4, ..., a16
+N_ODDASPHE = 8  # PARM 1..8 = coefficients of r^1, r^2, ..., r^8
+#: Upper bounds on counts and indices a file may give (OpticStudio's own limits are lower).
+MAX_SURFACES, MAX_FIELDS, MAX_WAVES, MAX_PARM = 100_000, 1000, 1000, 1000
 
 
 class ZemaxError(ValueError):

@@ -7,7 +7,8 @@ from pathlib import Path
 from typing import Any
 
 from .. import glass as _glass
-from .common import GCAT_TO_CATALOG, IGNORED, N_EVENASPH, SURFACE_TYPES, UNITS_MM, UNSUPPORTED, ZemaxError, ZemaxImport
+from .common import (GCAT_TO_CATALOG, IGNORED, MAX_FIELDS, MAX_PARM, MAX_SURFACES, MAX_WAVES, N_EVENASPH,
+                     N_ODDASPHE, SURFACE_FEATURES, SURFACE_TYPES, UNITS_MM, UNSUPPORTED, ZemaxError, ZemaxImport)
 from .numbers import _from_um, _radius
 
 
@@ -69,6 +70,18 @@ class _Parser:
             self.fail(line, key, f"expected a finite number, got {tok[i]!r}")
         return v
 
+    def int_(self, line: int, key: str, tok: list[str], i: int, default: int | None = None,
+             lo: int | None = None, hi: int | None = None, what: str = "value") -> int:
+        """An integer token; a fraction ('2.5', '1,5') or a value outside lo..hi is an error."""
+        if i >= len(tok) and default is not None:
+            return default
+        v = self.num(line, key, tok, i)
+        if not v.is_integer():
+            self.fail(line, key, f"{what} must be an integer, got {tok[i]!r}")
+        if (lo is not None and v < lo) or (hi is not None and v > hi):
+            self.fail(line, key, f"{what} {tok[i]} outside {lo}..{hi}")
+        return int(v)
+
     def nums(self, line, key, tok):
         return [self.num(line, key, tok, i) for i in range(1, len(tok))]
 
@@ -82,7 +95,7 @@ class _Parser:
         key = tok[0]
         rest = raw_line.strip()[len(key):].strip()
         if key == "SURF":
-            sid = int(self.num(lineno, key, tok, 1))
+            sid = self.int_(lineno, key, tok, 1, lo=0, hi=MAX_SURFACES, what="surface number")
             if sid != len(self.surfs):
                 self.fail(lineno, key, f"surface {sid} out of order (expected SURF {len(self.surfs)})")
             self.surfs.append({"id": sid, "line": lineno, "type": "STANDARD", "curv": 0.0,
@@ -146,13 +159,17 @@ class _Parser:
 
     def k_ENPD(self, line, key, tok, rest, s):
         v = self.num(line, key, tok, 1)
-        if v <= 0:
-            self.fail(line, key, f"entrance pupil diameter must be > 0, got {v}")
-        self._aperture(line, key, ("epd", v))
+        if v < 0:
+            self.fail(line, key, f"entrance pupil diameter must be >= 0, got {v}")
+        if v == 0:  # no pupil given: the stop's aperture sets it, as for FLOA
+            self.notes.append(f"line {line}: ENPD 0, the stop's clear aperture sets the pupil (as FLOA)")
+            self._aperture(line, key, ("floa", None))
+        else:
+            self._aperture(line, key, ("epd", v))
 
     def k_FNUM(self, line, key, tok, rest, s):
         v = self.num(line, key, tok, 1)
-        flag = int(self.num(line, key, tok, 2, default=0.0))
+        flag = self.int_(line, key, tok, 2, default=0, what="F/# type flag")
         if flag != 0:
             self.fail(line, key, f"FNUM type flag {flag} (only 0, image-space F/# = EFL/EPD, is supported)")
         if v <= 0:
@@ -173,19 +190,17 @@ class _Parser:
         self.hdr["gcat"] = tok[1:]
 
     def k_FTYP(self, line, key, tok, rest, s):
-        ftype = int(self.num(line, key, tok, 1, 0.0))
-        if ftype != 0:
-            kinds = {1: "object height", 2: "paraxial image height", 3: "real image height",
-                     4: "theodolite angle"}
-            self.fail(line, key, f"field type {ftype} ({kinds.get(ftype, 'unknown')}); only angle "
-                      "fields (type 0) with the object at infinity are supported")
-        if int(self.num(line, key, tok, 2, 0.0)) != 0:
+        # FTYP type telecentric n_fields n_waves normalization ? ? n_fields (OpticStudio 18+
+        # repeats the field count as the 8th number; older files stop earlier).
+        ftype = self.int_(line, key, tok, 1, 0, what="field type")
+        self.hdr["ftype"] = (line, ftype)  # checked with the field values in _fields
+        if self.int_(line, key, tok, 2, 0, what="telecentric flag") != 0:
             self.fail(line, key, "object-space telecentric systems are not supported")
         if len(tok) > 4:
-            self.hdr["n_fields"] = int(self.num(line, key, tok, 3))
-            self.hdr["n_waves"] = int(self.num(line, key, tok, 4))
-        if int(self.num(line, key, tok, 8, 0.0)) == 1:
-            self.fail(line, key, "afocal image space is not supported")
+            self.hdr["n_fields"] = self.int_(line, key, tok, 3, lo=1, hi=MAX_FIELDS, what="field count")
+            self.hdr["n_waves"] = self.int_(line, key, tok, 4, lo=1, hi=MAX_WAVES, what="wavelength count")
+        for i in range(5, min(len(tok), 9)):
+            self.int_(line, key, tok, i, what=f"FTYP value {i}")
 
     def k_XFLN(self, line, key, tok, rest, s):
         self.hdr["xfld"] = (line, key, self.nums(line, key, tok))
@@ -196,10 +211,12 @@ class _Parser:
     k_XFLD, k_YFLD = k_XFLN, k_YFLN  # older files
 
     def k_WAVM(self, line, key, tok, rest, s):
-        slot = int(self.num(line, key, tok, 1))
+        slot = self.int_(line, key, tok, 1, lo=1, hi=MAX_WAVES, what="wavelength slot")
         self.wavm[slot] = (self.num(line, key, tok, 2), self.num(line, key, tok, 3, 1.0), line)
 
     def k_WAVL(self, line, key, tok, rest, s):  # older files: all wavelengths on one line
+        if len(tok) - 1 > MAX_WAVES:
+            self.fail(line, key, f"{len(tok) - 1} wavelengths (at most {MAX_WAVES})")
         for i, w in enumerate(self.nums(line, key, tok), 1):
             old = self.wavm.get(i, (0, 1.0, line))
             self.wavm[i] = (w, old[1], line)
@@ -210,23 +227,27 @@ class _Parser:
             self.wavm[i] = (old[0], w, old[2])
 
     def k_PWAV(self, line, key, tok, rest, s):
-        self.hdr["pwav"] = (line, int(self.num(line, key, tok, 1)))
+        self.hdr["pwav"] = (line, self.int_(line, key, tok, 1, lo=1, hi=MAX_WAVES, what="primary wavelength"))
 
     def k_MNUM(self, line, key, tok, rest, s):
-        if int(self.num(line, key, tok, 1)) > 1:
+        if self.int_(line, key, tok, 1, what="configuration count") > 1:
             self.fail(line, key, "multi-configuration files are not supported")
 
     # surface keywords -----------------------------------------------------------
     def k_TYPE(self, line, key, tok, rest, s):
         t = tok[1] if len(tok) > 1 else ""
         if t not in SURFACE_TYPES:
-            what = {"COORDBRK": " (coordinate break: tilts/decenters are not supported)"}.get(t, "")
-            self.fail(line, key, f"{self.where(s)}: unknown surface type {t!r}{what}; "
+            what = f"{SURFACE_FEATURES[t]} ({t})" if t in SURFACE_FEATURES else f"unknown surface type {t!r}"
+            self.fail(line, key, f"{self.where(s)}: {what} is not supported; "
                       f"supported: {', '.join(SURFACE_TYPES)}")
         s["type"] = t
 
     def k_CURV(self, line, key, tok, rest, s):
-        s["curv"] = self.num(line, key, tok, 1)
+        c = self.num(line, key, tok, 1)
+        if c != 0 and not math.isfinite(1.0 / c):
+            self.fail(line, key, f"{self.where(s)}: curvature {tok[1]} has no finite radius "
+                      "(write 0 for a flat surface)")
+        s["curv"] = c
 
     def k_DISZ(self, line, key, tok, rest, s):
         s["disz"] = math.inf if tok[1:2] == ["INFINITY"] else self.num(line, key, tok, 1)
@@ -235,7 +256,8 @@ class _Parser:
         s["coni"] = self.num(line, key, tok, 1)
 
     def k_PARM(self, line, key, tok, rest, s):
-        s["parm"][int(self.num(line, key, tok, 1))] = (self.num(line, key, tok, 2), line)
+        i = self.int_(line, key, tok, 1, lo=0, hi=MAX_PARM, what="parameter number")
+        s["parm"][i] = (self.num(line, key, tok, 2), line)
 
     def k_STOP(self, line, key, tok, rest, s):
         s["stop"] = True
@@ -244,7 +266,7 @@ class _Parser:
         s["comm"] = rest.strip('"')
 
     def k_DIAM(self, line, key, tok, rest, s):
-        s["diam"] = (self.num(line, key, tok, 1), int(self.num(line, key, tok, 2, 0.0)))
+        s["diam"] = (self.num(line, key, tok, 1), self.int_(line, key, tok, 2, 0, what="DIAM solve flag"))
 
     def k_CLAP(self, line, key, tok, rest, s):
         rmin, rmax = self.num(line, key, tok, 1), self.num(line, key, tok, 2)
@@ -253,11 +275,12 @@ class _Parser:
         s["clap"] = rmax
 
     def k_IGNR(self, line, key, tok, rest, s):
-        if int(self.num(line, key, tok, 1, 0.0)) != 0:
+        if self.int_(line, key, tok, 1, 0, what="IGNR flag") != 0:
             self.fail(line, key, f"{self.where(s)} is marked 'ignore this surface', which is not supported")
 
     def k_FLAP(self, line, key, tok, rest, s):
-        s["flap"] = True
+        # FLAP solve sd ...: a floating aperture at sd (OpticStudio writes the DIAM value).
+        s["flap"] = self.num(line, key, tok, 2, default=0.0)
 
     def k_OBDC(self, line, key, tok, rest, s):
         if any(v != 0 for v in self.nums(line, key, tok)):
@@ -311,8 +334,10 @@ def _build(p: _Parser, end: int, name: str) -> dict:
                "(or the file is truncated)")
     if image["type"] != "STANDARD" or image["parm"]:
         p.fail(image["line"], "SURF", f"{p.where(image)} (image) must be a plain STANDARD surface")
-    if image["disz"] != 0:
-        p.notes.append(f"{p.where(image)}: image-surface thickness {image['disz']:g} ignored")
+    if image["disz"] != 0:  # OpticStudio always writes DISZ 0 on the image surface
+        p.fail(image["lines"].get("DISZ", image["line"]), "DISZ",
+               f"{p.where(image)}, the last surface, is taken as the image plane but has thickness "
+               f"{image['disz']:g} after it: the file looks truncated")
     stops = [s for s in body if s.get("stop")]
     if obj.get("stop") or image.get("stop"):
         p.fail((obj if obj.get("stop") else image)["lines"]["STOP"], "STOP",
@@ -357,10 +382,18 @@ def _surface(p: _Parser, s: dict, scale: float) -> dict:
     for i, (v, line) in sorted(s["parm"].items()):
         if v == 0:
             continue
-        if s["type"] != "EVENASPH" or not 1 <= i <= N_EVENASPH:
+        if s["type"] == "EVENASPH" and 1 <= i <= N_EVENASPH:
+            power = 2 * i  # PARM i: coefficient of r^(2i)
+        elif s["type"] == "ODDASPHE" and 1 <= i <= N_ODDASPHE:
+            power = i  # PARM i: coefficient of r^i
+            if i % 2:
+                p.fail(line, "PARM", f"{p.where(s)}: ODDASPHE odd-power term r^{i} = {v:g} is not "
+                       "supported (only even powers; r^1 alone is an axicon)")
+        else:
             p.fail(line, "PARM", f"{p.where(s)}: PARM {i} = {v:g} has no meaning on a {s['type']} surface"
-                   + (" (EVENASPH uses PARM 1-8)" if s["type"] == "EVENASPH" else ""))
-        asph[f"a{2 * i}"] = v * scale ** (1 - 2 * i)  # a_{2i} has units length^(1-2i)
+                   + {"EVENASPH": " (EVENASPH uses PARM 1-8)", "ODDASPHE": " (ODDASPHE uses PARM 1-8)"}
+                   .get(s["type"], ""))
+        asph[f"a{power}"] = v * scale ** (1 - power)  # a_k has units length^(1-k)
     if asph:
         surf["aspheric"] = asph
     sd = None
@@ -368,8 +401,11 @@ def _surface(p: _Parser, s: dict, scale: float) -> dict:
         sd = s["clap"]
     elif "diam" in s:
         sd = s["diam"][0]
-    if s.get("flap") and "diam" not in s:
-        p.fail(s["lines"]["FLAP"], "FLAP", f"{p.where(s)}: floating aperture without a DIAM")
+    elif "flap" in s:  # FLAP carries the semi-diameter itself
+        sd = s["flap"]
+        if sd <= 0:
+            p.fail(s["lines"]["FLAP"], "FLAP", f"{p.where(s)}: floating aperture without a DIAM "
+                   f"or a semi-diameter (FLAP value {sd:g})")
     if sd:
         surf["semi_diameter"] = sd * scale
     if s.get("stop"):
@@ -384,7 +420,7 @@ def _material(p: _Parser, s: dict):
         return "air"
     line, tok = s["glas"]
     name = tok[1]
-    solve = int(p.num(line, "GLAS", tok, 2, 0.0))
+    solve = p.int_(line, "GLAS", tok, 2, 0, what="glass solve type")
     nd = p.num(line, "GLAS", tok, 4, 0.0)
     vd = p.num(line, "GLAS", tok, 5, 0.0)
     if name.upper() == "MIRROR":
@@ -412,24 +448,36 @@ def _nd_vd(g) -> tuple[float, float]:
 
 
 def _catalog_glass(p: _Parser, line: int, s: dict, name: str, nd: float, vd: float) -> dict:
-    """Find ``name`` in the file's GCAT catalogs (in order), else in any catalog.
-    Several hits: the one nearest the nd recorded on the GLAS line."""
-    gcat = [GCAT_TO_CATALOG.get(c.upper(), c.lower()) for c in p.hdr.get("gcat", [])]
+    """Find ``name`` in the file's GCAT catalogs only (in order), as OpticStudio does; a
+    file without GCAT searches every catalog.  Several hits: the one nearest the (nd, vd)
+    recorded on the GLAS line.  Not found: an error naming the catalogs that have it."""
+    gcat_names = p.hdr.get("gcat", [])
+    cats: list[str | None] = []
+    for c in gcat_names:
+        mapped = GCAT_TO_CATALOG.get(c.upper(), c.lower())
+        cats.extend([mapped] if isinstance(mapped, str) else mapped)
     known = set(_glass.catalogs())
+    searched = [c for c in cats if c in known] if gcat_names else [None]
     hits = []
-    for cat in [c for c in gcat if c in known] or [None]:
+    for cat in searched:
         try:
             hits.append(_glass.resolve(name, cat))
         except _glass.GlassError:
             continue
     if not hits:
         try:
-            hits.append(_glass.resolve(name))
+            elsewhere = _glass.resolve(name)
+            where = (f"; not substituted: {name} exists in catalog {elsewhere.catalog} "
+                     f"(add {elsewhere.catalog.upper()} to GCAT to use it)")
         except _glass.GlassError as exc:
-            p.fail(line, "GLAS", f"{p.where(s)}: {exc}")
-        p.notes.append(f"{p.where(s)}: glass {name} not in the file's catalogs "
-                       f"({' '.join(p.hdr.get('gcat', [])) or 'none'}); found in {hits[0].catalog}")
+            where = "; " + str(exc).split("; ", 1)[-1]
+        p.fail(line, "GLAS", f"{p.where(s)}: unknown glass {name!r} in the file's catalogs "
+               f"(GCAT {' '.join(gcat_names)}){where}")
     g = hits[0]
+    if g.name in _glass.MOLDED_FROM and g.catalog in ("lightpath", "rpo"):
+        p.notes.append(f"{p.where(s)}: molded glass {g.name} ({g.catalog}) uses CDGM "
+                       f"{_glass.MOLDED_FROM[g.name]}'s annealed data (the mold's index shift, a few "
+                       "1e-3, is not modelled)")
     if nd > 1 and len(hits) > 1:  # nearest (nd, vd); ties keep the GCAT order
         g = min(hits, key=lambda h: abs(_nd_vd(h)[0] - nd) + abs(_nd_vd(h)[1] - vd) * 1e-3)
     return {"glass": g.name, "catalog": g.catalog}
@@ -449,6 +497,14 @@ def _fields(p: _Parser, end: int) -> dict:
         if any(x != 0 for x in xs[:n]):
             p.fail(xline, xkey, "x field angles are not supported (fields lie along +y; "
                    "a rotationally symmetric lens needs only the radial angle)")
+    fline, ftype = h.get("ftype", (line, 0))
+    if ftype != 0:  # only the on-axis field means the same in every field type
+        if any(y != 0 for y in ys):
+            kinds = {1: "object height", 2: "paraxial image height", 3: "real image height",
+                     4: "theodolite angle"}
+            p.fail(fline, "FTYP", f"field type {ftype} ({kinds.get(ftype, 'unknown')}); only angle "
+                   "fields (type 0) with the object at infinity are supported")
+        p.notes.append(f"field type {ftype} with only the on-axis field: read as angle 0")
     for y in ys:
         if y < 0:
             p.fail(line, key, f"negative field angle {y:g}: give fields along +y")
