@@ -16,6 +16,22 @@ from ..prescription import PrescriptionError
 AIMING = click.Choice(["paraxial", "real"])
 
 
+class FiniteFloatRange(click.FloatRange):
+    """``click.FloatRange`` that also refuses nan and inf, which click lets through."""
+
+    name = "finite float range"
+
+    def convert(self, value, param, ctx):
+        v = super().convert(value, param, ctx)
+        if not math.isfinite(v):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return v
+
+
+FINITE = FiniteFloatRange()
+SEED = click.IntRange(0, 2 ** 63 - 1)  # what numpy and torch generators accept
+
+
 def _engine_errors() -> tuple[type[BaseException], ...]:
     try:
         from .. import _engine

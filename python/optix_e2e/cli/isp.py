@@ -14,7 +14,7 @@ from pathlib import Path
 
 import click
 
-from ._common import dumps, friendly_errors
+from ._common import SEED, FiniteFloatRange, dumps, friendly_errors
 
 OUT = click.Path(file_okay=False, path_type=Path)
 
@@ -28,20 +28,20 @@ def _train_options(fn):
     for opt in reversed([
         click.option("--out", "out_dir", type=OUT, required=True, help="Output directory."),
         click.option("--steps", type=click.IntRange(min=1), default=8000, show_default=True),
-        click.option("--minutes", type=click.FloatRange(min=0), default=0.0, show_default=True,
+        click.option("--minutes", type=FiniteFloatRange(min=0), default=0.0, show_default=True,
                      help="Wall-time budget; the learning rate anneals over it (0 = no limit)."),
-        click.option("--batch", type=click.IntRange(min=1), default=16, show_default=True),
-        click.option("--patch", type=click.IntRange(min=16), default=64, show_default=True,
+        click.option("--batch", type=click.IntRange(1, 1024), default=16, show_default=True),
+        click.option("--patch", type=click.IntRange(16, 1024), default=64, show_default=True,
                      help="Training patch size (px, multiple of 16)."),
-        click.option("--pool", type=click.IntRange(min=16), default=3072, show_default=True,
+        click.option("--pool", type=click.IntRange(16, 65536), default=3072, show_default=True,
                      help="Training pairs per pool; a fresh pool every --refresh steps."),
         click.option("--refresh", "refresh_every", type=click.IntRange(min=1), default=1500, show_default=True),
-        click.option("--lr", type=float, default=1e-3, show_default=True),
-        click.option("--perceptual-weight", type=float, default=0.1, show_default=True,
+        click.option("--lr", type=FiniteFloatRange(min=0, min_open=True), default=1e-3, show_default=True),
+        click.option("--perceptual-weight", type=FiniteFloatRange(min=0), default=0.1, show_default=True,
                      help="Weight of the perceptual term (1 - HaarPSI) next to L1."),
-        click.option("--base", type=click.IntRange(min=4), default=32, show_default=True,
+        click.option("--base", type=click.IntRange(4, 256), default=32, show_default=True,
                      help="UNet width (channels of the first level)."),
-        click.option("--seed", type=int, default=0, show_default=True),
+        click.option("--seed", type=SEED, default=0, show_default=True),
         click.option("--threads", type=click.IntRange(min=0), default=0, help="torch threads (0 = default)."),
         click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON."),
     ]):
@@ -104,8 +104,8 @@ def train_software_cmd(out_dir, as_json, **kw):
 
 @isp.command("eval")
 @click.argument("proxy", required=False, type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--size", type=click.IntRange(min=32), default=256, show_default=True, help="Photo size (px).")
-@click.option("--param-sets", type=click.IntRange(min=0), default=4, show_default=True,
+@click.option("--size", type=click.IntRange(32, 4096), default=256, show_default=True, help="Photo size (px).")
+@click.option("--param-sets", type=click.IntRange(0, 256), default=4, show_default=True,
               help="Random held-out hyperparameter sets per photo (plus the defaults).")
 @click.option("--photo", "photos", multiple=True, help="Restrict to these bundled photos (repeatable).")
 @click.option("--out", "out_dir", type=OUT, default=None, help="Write eval.json here.")
@@ -131,12 +131,12 @@ def eval_cmd(proxy, size, param_sets, photos, out_dir, as_json):
 @click.option("--proxy", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Proxy checkpoint (default: the shipped one).")
 @click.option("--steps", type=click.IntRange(min=1), default=200, show_default=True)
-@click.option("--scenes", "n_scenes", type=click.IntRange(min=1), default=48, show_default=True,
+@click.option("--scenes", "n_scenes", type=click.IntRange(1, 4096), default=48, show_default=True,
               help="Procedural training scenes to tune on.")
-@click.option("--perceptual-weight", type=float, default=1.0, show_default=True)
-@click.option("--size", type=click.IntRange(min=32), default=256, show_default=True,
+@click.option("--perceptual-weight", type=FiniteFloatRange(min=0), default=1.0, show_default=True)
+@click.option("--size", type=click.IntRange(32, 4096), default=256, show_default=True,
               help="Held-out photo size for the true-ISP check.")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--out", "out_dir", type=OUT, default=None, help="Write tune.json here.")
 @click.option("--json", "as_json", is_flag=True)
 @friendly_errors

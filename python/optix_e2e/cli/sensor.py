@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from ._common import dumps, friendly_errors
+from ._common import SEED, FiniteFloatRange, dumps, friendly_errors
 
 
 @click.group("sensor")
@@ -17,15 +17,15 @@ def sensor():
 
 @sensor.command("ptc")
 @click.option("--preset", default="imx249", show_default=True, help="Sensor preset (imx249, phone-1um).")
-@click.option("--exposure-s", type=float, default=None, help="Exposure time override (s).")
-@click.option("--gain", type=float, default=None, help="System gain K override (DN/e-).")
-@click.option("--low-light", "low_light", type=float, default=None,
+@click.option("--exposure-s", type=FiniteFloatRange(min=0, min_open=True), default=None, help="Exposure time override (s).")
+@click.option("--gain", type=FiniteFloatRange(min=0, min_open=True), default=None, help="System gain K override (DN/e-).")
+@click.option("--low-light", "low_light", type=FiniteFloatRange(min=0, min_open=True), default=None,
               help="Paper's low-light setting: exposure / FACTOR and gain x FACTOR (before other overrides).")
-@click.option("--temperature", "temperature_c", type=float, default=None, help="Sensor temperature override (C).")
-@click.option("--levels", "n_levels", type=click.IntRange(min=10), default=50, show_default=True,
+@click.option("--temperature", "temperature_c", type=FiniteFloatRange(min=-273.15), default=None, help="Sensor temperature override (C).")
+@click.option("--levels", "n_levels", type=click.IntRange(10, 1000), default=50, show_default=True,
               help="Irradiance levels from dark to beyond saturation.")
-@click.option("--patch", type=click.IntRange(min=8), default=256, show_default=True, help="Flat-field patch size (px).")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--patch", type=click.IntRange(8, 4096), default=256, show_default=True, help="Flat-field patch size (px).")
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Directory for ptc.json and ptc.png.")
 @click.option("--json", "as_json", is_flag=True, help="Print the full result as JSON on stdout.")

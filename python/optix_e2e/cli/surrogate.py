@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ._common import dumps, friendly_errors
+from ._common import SEED, FiniteFloatRange, dumps, friendly_errors
 
 DATA = click.Path(file_okay=False, exists=True, path_type=Path)
 
@@ -22,26 +22,26 @@ def surrogate():
               help="Run directory: surrogate.pt, state.pt (resume), train.json, tb/ (TensorBoard).")
 @click.option("--psf", type=click.Choice(["psf_sensor", "psf"]), default="psf_sensor", show_default=True,
               help="Train on the sensor-pitch PSFs or the super-resolved ones.")
-@click.option("--bin", "bin_", type=click.IntRange(min=1), default=1, show_default=True,
+@click.option("--bin", "bin_", type=click.IntRange(1, 64), default=1, show_default=True,
               help="Sum bin x bin pixel blocks of the PSFs first (a coarser pitch, same window).")
-@click.option("--hidden", type=click.IntRange(min=1), default=256, show_default=True, help="MLP width.")
-@click.option("--depth", type=click.IntRange(min=1), default=4, show_default=True, help="MLP layers.")
-@click.option("--base-channels", type=click.IntRange(min=1), default=64, show_default=True,
+@click.option("--hidden", type=click.IntRange(1, 16384), default=256, show_default=True, help="MLP width.")
+@click.option("--depth", type=click.IntRange(1, 64), default=4, show_default=True, help="MLP layers.")
+@click.option("--base-channels", type=click.IntRange(1, 4096), default=64, show_default=True,
               help="Decoder channels at its coarsest level (halved at each upsampling).")
-@click.option("--n-up", type=click.IntRange(min=0), default=2, show_default=True, help="Decoder x2 upsamplings.")
+@click.option("--n-up", type=click.IntRange(0, 6), default=2, show_default=True, help="Decoder x2 upsamplings.")
 @click.option("--steps", type=click.IntRange(min=1), default=20000, show_default=True)
-@click.option("--minutes", type=click.FloatRange(min=0), default=0.0, show_default=True,
+@click.option("--minutes", type=FiniteFloatRange(min=0), default=0.0, show_default=True,
               help="Training-time budget over all resumed runs; the learning rate anneals over it (0: none).")
-@click.option("--batch", type=click.IntRange(min=1), default=256, show_default=True,
+@click.option("--batch", type=click.IntRange(1, 65536), default=256, show_default=True,
               help="(design, field) samples per step.")
-@click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=2e-3, show_default=True)
+@click.option("--lr", type=FiniteFloatRange(min=0, min_open=True), default=2e-3, show_default=True)
 @click.option("--val-designs", type=click.IntRange(min=0), default=256, show_default=True,
               help="Designs held out of training for validation (and for `eval` on this dataset).")
 @click.option("--max-designs", type=click.IntRange(min=0), default=0, show_default=True,
               help="Use only the first N designs of DATA (0: all).")
 @click.option("--val-every", type=click.IntRange(min=1), default=500, show_default=True,
               help="Validate and write the checkpoints every N steps.")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--threads", type=click.IntRange(min=0), default=0, help="torch CPU threads (0: default).")
 @click.option("--device", default="auto", show_default=True, help="auto (CUDA when present), cpu, cuda, cuda:1 ...")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")

@@ -43,7 +43,11 @@ def evaluate_proxy(proxy: ISPProxy, *, size: int = 256, n_param_sets: int = 4, c
             t0 = time.perf_counter()
             truth = isp(raw[i:i + 1], [p])
             t1 = time.perf_counter()
-            pred = proxy.render(raw[i:i + 1], p).clamp(0, 1)
+            pred = proxy.render(raw[i:i + 1], p)
+            if not torch.isfinite(pred).all():
+                raise ValueError(f"the ISP proxy's output is not finite on photo {name} "
+                                 f"({label} hyperparameters); no metrics")
+            pred = pred.clamp(0, 1)
             t_ref, t_proxy = t_ref + t1 - t0, t_proxy + time.perf_counter() - t1
             s = metrics.summarize(pred, truth, crop=crop)
             rows.append({"photo": name, "params": label, **s})
@@ -54,7 +58,8 @@ def evaluate_proxy(proxy: ISPProxy, *, size: int = 256, n_param_sets: int = 4, c
     return {
         "proxy_psnr_db": mean("psnr_db"), "proxy_ssim": mean("ssim"), "proxy_haarpsi": mean("haarpsi"),
         "min_psnr_db": float(min(r["psnr_db"] for r in rows)),
-        "random_params": {"psnr_db": mean("psnr_db", random_rows), "ssim": mean("ssim", random_rows)},
+        "random_params": ({"psnr_db": mean("psnr_db", random_rows), "ssim": mean("ssim", random_rows)}
+                          if random_rows else None),
         "default_params": {"psnr_db": mean("psnr_db", default_rows), "ssim": mean("ssim", default_rows)},
         "ms_per_image": {"reference_isp": 1e3 * t_ref / len(rows), "proxy": 1e3 * t_proxy / len(rows),
                          "torch_threads": torch.get_num_threads()},

@@ -14,6 +14,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from ..torchfile import build_module, load_plain
 from . import params as hp
 from .rawnet import RawUNet
 
@@ -63,18 +64,17 @@ class ISPProxy(nn.Module):
         path = Path(path) if path is not None else BUNDLED
         if not path.is_file():
             raise FileNotFoundError(f"ISP proxy checkpoint not found: {path}")
-        try:
-            ckpt = torch.load(path, map_location=map_location, weights_only=True)
-        except Exception as exc:  # torch raises several types for corrupt files
-            raise ValueError(f"{path}: not a readable ISP proxy checkpoint ({exc})") from None
+        ckpt = load_plain(path, "ISP proxy checkpoint", map_location=map_location)
         if not isinstance(ckpt, dict) or ckpt.get("format") != "optix-isp-proxy/1":
             raise ValueError(f"{path}: not an optix ISP proxy checkpoint (format 'optix-isp-proxy/1')")
-        space = [tuple(s) for s in ckpt["space"]]
+        try:
+            space = [tuple(s) for s in ckpt["space"]]
+        except (KeyError, TypeError):
+            raise ValueError(f"{path}: damaged ISP proxy checkpoint: no hyperparameter space") from None
         expected = [(p.name, p.low, p.high) for p in hp.SPACE]
         if space != expected:
             raise ValueError(f"{path}: proxy was trained for hyperparameters {space}, this ISP has {expected}")
-        model = cls(**ckpt["config"])
-        model.load_state_dict({k: v.float() if v.is_floating_point() else v
-                               for k, v in ckpt["state_dict"].items()})
-        model.meta = dict(ckpt.get("meta", {}))
+        model = build_module(cls, ckpt.get("config"), ckpt.get("state_dict"), path, "ISP proxy checkpoint")
+        meta = ckpt.get("meta", {})
+        model.meta = dict(meta) if isinstance(meta, dict) else {}
         return model.eval()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ..torchfile import build_module, load_plain
 from .rawnet import RawUNet
 
 
@@ -22,14 +23,8 @@ class SoftwareISP(nn.Module):
     @classmethod
     def load(cls, path, map_location="cpu") -> "SoftwareISP":
         """A checkpoint written by ``optix isp train-software`` (software_isp.pt)."""
-        try:
-            ckpt = torch.load(path, map_location=map_location, weights_only=True)
-        except FileNotFoundError:
-            raise FileNotFoundError(f"software ISP checkpoint not found: {path}") from None
-        except Exception as exc:
-            raise ValueError(f"{path}: not a readable software ISP checkpoint ({exc})") from None
+        ckpt = load_plain(path, "software ISP checkpoint", map_location=map_location)
         if not isinstance(ckpt, dict) or ckpt.get("format") != "optix-software-isp/1":
             raise ValueError(f"{path}: not an optix software ISP checkpoint (format 'optix-software-isp/1')")
-        model = cls(**ckpt["config"])
-        model.load_state_dict(ckpt["state_dict"])
+        model = build_module(cls, ckpt.get("config"), ckpt.get("state_dict"), path, "software ISP checkpoint")
         return model.eval()

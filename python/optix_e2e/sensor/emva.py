@@ -29,8 +29,9 @@ def dark_current_mean(preset, exposure_s: float | None = None, temperature_c: fl
     """Eq. 4: mu_I = mu_I.ref * 2^((T - T_ref) / T_d) * t_exp, in electrons."""
     p = get_preset(preset)
     t = p.exposure_s if exposure_s is None else check_positive("exposure_s", exposure_s)
-    temp = p.temperature_c if temperature_c is None else float(temperature_c)
-    return p.dark_current_e_per_s * 2.0 ** ((temp - p.t_ref_c) / p.doubling_c) * t
+    if temperature_c is not None:
+        p = p.with_(temperature_c=float(temperature_c))  # validated: above absolute zero, no overflow
+    return p.dark_current_rate_e_per_s * t
 
 
 def _resolve(preset, exposure_s=None, gain=None, f_number=None, temperature_c=None, cfa=None) -> SensorPreset:

@@ -21,6 +21,8 @@ import torch
 
 from .cfa import check_pattern
 
+ABSOLUTE_ZERO_C = -273.15
+
 
 def check_positive(name: str, value, *, allow_zero: bool = False) -> float:
     """``value`` as a float if finite and > 0 (>= 0 with allow_zero), else ValueError naming ``name``."""
@@ -68,8 +70,18 @@ class SensorPreset:
         for f in ("dark_noise_e", "black_level_dn", "dark_current_e_per_s"):
             check_positive(f, getattr(self, f), allow_zero=True)
         for f in ("t_ref_c", "temperature_c"):
-            if not math.isfinite(float(getattr(self, f))):
-                raise ValueError(f"{f} must be finite, got {getattr(self, f)!r}")
+            t = float(getattr(self, f))
+            if not math.isfinite(t) or t < ABSOLUTE_ZERO_C:
+                raise ValueError(f"{f} must be finite and at least {ABSOLUTE_ZERO_C} C (absolute zero), "
+                                 f"got {getattr(self, f)!r}")
+        try:  # Eq. 4 doubles the dark current every doubling_c: it must stay a float
+            rate = self.dark_current_rate_e_per_s
+        except OverflowError:
+            rate = math.inf
+        if not math.isfinite(rate):
+            raise ValueError(f"temperature_c = {self.temperature_c:g} C: the dark current "
+                             f"{self.dark_current_e_per_s:g} e-/s doubling every {self.doubling_c:g} C from "
+                             f"{self.t_ref_c:g} C (Eq. 4) overflows")
         for f in ("width", "height", "adc_bits"):
             v = getattr(self, f)
             if not isinstance(v, int) or v < 1:
@@ -90,6 +102,11 @@ class SensorPreset:
             object.__setattr__(self, "cfa", check_pattern(self.cfa))
         except (ValueError, AttributeError) as exc:
             raise ValueError(f"cfa: {exc}") from None
+
+    @property
+    def dark_current_rate_e_per_s(self) -> float:
+        """Eq. 4's mu_I.ref * 2^((T - T_ref) / T_d): the dark current at temperature_c (e-/s)."""
+        return self.dark_current_e_per_s * 2.0 ** ((self.temperature_c - self.t_ref_c) / self.doubling_c)
 
     @property
     def adc_max_dn(self) -> int:

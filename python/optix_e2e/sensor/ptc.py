@@ -34,6 +34,32 @@ COMPARED = {
 }
 
 
+MIN_SPAN_DN = 10.0      # dark to saturation: fewer DN leave quantisation steps, not a curve
+MIN_SATURATION_E = 10.0  # fewer electrons at saturation leave no shot-noise curve to fit
+
+
+def check_measurable(p, e_per_unit: float, max_fraction: float = 1.15) -> None:
+    """A one-line ValueError when the sensor settings leave nothing a photon-transfer series can
+    measure: dark frames already saturated, saturation below a few electrons or a few DN, or an
+    input level beyond float32 needed to reach saturation."""
+    mu_dark = dark_current_mean(p)
+    sat = p.saturation_e
+    settings = f"exposure {p.exposure_s:g} s, gain K {p.gain_dn_per_e:g} DN/e-, {p.temperature_c:g} C"
+    if mu_dark + 3.0 * math.sqrt(mu_dark + p.dark_noise_e ** 2) >= sat:
+        raise ValueError(f"photon transfer: dark frames saturate ({mu_dark:.4g} e- of dark current against a "
+                         f"saturation of {sat:.4g} e-; {settings})")
+    if sat < MIN_SATURATION_E:
+        raise ValueError(f"photon transfer: saturation at {sat:.3g} e- (ADC range / gain K) is below "
+                         f"{MIN_SATURATION_E:g} e-: no shot-noise curve to measure ({settings})")
+    if p.gain_dn_per_e * sat < MIN_SPAN_DN:
+        raise ValueError(f"photon transfer: dark to saturation spans {p.gain_dn_per_e * sat:.3g} DN (gain K x "
+                         f"{sat:.4g} e-), below {MIN_SPAN_DN:g} DN: nothing but quantisation ({settings})")
+    top = max_fraction * sat / e_per_unit if e_per_unit > 0 else math.inf
+    if not top < float(np.finfo(np.float32).max):
+        raise ValueError(f"photon transfer: a white input gives {e_per_unit:.3g} photo-electrons; reaching "
+                         f"saturation needs an input level of {top:.3g}, beyond float32 ({settings})")
+
+
 def photon_transfer(preset="imx249", *, exposure_s=None, gain=None, temperature_c=None, n_levels: int = 50,
                     patch: int = 256, max_fraction: float = 1.15, seed: int = 0, quantize: str = "round",
                     progress=None) -> dict:
@@ -50,6 +76,7 @@ def photon_transfer(preset="imx249", *, exposure_s=None, gain=None, temperature_
     white = torch.ones(3, 1, 1, dtype=torch.float64)
     e_white = expected_electrons(white, p)[:, 0, 0]  # R, G, B photo-electrons for input (1, 1, 1)
     e_per_unit = e_white[1].item()
+    check_measurable(p, e_per_unit, max_fraction)
     levels = np.linspace(0.0, max_fraction * p.saturation_e / e_per_unit, n_levels)
     masks = bayer_masks(p.cfa, patch, patch)
     green = masks[1].bool()
@@ -70,7 +97,13 @@ def photon_transfer(preset="imx249", *, exposure_s=None, gain=None, temperature_
     i_sat = int(np.argmax(variances))
     x_sat = x[i_sat]
     fit = (x > 0) & (x <= 0.7 * x_sat)
+    if fit.sum() < 2:
+        raise ValueError(f"photon transfer: only {int(fit.sum())} of {n_levels} levels fall below 70% of "
+                         f"saturation, too few to fit the gain K; use more --levels")
     k = float(np.sum(x[fit] * yv[fit]) / np.sum(x[fit] ** 2))
+    if not (math.isfinite(k) and k > 0):
+        raise ValueError(f"photon transfer: the fitted gain K = {k:g} DN/e- is not positive; "
+                         f"the simulated series shows no shot noise")
     q = 1.0 / 12.0 if quantize in ("round", "uniform") else 0.0
     dark_e = math.sqrt(max(variances[0] - q, 0.0)) / k
     sat_e = x_sat / k

@@ -20,6 +20,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from ..torchfile import build_module, load_plain
 from .model import SurrogateConfig, SurrogateNet
 
 FORMAT = "optix-surrogate/1"
@@ -163,25 +164,39 @@ class OpticsSurrogate(nn.Module):
     def from_state(cls, st: dict, where: str = "<state>") -> "OpticsSurrogate":
         if not isinstance(st, dict) or st.get("format") != FORMAT:
             raise SurrogateFileError(f"{where}: not an {FORMAT} checkpoint")
+        net = build_module(lambda **c: SurrogateNet(SurrogateConfig(**c)), st.get("config"), st.get("state_dict"),
+                           where, "surrogate checkpoint", SurrogateFileError)
+        numbers = {k: st.get(k) for k in ("param_mean", "param_std", "param_min", "param_max", "fields_deg")}
+        numbers["pitch_um"] = [st.get("pitch_um")]
+        for key, values in numbers.items():
+            try:
+                arr = np.asarray(values, dtype=float)
+                ok = arr.ndim == 1 and arr.size > 0 and np.isfinite(arr).all()
+            except (TypeError, ValueError, OverflowError):
+                ok = False
+            if not ok:
+                raise SurrogateFileError(f"{where}: damaged surrogate checkpoint: {key} is not a list of finite numbers")
+            if key.startswith("param_") and arr.size != net.cfg.n_params:
+                raise SurrogateFileError(f"{where}: damaged surrogate checkpoint: {arr.size} values in {key} "
+                                         f"for a {net.cfg.n_params}-parameter network")
+        for key in ("manifest", "meta"):
+            if not isinstance(st.get(key) or {}, dict):
+                raise SurrogateFileError(f"{where}: damaged surrogate checkpoint: {key} is not a dict")
         try:
-            cfg = SurrogateConfig(**st["config"])
-            m = cls(cfg, param_names=st["param_names"], param_mean=st["param_mean"], param_std=st["param_std"],
+            m = cls(net.cfg, param_names=st["param_names"], param_mean=st["param_mean"], param_std=st["param_std"],
                     param_min=st["param_min"], param_max=st["param_max"], fields_deg=st["fields_deg"],
                     pitch_um=st["pitch_um"], psf_kind=st["psf_kind"], bin=st["bin"],
                     channel_names=st["channel_names"], manifest=st.get("manifest"), meta=st.get("meta"))
-            m.net.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in st["state_dict"].items()})
-        except (KeyError, TypeError, RuntimeError) as exc:
-            raise SurrogateFileError(f"{where}: damaged surrogate checkpoint ({exc})") from None
+        except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+            raise SurrogateFileError(f"{where}: damaged surrogate checkpoint ({type(exc).__name__}: {exc})") from None
+        m.net = net
         return m
 
     @classmethod
     def load(cls, spec: "str | Path", map_location="cpu") -> "OpticsSurrogate":
         """A checkpoint file, a training directory (its surrogate.pt) or a shipped name."""
         path = resolve(spec)
-        try:
-            st = torch.load(path, map_location=map_location, weights_only=False)
-        except Exception as exc:  # torch raises many kinds for a damaged file
-            raise SurrogateFileError(f"{path}: unreadable checkpoint ({exc})") from None
+        st = load_plain(path, "surrogate checkpoint", SurrogateFileError, map_location)
         m = cls.from_state(st.get("model", st) if isinstance(st, dict) else st, str(path))
         m.eval()
         return m

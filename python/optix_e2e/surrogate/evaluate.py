@@ -125,6 +125,10 @@ def evaluate(model: OpticsSurrogate, data_root, max_designs: int | None = None, 
     t0 = time.perf_counter()
     psf, vig = predict_all(model, params)
     seconds = time.perf_counter() - t0
+    bad = ~(torch.isfinite(psf).flatten(1).all(1) & torch.isfinite(vig).flatten(1).all(1))
+    if bad.any():
+        raise ValueError(f"the surrogate predicts non-finite PSFs or vignetting for {int(bad.sum())} of "
+                         f"{len(bad)} designs (damaged weights?); no metrics")
     m = sample_metrics(psf, vig, torch.as_tensor(arrays.psf), torch.as_tensor(arrays.vignetting))
     s = summarize(m, model.fields_deg)
     o = s["overall"]

@@ -21,6 +21,7 @@ import torch
 from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
+from ..torchfile import load_plain
 from .checkpoint import OpticsSurrogate, save_atomic
 from .data import load_arrays, psf_grid, psf_pitch_um, to_tensors
 from .loss import LossWeights, optics_loss_terms
@@ -135,7 +136,9 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
     state_path = out_dir / "state.pt"
     resumed = None
     if state_path.exists():
-        resumed = torch.load(state_path, map_location="cpu", weights_only=False)
+        resumed = load_plain(state_path, "surrogate training state")
+        if not isinstance(resumed, dict) or not isinstance(resumed.get("config"), dict):
+            raise ValueError(f"{state_path}: not a surrogate training state; use another --out")
         old = resumed["config"]
         diff = [k for k in _FIXED if old.get(k) != getattr(cfg, k)]
         if diff:
