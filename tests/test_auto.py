@@ -1,6 +1,6 @@
 """``method="auto"``: held-out designs (random draws of the bundled parameter spaces, never
 used to fit its error model) meet the accuracy target in >= 95% of cases at <= 1.5x the
-cost of the cheapest candidate that meets it in hindsight; the choice is recorded; the
+modelled cost of the cheapest candidate that meets it in hindsight; the choice is recorded; the
 wavelength and field-sample choices are checked against direct measurements."""
 
 from __future__ import annotations
@@ -30,12 +30,13 @@ def held_out():
 
 @pytest.mark.parametrize("target", [0.02])
 def test_auto_meets_target_on_held_out_designs(held_out, target):
-    rows = [check_case(c, target=target, repeats=3) for c in held_out]
+    rows = [check_case(c, target=target, repeats=1) for c in held_out]
     s = summarize(rows)
     print(json.dumps(s))
     assert s["n_cases"] >= 8
     assert s["met_fraction"] >= 0.95, [(r["case"], r["auto_choice"], r["auto_rel_l1"]) for r in rows]
-    assert s["cost_ratio_of_means"] <= 1.5, s
+    # costs in the engine's cost model, never wall-clock times (benches/auto.py times them)
+    assert s["modelled_cost_ratio_of_means"] <= 1.5, s
 
 
 def test_auto_records_its_choice():
