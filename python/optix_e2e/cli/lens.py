@@ -24,10 +24,16 @@ def lens():
 @click.option("--rings", type=click.IntRange(1, 2048), default=128, show_default=True,
               help="Hexapolar rings per wavelength for the RMS spot.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
+@click.option("--lenient", is_flag=True,
+              help="Reading .zmx: list unknown keywords as ignored instead of failing "
+                   "(known-unsupported features still fail).")
 @friendly_errors
-def info(lens_spec, aiming, rings, as_json):
+def info(lens_spec, aiming, rings, as_json, lenient):
     """First-order data and per-field polychromatic RMS spot of LENS."""
-    lens_ = load_lens(lens_spec)
+    if Path(lens_spec).suffix.lower() == ".zmx" and Path(lens_spec).is_file():
+        lens_ = Lens.from_file(lens_spec, strict=not lenient)
+    else:
+        lens_ = load_lens(lens_spec)
     par = lens_.paraxial()
     fields = []
     for f in lens_.fields_deg:
@@ -95,6 +101,26 @@ def convert(src, dst, utf16, lenient):
     a, b = lens_.paraxial(), back.paraxial()
     click.echo(f"wrote {out} ({len(back.surfaces)} surfaces)   EFL {a['efl_mm']:.9g} -> {b['efl_mm']:.9g} mm"
                f"   BFL {a['bfl_mm']:.9g} -> {b['bfl_mm']:.9g} mm")
+
+
+@lens.command("survey")
+@click.argument("folder", type=click.Path(exists=True, file_okay=False))
+@click.option("--out", type=click.Path(file_okay=False), default=None,
+              help="Also write survey.json (summary) and survey.csv (one row per file) here.")
+@friendly_errors
+def survey_cmd(folder, out):
+    """Import rate of every .zmx under FOLDER (read leniently): how many import, trace
+    (paraxial EFL, a real chief and marginal ray) and match the nominal focal length of
+    their NAME/NOTE line within 1 %, and the top reasons for what is refused."""
+    from ..zemax.survey import results_csv, survey
+
+    summary, results = survey(Path(folder))
+    text = dumps(summary, indent=1, ensure_ascii=False)
+    if out:
+        Path(out).mkdir(parents=True, exist_ok=True)
+        (Path(out) / "survey.json").write_text(text + "\n", encoding="utf-8")
+        (Path(out) / "survey.csv").write_text(results_csv(results), encoding="utf-8")
+    click.echo(text)
 
 
 # Subcommands that live in their own modules (one module per subcommand).

@@ -535,6 +535,7 @@ def _waves(p: _Parser, end: int) -> dict:
 def _resolve_floa(p: _Parser, out: dict, line: int):
     """FLOA: the EPD is whatever fills the stop's semi-diameter paraxially.  The
     paraxial stop height is linear in the EPD, so one trace at EPD = 1 gives it."""
+    from .._engine import EngineError
     from ..lens import Lens  # circular import otherwise
     from ..prescription import PrescriptionError
 
@@ -543,8 +544,8 @@ def _resolve_floa(p: _Parser, out: dict, line: int):
         p.fail(line, "FLOA", "aperture floats by stop size but the stop surface has no DIAM")
     try:
         unit = Lens(out, p.source).paraxial()["stop_semi_diameter_mm"]
-    except PrescriptionError as exc:
-        raise ZemaxError(str(exc)) from None
+    except (PrescriptionError, EngineError) as exc:
+        raise ZemaxError(f"{p.source}:{line}: FLOA: cannot size the pupil: {exc}") from None
     epd = stop["semi_diameter"] / unit
     out["aperture"] = {"type": "epd", "value": epd}
     out["description"] += (f"; aperture FLOA (float by stop size): stop semi-diameter "
