@@ -155,7 +155,7 @@ def test_vendor_glass_names_in_zmx(tmp_path):
                     for i, g in zip(range(1, 2 * len(names), 2), names))
     text = ("MODE SEQ\nENPD 5\nGCAT OHARA CDGM HOYA MISC SCHOTT\nFTYP 0 0 1 1 0 0 0\nYFLN 0\n"
             "WAVM 1 0.55 1\nSURF 0\n  DISZ INFINITY\n" + surfs.replace("SURF 1\n", "SURF 1\n  STOP\n", 1)
-            + f"SURF {2 * len(names) + 1}\n")
+            + f"SURF {2 * len(names) + 1}\n  DISZ 0\n")
     imp = parse_zmx(text, source="<t>")
     got = [s["material"] for s in imp.data["surfaces"] if s["material"] != "air"]
     assert got == [{"glass": "S-BSL7", "catalog": "ohara"}, {"glass": "H-K9L", "catalog": "cdgm"},

@@ -94,7 +94,9 @@ pub(crate) fn far_sheet_other_root(c: f64, kk: f64, pz: f64, dz: f64, t: f64, ot
 }
 
 /// Newton iterations allowed to an even-asphere intersection (a ray not converged by then
-/// misses) and the step that counts as converged (mm).
+/// misses) and the step that counts as converged, relative to the size of the numbers
+/// involved (|t| and the point's distance from the vertex, at least 1 mm): an absolute
+/// 1e-13 mm is below one ulp once they pass ~1000 mm, and such rays never converged.
 const NEWTON_MAX: usize = 30;
 const NEWTON_TOL: f64 = 1e-13;
 
@@ -160,7 +162,8 @@ pub(crate) fn asphere_lanes<const N: usize>(s: &Surface, nterms: usize, p: &[[f6
             let step = f / fp;
             let go = live[j] & ok;
             t[j] = if go { t[j] - step } else { t[j] };
-            let done = go & (step.abs() < NEWTON_TOL);
+            let scale = 1.0f64.max(t[j].abs()).max(hx.abs() + hy.abs() + hz.abs());
+            let done = go & (step.abs() < NEWTON_TOL * scale);
             conv[j] |= done;
             live[j] = go & !done;
             any |= live[j];

@@ -364,6 +364,9 @@ def _build(p: _Parser, end: int, name: str) -> dict:
         p.ignored.append((image["lines"]["DIAM"], "DIAM",
                           "automatic image semi-diameter (not a clear aperture)"))
     out["image"] = {"semi_diameter": img_sd * scale if img_sd else None}
+    if "DISZ" not in image["lines"]:  # OpticStudio (and our writer) write DISZ in every SURF block
+        p.fail(end, "SURF", f"{p.where(image)}, the last surface (taken as the image plane), has no "
+               "DISZ line: the file looks truncated")
     if kind == "floa":
         _resolve_floa(p, out, h["aperture_line"])
     return out
