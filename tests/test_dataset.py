@@ -227,6 +227,11 @@ def test_engine_failures_are_recorded_not_written(tmp_path):
     assert reasons[2].startswith("aperture_outside_surface: surface 5: clear semi-diameter 6.904 mm")
     assert meta["failures"][1]["params"] == {"s_2_thickness": 6.00755, "s_5_radius": 6.0, "s_6_radius": -18.39533}
     assert np.load(root / "shards" / "00000" / "design.npy").tolist() == [0]
+    # these designs replace the sampled ones: designs.csv and its checksum must say so
+    from optix_e2e.dataset.layout import sha256_file, write_json_atomic
+    from optix_e2e.sampling import write_designs_csv
+    write_designs_csv(root / "designs.csv", space.names, designs)
+    write_json_atomic(root / "manifest.json", {**man, "designs_csv_sha256": sha256_file(root / "designs.csv")})
     rep = verify(root)
     assert rep["ok"] and (rep["n_designs"], rep["n_failed"]) == (1, 2)
     # the engine's own refusal: with the base lens's clear apertures kept ("fixed") and

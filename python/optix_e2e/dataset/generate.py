@@ -1,7 +1,8 @@
 """Generate a PSF dataset: sample designs from a parameter space, compute RGB PSFs at K
 field positions with the engine, write them shard by shard (docs/dataset.md).
 
-Resumable: finished shards are skipped, an interrupted one is redone.  Deterministic: the
+Resumable: finished shards that pass verify's checks are skipped; an interrupted one is
+redone, and so is a damaged one (moved aside first).  Deterministic: the
 designs come from the seed, and the engine's batch PSFs do not depend on the thread count,
 so the same command gives byte-identical arrays.  Shards are independent units: processes
 may run disjoint shard ranges (``shards=range(a, b)``) into the same directory, or into
@@ -25,9 +26,10 @@ from ..lens import Lens
 from ..focus import refocus_many
 from ..sampling import apertures, geometry_problem
 from ..space import ParameterSpace, load_space
-from .layout import ARRAYS, FORMAT, aligned_empty, fsync_dir, save_npy, shard_name, shards_dir, write_json_atomic
+from .layout import ARRAYS, FORMAT, DatasetError, aligned_empty, fsync_dir, save_npy, shard_name, shards_dir, write_json_atomic
 from .manifest import prepare
 from .settings import DatasetSettings, engine_base
+from .verify import check_shard
 
 
 @dataclass
@@ -69,6 +71,27 @@ def _clean_stale(sdir: Path, k: int) -> None:
             pid = -1
         if pid != os.getpid() and not _pid_alive(pid):
             shutil.rmtree(p, ignore_errors=True)
+
+
+def _complete(root: Path, k: int, man: dict, log: Callable[[str], None]) -> bool:
+    """Shard ``k`` is there and passes verify's checks (metadata, shapes, CRC-32, finite
+    values). A damaged one is moved aside (``.NNNNN.damaged-<time>``, kept, never read) to
+    be redone."""
+    d = shards_dir(root) / shard_name(k)
+    if not d.is_dir():
+        return False
+    try:
+        check_shard(root, k, man)
+        return True
+    except DatasetError as exc:
+        aside = d.with_name(f".{d.name}.damaged-{time.time_ns()}")
+        try:
+            os.rename(d, aside)
+        except OSError:
+            if d.is_dir():  # not moved, nor by another process
+                raise
+        log(f"shard {k}: {exc}; moved to {aside.name}, redoing it")
+        return False
 
 
 def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace, base: Lens,
@@ -233,7 +256,7 @@ def generate(space_spec: "str | Path", n: int, seed: int, out: "str | Path",
     todo = parse_shard_range(shards, n_shards)
     sdir = shards_dir(out)
     rep = GenerateReport(out=str(out), n_designs=n, n_shards=n_shards)
-    pending = [k for k in todo if not (sdir / shard_name(k)).is_dir()]
+    pending = [k for k in todo if not _complete(out, k, man, log)]
     rep.shards_skipped = [k for k in todo if k not in pending]
     if rep.shards_skipped:
         log(f"{len(rep.shards_skipped)} shard(s) already complete, skipped")

@@ -25,6 +25,7 @@ from __future__ import annotations
 import errno
 import hashlib
 import json
+import math
 import os
 import zlib
 from pathlib import Path
@@ -199,12 +200,64 @@ def differing_keys(a: dict, b: dict, keys) -> list[str]:
 
 
 def read_manifest(root: "str | Path") -> dict:
-    """``root``'s manifest.json, which must be a manifest of this format."""
+    """``root``'s manifest.json, which must be a manifest of this format with the keys
+    readers use well-formed (:func:`check_manifest`)."""
     path = Path(root) / "manifest.json"
     man = read_json(path, "manifest")
-    if man.get("format") != FORMAT:
+    if not isinstance(man, dict) or man.get("format") != FORMAT:
         raise DatasetError(f"{path}: not a {FORMAT} manifest")
+    check_manifest(man, path)
     return man
+
+
+def _is_number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def check_manifest(man: dict, path) -> None:
+    """DatasetError naming the first key of ``man`` that readers need and that is missing
+    or malformed (counts, sizes, fields, channels, parameters and their statistics)."""
+    def bad(key, what):
+        raise DatasetError(f"{path}: damaged manifest: {key} {what}")
+
+    def count(key, v, lo=1):
+        if not (isinstance(v, int) and not isinstance(v, bool) and v >= lo):
+            bad(key, f"must be an integer >= {lo}, got {v!r}")
+        return v
+
+    def numbers(key, v, n=None):
+        if not (isinstance(v, list) and v and all(_is_number(x) for x in v)) or (n is not None and len(v) != n):
+            bad(key, f"must be a list of {n if n is not None else 'some'} finite numbers, got {str(v)[:60]}")
+
+    settings = man.get("settings")
+    if not isinstance(settings, dict):
+        bad("settings", "missing or not an object")
+    n = count("n_designs", man.get("n_designs"))
+    size = count("settings.shard_size", settings.get("shard_size"))
+    if count("n_shards", man.get("n_shards")) != -(-n // size):
+        bad("n_shards", f"is {man['n_shards']}, but {n} designs in shards of {size} make {-(-n // size)}")
+    count("psf_size", man.get("psf_size"))
+    count("sensor_size", man.get("sensor_size"))
+    numbers("fields_deg", man.get("fields_deg"))
+    channels = man.get("channels")
+    if not (isinstance(channels, list) and channels and all(
+            isinstance(c, list) and c and all(isinstance(w, list) and len(w) == 2 and all(map(_is_number, w))
+                                              for w in c) for c in channels)):
+        bad("channels", f"must be a list of channels of [wavelength, weight] pairs, got {str(channels)[:60]}")
+    names = man.get("channel_names")
+    if not (isinstance(names, list) and len(names) == len(channels) and all(isinstance(x, str) for x in names)):
+        bad("channel_names", f"must name the {len(channels)} channels, got {str(names)[:60]}")
+    space = man.get("space")
+    params = space.get("parameters") if isinstance(space, dict) else None
+    if not (isinstance(params, list) and params and all(
+            isinstance(q, dict) and isinstance(q.get("name"), str) and _is_number(q.get("min"))
+            and _is_number(q.get("max")) for q in params)):
+        bad("space.parameters", "must be a list of parameters with a name, min and max")
+    numbers("param_mean", man.get("param_mean"), len(params))
+    numbers("param_std", man.get("param_std"), len(params))
+    sha = man.get("designs_csv_sha256")
+    if sha is not None and not (isinstance(sha, str) and len(sha) == 64):
+        bad("designs_csv_sha256", f"is not a sha256 hex digest: {str(sha)[:70]}")
 
 
 def read_json(path: Path, what: str) -> dict:

@@ -92,12 +92,21 @@ def prepare(out: Path, space: ParameterSpace, base: Lens, n: int, seed: int, s: 
             raise DatasetError(f"{mpath}: this directory holds a different dataset (differs in: "
                                f"{', '.join(diff)}); use another --out or the same arguments")
         dpath = out / "designs.csv"
-        if not dpath.exists() or sha256_file(dpath) != man["designs_csv_sha256"]:
+        want = man.get("designs_csv_sha256")
+        if not dpath.exists() or (want is not None and sha256_file(dpath) != want):
             raise DatasetError(f"{dpath}: missing or changed since the manifest was written")
         try:
-            return man, read_designs_csv(dpath, space.names)
-        except SpaceError as exc:
-            raise DatasetError(str(exc)) from None
+            designs = read_designs_csv(dpath, space.names)
+        except (SpaceError, ValueError) as exc:
+            raise DatasetError(f"{dpath}: unreadable ({exc})") from None
+        if want is None:  # an older manifest: the designs must be the ones the seed gives
+            log(f"{mpath}: no designs_csv_sha256; checking designs.csv against the designs of seed {seed}")
+            limits = Limits.from_dict(space.constraints, f"{space.source}: [constraints]")
+            again = sample_designs(space, base, n, seed=seed, method=s.sampling, limits=limits).values
+            if designs.shape != again.shape or not np.array_equal(designs, again):
+                raise DatasetError(f"{dpath}: not the designs of seed {seed} (and the manifest has no "
+                                   f"designs_csv_sha256 to check it by)")
+        return man, designs
     log(f"sampling {n} designs ({s.sampling}, seed {seed})")
     limits = Limits.from_dict(space.constraints, f"{space.source}: [constraints]")
     res = sample_designs(space, base, n, seed=seed, method=s.sampling, limits=limits)

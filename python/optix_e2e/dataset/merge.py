@@ -7,7 +7,8 @@ import shutil
 from pathlib import Path
 from typing import Sequence
 
-from .layout import DatasetError, differing_keys, read_json, shard_name, shards_dir, write_json_atomic
+from .layout import DatasetError, differing_keys, read_manifest, shard_name, shards_dir, write_json_atomic
+from .verify import read_shard_meta
 
 # manifest keys that may differ between processes of one dataset
 _LOCAL = {"created_unix", "versions"}
@@ -21,7 +22,7 @@ def merge(out: "str | Path", parts: Sequence["str | Path"]) -> dict:
     parts = [Path(p) for p in parts]
     if not parts:
         raise ValueError("merge: no input directories")
-    mans = [read_json(p / "manifest.json", "manifest") for p in parts]
+    mans = [read_manifest(p) for p in parts]
     ref = {k: v for k, v in mans[0].items() if k not in _LOCAL}
     for p, m in zip(parts[1:], mans[1:]):
         diff = differing_keys(ref, m, (set(ref) | set(m)) - _LOCAL)
@@ -29,7 +30,7 @@ def merge(out: "str | Path", parts: Sequence["str | Path"]) -> dict:
             raise DatasetError(f"{p / 'manifest.json'}: a different dataset from {parts[0]} (differs in: {', '.join(diff)})")
     out.mkdir(parents=True, exist_ok=True)
     if (out / "manifest.json").exists():
-        m = read_json(out / "manifest.json", "manifest")
+        m = read_manifest(out)
         diff = differing_keys(ref, m, ref)
         if diff:
             raise DatasetError(f"{out / 'manifest.json'}: a different dataset (differs in: {', '.join(diff)})")
@@ -46,7 +47,7 @@ def merge(out: "str | Path", parts: Sequence["str | Path"]) -> dict:
         srcs = [shards_dir(p) / shard_name(k) for p in parts if (shards_dir(p) / shard_name(k)).is_dir()]
         if not srcs:
             continue
-        metas = [read_json(s / "shard.json", f"shard {k} metadata")["files"] for s in srcs]
+        metas = [read_shard_meta(s.parent.parent, k, ref)["files"] for s in srcs]
         if any(m != metas[0] for m in metas[1:]):
             raise DatasetError(f"shard {k} differs between {', '.join(str(s) for s in srcs)}")
         if dst.is_dir():

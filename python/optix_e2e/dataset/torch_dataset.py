@@ -18,8 +18,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from .layout import DatasetError, read_json, read_manifest, shard_name, shards_dir
-from .verify import open_shard
+from .layout import DatasetError, read_manifest, shard_name, shards_dir
+from .verify import open_shard, read_shard_meta
 
 
 class PsfDataset(Dataset):
@@ -59,8 +59,11 @@ class PsfDataset(Dataset):
                 if allow_missing:
                     continue
                 raise DatasetError(f"{d}: shard missing (finish the dataset, or allow_missing=True)")
-            meta = read_json(d / "shard.json", f"shard {k} metadata")
-            idx = np.load(d / "design.npy", allow_pickle=False) if meta["n_ok"] else np.zeros(0, np.int64)
+            meta = read_shard_meta(self.root, k, man)
+            try:
+                idx = np.load(d / "design.npy", allow_pickle=False) if meta["n_ok"] else np.zeros(0, np.int64)
+            except (OSError, ValueError, EOFError) as exc:
+                raise DatasetError(f"{d / 'design.npy'}: unreadable ({exc})") from None
             rows = np.arange(len(idx)) if keep is None else np.flatnonzero([int(i) in keep for i in idx])
             if len(rows):
                 self._shards.append(k)

@@ -8,7 +8,10 @@ from typing import Collection
 
 import numpy as np
 
-from .layout import FORMAT, VALUES, DatasetError, crc32_file, read_json, read_manifest, shard_name, shards_dir
+from ..sampling import read_designs_csv
+from ..space import SpaceError
+from .layout import (FORMAT, VALUES, DatasetError, crc32_file, read_json, read_manifest, sha256_file, shard_name,
+                     shards_dir)
 
 
 def expected_shapes(man: dict, m: int) -> dict:
@@ -21,27 +24,44 @@ def expected_shapes(man: dict, m: int) -> dict:
             "energy_in_window": ((m, K, C), "float32")}
 
 
+def read_shard_meta(root: Path, k: int, man: dict) -> dict:
+    """Shard ``k``'s shard.json, checked: this shard of this format, its design range, and
+    counts, failures and file entries of the right types.  Raises :class:`DatasetError`."""
+    path = shards_dir(root) / shard_name(k) / "shard.json"
+    meta = read_json(path, f"shard {k} metadata")
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT or meta.get("shard") != k:
+        raise DatasetError(f"{path}: not shard {k} of a {FORMAT} dataset")
+    size = man["settings"]["shard_size"]
+    a, b = k * size, min(man["n_designs"], (k + 1) * size)
+    if meta.get("designs") != [a, b]:
+        raise DatasetError(f"{path}: covers designs {meta.get('designs')}, expected [{a}, {b}]")
+    m, n_failed, failures = meta.get("n_ok"), meta.get("n_failed"), meta.get("failures")
+    if not (isinstance(m, int) and isinstance(n_failed, int) and isinstance(failures, list)
+            and all(isinstance(f, dict) and isinstance(f.get("design"), int) for f in failures)
+            and isinstance(meta.get("files"), dict)):
+        raise DatasetError(f"{path}: damaged (n_ok, n_failed, failures or files missing or malformed)")
+    if m < 0 or n_failed < 0 or m + n_failed != b - a or len(failures) != n_failed:
+        raise DatasetError(f"{path}: {m} ok + {n_failed} failed designs != {b - a}")
+    return meta
+
+
 def open_shard(root: Path, k: int, man: dict, check_hashes: "bool | Collection[str]" = True) -> tuple[dict, dict]:
     """Memory-mapped arrays and metadata of shard ``k``, checked against the manifest
     (shapes, dtypes, design ranges, and with ``check_hashes`` the CRC-32 of every file, or
     of the named arrays only: a reader of some arrays need not read the others' bytes).
     Raises :class:`DatasetError` naming the file and the problem."""
     d = shards_dir(root) / shard_name(k)
-    meta = read_json(d / "shard.json", f"shard {k} metadata")
-    if meta.get("format") != FORMAT or meta.get("shard") != k:
-        raise DatasetError(f"{d / 'shard.json'}: not shard {k} of a {FORMAT} dataset")
+    meta = read_shard_meta(root, k, man)
     size = man["settings"]["shard_size"]
     a, b = k * size, min(man["n_designs"], (k + 1) * size)
-    if meta.get("designs") != [a, b]:
-        raise DatasetError(f"{d / 'shard.json'}: covers designs {meta.get('designs')}, expected [{a}, {b}]")
     m = meta["n_ok"]
-    if m + meta["n_failed"] != b - a or len(meta["failures"]) != meta["n_failed"]:
-        raise DatasetError(f"{d / 'shard.json'}: {m} ok + {meta['n_failed']} failed designs != {b - a}")
     arrays = {}
     for name, (shape, dtype) in expected_shapes(man, m).items():
         p = d / f"{name}.npy"
-        info = meta.get("files", {}).get(name)
-        if info is None or not p.is_file():
+        info = meta["files"].get(name)
+        if not isinstance(info, dict) or not isinstance(info.get("crc32"), str):
+            raise DatasetError(f"{d / 'shard.json'}: no checksum for {name}.npy")
+        if not p.is_file():
             raise DatasetError(f"{p}: missing")
         check = check_hashes if isinstance(check_hashes, bool) else name in check_hashes
         if check and crc32_file(p) != info["crc32"]:
@@ -61,6 +81,41 @@ def open_shard(root: Path, k: int, man: dict, check_hashes: "bool | Collection[s
     return arrays, meta
 
 
+def check_shard(root: Path, k: int, man: dict, check_hashes: bool = True) -> tuple[dict, dict]:
+    """:func:`open_shard` and the values' checks (all finite): what verify checks per shard
+    and what a resumed generation checks before it skips a shard."""
+    arrays, meta = open_shard(root, k, man, check_hashes)
+    for name in VALUES:
+        if not np.all(np.isfinite(arrays[name])):
+            raise DatasetError(f"{shards_dir(root) / shard_name(k) / (name + '.npy')}: non-finite values")
+    return arrays, meta
+
+
+def _designs_csv(root: Path, man: dict, problems: list, notes: list) -> "np.ndarray | None":
+    """designs.csv checked against the manifest's sha256 (a manifest without one gets a note)
+    and its design count; its values (n, P) for comparing with the shards, or None."""
+    path = root / "designs.csv"
+    if not path.is_file():
+        problems.append(f"{path}: missing")
+        return None
+    want = man.get("designs_csv_sha256")
+    if want is None:
+        notes.append(f"{root / 'manifest.json'}: no designs_csv_sha256 (an older manifest): designs.csv is "
+                     f"checked against the shards' parameters only")
+    elif sha256_file(path) != want:
+        problems.append(f"{path}: changed since the manifest was written (its sha256 differs from the "
+                        f"manifest's designs_csv_sha256)")
+    try:
+        designs = read_designs_csv(path, [q["name"] for q in man["space"]["parameters"]])
+    except (SpaceError, ValueError, UnicodeDecodeError) as exc:
+        problems.append(f"{path}: unreadable ({exc})")
+        return None
+    if len(designs) != man["n_designs"]:
+        problems.append(f"{path}: {len(designs)} designs, the manifest says {man['n_designs']}")
+        return None
+    return designs
+
+
 def verify(root: "str | Path", check_hashes: bool = True) -> dict:
     """Check every shard; returns a JSON-able report.  ``digest`` is a sha256 over the
     contents in canonical order (per design by index: index, parameters, PSFs, sensor PSFs,
@@ -71,7 +126,8 @@ def verify(root: "str | Path", check_hashes: bool = True) -> dict:
     and sampling computed (what method auto chose, from each shard's meta.json)."""
     root = Path(root)
     man = read_manifest(root)
-    problems, missing = [], []
+    problems, missing, notes = [], [], []
+    designs = _designs_csv(root, man, problems, notes)
     n_ok = n_failed = n_warn = 0
     min_energy = 1.0
     failed_idx = []
@@ -82,14 +138,17 @@ def verify(root: "str | Path", check_hashes: bool = True) -> dict:
             missing.append(k)
             continue
         try:
-            arrays, meta = open_shard(root, k, man, check_hashes)
-            for name in VALUES:
-                if not np.all(np.isfinite(arrays[name])):
-                    raise DatasetError(f"{shards_dir(root) / shard_name(k) / (name + '.npy')}: non-finite values")
+            arrays, meta = check_shard(root, k, man, check_hashes)
         except DatasetError as exc:
             problems.append(str(exc))
             continue
-        for j, i in enumerate(np.asarray(arrays["design"])):
+        idx = np.asarray(arrays["design"])
+        if designs is not None and len(idx):
+            differ = idx[np.any(np.asarray(arrays["params"]) != designs[idx], axis=1)]
+            if len(differ):
+                problems.append(f"{shards_dir(root) / shard_name(k) / 'params.npy'}: the parameters of design "
+                                f"{differ[0]} ({len(differ)} in all) differ from designs.csv")
+        for j, i in enumerate(idx):
             h.update(np.int64(i).tobytes())
             for name in VALUES:
                 h.update(np.ascontiguousarray(arrays[name][j]).astype(arrays[name].dtype.newbyteorder("<")).tobytes())
@@ -106,7 +165,7 @@ def verify(root: "str | Path", check_hashes: bool = True) -> dict:
                     methods[pm["legend"][c]] = methods.get(pm["legend"][c], 0) + 1
     for i in sorted(failed_idx):
         h.update(b"failed" + np.int64(i).tobytes())
-    return {"ok": not problems and not missing, "n_designs": n_ok, "n_failed": n_failed,
+    return {"ok": not problems and not missing, "notes": notes, "n_designs": n_ok, "n_failed": n_failed,
             "n_with_warnings": n_warn, "min_energy_in_window": min_energy,
             "n_shards": man["n_shards"], "missing_shards": missing, "problems": problems,
             "psf_methods": dict(sorted(methods.items())), "digest": h.hexdigest()}
