@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import json
+import math
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -48,6 +49,49 @@ def _engine_fn(name: str):
     return fn
 
 
+def _surfaces_crossing_in_beam(data: dict) -> str | None:
+    """Two consecutive surfaces that cross inside the beam, where either lacks a clear
+    semi-diameter (the engine checks the edges of given apertures itself): the beam's
+    radius at each surface is the paraxial marginal plus chief ray height at full field
+    (a lower bound of the real footprint). None when they do not, or when the paraxial
+    trace itself fails (the engine then names the problem)."""
+    from .surface import curvature, sag
+
+    surfs = data["surfaces"]
+    if all(s.get("semi_diameter") is not None for s in surfs):
+        return None
+    js = json.dumps(data)
+    try:
+        par = _engine_fn("paraxial")(js, None)
+        n = _engine_fn("refractive_indices")(js, float(par["wavelength_nm"]))
+    except Exception:  # the engine's own checks report it when the lens is used
+        return None
+    u_chief = math.tan(math.radians(max(abs(f) for f in data["fields_deg"])))
+    rays = [[0.5 * par["epd_mm"], 0.0], [-par["entrance_pupil_z_mm"] * u_chief, u_chief]]  # (y, n u)
+    heights = []
+    for i, s in enumerate(surfs):
+        heights.append(sum(abs(y) for y, _ in rays))
+        for ray in rays:
+            ray[1] -= ray[0] * curvature(s) * (n[i + 1] - n[i])
+            ray[0] += ray[1] / n[i + 1] * float(s["thickness"])
+    for i in range(len(surfs) - 1):
+        a, b = surfs[i], surfs[i + 1]
+        if a.get("semi_diameter") is not None and b.get("semi_diameter") is not None:
+            continue
+        ha = a.get("semi_diameter") or heights[i]
+        hb = b.get("semi_diameter") or heights[i + 1]
+        r = np.linspace(0.0, min(ha, hb), 17)[1:]
+        with np.errstate(invalid="ignore"):
+            gap = float(a["thickness"]) + sag(b, r) - sag(a, r)
+        j = np.flatnonzero(gap < -1e-9)
+        if len(j):
+            k = int(j[0])
+            return (f"surfaces {i + 1} and {i + 2} cross at height {r[k]:.3g} mm, inside the beam (thickness "
+                    f"{float(a['thickness']):g} mm leaves a gap of {gap[k]:.3g} mm there; the beam's paraxial "
+                    f"radius is {min(ha, hb):.3g} mm)")
+    return None
+
+
 class Lens:
     """A lens prescription (docs/lens-format.md) with its materials resolved.
 
@@ -58,6 +102,9 @@ class Lens:
     def __init__(self, data: dict, source: str = "<dict>"):
         self.source = source
         self.data = resolve_prescription(data, source)
+        crossing = _surfaces_crossing_in_beam(self.data)
+        if crossing:
+            raise PrescriptionError(f"{source}: {crossing}")
         #: the prescription as given (catalog names unresolved): what save() writes
         self.raw = copy.deepcopy(data)
         #: for a lens read from .zmx: the :class:`optix_e2e.zemax.ZemaxImport` report
@@ -93,13 +140,22 @@ class Lens:
             lens.zemax_import = imp
             return lens
         try:
-            text = path.read_text(encoding="utf-8")
+            raw = path.read_bytes()
         except OSError as exc:
             raise LensLoadError(f"{path}: cannot read lens file ({exc.strerror or exc})") from exc
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            line = raw.count(b"\n", 0, exc.start) + 1
+            col = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
+            raise LensLoadError(f"{path}:{line}:{col}: not UTF-8 text (byte 0x{raw[exc.start]:02x}); "
+                                f"save the lens file as UTF-8") from None
         try:
             data = json.loads(text)
         except json.JSONDecodeError as exc:
             raise LensLoadError(f"{path}:{exc.lineno}:{exc.colno}: invalid JSON: {exc.msg}") from exc
+        except RecursionError:
+            raise LensLoadError(f"{path}: invalid JSON: nested too deeply to be a lens prescription") from None
         data.setdefault("name", path.stem) if isinstance(data, dict) else None
         return cls(data, source=source or str(path))
 

@@ -41,7 +41,11 @@ class _Checker:
 
     def number(self, where: str, value: Any, *, positive=False, nonneg=False) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            self.fail(where, f"must be a number, got {value!r}")
+            self.fail(where, f"must be a number, got {_short(value)}")
+        try:
+            value = float(value)   # an int of hundreds of digits has no float
+        except OverflowError:
+            self.fail(where, f"must be finite, got a {len(str(abs(value)))}-digit number")
         if not math.isfinite(value):
             self.fail(where, f"must be finite, got {value!r}")
         if positive and value <= 0:
@@ -52,7 +56,7 @@ class _Checker:
 
     def numbers(self, where: str, value: Any, **kw) -> list[float]:
         if not isinstance(value, list) or not value:
-            self.fail(where, f"must be a non-empty list of numbers, got {value!r}")
+            self.fail(where, f"must be a non-empty list of numbers, got {_short(value)}")
         return [self.number(f"{where}[{i}]", v, **kw) for i, v in enumerate(value)]
 
     def keys(self, where: str, obj: dict, allowed: set[str]):
@@ -61,15 +65,28 @@ class _Checker:
             self.fail(where, f"unknown key(s) {', '.join(map(repr, unknown))}; allowed: {', '.join(sorted(allowed))}")
 
 
+def _short(value: Any, n: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= n else text[:n] + "..."
+
+
 def resolve_prescription(data: Any, source: str = "<dict>") -> dict:
     """Validate ``data`` and return a deep copy with every material resolved."""
+    try:
+        return _resolve(data, source)
+    except RecursionError:
+        raise PrescriptionError(f"{source}: top level: nested too deeply to be a lens prescription") from None
+
+
+def _resolve(data: Any, source: str) -> dict:
     ck = _Checker(source)
     if not isinstance(data, dict):
         ck.fail("top level", f"a lens is a JSON object, got {type(data).__name__}")
     ck.keys("top level", data, TOP_KEYS)
     out = copy.deepcopy(data)
-    if not isinstance(out.get("name", ""), str):
-        ck.fail("name", "must be a string")
+    for key in ("name", "description"):
+        if not isinstance(out.get(key, ""), str):
+            ck.fail(key, f"must be a string, got {_short(out[key])}")
     if out.get("units", "mm") != "mm":
         ck.fail("units", f"only \"mm\" is supported, got {out['units']!r}")
 
@@ -122,7 +139,7 @@ def resolve_prescription(data: Any, source: str = "<dict>") -> dict:
 
 def _check_surface(ck: _Checker, where: str, s: Any):
     if not isinstance(s, dict):
-        ck.fail(where, f"a surface is a JSON object, got {s!r}")
+        ck.fail(where, f"a surface is a JSON object, got {_short(s)}")
     ck.keys(where, s, SURFACE_KEYS)
     if "radius" in s and "curvature" in s:
         ck.fail(where, "give \"radius\" or \"curvature\", not both")
@@ -132,7 +149,7 @@ def _check_surface(ck: _Checker, where: str, s: Any):
         r = s.get("radius")
         if isinstance(r, str):
             if r.strip().lower() not in ("inf", "infinity"):
-                ck.fail(f"{where} radius", f"must be a number, \"inf\" or null, got {r!r}")
+                ck.fail(f"{where} radius", f"must be a number, \"inf\" or null, got {_short(r)}")
             s["radius"] = "inf"
         elif r is not None:
             if ck.number(f"{where} radius", r) == 0:
@@ -166,7 +183,7 @@ def _resolve_material(ck: _Checker, where: str, m: Any):
             return "air"
         return _catalog_glass(ck, where, m, None)
     if not isinstance(m, dict):
-        ck.fail(where, f"must be \"air\", a glass name or an object, got {m!r}")
+        ck.fail(where, f"must be \"air\", a glass name or an object, got {_short(m)}")
     if "glass" in m:
         ck.keys(where, m, {"glass", "catalog"})
         return _catalog_glass(ck, where, m["glass"], m.get("catalog"))
@@ -181,7 +198,7 @@ def _resolve_material(ck: _Checker, where: str, m: Any):
         ck.keys(where, m, {"formula", "coefficients", "range_um", "name"})
         f = m["formula"]
         if isinstance(f, bool) or not isinstance(f, int) or not 1 <= f <= 9:
-            ck.fail(f"{where}.formula", f"must be an integer 1-9 (refractiveindex.info formulas), got {f!r}")
+            ck.fail(f"{where}.formula", f"must be an integer 1-9 (refractiveindex.info formulas), got {_short(f)}")
         ck.numbers(f"{where}.coefficients", m.get("coefficients"))
         rng = ck.numbers(f"{where}.range_um", m.get("range_um"), positive=True)
         if len(rng) != 2 or rng[0] >= rng[1]:
@@ -195,11 +212,15 @@ def _resolve_material(ck: _Checker, where: str, m: Any):
             ck.number(f"{where}.tabulated[{i}][0]", r[0], positive=True)
             ck.number(f"{where}.tabulated[{i}][1]", r[1], positive=True)
     else:
-        ck.fail(where, f"unknown material form {m!r}; see docs/lens-format.md")
+        ck.fail(where, f"unknown material form {_short(m)}; see docs/lens-format.md")
     return m
 
 
 def _catalog_glass(ck: _Checker, where: str, name: Any, catalog: Any):
+    if not isinstance(name, str) or not name.strip():
+        ck.fail(f"{where}.glass", f"must be a glass name (a string), got {_short(name)}")
+    if catalog is not None and not isinstance(catalog, str):
+        ck.fail(f"{where}.catalog", f"must be a catalog name (a string), got {_short(catalog)}")
     try:
         return _glass.resolve(name, catalog).to_engine()
     except _glass.GlassError as exc:
