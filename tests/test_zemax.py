@@ -131,10 +131,13 @@ def test_handmade_cooke_matches_bundled():
     assert zmx.surfaces[0]["name"] == "front crown"
     for key in ("efl_mm", "bfl_mm", "epd_mm"):
         assert zmx.paraxial()[key] == pytest.approx(ref.paraxial()[key], rel=1e-12)
-    # the DIAMs are the beam footprints (plus margin): no ray is clipped
+    # the DIAMs are the beam footprints (plus margin): no ray is clipped. The relative
+    # illumination agrees to its pupil grid's accuracy (the rim check may pick the fine grid
+    # where a DIAM grazes the pupil's edge: 4 rings against 24 differ by ~3e-5)
     for f in zmx.fields_deg:
+        assert zmx.spot(f, rings=16)["vignetting"] == ref.spot(f, rings=16)["vignetting"] == 1.0
         assert zmx.spot(f, rings=16)["relative_illumination"] == pytest.approx(
-            ref.spot(f, rings=16)["relative_illumination"], rel=1e-12)
+            ref.spot(f, rings=16)["relative_illumination"], rel=1e-4)
     ignored = {k for _, k, _ in zmx.zemax_import.ignored}
     assert {"HIDE", "MIRR", "SLAB", "POPS", "RAIM", "FWGN", "WAVM"} <= ignored
     assert "inactive wavelength slot (FTYP declares 3)" in zmx.zemax_import.ignored_summary()

@@ -246,8 +246,15 @@ def psf_batch(
     ``pupil_samples`` is then the least number of grid cells across the pupil. Relative L1 error <= 1% against a 256-sample
     general FFT on the bundled paper-triplet (tested). Where it does not apply (vignetting
     or TIR in its ray set, a fit out of tolerance, Real aiming, integrate=True) the
-    general FFT runs, with ``pupil_samples`` rays across the pupil. Relative illumination:
-    where neither the field's nor the axial ray set loses a ray, cos(field) times the
-    chief-ray area factor (what the 24-ring trace gives for an unvignetted beam); else the
-    24-ring trace. ``fast=False``: the general FFT and the 24-ring trace everywhere.
+    general FFT runs, with ``pupil_samples`` rays across the pupil. ``fast=False``: the
+    general FFT everywhere.
+
+    Relative illumination: the image irradiance at the chief ray's image point over that
+    on the axis, for a uniform object at infinity: the flux through the real pupil per unit
+    image area (each pupil point's etendue over the Jacobian of its landing point with
+    respect to the object direction; a 4-ring pupil grid where every ray passes, 24 rings
+    where vignetting cuts the pupil). It holds at any image-plane position (refocused
+    designs included). A design whose value leaves [0, 1.05] fails with the reason, and so
+    does one with a PSF whose window holds more than 1.01 times the transmitted energy
+    (method auto escalates to a more accurate candidate first) or with no energy in a PSF.
     """

@@ -172,6 +172,15 @@ impl<'s, 'l> Beam<'s, 'l> {
         }
     }
 
+    /// Origin of the ray that crosses the entrance-pupil plane where the ray launched at
+    /// `origin` along this beam's direction does, but travels along `d` (unit, d.z > 0):
+    /// the same pupil point seen from a neighbouring object direction.
+    pub fn origin_along(&self, origin: DVec3, d: DVec3) -> DVec3 {
+        let ze = self.par.entrance_pupil_z;
+        let q = origin + ((ze - origin.z) / self.dir.z) * self.dir;
+        q - ((ze - self.z_launch) / d.z) * d
+    }
+
     /// Optical path from the incident plane wavefront through the global origin to the
     /// launch point: added to a traced OPL it puts every ray on a common wavefront.
     #[inline]

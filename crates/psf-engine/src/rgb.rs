@@ -5,12 +5,8 @@
 use crate::error::{arg, Result};
 use crate::lens::Lens;
 use crate::psf::{fast, psf_path, Diagnostics, PsfOptions};
-use crate::spot::{area_ratio, relative_illumination};
-use crate::trace::System;
+use crate::spot::{irradiance_adaptive, relative_illumination_from, RI_MAX};
 use rayon::prelude::*;
-
-/// Rings of the polar grid used for relative illumination.
-const RI_RINGS: usize = 24;
 
 pub struct RgbPsf {
     pub size: usize,
@@ -45,11 +41,12 @@ pub fn psf_rgb(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions)
 }
 
 /// The channels of one field: `sink(c, psf, k)` receives channel c's PSF as `psf` times
-/// `k` (unit sum, or zeros where no energy arrives), `ri` its relative illumination; `diag` each wavelength's
-/// diagnostics. `axis[k]`: whether the k-th wavelength (channels flattened) passes the
-/// fast path's ray set on axis, where the caller knows it.
+/// `k` (unit sum), `ri` its relative illumination; `diag` each wavelength's
+/// diagnostics. `axis[k]`: the on-axis irradiance of the k-th wavelength (channels
+/// flattened), where the caller has it. A relative illumination outside [0, RI_MAX] is an
+/// error: the design's field mapping folds or the design is broken.
 #[allow(clippy::too_many_arguments)]
-fn rgb_core(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions, axis: Option<&[bool]>, ri: &mut [f64], mut sink: impl FnMut(usize, &[f64], f64), mut diag: impl FnMut(Diagnostics)) -> Result<()> {
+fn rgb_core(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions, axis: Option<&[Option<f64>]>, ri: &mut [f64], mut sink: impl FnMut(usize, &[f64], f64), mut diag: impl FnMut(Diagnostics)) -> Result<()> {
     let s = o.size;
     let mut acc = vec![];
     let mut k = 0;
@@ -60,35 +57,35 @@ fn rgb_core(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions, ax
             acc.resize(s * s, 0.0);
         }
         for &(wl, w) in list {
-            let (mut p, clear) = psf_path(lens, field_deg, wl, o)?;
+            let (mut p, _) = psf_path(lens, field_deg, wl, o)?;
             let tot = crate::psf::sum_lanes(&p.data);
+            // Every channel sums to 1: a wavelength whose PSF holds no energy cannot be
+            // normalized (nor silently left out of its channel's weights).
+            if !(tot > 0.0) {
+                return Err(crate::error::EngineError::Psf(format!("no energy reaches the PSF window at {field_deg} deg, {wl} nm (channel {c})")));
+            }
             if list.len() == 1 {
                 // A single wavelength: the PSF times 1 / its sum.
-                sink(c, &p.data, if tot > 0.0 { 1.0 / tot } else { 0.0 });
+                sink(c, &p.data, 1.0 / tot);
                 fast::give_f64(std::mem::take(&mut p.data));
-            } else if tot > 0.0 {
+            } else {
                 acc.iter_mut().zip(&p.data).for_each(|(o, v)| *o += w / wsum * v / tot);
             }
-            ri[c] += w / wsum * illumination(lens, field_deg, wl, o, clear, axis.map(|a| a[k]))?;
+            ri[c] += w / wsum * relative_illumination_from(lens, field_deg, wl, o.aiming, axis.and_then(|a| a[k]))?;
             k += 1;
             diag(p.diagnostics);
         }
         if list.len() > 1 {
             sink(c, &acc, 1.0);
         }
+        if !(0.0..=RI_MAX).contains(&ri[c]) {
+            return Err(crate::error::EngineError::Trace(format!(
+                "relative illumination {:.4} in channel {c} lies outside [0, {RI_MAX}]: the image of the field folds back (a caustic of the chief rays) or the design is broken",
+                ri[c]
+            )));
+        }
     }
     Ok(())
-}
-
-/// Relative illumination at one wavelength. Where the fast PSF traced its pupil set at this
-/// field without a loss and the same set passes on axis, neither beam is vignetted: the
-/// flux ratio of `relative_illumination` is then exactly cos(field) (every polar-grid ray
-/// carries the same flux), and only its area factor (three chief rays) is left to trace.
-fn illumination(lens: &Lens, field_deg: f64, wl: f64, o: &PsfOptions, clear: bool, axis: Option<bool>) -> Result<f64> {
-    if clear && axis.map_or_else(|| fast::axis_clear(&System::new(lens, wl)?), Ok)? {
-        return Ok(field_deg.to_radians().cos() * area_ratio(lens, field_deg, wl, o.aiming)?);
-    }
-    relative_illumination(lens, field_deg, wl, RI_RINGS, o.aiming)
 }
 
 /// Integration of a super-resolved PSF over sensor pixels: each fine pixel is a box of one
@@ -227,15 +224,10 @@ pub fn psf_batch_into(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &
         None => (None, &mut no_sensor[..], 1),
     };
     let psfv = out;
-    // Whether each design's axial beam passes the fast path's ray set, per wavelength
-    // (shared by its fields; an error here is left for the PSF itself to report).
+    // Each design's on-axis irradiance per wavelength, shared by its fields (an error here
+    // is left for the field's own computation to report).
     let wls: Vec<f64> = channels.iter().flatten().map(|p| p.0).collect();
-    let axis: Vec<Vec<bool>> = if fast::applies(o) {
-        lenses.par_iter().map(|l| wls.iter().map(|&wl| System::new(l, wl).and_then(|sys| fast::axis_clear(&sys)).unwrap_or(false)).collect()).collect()
-    } else {
-        vec![vec![false; wls.len()]; nd]
-    };
-    let axis_known = fast::applies(o);
+    let axis: Vec<Vec<Option<f64>>> = lenses.par_iter().map(|l| wls.iter().map(|&wl| irradiance_adaptive(l, 0.0, wl, o.aiming).ok().filter(|e| *e > 0.0)).collect()).collect();
     let mut ri = vec![0.0; nd * nf * nc];
     let mut energy = vec![0.0; nd * nf * nc];
     // channel and weight of each wavelength, in the order rgb_core visits them
@@ -258,7 +250,7 @@ pub fn psf_batch_into(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &
         .enumerate()
         .map(|(i, ((((out, sout), ri), en), used))| {
             let (d, f) = (i / nf, fields[i % nf]);
-            let axis = axis_known.then_some(&axis[d][..]);
+            let axis = Some(&axis[d][..]);
             let mut warnings = vec![];
             let mut k = 0;
             let sink = |c: usize, v: &[f64], k: f64| {

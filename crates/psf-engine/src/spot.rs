@@ -7,6 +7,7 @@ use crate::aim::{Aiming, Beam};
 use crate::error::{EngineError, Result};
 use crate::lens::Lens;
 use crate::trace::{End, System};
+use glam::{DVec2, DVec3};
 
 pub fn polar_grid(rings: usize) -> (Vec<f64>, Vec<f64>) {
     let (mut px, mut py) = (vec![], vec![]);
@@ -82,42 +83,141 @@ pub fn rms_radius(spots: &[(&Spot, f64)]) -> f64 {
     (v / sw).sqrt()
 }
 
-/// Image irradiance at a field relative to the axis: transmitted flux ratio times the
-/// ratio of image area per unit object solid angle, f^2 / (y dy/dtheta / sin theta), from
-/// the real chief ray (so distortion and the cos^4 law come out of the trace).
-pub fn relative_illumination(lens: &Lens, field_deg: f64, wavelength_nm: f64, rings: usize, aiming: Aiming) -> Result<f64> {
-    let on_axis = trace_spot(lens, 0.0, wavelength_nm, rings, aiming)?;
-    let here = trace_spot(lens, field_deg, wavelength_nm, rings, aiming)?;
-    if on_axis.flux <= 0.0 {
-        return Err(EngineError::Trace(format!("no on-axis ray reaches the image at {wavelength_nm} nm")));
+/// Largest relative illumination a sane design reaches. Strong barrel distortion can lift
+/// the corners slightly above the axis; beyond this the field mapping folds (a caustic of
+/// the chief rays) or the design is broken, and the value is refused.
+pub const RI_MAX: f64 = 1.05;
+
+/// Rings of the pupil grid where the whole beam passes (the integrand is smooth) and where
+/// vignetting cuts the pupil (the edge must be resolved).
+pub const RI_RINGS_CLEAR: usize = 4;
+pub const RI_RINGS: usize = 24;
+
+/// Direction-cosine step of the Jacobian's central differences.
+const RI_STEP: f64 = 1e-5;
+
+/// Image irradiance at the image point of the chief ray of a field, for a uniform
+/// Lambertian object at infinity of unit radiance (object-space index 1), in flux per mm^2
+/// of image per unit radiance, and whether every pupil ray passed.
+///
+/// A pupil point q (entrance-pupil plane, area dA) and a direction (L, M) carry the flux
+/// dA dL dM (etendue). The rays through q reaching the image point P come from the
+/// direction where Y(q, L, M) = P, with density 1 / |det d(X, Y)/d(L, M)| per image area,
+/// so E(P) = sum over transmitted q of dA / |det J_q|. J_q comes from central differences
+/// of unclipped rays; the direction is corrected by one Newton step from the beam's to the
+/// one that lands on P (it differs by the blur over the focal length, so defocus and the
+/// vignetting edge seen from P are taken into account), and that ray decides whether q
+/// transmits. Valid at any image-plane position: no paraxial quantity enters.
+/// `rim`: also trace the pupil rim (weight 0) so that a clear verdict covers the edge.
+pub fn irradiance(lens: &Lens, field_deg: f64, wavelength_nm: f64, rings: usize, rim: bool, aiming: Aiming) -> Result<(f64, bool)> {
+    let sys = System::new(lens, wavelength_nm)?;
+    let mut open = System::new(lens, wavelength_nm)?;
+    open.clip = false;
+    let beam = Beam::new(&sys, field_deg, aiming)?;
+    let (mut px, mut py) = polar_grid(rings);
+    let n_inner = px.len();
+    if rim {
+        let k = 12 * rings;
+        for q in 0..k {
+            let a = 2.0 * std::f64::consts::PI * (q as f64 + 0.5) / k as f64;
+            px.push(a.cos());
+            py.push(a.sin());
+        }
     }
-    Ok(here.flux / on_axis.flux * area_ratio(lens, field_deg, wavelength_nm, aiming)?)
+    let launches = beam.launches(&px, &py);
+    let chief = open.trace(beam.launch(0.0, 0.0).origin, beam.dir, End::Image);
+    let d0 = beam.dir;
+    let dir = |dl: f64, dm: f64| DVec3::new(d0.x + dl, d0.y + dm, (1.0 - (d0.x + dl).powi(2) - (d0.y + dm).powi(2)).max(0.0).sqrt());
+    let steps = [(0.0, 0.0), (RI_STEP, 0.0), (-RI_STEP, 0.0), (0.0, RI_STEP), (0.0, -RI_STEP)];
+    let (mut origins, mut dirs) = (Vec::with_capacity(5 * px.len()), Vec::with_capacity(5 * px.len()));
+    for l in &launches {
+        for &(a, b) in &steps {
+            let d = dir(a, b);
+            origins.push(beam.origin_along(l.origin, d));
+            dirs.push(d);
+        }
+    }
+    let geo = open.trace_many(&origins, &dirs);
+    // Newton step of each pupil point's direction onto the image point P.
+    let target = chief.ok().then_some(DVec2::new(chief.p.x, chief.p.y));
+    let (mut co, mut cd, mut w) = (vec![], vec![], vec![]);
+    let mut all_pass = true;
+    let cell = std::f64::consts::PI / n_inner as f64;
+    for (i, l) in launches.iter().enumerate() {
+        let g = &geo[5 * i..5 * i + 5];
+        if !l.ok || g.iter().any(|r| !r.ok()) {
+            all_pass = false;
+            continue;
+        }
+        let j = [
+            [(g[1].p.x - g[2].p.x) / (2.0 * RI_STEP), (g[3].p.x - g[4].p.x) / (2.0 * RI_STEP)],
+            [(g[1].p.y - g[2].p.y) / (2.0 * RI_STEP), (g[3].p.y - g[4].p.y) / (2.0 * RI_STEP)],
+        ];
+        let det = j[0][0] * j[1][1] - j[0][1] * j[1][0];
+        if !(det.abs() > 1e-300) {
+            all_pass = false;
+            continue;
+        }
+        let (dl, dm) = match target {
+            Some(t) => {
+                let r = DVec2::new(t.x - g[0].p.x, t.y - g[0].p.y);
+                ((j[1][1] * r.x - j[0][1] * r.y) / det, (-j[1][0] * r.x + j[0][0] * r.y) / det)
+            }
+            None => (0.0, 0.0),
+        };
+        let d = dir(dl, dm);
+        co.push(beam.origin_along(l.origin, d));
+        cd.push(d);
+        w.push(if i < n_inner { l.area * cell / det.abs() } else { 0.0 });
+    }
+    let landed = sys.trace_many(&co, &cd);
+    let mut e = 0.0;
+    for (r, wi) in landed.iter().zip(&w) {
+        if r.ok() {
+            e += wi;
+        } else {
+            all_pass = false;
+        }
+    }
+    Ok((e, all_pass && w.len() == launches.len()))
 }
 
-/// The area factor of `relative_illumination`: f^2 sin(theta) / (y dy/dtheta) from the
-/// real chief ray (1 on axis).
-pub(crate) fn area_ratio(lens: &Lens, field_deg: f64, wavelength_nm: f64, aiming: Aiming) -> Result<f64> {
-    let t = field_deg.to_radians().abs();
-    let area_ratio = if t < 1e-6 {
-        1.0
-    } else {
-        let sys = System::new(lens, wavelength_nm)?;
-        let chief_y = |deg: f64| -> Result<f64> {
-            let b = Beam::new(&sys, deg, aiming)?;
-            let r = sys.trace(b.launch(0.0, 0.0).origin, b.dir, End::Image);
-            if r.ok() {
-                Ok(r.p.y)
-            } else {
-                Err(EngineError::Trace(format!("chief ray at {deg} deg fails ({:?} at surface {})", r.status, r.surface + 1)))
-            }
-        };
-        let h = 1e-4;
-        let y = chief_y(field_deg.abs())?;
-        let dy = (chief_y((t + h).to_degrees())? - chief_y((t - h).to_degrees())?) / (2.0 * h);
-        let f = crate::paraxial::paraxial(lens, wavelength_nm)?.efl;
-        f * f * t.sin() / (y * dy)
+/// Irradiance with the grid the beam needs: the coarse grid with the rim where every ray
+/// passes, the fine grid where vignetting cuts the pupil.
+pub fn irradiance_adaptive(lens: &Lens, field_deg: f64, wavelength_nm: f64, aiming: Aiming) -> Result<f64> {
+    let (e, clear) = irradiance(lens, field_deg, wavelength_nm, RI_RINGS_CLEAR, true, aiming)?;
+    if clear {
+        return Ok(e);
+    }
+    Ok(irradiance(lens, field_deg, wavelength_nm, RI_RINGS, false, aiming)?.0)
+}
+
+/// Image irradiance at a field relative to the axis (`irradiance` at the chief ray's image
+/// point over the same on the axis): the flux through the real pupil per unit image area,
+/// so the cos^4 law, distortion, pupil aberration, vignetting and defocus all come out of
+/// the trace. `axis`: the on-axis irradiance where the caller has it.
+pub fn relative_illumination_from(lens: &Lens, field_deg: f64, wavelength_nm: f64, aiming: Aiming, axis: Option<f64>) -> Result<f64> {
+    let e0 = match axis {
+        Some(e) => e,
+        None => irradiance_adaptive(lens, 0.0, wavelength_nm, aiming)?,
     };
-    Ok(area_ratio)
+    if !(e0 > 0.0) {
+        return Err(EngineError::Trace(format!("no on-axis ray reaches the image at {wavelength_nm} nm")));
+    }
+    Ok(irradiance_adaptive(lens, field_deg, wavelength_nm, aiming)? / e0)
+}
+
+/// Relative illumination at one field and wavelength (see `relative_illumination_from`);
+/// `rings` sets the pupil grid (the adaptive choice where 0).
+pub fn relative_illumination(lens: &Lens, field_deg: f64, wavelength_nm: f64, rings: usize, aiming: Aiming) -> Result<f64> {
+    if rings == 0 {
+        return relative_illumination_from(lens, field_deg, wavelength_nm, aiming, None);
+    }
+    let e0 = irradiance(lens, 0.0, wavelength_nm, rings, false, aiming)?.0;
+    if !(e0 > 0.0) {
+        return Err(EngineError::Trace(format!("no on-axis ray reaches the image at {wavelength_nm} nm")));
+    }
+    Ok(irradiance(lens, field_deg, wavelength_nm, rings, false, aiming)?.0 / e0)
 }
 
 /// Polychromatic spot summary for one field: RMS radius about the common centroid,
@@ -135,7 +235,7 @@ pub fn spot_summary(lens: &Lens, field_deg: f64, wavelengths_nm: &[f64], weights
     for ((s, &w), &wl) in spots.iter().zip(weights).zip(wavelengths_nm) {
         per.push(if s.flux > 0.0 { rms_radius(&[(s, 1.0)]) * 1e3 } else { f64::NAN });
         vig += w / wsum * s.x.len() as f64 / s.launched as f64;
-        ri += w / wsum * relative_illumination(lens, field_deg, wl, rings.min(32), aiming)?;
+        ri += w / wsum * relative_illumination(lens, field_deg, wl, 0, aiming)?;
     }
     let (n_ok, n_rays): (usize, usize) = (spots.iter().map(|s| s.x.len()).sum(), spots.iter().map(|s| s.launched).sum());
     let cx: f64 = pairs.iter().map(|(s, w)| w * s.x.iter().zip(&s.w).map(|(x, q)| x * q).sum::<f64>() / s.flux).sum::<f64>() / pairs.iter().map(|p| p.1).sum::<f64>();

@@ -81,13 +81,48 @@ def open_shard(root: Path, k: int, man: dict, check_hashes: "bool | Collection[s
     return arrays, meta
 
 
+# The ranges the engine guarantees for a design it reports ok (crates/psf-engine:
+# spot::RI_MAX, psf::ENERGY_EXCESS_TOL); a stored value outside them is a damaged shard or
+# one written before the engine refused such designs.
+RANGES = {"relative_illumination": (0.0, 1.05), "energy_in_window": (0.0, 1.01)}
+# Each PSF channel sums to 1 (float32 sums of up to 128 x 128 values).
+SUM_TOL = 1e-3
+
+
+def _out_of_range(path: Path, what: str, bad: np.ndarray, values: np.ndarray, design: np.ndarray) -> DatasetError:
+    first = tuple(int(i) for i in np.argwhere(bad)[0])
+    return DatasetError(f"{path}: {int(bad.sum())} {what} (first: design {int(design[first[0]])}, index {first[1:]}, "
+                        f"value {float(values[first]):.6g})")
+
+
 def check_shard(root: Path, k: int, man: dict, check_hashes: bool = True) -> tuple[dict, dict]:
-    """:func:`open_shard` and the values' checks (all finite): what verify checks per shard
-    and what a resumed generation checks before it skips a shard."""
+    """:func:`open_shard` and the values' checks (all finite, relative illumination and window
+    energy in range, PSFs non-negative with unit-sum channels, sensor PSFs summing to at most
+    1): what verify checks per shard and what a resumed generation checks before it skips a
+    shard."""
     arrays, meta = open_shard(root, k, man, check_hashes)
+    d = shards_dir(root) / shard_name(k)
     for name in VALUES:
         if not np.all(np.isfinite(arrays[name])):
-            raise DatasetError(f"{shards_dir(root) / shard_name(k) / (name + '.npy')}: non-finite values")
+            raise DatasetError(f"{d / (name + '.npy')}: non-finite values")
+    design = np.asarray(arrays["design"])
+    for name, (lo, hi) in RANGES.items():
+        v = np.asarray(arrays[name])
+        bad = (v < lo) | (v > hi)
+        if bad.any():
+            raise _out_of_range(d / f"{name}.npy", f"values outside [{lo}, {hi}]", bad, v, design)
+    for name, exact in (("psf", True), ("psf_sensor", False)):
+        a = arrays[name]
+        if len(a) == 0:
+            continue
+        sums = np.stack([np.asarray(a[i], dtype=np.float64).sum(axis=(-1, -2)) for i in range(len(a))])
+        low = np.stack([np.asarray(a[i]).min(axis=(-1, -2)) for i in range(len(a))])
+        if (low < 0).any():
+            raise _out_of_range(d / f"{name}.npy", "channels with negative values", low < 0, low, design)
+        bad = np.abs(sums - 1) > SUM_TOL if exact else sums > 1 + SUM_TOL
+        if bad.any():
+            raise _out_of_range(d / f"{name}.npy", "channels whose sum is not 1" if exact else "channels summing above 1",
+                                bad, sums, design)
     return arrays, meta
 
 

@@ -238,6 +238,20 @@ pub fn choose(cands: &[Candidate], target: f64) -> (Candidate, bool) {
     (best.clone(), false)
 }
 
+/// After `failed` (labels) failed its checks: the cheapest untried candidate predicted at
+/// least as accurate as `c` (or, where none is, the most accurate untried one).
+pub fn escalate(cands: &[Candidate], c: &Candidate, failed: &[String]) -> Option<Candidate> {
+    let untried = |k: &&Candidate| !failed.contains(&label(k.method.name(), k.fast, k.pupil_samples));
+    let finite = |k: &&Candidate| k.predicted_error.is_finite();
+    cands
+        .iter()
+        .filter(untried)
+        .filter(finite)
+        .find(|k| k.predicted_error <= c.predicted_error.max(0.0) && k.predicted_cost_s >= c.predicted_cost_s)
+        .or_else(|| cands.iter().filter(untried).filter(finite).min_by(|a, b| a.predicted_error.total_cmp(&b.predicted_error)))
+        .cloned()
+}
+
 /// Records the choice, the probe and the target in the PSF's diagnostics.
 pub fn record(d: &mut Diagnostics, c: &Candidate, met: bool, pr: &Probe, target: f64, probe_s: f64) {
     d.set("requested_method", "auto");

@@ -805,9 +805,6 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
             "pupil undersampled: the wavefront changes by {step:.2} waves between neighbouring samples (> 0.5); the PSF aliases: increase pupil_samples"
         ));
     }
-    if window_energy > 1.0 + 1e-2 {
-        d.warn(format!("the {size}x{size} window holds {window_energy:.3} times the transmitted energy: the FFT PSF is wrong here (aliasing or pupil distortion)"));
-    }
     report_grid(d, g, (pix, pix), (period, period), (ex, ey), window_energy);
     // The sampled pupil's energy over the whole FFT field (Parseval; the anti-aliased rim
     // sends a little less there than the unit pupil's 1).

@@ -100,8 +100,6 @@ pub(crate) const TAYLOR_TOL_RAD: f64 = 1e-3;
 const MAX_GRID: usize = 8192;
 /// Taylor error at the PSF peak beyond which the sampled peak (and the Strehl) is unreliable.
 const STREHL_TAYLOR_TOL_RAD: f64 = 1e-2;
-/// Window energy above the transmitted flux by more than this fraction flags a broken PSF.
-const ENERGY_TOL: f64 = 1e-2;
 
 pub struct AffineMap {
     pub l0: f64,
@@ -755,14 +753,6 @@ fn fft_psf_impl<T: Real>(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mir
     }
     let transmitted = p.transmitted_fraction();
     let window_energy: f64 = out.iter().sum();
-    if window_energy > transmitted * (1.0 + ENERGY_TOL) {
-        d.warn(format!(
-            "the {}x{} window holds {:.3} times the transmitted energy: the FFT PSF is wrong here (aliasing or pupil distortion)",
-            o.size,
-            o.size,
-            window_energy / transmitted
-        ));
-    }
     let window_x = o.size as f64 * o.pixel_mm;
     let period_x = g as f64 * dx;
     let period_y = g as f64 * dy;

@@ -172,6 +172,9 @@ pub(crate) fn parabolic_offset(l: f64, c: f64, r: f64) -> f64 {
     }
 }
 
+/// Window energy above the transmitted flux by more than this fraction is a failed PSF.
+pub const ENERGY_EXCESS_TOL: f64 = 1e-2;
+
 /// Monochromatic PSF at `field_deg`, `wavelength_nm`.
 pub fn psf(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) -> Result<Psf> {
     psf_path(lens, field_deg, wavelength_nm, o).map(|r| r.0)
@@ -184,13 +187,36 @@ pub(crate) fn psf_path(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfO
     if o.method == Method::Auto {
         let t0 = Instant::now();
         let pr = auto::probe(lens, field_deg, wavelength_nm, o.aiming)?;
-        let (c, met) = auto::choose(&auto::candidates(&pr, o, lens.surfaces.len()), o.accuracy);
+        let cands = auto::candidates(&pr, o, lens.surfaces.len());
+        let (c, met) = auto::choose(&cands, o.accuracy);
         let probe_s = t0.elapsed().as_secs_f64();
-        let chosen = PsfOptions { method: c.method, fast: c.fast, pupil_samples: c.pupil_samples, ..o.clone() };
-        let (mut p, clear) = psf_path(lens, field_deg, wavelength_nm, &chosen)?;
-        auto::record(&mut p.diagnostics, &c, met, &pr, o.accuracy, probe_s);
-        p.diagnostics.set("time_s", t0.elapsed().as_secs_f64());
-        return Ok((p, clear));
+        // A PSF that fails its own checks (a window holding more than the transmitted
+        // energy) escalates to the next candidate predicted at least as accurate, in cost order.
+        let mut failed: Vec<String> = vec![];
+        let mut next = Some(c);
+        while let Some(c) = next.take() {
+            let chosen = PsfOptions { method: c.method, fast: c.fast, pupil_samples: c.pupil_samples, ..o.clone() };
+            match psf_path(lens, field_deg, wavelength_nm, &chosen) {
+                Ok((mut p, clear)) => {
+                    auto::record(&mut p.diagnostics, &c, met, &pr, o.accuracy, probe_s);
+                    if !failed.is_empty() {
+                        p.diagnostics.set("auto_escalated_from", failed.clone());
+                        p.diagnostics.warn(format!("auto: {} failed its checks; escalated to {}", failed.join(", "), auto::label(c.method.name(), c.fast, c.pupil_samples)));
+                    }
+                    p.diagnostics.set("time_s", t0.elapsed().as_secs_f64());
+                    return Ok((p, clear));
+                }
+                Err(EngineError::Psf(why)) => {
+                    failed.push(auto::label(c.method.name(), c.fast, c.pupil_samples));
+                    next = auto::escalate(&cands, &c, &failed);
+                    if next.is_none() {
+                        return Err(EngineError::Psf(format!("auto: every candidate failed ({}); last: {why}", failed.join(", "))));
+                    }
+                }
+                Err(e) => return Err(e),
+            }
+        }
+        unreachable!("the loop returns");
     }
     if fast::applies(o) {
         // Single threaded (the batch runs many of these side by side).
@@ -229,6 +255,17 @@ fn common_diagnostics(d: &mut Diagnostics, o: &PsfOptions, field_deg: f64, wavel
 #[allow(clippy::too_many_arguments)]
 fn finish(mut d: Diagnostics, data: Vec<f64>, strehl: Option<f64>, transmitted: f64, o: &PsfOptions, field_deg: f64, wavelength_nm: f64, t0: Instant) -> Result<Psf> {
     let e = d.values.get("energy_in_window").and_then(Value::as_f64).unwrap_or(1.0);
+    // More energy in the window than was transmitted: the sampled field is wrong (aliasing,
+    // pupil distortion the method cannot follow). No such PSF leaves the engine.
+    if !(e <= 1.0 + ENERGY_EXCESS_TOL) {
+        return Err(EngineError::Psf(format!(
+            "{} PSF at {field_deg} deg, {wavelength_nm} nm is wrong: the {}x{} window holds {e:.3} times the transmitted energy (aliasing, pupil distortion, or point samples coarser than the PSF's detail); use more pupil samples, method huygens, finer pixels or integrate{}",
+            crate::psf::auto::label(o.method.name(), d.values.get("fft_mode").and_then(Value::as_str) == Some("direction_grid"), o.pupil_samples),
+            o.size,
+            o.size,
+            if d.warnings.is_empty() { String::new() } else { format!(" (warnings: {})", d.warnings.join("; ")) }
+        )));
+    }
     if e < 0.99 && transmitted > 0.0 {
         d.warn(format!("{:.1}% of the transmitted energy falls outside the {}x{} window", 100.0 * (1.0 - e), o.size, o.size));
     }
