@@ -25,6 +25,34 @@ fn to_py(e: CoreError) -> PyErr {
     }
 }
 
+/// Run `f` on a thread of its own while this one calls `callback(done, total)` every
+/// 0.2 s and checks for Ctrl-C; an interrupt asks the computation to stop and is re-raised.
+fn watched<T: Send + 'static>(py: Python<'_>, o: &mut PsfOptions, callback: &Bound<'_, PyAny>, f: impl FnOnce(&PsfOptions) -> psf_engine::Result<T> + Send + 'static) -> PyResult<T> {
+    use std::sync::atomic::Ordering::Relaxed;
+    let prog = std::sync::Arc::new(psf_engine::psf::Progress::default());
+    o.progress = Some(prog.clone());
+    let job = o.clone();
+    let (tx, rx) = std::sync::mpsc::channel();
+    let rx = std::sync::Mutex::new(rx);
+    std::thread::spawn(move || {
+        let _ = tx.send(f(&job));
+    });
+    loop {
+        match py.detach(|| rx.lock().expect("receiver").recv_timeout(std::time::Duration::from_millis(200))) {
+            Ok(r) => return r.map_err(to_py),
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
+                let step = callback.call1((prog.done.load(Relaxed), prog.total.load(Relaxed))).and_then(|_| py.check_signals());
+                if let Err(e) = step {
+                    prog.cancel.store(true, Relaxed);
+                    let _ = py.detach(|| rx.lock().expect("receiver").recv());
+                    return Err(e);
+                }
+            }
+            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => return Err(pyo3::exceptions::PyRuntimeError::new_err("psf: the computation thread ended without a result")),
+        }
+    }
+}
+
 /// Run `f` without the GIL and convert its error.
 fn run<T: Send>(py: Python<'_>, f: impl FnOnce() -> psf_engine::Result<T> + Send) -> PyResult<T> {
     py.detach(f).map_err(to_py)
@@ -51,6 +79,7 @@ fn options(method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_g
         integrate,
         fast,
         accuracy,
+        progress: None,
     })
 }
 
@@ -123,6 +152,20 @@ fn vec3s(a: &PyReadonlyArray2<f64>, name: &str) -> PyResult<Vec<f64>> {
         Ok(s) => s.to_vec(),
         Err(_) => a.as_array().iter().copied().collect(),
     })
+}
+
+/// Single-thread seconds the engine's cost model predicts for one PSF (None for auto).
+#[pyfunction]
+#[pyo3(signature = (method, pixel_um, size, pupil_samples, fft_grid=None, n_surfaces=10))]
+fn predicted_psf_seconds(method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_grid: Option<usize>, n_surfaces: usize) -> PyResult<Option<f64>> {
+    let o = options(method, pixel_um, size, pupil_samples, fft_grid, "paraxial", false, false, false, 0.02)?;
+    Ok(psf_engine::psf::auto::predicted_seconds(&o, n_surfaces))
+}
+
+/// Memory available for new allocations (bytes), as the engine's size checks see it.
+#[pyfunction]
+fn available_memory() -> f64 {
+    psf_engine::budget::available_bytes()
 }
 
 #[pyfunction]
@@ -211,11 +254,17 @@ fn spot<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavelengths_nm: V
 }
 
 #[pyfunction]
-#[pyo3(signature = (lens_json, field_deg, wavelength_nm, method="fft", pixel_um=1.0, size=64, pupil_samples=64, fft_grid=None, aiming="paraxial", integrate=false, exact=false, fast=false, accuracy=0.02))]
+#[pyo3(signature = (lens_json, field_deg, wavelength_nm, method="fft", pixel_um=1.0, size=64, pupil_samples=64, fft_grid=None, aiming="paraxial", integrate=false, exact=false, fast=false, accuracy=0.02, progress=None))]
 #[allow(clippy::too_many_arguments)]
-fn psf<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavelength_nm: f64, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_grid: Option<usize>, aiming: &str, integrate: bool, exact: bool, fast: bool, accuracy: f64) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-    let o = options(method, pixel_um, size, pupil_samples, fft_grid, aiming, integrate, exact, fast, accuracy)?;
-    let p = run(py, || psf_engine::psf::psf(&parse_lens(lens_json)?, field_deg, wavelength_nm, &o))?;
+fn psf<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavelength_nm: f64, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_grid: Option<usize>, aiming: &str, integrate: bool, exact: bool, fast: bool, accuracy: f64, progress: Option<Bound<'py, PyAny>>) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let mut o = options(method, pixel_um, size, pupil_samples, fft_grid, aiming, integrate, exact, fast, accuracy)?;
+    let p = match progress {
+        None => run(py, || psf_engine::psf::psf(&parse_lens(lens_json)?, field_deg, wavelength_nm, &o))?,
+        Some(callback) => {
+            let lens = parse_lens(lens_json).map_err(to_py)?;
+            watched(py, &mut o, &callback, move |o| psf_engine::psf::psf(&lens, field_deg, wavelength_nm, o))?
+        }
+    };
     let arr = p.data.into_pyarray(py).reshape([size, size])?.into_any();
     Ok((arr, json_to_py(py, &p.diagnostics.to_json())?))
 }
@@ -298,6 +347,9 @@ fn psf_batch<'py>(
     if let Some(ss) = &sshape {
         check_out("sensor_out", sensor_out.as_ref(), ss)?;
     }
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let own_sensor = binning.as_ref().filter(|_| sensor_out.is_none()).map(|b| b.size());
+    psf_engine::rgb::batch_memory(nd, nf, nc, &o, threads, out.is_none(), own_sensor).check("psf_batch").map_err(to_py)?;
     let out_array: Option<Bound<'py, PyAny>> = out.as_ref().map(|a| a.as_any().clone());
     let sensor_array: Option<Bound<'py, PyAny>> = sensor_out.as_ref().map(|a| a.as_any().clone());
     let slice = out_slice("out", out.as_mut())?;
@@ -430,6 +482,8 @@ fn _engine(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("MaterialError", py.get_type::<MaterialError>())?;
     m.add("TraceError", py.get_type::<TraceError>())?;
     m.add("PsfError", py.get_type::<PsfError>())?;
+    m.add_function(wrap_pyfunction!(available_memory, m)?)?;
+    m.add_function(wrap_pyfunction!(predicted_psf_seconds, m)?)?;
     m.add_function(wrap_pyfunction!(validate_lens, m)?)?;
     m.add_function(wrap_pyfunction!(refractive_indices, m)?)?;
     m.add_function(wrap_pyfunction!(paraxial, m)?)?;

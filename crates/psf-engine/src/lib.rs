@@ -7,6 +7,7 @@
 extern crate self as psf_engine;
 
 pub mod aim;
+pub mod budget;
 pub mod error;
 pub mod focus;
 pub mod kernel;

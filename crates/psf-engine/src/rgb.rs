@@ -101,6 +101,9 @@ pub struct SensorBinning {
 
 impl SensorBinning {
     pub fn new(fine: usize, pitch_mm: f64, size: usize, sensor_pitch_mm: f64) -> Result<SensorBinning> {
+        if !(1..=8192).contains(&size) {
+            return arg(format!("sensor binning: {size} sensor pixels across must be within 1..8192"));
+        }
         if !(pitch_mm > 0.0 && sensor_pitch_mm > 0.0 && pitch_mm.is_finite() && sensor_pitch_mm.is_finite()) || fine == 0 || size == 0 {
             return arg(format!("sensor binning: need positive pitches and sizes (fine {fine} x {pitch_mm} mm, sensor {size} x {sensor_pitch_mm} mm)"));
         }
@@ -179,6 +182,22 @@ pub fn psf_batch(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &PsfOp
     let mut b = psf_batch_into(lenses, fields, channels, o, &mut psfv, None)?;
     b.psf = psfv;
     Ok(b)
+}
+
+/// What a batch allocates: the per-thread PSF work (`PsfOptions::memory` on each of
+/// `threads`), the outputs the engine allocates itself (`own_out`: the PSFs; `sensor`: the
+/// sensor PSFs' size, where the engine allocates them) and the per-PSF records.
+pub fn batch_memory(nd: usize, nf: usize, nc: usize, o: &PsfOptions, threads: usize, own_out: bool, sensor: Option<usize>) -> crate::budget::Need {
+    let rows = (nd * nf * nc) as f64;
+    let mut parts: Vec<(String, f64)> = o.memory().0.into_iter().map(|(n, b)| (format!("{n} x {threads} threads"), b * threads as f64)).collect();
+    if own_out {
+        parts.push((format!("PSFs {nd}x{nf}x{nc}x{s}x{s} float32", s = o.size), rows * (o.size * o.size) as f64 * 4.0));
+    }
+    if let Some(m) = sensor {
+        parts.push((format!("sensor PSFs {nd}x{nf}x{nc}x{m}x{m} float32"), rows * (m * m) as f64 * 4.0));
+    }
+    parts.push(("records".into(), rows * 64.0));
+    crate::budget::Need(parts)
 }
 
 /// Zeros over the rows (equal slices of `buf`, one per design) of the designs with an error.

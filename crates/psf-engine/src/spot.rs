@@ -37,7 +37,15 @@ pub struct Spot {
     pub launched: usize,
 }
 
+/// What spots of `rings` rings at `n_wavelengths` wavelengths allocate: per ray its launch,
+/// its traced state and its kept image point (about 160 bytes); 6 rings^2 rays each.
+pub fn spot_memory(rings: usize, n_wavelengths: usize) -> crate::budget::Need {
+    let rays = 6.0 * (rings as f64).powi(2);
+    crate::budget::Need(vec![(format!("{rays:.3e} rays x {n_wavelengths} wavelengths"), rays * n_wavelengths as f64 * 160.0)])
+}
+
 pub fn trace_spot(lens: &Lens, field_deg: f64, wavelength_nm: f64, rings: usize, aiming: Aiming) -> Result<Spot> {
+    spot_memory(rings, 1).check(&format!("a {rings}-ring spot"))?;
     let sys = System::new(lens, wavelength_nm)?;
     let beam = Beam::new(&sys, field_deg, aiming)?;
     let c = beam.launch(0.0, 0.0);
@@ -223,6 +231,7 @@ pub fn relative_illumination(lens: &Lens, field_deg: f64, wavelength_nm: f64, ri
 /// Polychromatic spot summary for one field: RMS radius about the common centroid,
 /// per-wavelength RMS, vignetting and relative illumination (wavelength-weighted).
 pub fn spot_summary(lens: &Lens, field_deg: f64, wavelengths_nm: &[f64], weights: &[f64], rings: usize, aiming: Aiming) -> Result<serde_json::Value> {
+    spot_memory(rings, wavelengths_nm.len()).check(&format!("a {rings}-ring spot at {} wavelengths", wavelengths_nm.len()))?;
     let spots = wavelengths_nm.iter().map(|&wl| trace_spot(lens, field_deg, wl, rings, aiming)).collect::<Result<Vec<_>>>()?;
     let pairs: Vec<(&Spot, f64)> = spots.iter().zip(weights.iter().copied()).filter(|(s, _)| s.flux > 0.0).collect();
     if pairs.is_empty() {

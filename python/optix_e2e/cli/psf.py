@@ -48,7 +48,8 @@ def psf(lens_spec, field_deg, wavelength_nm, method, accuracy, pixel_um, size, p
         kwargs["integrate"] = True
     if exact:
         kwargs["exact"] = True
-    image, diag = lens_.psf(field_deg, wl, method, **kwargs)
+    image, diag = _with_estimate(lambda progress: lens_.psf(field_deg, wl, method, progress=progress, **kwargs),
+                                 method, kwargs, len(lens_.surfaces))
     out.parent.mkdir(parents=True, exist_ok=True)
     np.save(out, image)
     line = {"strehl": diag.get("strehl"), "time_s": diag.get("time_s"),
@@ -61,3 +62,24 @@ def psf(lens_spec, field_deg, wavelength_nm, method, accuracy, pixel_um, size, p
         save_psf_png(png, image, pixel_um, title=f"{lens_.name} {method} {field_deg:g} deg {wl:g} nm", log=log)
         line["png"] = str(png)
     click.echo(dumps(line))
+
+
+def _with_estimate(compute, method: str, kw: dict, n_surfaces: int):
+    """Run ``compute(progress)``. Huygens over a large window says what the request is and
+    shows the engine's progress (image rows or row blocks done; Ctrl-C stops it)."""
+    if method != "huygens" or kw["size"] < 512:
+        return compute(None)
+    from .. import _engine
+    from tqdm import tqdm
+
+    single = _engine.predicted_psf_seconds(method, kw["pixel_um"], kw["size"], kw["pupil_samples"], None, n_surfaces)
+    click.echo(f"huygens: {kw['size']}x{kw['size']} pixels from about {0.785 * kw['pupil_samples'] ** 2:.0f} "
+               f"pupil wavelets (cost model: >= {single:.0f} s on one thread; more where the window needs the "
+               f"exact distance sum); Ctrl-C stops", err=True)
+    with tqdm(desc="huygens", unit="block", dynamic_ncols=True) as bar:
+        def progress(done, total):
+            if total and bar.total != total:
+                bar.total = total
+            bar.n = done
+            bar.refresh()
+        return compute(progress)

@@ -251,6 +251,9 @@ def generate(space_spec: "str | Path", n: int, seed: int, out: "str | Path",
         raise ValueError(f"n must be >= 1, got {n}")
     out = Path(out)
     space, base = load_space(space_spec)
+    # before anything is written: auto fields take at most the largest K they try
+    from ..auto import K_FIELDS
+    s.check_memory(n, s.n_fields or max(K_FIELDS), len(base.rgb_channels("rgb" if s.channels == "auto" else s.channels)))
     man, designs = prepare(out, space, base, n, seed, s, log)
     n_shards = man["n_shards"]
     todo = parse_shard_range(shards, n_shards)

@@ -11,6 +11,15 @@ import numpy as np
 from ..lens import Lens
 
 
+# The engine's largest PSF (pixels across; crates/psf-engine PsfOptions::check).
+MAX_SIZE = 8192
+
+
+def human(b: float) -> str:
+    """Bytes as a short figure (GiB or TiB)."""
+    return f"{b / 2 ** 40:.1f} TiB" if b >= 2 ** 40 else f"{b / 2 ** 30:.1f} GiB"
+
+
 @dataclass(frozen=True)
 class DatasetSettings:
     """What each design's record holds and how it is computed."""
@@ -38,6 +47,9 @@ class DatasetSettings:
             raise ValueError("window_um, pixel_um and sensor_pixel_um must be positive")
         if self.size < 8:
             raise ValueError(f"window {self.window_um} um at {self.pixel_um} um/pixel is only {self.size} pixels")
+        if self.size > MAX_SIZE:
+            raise ValueError(f"window {self.window_um} um at {self.pixel_um} um/pixel is {self.size} pixels across; "
+                             f"the engine computes at most {MAX_SIZE} (a smaller window_um or a larger pixel_um)")
         if self.sensor_size < 1:
             raise ValueError(f"window {self.window_um} um holds no {self.sensor_pixel_um} um sensor pixel")
         if self.shard_size < 1:
@@ -52,6 +64,24 @@ class DatasetSettings:
             raise ValueError(f"accuracy must be a positive relative L1 error, got {self.accuracy}")
         if self.channels not in ("lens", "rgb", "auto"):
             raise ValueError(f"channels must be 'lens', 'rgb' or 'auto', got {self.channels!r}")
+
+    def check_memory(self, n_designs: int, n_fields: int, n_channels: int) -> None:
+        """Refuse, before anything is written, settings whose shard buffers (PSFs and sensor
+        PSFs of one shard, float32) and the engine's per-thread work exceed the memory
+        available; the message says what they would need."""
+        import os
+
+        from .. import _engine
+
+        rows = min(self.shard_size, n_designs) * n_fields * n_channels
+        buffers = rows * (self.size ** 2 + self.sensor_size ** 2) * 4.0
+        work = (os.cpu_count() or 1) * (self.size ** 2 * 24.0 + (4 * self.pupil_samples) ** 2 * 32.0)
+        avail = _engine.available_memory()
+        if buffers + work > avail:
+            raise ValueError(f"a shard of {min(self.shard_size, n_designs)} designs x {n_fields} fields x {n_channels} "
+                             f"channels at {self.size}x{self.size} pixels would need about {human(buffers + work)} "
+                             f"(shard buffers {human(buffers)}), more than the {human(avail)} of memory available: "
+                             f"lower --window-um or --shard-size, or raise --pixel-um")
 
     @property
     def size(self) -> int:

@@ -238,6 +238,23 @@ pub fn choose(cands: &[Candidate], target: f64) -> (Candidate, bool) {
     (best.clone(), false)
 }
 
+/// Single-thread seconds the cost model predicts for one PSF of these options (method and
+/// sampling fixed; the general FFT's grid taken as fft_grid or 4 x pupil_samples, its least),
+/// so that a long request can say up front what it will take. None for method auto.
+pub fn predicted_seconds(o: &PsfOptions, n_surfaces: usize) -> Option<f64> {
+    let n = o.pupil_samples as f64;
+    let rays = 0.785 * n * n;
+    match o.method {
+        Method::Huygens => Some(COST_HUYGENS.0 + COST_HUYGENS.1 * rays * (o.size * o.size) as f64),
+        Method::Fft => {
+            let g = o.fft_grid.unwrap_or(4 * o.pupil_samples) as f64;
+            Some(COST_FFT.0 + COST_FFT.1 * g * g * g.log2())
+        }
+        Method::Geometric => Some(COST_GEO.0 + COST_GEO.1 * rays * (n_surfaces as f64 + 1.0)),
+        Method::Auto => None,
+    }
+}
+
 /// After `failed` (labels) failed its checks: the cheapest untried candidate predicted at
 /// least as accurate as `c` (or, where none is, the most accurate untried one).
 pub fn escalate(cands: &[Candidate], c: &Candidate, failed: &[String]) -> Option<Candidate> {

@@ -79,9 +79,20 @@ pub fn huygens_psf(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics) -> Result<(Ve
     let pixel = |r: usize, c: usize| p.chief + DVec3::new((c as f64 - h) * pitch, (r as f64 - h) * pitch, 0.0);
     d.set("huygens_cubic_phase_bound_rad", cubic);
 
+    let prog = o.progress.as_deref();
+    let stopped = || prog.is_some_and(|p| p.cancelled());
     let field: Vec<Complex64> = if cubic > CUBIC_TOL_RAD || o.huygens_exact {
         d.set("huygens_evaluation", "exact");
-        (0..s * s).into_par_iter().map(|i| exact_field(&ws, k, pixel(i / s, i % s))).collect()
+        prog.inspect(|p| p.start(s));
+        let mut field = vec![Complex64::new(0.0, 0.0); s * s];
+        field.par_chunks_mut(s).enumerate().for_each(|(r, row)| {
+            if stopped() {
+                return;
+            }
+            row.iter_mut().enumerate().for_each(|(c, v)| *v = exact_field(&ws, k, pixel(r, c)));
+            prog.inspect(|p| p.step());
+        });
+        field
     } else {
         d.set("huygens_evaluation", "separable");
         let half = (h + 0.5) * pitch;
@@ -114,9 +125,14 @@ pub fn huygens_psf(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics) -> Result<(Ve
             }
         });
         let mut u = vec![Complex32::new(0.0, 0.0); s * s];
-        let blocks = rayon::current_num_threads().max(1).min(s);
+        // Blocks of rows, one per thread, or of at most 64 rows where progress is watched.
+        let blocks = rayon::current_num_threads().max(1).max(if prog.is_some() { s.div_ceil(64) } else { 1 }).min(s);
         let rows_per = s.div_ceil(blocks);
+        prog.inspect(|p| p.start(s.div_ceil(rows_per)));
         u.par_chunks_mut(rows_per * s).enumerate().for_each(|(bi, uc)| {
+            if stopped() {
+                return;
+            }
             let r0 = bi * rows_per;
             let m = uc.len() / s;
             // SAFETY: pointers and strides describe the live buffers a (s x kk, column-major,
@@ -141,9 +157,13 @@ pub fn huygens_psf(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics) -> Result<(Ve
                     1,
                 );
             }
+            prog.inspect(|p| p.step());
         });
         u.iter().map(|z| Complex64::new(z.re as f64, z.im as f64)).collect()
     };
+    if stopped() {
+        return Err(crate::error::EngineError::Psf("Huygens PSF cancelled".into()));
+    }
     let area = pitch * pitch;
     let out: Vec<f64> = field.iter().map(|z| z.norm_sqr() * area).collect();
     // Strehl from the sampled peak refined at the parabolic vertex with the exact sum.

@@ -79,15 +79,49 @@ pub struct PsfOptions {
     pub fast: bool,
     /// method = auto: the accuracy target, relative L1 error of the PSF.
     pub accuracy: f64,
+    /// Where a caller watches a long computation (Huygens): work done, and a stop request.
+    pub progress: Option<std::sync::Arc<Progress>>,
+}
+
+/// Progress of a long PSF computation: `done` of `total` work units (the Huygens sum counts
+/// image rows or row blocks), and `cancel`, which the computation checks between units.
+#[derive(Debug, Default)]
+pub struct Progress {
+    pub done: std::sync::atomic::AtomicU64,
+    pub total: std::sync::atomic::AtomicU64,
+    pub cancel: std::sync::atomic::AtomicBool,
+}
+
+impl Progress {
+    pub fn start(&self, total: usize) {
+        self.total.store(total as u64, std::sync::atomic::Ordering::Relaxed);
+    }
+    pub fn step(&self) {
+        self.done.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    }
+    pub fn cancelled(&self) -> bool {
+        self.cancel.load(std::sync::atomic::Ordering::Relaxed)
+    }
 }
 
 impl Default for PsfOptions {
     fn default() -> Self {
-        PsfOptions { method: Method::Fft, pixel_mm: 1e-3, size: 64, pupil_samples: 64, fft_grid: None, aiming: Aiming::Paraxial, huygens_exact: false, integrate: false, fast: false, accuracy: auto::DEFAULT_TARGET }
+        PsfOptions { method: Method::Fft, pixel_mm: 1e-3, size: 64, pupil_samples: 64, fft_grid: None, aiming: Aiming::Paraxial, huygens_exact: false, integrate: false, fast: false, accuracy: auto::DEFAULT_TARGET, progress: None }
     }
 }
 
 impl PsfOptions {
+    /// What one PSF of these options allocates, at least: the output and its resampling
+    /// buffers (f64), the FFT grid (complex f64, with its scratch; the general FFT's grid is
+    /// at least 4 x pupil_samples across) and the sampled pupil.
+    pub fn memory(&self) -> crate::budget::Need {
+        let out = (self.size * self.size) as f64 * 8.0 * 3.0;
+        let g = self.fft_grid.unwrap_or(4 * self.pupil_samples) as f64;
+        let fft = if self.method == Method::Fft { g * g * 16.0 * 2.0 } else { 0.0 };
+        let pupil = (self.pupil_samples as f64).powi(2) * 96.0;
+        crate::budget::Need(vec![("output".into(), out), (format!("FFT grid {g}^2"), fft), ("pupil".into(), pupil)])
+    }
+
     pub fn check(&self) -> Result<()> {
         if !(self.pixel_mm.is_finite() && self.pixel_mm > 0.0) {
             return arg(format!("pixel pitch {} um must be positive", self.pixel_mm * 1e3));
@@ -101,6 +135,12 @@ impl PsfOptions {
         if !(self.accuracy.is_finite() && self.accuracy > 0.0) {
             return arg(format!("accuracy target {} must be a positive relative L1 error (e.g. 0.02)", self.accuracy));
         }
+        if let Some(g) = self.fft_grid {
+            if !(4..=65536).contains(&g) {
+                return arg(format!("fft_grid {g} must be within 4..65536"));
+            }
+        }
+        self.memory().check(&format!("a {}x{} {} PSF", self.size, self.size, self.method.name()))?;
         if self.method == Method::Huygens && self.integrate {
             // (It evaluates the field at pixel centres only; said rather than ignored.)
             return arg("integrate: the Huygens PSF samples pixel centres and does not integrate over pixels; use method fft, or a finer pixel and sum blocks");
