@@ -44,6 +44,8 @@ def surrogate():
 @click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--threads", type=click.IntRange(min=0), default=0, help="torch CPU threads (0: default).")
 @click.option("--device", default="auto", show_default=True, help="auto (CUDA when present), cpu, cuda, cuda:1 ...")
+@click.option("--init", default="", help="Start from this surrogate's weights (a checkpoint, a run directory or "
+              "`paper-triplet`): a fine-tune, e.g. after the dataset was regenerated. Same architecture.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @friendly_errors
 def train_cmd(data, out_dir, bin_, as_json, **kw):

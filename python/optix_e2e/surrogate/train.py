@@ -29,7 +29,7 @@ from .model import SurrogateConfig
 
 # changing these makes a different model or different data: resuming refuses
 _FIXED = ("psf", "bin", "hidden", "depth", "base_channels", "n_up", "val_designs", "max_designs", "seed",
-          "batch", "loss_pixel", "loss_fourier", "loss_gradient", "loss_vignetting")
+          "batch", "loss_pixel", "loss_fourier", "loss_gradient", "loss_vignetting", "init")
 
 
 @dataclass
@@ -56,6 +56,7 @@ class TrainConfig:
     loss_fourier: float = 1.0
     loss_gradient: float = 1.0
     loss_vignetting: float = 1.0
+    init: str = ""                 # start from this surrogate's weights (a fine-tune; same architecture)
 
     @property
     def weights(self) -> LossWeights:
@@ -124,6 +125,18 @@ def build_model(cfg: TrainConfig, man: dict, train_vig: np.ndarray, meta: dict) 
     return model
 
 
+def _start_from(model: OpticsSurrogate, spec: str) -> None:
+    """Copy the network weights of the surrogate ``spec`` (a checkpoint, a run directory or a
+    bundled name) into ``model``: a fine-tune on new data. Its architecture, parameters,
+    fields and PSF grid must be the model's."""
+    src = OpticsSurrogate.load(spec)
+    same = (src.cfg == model.cfg and list(src.param_names) == list(model.param_names)
+            and torch.equal(src.fields.cpu(), model.fields.cpu()) and src.pitch_um == model.pitch_um)
+    if not same:
+        raise ValueError(f"--init {spec}: its architecture, parameters, fields or PSF pitch differ from this run's")
+    model.net.load_state_dict({k: v.float() for k, v in src.net.state_dict().items()})
+
+
 def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, progress: bool = True,
           log=lambda m: None, stop_after: int | None = None) -> dict:
     """Train a surrogate on the dataset in ``data_root``, or resume the run in ``out_dir``.
@@ -140,7 +153,8 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
         if not isinstance(resumed, dict) or not isinstance(resumed.get("config"), dict):
             raise ValueError(f"{state_path}: not a surrogate training state; use another --out")
         old = resumed["config"]
-        diff = [k for k in _FIXED if old.get(k) != getattr(cfg, k)]
+        defaults = TrainConfig()
+        diff = [k for k in _FIXED if old.get(k, getattr(defaults, k)) != getattr(cfg, k)]
         if diff:
             raise ValueError(f"{state_path}: this run was started with other settings ({', '.join(diff)}); "
                              f"use the same options or another --out")
@@ -164,6 +178,9 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
     opt = torch.optim.Adam(model.net.parameters(), lr=cfg.lr)
     gen = torch.Generator(device="cpu").manual_seed(cfg.seed)
     step, seconds, history = 0, 0.0, []
+    if cfg.init and not resumed:
+        _start_from(model, cfg.init)
+        log(f"starting from the weights of {cfg.init}")
     if resumed:
         model.net.load_state_dict(resumed["model"])
         opt.load_state_dict(resumed["optimizer"])
