@@ -260,7 +260,7 @@ impl Lens {
                 }
                 // A clear aperture beyond where the conic surface exists cannot be made.
                 let arg = 1.0 - (1.0 + conic) * curvature * curvature * sd * sd;
-                if arg < 0.0 {
+                if arg < -crate::surface::RIM_TOLERANCE {
                     return lens_err(format!("{ctx}: \"semi_diameter\" {sd} exceeds the surface's extent (the conic sag is undefined there)"));
                 }
             }

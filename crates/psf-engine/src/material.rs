@@ -96,8 +96,7 @@ impl Material {
             }
             Material::Formula { kind, coefficients, range_um, .. } => {
                 if let Some((lo, hi)) = range_um {
-                    // 1 nm of slack for rounding of published ranges.
-                    if let Some(m) = out_of_range(wl_um, *lo, *hi, 1e-3, "the formula's valid range") {
+                    if let Some(m) = out_of_range(wl_um, *lo, *hi, "the formula's valid range") {
                         return bad(m);
                     }
                 }
@@ -105,9 +104,10 @@ impl Material {
             }
             Material::Tabulated { wavelength_um, n, .. } => {
                 let (lo, hi) = (wavelength_um[0], *wavelength_um.last().unwrap());
-                if let Some(m) = out_of_range(wl_um, lo, hi, 1e-9, "the table") {
+                if let Some(m) = out_of_range(wl_um, lo, hi, "the table") {
                     return bad(m);
                 }
+                // Inside the table: linear interpolation; just past an end: the end segment extended.
                 let i = wavelength_um.partition_point(|&w| w < wl_um).clamp(1, wavelength_um.len() - 1);
                 let t = (wl_um - wavelength_um[i - 1]) / (wavelength_um[i] - wavelength_um[i - 1]);
                 n[i - 1] + t * (n[i] - n[i - 1])
@@ -121,10 +121,21 @@ impl Material {
     }
 }
 
-/// The message for a wavelength outside [lo - slack, hi + slack] (micrometres), if it is.
-fn out_of_range(wl_um: f64, lo: f64, hi: f64, slack: f64, what: &str) -> Option<String> {
-    (wl_um < lo - slack || wl_um > hi + slack)
-        .then(|| format!("wavelength {:.1} nm is outside {what} {:.1}-{:.1} nm", wl_um * 1e3, lo * 1e3, hi * 1e3))
+/// How far past either end of its data a material is extrapolated, as a fraction of the
+/// data's span (OpticStudio likewise extrapolates a little with a warning; the Python side
+/// reports each extrapolation, see `optix_e2e.glass.range_note`). Further out: an error.
+pub const EXTRAPOLATION_FRACTION: f64 = 0.1;
+
+/// The message for a wavelength (micrometres) farther than EXTRAPOLATION_FRACTION of the
+/// span outside [lo, hi], if it is.
+fn out_of_range(wl_um: f64, lo: f64, hi: f64, what: &str) -> Option<String> {
+    let slack = EXTRAPOLATION_FRACTION * (hi - lo);
+    (wl_um < lo - slack || wl_um > hi + slack).then(|| {
+        format!(
+            "wavelength {:.1} nm is outside {what} {:.1}-{:.1} nm (extrapolated at most {:.0}% of the span, to {:.1}-{:.1} nm)",
+            wl_um * 1e3, lo * 1e3, hi * 1e3, EXTRAPOLATION_FRACTION * 100.0, (lo - slack) * 1e3, (hi + slack) * 1e3
+        )
+    })
 }
 
 /// Coefficient `i` (0-based) or 0 when the list is shorter: the database omits trailing zeros.
@@ -224,6 +235,19 @@ mod tests {
         let m = Material::Formula { kind: 2, coefficients: vec![0.0, 1.0, 0.01], range_um: Some((0.4, 0.7)), name: "X1".into() };
         let e = m.index(0.9).unwrap_err().to_string();
         assert!(e.contains("X1") && e.contains("900.0 nm"), "{e}");
+    }
+
+    #[test]
+    fn data_is_extrapolated_up_to_a_tenth_of_its_span_past_either_end() {
+        // Table 3-14 um (span 11): 2.5 um is 0.5 past the end, inside the 1.1 allowed.
+        let t = Material::Tabulated { wavelength_um: vec![3.0, 4.0, 14.0], n: vec![2.5, 2.4, 2.3], name: "t".into() };
+        assert!((t.index(2.5).unwrap() - 2.55).abs() < 1e-12); // first segment extended
+        assert!((t.index(15.0).unwrap() - 2.29).abs() < 1e-12); // last segment extended
+        assert!(t.index(1.85).unwrap_err().to_string().contains("1900.0-15100.0 nm"));
+        // Formula valid 0.4-0.7 um (span 0.3): evaluated to 0.37 and 0.73, an error beyond.
+        let f = Material::Formula { kind: 5, coefficients: vec![1.5, 0.01, -2.0], range_um: Some((0.4, 0.7)), name: "F".into() };
+        assert!((f.index(0.372).unwrap() - (1.5 + 0.01 / (0.372 * 0.372))).abs() < 1e-12);
+        assert!(f.index(0.728).is_ok() && f.index(0.365).is_err() && f.index(0.735).is_err());
     }
 
     #[test]

@@ -4,15 +4,20 @@
 use crate::lens::Surface;
 use glam::DVec3;
 
-/// Sag z(r^2); None where the conic is undefined (1 - (1+k) c^2 r^2 < 0).
+/// How far below 0 the conic's 1 - (1+k) c^2 r^2 may fall (a relative rounding error) and
+/// still count as the rim: a ball lens whose clear radius equals its radius of curvature
+/// gives -2e-16 for some radii (R = 2.5, 5, 10) and +0 for others.
+pub const RIM_TOLERANCE: f64 = 1e-12;
+
+/// Sag z(r^2); None where the conic is undefined (1 - (1+k) c^2 r^2 < 0, beyond rounding).
 #[inline]
 pub fn sag(s: &Surface, rho: f64) -> Option<f64> {
     let c = s.curvature;
     let arg = 1.0 - (1.0 + s.conic) * c * c * rho;
-    if arg < 0.0 {
+    if arg < -RIM_TOLERANCE {
         return None;
     }
-    let mut z = c * rho / (1.0 + arg.sqrt());
+    let mut z = c * rho / (1.0 + arg.max(0.0).sqrt());
     if s.has_asphere() {
         let mut p = rho;
         for a in s.aspheric.iter() {
@@ -229,6 +234,17 @@ mod tests {
             let e = 1e-6;
             let zx = (sag(&s, (h.x + e).powi(2) + h.y * h.y).unwrap() - sag(&s, (h.x - e).powi(2) + h.y * h.y).unwrap()) / (2.0 * e);
             assert!((n.dot(DVec3::new(1.0, 0.0, zx).normalize())).abs() < 1e-8);
+        }
+    }
+
+    #[test]
+    fn a_sphere_reaches_its_rim_at_r_equal_to_its_radius() {
+        // 1 - c^2 R^2 rounds to -2e-16 for some R (2.5, 5, 10): still the rim, sag = R.
+        for r in [1.5, 2.5, 3.0, 4.0, 5.0, 10.0, 12.7] {
+            let s = surf(1.0 / r, 0.0, 0.0);
+            let z = sag(&s, r * r).unwrap();
+            assert!((z - r).abs() < 1e-5 * r, "R={r}: sag {z}");
+            assert!(sag(&s, (r * (1.0 + 1e-9)).powi(2)).is_none());
         }
     }
 
