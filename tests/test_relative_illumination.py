@@ -144,3 +144,19 @@ def test_dataset_window_energy_within_one_and_verify_flags_out_of_range(tmp_path
         (path.parent / "shard.json").write_text(json.dumps(m))
         rep = verify(damaged)
         assert not rep["ok"] and any(name in p for p in rep["problems"]), rep["problems"]
+
+
+def test_lens_info_flags_an_out_of_range_value(monkeypatch):
+    """`optix lens info` shows what a batch would refuse (spot is patched to return 1.2)."""
+    import json
+
+    from click.testing import CliRunner
+
+    from optix_e2e.cli import main
+
+    real = Lens.spot
+    monkeypatch.setattr(Lens, "spot", lambda self, f, **kw: {**real(self, f, **kw), "relative_illumination": 1.2})
+    out = json.loads(CliRunner().invoke(main, ["lens", "info", "cooke-f50", "--json"]).output)
+    assert len(out["warnings"]) == 3 and "outside [0, 1.05]" in out["warnings"][0]
+    text = CliRunner().invoke(main, ["lens", "info", "cooke-f50"]).output
+    assert "warning: relative illumination 1.2 at 14 deg" in text

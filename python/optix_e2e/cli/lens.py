@@ -46,7 +46,11 @@ def info(lens_spec, aiming, rings, as_json, lenient):
             "chief_y_mm": s.get("chief_y_mm"),
             "n_rays": s.get("n_rays"),
         })
-    out = {"lens": lens_.name, "source": lens_.source, "aiming": aiming,
+    # the engine's range for a sane design (crates/psf-engine spot::RI_MAX)
+    warnings = [f"relative illumination {r['relative_illumination']:.4g} at {r['field_deg']:g} deg lies outside "
+                f"[0, 1.05]: the image of the field folds back or the design is broken (a dataset would record "
+                f"it as failed)" for r in fields if not 0.0 <= r["relative_illumination"] <= 1.05]
+    out = {"lens": lens_.name, "source": lens_.source, "aiming": aiming, "warnings": warnings,
            "wavelengths_nm": lens_.wavelengths_nm,
            "wavelength_weights": lens_.wavelength_weights,
            "primary_wavelength_nm": lens_.primary_wavelength_nm,
@@ -62,6 +66,8 @@ def info(lens_spec, aiming, rings, as_json, lenient):
     click.echo(f"  {'field (deg)':>11}  {'RMS spot (um)':>13}  {'rel. illum.':>11}")
     for row in fields:
         click.echo(f"  {row['field_deg']:>11.3f}  {row['rms_spot_um']:>13.4f}  {row['relative_illumination']:>11.4f}")
+    for w in warnings:
+        click.echo(f"  warning: {w}")
 
 
 FORMATS = (".json", ".zmx")
