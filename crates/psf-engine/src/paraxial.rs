@@ -54,14 +54,17 @@ pub fn paraxial(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
     let a = ynu(lens, &n, 1.0, 0.0);
     let b = ynu(lens, &n, 0.0, 1.0);
     let (ya, nua) = a[k - 1];
-    if nua.abs() < 1e-15 {
-        return Err(EngineError::Lens("afocal system: the paraxial marginal ray leaves parallel (EFL infinite)".into()));
+    // Afocal (a window, a beam expander): the marginal ray leaves parallel. EFL, BFL, FFL,
+    // f-number and image height are infinite; the pupils and the real trace are as usual.
+    let afocal = nua.abs() < 1e-15;
+    if afocal && matches!(lens.aperture, Aperture::FNumber(_)) {
+        return Err(EngineError::Lens("afocal system (EFL infinite): an F-number aperture gives no pupil; give the EPD".into()));
     }
-    let efl = -1.0 / nua;
+    let efl = if afocal { f64::INFINITY } else { -1.0 / nua };
     let ua = nua / nk;
-    let bfl = -ya / ua;
+    let bfl = if afocal { f64::INFINITY } else { -ya / ua };
     // Front focal point: an object ray (y0, u0) leaves parallel when y0*A + u0*B = 0.
-    let ffl = b[k - 1].1 / nua;
+    let ffl = if afocal { f64::INFINITY } else { b[k - 1].1 / nua };
     let (ysa, ysb) = (a[lens.stop].0, b[lens.stop].0);
     if ysa.abs() < 1e-15 {
         return Err(EngineError::Lens(format!(
@@ -100,7 +103,45 @@ pub fn paraxial(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
         stop_semi_diameter,
         total_track: lens.total_track(),
         image_z,
-        image_height: efl * lens.max_field_deg().to_radians().tan(),
+        image_height: if lens.max_field_deg() == 0.0 { 0.0 } else { efl * lens.max_field_deg().to_radians().tan() },
         back_focus_shift: last_z + bfl - image_z,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{Aiming, Beam, End, System};
+
+    fn window(aperture: &str) -> Lens {
+        Lens::from_json(&format!(
+            r#"{{"name": "window", "aperture": {aperture}, "fields_deg": [0, 10], "wavelengths_nm": [587.5618],
+                "surfaces": [{{"radius": "inf", "thickness": 5, "material": {{"n": 1.5}}, "stop": true}},
+                             {{"radius": "inf", "thickness": 20, "material": "air"}}]}}"#
+        ))
+        .unwrap()
+    }
+
+    #[test]
+    fn a_window_is_afocal_with_infinite_efl_and_traces() {
+        let lens = window(r#"{"type": "epd", "value": 4}"#);
+        let p = paraxial(&lens, 587.5618).unwrap();
+        assert!(p.efl.is_infinite() && p.bfl.is_infinite() && p.f_number.is_infinite());
+        assert_eq!((p.epd, p.stop_semi_diameter, p.entrance_pupil_z), (4.0, 2.0, 0.0));
+        // A real ray at 10 deg leaves parallel to itself, shifted by a plate's closed-form
+        // lateral offset t sin(a) (1 - cos(a) / (n cos(a'))).
+        let sys = System::new(&lens, 587.5618).unwrap();
+        let beam = Beam::new(&sys, 10.0, Aiming::Real).unwrap();
+        let l = beam.launch(0.0, 0.0);
+        let r = sys.trace(l.origin, beam.dir, End::Image);
+        assert!(r.ok() && (r.d - beam.dir).length() < 1e-14);
+        let a = 10f64.to_radians();
+        let a2 = (a.sin() / 1.5).asin();
+        let shift = 5.0 * a.sin() * (1.0 - a.cos() / (1.5 * a2.cos()));
+        let straight = l.origin + ((25.0 - l.origin.z) / beam.dir.z) * beam.dir;
+        assert!(((straight.y - r.p.y) * a.cos() - shift).abs() < 1e-12, "{} vs {shift}", (straight.y - r.p.y) * a.cos());
+        // An F-number cannot size the pupil of an afocal system: one clear error.
+        let e = paraxial(&window(r#"{"type": "fno", "value": 4}"#), 587.5618).unwrap_err().to_string();
+        assert!(e.contains("afocal") && e.contains("EPD"), "{e}");
+    }
 }
