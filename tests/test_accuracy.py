@@ -72,7 +72,11 @@ def test_bench_accuracy_quick_run(tmp_path):
         assert (tmp_path / f).stat().st_size > 0
     rows = list(csv.DictReader(open(tmp_path / "rows.csv")))
     assert len(rows) == 2 * len(method_settings(quick=True)) == 42  # 2 cases (axis, edge)
-    assert all(float(r["time_s"]) > 0 and float(r["rel_l1"]) >= 0 for r in rows)
+    # a setting the engine refuses (its window holding more than the transmitted energy) is
+    # a row with the error; every other row has its time and error
+    refused = [r for r in rows if r.get("error")]
+    assert all("PsfError" in r["error"] for r in refused) and len(refused) < len(rows) // 2
+    assert all(float(r["time_s"]) > 0 and float(r["rel_l1"]) >= 0 for r in rows if not r.get("error"))
     summary = list(csv.DictReader(open(tmp_path / "summary.csv")))
     front = [s for s in summary if s["pareto"] == "True"]
     assert front and len(front) < len(summary)
@@ -81,7 +85,9 @@ def test_bench_accuracy_quick_run(tmp_path):
     assert all(float(a["rel_l1"]) > float(b["rel_l1"]) for a, b in zip(front, front[1:]))
     # converged FFT settings beat the coarsest Huygens and geometric ones by far
     by = {s["setting"]: float(s["rel_l1"]) for s in summary}
-    assert by["fft N=64"] < 0.1 < by["huygens N=16"] and by["fft N=64"] < by["geometric N=16"]
+    assert by["fft N=64"] < 0.1 and by["fft N=64"] < by["geometric N=16"]
+    # the coarsest Huygens sum aliases: refused by its energy check, or far off where it passes
+    assert by.get("huygens N=16", 1.0) > 0.1
     sampling = list(csv.DictReader(open(tmp_path / "sampling.csv")))
     spec = {(s["channel"], int(s["n_wavelengths"])): float(s["rel_l1"]) for s in sampling if s["experiment"] == "spectral"}
     assert all(spec[(c, 9)] < spec[(c, 1)] for c in "RGB")

@@ -80,7 +80,11 @@ def test_auto_takes_the_cheapest_candidate_predicted_to_meet_the_target():
     ok = [c for c in cands if c["predicted_rel_l1"] is not None and c["predicted_rel_l1"] <= 0.25]
     assert any(c["method"] == "geometric" for c in ok)
     _, d = _engine.psf(js, 0.0, 550.0, "auto", 20.0, 64, 64, None, "paraxial", False, False, False, 0.25)
-    assert d["auto"]["choice"] == ok[0]["name"]
+    # auto's first try is the cheapest that qualifies; a PSF failing its own checks (here the
+    # coarse fast FFTs, whose FFT field is smaller than the 1280 um window) escalates
+    tried = d.get("auto_escalated_from", []) + [d["auto"]["choice"]]
+    assert tried[0] == ok[0]["name"]
+    assert all(t in [c["name"] for c in cands] for t in tried)
     # on the in-focus lens at 1 um pixels the geometric PSF is never predicted to qualify
     cands = _engine.auto_candidates(lens.to_engine_json(), 0.0, 550.0, 1.0, 128)["candidates"]
     assert all(c["predicted_rel_l1"] > 0.2 for c in cands if c["method"] == "geometric")

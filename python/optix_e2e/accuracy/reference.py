@@ -34,8 +34,12 @@ def converged_reference(lens_json: str, field_deg: float, wavelength_nm: float, 
     t0 = time.perf_counter()
     prev, n, change = None, start, float("inf")
     while n <= max_samples:
-        psf, diag = _engine.psf(lens_json, field_deg, wavelength_nm, "huygens", pixel_um, size, n,
-                                None, "paraxial", False, False, False)
+        try:
+            psf, diag = _engine.psf(lens_json, field_deg, wavelength_nm, "huygens", pixel_um, size, n,
+                                    None, "paraxial", False, False, False)
+        except _engine.PsfError:  # refused by its own checks (aliased at this sampling): not yet
+            prev, n = None, 2 * n
+            continue
         if prev is not None:
             change = rel_l1(prev, psf) if prev.sum() > 0 else float("inf")
             if change <= tol:
