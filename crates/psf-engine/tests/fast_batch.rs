@@ -145,8 +145,9 @@ fn perturbed_designs_match_the_dense_general_fft() {
 #[test]
 fn batch_output_does_not_depend_on_the_thread_count() {
     let mut bad = common::paper_triplet_json();
-    // PMMA defined only from 500 nm: the 470 nm channel fails for this design alone.
-    bad["surfaces"][0]["material"]["range_um"] = serde_json::json!([0.5, 1.052]);
+    // PMMA defined only from 550 nm (beyond the 10% of its span that the engine
+    // extrapolates): the 470 nm channel fails for this design alone.
+    bad["surfaces"][0]["material"]["range_um"] = serde_json::json!([0.55, 1.052]);
     let lenses = vec![common::paper_triplet(), Lens::from_json(&bad.to_string()).unwrap(), perturbed(7)];
     let fields = [0.0, 5.0, 14.9];
     let run = |threads: usize| {
