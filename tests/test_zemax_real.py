@@ -35,11 +35,11 @@ def samples() -> Path:
 def test_real_files_import_trace_and_match_their_focal_length(samples):
     """Every sample: rotationally symmetric refractive files import and trace with the EFL
     their catalog entry states; every other file is refused with one line naming its
-    feature.  The floor is the rate measured when this test was written (92 %; README)."""
+    feature.  The floor is the rate measured when this test was written (94 %; README)."""
     summary, results = survey(samples)
     assert summary["files"] == len(results) >= 600
     target = [r for r in results if r.target]
-    assert summary["target_rate"] >= 0.92, summary["target_refused_reasons"]
+    assert summary["target_rate"] >= 0.94, summary["target_refused_reasons"]
     # the nominal focal length is checked on hundreds of catalog parts, and all agree
     assert summary["target_with_nominal_efl"] >= 400
     assert summary["efl_mismatches"] == []
@@ -50,7 +50,7 @@ def test_real_files_import_trace_and_match_their_focal_length(samples):
             assert any(w in r.error for w in ("toroidal", "mirror", "tilt", "coordinate break", "grating",
                                               "Fresnel", "binary", "aperture", "sequential")), r.error
         elif not r.traced:
-            assert r.error.startswith(("ZemaxError", "MaterialError", "LensError")), r.error
+            assert r.error.startswith(("ZemaxError", "MaterialError", "LensError", "PrescriptionError")), r.error
     assert sum(r.traced for r in target) == summary["target_traced"]
 
 
@@ -176,3 +176,122 @@ def test_unit_meter_asphere_traces_as_the_scaled_lens():
         assert b["n_rays"] == a["n_rays"]
         assert math.isfinite(b["rms_um"])
         assert b["rms_um"] == pytest.approx(1000 * a["rms_um"], rel=1e-9)
+
+
+# ------------------------------------------------- item 4: classes of real files that were refused
+def _zmx(surfaces: str, aperture="ENPD 2", gcat="SCHOTT", wl="0.5875618") -> str:
+    """A file with the object at infinity, the given lens surfaces (SURF 1..k) and an image."""
+    head = HEAD.format(gcat=gcat, wl=wl).replace("ENPD 10\n", aperture + "\n")
+    k = surfaces.count("SURF ")
+    return head + "SURF 0\n  CURV 0.0\n  DISZ INFINITY\n" + surfaces + f"SURF {k + 1}\n  CURV 0.0\n  DISZ 0\n"
+
+
+def _ball(radius: float, glass="N-LASF9", last="INFINITY", diam=None) -> str:
+    sd = "" if diam is None else f"  DIAM {diam} 1 0 0 1 \"\"\n"
+    return (f"SURF 1\n  STOP\n  CURV {1 / radius!r}\n  DISZ {2 * radius!r}\n  GLAS {glass}\n{sd}"
+            f"SURF 2\n  CURV {-1 / radius!r}\n  DISZ {last}\n{sd}")
+
+
+def _ball_efl(lens: Lens, radius: float) -> float:
+    """A ball lens's EFL, n D / (4 (n - 1)), measured from its centre."""
+    n = lens.refractive_indices(lens.data["primary_wavelength_nm"])[1]
+    return n * 2 * radius / (4 * (n - 1))
+
+
+def test_unknown_glass_with_its_nd_vd_on_the_glas_line_is_a_model_glass():
+    """A catalog glass missing from the database but with nd and vd recorded on its GLAS
+    line (as OpticStudio writes them) imports, in strict mode, as a model glass, with a note;
+    OpticStudio's placeholder (1.5, 40) or no values stay an error that says why."""
+    text = _zmx(_ball(5, glass="ECO550 0 0 1.6062 60.6 0 0 0 0 0 0", last="5"), gcat="LIGHTPATH")
+    imp = parse_zmx(text, source="<t>")
+    assert imp.data["surfaces"][0]["material"] == {"nd": 1.6062, "vd": 60.6}
+    assert any("ECO550 is not in the glass database" in n and "model glass" in n for n in imp.notes)
+    n = Lens(imp.data).refractive_indices
+    nd, nf, nc = (n(w)[1] for w in (587.5618, 486.1327, 656.2725))
+    assert nd == pytest.approx(1.6062, abs=1e-12) and (nd - 1) / (nf - nc) == pytest.approx(60.6, rel=1e-9)
+    with pytest.raises(ZemaxError, match=r"unknown glass 'ECO550'.*OpticStudio's placeholder"):
+        parse_zmx(text.replace("1.6062 60.6", "1.5 40"), source="<t>")
+    with pytest.raises(ZemaxError, match=r"unknown glass 'ECO550'.*records no nd/vd"):
+        parse_zmx(text.replace(" 0 0 1.6062 60.6 0 0 0 0 0 0", ""), source="<t>")
+
+
+def test_glass_data_just_past_its_range_is_extrapolated_with_a_note():
+    """LightPath BD2's data cover 3-14 um; 2.5 um (4.5 % of the span before it) is the
+    table's first segment extended, with a note; 1.5 um (14 %) is an error naming the range."""
+    from optix_e2e.glass import resolve
+
+    table = resolve("BD2", "lightpath").tabulated
+    (w0, n0), (w1, n1) = table[0], table[1]
+    text = _zmx(_ball(5, glass="BD2", last="5"), gcat="LIGHTPATH", wl="2.5")
+    imp = parse_zmx(text, source="<t>")
+    assert any("BD2 (lightpath): data cover 3000-14000 nm; 2500 nm extrapolated" in n for n in imp.notes)
+    got = Lens(imp.data).refractive_indices(2500.0)[1]
+    assert got == pytest.approx(n0 + (2.5 - w0) * (n1 - n0) / (w1 - w0), abs=1e-12)
+    far = Lens(parse_zmx(text.replace("WAVM 1 2.5", "WAVM 1 1.5"), source="<t>").data)
+    from optix_e2e._engine import MaterialError
+
+    with pytest.raises(MaterialError, match=r"1500\.0 nm is outside the table 3000\.0-14000\.0 nm "
+                                         r"\(extrapolated at most 10% of the span, to 1900\.0-15100\.0 nm\)"):
+        far.paraxial()
+
+
+def test_floating_aperture_without_value_or_diam_clips_nothing():
+    """FLAP 0 0 with no DIAM follows OpticStudio's automatic semi-diameter: no clear aperture."""
+    text = _singlet().replace("  DISZ 95\n", "  DISZ 95\n  FLAP 0 0 0\n")
+    imp = parse_zmx(text, source="<t>")
+    assert "semi_diameter" not in imp.data["surfaces"][1]
+    assert any("FLAP" in n and "no clear aperture" in n for n in imp.notes)
+    assert Lens(imp.data).paraxial()["efl_mm"] == pytest.approx(
+        Lens(parse_zmx(_singlet(), source="<t>").data).paraxial()["efl_mm"], rel=1e-15)
+
+
+@pytest.mark.parametrize("radius", [1.25, 2.5, 3.0, 4.0, 5.0, 10.0])
+def test_ball_lens_with_image_at_infinity_and_clear_radius_equal_to_its_radius(radius):
+    """Half-ball and ball lenses: DIAM = R (refused at R = 2.5, 5, 10 by rounding) and an image
+    at infinity (DISZ INFINITY on the last surface), put at the paraxial focus, f - R behind
+    the ball, with f = n D / (4 (n - 1))."""
+    imp = parse_zmx(_zmx(_ball(radius, diam=radius)), source="<t>")
+    lens = Lens(imp.data)
+    f = _ball_efl(lens, radius)
+    par = lens.paraxial()
+    assert par["efl_mm"] == pytest.approx(f, rel=1e-12)
+    assert lens.data["surfaces"][-1]["thickness"] == pytest.approx(f - radius, rel=1e-12)
+    assert par["back_focus_shift_mm"] == pytest.approx(0.0, abs=1e-12)
+    assert any("image at infinity" in n for n in imp.notes)
+    assert lens.spot(0.0, rings=4)["n_rays"] > 0
+
+
+def test_afocal_window_floating_by_its_stop_imports_with_infinite_efl():
+    """A flat window with FLOA (catalog windows): the EPD is the stop's diameter, the EFL is
+    infinite, and real rays trace (they leave parallel to how they came)."""
+    import numpy as np
+
+    window = ("SURF 1\n  CURV 0.0\n  DISZ 4\n  GLAS N-BK7\n  DIAM 11.25 1 0 0 1 \"\"\n  FLAP 0 11.25 0\n"
+              "SURF 2\n  STOP\n  CURV 0.0\n  DISZ 0\n  DIAM 11.25 1 0 0 1 \"\"\n  FLAP 0 11.25 0\n")
+    imp = parse_zmx(_zmx(window, aperture="FLOA").replace("YFLN 0", "YFLN 0 5").replace(
+        "FTYP 0 0 1 1", "FTYP 0 0 2 1"), source="<t>")
+    lens = Lens(imp.data)
+    par = lens.paraxial()
+    assert imp.data["aperture"] == {"type": "epd", "value": 22.5}
+    assert math.isinf(par["efl_mm"]) and math.isinf(par["f_number"])
+    r = lens.trace_field(5.0, np.array([0.0, 0.0]), np.array([0.0, 0.9]), aiming="real")
+    assert list(r["status"]) == [0, 0]
+    t = math.radians(5.0)
+    assert np.allclose(r["direction"], [0.0, math.sin(t), math.cos(t)], atol=1e-14)
+
+
+def test_diams_that_make_surfaces_cross_are_dropped_with_a_note():
+    """A DIAM does not clip in OpticStudio: where two surfaces would cross inside their
+    DIAMs (a drawing size), those semi-diameters are dropped and the beam decides."""
+    pair = ("SURF 1\n  STOP\n  CURV 0.05\n  DISZ 3\n  GLAS N-BK7\n  DIAM 4 1 0 0 1 \"\"\n"
+            "SURF 2\n  CURV 0.1\n  DISZ 1\n  GLAS N-SF5\n  DIAM 4 1 0 0 1 \"\"\n"
+            "SURF 3\n  CURV -0.1\n  DISZ 20\n  DIAM 4 1 0 0 1 \"\"\n")  # cross at r ~ 3.2
+    imp = parse_zmx(_zmx(pair), source="<t>")
+    s = imp.data["surfaces"]
+    assert "semi_diameter" not in s[1] and "semi_diameter" not in s[2] and s[0]["semi_diameter"] == 4
+    from optix_e2e._engine import LensError
+
+    with pytest.raises(LensError, match="surfaces 2 and 3 cross"):  # as read before: an error
+        Lens({**imp.data, "surfaces": [s[0], {**s[1], "semi_diameter": 4}, {**s[2], "semi_diameter": 4}]}).paraxial()
+    assert any("surfaces 2 and 3 would cross inside their DIAMs" in n for n in imp.notes)
+    Lens(imp.data).paraxial()

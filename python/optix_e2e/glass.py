@@ -112,6 +112,11 @@ MOLDED_FROM = {"D-ZK3M": "D-ZK3", "D-ZLAF52LAM": "D-ZLAF52LA", "D-ZLAF52LA_M": "
                "D-LAK6_MOLD": "D-LAK6", "H-LAK54_MOLD": "H-LAK54"}
 
 
+#: How far past either end of its data a glass is extrapolated, as a fraction of the data's
+#: span (the engine's material.rs EXTRAPOLATION_FRACTION); further out is an error.
+EXTRAPOLATION_FRACTION = 0.1
+
+
 class GlassError(ValueError):
     """Unknown glass or catalog, or a database page this package cannot use."""
 
@@ -142,6 +147,29 @@ class Glass:
                 "name": self.label,
             }
         return {"tabulated": [list(p) for p in self.tabulated], "name": self.label}
+
+    @property
+    def data_range_um(self) -> tuple[float, float] | None:
+        """The wavelengths (um) the data covers: a formula's valid range or the table's ends."""
+        if self.formula is not None:
+            return self.range_um
+        return (self.tabulated[0][0], self.tabulated[-1][0])
+
+    def extrapolation(self, wavelengths_nm) -> str | None:
+        """A note naming the wavelengths outside the data's range, which the engine
+        extrapolates up to EXTRAPOLATION_FRACTION of the span past either end (as
+        OpticStudio does, with a warning); None when every wavelength is inside."""
+        rng = self.data_range_um
+        if rng is None:
+            return None
+        lo, hi = rng
+        # 1 nm of slack: published ranges are rounded.
+        out = [w for w in wavelengths_nm if not lo - 1e-3 <= w / 1e3 <= hi + 1e-3]
+        if not out:
+            return None
+        ws = ", ".join(f"{w:g}" for w in out)
+        return (f"{self.label}: data cover {lo * 1e3:g}-{hi * 1e3:g} nm; {ws} nm extrapolated "
+                f"(allowed up to {EXTRAPOLATION_FRACTION:.0%} of the span past either end)")
 
     def n(self, wavelength_um):
         """Refractive index evaluated in numpy (an independent check of the engine)."""

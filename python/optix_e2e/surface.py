@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
+#: How far below 0 the conic's 1 - (1+k) c^2 r^2 may round and still be the rim.
+RIM_TOLERANCE = 1e-12
+
 
 def curvature(s: dict) -> float:
     """1/radius in mm^-1; 0 for a plane ("inf", "infinity", null or a zero curvature)."""
@@ -27,8 +30,10 @@ def sag(s: dict, r, *, clip: bool = False) -> np.ndarray:
     arg = 1.0 - (1.0 + k) * c * c * rho
     if clip:
         arg = np.clip(arg, 0.0, None)
-    with np.errstate(invalid="ignore"):
-        z = c * rho / (1.0 + np.sqrt(arg))
+    # A rounding error below 0 is still the rim (the engine's RIM_TOLERANCE): a ball
+    # lens's clear radius equal to its radius gives -2e-16 for R = 2.5, 5, 10.
+    inside = arg >= -RIM_TOLERANCE
+    z = c * rho / (1.0 + np.sqrt(np.clip(arg, 0.0, None)))
     for key, a in (s.get("aspheric") or {}).items():
         z = z + float(a) * r ** int(key[1:])  # "a4" -> r^4
-    return np.where(arg >= 0.0, z, np.nan)
+    return np.where(inside, z, np.nan)

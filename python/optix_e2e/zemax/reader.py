@@ -345,7 +345,7 @@ def _build(p: _Parser, end: int, name: str) -> dict:
     if not stops:
         p.fail(end, "STOP", "no surface is marked STOP (the aperture stop must be given)")
 
-    surfaces = [_surface(p, s, scale) for s in body]
+    surfaces = [_surface(p, s, scale, last=s is body[-1]) for s in body]
     out: dict[str, Any] = {"name": h.get("name") or name, "units": "mm"}
     out["description"] = f"Imported from Zemax file {Path(p.source).name}"
     if scale != 1:
@@ -367,17 +367,23 @@ def _build(p: _Parser, end: int, name: str) -> dict:
     if "DISZ" not in image["lines"]:  # OpticStudio (and our writer) write DISZ in every SURF block
         p.fail(end, "SURF", f"{p.where(image)}, the last surface (taken as the image plane), has no "
                "DISZ line: the file looks truncated")
+    _drop_crossing_diams(p, body, out["surfaces"])
     if kind == "floa":
         _resolve_floa(p, out, h["aperture_line"])
+    if math.isinf(body[-1]["disz"]):
+        _image_at_infinity(p, body[-1], out)
+    _note_extrapolated_glass(p, body, out)
     return out
 
 
-def _surface(p: _Parser, s: dict, scale: float) -> dict:
+def _surface(p: _Parser, s: dict, scale: float, last: bool = False) -> dict:
     c = s["curv"]
     surf: dict[str, Any] = {"radius": "inf" if c == 0 else _radius(c) * scale,
                             "thickness": s["disz"] * scale}
     if math.isinf(s["disz"]):
-        p.fail(s["lines"]["DISZ"], "DISZ", f"{p.where(s)}: infinite thickness inside the lens")
+        if not last:
+            p.fail(s["lines"]["DISZ"], "DISZ", f"{p.where(s)}: infinite thickness inside the lens")
+        surf["thickness"] = 0.0  # image at infinity: placed once the focus is known (_image_at_infinity)
     surf["material"] = _material(p, s)
     if s.get("coni", 0.0) != 0:
         surf["conic"] = s["coni"]
@@ -407,8 +413,13 @@ def _surface(p: _Parser, s: dict, scale: float) -> dict:
     elif "flap" in s:  # FLAP carries the semi-diameter itself
         sd = s["flap"]
         if sd <= 0:
-            p.fail(s["lines"]["FLAP"], "FLAP", f"{p.where(s)}: floating aperture without a DIAM "
-                   f"or a semi-diameter (FLAP value {sd:g})")
+            # A floating aperture follows the surface's semi-diameter; without a DIAM that is
+            # OpticStudio's automatic one (the beam's footprint), so it clips nothing.
+            p.notes.append(f"line {s['lines']['FLAP']}: {p.where(s)}: floating aperture (FLAP) with "
+                           "no value and no DIAM: automatic semi-diameter, no clear aperture")
+            sd = None
+        elif sd < 0:
+            p.fail(s["lines"]["FLAP"], "FLAP", f"{p.where(s)}: negative floating aperture {sd:g}")
     if sd:
         surf["semi_diameter"] = sd * scale
     if s.get("stop"):
@@ -444,6 +455,16 @@ def _material(p: _Parser, s: dict):
     return _catalog_glass(p, line, s, name, nd, vd)
 
 
+#: (nd, vd) OpticStudio writes on a GLAS line when it did not fill in the glass's data.
+_PLACEHOLDER_ND_VD = (1.5, 40.0)
+
+
+def _recorded_index_usable(nd: float, vd: float) -> bool:
+    """A GLAS line's recorded (nd, vd) describes the glass: nd > 1, vd >= 0, and not the
+    placeholder (1.5, 40)."""
+    return nd > 1 and vd >= 0 and (nd, vd) != _PLACEHOLDER_ND_VD
+
+
 def _nd_vd(g) -> tuple[float, float]:
     """Catalog nd and Abbe number vd (d, F, C lines) of a resolved glass."""
     nd, nf, nc = (float(g.n(w)) for w in (0.5875618, 0.4861327, 0.6562725))
@@ -468,14 +489,22 @@ def _catalog_glass(p: _Parser, line: int, s: dict, name: str, nd: float, vd: flo
         except _glass.GlassError:
             continue
     if not hits:
+        if _recorded_index_usable(nd, vd):
+            # The file's own (nd, vd) for a glass we lack: a model glass, said so.
+            p.notes.append(f"{p.where(s)}: glass {name} is not in the glass database (GCAT "
+                           f"{' '.join(gcat_names)}); imported as a model glass from the nd {nd:g}, "
+                           f"vd {vd:g} on line {line} (dispersion away from the d line is approximate)")
+            return {"nd": nd, "vd": vd} if vd > 0 else {"n": nd}
         try:
             elsewhere = _glass.resolve(name)
             where = (f"; not substituted: {name} exists in catalog {elsewhere.catalog} "
                      f"(add {elsewhere.catalog.upper()} to GCAT to use it)")
         except _glass.GlassError as exc:
             where = "; " + str(exc).split("; ", 1)[-1]
+        recorded = ("; the GLAS line records no nd/vd to import it as a model glass" if nd <= 1 else
+                    f"; the GLAS line's nd {nd:g}, vd {vd:g} is OpticStudio's placeholder, not the glass's data")
         p.fail(line, "GLAS", f"{p.where(s)}: unknown glass {name!r} in the file's catalogs "
-               f"(GCAT {' '.join(gcat_names)}){where}")
+               f"(GCAT {' '.join(gcat_names)}){where}{recorded}")
     g = hits[0]
     if g.name in _glass.MOLDED_FROM and g.catalog in ("lightpath", "rpo"):
         p.notes.append(f"{p.where(s)}: molded glass {g.name} ({g.catalog}) uses CDGM "
@@ -535,22 +564,104 @@ def _waves(p: _Parser, end: int) -> dict:
     return {"wavelengths_nm": wl, "wavelength_weights": w, "primary_wavelength_nm": wl[pw - 1]}
 
 
+def _indices(p: _Parser, out: dict, line: int, key: str, what: str) -> list[float]:
+    """Refractive indices of the media (object space first) at the primary wavelength."""
+    import json
+
+    from .._engine import EngineError
+    from ..lens import _engine_fn  # circular import otherwise
+    from ..prescription import PrescriptionError, resolve_prescription
+
+    try:
+        js = json.dumps(resolve_prescription(out, p.source))
+        return list(_engine_fn("refractive_indices")(js, float(out["primary_wavelength_nm"])))
+    except (PrescriptionError, EngineError) as exc:
+        raise ZemaxError(f"{p.source}:{line}: {key}: cannot {what}: {exc}") from None
+
+
+def _marginal_heights(surfaces: list[dict], n: list[float]) -> list[tuple[float, float]]:
+    """(y, n u) at each surface of the paraxial marginal ray of a unit EPD from an object at
+    infinity (it enters parallel at height 1/2 wherever the pupil lies); the paraxial
+    curvature of an asphere includes its r^2 term, as in the engine."""
+    from ..surface import curvature
+
+    y, nu, out = 0.5, 0.0, []
+    for i, s in enumerate(surfaces):
+        c = curvature(s) + 2.0 * float((s.get("aspheric") or {}).get("a2", 0.0))
+        nu -= y * c * (n[i + 1] - n[i])
+        out.append((y, nu))
+        y += float(s["thickness"]) * nu / n[i + 1]
+    return out
+
+
 def _resolve_floa(p: _Parser, out: dict, line: int):
     """FLOA: the EPD is whatever fills the stop's semi-diameter paraxially.  The
-    paraxial stop height is linear in the EPD, so one trace at EPD = 1 gives it."""
-    from .._engine import EngineError
-    from ..lens import Lens  # circular import otherwise
-    from ..prescription import PrescriptionError
-
-    stop = next(s for s in out["surfaces"] if s.get("stop"))
+    paraxial stop height is linear in the EPD, so one trace at EPD = 1 gives it (a ray
+    trace that needs no focal length: afocal systems float too)."""
+    surfaces = out["surfaces"]
+    i_stop = next(i for i, s in enumerate(surfaces) if s.get("stop"))
+    stop = surfaces[i_stop]
     if not stop.get("semi_diameter"):
         p.fail(line, "FLOA", "aperture floats by stop size but the stop surface has no DIAM")
-    try:
-        unit = Lens(out, p.source).paraxial()["stop_semi_diameter_mm"]
-    except (PrescriptionError, EngineError) as exc:
-        raise ZemaxError(f"{p.source}:{line}: FLOA: cannot size the pupil: {exc}") from None
+    n = _indices(p, out, line, "FLOA", "size the pupil")
+    unit = abs(_marginal_heights(surfaces, n)[i_stop][0])
+    if not unit > 1e-12:
+        p.fail(line, "FLOA", f"cannot size the pupil: the stop (surface {i_stop + 1}) is at a paraxial "
+               "image of the object")
     epd = stop["semi_diameter"] / unit
     out["aperture"] = {"type": "epd", "value": epd}
     out["description"] += (f"; aperture FLOA (float by stop size): stop semi-diameter "
                            f"{stop['semi_diameter']:.10g} mm -> paraxial EPD {epd:.10g} mm")
     p.notes.append(f"FLOA resolved to EPD {epd:.10g} mm")
+
+
+def _image_at_infinity(p: _Parser, last: dict, out: dict):
+    """An infinite last thickness puts the image at infinity; optix's image is a plane at a
+    finite distance, so it goes to the paraxial focus (thickness = BFL, negative for a
+    virtual focus); an afocal system keeps it on the last surface."""
+    line = last["lines"]["DISZ"]
+    n = _indices(p, out, line, "DISZ", "place the image")
+    y, nu = _marginal_heights(out["surfaces"], n)[-1]
+    if abs(nu) < 1e-15:
+        p.notes.append(f"line {line}: {p.where(last)}: image at infinity on an afocal system: "
+                       "the image plane is the last surface (EFL infinite)")
+        return
+    bfl = -y / (nu / n[-1])
+    out["surfaces"][-1]["thickness"] = bfl
+    p.notes.append(f"line {line}: {p.where(last)}: image at infinity (DISZ INFINITY): the image plane "
+                   f"is put at the paraxial focus, BFL {bfl:.10g} mm")
+
+
+def _drop_crossing_diams(p: _Parser, body: list[dict], surfaces: list[dict]):
+    """A DIAM alone does not clip rays in OpticStudio; where two neighbouring surfaces
+    would cross inside their DIAMs (a drawing size no real lens could have), the DIAM-only
+    semi-diameters are dropped, with a note, and the beam decides (Lens checks that the
+    surfaces do not cross inside the paraxial beam).  CLAP/FLAP apertures stay."""
+    import numpy as np
+
+    from ..surface import sag
+
+    for i in range(len(surfaces) - 1):
+        a, b = surfaces[i], surfaces[i + 1]
+        if not (a.get("semi_diameter") and b.get("semi_diameter")):
+            continue
+        r = np.linspace(0.0, min(a["semi_diameter"], b["semi_diameter"]), 33)[1:]
+        gap = float(a["thickness"]) + sag(b, r) - sag(a, r)
+        if not np.any(gap < -1e-9):
+            continue
+        for s, surf in ((body[i], a), (body[i + 1], b)):
+            if "clap" not in s and "flap" not in s:
+                p.notes.append(f"{p.where(s)}: DIAM {surf.pop('semi_diameter'):g} dropped: surfaces "
+                               f"{i + 1} and {i + 2} would cross inside their DIAMs (a DIAM does not clip "
+                               "in OpticStudio)")
+
+
+def _note_extrapolated_glass(p: _Parser, body: list[dict], out: dict):
+    """Each catalog glass asked for wavelengths just past its data: a note (the engine
+    extrapolates a little, as OpticStudio does, and refuses further out)."""
+    for s, surf in zip(body, out["surfaces"]):
+        m = surf["material"]
+        if isinstance(m, dict) and "glass" in m:
+            note = _glass.resolve(m["glass"], m.get("catalog")).extrapolation(out["wavelengths_nm"])
+            if note:
+                p.notes.append(f"{p.where(s)}: {note}")
