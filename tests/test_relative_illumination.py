@@ -160,3 +160,28 @@ def test_lens_info_flags_an_out_of_range_value(monkeypatch):
     assert len(out["warnings"]) == 3 and "outside [0, 1.05]" in out["warnings"][0]
     text = CliRunner().invoke(main, ["lens", "info", "cooke-f50"]).output
     assert "warning: relative illumination 1.2 at 14 deg" in text
+
+
+def test_afocal_system_has_no_relative_illumination(tmp_path):
+    """A flat window (afocal, infinite EFL) forms no image of an object at infinity: `lens info`
+    reports null relative illumination instead of failing; a PSF batch refuses it by name."""
+    import json
+
+    from click.testing import CliRunner
+
+    from optix_e2e import _engine
+    from optix_e2e.cli import main
+
+    d = {"name": "window", "units": "mm", "aperture": {"type": "epd", "value": 10.0}, "fields_deg": [0.0, 5.0],
+         "wavelengths_nm": [550.0], "primary_wavelength_nm": 550.0,
+         "surfaces": [{"radius": "inf", "thickness": 4.0, "material": {"n": 1.5}, "stop": True},
+                      {"radius": "inf", "thickness": 20.0, "material": "air"}], "image": {"semi_diameter": None}}
+    path = tmp_path / "window.json"
+    path.write_text(json.dumps(d))
+    r = CliRunner().invoke(main, ["lens", "info", str(path), "--json"])
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.output)
+    assert [f["relative_illumination"] for f in out["fields"]] == [None, None] and out["warnings"] == []
+    assert "afocal" in CliRunner().invoke(main, ["lens", "info", str(path)]).output
+    b = _engine.psf_batch([Lens(d).to_engine_json()], [0.0], [[(550.0, 1.0)]], size=32, pupil_samples=32)
+    assert not b["ok"][0] and "afocal" in b["errors"][0]

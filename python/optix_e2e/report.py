@@ -120,7 +120,8 @@ def spot_diagram(lens: Lens, field: float, rings: int = 12, aiming: str = "parax
     return {"field_deg": float(field), "centroid_um": centroid, "wavelengths_nm": lens.wavelengths_nm,
             "points_um": [p - centroid for p in pts], "rms_um": float(s["rms_um"]),
             "rms_um_per_wavelength": [float(v) for v in s["rms_um_per_wavelength"]],
-            "relative_illumination": float(s["relative_illumination"]), "vignetting": s.get("vignetting"),
+            "relative_illumination": (None if s["relative_illumination"] is None else float(s["relative_illumination"])),
+            "vignetting": s.get("vignetting"),
             "chief_y_mm": s.get("chief_y_mm"), "n_rays": int(px.size * len(pts))}
 
 

@@ -205,6 +205,9 @@ pub fn irradiance_adaptive(lens: &Lens, field_deg: f64, wavelength_nm: f64, aimi
 /// so the cos^4 law, distortion, pupil aberration, vignetting and defocus all come out of
 /// the trace. `axis`: the on-axis irradiance where the caller has it.
 pub fn relative_illumination_from(lens: &Lens, field_deg: f64, wavelength_nm: f64, aiming: Aiming, axis: Option<f64>) -> Result<f64> {
+    if afocal(lens)? {
+        return Err(EngineError::Trace("relative illumination is not defined for an afocal system: it forms no image of an object at infinity".into()));
+    }
     let e0 = match axis {
         Some(e) => e,
         None => irradiance_adaptive(lens, 0.0, wavelength_nm, aiming)?,
@@ -213,6 +216,11 @@ pub fn relative_illumination_from(lens: &Lens, field_deg: f64, wavelength_nm: f6
         return Err(EngineError::Trace(format!("no on-axis ray reaches the image at {wavelength_nm} nm")));
     }
     Ok(irradiance_adaptive(lens, field_deg, wavelength_nm, aiming)? / e0)
+}
+
+/// Whether the lens is afocal (infinite paraxial focal length at its primary wavelength).
+pub fn afocal(lens: &Lens) -> Result<bool> {
+    Ok(!crate::paraxial::paraxial(lens, lens.primary_nm)?.efl.is_finite())
 }
 
 /// Relative illumination at one field and wavelength (see `relative_illumination_from`);
@@ -240,11 +248,15 @@ pub fn spot_summary(lens: &Lens, field_deg: f64, wavelengths_nm: &[f64], weights
     let wsum: f64 = weights.iter().sum();
     let mut vig = 0.0;
     let mut ri = 0.0;
+    // an afocal system forms no image: no relative illumination (null)
+    let no_image = afocal(lens)?;
     let mut per = vec![];
     for ((s, &w), &wl) in spots.iter().zip(weights).zip(wavelengths_nm) {
         per.push(if s.flux > 0.0 { rms_radius(&[(s, 1.0)]) * 1e3 } else { f64::NAN });
         vig += w / wsum * s.x.len() as f64 / s.launched as f64;
-        ri += w / wsum * relative_illumination(lens, field_deg, wl, 0, aiming)?;
+        if !no_image {
+            ri += w / wsum * relative_illumination(lens, field_deg, wl, 0, aiming)?;
+        }
     }
     let (n_ok, n_rays): (usize, usize) = (spots.iter().map(|s| s.x.len()).sum(), spots.iter().map(|s| s.launched).sum());
     let cx: f64 = pairs.iter().map(|(s, w)| w * s.x.iter().zip(&s.w).map(|(x, q)| x * q).sum::<f64>() / s.flux).sum::<f64>() / pairs.iter().map(|p| p.1).sum::<f64>();
@@ -255,6 +267,6 @@ pub fn spot_summary(lens: &Lens, field_deg: f64, wavelengths_nm: &[f64], weights
         "rms_um": rms_radius(&pairs) * 1e3,
         "rms_um_per_wavelength": per.into_iter().map(|v| if v.is_finite() { serde_json::json!(v) } else { serde_json::Value::Null }).collect::<Vec<_>>(),
         "centroid_x_mm": cx, "centroid_y_mm": cy, "chief_y_mm": primary.chief_y,
-        "n_rays": n_rays, "n_ok": n_ok, "vignetting": vig, "relative_illumination": ri,
+        "n_rays": n_rays, "n_ok": n_ok, "vignetting": vig, "relative_illumination": if no_image { serde_json::Value::Null } else { serde_json::json!(ri) },
     }))
 }

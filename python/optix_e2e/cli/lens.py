@@ -49,7 +49,8 @@ def info(lens_spec, aiming, rings, as_json, lenient):
     # the engine's range for a sane design (crates/psf-engine spot::RI_MAX)
     warnings = [f"relative illumination {r['relative_illumination']:.4g} at {r['field_deg']:g} deg lies outside "
                 f"[0, 1.05]: the image of the field folds back or the design is broken (a dataset would record "
-                f"it as failed)" for r in fields if not 0.0 <= r["relative_illumination"] <= 1.05]
+                f"it as failed)" for r in fields
+                if r["relative_illumination"] is not None and not 0.0 <= r["relative_illumination"] <= 1.05]
     out = {"lens": lens_.name, "source": lens_.source, "aiming": aiming, "warnings": warnings,
            "wavelengths_nm": lens_.wavelengths_nm,
            "wavelength_weights": lens_.wavelength_weights,
@@ -65,7 +66,9 @@ def info(lens_spec, aiming, rings, as_json, lenient):
     click.echo(f"  wavelengths {wl} nm (primary {lens_.primary_wavelength_nm:g}), aiming {aiming}")
     click.echo(f"  {'field (deg)':>11}  {'RMS spot (um)':>13}  {'rel. illum.':>11}")
     for row in fields:
-        click.echo(f"  {row['field_deg']:>11.3f}  {row['rms_spot_um']:>13.4f}  {row['relative_illumination']:>11.4f}")
+        ri = row["relative_illumination"]
+        ri_text = f"{ri:>11.4f}" if ri is not None else f"{'- (afocal)':>11}"
+        click.echo(f"  {row['field_deg']:>11.3f}  {row['rms_spot_um']:>13.4f}  {ri_text}")
     for w in warnings:
         click.echo(f"  warning: {w}")
 

@@ -103,6 +103,11 @@ def report(lens_spec, out, fields, aiming, rays, freqs, max_freq, per_wavelength
     click.echo(f"  {'field':>7}  {'RMS spot':>9}  {'rel.ill.':>8}  MTF T/S at " + ", ".join(f"{q:g}" for q in freq_list) + " c/mm")
     for row in rep["fields"]:
         mtf = "  ".join(f"{v['tangential']:.3f}/{v['sagittal']:.3f}" for v in row["mtf"].values())
-        click.echo(f"  {row['field_deg']:>5g} d  {row['rms_spot_um']:>6.2f} um  {row['relative_illumination']:>8.3f}  {mtf}")
+        click.echo(f"  {row['field_deg']:>5g} d  {row['rms_spot_um']:>6.2f} um  {_ri(row['relative_illumination'])}  {mtf}")
         for w in row["warnings"]:
             click.echo(f"  warning: {w}", err=True)
+
+
+def _ri(v) -> str:
+    """Relative illumination for the table; an afocal system has none."""
+    return f"{v:>8.3f}" if v is not None else f"{'-':>8}"
