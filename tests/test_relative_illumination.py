@@ -101,9 +101,9 @@ def test_batch_values_are_in_range_or_the_design_fails():
     for _ in range(24):
         x = mid + half * rng.uniform(-1, 1, size=len(lo))
         designs.append(Lens(space.apply(base.data, x)))
-    fields = list(np.linspace(0, 14.9, 5))
-    r = _engine.psf_batch([d.to_engine_json() for d in designs], fields, base.rgb_channels(), method="auto",
-                          pixel_um=1.0, size=64, pupil_samples=64)
+    fields = [0.0, 7.45, 14.9]
+    r = _engine.psf_batch([d.to_engine_json() for d in designs], fields, base.rgb_channels(), method="fft",
+                          pixel_um=1.0, size=32, pupil_samples=32)
     assert not r["ok"].all()  # the widened space does hold broken designs
     for i in np.flatnonzero(r["ok"]):
         v = r["relative_illumination"][i]
