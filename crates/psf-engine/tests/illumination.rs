@@ -1,0 +1,45 @@
+//! Relative illumination (spot.rs): the quadrature, and the cos^4 law of a thin lens at and
+//! off its paraxial focus (the Python suite adds brute-force ray counts and optiland's rays).
+
+mod common;
+use psf_engine::aim::Aiming;
+use psf_engine::spot::{gauss_pupil, irradiance, relative_illumination_from, PupilGrid};
+
+#[test]
+fn gauss_pupil_integrates_the_unit_disc_and_its_polynomials() {
+    let (x, y, w) = gauss_pupil();
+    assert_eq!(x.len(), 24);
+    assert!(x.iter().all(|&v| v > 0.0));
+    let area: f64 = w.iter().sum();
+    assert!((area - std::f64::consts::PI).abs() < 1e-12, "{area}");
+    // integrals over the disc of r^2 (pi / 2), r^4 (pi / 3), y^2 (pi / 4), x^2 y^2 (pi / 24)
+    let m = |f: &dyn Fn(f64, f64) -> f64| x.iter().zip(&y).zip(&w).map(|((&a, &b), &c)| c * f(a, b)).sum::<f64>();
+    let pi = std::f64::consts::PI;
+    for (got, want) in [(m(&|a, b| a * a + b * b), pi / 2.0), (m(&|a, b| (a * a + b * b).powi(2)), pi / 3.0), (m(&|_, b| b * b), pi / 4.0), (m(&|a, b| a * a * b * b), pi / 24.0)] {
+        assert!((got - want).abs() < 1e-12, "{got} vs {want}");
+    }
+}
+
+#[test]
+fn clear_grid_agrees_with_a_fine_midpoint_grid() {
+    let lens = common::cooke();
+    for f in [0.0, 10.0, 20.0] {
+        let (a, clear) = irradiance(&lens, f, 550.0, PupilGrid::Clear, Aiming::Paraxial).unwrap();
+        let (b, _) = irradiance(&lens, f, 550.0, PupilGrid::Rings(64), Aiming::Paraxial).unwrap();
+        assert!(clear);
+        assert!((a / b - 1.0).abs() < 2e-6, "{f} deg: {a} vs {b}");
+    }
+}
+
+#[test]
+fn thin_lens_follows_cos4_at_and_off_focus() {
+    // f = 50 mm plano-convex (n 1.5, R 25 mm), 1 mm EPD, stop on the lens; BFL = f - t/n
+    for dz in [0.0, 1.0, -1.0] {
+        let lens = common::singlet(25.0, 1e18, 0.02, 1.5, 1.0, 50.0 - 0.02 / 1.5 + dz);
+        for f in [10.0f64, 20.0, 30.0] {
+            let ri = relative_illumination_from(&lens, f, 550.0, Aiming::Paraxial, None).unwrap();
+            let c4 = f.to_radians().cos().powi(4);
+            assert!((ri / c4 - 1.0).abs() < 1e-3, "dz {dz}, {f} deg: {ri} vs cos^4 {c4}");
+        }
+    }
+}
