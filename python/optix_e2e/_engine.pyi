@@ -252,7 +252,7 @@ def psf_batch(
     Relative illumination: the image irradiance at the chief ray's image point over that
     on the axis, for a uniform object at infinity: the flux through the real pupil per unit
     image area (each pupil point's etendue over the Jacobian of its landing point with
-    respect to the object direction; a 4-ring pupil grid where every ray passes, 24 rings
+    respect to the object direction; a Gauss grid of 24 half-pupil points where every ray passes, 24 rings
     where vignetting cuts the pupil). It holds at any image-plane position (refocused
     designs included). A design whose value leaves [0, 1.05] fails with the reason, and so
     does one with a PSF whose window holds more than 1.01 times the transmitted energy
