@@ -1,11 +1,12 @@
 //! The batch RGB PSF path of the dataset generator (fast FFT on a direction-cosine grid,
 //! psf/fast.rs) against the general FFT with a dense pupil, on the bundled paper-triplet
-//! and perturbed copies; its relative illumination against the 24-ring trace; its
+//! and perturbed copies; its relative illumination against the general path's (one
+//! computation, spot.rs, whatever the PSF path: the two must agree); its
 //! independence of the thread count; its failures and warnings.
 //!
 //! Tolerances (asserted): relative L1 of every PSF (each normalized to unit sum) <= 1%
 //! against the general FFT with 256 pupil samples (itself within ~0.2% of 512 samples);
-//! relative illumination within 1e-3 (seen: ~1e-15, the same formula where unvignetted).
+//! relative illumination within 1e-3 (seen: 0, the same computation).
 
 mod common;
 use psf_engine::psf::{psf, Method, PsfOptions};
@@ -44,7 +45,7 @@ fn rel_l1(a: &[f64], b: &[f64]) -> f64 {
 }
 
 /// Batch (fast) vs the 256-sample general FFT for every field and channel of `lens`;
-/// relative illumination vs the general path's 24-ring trace. Returns the worst L1.
+/// relative illumination vs the general path's. Returns the worst L1.
 fn check_design(label: &str, lens: &Lens, fields: &[f64]) -> f64 {
     let o = dataset_opts();
     let ch = rgb();
@@ -199,7 +200,8 @@ fn fast_path_keeps_the_sampling_checks_and_falls_back_where_it_does_not_apply() 
     assert_eq!(p.diagnostics.values["fft_mode"], "general");
     assert!(p.diagnostics.values["fast_fallback"].as_str().unwrap().contains("vignetting"));
     assert!(p.diagnostics.values["transmitted_fraction"].as_f64().unwrap() < 0.99);
-    // ... and the batch's relative illumination is then the 24-ring trace's.
+    // ... and the batch's relative illumination is the general path's (the fine 24-ring
+    // grid where vignetting cuts the pupil).
     let b = psf_batch(std::slice::from_ref(&vignetted), &[14.9], &rgb(), &dataset_opts()).unwrap();
     let slow = psf_batch(std::slice::from_ref(&vignetted), &[14.9], &rgb(), &PsfOptions { fast: false, ..dataset_opts() }).unwrap();
     assert_eq!(b.relative_illumination, slow.relative_illumination);
