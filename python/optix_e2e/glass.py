@@ -21,10 +21,19 @@ Lookup rules
 * Zemax catalog names the database keeps elsewhere or lacks (:data:`ZEMAX_NAMES`): the
   crystals and fused silica of Zemax's ``INFRARED`` and ``MISC`` catalogs (``F_SILICA``,
   ``CAF2``, ``GERMANIUM`` ...) point to the database's ``main`` pages, Corning's ``C79-80``
-  to fused silica, LightPath's ``BD2`` to ``BD-2``, and withdrawn Schott names with
-  published data (``BK7``) to a formula from that data.  Their catalogs are ``infrared``,
-  ``misc``, ``corning``, ``lightpath`` and ``schott``, so a name resolves only where Zemax
-  has it (``BAF2`` under ``infrared`` is the crystal, under ``cdgm`` CDGM's glass).
+  to fused silica, LightPath's ``BD2`` to ``BD-2``.  Glasses the database lacks are builtin
+  formulas with the coefficients and range of Zemax's AGF catalogs: LightPath's ``ECO550``,
+  ``ECO550M``, ``ECO550_E``, ``C0550``, ``PBH71`` and its molded CDGM glasses (``D-ZK3M``,
+  ``D-ZLAF52LAM``, ``D-ZLAF52LA_M``), RPO's molded ``D-LAK6_MOLD`` and ``H-LAK54_MOLD``
+  (each with the molder's data for the molded glass, a few 1e-3 below the annealed CDGM
+  index), MISC's ``ACRYLIC``, and the withdrawn Schott ``BAFN10``, ``BAFN11``, ``K3``
+  (``BK7`` from SCHOTT's data sheet).  An AGF "Schott" formula (n^2 = a0 + a1 l^2 + a2 l^-2
+  + ... + a5 l^-8) is stored as the database's formula 3, an AGF Sellmeier 1 as formula 2.
+  Their catalogs are ``infrared``, ``misc``, ``corning``, ``lightpath``, ``rpo`` and
+  ``schott``, so a name resolves only where Zemax has it (``BAF2`` under ``infrared`` is the
+  crystal, under ``cdgm`` CDGM's glass; ``ECO550`` only under ``lightpath``).  Inside a
+  catalog that has the name itself an alias does not apply: ``("ACRYLIC", "misc")`` is
+  Zemax's ACRYLIC, a bare ``acrylic`` the database's PMMA.
 * The environment variable ``OPTIX_GLASS_DB`` may point to another copy of the
   database's ``data`` folder.
 """
@@ -65,9 +74,7 @@ _ALIASES = {"acrylic": "pmma", "pc": "polycarbonate", "ps": "polystyrene",
             "polycarb": "polycarbonate", "polystyr": "polystyrene"}
 
 
-# Zemax catalog -> {Zemax name: page of the database (relative to its data folder), or a
-# ("formula", n, coefficients, range_um, source) entry where the database lacks the material}.
-# Membership follows Zemax's catalogs: INFRARED and MISC both carry the common crystals.
+# Crystals and fused silica of Zemax's INFRARED and MISC catalogs (both carry them).
 _CRYSTALS = {
     "F_SILICA": "main/SiO2/nk/Malitson.yml",   # Zemax's F_SILICA is Malitson's fused silica
     "CAF2": "main/CaF2/nk/Malitson.yml",
@@ -86,30 +93,100 @@ _CRYSTALS = {
     "CSI": "main/CsI/nk/Li.yml",
     "CSBR": "main/CsBr/nk/Li.yml",
 }
+
+
+def _agf_schott(a: tuple, range_um: tuple, source: str) -> tuple:
+    """A builtin entry from an AGF line with Zemax formula 1 ("Schott"):
+    n^2 = a0 + a1 l^2 + a2 l^-2 + a3 l^-4 + a4 l^-6 + a5 l^-8 (l in um). That is the
+    database's formula 3 (n^2 = c0 + sum c_i l^e_i) with the exponents written out."""
+    a0, a1, a2, a3, a4, a5 = a
+    return ("formula", 3, (a0, a1, 2, a2, -2, a3, -4, a4, -6, a5, -8), range_um, source)
+
+
+def _agf_sellmeier(kl: tuple, range_um: tuple, source: str) -> tuple:
+    """A builtin entry from an AGF line with Zemax formula 2 ("Sellmeier 1"):
+    n^2 - 1 = sum K_i l^2 / (l^2 - L_i), the CD line giving K1 L1 K2 L2 K3 L3 (L in um^2).
+    That is the database's formula 2 with c0 = 0."""
+    return ("formula", 2, (0.0, *kl), range_um, source)
+
+
+# Where the builtin entries' data come from: Zemax's AGF catalog files, as copied in public
+# repositories (the coefficients are the files' CD lines, the range their LD line).
+_LIGHTPATH_AGF = "Zemax LIGHTPATH.AGF (github.com/nzhagen/zemaxglass, AGF_files/lightpath.agf)"
+_RPO_AGF = "Zemax RPO.AGF of 2009-02-25 (github.com/nzhagen/zemaxglass, AGF_files/rpo.agf)"
+_MISC_AGF = "Zemax MISC.AGF (github.com/nzhagen/zemaxglass, misc.agf)"
+_SCHOTT_OLD_AGF = ("Zemax SCHOTT.AGF of 2008-02-26 with the obsolete glasses "
+                   "(github.com/dragonleopardpig/Kraken-Optical-Simulator, KrakenOS/Cat/SCHOTT-2.AGF)")
+
+#: Zemax catalog -> {Zemax name: page of the database (relative to its data folder), or a
+#: ("formula", n, coefficients, range_um, source) entry where the database lacks the material}.
+#: Membership follows Zemax's catalogs, so a name resolves only under the catalog that has it.
 ZEMAX_NAMES: dict[str, dict[str, "str | tuple"]] = {
     "infrared": dict(_CRYSTALS),
-    "misc": {**_CRYSTALS, "AL2O3": "main/Al2O3/nk/Malitson-o.yml"},
+    # ACRYLIC: Zemax's own formula (nd 1.491668); a bare "acrylic" stays the database's PMMA.
+    "misc": {**_CRYSTALS, "AL2O3": "main/Al2O3/nk/Malitson-o.yml",
+             "ACRYLIC": _agf_schott(
+                 (2.16330492, 0.0136580764, 0.0256700975, -0.00280976174, 0.0002842279, -9.02124935e-06),
+                 (0.365, 1.014), f"{_MISC_AGF}: ACRYLIC, nd 1.491668, vd 55.31")},
     # Corning HPFS 7980 is synthetic fused silica (Corning's data sheet: nd 1.4584).
     "corning": {"C79-80": "main/SiO2/nk/Malitson.yml", "C7980": "main/SiO2/nk/Malitson.yml"},
-    # Molders' catalogs name the CDGM glass they press with a mold suffix. The pressed glass's
-    # index sits a few 1e-3 below the annealed catalog value; no molded data is published in
-    # the database, so these use CDGM's annealed data (MOLDED_FROM says which; import notes it).
-    "lightpath": {"BD2": "specs/lightpath/infrared/BD-2.yml",
-                  "D-ZK3M": "specs/cdgm/optical/D-ZK3.yml",
-                  "D-ZLAF52LAM": "specs/cdgm/optical/D-ZLAF52LA.yml",
-                  "D-ZLAF52LA_M": "specs/cdgm/optical/D-ZLAF52LA.yml"},
-    "rpo": {"D-LAK6_MOLD": "specs/cdgm/optical/D-LAK6.yml",
-            "H-LAK54_MOLD": "specs/cdgm/optical/H-LAK54.yml"},
-    # BK7, withdrawn for N-BK7: SCHOTT's data sheet gives BK7 the same Sellmeier
-    # coefficients (B1..B3, C1..C3 in um^2) as N-BK7 (nd 1.51680, vd 64.17).
-    "schott": {"BK7": ("formula", 2, (0.0, 1.03961212, 0.00600069867, 0.231792344, 0.0200179144,
-                                      1.01046945, 103.560653), (0.3, 2.5),
-                       "SCHOTT optical glass data sheet, BK7")},
+    # LightPath's catalog: its own glasses, and the CDGM glasses it presses (D-ZK3M,
+    # D-ZLAF52LAM, D-ZLAF52LA_M) with LightPath's data for the molded glass (molding lowers
+    # the index a few 1e-3 below the annealed CDGM value).
+    "lightpath": {
+        "BD2": "specs/lightpath/infrared/BD-2.yml",
+        "ECO550": _agf_schott(
+            (2.52780621, -0.00782886154, 0.0171870201, 0.000300693162, 8.66557318e-06, 2.58488712e-07),
+            (0.4, 1.55), f"{_LIGHTPATH_AGF}: ECO550, nd 1.605503, vd 50.28"),
+        "ECO550M": _agf_schott(
+            (2.52035773, -0.00825366386, 0.0165830522, 0.000476837067, -1.50343126e-05, 1.4015069e-06),
+            (0.365, 1.9701), f"{_LIGHTPATH_AGF}: ECO550M, nd 1.602897, vd 50.02"),
+        "ECO550_E": _agf_schott(
+            (2.50983687, 1.51635542e-06, 0.0148303868, 0.000981490801, 3.23688017e-06, 7.98861178e-08),
+            (0.25, 2.05), f"{_LIGHTPATH_AGF}: ECO550_E, nd 1.600348, vd 47.14"),
+        "C0550": _agf_schott(
+            (2.5275, -0.00824759, 0.0161384, 0.000710762, -7.35332e-05, 6.55454e-06),
+            (0.32, 1.7), f"{_LIGHTPATH_AGF}: C0550, nd 1.605004, vd 50.42"),
+        "PBH71": _agf_sellmeier(
+            (1.97039844, 0.0155780448, 0.520330498, 0.0632642123, 1.30696186, 142.045097),
+            (0.3, 2.4), f"{_LIGHTPATH_AGF}: PBH71, nd 1.922864, vd 21.29"),
+        "D-ZK3M": _agf_schott(
+            (2.481845, -0.01213254, 0.01179439, 0.000804573, -9.005814e-05, 4.898641e-06),
+            (0.365, 2.325), f"{_LIGHTPATH_AGF}: D-ZK3M, nd 1.586420, vd 60.71"),
+        "D-ZLAF52LAM": _agf_schott(
+            (3.1607213, -0.0084677629, 0.037044808, -0.0010934271, 0.000243631811, -8.9247355e-06),
+            (0.365, 2.325), f"{_LIGHTPATH_AGF}: D-ZLAF52LAM, nd 1.805885, vd 40.79"),
+        "D-ZLAF52LA_M": _agf_schott(
+            (3.1717081, -0.013708448, 0.029629026, 0.0011150095, -5.5576606e-05, 5.6941122e-06),
+            (0.36, 1.55), f"{_LIGHTPATH_AGF}: D-ZLAF52LA_M (Ver. 2), nd 1.805881, vd 40.89"),
+    },
+    # RPO's molded CDGM glasses, with RPO's data for the molded glass.
+    "rpo": {
+        "D-LAK6_MOLD": _agf_schott(
+            (2.80532992, -0.0177972005, 0.0169077957, 0.000786545091, -2.23253554e-05, -5.36623399e-08),
+            (0.365, 1.1), f"{_RPO_AGF}: D-LAK6_MOLD, nd 1.689442, vd 52.83"),
+        "H-LAK54_MOLD": _agf_schott(
+            (2.9277611, -0.0147660748, 0.0206867604, 0.000708735021, -4.16441993e-05, 2.58153901e-06),
+            (0.365, 1.692), f"{_RPO_AGF}: H-LAK54_MOLD, nd 1.728497, vd 51.10"),
+    },
+    # Withdrawn Schott glasses. BK7 (replaced by N-BK7): SCHOTT's data sheet gives BK7 the
+    # same Sellmeier coefficients (B1..B3, C1..C3 in um^2) as N-BK7 (nd 1.51680, vd 64.17).
+    # BAFN10, BAFN11 and K3: the obsolete-glass part of Zemax's SCHOTT catalog.
+    "schott": {
+        "BK7": ("formula", 2, (0.0, 1.03961212, 0.00600069867, 0.231792344, 0.0200179144,
+                               1.01046945, 103.560653), (0.3, 2.5),
+                "SCHOTT optical glass data sheet, BK7"),
+        "BAFN10": _agf_sellmeier(
+            (1.60477289, 0.00947021617, 0.123762468, 0.0451639792, 1.0727052, 108.539427),
+            (0.334, 2.325), f"{_SCHOTT_OLD_AGF}: BAFN10, nd 1.670031, vd 47.11"),
+        "BAFN11": _agf_sellmeier(
+            (1.60255217, 0.00938812347, 0.116918887, 0.0440475344, 1.02861126, 104.533133),
+            (0.334, 2.325), f"{_SCHOTT_OLD_AGF}: BAFN11, nd 1.666721, vd 48.42"),
+        "K3": _agf_sellmeier(
+            (1.08999358, 0.00670233559, 0.181850015, 0.0254232565, 0.936478693, 113.486321),
+            (0.334, 2.325), f"{_SCHOTT_OLD_AGF}: K3, nd 1.518230, vd 58.98"),
+    },
 }
-
-#: Molded glasses above -> the CDGM glass whose annealed data they use.
-MOLDED_FROM = {"D-ZK3M": "D-ZK3", "D-ZLAF52LAM": "D-ZLAF52LA", "D-ZLAF52LA_M": "D-ZLAF52LA",
-               "D-LAK6_MOLD": "D-LAK6", "H-LAK54_MOLD": "H-LAK54"}
 
 
 #: How far past either end of its data a glass is extrapolated, as a fraction of the data's
@@ -292,18 +369,23 @@ def resolve(name: str | dict, catalog: str | None = None) -> Glass:
         name, catalog = name["glass"], name.get("catalog", catalog)
     if not isinstance(name, str) or not name.strip():
         raise GlassError(f"glass name must be a non-empty string, got {name!r}")
-    key = name.strip().casefold()
-    key = _ALIASES.get(key, key)
+    spelled = name.strip().casefold()
     cat = catalog.strip().casefold() if catalog else None
     index = _index()
+    # An alias names a polymer page; a catalog that has the name itself (Zemax MISC's
+    # ACRYLIC) keeps its own entry.
+    key = spelled
+    if cat is None or not any(c == cat for _, c, _ in index.get(key, [])):
+        key = _ALIASES.get(key, key)
     if cat is not None and cat not in {c for c in catalogs()}:
         raise GlassError(f"unknown glass catalog {catalog!r}; catalogs: {', '.join(catalogs())}")
     entries = [e for e in index.get(key, []) if cat is None or e[1] == cat]
     if not entries:
         where = f" in catalog {cat!r}" if cat else ""
         msg = f"unknown glass {name!r}{where}"
-        if cat and index.get(key):
-            msg += "; it exists in: " + ", ".join(sorted({c for _, c, _ in index[key]}, key=_catalog_rank))
+        elsewhere = {c for k in {key, spelled} for _, c, _ in index.get(k, [])}
+        if cat and elsewhere:
+            msg += "; it exists in: " + ", ".join(sorted(elsewhere, key=_catalog_rank))
         close = _close_matches(key, cat)
         msg += "; close matches: " + (", ".join(close) if close else "none")
         raise GlassError(msg)
