@@ -227,7 +227,6 @@ BROKEN_CASES = {
     "decentered_aperture.zmx": r":116: OBDC: SURF 5: decentered aperture is not supported",
     "non_sequential.zmx": r":2: MODE: only sequential files are supported \(MODE SEQ\), got 'NSC'",
     "height_fields.zmx": r":14: FTYP: field type 1 \(object height\); only angle fields",
-    "finite_object.zmx": r":63: DISZ: object distance 1000: only an object at infinity",
     "x_fields.zmx": r":18: XFLN: x field angles are not supported",
     "unknown_keyword.zmx": r":83: FROB: unknown keyword; not supported by this reader",
     "mirror.zmx": r":93: GLAS: SURF 3: mirrors are not supported",

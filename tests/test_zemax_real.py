@@ -35,14 +35,16 @@ def samples() -> Path:
 def test_real_files_import_trace_and_match_their_focal_length(samples):
     """Every sample: rotationally symmetric refractive files import and trace with the EFL
     their catalog entry states; every other file is refused with one line naming its
-    feature.  The floor is the rate measured when this test was written (94 %; README)."""
+    feature.  The floor is the issue's target (99 %; measured 99.45 %, README)."""
     summary, results = survey(samples)
     assert summary["files"] == len(results) >= 600
     target = [r for r in results if r.target]
-    assert summary["target_rate"] >= 0.94, summary["target_refused_reasons"]
+    assert summary["target_rate"] >= 0.99, summary["target_refused_reasons"]
     # the nominal focal length is checked on hundreds of catalog parts, and all agree
     assert summary["target_with_nominal_efl"] >= 400
-    assert summary["efl_mismatches"] == []
+    # one known: Thorlabs CFS18-1550-APC names the 780 nm focal length of its lens (18.40;
+    # ours there 18.4000) while the file is at 1550 nm (18.79)
+    assert summary["efl_mismatches"] == ["zmf_THORLABS/CFS18-1550-APC.zmx: EFL 18.79 vs nominal 18.4"]
     for r in results:
         assert "\n" not in r.error and r.error.count("Traceback") == 0
         if not r.target:  # outside the target set: refused, and the error names the feature
@@ -201,17 +203,18 @@ def _ball_efl(lens: Lens, radius: float) -> float:
 def test_unknown_glass_with_its_nd_vd_on_the_glas_line_is_a_model_glass():
     """A catalog glass missing from the database but with nd and vd recorded on its GLAS
     line (as OpticStudio writes them) imports, in strict mode, as a model glass, with a note;
-    OpticStudio's placeholder (1.5, 40) or no values stay an error that says why."""
-    text = _zmx(_ball(5, glass="ECO550 0 0 1.6062 60.6 0 0 0 0 0 0", last="5"), gcat="LIGHTPATH")
+    OpticStudio's placeholder (1.5, 40) or no values stay an error that says why.  (LPX550 is
+    a made-up name: the LightPath glasses of the sample files are all in the database now.)"""
+    text = _zmx(_ball(5, glass="LPX550 0 0 1.6062 60.6 0 0 0 0 0 0", last="5"), gcat="LIGHTPATH")
     imp = parse_zmx(text, source="<t>")
     assert imp.data["surfaces"][0]["material"] == {"nd": 1.6062, "vd": 60.6}
-    assert any("ECO550 is not in the glass database" in n and "model glass" in n for n in imp.notes)
+    assert any("LPX550 is not in the glass database" in n and "model glass" in n for n in imp.notes)
     n = Lens(imp.data).refractive_indices
     nd, nf, nc = (n(w)[1] for w in (587.5618, 486.1327, 656.2725))
     assert nd == pytest.approx(1.6062, abs=1e-12) and (nd - 1) / (nf - nc) == pytest.approx(60.6, rel=1e-9)
-    with pytest.raises(ZemaxError, match=r"unknown glass 'ECO550'.*OpticStudio's placeholder"):
+    with pytest.raises(ZemaxError, match=r"unknown glass 'LPX550'.*OpticStudio's placeholder"):
         parse_zmx(text.replace("1.6062 60.6", "1.5 40"), source="<t>")
-    with pytest.raises(ZemaxError, match=r"unknown glass 'ECO550'.*records no nd/vd"):
+    with pytest.raises(ZemaxError, match=r"unknown glass 'LPX550'.*records no nd/vd"):
         parse_zmx(text.replace(" 0 0 1.6062 60.6 0 0 0 0 0 0", ""), source="<t>")
 
 

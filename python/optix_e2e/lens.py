@@ -67,7 +67,12 @@ def _surfaces_crossing_in_beam(data: dict) -> str | None:
     except Exception:  # the engine's own checks report it when the lens is used
         return None
     u_chief = math.tan(math.radians(max(abs(f) for f in data["fields_deg"])))
-    rays = [[0.5 * par["epd_mm"], 0.0], [-par["entrance_pupil_z_mm"] * u_chief, u_chief]]  # (y, n u)
+    h = 0.5 * par["epd_mm"]
+    marginal = [h, 0.0]
+    if math.isfinite(par["object_to_pupil_mm"]):  # from the axial object point to the pupil's rim
+        L = par["object_to_pupil_mm"]
+        marginal = [h * (L - par["entrance_pupil_z_mm"]) / L, h / L]
+    rays = [marginal, [-par["entrance_pupil_z_mm"] * u_chief, u_chief]]  # (y, n u)
     heights = []
     for i, s in enumerate(surfs):
         heights.append(sum(abs(y) for y, _ in rays))
@@ -204,6 +209,12 @@ class Lens:
     @property
     def fields_deg(self) -> list[float]:
         return [float(f) for f in self.data["fields_deg"]]
+
+    @property
+    def object_distance(self) -> float:
+        """Object plane to the first surface (mm); ``inf`` for an object at infinity."""
+        d = self.data.get("object_distance")
+        return math.inf if d is None or isinstance(d, str) else float(d)
 
     @property
     def max_field_deg(self) -> float:

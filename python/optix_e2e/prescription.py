@@ -19,13 +19,14 @@ __all__ = ["PrescriptionError", "resolve_prescription"]
 
 TOP_KEYS = {
     "name", "description", "units", "aperture", "fields_deg", "wavelengths_nm",
-    "wavelength_weights", "primary_wavelength_nm", "surfaces", "image",
+    "wavelength_weights", "primary_wavelength_nm", "surfaces", "image", "object_distance",
 }
 SURFACE_KEYS = {
     "radius", "curvature", "thickness", "material", "conic", "aspheric",
     "semi_diameter", "stop", "name",
 }
-ASPHERIC_KEYS = {f"a{2 * i}" for i in range(1, 11)}
+# even terms a2..a20; odd terms a1..a7 (OpticStudio's odd asphere; a1 alone is an axicon)
+ASPHERIC_KEYS = {f"a{2 * i}" for i in range(1, 11)} | {"a1", "a3", "a5", "a7"}
 
 
 class PrescriptionError(ValueError):
@@ -92,11 +93,23 @@ def _resolve(data: Any, source: str) -> dict:
 
     ap = out.get("aperture")
     if not isinstance(ap, dict):
-        ck.fail("aperture", "missing or not an object {\"type\": \"epd\"|\"fno\", \"value\": ...}")
+        ck.fail("aperture", "missing or not an object {\"type\": \"epd\"|\"fno\"|\"object_na\", \"value\": ...}")
     ck.keys("aperture", ap, {"type", "value"})
-    if ap.get("type") not in ("epd", "fno"):
-        ck.fail("aperture.type", f"must be \"epd\" or \"fno\", got {ap.get('type')!r}")
+    if ap.get("type") not in ("epd", "fno", "object_na"):
+        ck.fail("aperture.type", f"must be \"epd\", \"fno\" or \"object_na\", got {ap.get('type')!r}")
     ck.number("aperture.value", ap.get("value"), positive=True)
+
+    # object plane to the first surface; absent, null or "inf": an object at infinity
+    dist = out.get("object_distance")
+    if dist is not None and not (isinstance(dist, str) and dist.casefold() in ("inf", "infinity")):
+        ck.number("object_distance", dist, nonneg=True)
+    finite = dist is not None and not isinstance(dist, str)
+    if ap["type"] == "object_na":
+        if not finite:
+            ck.fail("aperture.type", "\"object_na\" needs a finite \"object_distance\" "
+                    "(an object at infinity has no object-space NA)")
+        if ap["value"] >= 1:
+            ck.fail("aperture.value", f"an object-space NA must be below 1 (object in air), got {ap['value']!r}")
 
     if "fields_deg" not in out:
         ck.fail("fields_deg", "missing")

@@ -21,8 +21,8 @@ def curvature(s: dict) -> float:
 
 
 def sag(s: dict, r, *, clip: bool = False) -> np.ndarray:
-    """Sag z(r) in mm: conic base c r^2 / (1 + sqrt(1 - (1+k) c^2 r^2)) plus the even
-    asphere terms.  Beyond the conic's reach (negative root) the result is NaN, or with
+    """Sag z(r) in mm: conic base c r^2 / (1 + sqrt(1 - (1+k) c^2 r^2)) plus the
+    aspheric terms a_k r^k (even k, and odd k up to 7 for an odd asphere).  Beyond the conic's reach (negative root) the result is NaN, or with
     ``clip`` the root is taken as 0 (the value at the conic's rim)."""
     r = np.asarray(r, dtype=float)
     c, k = curvature(s), float(s.get("conic", 0.0) or 0.0)
@@ -35,5 +35,5 @@ def sag(s: dict, r, *, clip: bool = False) -> np.ndarray:
     inside = arg >= -RIM_TOLERANCE
     z = c * rho / (1.0 + np.sqrt(np.clip(arg, 0.0, None)))
     for key, a in (s.get("aspheric") or {}).items():
-        z = z + float(a) * r ** int(key[1:])  # "a4" -> r^4
+        z = z + float(a) * np.abs(r) ** int(key[1:])  # "a4" -> r^4, "a1" -> |r|
     return np.where(inside, z, np.nan)

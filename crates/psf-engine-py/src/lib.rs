@@ -117,6 +117,7 @@ fn paraxial<'py>(py: Python<'py>, lens_json: &str, wavelength_nm: Option<f64>) -
         ("image_z_mm", p.image_z),
         ("paraxial_image_height_mm", p.image_height),
         ("back_focus_shift_mm", p.back_focus_shift),
+        ("object_to_pupil_mm", p.object_to_pupil),
     ] {
         d.set_item(k, v)?;
     }
@@ -192,6 +193,19 @@ fn trace<'py>(py: Python<'py>, lens_json: &str, origins: PyReadonlyArray2<f64>, 
 
 /// Pupil coordinates checked and made contiguous, then `f` run on the field's beam with
 /// the GIL released; returns its result and the beam direction.
+/// Unit directions of rays launched at points (flat x, y, z) on lines through a finite
+/// object's point, travelling towards +z (a launch point may lie before or after it).
+fn launch_directions(origins: &[f64], object: [f64; 3]) -> Vec<f64> {
+    let mut out = Vec::with_capacity(origins.len());
+    for o in origins.chunks_exact(3) {
+        let s = if o[2] > object[2] { 1.0 } else { -1.0 };
+        let d = [s * (o[0] - object[0]), s * (o[1] - object[1]), s * (o[2] - object[2])];
+        let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        out.extend(d.iter().map(|v| v / len));
+    }
+    out
+}
+
 #[allow(clippy::too_many_arguments)]
 fn with_beam<T: Send>(
     py: Python<'_>,
@@ -202,7 +216,7 @@ fn with_beam<T: Send>(
     wavelength_nm: f64,
     aiming: &str,
     f: impl FnOnce(&psf_engine::Beam, &[f64], &[f64]) -> psf_engine::Result<T> + Send,
-) -> PyResult<(T, [f64; 3])> {
+) -> PyResult<(T, [f64; 3], Option<[f64; 3]>)> {
     let (pxs, pys) = (contiguous(px), contiguous(py_));
     if pxs.len() != pys.len() {
         return Err(pyo3::exceptions::PyValueError::new_err(format!("px ({}) and py ({}) differ in length", pxs.len(), pys.len())));
@@ -212,32 +226,43 @@ fn with_beam<T: Send>(
         let lens = parse_lens(lens_json)?;
         let sys = psf_engine::System::new(&lens, wavelength_nm)?;
         let beam = psf_engine::Beam::new(&sys, field_deg, aiming)?;
-        Ok((f(&beam, &pxs, &pys)?, beam.dir.to_array()))
+        Ok((f(&beam, &pxs, &pys)?, beam.dir.to_array(), beam.object.map(|o| o.to_array())))
     })
 }
 
 #[pyfunction]
 #[pyo3(signature = (lens_json, field_deg, px, py_, wavelength_nm, aiming="paraxial"))]
 fn trace_field<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: PyReadonlyArray1<'py, f64>, py_: PyReadonlyArray1<'py, f64>, wavelength_nm: f64, aiming: &str) -> PyResult<Bound<'py, PyDict>> {
-    let (t, dir) = with_beam(py, lens_json, field_deg, &px, &py_, wavelength_nm, aiming, |beam, x, y| Ok(beam.trace_pupil_soa(x, y)))?;
+    let (t, dir, object) = with_beam(py, lens_json, field_deg, &px, &py_, wavelength_nm, aiming, |beam, x, y| Ok(beam.trace_pupil_soa(x, y)))?;
     let n = t.opl.len();
+    // A finite object's rays leave its object point: each towards it from its launch point.
+    let per_ray = object.map(|o| launch_directions(&t.origin, o));
     let dict = traced_dict(py, t)?;
-    // Every ray of a field leaves along the same direction: a read-only broadcast view.
-    let one = dir.to_vec().into_pyarray(py);
-    let launch = py.import("numpy")?.getattr("broadcast_to")?.call1((one, (n, 3)))?;
-    dict.set_item("launch_direction", launch)?;
+    match per_ray {
+        Some(d) => dict.set_item("launch_direction", d.into_pyarray(py).reshape([n, 3])?)?,
+        None => {
+            // Every ray of a field leaves along the same direction: a read-only broadcast view.
+            let one = dir.to_vec().into_pyarray(py);
+            let launch = py.import("numpy")?.getattr("broadcast_to")?.call1((one, (n, 3)))?;
+            dict.set_item("launch_direction", launch)?;
+        }
+    }
     Ok(dict)
 }
 
 #[pyfunction]
 #[pyo3(signature = (lens_json, field_deg, px, py_, wavelength_nm, aiming="paraxial"))]
 fn trace_field_path<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: PyReadonlyArray1<'py, f64>, py_: PyReadonlyArray1<'py, f64>, wavelength_nm: f64, aiming: &str) -> PyResult<Bound<'py, PyDict>> {
-    let (p, dir) = with_beam(py, lens_json, field_deg, &px, &py_, wavelength_nm, aiming, |beam, x, y| beam.trace_path(x, y))?;
+    let (p, dir, object) = with_beam(py, lens_json, field_deg, &px, &py_, wavelength_nm, aiming, |beam, x, y| beam.trace_path(x, y))?;
     let (n, m) = (p.last.len(), p.points);
+    let per_ray = object.map(|o| launch_directions(&p.image.origin, o));
     let dict = traced_dict(py, p.image)?;
     dict.set_item("path", p.position.into_pyarray(py).reshape([n, m, 3])?)?;
     dict.set_item("last", p.last.into_pyarray(py))?;
-    dict.set_item("launch_direction", dir.to_vec().into_pyarray(py))?;
+    match per_ray {
+        Some(d) => dict.set_item("launch_direction", d.into_pyarray(py).reshape([n, 3])?)?,
+        None => dict.set_item("launch_direction", dir.to_vec().into_pyarray(py))?,
+    }
     Ok(dict)
 }
 

@@ -22,7 +22,7 @@ fn bench_trace(c: &mut Criterion) {
     for i in 0..side * side {
         let (a, b) = ((i % side) as f64 / side as f64 * 2.0 - 1.0, (i / side) as f64 / side as f64 * 2.0 - 1.0);
         o.push(beam.launch(a * 0.7, b * 0.7).origin);
-        d.push(beam.dir);
+        d.push(beam.launch(a * 0.7, b * 0.7).dir);
     }
     let mut g = c.benchmark_group("trace");
     g.throughput(Throughput::Elements(o.len() as u64));

@@ -1,4 +1,7 @@
-//! Launching a collimated beam for a field angle (object at infinity, field along +y).
+//! Launching the beam of a field angle (field along +y): collimated for an object at
+//! infinity; from one object point for a finite object, placed as OpticStudio places an
+//! angle field there (its chief ray leaves at the field angle towards the centre of the
+//! paraxial entrance pupil: object height -L tan(field), L = object to entrance pupil).
 //!
 //! Paraxial aiming sends ray (px, py) through the point (px, py) * EPD/2 of the paraxial
 //! entrance pupil (what most tools, and the reference data, do). Real aiming moves the
@@ -35,6 +38,7 @@ impl std::str::FromStr for Aiming {
 #[derive(Clone, Copy, Debug)]
 pub struct Launch {
     pub origin: DVec3,
+    pub dir: DVec3,
     pub area: f64,
     pub ok: bool,
 }
@@ -44,7 +48,11 @@ pub struct Beam<'s, 'l> {
     /// First-order data at the lens's primary wavelength (pupils do not follow colour).
     pub par: Paraxial,
     pub field_deg: f64,
+    /// Direction of the ray through the entrance pupil's centre (every ray's, for an object
+    /// at infinity).
     pub dir: DVec3,
+    /// The object point of a finite object; None at infinity.
+    pub object: Option<DVec3>,
     pub aiming: Aiming,
     z_launch: f64,
     /// Real aiming: entry point of the chief ray and d(stop)/d(entry) there.
@@ -70,14 +78,18 @@ impl<'s, 'l> Beam<'s, 'l> {
         let s1 = &lens.surfaces[0];
         let reach = s1.semi_diameter.unwrap_or(par.epd);
         let dip = crate::surface::sag(s1, reach * reach).map(|z| (-z).max(0.0)).unwrap_or(reach);
+        let object = lens.finite_object().then(|| DVec3::new(0.0, -par.object_to_pupil * t.tan(), -lens.object_distance));
+        let z_obj = if lens.finite_object() { -lens.object_distance } else { 0.0 };
+        // (for a finite object any point of a ray's line serves: before or after the object)
         let z_launch = par.entrance_pupil_z.min(0.0) - 10.0 - dip;
-        let mut b = Beam { sys, par, field_deg, dir, aiming, z_launch, chief_entry: DVec2::ZERO, chief_jac: [[1.0, 0.0], [0.0, 1.0]], stop_radius: par.stop_semi_diameter };
+        let mut b = Beam { sys, par, field_deg, dir, object, aiming, z_launch, chief_entry: DVec2::ZERO, chief_jac: [[1.0, 0.0], [0.0, 1.0]], stop_radius: par.stop_semi_diameter };
         if aiming == Aiming::Real {
             // The stop's real size: the height at which the on-axis marginal ray of the
             // specified EPD crosses it, so the on-axis entrance pupil keeps its diameter.
             let h = 0.5 * par.epd;
-            let q = DVec3::new(0.0, h, par.entrance_pupil_z);
-            let r = sys.trace_unclipped(q - ((par.entrance_pupil_z - z_launch) / 1.0) * DVec3::Z, DVec3::Z, End::Surface(lens.stop));
+            let axial = object.map(|_| DVec3::new(0.0, 0.0, z_obj));
+            let (o, d) = b.ray_from(axial, DVec3::Z, DVec2::new(0.0, h));
+            let r = sys.trace_unclipped(o, d, End::Surface(lens.stop));
             if !r.ok() {
                 return Err(EngineError::Trace(format!("real ray aiming: the on-axis marginal ray does not reach the stop ({:?} at surface {})", r.status, r.surface + 1)));
             }
@@ -91,16 +103,28 @@ impl<'s, 'l> Beam<'s, 'l> {
         Ok(b)
     }
 
-    /// Origin of the ray entering through point `e` of the entrance-pupil plane.
+    /// Origin (on the launch plane) and direction of the ray entering through point `e` of
+    /// the entrance-pupil plane: along `dir` from infinity, or on the line from the object
+    /// point (travelling towards +z).
     #[inline]
-    fn origin(&self, e: DVec2) -> DVec3 {
+    fn ray_from(&self, object: Option<DVec3>, dir: DVec3, e: DVec2) -> (DVec3, DVec3) {
         let ze = self.par.entrance_pupil_z;
         let q = DVec3::new(e.x, e.y, ze);
-        q - ((ze - self.z_launch) / self.dir.z) * self.dir
+        let d = match object {
+            None => dir,
+            Some(o) => ((q - o) * (q.z - o.z).signum()).normalize(),
+        };
+        (q - ((ze - self.z_launch) / d.z) * d, d)
+    }
+
+    #[inline]
+    fn ray(&self, e: DVec2) -> (DVec3, DVec3) {
+        self.ray_from(self.object, self.dir, e)
     }
 
     fn stop_hit(&self, e: DVec2) -> Option<DVec2> {
-        let r = self.sys.trace_unclipped(self.origin(e), self.dir, End::Surface(self.sys.lens.stop));
+        let (o, d) = self.ray(e);
+        let r = self.sys.trace_unclipped(o, d, End::Surface(self.sys.lens.stop));
         r.ok().then(|| DVec2::new(r.p.x, r.p.y))
     }
 
@@ -152,7 +176,8 @@ impl<'s, 'l> Beam<'s, 'l> {
         match self.aiming {
             Aiming::Paraxial => {
                 let h = 0.5 * self.par.epd;
-                Launch { origin: self.origin(DVec2::new(px * h, py * h)), area: h * h, ok: true }
+                let (origin, dir) = self.ray(DVec2::new(px * h, py * h));
+                Launch { origin, dir, area: h * h, ok: true }
             }
             Aiming::Real => {
                 let rs = self.stop_radius;
@@ -164,35 +189,62 @@ impl<'s, 'l> Beam<'s, 'l> {
                 match self.aim_at(target, guess, Some(j)) {
                     Some((e, jac)) => {
                         let d = (jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0]).abs();
-                        Launch { origin: self.origin(e), area: rs * rs / d, ok: true }
+                        let (origin, dir) = self.ray(e);
+                        Launch { origin, dir, area: rs * rs / d, ok: true }
                     }
-                    None => Launch { origin: self.origin(guess), area: 0.0, ok: false },
+                    None => {
+                        let (origin, dir) = self.ray(guess);
+                        Launch { origin, dir, area: 0.0, ok: false }
+                    }
                 }
             }
         }
     }
 
-    /// Origin of the ray that crosses the entrance-pupil plane where the ray launched at
-    /// `origin` along this beam's direction does, but travels along `d` (unit, d.z > 0):
-    /// the same pupil point seen from a neighbouring object direction.
-    pub fn origin_along(&self, origin: DVec3, d: DVec3) -> DVec3 {
+    /// Origin of the ray that crosses the entrance-pupil plane where launch `l` does, but
+    /// travels along `d` (unit, d.z > 0): the same pupil point seen from a neighbouring
+    /// object direction (a neighbouring object point, for a finite object).
+    pub fn origin_along(&self, l: &Launch, d: DVec3) -> DVec3 {
         let ze = self.par.entrance_pupil_z;
-        let q = origin + ((ze - origin.z) / self.dir.z) * self.dir;
+        let q = l.origin + ((ze - l.origin.z) / l.dir.z) * l.dir;
         q - ((ze - self.z_launch) / d.z) * d
     }
 
-    /// Optical path from the incident plane wavefront through the global origin to the
-    /// launch point: added to a traced OPL it puts every ray on a common wavefront.
+    /// Optical path from the incident wavefront to the launch point, added to a traced OPL
+    /// to put every ray on a common wavefront: for an object at infinity the plane through
+    /// the global origin; for a finite object the object point itself (a launch point before
+    /// it on its ray is a negative path back to it, one after it a positive path).
     #[inline]
     pub fn wavefront_offset(&self, origin: DVec3) -> f64 {
-        self.sys.n[0] * origin.dot(self.dir)
+        match self.object {
+            None => self.sys.n[0] * origin.dot(self.dir),
+            Some(o) => self.sys.n[0] * (origin - o).length() * (origin.z - o.z).signum(),
+        }
     }
 
     /// Irradiance weight of a launched ray per unit pupil-coordinate area: its
-    /// entrance-plane area projected on the beam (cos of the field angle).
+    /// entrance-plane area projected on the beam (cos of the field angle) from infinity;
+    /// from a Lambertian object point, cos(t) of the emission times the solid angle
+    /// dA cos(t) / r^2 of its pupil area, r = L / cos(t): area cos^4(t) / L^2 per unit
+    /// object area, taken per unit of the solid angle cos^3(field) / L^2 that the object
+    /// area subtends (so a far object tends to the object at infinity).
     #[inline]
     pub fn flux_weight(&self, l: &Launch) -> f64 {
-        l.area * self.dir.z
+        match self.object {
+            None => l.area * self.dir.z,
+            Some(_) => l.area * l.dir.z.powi(4) / self.dir.z.powi(3),
+        }
+    }
+
+    /// `flux_weight` of a paraxially aimed ray from its launch point (paraxial launches all
+    /// carry the area (EPD/2)^2).
+    #[inline]
+    pub fn paraxial_flux_weight(&self, origin: DVec3) -> f64 {
+        let h = 0.5 * self.par.epd;
+        match self.object {
+            None => h * h * self.dir.z,
+            Some(o) => h * h * (o - origin).normalize().z.abs().powi(4) / self.dir.z.powi(3),
+        }
     }
 
     /// Launch rays at pupil points (in parallel; paraxial launches are closed-form).
@@ -204,10 +256,9 @@ impl<'s, 'l> Beam<'s, 'l> {
     /// Fill a kernel block with launched rays `start..start + b.len`; unaimable rays are
     /// marked Missed at surface 0.
     fn load(&self, launches: &[Launch], start: usize, b: &mut Block) {
-        let d = self.dir.to_array();
         for j in 0..b.len {
             let l = &launches[start + j];
-            b.set(j, l.origin.to_array(), d);
+            b.set(j, l.origin.to_array(), l.dir.to_array());
             if !l.ok {
                 b.status[j] = Status::Missed as u8;
                 b.surface[j] = 0;
@@ -239,11 +290,20 @@ impl<'s, 'l> Beam<'s, 'l> {
     fn trace_with(&self, sys: &System, launches: Option<&[Launch]>, px: &[f64], py: &[f64], end: End) -> Traced {
         match launches {
             // Paraxial launches are computed in the kernel's loader: no intermediate array.
+            None if self.object.is_some() => {
+                let h = 0.5 * self.par.epd;
+                sys.trace_soa(px.len(), end, |start, b| {
+                    for j in 0..b.len {
+                        let (o, d) = self.ray(DVec2::new(px[start + j] * h, py[start + j] * h));
+                        b.set(j, o.to_array(), d.to_array());
+                    }
+                })
+            }
             None => {
                 let h = 0.5 * self.par.epd;
                 let d = self.dir.to_array();
-                // origin(e) = origin(0) + (e, 0), bit for bit.
-                let o0 = self.origin(DVec2::ZERO);
+                // ray(e).0 = ray(0).0 + (e, 0), bit for bit.
+                let o0 = self.ray(DVec2::ZERO).0;
                 sys.trace_soa(px.len(), end, |start, b| {
                     for j in 0..b.len {
                         b.set(j, [px[start + j] * h + o0.x, py[start + j] * h + o0.y, o0.z], d);

@@ -1,5 +1,6 @@
 //! The lens model: a sequential, rotationally symmetric system of standard (conic) and
-//! even-asphere surfaces, object at infinity, image plane after the last thickness.
+//! even-asphere surfaces, the object at infinity or at a finite distance in front of the
+//! first surface, image plane after the last thickness.
 //! `Lens::from_json` reads the resolved JSON prescription (docs/lens-format.md) and
 //! checks it, naming the surface (1-based) and parameter of every problem.
 
@@ -9,6 +10,8 @@ use serde_json::{Map, Value};
 
 /// Highest even-asphere order supported: a2 .. a20.
 pub const MAX_ASPHERE_TERMS: usize = 10;
+/// Odd-power terms supported (OpticStudio's odd asphere): a1, a3, a5, a7.
+pub const ODD_TERMS: usize = 4;
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct Surface {
@@ -17,6 +20,9 @@ pub struct Surface {
     pub conic: f64,
     /// a2, a4, ... a20: coefficient of r^(2(i+1)).
     pub aspheric: [f64; MAX_ASPHERE_TERMS],
+    /// a1, a3, a5, a7: coefficient of r^(2i+1) (a1 alone is an axicon's cone; no paraxial
+    /// power: a cone has no focus, an r^3 term no curvature at the vertex).
+    pub odd: [f64; ODD_TERMS],
     /// Thickness to the next surface (or to the image plane for the last surface).
     pub thickness: f64,
     /// Global z of the vertex (first surface at 0).
@@ -28,7 +34,11 @@ pub struct Surface {
 
 impl Surface {
     pub fn has_asphere(&self) -> bool {
-        self.aspheric.iter().any(|a| *a != 0.0)
+        self.aspheric.iter().any(|a| *a != 0.0) || self.has_odd()
+    }
+
+    pub fn has_odd(&self) -> bool {
+        self.odd.iter().any(|a| *a != 0.0)
     }
 
     /// Aspheric terms up to the last nonzero one (the rest add nothing).
@@ -43,6 +53,9 @@ pub enum Aperture {
     Epd(f64),
     /// Image-space paraxial f-number (EFL / EPD).
     FNumber(f64),
+    /// Object-space numerical aperture n sin(u) of the axial marginal ray (finite objects):
+    /// the EPD whose paraxially aimed marginal ray leaves the axial object point at u.
+    ObjectNA(f64),
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -60,6 +73,8 @@ pub struct Lens {
     pub primary_nm: f64,
     pub image_z: f64,
     pub image_semi_diameter: Option<f64>,
+    /// Object plane to first vertex (mm, >= 0); infinite for an object at infinity.
+    pub object_distance: f64,
 }
 
 fn lens_err<T>(msg: String) -> Result<T> {
@@ -180,8 +195,21 @@ impl Lens {
         let aperture = match ap.get("type").and_then(Value::as_str).map(str::to_ascii_lowercase).as_deref() {
             Some("epd") => Aperture::Epd(ap_value),
             Some("fno") | Some("f_number") => Aperture::FNumber(ap_value),
-            other => return lens_err(format!("aperture: \"type\" must be \"epd\" or \"fno\", got {other:?}")),
+            Some("object_na") => Aperture::ObjectNA(ap_value),
+            other => return lens_err(format!("aperture: \"type\" must be \"epd\", \"fno\" or \"object_na\", got {other:?}")),
         };
+        let object_distance = get_f64(root, "object_distance", "lens")?.unwrap_or(f64::INFINITY);
+        if !(object_distance >= 0.0) {
+            return lens_err(format!("object_distance = {object_distance} must be >= 0 mm (object plane to the first surface) or \"inf\""));
+        }
+        if let Aperture::ObjectNA(na) = aperture {
+            if object_distance.is_infinite() {
+                return lens_err("aperture: \"object_na\" needs a finite \"object_distance\" (an object at infinity has no object-space NA)".into());
+            }
+            if na >= 1.0 {
+                return lens_err(format!("aperture: object-space NA {na} must be below 1 (the object is in air)"));
+            }
+        }
         let fields_deg = get_f64_list(root, "fields_deg", "lens")?.unwrap_or_else(|| vec![0.0]);
         for (i, f) in fields_deg.iter().enumerate() {
             if !(0.0..90.0).contains(&f.abs()) {
@@ -228,27 +256,28 @@ impl Lens {
             };
             let thickness = get_f64(s, "thickness", &ctx)?.ok_or_else(|| EngineError::Lens(format!("{ctx}: missing \"thickness\"")))?;
             if !thickness.is_finite() {
-                return lens_err(format!("{ctx}: \"thickness\" must be finite (object at infinity is implicit)"));
+                return lens_err(format!("{ctx}: \"thickness\" must be finite (the object distance is \"object_distance\")"));
             }
             let conic = get_f64(s, "conic", &ctx)?.unwrap_or(0.0);
             if !conic.is_finite() {
                 return lens_err(format!("{ctx}: \"conic\" must be finite"));
             }
             let mut aspheric = [0.0; MAX_ASPHERE_TERMS];
+            let mut odd = [0.0; ODD_TERMS];
             match s.get("aspheric") {
                 None | Some(Value::Null) => {}
                 Some(Value::Object(a)) => {
                     for (k, v) in a {
                         let order: Option<usize> = k.strip_prefix('a').and_then(|o| o.parse().ok());
-                        match order {
-                            Some(o) if o >= 2 && o <= 2 * MAX_ASPHERE_TERMS && o % 2 == 0 => {
-                                aspheric[o / 2 - 1] = v
-                                    .as_f64()
-                                    .filter(|x| x.is_finite())
-                                    .ok_or_else(|| EngineError::Lens(format!("{ctx}: aspheric \"{k}\" must be a finite number")))?;
-                            }
-                            _ => return lens_err(format!("{ctx}: aspheric term \"{k}\" unknown (use a2, a4, ..., a20)")),
-                        }
+                        let slot = match order {
+                            Some(o) if o >= 2 && o <= 2 * MAX_ASPHERE_TERMS && o % 2 == 0 => &mut aspheric[o / 2 - 1],
+                            Some(o) if o % 2 == 1 && o < 2 * ODD_TERMS => &mut odd[o / 2],
+                            _ => return lens_err(format!("{ctx}: aspheric term \"{k}\" unknown (use a1, a2, ..., a7, a8, a10, ..., a20)")),
+                        };
+                        *slot = v
+                            .as_f64()
+                            .filter(|x| x.is_finite())
+                            .ok_or_else(|| EngineError::Lens(format!("{ctx}: aspheric \"{k}\" must be a finite number")))?;
                     }
                 }
                 Some(v) => return lens_err(format!("{ctx}: \"aspheric\" must be an object like {{\"a4\": 1e-5}}, got {v}")),
@@ -272,12 +301,12 @@ impl Lens {
             }
             media.push(parse_material(s.get("material"), &ctx)?);
             let name = s.get("name").and_then(Value::as_str).unwrap_or("").to_string();
-            surfaces.push(Surface { curvature, conic, aspheric, thickness, z, semi_diameter, name });
+            surfaces.push(Surface { curvature, conic, aspheric, odd, thickness, z, semi_diameter, name });
             z += thickness;
         }
         let stop = stop.ok_or_else(|| EngineError::Lens("no surface has \"stop\": true".into()))?;
         let image_semi_diameter = root.get("image").and_then(Value::as_object).map(|o| get_f64(o, "semi_diameter", "image")).transpose()?.flatten();
-        let lens = Lens { name, surfaces, media, stop, aperture, fields_deg, wavelengths_nm, weights, primary_nm, image_z: z, image_semi_diameter };
+        let lens = Lens { name, surfaces, media, stop, aperture, fields_deg, wavelengths_nm, weights, primary_nm, image_z: z, image_semi_diameter, object_distance };
         lens.check_geometry()?;
         Ok(lens)
     }
@@ -328,5 +357,10 @@ impl Lens {
 
     pub fn total_track(&self) -> f64 {
         self.image_z
+    }
+
+    /// Whether the object is at a finite distance.
+    pub fn finite_object(&self) -> bool {
+        self.object_distance.is_finite()
     }
 }

@@ -1,5 +1,7 @@
 //! First-order (paraxial) analysis by y-nu tracing: EFL, BFL, f-number, entrance and exit
 //! pupils. Paraxial curvature of an even asphere includes its r^2 term (c + 2 a2).
+//! EFL, BFL, FFL and the f-number (EFL / EPD) are properties of the lens whatever the
+//! object distance; the image position and height follow the object (finite or not).
 
 use crate::error::{EngineError, Result};
 use crate::lens::{Aperture, Lens};
@@ -24,10 +26,14 @@ pub struct Paraxial {
     pub stop_semi_diameter: f64,
     pub total_track: f64,
     pub image_z: f64,
-    /// EFL * tan(max field).
+    /// Paraxial image height of the largest field: EFL * tan(max field) for an object at
+    /// infinity, the chief ray's height at the paraxial image of a finite object.
     pub image_height: f64,
-    /// Paraxial focus minus image plane position.
+    /// Paraxial image of the object (the focus for an object at infinity) minus the image
+    /// plane position.
     pub back_focus_shift: f64,
+    /// Object plane to entrance pupil (mm); infinite for an object at infinity.
+    pub object_to_pupil: f64,
 }
 
 /// (y, n u) after each surface for a ray starting at the first vertex with height y0 and
@@ -73,9 +79,17 @@ pub fn paraxial(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
         )));
     }
     let entrance_pupil_z = ysb / ysa;
+    let d_obj = lens.object_distance;
+    let object_to_pupil = entrance_pupil_z + d_obj;
+    if d_obj.is_finite() && object_to_pupil.abs() < 1e-9 {
+        return Err(EngineError::Lens("the entrance pupil lies in the object plane: no beam can be defined from an object point".into()));
+    }
     let epd = match lens.aperture {
         Aperture::Epd(d) => d,
         Aperture::FNumber(f) => efl.abs() / f,
+        // the paraxially aimed marginal ray from the axial object point to the pupil's
+        // rim leaves at u with n sin(u) = NA
+        Aperture::ObjectNA(na) => 2.0 * object_to_pupil.abs() * (na / n[0]).asin().tan(),
     };
     let stop_semi_diameter = 0.5 * epd * ysa.abs();
     // Chief ray: crosses the axis at the entrance pupil, unit angle.
@@ -90,6 +104,22 @@ pub fn paraxial(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
         (zx, 2.0 * ym.abs())
     };
     let image_z = lens.image_z;
+    let (b_y, b_nu) = b[k - 1];
+    let (image_dist, image_height) = if d_obj.is_finite() {
+        // axial marginal ray (y0, u0) = (d u, u) = d a + b; chief ray of the largest field
+        // from object height -L tan(t) at slope tan(t): (y0, u0) = tan(t) (-z_ep, 1)
+        let (y, nu) = (d_obj * ya + b_y, d_obj * nua + b_nu);
+        if nu.abs() < 1e-15 {
+            (f64::INFINITY, f64::INFINITY)
+        } else {
+            let t = -y * nk / nu;
+            let tan_t = lens.max_field_deg().to_radians().tan();
+            let h = tan_t * (-entrance_pupil_z * (ya + ua * t) + (b_y + b_nu / nk * t));
+            (t, if lens.max_field_deg() == 0.0 { 0.0 } else { h })
+        }
+    } else {
+        (bfl, if lens.max_field_deg() == 0.0 { 0.0 } else { efl * lens.max_field_deg().to_radians().tan() })
+    };
     Ok(Paraxial {
         wavelength_nm,
         efl,
@@ -103,8 +133,9 @@ pub fn paraxial(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
         stop_semi_diameter,
         total_track: lens.total_track(),
         image_z,
-        image_height: if lens.max_field_deg() == 0.0 { 0.0 } else { efl * lens.max_field_deg().to_radians().tan() },
-        back_focus_shift: last_z + bfl - image_z,
+        image_height,
+        back_focus_shift: last_z + image_dist - image_z,
+        object_to_pupil: if d_obj.is_finite() { object_to_pupil } else { f64::INFINITY },
     })
 }
 

@@ -49,7 +49,7 @@ pub fn trace_spot(lens: &Lens, field_deg: f64, wavelength_nm: f64, rings: usize,
     let sys = System::new(lens, wavelength_nm)?;
     let beam = Beam::new(&sys, field_deg, aiming)?;
     let c = beam.launch(0.0, 0.0);
-    let chief = sys.trace(c.origin, beam.dir, End::Image);
+    let chief = sys.trace(c.origin, c.dir, End::Image);
     let (px, py) = polar_grid(rings);
     let (launches, rays) = beam.trace_pupil(&px, &py);
     let mut s = Spot { chief_x: chief.p.x, chief_y: chief.p.y, launched: px.len(), ..Default::default() };
@@ -175,15 +175,18 @@ pub fn irradiance(lens: &Lens, field_deg: f64, wavelength_nm: f64, grid: PupilGr
         all_pass = rl.iter().zip(&rr).all(|(l, r)| l.ok && r.ok());
     }
     let launches = beam.launches(&px, &py);
-    let chief = open.trace(beam.launch(0.0, 0.0).origin, beam.dir, End::Image);
-    let d0 = beam.dir;
-    let dir = |dl: f64, dm: f64| DVec3::new(d0.x + dl, d0.y + dm, (1.0 - (d0.x + dl).powi(2) - (d0.y + dm).powi(2)).max(0.0).sqrt());
+    let c = beam.launch(0.0, 0.0);
+    let chief = open.trace(c.origin, c.dir, End::Image);
+    // directions about each launch's own (one direction from infinity; from a finite
+    // object a uniform Lambertian object plane sends the same radiance along every ray,
+    // so the same etendue sum holds)
+    let dir = |d0: DVec3, dl: f64, dm: f64| DVec3::new(d0.x + dl, d0.y + dm, (1.0 - (d0.x + dl).powi(2) - (d0.y + dm).powi(2)).max(0.0).sqrt());
     let steps = [(0.0, 0.0), (RI_STEP, 0.0), (-RI_STEP, 0.0), (0.0, RI_STEP), (0.0, -RI_STEP)];
     let (mut origins, mut dirs) = (Vec::with_capacity(5 * px.len()), Vec::with_capacity(5 * px.len()));
     for l in &launches {
         for &(a, b) in &steps {
-            let d = dir(a, b);
-            origins.push(beam.origin_along(l.origin, d));
+            let d = dir(l.dir, a, b);
+            origins.push(beam.origin_along(l, d));
             dirs.push(d);
         }
     }
@@ -213,8 +216,8 @@ pub fn irradiance(lens: &Lens, field_deg: f64, wavelength_nm: f64, grid: PupilGr
             }
             None => (0.0, 0.0),
         };
-        let d = dir(dl, dm);
-        co.push(beam.origin_along(l.origin, d));
+        let d = dir(l.dir, dl, dm);
+        co.push(beam.origin_along(l, d));
         cd.push(d);
         w.push(l.area * pw[i] / det.abs());
     }

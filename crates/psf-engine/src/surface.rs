@@ -1,5 +1,6 @@
-//! Surface geometry: sag of a conic plus even asphere, ray intersection (closed form for
-//! the conic, Newton refinement for the aspheric terms) and the surface normal.
+//! Surface geometry: sag of a conic plus even (and odd) aspheric terms, ray intersection
+//! (closed form for the conic, Newton refinement for the aspheric terms) and the surface
+//! normal.
 
 use crate::lens::Surface;
 use glam::DVec3;
@@ -24,6 +25,7 @@ pub fn sag(s: &Surface, rho: f64) -> Option<f64> {
             z += a * p;
             p *= rho;
         }
+        z += odd_sag_slope(&s.odd, rho).0;
     }
     Some(z)
 }
@@ -105,6 +107,18 @@ pub(crate) fn far_sheet_other_root(c: f64, kk: f64, pz: f64, dz: f64, t: f64, ot
 const NEWTON_MAX: usize = 30;
 const NEWTON_TOL: f64 = 1e-13;
 
+/// Odd terms a1 r + a3 r^3 + a5 r^5 + a7 r^7 and their derivative with respect to rho = r^2,
+/// (a1 / r + 3 a3 r + 5 a5 r^3 + 7 a7 r^5) / 2. At the vertex an r^1 term (a cone's apex)
+/// has no slope to speak of: the normal there is taken along the axis.
+#[inline(always)]
+fn odd_sag_slope(b: &[f64; crate::lens::ODD_TERMS], rho: f64) -> (f64, f64) {
+    let r = rho.sqrt();
+    let z = r * (b[0] + rho * (b[1] + rho * (b[2] + rho * b[3])));
+    let inv_r = if r > 0.0 { 1.0 / r } else { 0.0 };
+    let dz = 0.5 * (b[0] * inv_r + r * (3.0 * b[1] + rho * (5.0 * b[2] + rho * 7.0 * b[3])));
+    (z, dz)
+}
+
 /// Sag and its derivative with respect to rho = r^2 over the first `a.len()` aspheric terms
 /// (the others zero), branch free: `ok` false where the base conic is undefined there.
 #[inline(always)]
@@ -149,6 +163,17 @@ impl<const N: usize> Default for AsphereHits<N> {
 #[allow(clippy::needless_range_loop)]
 pub(crate) fn asphere_lanes<const N: usize>(s: &Surface, nterms: usize, p: &[[f64; N]; 3], d: &[[f64; N]; 3], t0: &[f64; N], active: &[bool; N], out: &mut AsphereHits<N>) {
     let (c, kk, a) = (s.curvature, 1.0 + s.conic, &s.aspheric[..nterms]);
+    let (odd, has_odd) = (&s.odd, s.has_odd());
+    // sag and slope, with the odd terms where the surface has any
+    let sag_slope = |c: f64, kk: f64, a: &[f64], rho: f64| {
+        let (z, dz, ok) = sag_slope(c, kk, a, rho);
+        if has_odd {
+            let (zo, dzo) = odd_sag_slope(odd, rho);
+            (z + zo, dz + dzo, ok)
+        } else {
+            (z, dz, ok)
+        }
+    };
     let ([px, py, pz], [dx, dy, dz]) = (p, d);
     let mut t = [0.0; N];
     let mut live = *active;
@@ -218,7 +243,7 @@ mod tests {
     fn surf(c: f64, k: f64, a4: f64) -> Surface {
         let mut aspheric = [0.0; crate::lens::MAX_ASPHERE_TERMS];
         aspheric[1] = a4;
-        Surface { curvature: c, conic: k, aspheric, thickness: 1.0, z: 0.0, semi_diameter: None, name: String::new() }
+        Surface { curvature: c, conic: k, aspheric, odd: [0.0; crate::lens::ODD_TERMS], thickness: 1.0, z: 0.0, semi_diameter: None, name: String::new() }
     }
 
     #[test]

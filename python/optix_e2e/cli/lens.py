@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-import click
-
+import math
 from pathlib import Path
+
+import click
 
 from ..lens import Lens
 from ._common import AIMING, dumps, friendly_errors, load_lens
@@ -55,6 +56,8 @@ def info(lens_spec, aiming, rings, as_json, lenient):
            "wavelengths_nm": lens_.wavelengths_nm,
            "wavelength_weights": lens_.wavelength_weights,
            "primary_wavelength_nm": lens_.primary_wavelength_nm,
+           # null: the object at infinity
+           "object_distance_mm": lens_.object_distance if math.isfinite(lens_.object_distance) else None,
            **{k: par[k] for k in PARAXIAL_KEYS}, "paraxial": par, "fields": fields}
     if as_json:
         click.echo(dumps(out))
@@ -62,6 +65,9 @@ def info(lens_spec, aiming, rings, as_json, lenient):
     click.echo(f"{lens_.name}  ({lens_.source})")
     click.echo(f"  EFL {par['efl_mm']:.4f} mm   BFL {par['bfl_mm']:.4f} mm   f/{par['f_number']:.3f}"
                f"   EPD {par['epd_mm']:.4f} mm   total track {par['total_track_mm']:.4f} mm")
+    if math.isfinite(lens_.object_distance):
+        click.echo(f"  object {lens_.object_distance:.4f} mm before surface 1; image plane "
+                   f"{-par['back_focus_shift_mm']:+.4f} mm from the object's paraxial image")
     wl = ", ".join(f"{w:g}" for w in lens_.wavelengths_nm)
     click.echo(f"  wavelengths {wl} nm (primary {lens_.primary_wavelength_nm:g}), aiming {aiming}")
     click.echo(f"  {'field (deg)':>11}  {'RMS spot (um)':>13}  {'rel. illum.':>11}")

@@ -22,7 +22,6 @@ IGNORED = {
 }
 #: Known keywords whose meaning this reader cannot represent: always an error.
 UNSUPPORTED = {
-    "OBNA": "object-space NA aperture (use ENPD, FNUM or FLOA)",
     "EFNO": "working F/# aperture (use ENPD, FNUM or FLOA)",
     "SCBD": "surface tilt/decenter",
     "TILT": "surface tilt", "DECX": "surface decenter", "DECY": "surface decenter",
@@ -46,7 +45,8 @@ SURFACE_FEATURES = {
     "EXTASPHE": "extended asphere", "EXTODDAS": "extended odd asphere",
 }
 #: Our catalog folders for a Zemax GCAT name (lower-cased names not listed map to themselves).
-GCAT_TO_CATALOG = {"MISC": ("organic", "misc")}
+#: MISC searches Zemax's own MISC entries (ACRYLIC with Zemax's data) before the polymers.
+GCAT_TO_CATALOG = {"MISC": ("misc", "organic")}
 CATALOG_TO_GCAT = {"organic": "MISC"}
 #: Zemax MISC-catalog names of our polymers.
 ZEMAX_POLYMER_NAMES = {"PMMA": "PMMA", "polycarbonate": "POLYCARB", "polystyrene": "POLYSTYR"}

@@ -179,6 +179,13 @@ class _Parser:
     def k_FLOA(self, line, key, tok, rest, s):
         self._aperture(line, key, ("floa", None))
 
+    def k_OBNA(self, line, key, tok, rest, s):
+        # OBNA na flag: object-space numerical aperture (a finite object only, checked in _build)
+        v = self.num(line, key, tok, 1)
+        if not 0 < v < 1:
+            self.fail(line, key, f"object-space NA must lie in (0, 1) (object in air), got {v:g}")
+        self._aperture(line, key, ("object_na", v))
+
     def k_ENVD(self, line, key, tok, rest, s):
         t, p = self.num(line, key, tok, 1, 20.0), self.num(line, key, tok, 2, 1.0)
         if t != 20 or p != 1:
@@ -292,7 +299,7 @@ class _Parser:
         s["glas"] = (line, tok)
 
 
-HEADER_KEYS = {"MODE", "NAME", "UNIT", "ENPD", "FNUM", "FLOA", "ENVD", "GCAT", "FTYP", "XFLN",
+HEADER_KEYS = {"MODE", "NAME", "UNIT", "ENPD", "FNUM", "FLOA", "OBNA", "ENVD", "GCAT", "FTYP", "XFLN",
                "YFLN", "XFLD", "YFLD", "WAVM", "WAVL", "WWGT", "PWAV", "MNUM"}
 
 
@@ -313,15 +320,21 @@ def _build(p: _Parser, end: int, name: str) -> dict:
     if "unit" not in h:
         p.notes.append("no UNIT line: millimetres assumed")
     if "aperture" not in h:
-        p.fail(end, "ENPD", "no aperture definition (ENPD, FNUM or FLOA) in the file (truncated file?)")
+        p.fail(end, "ENPD", "no aperture definition (ENPD, FNUM, FLOA or OBNA) in the file (truncated file?)")
     if len(p.surfs) < 3:
         p.fail(end, "SURF", f"{len(p.surfs)} surface(s); a lens needs the object surface, at least one "
                "surface and the image surface (truncated file?)")
 
     obj, image, body = p.surfs[0], p.surfs[-1], p.surfs[1:-1]
-    if not math.isinf(obj["disz"]):
+    finite_object = not math.isinf(obj["disz"])
+    if finite_object and obj["disz"] < 0:
         p.fail(obj["lines"].get("DISZ", obj["line"]), "DISZ",
-               f"object distance {obj['disz']:g}: only an object at infinity (DISZ INFINITY) is supported")
+               f"object distance {obj['disz']:g}: a virtual object (negative DISZ on SURF 0) is not supported")
+    if obj["curv"] != 0 and finite_object:
+        p.fail(obj["lines"].get("CURV", obj["line"]), "CURV", "curved object surfaces are not supported")
+    if h["aperture"][0] == "object_na" and not finite_object:
+        p.fail(h["aperture_line"], "OBNA", "object-space NA with the object at infinity (DISZ INFINITY) "
+               "defines no pupil: give ENPD, FNUM or FLOA")
     if "glas" in obj:
         p.fail(obj["glas"][0], "GLAS", "object space must be air")
     # The last SURF is the image; a glass there means the file was cut short.
@@ -355,7 +368,9 @@ def _build(p: _Parser, end: int, name: str) -> dict:
         out["aperture"] = {"type": "epd", "value": 1.0}  # replaced below, once glass is known
     else:
         out["aperture"] = {"type": kind, "value": value * scale if kind == "epd" else value}
-    out.update(_fields(p, end))
+    if finite_object:
+        out["object_distance"] = obj["disz"] * scale
+    out.update(_fields(p, end, finite_object))
     out.update(_waves(p, end))
     out["surfaces"] = surfaces
     img_sd = image.get("clap") if "clap" in image else (
@@ -370,6 +385,8 @@ def _build(p: _Parser, end: int, name: str) -> dict:
     _drop_crossing_diams(p, body, out["surfaces"])
     if kind == "floa":
         _resolve_floa(p, out, h["aperture_line"])
+    if "object_heights" in out:
+        _object_heights_to_angles(p, out, scale)
     if math.isinf(body[-1]["disz"]):
         _image_at_infinity(p, body[-1], out)
     _note_extrapolated_glass(p, body, out)
@@ -394,10 +411,7 @@ def _surface(p: _Parser, s: dict, scale: float, last: bool = False) -> dict:
         if s["type"] == "EVENASPH" and 1 <= i <= N_EVENASPH:
             power = 2 * i  # PARM i: coefficient of r^(2i)
         elif s["type"] == "ODDASPHE" and 1 <= i <= N_ODDASPHE:
-            power = i  # PARM i: coefficient of r^i
-            if i % 2:
-                p.fail(line, "PARM", f"{p.where(s)}: ODDASPHE odd-power term r^{i} = {v:g} is not "
-                       "supported (only even powers; r^1 alone is an axicon)")
+            power = i  # PARM i: coefficient of r^i (odd powers too: r^1 alone is an axicon)
         else:
             p.fail(line, "PARM", f"{p.where(s)}: PARM {i} = {v:g} has no meaning on a {s['type']} surface"
                    + {"EVENASPH": " (EVENASPH uses PARM 1-8)", "ODDASPHE": " (ODDASPHE uses PARM 1-8)"}
@@ -505,17 +519,13 @@ def _catalog_glass(p: _Parser, line: int, s: dict, name: str, nd: float, vd: flo
                     f"; the GLAS line's nd {nd:g}, vd {vd:g} is OpticStudio's placeholder, not the glass's data")
         p.fail(line, "GLAS", f"{p.where(s)}: unknown glass {name!r} in the file's catalogs "
                f"(GCAT {' '.join(gcat_names)}){where}{recorded}")
-    g = hits[0]
-    if g.name in _glass.MOLDED_FROM and g.catalog in ("lightpath", "rpo"):
-        p.notes.append(f"{p.where(s)}: molded glass {g.name} ({g.catalog}) uses CDGM "
-                       f"{_glass.MOLDED_FROM[g.name]}'s annealed data (the mold's index shift, a few "
-                       "1e-3, is not modelled)")
+    g = hits[0]  # molded glasses (LightPath's D-ZK3M, RPO's *_MOLD) carry the molder's own data
     if nd > 1 and len(hits) > 1:  # nearest (nd, vd); ties keep the GCAT order
         g = min(hits, key=lambda h: abs(_nd_vd(h)[0] - nd) + abs(_nd_vd(h)[1] - vd) * 1e-3)
     return {"glass": g.name, "catalog": g.catalog}
 
 
-def _fields(p: _Parser, end: int) -> dict:
+def _fields(p: _Parser, end: int, finite_object: bool = False) -> dict:
     h = p.hdr
     if "yfld" not in h:
         p.fail(end, "YFLN", "no field definition (YFLN) in the file (truncated file?)")
@@ -530,12 +540,18 @@ def _fields(p: _Parser, end: int) -> dict:
             p.fail(xline, xkey, "x field angles are not supported (fields lie along +y; "
                    "a rotationally symmetric lens needs only the radial angle)")
     fline, ftype = h.get("ftype", (line, 0))
+    if ftype == 1 and finite_object:
+        # object heights: angles once the entrance pupil is known (_object_heights_to_angles)
+        for y in ys:
+            if y < 0:
+                p.fail(line, key, f"negative object height {y:g}: give fields along +y")
+        return {"fields_deg": [0.0] * len(ys), "object_heights": (line, ys)}
     if ftype != 0:  # only the on-axis field means the same in every field type
         if any(y != 0 for y in ys):
             kinds = {1: "object height", 2: "paraxial image height", 3: "real image height",
                      4: "theodolite angle"}
             p.fail(fline, "FTYP", f"field type {ftype} ({kinds.get(ftype, 'unknown')}); only angle "
-                   "fields (type 0) with the object at infinity are supported")
+                   "fields (type 0), and object heights (type 1) for a finite object, are supported")
         p.notes.append(f"field type {ftype} with only the on-axis field: read as angle 0")
     for y in ys:
         if y < 0:
@@ -579,13 +595,15 @@ def _indices(p: _Parser, out: dict, line: int, key: str, what: str) -> list[floa
         raise ZemaxError(f"{p.source}:{line}: {key}: cannot {what}: {exc}") from None
 
 
-def _marginal_heights(surfaces: list[dict], n: list[float]) -> list[tuple[float, float]]:
-    """(y, n u) at each surface of the paraxial marginal ray of a unit EPD from an object at
-    infinity (it enters parallel at height 1/2 wherever the pupil lies); the paraxial
-    curvature of an asphere includes its r^2 term, as in the engine."""
+def _marginal_heights(surfaces: list[dict], n: list[float],
+                      start: tuple[float, float] = (0.5, 0.0)) -> list[tuple[float, float]]:
+    """(y, n u) at each surface of a paraxial ray entering at the first vertex with `start`
+    = (y, n u): by default the marginal ray of a unit EPD from an object at infinity (it
+    enters parallel at height 1/2 wherever the pupil lies); the paraxial curvature of an
+    asphere includes its r^2 term, as in the engine."""
     from ..surface import curvature
 
-    y, nu, out = 0.5, 0.0, []
+    (y, nu), out = start, []
     for i, s in enumerate(surfaces):
         c = curvature(s) + 2.0 * float((s.get("aspheric") or {}).get("a2", 0.0))
         nu -= y * c * (n[i + 1] - n[i])
@@ -615,21 +633,51 @@ def _resolve_floa(p: _Parser, out: dict, line: int):
     p.notes.append(f"FLOA resolved to EPD {epd:.10g} mm")
 
 
+def _object_heights_to_angles(p: _Parser, out: dict, scale: float):
+    """Object-height fields (FTYP 1) of a finite object as the angles optix takes: the
+    object point at height h is the one whose chief ray leaves at atan(h / L) towards the
+    paraxial entrance pupil's centre, L = object plane to entrance pupil (as OpticStudio
+    defines angle fields for a finite object), so each field is the same object point."""
+    import json
+
+    from .._engine import EngineError
+    from ..lens import _engine_fn  # circular import otherwise
+    from ..prescription import PrescriptionError, resolve_prescription
+
+    line, heights = out.pop("object_heights")
+    try:
+        par = _engine_fn("paraxial")(json.dumps(resolve_prescription(out, p.source)), None)
+    except (PrescriptionError, EngineError) as exc:
+        raise ZemaxError(f"{p.source}:{line}: YFLN: cannot place the object-height fields: {exc}") from None
+    L = float(par["object_to_pupil_mm"])
+    angles = [math.degrees(math.atan(h * scale / abs(L))) for h in heights]
+    if any(a >= 89.9 for a in angles):
+        p.fail(line, "YFLN", f"object height {max(heights):g} is beyond 89.9 deg seen from the entrance pupil")
+    out["fields_deg"] = angles
+    p.notes.append(f"line {line}: object-height fields {', '.join(f'{h:g}' for h in heights)} -> field "
+                   f"angles {', '.join(f'{a:.10g}' for a in angles)} deg (object to entrance pupil "
+                   f"{abs(L):.10g} mm)")
+
+
 def _image_at_infinity(p: _Parser, last: dict, out: dict):
     """An infinite last thickness puts the image at infinity; optix's image is a plane at a
     finite distance, so it goes to the paraxial focus (thickness = BFL, negative for a
     virtual focus); an afocal system keeps it on the last surface."""
     line = last["lines"]["DISZ"]
     n = _indices(p, out, line, "DISZ", "place the image")
-    y, nu = _marginal_heights(out["surfaces"], n)[-1]
+    d = out.get("object_distance")
+    # the axial marginal ray: parallel from infinity, or (y, u) = (d, 1) from a finite object
+    y, nu = _marginal_heights(out["surfaces"], n, start=(0.5, 0.0) if d is None else (d, n[0]))[-1]
     if abs(nu) < 1e-15:
-        p.notes.append(f"line {line}: {p.where(last)}: image at infinity on an afocal system: "
-                       "the image plane is the last surface (EFL infinite)")
+        p.notes.append(f"line {line}: {p.where(last)}: image at infinity of "
+                       + ("an afocal system" if d is None else "an object in the front focal plane")
+                       + ": the image plane is the last surface")
         return
-    bfl = -y / (nu / n[-1])
-    out["surfaces"][-1]["thickness"] = bfl
+    dist = -y / (nu / n[-1])
+    out["surfaces"][-1]["thickness"] = dist
     p.notes.append(f"line {line}: {p.where(last)}: image at infinity (DISZ INFINITY): the image plane "
-                   f"is put at the paraxial focus, BFL {bfl:.10g} mm")
+                   f"is put at the paraxial " + ("focus, BFL" if d is None else "image of the object,")
+                   + f" {dist:.10g} mm")
 
 
 def _drop_crossing_diams(p: _Parser, body: list[dict], surfaces: list[dict]):

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .. import glass as _glass
-from .common import CATALOG_TO_GCAT, N_EVENASPH, ZEMAX_POLYMER_NAMES, ZemaxError
+from .common import CATALOG_TO_GCAT, N_EVENASPH, N_ODDASPHE, ZEMAX_POLYMER_NAMES, ZemaxError
 from .numbers import _curv, _to_um
 from .reader import _nd_vd
 
@@ -26,7 +26,8 @@ def zmx_text(data: dict, source: str = "<lens>") -> str:
     lines = ["VERS 190513 80 123457 L123457", "MODE SEQ", f"NAME {data.get('name', 'lens')}",
              "PFIL 0 0 0", "LANG 0", "UNIT MM X W X CM MR CPMM"]
     ap = data["aperture"]
-    lines.append(f"ENPD {_f(ap['value'])}" if ap["type"] == "epd" else f"FNUM {_f(ap['value'])} 0")
+    lines.append({"epd": f"ENPD {_f(ap['value'])}", "fno": f"FNUM {_f(ap['value'])} 0",
+                  "object_na": f"OBNA {_f(ap['value'])} 0"}[ap["type"]])
     lines += ["ENVD 2.0E+1 1 0", "GFAC 0 0"]
     glas, gcat = [], []
     for i, s in enumerate(data["surfaces"]):
@@ -48,7 +49,9 @@ def zmx_text(data: dict, source: str = "<lens>") -> str:
               "FWGN " + " ".join("1" for _ in fields)]
     lines += [f"WAVM {i} {_f(_to_um(w))} {_f(k)}" for i, (w, k) in enumerate(zip(wls, weights), 1)]
     lines.append(f"PWAV {wls.index(primary) + 1}")
-    lines += ["SURF 0", "  TYPE STANDARD", "  CURV 0.0", "  DISZ INFINITY"]
+    dist = data.get("object_distance")
+    finite = dist is not None and not isinstance(dist, str)
+    lines += ["SURF 0", "  TYPE STANDARD", "  CURV 0.0", f"  DISZ {_f(dist) if finite else 'INFINITY'}"]
     for i, s in enumerate(data["surfaces"]):
         where = f"surface {i + 1} (surfaces[{i}])"
         lines.append(f"SURF {i + 1}")
@@ -57,10 +60,13 @@ def zmx_text(data: dict, source: str = "<lens>") -> str:
         if s.get("stop"):
             lines.append("  STOP")
         asph = {k: float(v) for k, v in (s.get("aspheric") or {}).items() if v != 0}
-        high = [k for k in asph if int(k[1:]) > 2 * N_EVENASPH]
+        odd = any(int(k[1:]) % 2 for k in asph)  # odd powers: OpticStudio's odd asphere
+        top = N_ODDASPHE if odd else 2 * N_EVENASPH
+        high = [k for k in asph if int(k[1:]) > top]
         if high:
-            fail(f"{where} aspheric", f"{', '.join(high)}: Zemax EVENASPH stops at a16")
-        lines.append(f"  TYPE {'EVENASPH' if asph else 'STANDARD'}")
+            fail(f"{where} aspheric", f"{', '.join(high)}: Zemax " + (
+                f"ODDASPHE (needed for the odd terms) stops at a{N_ODDASPHE}" if odd else "EVENASPH stops at a16"))
+        lines.append(f"  TYPE {'ODDASPHE' if odd else 'EVENASPH' if asph else 'STANDARD'}")
         lines.append(f"  CURV {_f(_surface_curv(s))}")
         lines.append(f"  DISZ {_f(s['thickness'])}")
         if glas[i]:
@@ -71,7 +77,8 @@ def zmx_text(data: dict, source: str = "<lens>") -> str:
         if sd:  # fixed semi-diameter plus a circular aperture: Zemax clips there too
             lines += [f'  DIAM {_f(sd)} 1 0 0 1 ""', f"  CLAP 0 {_f(sd)} 0"]
         for k in sorted(asph, key=lambda k: int(k[1:])):
-            lines.append(f"  PARM {int(k[1:]) // 2} {_f(asph[k])}")
+            # EVENASPH: PARM i is the r^(2i) term; ODDASPHE: PARM i is the r^i term
+            lines.append(f"  PARM {int(k[1:]) if odd else int(k[1:]) // 2} {_f(asph[k])}")
     lines += [f"SURF {len(data['surfaces']) + 1}", "  TYPE STANDARD", "  CURV 0.0", "  DISZ 0.0"]
     isd = (data.get("image") or {}).get("semi_diameter")
     if isd:

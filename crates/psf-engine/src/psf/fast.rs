@@ -587,6 +587,9 @@ pub fn axis_clear(sys: &System) -> Result<bool> {
 /// (the caller then runs fft.rs). Engine errors (the chief ray fails, ...) are errors.
 pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostics) -> Result<std::result::Result<Vec<f64>, &'static str>> {
     let beam = Beam::new(sys, field_deg, Aiming::Paraxial)?;
+    if beam.object.is_some() {
+        return Ok(Err("a finite object: the pupil's flux is not uniform (cos^4 over the pupil), which this path assumes"));
+    }
     let chief_launch = beam.launch(0.0, 0.0);
     let Reference { chief, chief_opl, radius } = reference(&beam, &chief_launch)?;
     let n_img = sys.image_index();

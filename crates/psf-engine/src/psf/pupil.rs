@@ -233,7 +233,10 @@ pub fn sample_pupil(sys: &System, field_deg: f64, aiming: Aiming, n: usize) -> R
             let t = beam.trace_pupil_soa(&grid.px, &grid.py);
             let v3 = |a: &[f64], k: usize| DVec3::new(a[3 * k], a[3 * k + 1], a[3 * k + 2]);
             for (k, &j) in grid.idx.iter().enumerate() {
-                total += take_ray(&mut p, &ctx, j, v3(&t.origin, k), weight, Status::from_code(t.status[k]), v3(&t.position, k), v3(&t.direction, k), t.opl[k]);
+                let o = v3(&t.origin, k);
+                // from infinity every paraxial launch carries the same weight
+                let w = if beam.object.is_some() { beam.paraxial_flux_weight(o) } else { weight };
+                total += take_ray(&mut p, &ctx, j, o, w, Status::from_code(t.status[k]), v3(&t.position, k), v3(&t.direction, k), t.opl[k]);
             }
         }
         Aiming::Real => {
@@ -272,7 +275,7 @@ pub(crate) struct Reference {
 
 pub(crate) fn reference(beam: &Beam, chief_launch: &Launch) -> Result<Reference> {
     let sys = beam.sys;
-    let chief = sys.trace(chief_launch.origin, beam.dir, End::Image);
+    let chief = sys.trace(chief_launch.origin, chief_launch.dir, End::Image);
     if !chief.ok() {
         return Err(EngineError::Trace(format!(
             "chief ray at {} deg, {:.1} nm: {:?} at surface {}",
