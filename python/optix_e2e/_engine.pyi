@@ -56,8 +56,10 @@ def paraxial(lens_json: str, wavelength_nm: float | None = None) -> dict[str, fl
     Keys: efl_mm, bfl_mm (last vertex to paraxial focus), ffl_mm, f_number (EFL/EPD),
     epd_mm, entrance_pupil_z_mm (from first vertex), xpd_mm, exit_pupil_z_mm
     (relative to the image plane), stop_semi_diameter_mm, total_track_mm,
-    image_z_mm, paraxial_image_height_mm (EFL*tan(max field)), back_focus_shift_mm
-    (paraxial focus minus image plane).
+    image_z_mm, paraxial_image_height_mm (EFL*tan(max field); for a finite object the
+    chief ray's height at the object's paraxial image), back_focus_shift_mm (paraxial
+    focus, or the paraxial image of a finite object, minus image plane),
+    object_to_pupil_mm (object plane to entrance pupil; inf for an object at infinity).
     """
 
 def trace(
@@ -83,7 +85,8 @@ def trace_field(
     """Aim and trace rays at normalized pupil coordinates (px, py) for one field.
 
     Same keys as :func:`trace` plus origin (n, 3) and launch_direction (n, 3), a
-    read-only broadcast view of the one beam direction.
+    read-only broadcast view of the one beam direction (for a finite object, each ray's
+    own direction: the rays leave one object point).
     """
 
 def trace_field_path(
@@ -98,7 +101,8 @@ def trace_field_path(
 
     Extra keys: path (n, n_surfaces + 1, 3), the global intersection point with each
     surface and, last, the image plane; last (n,) int32, the index of each ray's last
-    valid point (-1: none), with zeros after it; launch_direction (3,).  A ray that
+    valid point (-1: none), with zeros after it; launch_direction (3,), or (n, 3) for a
+    finite object.  A ray that
     reaches the image has last = n_surfaces and path[:, -1] equal to ``position`` (bit
     for bit the :func:`trace_field` result).  A failed ray stops where it failed: a
     clipped ray at its hit point on the clipping surface (outside its clear aperture),
