@@ -81,6 +81,11 @@ def test_object_height_fields_become_the_same_object_points(tmp_path):
     L = lens.paraxial()["object_to_pupil_mm"]
     assert lens.fields_deg == pytest.approx([math.degrees(math.atan(y / L)) for y in ys], rel=1e-12)
     assert any("object-height fields" in n for n in lens.zemax_import.notes)
+    # with a pupil that floats by the stop's size, placed before the fields: the same angles
+    path.write_text(text.replace("ENPD 1.0E+1", "FLOA", 1))
+    floating = Lens.from_file(path)
+    assert floating.data["aperture"]["type"] == "epd"
+    assert floating.fields_deg == pytest.approx(lens.fields_deg, rel=1e-12)
     # an object-height field with the object at infinity stays an error
     with pytest.raises(ZemaxError, match="object height"):
         Lens.load(BROKEN / "height_fields.zmx")

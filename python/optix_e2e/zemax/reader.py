@@ -370,7 +370,9 @@ def _build(p: _Parser, end: int, name: str) -> dict:
         out["aperture"] = {"type": kind, "value": value * scale if kind == "epd" else value}
     if finite_object:
         out["object_distance"] = obj["disz"] * scale
-    out.update(_fields(p, end, finite_object))
+    fields = _fields(p, end, finite_object)
+    heights = fields.pop("object_heights", None)  # (line, values): placed once glass is known
+    out.update(fields)
     out.update(_waves(p, end))
     out["surfaces"] = surfaces
     img_sd = image.get("clap") if "clap" in image else (
@@ -385,8 +387,8 @@ def _build(p: _Parser, end: int, name: str) -> dict:
     _drop_crossing_diams(p, body, out["surfaces"])
     if kind == "floa":
         _resolve_floa(p, out, h["aperture_line"])
-    if "object_heights" in out:
-        _object_heights_to_angles(p, out, scale)
+    if heights:
+        _object_heights_to_angles(p, out, scale, *heights)
     if math.isinf(body[-1]["disz"]):
         _image_at_infinity(p, body[-1], out)
     _note_extrapolated_glass(p, body, out)
@@ -580,8 +582,9 @@ def _waves(p: _Parser, end: int) -> dict:
     return {"wavelengths_nm": wl, "wavelength_weights": w, "primary_wavelength_nm": wl[pw - 1]}
 
 
-def _indices(p: _Parser, out: dict, line: int, key: str, what: str) -> list[float]:
-    """Refractive indices of the media (object space first) at the primary wavelength."""
+def _engine_on(p: _Parser, out: dict, line: int, key: str, what: str, fn: str, *args):
+    """The engine's `fn` on the lens built so far (resolved), its error one ZemaxError
+    naming the line and keyword that needed it."""
     import json
 
     from .._engine import EngineError
@@ -589,10 +592,14 @@ def _indices(p: _Parser, out: dict, line: int, key: str, what: str) -> list[floa
     from ..prescription import PrescriptionError, resolve_prescription
 
     try:
-        js = json.dumps(resolve_prescription(out, p.source))
-        return list(_engine_fn("refractive_indices")(js, float(out["primary_wavelength_nm"])))
+        return _engine_fn(fn)(json.dumps(resolve_prescription(out, p.source)), *args)
     except (PrescriptionError, EngineError) as exc:
         raise ZemaxError(f"{p.source}:{line}: {key}: cannot {what}: {exc}") from None
+
+
+def _indices(p: _Parser, out: dict, line: int, key: str, what: str) -> list[float]:
+    """Refractive indices of the media (object space first) at the primary wavelength."""
+    return list(_engine_on(p, out, line, key, what, "refractive_indices", float(out["primary_wavelength_nm"])))
 
 
 def _marginal_heights(surfaces: list[dict], n: list[float],
@@ -633,22 +640,12 @@ def _resolve_floa(p: _Parser, out: dict, line: int):
     p.notes.append(f"FLOA resolved to EPD {epd:.10g} mm")
 
 
-def _object_heights_to_angles(p: _Parser, out: dict, scale: float):
+def _object_heights_to_angles(p: _Parser, out: dict, scale: float, line: int, heights: list[float]):
     """Object-height fields (FTYP 1) of a finite object as the angles optix takes: the
     object point at height h is the one whose chief ray leaves at atan(h / L) towards the
     paraxial entrance pupil's centre, L = object plane to entrance pupil (as OpticStudio
     defines angle fields for a finite object), so each field is the same object point."""
-    import json
-
-    from .._engine import EngineError
-    from ..lens import _engine_fn  # circular import otherwise
-    from ..prescription import PrescriptionError, resolve_prescription
-
-    line, heights = out.pop("object_heights")
-    try:
-        par = _engine_fn("paraxial")(json.dumps(resolve_prescription(out, p.source)), None)
-    except (PrescriptionError, EngineError) as exc:
-        raise ZemaxError(f"{p.source}:{line}: YFLN: cannot place the object-height fields: {exc}") from None
+    par = _engine_on(p, out, line, "YFLN", "place the object-height fields", "paraxial", None)
     L = float(par["object_to_pupil_mm"])
     angles = [math.degrees(math.atan(h * scale / abs(L))) for h in heights]
     if any(a >= 89.9 for a in angles):

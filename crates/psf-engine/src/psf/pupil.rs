@@ -229,14 +229,11 @@ pub fn sample_pupil(sys: &System, field_deg: f64, aiming: Aiming, n: usize) -> R
     match aiming {
         // Paraxial launches all carry the same area: trace straight into flat arrays.
         Aiming::Paraxial => {
-            let weight = beam.flux_weight(&chief_launch);
             let t = beam.trace_pupil_soa(&grid.px, &grid.py);
             let v3 = |a: &[f64], k: usize| DVec3::new(a[3 * k], a[3 * k + 1], a[3 * k + 2]);
             for (k, &j) in grid.idx.iter().enumerate() {
                 let o = v3(&t.origin, k);
-                // from infinity every paraxial launch carries the same weight
-                let w = if beam.object.is_some() { beam.paraxial_flux_weight(o) } else { weight };
-                total += take_ray(&mut p, &ctx, j, o, w, Status::from_code(t.status[k]), v3(&t.position, k), v3(&t.direction, k), t.opl[k]);
+                total += take_ray(&mut p, &ctx, j, o, beam.paraxial_flux_weight(o), Status::from_code(t.status[k]), v3(&t.position, k), v3(&t.direction, k), t.opl[k]);
             }
         }
         Aiming::Real => {
