@@ -110,6 +110,26 @@ def trace_field_path(
     status and surface are those of the image-plane trace.
     """
 
+def wavefront(
+    lens_json: str,
+    field_deg: float,
+    px: NDArray[np.float64],
+    py_: NDArray[np.float64],
+    weights: NDArray[np.float64],
+    wavelengths_nm: Sequence[float],
+    wavelength_weights: Sequence[float] | None = None,
+    aiming: str = "paraxial",
+    tilt: str = "wavelength",
+) -> dict[str, Any]:
+    """Wavefront error (OPD) of pupil rays (px, py, weights) of one field at each wavelength,
+    against the reference sphere about the primary chief ray's image point through the
+    exit pupil; piston removed per wavelength, tilt per wavelength (``tilt="wavelength"``,
+    OpticStudio's centroid reference) or one for the field (``"field"``: lateral colour
+    stays).  Keys: opd_waves (n_wavelengths, n) in waves of each wavelength, 0 where the
+    ray failed; status (n_wavelengths, n) uint8; rms_waves (n_wavelengths,) weighted over
+    the transmitted rays; tilt_mm (n_wavelengths, 2); chief_image_mm; reference_radius_mm.
+    The per-ray arrays are the engine's own buffers (no copy)."""
+
 def spot(
     lens_json: str,
     field_deg: float,

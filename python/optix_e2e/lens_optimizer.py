@@ -8,8 +8,15 @@ lens up to high order, as Zemax's default merit) is traced with the engine.  The
 are the transverse ray errors about the field's polychromatic centroid, each scaled by
 sqrt(quadrature weight x wavelength weight x field weight), so that the sum of squares is
 the weighted mean over fields of the centroid-referenced polychromatic mean-square spot
-radius, and ``merit = sqrt(sum of squares)`` is an RMS spot radius (reported in um).  The
-engine exposes no wavefront (OPD) output, so the merit is the spot merit only.
+radius, and ``merit = sqrt(sum of squares)`` is an RMS spot radius (reported in um).
+
+Wavefront merit (``kind="wavefront"``, OpticStudio's default "wavefront, centroid" merit):
+the same pupil grid's optical path differences against the reference sphere about the
+chief ray's image point, from the engine (``_engine.wavefront``, per-ray arrays handed over
+without a copy), piston removed per wavelength and tilt per wavelength (OpticStudio's
+centroid reference, which leaves lateral colour to other operands) or per field
+(``tilt="field"``: one image point for all wavelengths, lateral colour counts).  Residuals
+are OPD in waves x sqrt(weights): ``merit`` is the weighted RMS wavefront error in waves.
 
 Constraints enter as extra residuals (Zemax's "operands" with weights): the relative EFL
 error, and each inequality's violation in mm (zero when met).  Edge thicknesses and edge
@@ -41,9 +48,13 @@ from .lens import Lens
 from .space import ParameterSpace
 from .surface import sag as _surface_sag
 
-__all__ = ["Constraints", "Merit", "OptimizeResult", "optimize", "sag", "element_geometry"]
+__all__ = ["Constraints", "LensProblem", "Merit", "OptimizeResult", "optimize", "polish", "sag",
+           "element_geometry"]
 
 FAILED_RAY_MM = 1.0     # residual given to each failed ray's x and y (mm)
+FAILED_RAY_WAVES = 10.0  # ... and to its OPD in the wavefront merit (waves)
+KINDS = ("spot", "wavefront")
+UNITS = {"spot": "um", "wavefront": "waves"}
 REJECTED = 10.0         # residual value for every entry when the engine rejects a design
 W_EFL = 100.0           # weight of the relative EFL error
 W_GEOM = 100.0          # weight of a geometric violation (per mm)
@@ -119,9 +130,14 @@ class Constraints:
     min_edge: float | None = None       # glass edge thickness at the clear semi-diameter (mm)
     min_air_gap: float | None = None    # air gap between optical surfaces, center and edge (mm)
     min_bfd: float | None = None        # last vertex to image plane (mm)
+    min_image_height: float | None = None  # real chief-ray image height at the largest field (mm)
 
-    def evaluate(self, lens: dict, paraxial: dict, semi_diameters) -> list[dict]:
-        """One row per constraint instance: name, value, limit, violation (>= 0), ok."""
+    def evaluate(self, lens: dict, paraxial: dict, semi_diameters,
+                 chief_height: float | None = None) -> list[dict]:
+        """One row per constraint instance: name, value, limit, violation (>= 0), ok.
+        ``chief_height``: the real chief ray's image height at the largest field (needed
+        for ``min_image_height``: the image must reach the sensor's corner, whatever the
+        distortion)."""
         rows = []
         if self.efl is not None:
             err = (paraxial["efl_mm"] - self.efl) / self.efl
@@ -152,6 +168,10 @@ class Constraints:
                 ineq(f"stop_clearance[{tag}]", g["edge_mm"], 0.0)
         if self.min_bfd is not None:
             ineq("back_focal_distance", float(lens["surfaces"][-1]["thickness"]), self.min_bfd)
+        if self.min_image_height is not None:
+            if chief_height is None:
+                raise ValueError("min_image_height needs the chief ray's image height")
+            ineq("image_height", chief_height, self.min_image_height)
         return rows
 
 
@@ -178,8 +198,13 @@ class Merit:
                  fields_deg: Sequence[float] | None = None,
                  field_weights: Sequence[float] | None = None,
                  rings: int = 6, arms: int = 12, aiming: str = "paraxial",
-                 focus: str = "fixed"):
+                 focus: str = "fixed", kind: str = "spot", tilt: str = "wavelength"):
         base = Lens.load(base)
+        if kind not in KINDS:
+            raise ValueError(f"merit must be one of {', '.join(KINDS)}, got {kind!r}")
+        if tilt not in ("wavelength", "field"):
+            raise ValueError(f"tilt must be 'wavelength' or 'field', got {tilt!r}")
+        self.kind, self.tilt, self.unit = kind, tilt, UNITS[kind]
         self.fields = list(fields_deg) if fields_deg is not None else base.fields_deg
         fw = np.ones(len(self.fields)) if field_weights is None else np.asarray(field_weights, float)
         if len(fw) != len(self.fields) or np.any(fw < 0) or fw.sum() <= 0:
@@ -217,25 +242,17 @@ class Merit:
         return ray_footprint(js, len(lens["surfaces"]), self.fields, self.wavelengths,
                              self.rim_px, self.rim_py, self.aiming)
 
-    def evaluate(self, lens: dict, footprint: bool | None = None) -> dict:
-        """Residual vector and a report of ``lens`` (already prepared).  The footprint
-        (semi-diameters) is traced when edge constraints need it or ``footprint`` is True."""
-        if footprint is None:
-            c = self.constraints
-            footprint = c.min_edge is not None or c.min_air_gap is not None
+    def _spot_terms(self, js: str) -> tuple[list, list, int]:
+        """Spot residuals (mm x sqrt(weight)) and per-field RMS spot radii."""
         E = _engine()
-        js = json.dumps(lens)
-        par = E.paraxial(js, None)
-        res, per_field = [], []
-        n_failed = 0
+        res, per_field, n_failed = [], [], 0
         for f, fw in zip(self.fields, self.field_weights):
             xs, ys, oks = [], [], []
             for wl in self.wavelengths:
                 tr = E.trace_field(js, float(f), self.px, self.py, float(wl), self.aiming)
-                ok = tr["status"] == 0
                 xs.append(tr["position"][:, 0])
                 ys.append(tr["position"][:, 1])
-                oks.append(ok)
+                oks.append(tr["status"] == 0)
             x, y, ok = np.stack(xs), np.stack(ys), np.stack(oks)
             w = self.wl_weights[:, None] * self.pw[None, :] * ok
             wsum = w.sum()
@@ -254,14 +271,63 @@ class Merit:
             s = np.sqrt(fw * wt)
             res.append((s * dx).ravel())
             res.append((s * dy).ravel())
-        spot_res = np.concatenate(res)
+        return res, per_field, n_failed
+
+    def _wavefront_terms(self, js: str) -> tuple[list, list, int]:
+        """OPD residuals (waves x sqrt(weight)) and per-field RMS wavefront errors."""
+        E = _engine()
+        res, per_field, n_failed = [], [], 0
+        for f, fw in zip(self.fields, self.field_weights):
+            wf = E.wavefront(js, float(f), self.px, self.py, self.pw, self.wavelengths,
+                             self.wl_weights.tolist(), self.aiming, self.tilt)
+            ok = wf["status"] == 0
+            opd = np.where(ok, wf["opd_waves"], FAILED_RAY_WAVES)
+            n_failed += int((~ok).sum())
+            wt = self.wl_weights[:, None] * self.pw[None, :]
+            res.append((np.sqrt(fw * wt) * opd).ravel())
+            rms = np.asarray(wf["rms_waves"])
+            per_field.append({"field_deg": f,
+                              "rms_wavefront_waves": float(np.sqrt(np.sum(self.wl_weights * rms ** 2))),
+                              "rms_wavefront_waves_per_wavelength": rms.tolist(),
+                              "failed_rays": int((~ok).sum())})
+        return res, per_field, n_failed
+
+    def evaluate(self, lens: dict, footprint: bool | None = None, full: bool = False) -> dict:
+        """Residual vector and a report of ``lens`` (already prepared).  The footprint
+        (semi-diameters) is traced when edge constraints need it or ``footprint`` is True.
+        ``full``: the per-field rows carry both the RMS spot and the RMS wavefront error
+        (else only the merit's own figure)."""
+        if footprint is None:
+            c = self.constraints
+            footprint = c.min_edge is not None or c.min_air_gap is not None
+        js = json.dumps(lens)
+        par = _engine().paraxial(js, None)
+        terms = self._spot_terms if self.kind == "spot" else self._wavefront_terms
+        res, per_field, n_failed = terms(js)
+        if full:
+            other = self._wavefront_terms if self.kind == "spot" else self._spot_terms
+            for row, extra in zip(per_field, other(js)[1]):
+                row.update({k: v for k, v in extra.items() if k != "failed_rays"})
+        merit_res = np.concatenate(res)
         sd = self.footprint(lens, js) if footprint else np.zeros(len(lens["surfaces"]))
-        rows = self.constraints.evaluate(lens, par, sd)
+        chief = None
+        if self.constraints.min_image_height is not None:
+            f = max(self.fields, key=abs)
+            tr = _engine().trace_field(js, float(f), np.zeros(1), np.zeros(1), float(self.primary), self.aiming)
+            # a failed chief ray: no image height (the constraint then counts fully violated)
+            chief = abs(float(tr["position"][0, 1])) if tr["status"][0] == 0 else 0.0
+        rows = self.constraints.evaluate(lens, par, sd, chief)
         con_res = np.array([r["residual"] for r in rows], float)
-        merit_um = 1e3 * float(np.sqrt(np.sum(spot_res ** 2)))
-        return {"residuals": np.concatenate([spot_res, con_res]), "merit_um": merit_um,
-                "fields": per_field, "constraints": rows, "paraxial": par,
-                "semi_diameters_mm": sd.tolist(), "failed_rays": n_failed}
+        value = float(np.sqrt(np.sum(merit_res ** 2)))
+        if self.kind == "spot":
+            value *= 1e3
+        out = {"residuals": np.concatenate([merit_res, con_res]), "merit": value,
+               "merit_kind": self.kind, "merit_unit": self.unit,
+               "fields": per_field, "constraints": rows, "paraxial": par,
+               "semi_diameters_mm": sd.tolist(), "failed_rays": n_failed}
+        if self.kind == "spot":
+            out["merit_um"] = value
+        return out
 
     def residuals(self, lens: dict) -> np.ndarray:
         return self.evaluate(self.prepare(lens))["residuals"]
@@ -276,7 +342,7 @@ class OptimizeResult:
     after: dict                     # ... of the result
     nfev: int
     status: str
-    history: list = field(default_factory=list)  # merit_um after each improvement
+    history: list = field(default_factory=list)  # merit after each feasible improvement
 
     def summary(self) -> dict:
         def strip(rep):
@@ -287,72 +353,134 @@ class OptimizeResult:
                 "constraints_satisfied": all(r["ok"] for r in self.after["constraints"])}
 
 
+class LensProblem:
+    """``merit`` over ``space`` in unit coordinates: u in [0, 1]^n maps each variable
+    linearly onto its range.  ``lens`` may carry catalog glass names (a raw dict): designs
+    are evaluated on the resolved copy, results written back into the raw one.  Designs are
+    evaluated without clear apertures (automatic semi-diameters, as Zemax does while
+    optimizing); the ray footprint gives the edge heights."""
+
+    def __init__(self, lens: "Lens | dict", space: ParameterSpace, merit: Merit):
+        self.raw = copy.deepcopy(lens.data if isinstance(lens, Lens) else lens)
+        self.resolved = (Lens.load(self.raw).data if not isinstance(lens, Lens)
+                         else copy.deepcopy(lens.data))
+        for s in self.resolved["surfaces"]:
+            s["semi_diameter"] = None
+        self.space, self.merit = space, merit
+        self.lo = np.array([p.min for p in space.params], float)
+        self.span = np.array([p.max for p in space.params], float) - self.lo
+        bad = space.check_bounds(self.resolved)
+        if bad:
+            raise ValueError("start point outside the parameter ranges: " + "; ".join(bad))
+        self.u0 = (np.array(space.values(self.resolved)) - self.lo) / self.span
+        self.n_res = len(self.report(self.u0)["residuals"])
+
+    @property
+    def n(self) -> int:
+        return len(self.lo)
+
+    def x(self, u) -> np.ndarray:
+        return self.lo + np.clip(np.asarray(u, float), 0.0, 1.0) * self.span
+
+    def design(self, u) -> dict:
+        """The prepared (resolved, focus-solved) design at u."""
+        return self.merit.prepare(self.space.apply(self.resolved, self.x(u)))
+
+    def report(self, u, footprint: bool | None = True, full: bool = True) -> dict:
+        return self.merit.evaluate(self.design(u), footprint=footprint, full=full)
+
+    def evaluate(self, u) -> tuple[np.ndarray, dict | None]:
+        """Residuals at u and the report; a design the engine rejects gets the constant
+        REJECTED vector (no NaN reaches a solver) and no report."""
+        try:
+            rep = self.report(u, footprint=None, full=False)
+            r = rep["residuals"]
+            if r.shape != (self.n_res,) or not np.all(np.isfinite(r)):
+                raise ValueError("non-finite residuals")
+            return r, rep
+        except Exception as exc:
+            if not _is_design_error(exc):
+                raise
+            return np.full(self.n_res, REJECTED), None
+
+    def lens_at(self, u) -> dict:
+        """The raw prescription (catalog names kept) with the variables (and a solved focus)."""
+        out = self.space.apply(self.raw, self.x(u))
+        if self.merit.focus == "paraxial":
+            out["surfaces"][-1]["thickness"] = self.design(u)["surfaces"][-1]["thickness"]
+        return out
+
+
+class _OutOfTime(Exception):
+    pass
+
+
+def polish(problem, u0, max_nfev: int = 400, deadline: float | None = None,
+           on_eval: Callable[[np.ndarray, np.ndarray, dict | None], None] | None = None,
+           ftol: float = 1e-8, xtol: float = 1e-8, x_scale="jac") -> tuple[np.ndarray, int, str]:
+    """Damped least squares (trust-region reflective) from ``u0`` on ``problem``
+    (``evaluate(u) -> (residuals, report)``, ``n``).  Stops at ``deadline``
+    (time.monotonic()) with the best point evaluated so far.  Returns (u, nfev, status)."""
+    import time
+
+    from scipy.optimize import least_squares
+
+    best = {"cost": math.inf, "u": np.clip(np.asarray(u0, float), 0.0, 1.0), "n": 0}
+
+    def fun(u):
+        if deadline is not None and time.monotonic() > deadline:
+            raise _OutOfTime
+        best["n"] += 1
+        r, rep = problem.evaluate(u)
+        cost = float(r @ r)
+        if cost < best["cost"]:
+            best["cost"], best["u"] = cost, np.clip(np.array(u, float), 0.0, 1.0)
+        if on_eval:
+            on_eval(u, r, rep)
+        return r
+
+    try:
+        sol = least_squares(fun, best["u"], bounds=(0.0, 1.0), method="trf", x_scale=x_scale,
+                            diff_step=1e-5, ftol=ftol, xtol=xtol, gtol=1e-12, max_nfev=max_nfev)
+    except _OutOfTime:
+        return best["u"], best["n"], "stopped at the time budget"
+    return np.clip(sol.x, 0.0, 1.0), best["n"], sol.message
+
+
 def optimize(lens: "Lens | dict", space: ParameterSpace, merit: Merit, max_nfev: int = 400,
              progress: Callable[[int, float, float, bool], None] | None = None,
              ftol: float = 1e-8, xtol: float = 1e-8, x_scale="jac") -> OptimizeResult:
-    """Minimize ``merit`` over ``space`` starting from ``lens``.
+    """Minimize ``merit`` over ``space`` starting from ``lens`` (local: the minimum of the
+    start's basin; see :mod:`optix_e2e.lens_global` for the global search).
 
-    ``lens`` may carry catalog glass names (a raw dict): the optimizer evaluates the resolved
-    copy and writes the variables (and a solved focus) back into the raw one.  Clear
-    semi-diameters in ``lens`` are ignored while optimizing and kept as they are in the
-    result (see :func:`set_semi_diameters` and ``OptimizeResult.after["semi_diameters_mm"]``).
-    ``progress(nfev, merit_um, worst_violation, feasible)`` is called after each evaluation
+    Clear semi-diameters in ``lens`` are ignored while optimizing and kept as they are in
+    the result (see :func:`set_semi_diameters` and ``OptimizeResult.after["semi_diameters_mm"]``).
+    ``progress(nfev, merit, worst_violation, feasible)`` is called after each evaluation
     (Jacobian columns included); ``feasible``: every constraint met.
     """
-    from scipy.optimize import least_squares
-
-    raw = copy.deepcopy(lens.data if isinstance(lens, Lens) else lens)
-    resolved = Lens.load(raw).data if not isinstance(lens, Lens) else copy.deepcopy(lens.data)
-    # designs are evaluated without clear apertures (automatic semi-diameters, as Zemax
-    # does while optimizing); the footprint gives the edge heights
-    for s in resolved["surfaces"]:
-        s["semi_diameter"] = None
-    lo = np.array([p.min for p in space.params])
-    hi = np.array([p.max for p in space.params])
-    x0 = np.array(space.values(resolved))
-    bad = space.check_bounds(resolved)
-    if bad:
-        raise ValueError("start point outside the parameter ranges: " + "; ".join(bad))
-    span = hi - lo
-    u0 = (x0 - lo) / span
-
-    start = merit.prepare(resolved)
-    before = merit.evaluate(start, footprint=True)
-    nres = len(before["residuals"])
+    problem = LensProblem(lens, space, merit)
+    before = problem.report(problem.u0)
+    history = [before["merit"]]
     count = {"n": 0}
-    history = [before["merit_um"]]
 
-    def fun(u):
+    def on_eval(u, r, rep):
         count["n"] += 1
-        x = lo + np.clip(u, 0.0, 1.0) * span
-        try:
-            rep = merit.evaluate(merit.prepare(space.apply(resolved, x)), footprint=None)
-            r = rep["residuals"]
-            if r.shape != (nres,) or not np.all(np.isfinite(r)):
-                raise ValueError("non-finite residuals")
-        except Exception as exc:  # engine rejects the design: push the solver back
-            if not _is_design_error(exc):
-                raise
+        if rep is None:
             if progress:
                 progress(count["n"], math.nan, math.nan, False)
-            return np.full(nres, REJECTED)
-        if rep["merit_um"] < history[-1] and all(c["ok"] for c in rep["constraints"]):
-            history.append(rep["merit_um"])
+            return
+        feasible = all(c["ok"] for c in rep["constraints"])
+        if rep["merit"] < history[-1] and feasible:
+            history.append(rep["merit"])
         if progress:
             worst = max((c["violation"] for c in rep["constraints"]), default=0.0)
-            progress(count["n"], rep["merit_um"], worst, all(c["ok"] for c in rep["constraints"]))
-        return r
+            progress(count["n"], rep["merit"], worst, feasible)
 
-    sol = least_squares(fun, u0, bounds=(0.0, 1.0), method="trf", x_scale=x_scale,
-                        diff_step=1e-5, ftol=ftol, xtol=xtol, gtol=1e-12, max_nfev=max_nfev)
-    x = lo + np.clip(sol.x, 0.0, 1.0) * span
-    best = merit.prepare(space.apply(resolved, x))
-    after = merit.evaluate(best, footprint=True)
-    out = space.apply(raw, x)
-    if merit.focus == "paraxial":
-        out["surfaces"][-1]["thickness"] = best["surfaces"][-1]["thickness"]
-    return OptimizeResult(lens=out, values=dict(zip(space.names, map(float, x))),
-                          before=before, after=after, nfev=count["n"], status=sol.message,
+    u, nfev, status = polish(problem, problem.u0, max_nfev, on_eval=on_eval,
+                             ftol=ftol, xtol=xtol, x_scale=x_scale)
+    x = problem.x(u)
+    return OptimizeResult(lens=problem.lens_at(u), values=dict(zip(space.names, map(float, x))),
+                          before=before, after=problem.report(u), nfev=nfev, status=status,
                           history=history)
 
 

@@ -18,7 +18,7 @@ from . import glass as _glass
 __all__ = ["PrescriptionError", "resolve_prescription"]
 
 TOP_KEYS = {
-    "name", "description", "units", "aperture", "fields_deg", "wavelengths_nm",
+    "name", "description", "source", "units", "aperture", "fields_deg", "wavelengths_nm",
     "wavelength_weights", "primary_wavelength_nm", "surfaces", "image", "object_distance",
 }
 SURFACE_KEYS = {
@@ -85,7 +85,7 @@ def _resolve(data: Any, source: str) -> dict:
         ck.fail("top level", f"a lens is a JSON object, got {type(data).__name__}")
     ck.keys("top level", data, TOP_KEYS)
     out = copy.deepcopy(data)
-    for key in ("name", "description"):
+    for key in ("name", "description", "source"):
         if not isinstance(out.get(key, ""), str):
             ck.fail(key, f"must be a string, got {_short(out[key])}")
     if out.get("units", "mm") != "mm":

@@ -266,6 +266,30 @@ fn trace_field_path<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: P
     Ok(dict)
 }
 
+/// OPD of pupil rays of one field at several wavelengths, piston and tilt removed
+/// (psf_engine::wavefront): per-ray arrays handed to numpy without a copy.
+#[pyfunction]
+#[pyo3(signature = (lens_json, field_deg, px, py_, weights, wavelengths_nm, wavelength_weights=None, aiming="paraxial", tilt="wavelength"))]
+#[allow(clippy::too_many_arguments)]
+fn wavefront<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: PyReadonlyArray1<'py, f64>, py_: PyReadonlyArray1<'py, f64>, weights: PyReadonlyArray1<'py, f64>, wavelengths_nm: Vec<f64>, wavelength_weights: Option<Vec<f64>>, aiming: &str, tilt: &str) -> PyResult<Bound<'py, PyDict>> {
+    let aiming: Aiming = aiming.parse().map_err(to_py)?;
+    let tilt: psf_engine::wavefront::Tilt = tilt.parse().map_err(to_py)?;
+    let ww = wavelength_weights.unwrap_or_else(|| vec![1.0; wavelengths_nm.len()]);
+    let (xs, ys, ws) = (contiguous(&px), contiguous(&py_), contiguous(&weights));
+    let nw = wavelengths_nm.len();
+    let wf = run(py, || psf_engine::wavefront::field_wavefront(&parse_lens(lens_json)?, field_deg, &wavelengths_nm, &ww, &xs, &ys, &ws, aiming, tilt))?;
+    let n = wf.n_rays;
+    let d = PyDict::new(py);
+    d.set_item("opd_waves", wf.opd_waves.into_pyarray(py).reshape([nw, n])?)?;
+    d.set_item("status", wf.status.into_pyarray(py).reshape([nw, n])?)?;
+    d.set_item("rms_waves", wf.rms_waves.into_pyarray(py))?;
+    let tilt_flat: Vec<f64> = wf.tilt_mm.iter().flatten().copied().collect();
+    d.set_item("tilt_mm", tilt_flat.into_pyarray(py).reshape([nw, 2])?)?;
+    d.set_item("chief_image_mm", wf.chief_image.to_array().to_vec())?;
+    d.set_item("reference_radius_mm", wf.radius)?;
+    Ok(d)
+}
+
 #[pyfunction]
 #[pyo3(signature = (lens_json, field_deg, wavelengths_nm, weights=None, rings=64, aiming="paraxial"))]
 fn spot<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavelengths_nm: Vec<f64>, weights: Option<Vec<f64>>, rings: usize, aiming: &str) -> PyResult<Bound<'py, PyDict>> {
@@ -516,6 +540,7 @@ fn _engine(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(trace_field, m)?)?;
     m.add_function(wrap_pyfunction!(trace_field_path, m)?)?;
     m.add_function(wrap_pyfunction!(spot, m)?)?;
+    m.add_function(wrap_pyfunction!(wavefront, m)?)?;
     m.add_function(wrap_pyfunction!(best_focus_batch, m)?)?;
     m.add_function(wrap_pyfunction!(psf, m)?)?;
     m.add_function(wrap_pyfunction!(psf_rgb, m)?)?;

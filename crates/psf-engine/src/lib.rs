@@ -19,6 +19,7 @@ pub mod rgb;
 pub mod spot;
 pub mod surface;
 pub mod trace;
+pub mod wavefront;
 
 pub use aim::{Aiming, Beam};
 pub use error::{EngineError, Result};

@@ -79,6 +79,44 @@ def info(lens_spec, aiming, rings, as_json, lenient):
         click.echo(f"  warning: {w}")
 
 
+def bundled_summary(name: str) -> dict:
+    """One bundled lens at a glance: what ``optix lens list`` prints."""
+    from ..lens import BUNDLED_DIR, BUNDLED_SURROGATES
+
+    lens_ = Lens.load(name)
+    par = lens_.paraxial()
+    # an element is a slab of one glass: each surface followed by a non-air medium starts one
+    n_elements = sum(1 for s in lens_.data["surfaces"]
+                     if not (isinstance(s["material"], str) and s["material"].lower() == "air"))
+    space = BUNDLED_DIR / "spaces" / f"{name}.toml"
+    sur = BUNDLED_SURROGATES.get(name)
+    return {"name": name, "elements": n_elements, "efl_mm": par["efl_mm"], "f_number": par["f_number"],
+            "full_field_deg": 2.0 * max(abs(f) for f in lens_.fields_deg),
+            "wavelengths_nm": lens_.wavelengths_nm,
+            "source": lens_.data.get("source"), "description": lens_.data.get("description"),
+            "parameter_space": f"spaces/{space.name}" if space.is_file() else None,
+            "surrogate": sur if sur and (BUNDLED_DIR / sur).is_file() else None}
+
+
+@lens.command("list")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON list instead of a table.")
+@friendly_errors
+def list_cmd(as_json):
+    """The bundled lenses: elements, EFL, f-number, full field, source, and whether a
+    parameter space and a trained surrogate ship for each."""
+    from ..lens import bundled_lenses
+
+    rows = [bundled_summary(n) for n in bundled_lenses()]
+    if as_json:
+        click.echo(dumps(rows, indent=2))
+        return
+    click.echo(f"{'name':<18} {'elements':>8} {'EFL (mm)':>9} {'f/#':>6} {'field':>7}  space  surrogate  source")
+    for r in rows:
+        click.echo(f"{r['name']:<18} {r['elements']:>8} {r['efl_mm']:>9.3f} {r['f_number']:>6.2f} "
+                   f"{r['full_field_deg']:>6.2f}d  {'yes' if r['parameter_space'] else 'no':<5}  "
+                   f"{'yes' if r['surrogate'] else 'no':<9}  {r['source'] or '-'}")
+
+
 FORMATS = (".json", ".zmx")
 
 

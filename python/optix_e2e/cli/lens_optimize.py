@@ -8,10 +8,11 @@ import sys
 from pathlib import Path
 
 import click
+import numpy as np
 
 from ._common import AIMING, dumps, friendly_errors
 from ..lens import BUNDLED_DIR, Lens, LensLoadError
-from ..lens_optimizer import Constraints, Merit, optimize
+from ..lens_optimizer import Constraints, LensProblem, Merit, OptimizeResult, optimize
 from ..lens_optimizer import set_semi_diameters as _with_semi_diameters
 from ..space import ParameterSpace, SpaceError
 
@@ -60,6 +61,8 @@ def _floats(text: str | None, what: str) -> list[float] | None:
 @click.option("--min-edge", type=float, help="Minimum glass edge thickness at the clear semi-diameter (mm).")
 @click.option("--min-air-gap", type=float, help="Minimum air gap between optical surfaces, center and edge (mm).")
 @click.option("--min-bfd", type=float, help="Minimum back focal distance, last vertex to image (mm).")
+@click.option("--min-image-height", type=float,
+              help="Minimum real chief-ray image height at the largest field (mm), e.g. the sensor's half-diagonal.")
 @click.option("--focus", type=click.Choice(["fixed", "paraxial"]), default="fixed", show_default=True,
               help="paraxial: solve the last thickness to the paraxial focus each evaluation (BFL solve).")
 @click.option("--field-weights", help="Comma-separated weights, one per lens field (default equal).")
@@ -68,18 +71,37 @@ def _floats(text: str | None, what: str) -> list[float] | None:
 @click.option("--arms", type=click.IntRange(2, 64), default=12, show_default=True,
               help="Pupil azimuths of the merit.")
 @click.option("--aiming", type=AIMING, default="paraxial", show_default=True)
+@click.option("--merit", "merit_kind", type=click.Choice(["spot", "wavefront"]), default="spot", show_default=True,
+              help="spot: polychromatic RMS spot radius (um); wavefront: RMS OPD (waves), piston and tilt removed.")
+@click.option("--tilt", type=click.Choice(["wavelength", "field"]), default="wavelength", show_default=True,
+              help="Wavefront merit: remove tilt per wavelength (Zemax's centroid reference) or once per field "
+                   "(lateral colour counts).")
 @click.option("--max-iter", type=click.IntRange(1, 100000), default=200, show_default=True,
-              help="Solver iterations (merit evaluations outside the Jacobian).")
+              help="Solver iterations (merit evaluations outside the Jacobian); with --global, per polish.")
+@click.option("--global", "global_", is_flag=True,
+              help="Global search (Sobol' starts and Hammer jumps, each polished by damped least squares) "
+                   "instead of one local optimization from LENS.")
+@click.option("--minutes", type=click.FloatRange(min=0.01), default=None,
+              help="--global: time budget (default 5 minutes when --rounds is not given).")
+@click.option("--rounds", type=click.IntRange(1, 100000), default=None,
+              help="--global: number of rounds (repeatable for a seed; the time budget still applies if given).")
+@click.option("--seed", type=int, default=0, show_default=True, help="--global: random seed.")
+@click.option("--workers", type=click.IntRange(1, 256), default=None,
+              help="--global: worker processes (default: the CPU count).")
+@click.option("--batch", type=click.IntRange(1, 1024), default=4, show_default=True,
+              help="--global: polishes per round.")
 @click.option("--set-semi-diameters", is_flag=True,
               help="Write each surface's clear semi-diameter from the optimized ray footprint.")
 @click.option("--name", "new_name", help="Name to store in the output lens.")
 @click.option("--description", help="Description to store in the output lens.")
 @friendly_errors
 def optimize_cmd(lens_spec, var_names, space_file, out_path, summary_path, efl, efl_tol, min_center,
-                 min_edge, min_air_gap, min_bfd, focus, field_weights, rings, arms, aiming, max_iter,
-                 set_semi_diameters, new_name, description):
+                 min_edge, min_air_gap, min_bfd, min_image_height, focus, field_weights, rings, arms, aiming, merit_kind,
+                 tilt, max_iter, global_, minutes, rounds, seed, workers, batch, set_semi_diameters,
+                 new_name, description):
     """Optimize LENS by trust-region damped least squares on the polychromatic RMS spot
-    radius over its fields, under EFL / thickness / air-gap / BFD constraints."""
+    radius (or RMS wavefront error) over its fields, under EFL / thickness / air-gap / BFD
+    constraints; --global searches many basins within the variables' ranges."""
     from tqdm import tqdm
 
     raw, source = _raw_lens(lens_spec)
@@ -87,9 +109,9 @@ def optimize_cmd(lens_spec, var_names, space_file, out_path, summary_path, efl, 
     if not var_names and not space_file:
         raise click.UsageError("give the variables: --vars NAMES and/or --space FILE")
     constraints = Constraints(efl=efl, efl_tol=efl_tol, min_center=min_center, min_edge=min_edge,
-                              min_air_gap=min_air_gap, min_bfd=min_bfd)
+                              min_air_gap=min_air_gap, min_bfd=min_bfd, min_image_height=min_image_height)
     merit = Merit(lens, constraints, field_weights=_floats(field_weights, "--field-weights"),
-                  rings=rings, arms=arms, aiming=aiming, focus=focus)
+                  rings=rings, arms=arms, aiming=aiming, focus=focus, kind=merit_kind, tilt=tilt)
     params = []
     try:
         if space_file:
@@ -102,21 +124,29 @@ def optimize_cmd(lens_spec, var_names, space_file, out_path, summary_path, efl, 
     except SpaceError as exc:
         raise click.ClickException(str(exc)) from None
 
-    bar = tqdm(total=None, unit="eval", desc="optimize", dynamic_ncols=True, file=sys.stderr)
-    best = {"merit": math.inf}
+    if not global_ and (minutes is not None or rounds is not None):
+        raise click.UsageError("--minutes and --rounds go with --global")
+    unit = merit.unit
+    global_summary = None
+    if global_:
+        res, global_summary = _run_global(raw, space, merit, minutes, rounds, seed, workers, batch, max_iter)
+    else:
+        bar = tqdm(total=None, unit="eval", desc="optimize", dynamic_ncols=True, file=sys.stderr)
+        best = {"merit": math.inf}
 
-    def progress(n, merit_um, worst, feasible):
-        # the bar shows the best merit among designs meeting every constraint so far and
-        # the worst violation of the latest evaluation
-        bar.update(1)
-        if feasible and merit_um < best["merit"]:
-            best["merit"] = merit_um
-        bar.set_postfix(best_feasible_um=f"{best['merit']:.4f}", violation=f"{worst:.1e}", refresh=False)
+        def progress(n, value, worst, feasible):
+            # the bar shows the best merit among designs meeting every constraint so far and
+            # the worst violation of the latest evaluation
+            bar.update(1)
+            if feasible and value < best["merit"]:
+                best["merit"] = value
+            bar.set_postfix({f"best_feasible_{unit}": f"{best['merit']:.4f}", "violation": f"{worst:.1e}"},
+                            refresh=False)
 
-    try:
-        res = optimize(raw, space, merit, max_nfev=max_iter, progress=progress)
-    finally:
-        bar.close()
+        try:
+            res = optimize(raw, space, merit, max_nfev=max_iter, progress=progress)
+        finally:
+            bar.close()
     out = res.lens
     if set_semi_diameters:
         out = _with_semi_diameters(out, res.after["semi_diameters_mm"])
@@ -134,12 +164,63 @@ def optimize_cmd(lens_spec, var_names, space_file, out_path, summary_path, efl, 
     Lens(out, source=out_path)  # the result must be a valid prescription
     Path(out_path).write_text(json.dumps(out, indent=2) + "\n", encoding="utf-8")
     summary = {"lens": lens.name, "source": source, "out": out_path, "variables": space.to_json(),
-               "constraints_requested": constraints.__dict__, "focus": focus, **res.summary()}
+               "constraints_requested": constraints.__dict__, "focus": focus, "merit": merit_kind,
+               "tilt": tilt if merit_kind == "wavefront" else None, **res.summary()}
+    if global_summary is not None:
+        summary["global"] = global_summary
     text = dumps(summary, indent=2)
     if summary_path:
         Path(summary_path).write_text(text + "\n", encoding="utf-8")
     click.echo(text)
     after, before = res.after, res.before
-    click.echo(f"merit (RMS spot) {before['merit_um']:.4f} um -> {after['merit_um']:.4f} um; "
+    what = "RMS spot" if merit_kind == "spot" else "RMS wavefront"
+    click.echo(f"merit ({what}) {before['merit']:.4f} {unit} -> {after['merit']:.4f} {unit}; "
                f"constraints {'met' if summary['constraints_satisfied'] else 'NOT met'}", err=True)
+    if global_summary is not None:
+        g = global_summary
+        click.echo(f"global search: {g['rounds']} rounds, {g['polishes']} polishes, {g['basins_found']} basins, "
+                   f"{g['nfev']} evaluations, {g['wall_s']:.1f} s (stopped by {g['stopped_by']})", err=True)
+        for k, b in enumerate(g["basins"][:10]):
+            slack = "-" if b["min_slack"] is None else f"{b['min_slack']:+.3f} mm ({b['tightest']})"
+            click.echo(f"  basin {k + 1}: merit {b['merit']:.4f} {unit}  "
+                       f"{'feasible' if b['feasible'] else 'infeasible'}  min slack {slack}  "
+                       f"visits {b['visits']}  found by {b['found_by']}", err=True)
+
+
+def _run_global(raw, space, merit, minutes, rounds, seed, workers, batch, max_iter):
+    """The global search with a progress bar; returns (OptimizeResult, its JSON summary)."""
+    import os
+
+    from tqdm import tqdm
+
+    from ..lens_global import global_search
+
+    if minutes is None and rounds is None:
+        minutes = 5.0
+    problem = LensProblem(raw, space, merit)
+    before = problem.report(problem.u0)
+    bar = tqdm(total=None, unit="polish", desc="global search", dynamic_ncols=True, file=sys.stderr)
+
+    def progress(basin, state):
+        bar.update(1)
+        bar.set_postfix({f"best_{merit.unit}": f"{state.best.merit:.4f}", "basins": len(state.basins),
+                         "round": state.rounds}, refresh=False)
+
+    try:
+        g = global_search(problem, minutes=minutes, rounds=rounds, seed=seed,
+                          workers=workers or os.cpu_count() or 1, batch=batch, polish_nfev=max_iter,
+                          progress=progress)
+    finally:
+        bar.close()
+    u = np.asarray(g.best.u)
+    x = problem.x(u)
+    res = OptimizeResult(lens=problem.lens_at(u), values=dict(zip(space.names, map(float, x))),
+                         before=before, after=problem.report(u), nfev=g.nfev, status=f"global search, {g.stopped}",
+                         history=[m for _, m in g.history])
+    summary = g.summary()
+    for b in summary["basins"] + [summary["best"]]:
+        b["values"] = dict(zip(space.names, map(float, problem.x(b.pop("u")))))
+    summary.update({"seed": seed, "minutes": minutes, "rounds_requested": rounds, "batch": batch,
+                    "workers": workers or os.cpu_count() or 1, "polish_max_iter": max_iter})
+    return res, summary
 

@@ -20,11 +20,12 @@ import numpy as np
 import torch
 from torch import nn
 
+from ..lens import BUNDLED_SURROGATES
 from ..torchfile import build_module, load_plain
 from .model import SurrogateConfig, SurrogateNet
 
 FORMAT = "optix-surrogate/1"
-BUNDLED = {"paper-triplet": "surrogate_paper_triplet.pt"}
+BUNDLED = BUNDLED_SURROGATES
 
 
 class SurrogateRangeError(ValueError):
