@@ -275,6 +275,36 @@ class Lens:
         return _engine_fn("spot")(self.to_engine_json(), float(field_deg), list(wavelengths_nm),
                                   None if weights is None else list(weights), rings, aiming)
 
+    def wavefront(self, field_deg: float, rings: int = 8, arms: int = 16, tilt: str = "wavelength",
+                  aiming: str = "paraxial") -> dict[str, Any]:
+        """RMS wavefront error (waves) of a field over the lens's wavelengths: OPD against the
+        chief ray's reference sphere, piston removed per wavelength, tilt per wavelength
+        (Zemax's centroid reference) or per field; a Gaussian quadrature of ``rings`` x
+        ``arms`` pupil points.  Keys of ``_engine.wavefront`` plus ``rms_waves_poly``, the
+        wavelength-weighted quadratic mean."""
+        from .lens_optimizer import pupil_quadrature
+
+        px, py, pw = pupil_quadrature(rings, arms)
+        ww = np.asarray(self.wavelength_weights, float)
+        out = _engine_fn("wavefront")(self.to_engine_json(), float(field_deg), px, py, pw,
+                                      list(self.wavelengths_nm), list(ww), aiming, tilt)
+        out["rms_waves_poly"] = float(np.sqrt(np.sum(ww * np.asarray(out["rms_waves"]) ** 2) / ww.sum()))
+        return out
+
+    def petzval(self, wavelength_nm: float | None = None) -> dict[str, float]:
+        """Petzval sum P = sum over surfaces of (n' - n) / (n n' R) (1/mm) and the Petzval
+        radius -1 / (n'_image P) of the image surface a flat-field design must bend back."""
+        from .surface import curvature
+
+        n = self.refractive_indices(wavelength_nm)
+        total = 0.0
+        for i, surf in enumerate(self.surfaces):
+            # paraxial curvature: an r^2 aspheric term adds 2 a2
+            c = curvature(surf) + 2.0 * float((surf.get("aspheric") or {}).get("a2", 0.0))
+            total += (n[i + 1] - n[i]) * c / (n[i] * n[i + 1])
+        return {"petzval_sum_per_mm": total,
+                "petzval_radius_mm": -1.0 / (n[-1] * total) if total != 0 else math.inf}
+
     def psf(self, field_deg: float, wavelength_nm: float | None = None, method: str = "fft",
             **kwargs) -> tuple[np.ndarray, dict[str, Any]]:
         """Monochromatic PSF; keyword arguments as :func:`optix_e2e._engine.psf`.  ``method``

@@ -46,6 +46,8 @@ def info(lens_spec, aiming, rings, as_json, lenient):
             "vignetting": s.get("vignetting"),
             "chief_y_mm": s.get("chief_y_mm"),
             "n_rays": s.get("n_rays"),
+            # polychromatic RMS wavefront error, piston and tilt removed per wavelength
+            "rms_wavefront_waves": _rms_wavefront(lens_, f, aiming),
         })
     # the engine's range for a sane design (crates/psf-engine spot::RI_MAX)
     warnings = [f"relative illumination {r['relative_illumination']:.4g} at {r['field_deg']:g} deg lies outside "
@@ -58,7 +60,7 @@ def info(lens_spec, aiming, rings, as_json, lenient):
            "primary_wavelength_nm": lens_.primary_wavelength_nm,
            # null: the object at infinity
            "object_distance_mm": lens_.object_distance if math.isfinite(lens_.object_distance) else None,
-           **{k: par[k] for k in PARAXIAL_KEYS}, "paraxial": par, "fields": fields}
+           **{k: par[k] for k in PARAXIAL_KEYS}, "paraxial": par, **lens_.petzval(), "fields": fields}
     if as_json:
         click.echo(dumps(out))
         return
@@ -70,11 +72,14 @@ def info(lens_spec, aiming, rings, as_json, lenient):
                    f"{-par['back_focus_shift_mm']:+.4f} mm from the object's paraxial image")
     wl = ", ".join(f"{w:g}" for w in lens_.wavelengths_nm)
     click.echo(f"  wavelengths {wl} nm (primary {lens_.primary_wavelength_nm:g}), aiming {aiming}")
-    click.echo(f"  {'field (deg)':>11}  {'RMS spot (um)':>13}  {'rel. illum.':>11}")
+    click.echo(f"  Petzval sum {out['petzval_sum_per_mm']:.5f} 1/mm (Petzval radius {out['petzval_radius_mm']:.2f} mm)")
+    click.echo(f"  {'field (deg)':>11}  {'RMS spot (um)':>13}  {'RMS WFE (waves)':>15}  {'rel. illum.':>11}")
     for row in fields:
         ri = row["relative_illumination"]
         ri_text = f"{ri:>11.4f}" if ri is not None else f"{'- (afocal)':>11}"
-        click.echo(f"  {row['field_deg']:>11.3f}  {row['rms_spot_um']:>13.4f}  {ri_text}")
+        wfe = row["rms_wavefront_waves"]
+        wfe_text = f"{wfe:>15.4f}" if wfe is not None else f"{'-':>15}"
+        click.echo(f"  {row['field_deg']:>11.3f}  {row['rms_spot_um']:>13.4f}  {wfe_text}  {ri_text}")
     for w in warnings:
         click.echo(f"  warning: {w}")
 
@@ -115,6 +120,17 @@ def list_cmd(as_json):
         click.echo(f"{r['name']:<18} {r['elements']:>8} {r['efl_mm']:>9.3f} {r['f_number']:>6.2f} "
                    f"{r['full_field_deg']:>6.2f}d  {'yes' if r['parameter_space'] else 'no':<5}  "
                    f"{'yes' if r['surrogate'] else 'no':<9}  {r['source'] or '-'}")
+
+
+def _rms_wavefront(lens_, field_deg, aiming):
+    """Polychromatic RMS wavefront error of a field (waves), or None where the reference
+    sphere is undefined (afocal or image-space telecentric) or the chief ray fails."""
+    from .. import _engine
+
+    try:
+        return lens_.wavefront(field_deg, aiming=aiming)["rms_waves_poly"]
+    except _engine.EngineError:
+        return None
 
 
 FORMATS = (".json", ".zmx")
