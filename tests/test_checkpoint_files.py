@@ -72,7 +72,7 @@ def test_malicious_checkpoint_cli_one_error_line(tmp_path):
 
 def test_shipped_checkpoints_load_as_plain_data():
     """The shipped files load under weights_only=True and give finite weights."""
-    m = OpticsSurrogate.load("paper-triplet")
+    m = OpticsSurrogate.load("paper-triplet-v1")
     p = ISPProxy.load()
     for net in (m, p):
         assert all(torch.isfinite(v).all() for v in net.state_dict().values() if v.is_floating_point())
@@ -146,7 +146,7 @@ def test_isp_eval_damaged_proxy(tmp_path, change, needle):
 ])
 def test_surrogate_eval_damaged_checkpoint(tmp_path, change, needle):
     from optix_e2e.surrogate.checkpoint import bundled_path
-    path = _damaged(bundled_path("paper-triplet"), tmp_path / "surrogate.pt", change)
+    path = _damaged(bundled_path("paper-triplet-v1"), tmp_path / "surrogate.pt", change)
     res = CliRunner().invoke(main, ["surrogate", "eval", str(path), str(tmp_path)])
     _one_error(res, str(path), needle)
 

@@ -76,6 +76,7 @@ def test_global_search_on_a_lens_is_no_worse_than_local(tmp_path):
     assert g.best.merit <= local * (1 + 1e-9)
     assert g.best.feasible and g.best.efl_error is not None and abs(g.best.efl_error) < 1e-3
     assert g.best.tightest == "back_focal_distance" and g.best.min_slack >= 0
+    assert g.best.active == (["back_focal_distance"] if g.best.min_slack <= 0.01 else [])
     assert g.polishes == 6
 
 
@@ -89,7 +90,7 @@ def test_cli_global_records_basins(tmp_path):
     s = json.loads(summ.read_text())
     g = s["global"]
     assert g["polishes"] == 4 and g["rounds"] == 2 and g["basins_found"] == len(g["basins"]) >= 1
-    assert {"merit", "feasible", "min_slack", "values", "found_by", "visits"} <= set(g["basins"][0])
+    assert {"merit", "feasible", "min_slack", "active", "values", "found_by", "visits"} <= set(g["basins"][0])
     assert s["after"]["merit"] == pytest.approx(g["best"]["merit"], rel=1e-9)
     assert Lens.load(str(out)).paraxial()["efl_mm"] == pytest.approx(50.0, rel=1e-3)
     bad = CliRunner().invoke(main, ["lens", "optimize", "cooke-f50", "--vars", "s_1_radius", "--minutes", "1",
@@ -169,7 +170,8 @@ def test_lens_list_json():
     assert dg["f_number"] == pytest.approx(5.0, rel=1e-3) and dg["full_field_deg"] == pytest.approx(28.0)
     assert pt["elements"] == 3 and pt["efl_mm"] == pytest.approx(25.0, rel=1e-3)
     assert pt["f_number"] == pytest.approx(4.4, rel=1e-3) and pt["full_field_deg"] == pytest.approx(2 * 14.9, abs=0.1)
-    assert pt["parameter_space"] == "spaces/paper-triplet.toml" and pt["surrogate"]
+    assert pt["parameter_space"] == "spaces/paper-triplet.toml" and pt["surrogate"] is None
+    assert rows["paper-triplet-v1"]["surrogate"] == "surrogate_paper_triplet.pt"
     assert rows["cooke-f50"]["surrogate"] is None
     assert all(x["source"] for x in rows.values())
     r = CliRunner().invoke(main, ["lens", "list"])

@@ -1,5 +1,5 @@
 """The differentiable optics stage (lens parameters -> surrogate -> render) and the shipped
-paper-triplet surrogate checked against the exact engine: accuracy on designs it never
+paper-triplet-v1 surrogate checked against the exact engine: accuracy on designs it never
 saw, gradients that improve the real lens, renders that match renders with exact PSFs."""
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ def tiny_surrogate() -> OpticsSurrogate:
 
 @pytest.fixture(scope="module")
 def shipped():
-    return OpticsSurrogate.load("paper-triplet")
+    return OpticsSurrogate.load("paper-triplet-v1")
 
 
 # ----- reparameterization and gradients ------------------------------------------------------
@@ -59,7 +59,7 @@ def test_gradients_reach_the_lens_parameters_and_only_them():
 def test_shipped_surrogate_meets_the_accuracy_target_on_unseen_designs(shipped, tmp_path):
     """The issue's target (median PSF relative L1 <= 5 %, vignetting error <= 1 %) on 24 fresh
     designs from another seed than the training data."""
-    generate("paper-triplet", 24, 11, tmp_path / "d", DatasetSettings(shard_size=24), progress=False)
+    generate("paper-triplet-v1", 24, 11, tmp_path / "d", DatasetSettings(shard_size=24), progress=False)
     rep = evaluate(shipped, tmp_path / "d")
     assert rep["held_out"].startswith("every design") and rep["n_designs"] == 24
     assert rep["psf_rel_l1_median"] <= 0.05

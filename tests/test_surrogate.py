@@ -1,5 +1,5 @@
 """The optics surrogate (paper Sec. 4.1, Eq. 6-8): network, loss, checkpoint, training with
-resume, evaluation, and the shipped paper-triplet model against the exact engine."""
+resume, evaluation, and the shipped paper-triplet-v1 model against the exact engine."""
 
 from __future__ import annotations
 
@@ -24,9 +24,9 @@ TINY = dict(hidden=32, depth=2, base_channels=16, n_up=2)
 
 @pytest.fixture(scope="module")
 def tiny_data(tmp_path_factory):
-    """24 paper-triplet designs at the dataset defaults, in 3 shards."""
+    """24 paper-triplet-v1 designs at the dataset defaults, in 3 shards."""
     out = tmp_path_factory.mktemp("surrogate") / "data"
-    generate("paper-triplet", 24, 3, out, DatasetSettings(shard_size=8), progress=False)
+    generate("paper-triplet-v1", 24, 3, out, DatasetSettings(shard_size=8), progress=False)
     return out
 
 
@@ -34,7 +34,7 @@ def tiny_data(tmp_path_factory):
 def held_out(tmp_path_factory):
     """16 designs the shipped surrogate never saw (another seed than its training data)."""
     out = tmp_path_factory.mktemp("surrogate") / "held_out"
-    generate("paper-triplet", 16, 7, out, DatasetSettings(shard_size=16), progress=False)
+    generate("paper-triplet-v1", 16, 7, out, DatasetSettings(shard_size=16), progress=False)
     return out
 
 
@@ -154,7 +154,7 @@ def test_eval_uses_held_out_designs_and_writes_a_grid(tiny_data, tmp_path):
 
 def test_eval_refuses_data_of_other_settings(tiny_data, tmp_path):
     other = tmp_path / "other"
-    generate("paper-triplet", 4, 0, other, DatasetSettings(shard_size=4, sensor_pixel_um=3.0), progress=False)
+    generate("paper-triplet-v1", 4, 0, other, DatasetSettings(shard_size=4, sensor_pixel_um=3.0), progress=False)
     train(tiny_data, tmp_path / "run", _cfg(steps=5), progress=False)
     with pytest.raises(SurrogateDataMismatch, match="sensor_pixel_um|grid"):
         evaluate(OpticsSurrogate.load(tmp_path / "run"), other)
@@ -184,7 +184,7 @@ def test_cli_train_and_eval(tiny_data, tmp_path):
     assert r.exit_code == 0, r.output
     assert json.loads(r.stdout)["steps_done"] == 6
     # the shipped model on designs it never saw (this dataset's seed is not its training seed)
-    r = run("surrogate", "eval", "paper-triplet", tiny_data, "--json", "--out", tmp_path / "ev")
+    r = run("surrogate", "eval", "paper-triplet-v1", tiny_data, "--json", "--out", tmp_path / "ev")
     assert r.exit_code == 0, r.output
     rep = json.loads(r.stdout)
     assert rep["n_designs"] == 24 and rep["model"].endswith("surrogate_paper_triplet.pt")

@@ -34,6 +34,8 @@ from .lens_optimizer import polish
 
 __all__ = ["Basin", "GlobalResult", "global_search"]
 
+ACTIVE_MM = 0.01   # an inequality constraint this close to its limit is "active" (binding)
+
 
 @dataclass
 class Basin:
@@ -45,6 +47,7 @@ class Basin:
     feasible: bool                  # every constraint met
     min_slack: float | None         # smallest (value - limit) of the inequality constraints
     tightest: str | None            # ... which constraint
+    active: list                    # inequality constraints within ACTIVE_MM of their limit
     efl_error: float | None         # relative EFL error
     found_by: str                   # "start", "explore <k>", "hammer <basin> (step s)"
     round: int
@@ -79,7 +82,7 @@ def _basin(problem, u, nfev, found_by, rnd) -> Basin:
     cost = float(r @ r)
     if rep is None:
         return Basin(u=list(map(float, u)), cost=cost, merit=math.inf, feasible=False,
-                     min_slack=None, tightest=None, efl_error=None, found_by=found_by,
+                     min_slack=None, tightest=None, active=[], efl_error=None, found_by=found_by,
                      round=rnd, nfev=nfev)
     slack = [(c["value"] - c["limit"], c["name"]) for c in rep["constraints"] if "limit" in c]
     efl = [c for c in rep["constraints"] if c["name"] == "efl"]
@@ -87,6 +90,7 @@ def _basin(problem, u, nfev, found_by, rnd) -> Basin:
     return Basin(u=list(map(float, u)), cost=cost, merit=float(rep["merit"]),
                  feasible=all(c["ok"] for c in rep["constraints"]),
                  min_slack=None if low[0] is None else float(low[0]), tightest=low[1],
+                 active=[name for v, name in slack if v <= ACTIVE_MM],
                  efl_error=float((efl[0]["value"] - efl[0]["target"]) / efl[0]["target"]) if efl else None,
                  found_by=found_by, round=rnd, nfev=nfev)
 
@@ -150,6 +154,7 @@ def global_search(problem, *, minutes: float | None = 10.0, rounds: int | None =
                 if b.key() < k.key():  # the same basin, reached deeper
                     k.u, k.cost, k.merit, k.feasible = b.u, b.cost, b.merit, b.feasible
                     k.min_slack, k.tightest, k.efl_error = b.min_slack, b.tightest, b.efl_error
+                    k.active = b.active
                 break
         else:
             basins.append(b)

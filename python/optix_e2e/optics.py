@@ -13,7 +13,7 @@ paper's ranges are manufacturing tolerances: a design at a bound is allowed, bey
 ``values`` / ``set_values`` work in the parameters' own units.
 
 The image is in sensor pixels at the surrogate's PSF pitch (5.86 um for the shipped
-paper-triplet surrogate); the K fields span the axis to ``full_field_px`` pixels from the
+paper-triplet-v1 surrogate); the K fields span the axis to ``full_field_px`` pixels from the
 image centre (the half-diagonal by default: the corners see the lens's full field).
 """
 

@@ -184,7 +184,7 @@ def optimize_cmd(lens_spec, var_names, space_file, out_path, summary_path, efl, 
             slack = "-" if b["min_slack"] is None else f"{b['min_slack']:+.3f} mm ({b['tightest']})"
             click.echo(f"  basin {k + 1}: merit {b['merit']:.4f} {unit}  "
                        f"{'feasible' if b['feasible'] else 'infeasible'}  min slack {slack}  "
-                       f"visits {b['visits']}  found by {b['found_by']}", err=True)
+                       f"{len(b['active'])} active  visits {b['visits']}  found by {b['found_by']}", err=True)
 
 
 def _run_global(raw, space, merit, minutes, rounds, seed, workers, batch, max_iter):

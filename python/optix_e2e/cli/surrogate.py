@@ -45,7 +45,7 @@ def surrogate():
 @click.option("--threads", type=click.IntRange(min=0), default=0, help="torch CPU threads (0: default).")
 @click.option("--device", default="auto", show_default=True, help="auto (CUDA when present), cpu, cuda, cuda:1 ...")
 @click.option("--init", default="", help="Start from this surrogate's weights (a checkpoint, a run directory or "
-              "`paper-triplet`): a fine-tune, e.g. after the dataset was regenerated. Same architecture.")
+              "`paper-triplet-v1`): a fine-tune, e.g. after the dataset was regenerated. Same architecture.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @friendly_errors
 def train_cmd(data, out_dir, bin_, as_json, **kw):
@@ -77,7 +77,7 @@ def train_cmd(data, out_dir, bin_, as_json, **kw):
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 @friendly_errors
 def eval_cmd(model, data, max_designs, png, out_dir, as_json):
-    """Score MODEL (a checkpoint, a training directory, or `paper-triplet` for the shipped
+    """Score MODEL (a checkpoint, a training directory, or `paper-triplet-v1` for the shipped
     surrogate) on DATA's held-out designs: PSF relative L1/L2, Strehl, encircled-energy and
     vignetting errors, per field and overall."""
     from ..surrogate.checkpoint import OpticsSurrogate, resolve

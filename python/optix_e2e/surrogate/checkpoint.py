@@ -41,7 +41,7 @@ def bundled_path(name: str) -> Path:
 
 
 def resolve(spec: "str | Path") -> Path:
-    """A checkpoint path, or the name of a shipped surrogate (``paper-triplet``)."""
+    """A checkpoint path, or the name of a shipped surrogate (``paper-triplet-v1``)."""
     if str(spec) in BUNDLED:
         return bundled_path(str(spec))
     p = Path(spec)
