@@ -47,12 +47,16 @@ def main() -> None:
                 worst.append(np.inf)
                 continue
             js = json.dumps(d)
-            worst.append(max(_engine.spot(js, fd, lens.wavelengths_nm, None, 12)["rms_um"] for fd in lens.fields_deg))
+            try:
+                worst.append(max(_engine.spot(js, fd, lens.wavelengths_nm, None, 12)["rms_um"] for fd in lens.fields_deg))
+            except _engine.EngineError:  # no ray of a field reaches the image: a failed design
+                worst.append(np.inf)
         w = np.array(worst)
         print(json.dumps({"space": a.space, "scale": f, "n": a.n, "acceptance_rate": round(res.summary()["acceptance_rate"], 3),
                           "worst_rms_um_median": round(float(np.median(w)), 1),
                           "worst_rms_um_p90": round(float(np.percentile(w, 90)), 1),
-                          "frac_under_25um": float(np.mean(w < 25)), "frac_under_40um": float(np.mean(w < 40))}))
+                          "frac_under_25um": float(np.mean(w < 25)), "frac_under_40um": float(np.mean(w < 40)),
+                          "failed": int(np.sum(~np.isfinite(w)))}))
 
 
 if __name__ == "__main__":

@@ -1,11 +1,14 @@
 #!/usr/bin/env python3
-"""Re-centre a parameter space on a new nominal design, keeping each range's shape:
+"""Re-centre a parameter space on a new nominal design with the bundled paper-triplet
+space's rules (docs/designs.md):
 
-    python scripts/recentre_space.py SPACE NEW_LENS OUT.toml [--lens-ref NAME]
+    python scripts/recentre_space.py SPACE NEW_LENS OUT.toml [--lens-ref NAME] [--scale S]
 
-Radii and air gaps keep their offsets relative to the nominal (scaled by new / old), the
-other kinds (conics, aspheric terms) their offsets in absolute terms.  Notes, description
-and constraints are kept.  Used for bundled/spaces/paper-triplet.toml (docs/designs.md).
+radii +-3.75 %, conics +-0.1, air gaps 0.875x .. 1.125x + 0.25 mm, aspheric terms a4 and
+up +- a quarter of max(50 %, the coefficient giving 10 um of sag at the new lens's clear
+semi-diameter); any other parameter (the r^2 terms) keeps its width, moved with the
+nominal.  ``--scale`` multiplies every half-width (default 1).  Notes, description and
+constraints are kept.
 """
 
 from __future__ import annotations
@@ -13,9 +16,23 @@ from __future__ import annotations
 import argparse
 
 from optix_e2e.lens import Lens
-from optix_e2e.space import Parameter, ParameterSpace, load_space
+from optix_e2e.space import ASPHERE_KINDS, Parameter, ParameterSpace, load_space
 
-RELATIVE = ("radius", "air_gap", "thickness")
+
+
+def rule(p, v: float, lens: dict) -> tuple[float, float] | None:
+    if p.kind == "radius":
+        return v * (1 - 0.0375), v * (1 + 0.0375)
+    if p.kind == "conic":
+        return v - 0.1, v + 0.1
+    if p.kind == "air_gap":
+        return 0.875 * v, 1.125 * v + 0.25
+    order = ASPHERE_KINDS.get(p.kind, 0)
+    if order >= 4:
+        h = float(lens["surfaces"][p.surface - 1]["semi_diameter"])
+        w = 0.25 * max(0.5 * abs(v), 0.01 / h ** order)
+        return v - w, v + w
+    return None
 
 
 def main() -> None:
@@ -24,14 +41,16 @@ def main() -> None:
     ap.add_argument("new_lens")
     ap.add_argument("out")
     ap.add_argument("--lens-ref", help="base-lens name to write (default: the space's)")
+    ap.add_argument("--scale", type=float, default=1.0, help="multiply every half-width by this")
     a = ap.parse_args()
     space, old = load_space(a.space)
     new = Lens.load(a.new_lens)
     v0, v1 = space.values(old.data), space.values(new.data)
     params = []
     for p, a0, a1 in zip(space.params, v0, v1):
-        s = a1 / a0 if p.kind in RELATIVE and a0 != 0 else 1.0
-        lo, hi = a1 + (p.min - a0) * s, a1 + (p.max - a0) * s
+        lo, hi = rule(p, a1, new.data) or (a1 + p.min - a0, a1 + p.max - a0)
+        lo, hi = a1 - a.scale * (a1 - lo), a1 + a.scale * (hi - a1)
+        lo, hi = float(f"{lo:.6g}"), float(f"{hi:.6g}")
         params.append(Parameter(p.name, p.kind, p.surface, min(lo, hi), max(lo, hi), p.unit))
     out = ParameterSpace(params, source=a.out, lens_ref=a.lens_ref or space.lens_ref,
                          description=space.description, notes=space.notes, constraints=space.constraints)

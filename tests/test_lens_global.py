@@ -85,13 +85,16 @@ def test_cli_global_records_basins(tmp_path):
     r = CliRunner().invoke(main, ["lens", "optimize", "cooke-f50", "--vars", "s_1_radius,s_6_radius",
                                   "--efl", "50", "--rings", "3", "--arms", "6", "--global", "--rounds", "2",
                                   "--workers", "1", "--batch", "2", "--max-iter", "15", "--seed", "2",
-                                  "--out", str(out), "--summary", str(summ)])
+                                  "--out", str(out), "--summary", str(summ), "--basins", str(tmp_path / "b.csv")])
     assert r.exit_code == 0, r.output
+    rows = (tmp_path / "b.csv").read_text().splitlines()
+    assert rows[0].startswith("rank,merit,feasible") and rows[0].endswith("s_1_radius,s_6_radius")
     s = json.loads(summ.read_text())
     g = s["global"]
     assert g["polishes"] == 4 and g["rounds"] == 2 and g["basins_found"] == len(g["basins"]) >= 1
     assert {"merit", "feasible", "min_slack", "active", "values", "found_by", "visits"} <= set(g["basins"][0])
     assert s["after"]["merit"] == pytest.approx(g["best"]["merit"], rel=1e-9)
+    assert len(rows) == 1 + g["basins_found"] and float(rows[1].split(",")[1]) == pytest.approx(g["best"]["merit"], rel=1e-5)
     assert Lens.load(str(out)).paraxial()["efl_mm"] == pytest.approx(50.0, rel=1e-3)
     bad = CliRunner().invoke(main, ["lens", "optimize", "cooke-f50", "--vars", "s_1_radius", "--minutes", "1",
                                     "--out", str(tmp_path / "x.json")])

@@ -115,7 +115,8 @@ def test_batch_values_are_in_range_or_the_design_fails():
 
 
 def test_dataset_window_energy_within_one_and_verify_flags_out_of_range(tmp_path):
-    """The default `optix dataset paper-triplet -n 64 --seed 1` stored 1.262 for design 59 at
+    """The default `optix dataset paper-triplet -n 64 --seed 1` (the space now bundled as
+    paper-triplet-v1) stored 1.262 for design 59 at
     14.9 deg, 470 nm (an aliased FFT N=64 fallback) with ok=True: auto now escalates such a PSF.
     A shard edited to hold out-of-range values (checksums updated) fails verify."""
     import json
@@ -124,7 +125,7 @@ def test_dataset_window_energy_within_one_and_verify_flags_out_of_range(tmp_path
     from optix_e2e.dataset.layout import crc32_file
 
     root = tmp_path / "ds"
-    generate("paper-triplet", 64, 1, root, DatasetSettings(), progress=False)
+    generate("paper-triplet-v1", 64, 1, root, DatasetSettings(), progress=False)
     assert verify(root)["ok"]
     shard = root / "shards" / "00000"
     energy = np.load(shard / "energy_in_window.npy")

@@ -58,8 +58,11 @@ def test_seeded_and_method_dependent(triplet_space):
     assert np.array_equal(u10.values, u10b.values)
 
 
-def test_each_check_catches_its_case(triplet_space):
-    space, lens, limits = triplet_space
+def test_each_check_catches_its_case():
+    # the edits are set on the previous nominal's shapes (paper-triplet-v1): in the current
+    # one surfaces 2 and 3 are nearly concentric and a 0.01 mm gap does not make them cross
+    space, lens = load_space("paper-triplet-v1")
+    limits = Limits.from_dict(space.constraints)
     sd = apertures(lens)
     assert check_design(lens.data, sd, limits) == []
     cases = {

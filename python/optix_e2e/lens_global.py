@@ -32,7 +32,7 @@ import numpy as np
 
 from .lens_optimizer import polish
 
-__all__ = ["Basin", "GlobalResult", "global_search"]
+__all__ = ["Basin", "GlobalResult", "basins_csv", "global_search"]
 
 ACTIVE_MM = 0.01   # an inequality constraint this close to its limit is "active" (binding)
 
@@ -231,3 +231,25 @@ def global_search(problem, *, minutes: float | None = 10.0, rounds: int | None =
     if state.best is None:
         raise RuntimeError("global search: the time budget ended before the first polish")
     return state
+
+
+def basins_csv(summary: dict) -> str:
+    """The basins of a ``GlobalResult.summary()`` (as ``optix lens optimize --global`` writes
+    it) as CSV, best first: one row per basin, the variables' values last."""
+    import csv
+    import io
+
+    basins = summary["basins"]
+    names = list(basins[0].get("values", {})) if basins else []
+    out = io.StringIO()
+    w = csv.writer(out)
+    w.writerow(["rank", "merit", "feasible", "min_slack_mm", "tightest", "n_active", "efl_error",
+                "found_by", "round", "visits", "nfev", *names])
+    for k, b in enumerate(basins, 1):
+        merit = b["merit"] if b["merit"] is not None else math.inf
+        w.writerow([k, f"{merit:.6g}", b["feasible"],
+                    "" if b["min_slack"] is None else f"{b['min_slack']:.6g}", b["tightest"] or "",
+                    len(b["active"]) if "active" in b else "", "" if b["efl_error"] is None else f"{b['efl_error']:.3e}",
+                    b["found_by"], b["round"], b["visits"], b["nfev"],
+                    *(f"{b['values'][n]:.10g}" for n in names)])
+    return out.getvalue()

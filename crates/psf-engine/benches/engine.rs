@@ -1,7 +1,7 @@
 //! Criterion benchmarks of the core: ray throughput through the Cooke triplet at full
 //! field, FFT PSF (64 pupil samples, 256 grid) and Huygens PSF (64 samples, 128x128), and
-//! the dataset batch (paper-triplet, 13 fields x 3 channels, 128 x 128 at 1 um).
-//! Uses the reference Cooke triplet in ../shared/reference and the bundled paper-triplet.
+//! the dataset batch (paper-triplet-v1, 13 fields x 3 channels, 128 x 128 at 1 um).
+//! Uses the reference Cooke triplet in ../shared/reference and the bundled paper-triplet-v1 (tests/common).
 
 #[path = "../tests/common/mod.rs"]
 mod common;

@@ -90,6 +90,8 @@ def _floats(text: str | None, what: str) -> list[float] | None:
               help="--global: worker processes (default: the CPU count).")
 @click.option("--batch", type=click.IntRange(1, 1024), default=4, show_default=True,
               help="--global: polishes per round.")
+@click.option("--basins", "basins_path", type=click.Path(dir_okay=False),
+              help="--global: also write every basin found (merit, constraint slack, values) as CSV here.")
 @click.option("--set-semi-diameters", is_flag=True,
               help="Write each surface's clear semi-diameter from the optimized ray footprint.")
 @click.option("--name", "new_name", help="Name to store in the output lens.")
@@ -97,7 +99,7 @@ def _floats(text: str | None, what: str) -> list[float] | None:
 @friendly_errors
 def optimize_cmd(lens_spec, var_names, space_file, out_path, summary_path, efl, efl_tol, min_center,
                  min_edge, min_air_gap, min_bfd, min_image_height, focus, field_weights, rings, arms, aiming, merit_kind,
-                 tilt, max_iter, global_, minutes, rounds, seed, workers, batch, set_semi_diameters,
+                 tilt, max_iter, global_, minutes, rounds, seed, workers, batch, basins_path, set_semi_diameters,
                  new_name, description):
     """Optimize LENS by trust-region damped least squares on the polychromatic RMS spot
     radius (or RMS wavefront error) over its fields, under EFL / thickness / air-gap / BFD
@@ -124,8 +126,8 @@ def optimize_cmd(lens_spec, var_names, space_file, out_path, summary_path, efl, 
     except SpaceError as exc:
         raise click.ClickException(str(exc)) from None
 
-    if not global_ and (minutes is not None or rounds is not None):
-        raise click.UsageError("--minutes and --rounds go with --global")
+    if not global_ and (minutes is not None or rounds is not None or basins_path):
+        raise click.UsageError("--minutes, --rounds and --basins go with --global")
     unit = merit.unit
     global_summary = None
     if global_:
@@ -168,6 +170,10 @@ def optimize_cmd(lens_spec, var_names, space_file, out_path, summary_path, efl, 
                "tilt": tilt if merit_kind == "wavefront" else None, **res.summary()}
     if global_summary is not None:
         summary["global"] = global_summary
+        if basins_path:
+            from ..lens_global import basins_csv
+
+            Path(basins_path).write_text(basins_csv(global_summary), encoding="utf-8")
     text = dumps(summary, indent=2)
     if summary_path:
         Path(summary_path).write_text(text + "\n", encoding="utf-8")

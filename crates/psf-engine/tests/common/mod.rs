@@ -64,11 +64,12 @@ pub fn singlet(r1: f64, r2: f64, t: f64, n: f64, epd: f64, back: f64) -> Lens {
     .unwrap()
 }
 
-/// The bundled paper-triplet (python/optix_e2e/bundled/paper-triplet.json) with its
+/// The bundled paper-triplet-v1 (python/optix_e2e/bundled/paper-triplet-v1.json, the
+/// nominal before issue 17's global search; the engine tests' figures were set on it) with its
 /// catalog glasses replaced by the database formulas the Python side resolves them to
 /// (refractiveindex.info: PMMA from "organic", N-SF11 from "schott").
 pub fn paper_triplet_json() -> Value {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../python/optix_e2e/bundled/paper-triplet.json");
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../python/optix_e2e/bundled/paper-triplet-v1.json");
     let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))).unwrap();
     for s in v["surfaces"].as_array_mut().unwrap() {
         let m = s["material"].clone();
