@@ -7,7 +7,7 @@ space's rules (docs/designs.md):
 radii +-3.75 %, conics +-0.1, air gaps 0.875x .. 1.125x + 0.25 mm, aspheric terms a4 and
 up +- a quarter of max(50 %, the coefficient giving 10 um of sag at the new lens's clear
 semi-diameter); any other parameter (the r^2 terms) keeps its width, moved with the
-nominal.  ``--scale`` multiplies every half-width (default 1).  Notes, description and
+nominal (as do glass thicknesses, if the space has any).  ``--scale`` multiplies every half-width (default 1).  Notes, description and
 constraints are kept.
 """
 
@@ -29,7 +29,11 @@ def rule(p, v: float, lens: dict) -> tuple[float, float] | None:
         return 0.875 * v, 1.125 * v + 0.25
     order = ASPHERE_KINDS.get(p.kind, 0)
     if order >= 4:
-        h = float(lens["surfaces"][p.surface - 1]["semi_diameter"])
+        h = lens["surfaces"][p.surface - 1].get("semi_diameter")
+        if not h:
+            raise SystemExit(f"{p.name}: surface {p.surface} of the new lens has no clear semi-diameter "
+                             f"(write them with optix lens optimize --set-semi-diameters)")
+        h = float(h)
         w = 0.25 * max(0.5 * abs(v), 0.01 / h ** order)
         return v - w, v + w
     return None

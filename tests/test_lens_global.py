@@ -48,6 +48,7 @@ def test_global_search_finds_the_global_basin_the_local_one_misses():
     assert np.allclose(g.best.u, p.c, atol=1e-6)
     assert len(g.basins) >= 3 and g.polishes == 24
     assert g.basins[0] is g.best and all(b.merit >= g.best.merit for b in g.basins)
+    assert g.history[-1][1] == g.best.merit and all(a[1] > b[1] for a, b in zip(g.history, g.history[1:]))
     start = [b for b in g.basins if b.found_by == "start"]
     assert start and start[0].merit == pytest.approx(math.sqrt(local_cost), rel=1e-6)
 
@@ -99,6 +100,13 @@ def test_cli_global_records_basins(tmp_path):
     bad = CliRunner().invoke(main, ["lens", "optimize", "cooke-f50", "--vars", "s_1_radius", "--minutes", "1",
                                     "--out", str(tmp_path / "x.json")])
     assert bad.exit_code != 0 and "--global" in bad.output
+    for extra in (["--seed", "3"], ["--workers", "2"], ["--batch", "2"]):
+        bad = CliRunner().invoke(main, ["lens", "optimize", "cooke-f50", "--vars", "s_1_radius", *extra,
+                                        "--out", str(tmp_path / "x.json")])
+        assert bad.exit_code != 0 and "go with --global" in bad.output, extra
+    bad = CliRunner().invoke(main, ["lens", "optimize", "cooke-f50", "--vars", "s_1_radius", "--tilt", "field",
+                                    "--out", str(tmp_path / "x.json")])
+    assert bad.exit_code != 0 and "--merit wavefront" in bad.output
 
 
 # ----- the wavefront merit -----------------------------------------------------------------
@@ -230,3 +238,20 @@ def test_wavefront_matches_optiland_on_the_double_gauss():
         px, py, pw = pupil_quadrature(16, 32)
         ours = _engine.wavefront(lens.to_engine_json(), field, px, py, pw, [587.6])["rms_waves"][0]
         assert ours == pytest.approx(theirs, rel=1e-3), (field, ours, theirs)
+
+
+def test_spot_merit_report_survives_an_undefined_wavefront():
+    """Image-space telecentric (stop at the front focal plane): no reference sphere, so the
+    wavefront figure of a full report is None, and the spot merit still works."""
+    def singlet(stop_gap):
+        return Lens({"aperture": {"type": "epd", "value": 4.0}, "wavelengths_nm": [550.0], "fields_deg": [0.0, 2.0],
+                     "surfaces": [{"radius": "inf", "thickness": stop_gap, "material": "air", "stop": True},
+                                  {"radius": 50.0, "thickness": 1.0, "material": {"n": 1.5}},
+                                  {"radius": -50.0, "thickness": 50.0, "material": "air"}]})
+
+    lens = singlet(-singlet(1e-9).paraxial()["ffl_mm"])  # the stop at the front focal point
+    assert abs(lens.paraxial()["exit_pupil_z_mm"]) > 1e6
+    with pytest.raises(_engine.EngineError):
+        lens.wavefront(0.0)
+    rep = Merit(lens).evaluate(lens.data, full=True)
+    assert rep["merit_um"] > 0 and all(row["rms_wavefront_waves"] is None for row in rep["fields"])

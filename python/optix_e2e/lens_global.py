@@ -10,7 +10,8 @@ the minimum of the basin it starts in.  This search visits many basins, in round
   adapts (it grows while jumps fall back into the basin they left and shrinks while they
   land in worse ones), each polished.
 
-Every polish runs in a worker process (``workers``, both cores by default), with the same
+Every polish runs in a worker process (``workers``; the CLI's default is one per core, at
+most one per polish of a round), with the same
 merit, constraints and bounds as ``optix lens optimize``.  A round's starts come from the
 seed and the basins known when the round begins, so a search with a fixed number of
 rounds repeats exactly; a time budget stops it where it is (each polish then returns the
@@ -145,8 +146,11 @@ def global_search(problem, *, minutes: float | None = 10.0, rounds: int | None =
     n_explore = 0
 
     def add(b: Basin) -> None:
+        if b.nfev == 0 and basins:
+            return  # queued past the time budget: never polished, not a basin
         state.polishes += 1
         state.nfev += b.nfev
+        best_before = basins[0].key() if basins else None
         ub = np.asarray(b.u)
         for k in basins:
             if np.max(np.abs(np.asarray(k.u) - ub)) <= same_basin:
@@ -159,7 +163,7 @@ def global_search(problem, *, minutes: float | None = 10.0, rounds: int | None =
         else:
             basins.append(b)
         basins.sort(key=Basin.key)
-        if state.best is None or basins[0].key() < state.best.key():
+        if best_before is None or basins[0].key() < best_before:
             state.history.append((time.time() - t0, basins[0].merit))
         state.best = basins[0]
         state.wall_s = time.time() - t0
@@ -173,6 +177,8 @@ def global_search(problem, *, minutes: float | None = 10.0, rounds: int | None =
             out.append((np.asarray(problem.u0, float), "start"))
         n_hammer = 0 if not basins else batch // 2
         while len(out) < batch - n_hammer:
+            if deadline is not None and time.time() >= deadline and out:
+                break
             cand = sobol.random(screen)
             costs = []
             for c in cand:

@@ -52,7 +52,8 @@ __all__ = ["Constraints", "LensProblem", "Merit", "OptimizeResult", "optimize", 
            "element_geometry"]
 
 FAILED_RAY_MM = 1.0     # residual given to each failed ray's x and y (mm)
-FAILED_RAY_WAVES = 10.0  # ... and to its OPD in the wavefront merit (waves)
+FAILED_RAY_WAVES = 100.0  # ... and to its OPD in the wavefront merit (waves): above the OPD
+                          # of any design worth keeping, so that losing a ray never pays
 KINDS = ("spot", "wavefront")
 UNITS = {"spot": "um", "wavefront": "waves"}
 REJECTED = 10.0         # residual value for every entry when the engine rejects a design
@@ -306,7 +307,14 @@ class Merit:
         res, per_field, n_failed = terms(js)
         if full:
             other = self._wavefront_terms if self.kind == "spot" else self._spot_terms
-            for row, extra in zip(per_field, other(js)[1]):
+            try:
+                extras = other(js)[1]
+            except Exception as exc:  # e.g. no reference sphere (telecentric image space)
+                if not _is_design_error(exc):
+                    raise
+                extras = [{"rms_wavefront_waves" if self.kind == "spot" else "rms_spot_um": None}
+                          for _ in per_field]
+            for row, extra in zip(per_field, extras):
                 row.update({k: v for k, v in extra.items() if k != "failed_rays"})
         merit_res = np.concatenate(res)
         sd = self.footprint(lens, js) if footprint else np.zeros(len(lens["surfaces"]))

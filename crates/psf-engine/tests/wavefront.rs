@@ -150,3 +150,30 @@ fn bad_weights_are_refused() {
     let e = field_wavefront(&lens, 0.0, &[550.0], &[], &[0.0], &[0.0], &[1.0], Aiming::Paraxial, Tilt::Shared);
     assert!(e.is_err());
 }
+
+#[test]
+fn image_space_telecentric_lens_is_refused() {
+    // the stop at the front focal point: the paraxial exit pupil lies ~1e12 mm away, where
+    // the reference sphere's sag is below f64's rounding of R^2
+    let singlet = |gap: f64| {
+        Lens::from_json(
+            &json!({
+                "aperture": {"type": "epd", "value": 4.0}, "wavelengths_nm": [550.0], "fields_deg": [0.0],
+                "surfaces": [
+                    {"radius": "inf", "thickness": gap, "material": "air", "stop": true},
+                    {"radius": 50.0, "thickness": 1.0, "material": {"n": 1.5}},
+                    {"radius": -50.0, "thickness": 50.0, "material": "air"}
+                ]
+            })
+            .to_string(),
+        )
+        .unwrap()
+    };
+    let ffl = psf_engine::paraxial(&singlet(1e-9), 550.0).unwrap().ffl;
+    let lens = singlet(-ffl);
+    let (px, py, w) = quadrature(4, 8);
+    let e = field_wavefront(&lens, 0.0, &[550.0], &[1.0], &px, &py, &w, Aiming::Paraxial, Tilt::PerWavelength);
+    assert!(matches!(&e, Err(err) if err.to_string().contains("telecentric")), "{:?}", e.err());
+    // a stop 10 mm off the focal point is fine
+    assert!(field_wavefront(&singlet(-ffl - 10.0), 0.0, &[550.0], &[1.0], &px, &py, &w, Aiming::Paraxial, Tilt::PerWavelength).is_ok());
+}

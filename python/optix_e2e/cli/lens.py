@@ -21,7 +21,7 @@ def lens():
 @lens.command("info")
 @click.argument("lens_spec", metavar="LENS")
 @click.option("--aiming", type=AIMING, default="paraxial", show_default=True,
-              help="Ray aiming for the spot figures.")
+              help="Ray aiming for the spot and wavefront figures.")
 @click.option("--rings", type=click.IntRange(1, 2048), default=128, show_default=True,
               help="Hexapolar rings per wavelength for the RMS spot.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
@@ -30,7 +30,8 @@ def lens():
                    "(known-unsupported features still fail).")
 @friendly_errors
 def info(lens_spec, aiming, rings, as_json, lenient):
-    """First-order data and per-field polychromatic RMS spot of LENS."""
+    """First-order data, Petzval sum, and per-field polychromatic RMS spot, RMS wavefront
+    error (piston and tilt removed per wavelength) and relative illumination of LENS."""
     if Path(lens_spec).suffix.lower() == ".zmx" and Path(lens_spec).is_file():
         lens_ = Lens.from_file(lens_spec, strict=not lenient)
     else:
@@ -47,7 +48,8 @@ def info(lens_spec, aiming, rings, as_json, lenient):
             "chief_y_mm": s.get("chief_y_mm"),
             "n_rays": s.get("n_rays"),
             # polychromatic RMS wavefront error, piston and tilt removed per wavelength
-            "rms_wavefront_waves": _rms_wavefront(lens_, f, aiming),
+            "rms_wavefront_waves": (_rms_wavefront(lens_, f, aiming)
+                                    if s["relative_illumination"] is not None else None),  # None: afocal
         })
     # the engine's range for a sane design (crates/psf-engine spot::RI_MAX)
     warnings = [f"relative illumination {r['relative_illumination']:.4g} at {r['field_deg']:g} deg lies outside "
@@ -124,11 +126,13 @@ def list_cmd(as_json):
 
 def _rms_wavefront(lens_, field_deg, aiming):
     """Polychromatic RMS wavefront error of a field (waves), or None where the reference
-    sphere is undefined (afocal or image-space telecentric) or the chief ray fails."""
+    sphere is undefined (image-space telecentric), the chief ray fails or no ray of a
+    wavelength arrives."""
     from .. import _engine
 
     try:
-        return lens_.wavefront(field_deg, aiming=aiming)["rms_waves_poly"]
+        wf = lens_.wavefront(field_deg, aiming=aiming)
+        return None if (wf["status"] != 0).all(axis=1).any() else wf["rms_waves_poly"]
     except _engine.EngineError:
         return None
 

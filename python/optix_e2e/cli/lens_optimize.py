@@ -62,7 +62,8 @@ def _floats(text: str | None, what: str) -> list[float] | None:
 @click.option("--min-air-gap", type=float, help="Minimum air gap between optical surfaces, center and edge (mm).")
 @click.option("--min-bfd", type=float, help="Minimum back focal distance, last vertex to image (mm).")
 @click.option("--min-image-height", type=float,
-              help="Minimum real chief-ray image height at the largest field (mm), e.g. the sensor's half-diagonal.")
+              help="Minimum image height (mm) of the chief ray (real trace, aimed per --aiming) at the largest field, "
+                   "e.g. the sensor's half-diagonal.")
 @click.option("--focus", type=click.Choice(["fixed", "paraxial"]), default="fixed", show_default=True,
               help="paraxial: solve the last thickness to the paraxial focus each evaluation (BFL solve).")
 @click.option("--field-weights", help="Comma-separated weights, one per lens field (default equal).")
@@ -73,9 +74,9 @@ def _floats(text: str | None, what: str) -> list[float] | None:
 @click.option("--aiming", type=AIMING, default="paraxial", show_default=True)
 @click.option("--merit", "merit_kind", type=click.Choice(["spot", "wavefront"]), default="spot", show_default=True,
               help="spot: polychromatic RMS spot radius (um); wavefront: RMS OPD (waves), piston and tilt removed.")
-@click.option("--tilt", type=click.Choice(["wavelength", "field"]), default="wavelength", show_default=True,
-              help="Wavefront merit: remove tilt per wavelength (Zemax's centroid reference) or once per field "
-                   "(lateral colour counts).")
+@click.option("--tilt", type=click.Choice(["wavelength", "field"]), default=None,
+              help="--merit wavefront: remove tilt per wavelength (Zemax's centroid reference; the default) or once "
+                   "per field (lateral colour counts).")
 @click.option("--max-iter", type=click.IntRange(1, 100000), default=200, show_default=True,
               help="Solver iterations (merit evaluations outside the Jacobian); with --global, per polish.")
 @click.option("--global", "global_", is_flag=True,
@@ -85,11 +86,10 @@ def _floats(text: str | None, what: str) -> list[float] | None:
               help="--global: time budget (default 5 minutes when --rounds is not given).")
 @click.option("--rounds", type=click.IntRange(1, 100000), default=None,
               help="--global: number of rounds (repeatable for a seed; the time budget still applies if given).")
-@click.option("--seed", type=int, default=0, show_default=True, help="--global: random seed.")
+@click.option("--seed", type=int, default=None, help="--global: random seed (default 0).")
 @click.option("--workers", type=click.IntRange(1, 256), default=None,
-              help="--global: worker processes (default: the CPU count).")
-@click.option("--batch", type=click.IntRange(1, 1024), default=4, show_default=True,
-              help="--global: polishes per round.")
+              help="--global: worker processes (default: the CPU count, at most --batch).")
+@click.option("--batch", type=click.IntRange(1, 1024), default=None, help="--global: polishes per round (default 4).")
 @click.option("--basins", "basins_path", type=click.Path(dir_okay=False),
               help="--global: also write every basin found (merit, constraint slack, values) as CSV here.")
 @click.option("--set-semi-diameters", is_flag=True,
@@ -110,6 +110,15 @@ def optimize_cmd(lens_spec, var_names, space_file, out_path, summary_path, efl, 
     lens = Lens(raw, source=source)
     if not var_names and not space_file:
         raise click.UsageError("give the variables: --vars NAMES and/or --space FILE")
+    given = [o for o, v in (("--minutes", minutes), ("--rounds", rounds), ("--basins", basins_path),
+                            ("--seed", seed), ("--workers", workers), ("--batch", batch)) if v is not None]
+    if not global_ and given:
+        raise click.UsageError(f"{', '.join(given)} go with --global")
+    if tilt is not None and merit_kind != "wavefront":
+        raise click.UsageError("--tilt goes with --merit wavefront")
+    tilt = tilt or "wavelength"
+    seed = 0 if seed is None else seed
+    batch = batch or 4
     constraints = Constraints(efl=efl, efl_tol=efl_tol, min_center=min_center, min_edge=min_edge,
                               min_air_gap=min_air_gap, min_bfd=min_bfd, min_image_height=min_image_height)
     merit = Merit(lens, constraints, field_weights=_floats(field_weights, "--field-weights"),
@@ -125,9 +134,6 @@ def optimize_cmd(lens_spec, var_names, space_file, out_path, summary_path, efl, 
         space = ParameterSpace(params, source=space_file or "--vars")
     except SpaceError as exc:
         raise click.ClickException(str(exc)) from None
-
-    if not global_ and (minutes is not None or rounds is not None or basins_path):
-        raise click.UsageError("--minutes, --rounds and --basins go with --global")
     unit = merit.unit
     global_summary = None
     if global_:
@@ -203,6 +209,7 @@ def _run_global(raw, space, merit, minutes, rounds, seed, workers, batch, max_it
 
     if minutes is None and rounds is None:
         minutes = 5.0
+    workers = workers or min(os.cpu_count() or 1, batch)
     problem = LensProblem(raw, space, merit)
     before = problem.report(problem.u0)
     bar = tqdm(total=None, unit="polish", desc="global search", dynamic_ncols=True, file=sys.stderr)
@@ -214,7 +221,7 @@ def _run_global(raw, space, merit, minutes, rounds, seed, workers, batch, max_it
 
     try:
         g = global_search(problem, minutes=minutes, rounds=rounds, seed=seed,
-                          workers=workers or os.cpu_count() or 1, batch=batch, polish_nfev=max_iter,
+                          workers=workers, batch=batch, polish_nfev=max_iter,
                           progress=progress)
     finally:
         bar.close()
@@ -227,6 +234,6 @@ def _run_global(raw, space, merit, minutes, rounds, seed, workers, batch, max_it
     for b in summary["basins"] + [summary["best"]]:
         b["values"] = dict(zip(space.names, map(float, problem.x(b.pop("u")))))
     summary.update({"seed": seed, "minutes": minutes, "rounds_requested": rounds, "batch": batch,
-                    "workers": workers or os.cpu_count() or 1, "polish_max_iter": max_iter})
+                    "workers": workers, "polish_max_iter": max_iter})
     return res, summary
 

@@ -261,6 +261,9 @@ pub fn sample_pupil(sys: &System, field_deg: f64, aiming: Aiming, n: usize) -> R
     Ok(p)
 }
 
+/// Largest reference-sphere radius (mm) whose OPD keeps ~1e-9 mm of precision in f64.
+pub const MAX_REFERENCE_RADIUS_MM: f64 = 1e7;
+
 /// The chief ray of a beam and the reference sphere: centred on the chief ray's image
 /// point, through its crossing of the paraxial exit-pupil plane.
 pub(crate) struct Reference {
@@ -290,8 +293,11 @@ pub(crate) fn reference(beam: &Beam, chief_launch: &Launch) -> Result<Reference>
     } else {
         f64::INFINITY
     };
-    if !(radius.is_finite() && radius > 0.0) {
-        return Err(EngineError::Psf("exit pupil at infinity (image-space telecentric): reference sphere undefined".into()));
+    // Beyond MAX_REFERENCE_RADIUS_MM the sphere's sag across the beam is lost in the rounding
+    // of R^2 in `back_to_sphere` (an image-space telecentric lens whose exit pupil the
+    // paraxial trace puts at ~1e12 mm): refused as at infinity.
+    if !(radius.is_finite() && radius > 0.0 && radius < MAX_REFERENCE_RADIUS_MM) {
+        return Err(EngineError::Psf(format!("exit pupil at infinity (image-space telecentric; reference sphere radius {radius:.3e} mm): reference sphere undefined")));
     }
     Ok(Reference { chief, chief_opl, radius })
 }
