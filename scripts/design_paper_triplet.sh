@@ -18,9 +18,10 @@ ASP=s_1_conic,s_1_4th,s_1_6th,s_1_8th,s_1_10th,s_6_conic,s_6_4th,s_6_6th,s_6_8th
 # the paper's constraints (Sec. 7) and the sensor's half-diagonal (IMX249: 6.634 mm)
 CON="--efl 25 --min-center 2 --min-edge 2 --min-air-gap 1 --min-bfd 10 --min-image-height 6.634 --rings 4 --arms 8"
 GLOBAL="--vars $SPH,$ASP $CON --field-weights 1,1,1,2,5 --max-iter 300 --global --seed 1 --minutes $MIN --set-semi-diameters"
-for m in spot wavefront; do
-  optix lens optimize paper-triplet-v1 $GLOBAL --merit $m --tilt field --out "$OUT/$m.json" \
-    --summary "$OUT/$m.summary.json" --basins "$OUT/$m.basins.csv" > /dev/null 2> "$OUT/$m.log"
+for m in spot "wavefront --tilt field"; do
+  f=${m%% *}
+  optix lens optimize paper-triplet-v1 $GLOBAL --merit $m --out "$OUT/$f.json" \
+    --summary "$OUT/$f.summary.json" --basins "$OUT/$f.basins.csv" > /dev/null 2> "$OUT/$f.log"
 done
 optix lens optimize "$OUT/wavefront.json" --vars $SPH,$ASP $CON --field-weights 1,1,3,4,5 --max-iter 600 \
   --set-semi-diameters --name paper-triplet --out "$OUT/paper-triplet.json" \
