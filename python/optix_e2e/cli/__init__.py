@@ -7,6 +7,7 @@ from .dataset import dataset
 from .demo import demo
 from .isp import isp
 from .lens import lens
+from .metrics import metrics
 from .psf import psf
 from .sample import sample
 from .sensor import sensor
@@ -34,3 +35,4 @@ main.add_command(bench)
 main.add_command(sensor)
 main.add_command(isp)
 main.add_command(surrogate)
+main.add_command(metrics)

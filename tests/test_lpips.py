@@ -1,0 +1,86 @@
+"""Offline LPIPS (optix_e2e.lpips) against the original's distances on its example images
+(../shared/lpips-reference: AlexNet v0.1, ex_ref-ex_p0 = 0.722, ex_ref-ex_p1 = 0.138)."""
+
+from __future__ import annotations
+
+import io
+import pickle
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from optix_e2e.lpips import LPIPS, LPIPSWeightsError, _ArraysOnly, lpips
+
+from pathlib import Path
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+LPIPS_REF = REPO_ROOT.parent / "shared" / "lpips-reference"
+
+
+def _image(name: str) -> torch.Tensor:
+    path = LPIPS_REF / name
+    if not path.is_file():
+        pytest.fail(f"{path}: the LPIPS reference images are missing (clone with shared/ beside the repo)",
+                    pytrace=False)
+    a = np.asarray(Image.open(path).convert("RGB"), dtype=np.float32) / 255.0
+    return torch.from_numpy(a).permute(2, 0, 1)
+
+
+def test_reproduces_the_original_distances():
+    ref, p0, p1 = _image("ex_ref.png"), _image("ex_p0.png"), _image("ex_p1.png")
+    d = lpips(torch.stack([ref, ref]), torch.stack([p0, p1]))
+    assert d.shape == (2,)
+    assert round(float(d[0]), 3) == 0.722 and round(float(d[1]), 3) == 0.138, d
+    assert float(lpips(ref, ref)) == pytest.approx(0.0, abs=1e-6)
+    # symmetric, and the unbatched call gives the batched value
+    assert float(lpips(p0, ref)) == pytest.approx(float(d[0]), rel=1e-5)
+
+
+def test_is_differentiable_and_frozen():
+    m = LPIPS()
+    assert not any(p.requires_grad for p in m.parameters())
+    x = _image("ex_p1.png")[None].requires_grad_(True)
+    m(x, _image("ex_ref.png")[None]).sum().backward()
+    assert x.grad is not None and torch.isfinite(x.grad).all() and x.grad.abs().sum() > 0
+    with pytest.raises(ValueError, match="one shape"):
+        m(torch.zeros(1, 3, 64, 64), torch.zeros(1, 3, 32, 32))
+
+
+def test_weights_loader_refuses_anything_but_arrays():
+    class Evil:
+        def __reduce__(self):
+            return (print, ("ran code",))
+
+    with pytest.raises(pickle.UnpicklingError, match="refused"):
+        _ArraysOnly(io.BytesIO(pickle.dumps({"x": Evil()}))).load()
+    ok = _ArraysOnly(io.BytesIO(pickle.dumps({"a": np.arange(3.0)}))).load()
+    assert np.array_equal(ok["a"], np.arange(3.0))
+    assert issubclass(LPIPSWeightsError, RuntimeError)
+
+
+def test_cli_metrics_json(tmp_path):
+    import json
+
+    from click.testing import CliRunner
+
+    from optix_e2e.cli import main
+
+    ref, p0 = str(LPIPS_REF / "ex_ref.png"), str(LPIPS_REF / "ex_p0.png")
+    r = CliRunner().invoke(main, ["metrics", p0, ref, "--json"])
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    assert set(out) >= {"psnr_db", "ssim", "lpips", "haarpsi"}
+    assert round(out["lpips"], 3) == 0.722 and 0 < out["ssim"] < 1 and 0 < out["haarpsi"] < 1
+    r = CliRunner().invoke(main, ["metrics", ref, ref, "--json"])
+    assert r.exit_code == 0 and json.loads(r.stdout)["lpips"] == pytest.approx(0.0, abs=1e-6)
+    small = tmp_path / "small.png"
+    Image.new("RGB", (32, 32)).save(small)
+    r = CliRunner().invoke(main, ["metrics", str(small), ref])
+    assert r.exit_code == 1 and "one size" in r.output
+    bad = tmp_path / "bad.png"
+    bad.write_text("not an image")
+    r = CliRunner().invoke(main, ["metrics", str(bad), ref])
+    assert r.exit_code == 1 and "cannot read as an image" in r.output
