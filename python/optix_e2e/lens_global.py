@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -152,13 +152,11 @@ def global_search(problem, *, minutes: float | None = 10.0, rounds: int | None =
         state.nfev += b.nfev
         best_before = basins[0].key() if basins else None
         ub = np.asarray(b.u)
-        for k in basins:
+        for i, k in enumerate(basins):
             if np.max(np.abs(np.asarray(k.u) - ub)) <= same_basin:
                 k.visits += 1
-                if b.key() < k.key():  # the same basin, reached deeper
-                    k.u, k.cost, k.merit, k.feasible = b.u, b.cost, b.merit, b.feasible
-                    k.min_slack, k.tightest, k.efl_error = b.min_slack, b.tightest, b.efl_error
-                    k.active = b.active
+                if b.key() < k.key():  # the same basin, reached deeper: keep its provenance
+                    basins[i] = replace(b, found_by=k.found_by, round=k.round, visits=k.visits, nfev=k.nfev)
                 break
         else:
             basins.append(b)

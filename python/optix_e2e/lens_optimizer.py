@@ -411,6 +411,11 @@ class LensProblem:
                 raise
             return np.full(self.n_res, REJECTED), None
 
+    def result(self, u, before: dict, nfev: int, status: str, history: list) -> "OptimizeResult":
+        """The optimizer's result for the design at u (``before``: the start's report)."""
+        return OptimizeResult(lens=self.lens_at(u), values=dict(zip(self.space.names, map(float, self.x(u)))),
+                              before=before, after=self.report(u), nfev=nfev, status=status, history=history)
+
     def lens_at(self, u) -> dict:
         """The raw prescription (catalog names kept) with the variables (and a solved focus)."""
         out = self.space.apply(self.raw, self.x(u))
@@ -486,10 +491,7 @@ def optimize(lens: "Lens | dict", space: ParameterSpace, merit: Merit, max_nfev:
 
     u, nfev, status = polish(problem, problem.u0, max_nfev, on_eval=on_eval,
                              ftol=ftol, xtol=xtol, x_scale=x_scale)
-    x = problem.x(u)
-    return OptimizeResult(lens=problem.lens_at(u), values=dict(zip(space.names, map(float, x))),
-                          before=before, after=problem.report(u), nfev=nfev, status=status,
-                          history=history)
+    return problem.result(u, before, nfev, status, history)
 
 
 def _is_design_error(exc: Exception) -> bool:

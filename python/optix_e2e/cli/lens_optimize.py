@@ -12,7 +12,7 @@ import numpy as np
 
 from ._common import AIMING, dumps, friendly_errors
 from ..lens import BUNDLED_DIR, Lens, LensLoadError
-from ..lens_optimizer import Constraints, LensProblem, Merit, OptimizeResult, optimize
+from ..lens_optimizer import Constraints, LensProblem, Merit, optimize
 from ..lens_optimizer import set_semi_diameters as _with_semi_diameters
 from ..space import ParameterSpace, SpaceError
 
@@ -225,11 +225,8 @@ def _run_global(raw, space, merit, minutes, rounds, seed, workers, batch, max_it
                           progress=progress)
     finally:
         bar.close()
-    u = np.asarray(g.best.u)
-    x = problem.x(u)
-    res = OptimizeResult(lens=problem.lens_at(u), values=dict(zip(space.names, map(float, x))),
-                         before=before, after=problem.report(u), nfev=g.nfev, status=f"global search, {g.stopped}",
-                         history=[m for _, m in g.history])
+    res = problem.result(np.asarray(g.best.u), before, g.nfev, f"global search, {g.stopped}",
+                         [m for _, m in g.history])
     summary = g.summary()
     for b in summary["basins"] + [summary["best"]]:
         b["values"] = dict(zip(space.names, map(float, problem.x(b.pop("u")))))
