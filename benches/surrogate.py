@@ -11,7 +11,7 @@ the dataset calls it (FFT/auto PSFs on the 1 um grid, integrated to the sensor p
 ``n`` refocused designs of the model's space, 13 fields each; refocusing is not timed. The
 surrogate figures are inference in batches of ``--batch`` designs (x 13 fields), and
 forward + backward for one design's 13 fields (what a lens-optimization step pays). The
-render figures are ``optix_e2e.render.render`` forward and forward + backward, with the
+render figures are ``optix_e2e.optics.render.render`` forward and forward + backward, with the
 surrogate's PSFs, at 64 and 128 px patches. Medians of ``--repeat`` runs. It measures; it
 asserts nothing.
 """
@@ -34,8 +34,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from dataset import engine_only  # noqa: E402  (the dataset bench's engine timing)
 
 from optix_e2e.dataset import DatasetSettings, generate  # noqa: E402
-from optix_e2e.optics import DifferentiableOptics  # noqa: E402
-from optix_e2e.render import render  # noqa: E402
+from optix_e2e.optics.differentiable import DifferentiableOptics  # noqa: E402
+from optix_e2e.optics.render import render  # noqa: E402
 from optix_e2e.surrogate import OpticsSurrogate  # noqa: E402
 
 

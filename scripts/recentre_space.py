@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 
 from optix_e2e.lens import Lens
-from optix_e2e.space import ASPHERE_KINDS, Parameter, ParameterSpace, load_space
+from optix_e2e.design.space import ASPHERE_KINDS, Parameter, ParameterSpace, load_space
 
 
 

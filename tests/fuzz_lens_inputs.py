@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from optix_e2e import _engine
-from optix_e2e.glass import GlassError
+from optix_e2e.lens.glass import GlassError
 from optix_e2e.lens import Lens, bundled_lenses
-from optix_e2e.prescription import PrescriptionError
-from optix_e2e.zemax.common import ZemaxError
+from optix_e2e.lens.prescription import PrescriptionError
+from optix_e2e.lens.zemax.common import ZemaxError
 
 # what a bad input may raise: the project's own error types (the file readers' and the
 # engine's hierarchy); a plain ValueError, TypeError, ... is a bug

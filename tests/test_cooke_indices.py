@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from optix_e2e import glass
+from optix_e2e.lens import glass
 
 WAVELENGTHS_UM = ("0.4800", "0.5500", "0.6500")
 

@@ -1,7 +1,7 @@
 """The bundled nominal designs (docs/designs.md): paper-triplet and double-gauss-f5.
 
 Geometry (sags, edge thicknesses, gaps) is recomputed here from the prescription with its
-own formulas, independently of optix_e2e.lens_optimizer.  The double Gauss is checked against
+own formulas, independently of optix_e2e.design.optimizer.  The double Gauss is checked against
 optiland 0.6.3 (its DoubleGauss sample is the published prescription we bundle; both tools
 read the same refractiveindex.info Schott pages, so first-order data agree to rounding).
 """
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from optix_e2e.lens import BUNDLED_DIR, Lens, bundled_lenses
-from optix_e2e.space import ParameterSpace
+from optix_e2e.design.space import ParameterSpace
 
 SPACES = BUNDLED_DIR / "spaces"
 

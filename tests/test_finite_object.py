@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from optix_e2e.lens import Lens
-from optix_e2e.prescription import PrescriptionError
-from optix_e2e.zemax import ZemaxError
+from optix_e2e.lens.prescription import PrescriptionError
+from optix_e2e.lens.zemax import ZemaxError
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = REPO_ROOT.parent / "shared" / "zmx-samples"
@@ -128,5 +128,5 @@ def test_bad_object_input_is_one_clear_error():
             Lens(dict(base, **patch))
     text = (BROKEN / "finite_object.zmx").read_text().replace("DISZ 1.0E+3", "DISZ -5", 1)
     with pytest.raises(ZemaxError, match="virtual object"):
-        from optix_e2e.zemax import parse_zmx
+        from optix_e2e.lens.zemax import parse_zmx
         parse_zmx(text, "t.zmx")

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from optix_e2e import glass
+from optix_e2e.lens import glass
 
 
 def test_known_glass_formula_and_range():

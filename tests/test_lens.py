@@ -6,7 +6,7 @@ import math
 import pytest
 
 from optix_e2e.lens import Lens, LensLoadError, bundled_lenses
-from optix_e2e.prescription import PrescriptionError
+from optix_e2e.lens.prescription import PrescriptionError
 
 
 def singlet(**surface0):

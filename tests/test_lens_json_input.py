@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from optix_e2e.cli import main
 from optix_e2e.lens import Lens
-from optix_e2e.prescription import PrescriptionError
+from optix_e2e.lens.prescription import PrescriptionError
 
 
 def _cooke() -> dict:

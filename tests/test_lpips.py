@@ -1,4 +1,4 @@
-"""Offline LPIPS (optix_e2e.lpips) against the original's distances on its example images
+"""Offline LPIPS (optix_e2e.metrics.lpips) against the original's distances on its example images
 (../shared/lpips-reference: AlexNet v0.1, ex_ref-ex_p0 = 0.722, ex_ref-ex_p1 = 0.138)."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 import torch
 from PIL import Image
 
-from optix_e2e.lpips import LPIPS, LPIPSWeightsError, _ArraysOnly, lpips
+from optix_e2e.metrics.lpips import LPIPS, LPIPSWeightsError, _ArraysOnly, lpips
 
 from pathlib import Path
 

@@ -8,7 +8,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from optix_e2e import metrics as M
+from optix_e2e.metrics import image as M
 from optix_e2e.scenes import load_photo
 
 

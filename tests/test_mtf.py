@@ -1,4 +1,4 @@
-"""MTF from the engine's FFT PSFs (optix_e2e.mtf) against closed forms and another tool.
+"""MTF from the engine's FFT PSFs (optix_e2e.lens.mtf) against closed forms and another tool.
 
 * A Gaussian PSF's OTF is exp(-2 pi^2 sigma^2 f^2), with the phase of its offset.
 * A diffraction-limited lens (the slow plano-convex singlet of test_physics.py) has the
@@ -15,7 +15,7 @@ import json
 import numpy as np
 import pytest
 
-from optix_e2e.mtf import NYQUIST_5P86_UM, diffraction_mtf, field_mtf, otf_1d
+from optix_e2e.lens.mtf import NYQUIST_5P86_UM, diffraction_mtf, field_mtf, otf_1d
 from test_physics import WL_NM, plano_convex
 
 

@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from optix_e2e.dataset import DatasetSettings, generate
-from optix_e2e.optics import DifferentiableOptics
-from optix_e2e.render import render
+from optix_e2e.optics.differentiable import DifferentiableOptics
+from optix_e2e.optics.render import render
 from optix_e2e.surrogate import OpticsSurrogate, SurrogateConfig, SurrogateRangeError
 from optix_e2e.surrogate.evaluate import evaluate
 from optix_e2e.surrogate.exact import rms_spot_um

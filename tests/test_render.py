@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from optix_e2e.render import interpolate_fields, pixel_polar, psf_at, render, render_exact, rotate_psfs
+from optix_e2e.optics.render import interpolate_fields, pixel_polar, psf_at, render, render_exact, rotate_psfs
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

@@ -1,4 +1,4 @@
-"""Layout, spot diagrams, report and the ``plot``/``report`` commands (optix_e2e.report,
+"""Layout, spot diagrams, report and the ``plot``/``report`` commands (optix_e2e.design.report,
 optix_e2e.plotting, cli/lens_report.py), and the engine's ray paths (trace_field_path).
 
 Geometry is checked against closed forms (sphere, parabola and asphere sags) and against
@@ -15,8 +15,8 @@ from click.testing import CliRunner
 from optix_e2e import _engine
 from optix_e2e.cli.lens_report import plot, report
 from optix_e2e.lens import Lens
-from optix_e2e.mtf import field_mtf
-from optix_e2e.report import footprint, hexapolar, sag, spot_diagram, surface_geometry
+from optix_e2e.lens.mtf import field_mtf
+from optix_e2e.design.report import footprint, hexapolar, sag, spot_diagram, surface_geometry
 
 ASPHERIC = {
     "name": "asph-test", "aperture": {"type": "epd", "value": 8}, "fields_deg": [0, 10],

@@ -1,4 +1,4 @@
-"""Design sampling (optix_e2e.sampling, ``optix sample``): ranges, manufacturability checks,
+"""Design sampling (optix_e2e.design.sampling, ``optix sample``): ranges, manufacturability checks,
 rejection counts and seeded reproducibility."""
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ import pytest
 from click.testing import CliRunner
 
 from optix_e2e.cli.sample import sample
-from optix_e2e.lens_optimizer import element_geometry
-from optix_e2e.sampling import REASONS, Limits, apertures, check_design, sample_designs
-from optix_e2e.space import SpaceError, load_space
+from optix_e2e.design.optimizer import element_geometry
+from optix_e2e.design.sampling import REASONS, Limits, apertures, check_design, sample_designs
+from optix_e2e.design.space import SpaceError, load_space
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from optix_e2e.cli import main
 from optix_e2e.lens import Lens
-from optix_e2e.zemax import ZemaxError, parse_zmx, read_zmx, zmx_text
+from optix_e2e.lens.zemax import ZemaxError, parse_zmx, read_zmx, zmx_text
 
 DATA = Path(__file__).parent / "data" / "zmx"
 BROKEN = DATA / "broken"
@@ -88,7 +88,7 @@ def test_radius_and_wavelength_conversions_are_exact():
     back every radius and wavelength exactly (20000 random values of 1-8 decimals)."""
     import random
 
-    from optix_e2e.zemax import _curv, _from_um, _radius, _to_um
+    from optix_e2e.lens.zemax import _curv, _from_um, _radius, _to_um
 
     assert 1.0 / (1.0 / -28.37731) != -28.37731 and _radius(_curv(-28.37731)) == -28.37731
     rng = random.Random(1)

@@ -1,5 +1,5 @@
 """Zemax catalog glasses the database lacks, built in from Zemax's AGF catalog data
-(optix_e2e.glass.ZEMAX_NAMES): LightPath's ECO550 family, C0550, PBH71 and its molded
+(optix_e2e.lens.glass.ZEMAX_NAMES): LightPath's ECO550 family, C0550, PBH71 and its molded
 CDGM glasses, RPO's molded glasses, the withdrawn Schott BAFN11 and K3, and MISC's ACRYLIC.
 
 The reference nd and vd are the ones each AGF file states on the glass's NM line, numbers
@@ -8,9 +8,9 @@ published independently of the dispersion coefficients that were copied from its
 
 import pytest
 
-from optix_e2e import glass
+from optix_e2e.lens import glass
 from optix_e2e.lens import Lens
-from optix_e2e.zemax import ZemaxError, parse_zmx
+from optix_e2e.lens.zemax import ZemaxError, parse_zmx
 
 D, F, C = 0.5875618, 0.4861327, 0.6562725  # um
 

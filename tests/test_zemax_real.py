@@ -14,8 +14,8 @@ from click.testing import CliRunner
 
 from optix_e2e.cli import main
 from optix_e2e.lens import Lens
-from optix_e2e.zemax import ZemaxError, parse_zmx
-from optix_e2e.zemax.survey import nominal_focal_length, survey
+from optix_e2e.lens.zemax import ZemaxError, parse_zmx
+from optix_e2e.lens.zemax.survey import nominal_focal_length, survey
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).parent / "data" / "zmx"
@@ -221,7 +221,7 @@ def test_unknown_glass_with_its_nd_vd_on_the_glas_line_is_a_model_glass():
 def test_glass_data_just_past_its_range_is_extrapolated_with_a_note():
     """LightPath BD2's data cover 3-14 um; 2.5 um (4.5 % of the span before it) is the
     table's first segment extended, with a note; 1.5 um (14 %) is an error naming the range."""
-    from optix_e2e.glass import resolve
+    from optix_e2e.lens.glass import resolve
 
     table = resolve("BD2", "lightpath").tabulated
     (w0, n0), (w1, n1) = table[0], table[1]

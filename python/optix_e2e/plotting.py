@@ -127,7 +127,7 @@ def save_layout_png(path: str | Path, lens, fields: Sequence[float] | None = Non
     surface 1 to the image (or to where they are clipped). Returns the traced fans."""
     from matplotlib.patches import Polygon
 
-    from .report import footprint, ray_fans, sag, surface_geometry
+    from .design.report import footprint, ray_fans, sag, surface_geometry
 
     fields = list(lens.fields_deg if fields is None else fields)
     wl = lens.primary_wavelength_nm if wavelength_nm is None else wavelength_nm

@@ -113,9 +113,9 @@ def held_out_cases(spaces, n_designs: int, seed: int) -> list[Case]:
     manufacturability checks, best focus as in the dataset, no clear apertures), each at
     a random field in [0, full] and a random wavelength in 450-650 nm."""
     from ..dataset.settings import engine_base
-    from ..focus import refocus_many
-    from ..sampling import sample_designs
-    from ..space import load_space
+    from ..design.focus import refocus_many
+    from ..design.sampling import sample_designs
+    from ..design.space import load_space
 
     rng = np.random.default_rng(seed)
     out = []

@@ -9,9 +9,9 @@ import math
 import click
 import numpy as np
 
-from ..glass import GlassError
+from ..lens.glass import GlassError
 from ..lens import Lens
-from ..prescription import PrescriptionError
+from ..lens.prescription import PrescriptionError
 
 AIMING = click.Choice(["paraxial", "real"])
 

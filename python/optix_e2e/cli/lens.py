@@ -185,7 +185,7 @@ def survey_cmd(folder, out):
     """Import rate of every .zmx under FOLDER (read leniently): how many import, trace
     (paraxial EFL, a real chief and marginal ray) and match the nominal focal length of
     their NAME/NOTE line within 1 %, and the top reasons for what is refused."""
-    from ..zemax.survey import results_csv, survey
+    from ..lens.zemax.survey import results_csv, survey
 
     summary, results = survey(Path(folder))
     text = dumps(summary, indent=1, ensure_ascii=False)

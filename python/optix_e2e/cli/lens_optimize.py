@@ -12,9 +12,9 @@ import numpy as np
 
 from ._common import AIMING, dumps, friendly_errors
 from ..lens import BUNDLED_DIR, Lens, LensLoadError
-from ..lens_optimizer import Constraints, LensProblem, Merit, optimize
-from ..lens_optimizer import set_semi_diameters as _with_semi_diameters
-from ..space import ParameterSpace, SpaceError
+from ..design.optimizer import Constraints, LensProblem, Merit, optimize
+from ..design.optimizer import set_semi_diameters as _with_semi_diameters
+from ..design.space import ParameterSpace, SpaceError
 
 
 def _raw_lens(spec: str) -> tuple[dict, str]:
@@ -47,7 +47,7 @@ def _floats(text: str | None, what: str) -> list[float] | None:
 @click.command("optimize")
 @click.argument("lens_spec", metavar="LENS")
 @click.option("--vars", "var_names", help="Comma-separated variables, e.g. s_1_radius,s_1_conic,s_2_thickness "
-              "(default bounds around the current values; see optix_e2e.space).")
+              "(default bounds around the current values; see optix_e2e.design.space).")
 @click.option("--space", "space_file", type=click.Path(dir_okay=False),
               help="Parameter-space JSON (name, kind, surface, min, max, unit); its ranges are the bounds.")
 @click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False),
@@ -177,7 +177,7 @@ def optimize_cmd(lens_spec, var_names, space_file, out_path, summary_path, efl, 
     if global_summary is not None:
         summary["global"] = global_summary
         if basins_path:
-            from ..lens_global import basins_csv
+            from ..design.global_search import basins_csv
 
             Path(basins_path).write_text(basins_csv(global_summary), encoding="utf-8")
     text = dumps(summary, indent=2)
@@ -205,7 +205,7 @@ def _run_global(raw, space, merit, minutes, rounds, seed, workers, batch, max_it
 
     from tqdm import tqdm
 
-    from ..lens_global import global_search
+    from ..design.global_search import global_search
 
     if minutes is None and rounds is None:
         minutes = 5.0

@@ -84,7 +84,7 @@ def report(lens_spec, out, fields, aiming, rays, freqs, max_freq, per_wavelength
     relative illumination, MTF (tangential, sagittal, diffraction limit) at the chosen
     frequencies and the MTF curves.
     """
-    from ..report import DEFAULT_MTF_FREQS, write_report
+    from ..design.report import DEFAULT_MTF_FREQS, write_report
 
     lens_ = load_lens(lens_spec)
     freq_list = _floats(freqs, "--freqs") or list(DEFAULT_MTF_FREQS)

@@ -34,8 +34,8 @@ def _read(path: str):
 def metrics(image, reference, crop, as_json):
     """Quality of IMAGE against REFERENCE (8-bit sRGB files of one size): PSNR (dB), SSIM,
     LPIPS (AlexNet, v0.1; lower is closer; the paper reports 1 - LPIPS) and HaarPSI."""
-    from ..lpips import lpips
-    from ..metrics import summarize
+    from ..metrics.lpips import lpips
+    from ..metrics.image import summarize
 
     x, y = _read(image), _read(reference)
     if x.shape != y.shape:

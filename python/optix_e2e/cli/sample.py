@@ -7,8 +7,8 @@ from pathlib import Path
 
 import click
 
-from ..sampling import METHODS, Limits, sample_designs, write_designs_csv
-from ..space import load_space
+from ..design.sampling import METHODS, Limits, sample_designs, write_designs_csv
+from ..design.space import load_space
 from ._common import dumps, friendly_errors
 
 

@@ -11,8 +11,8 @@ from pathlib import Path
 import click
 
 from ..lens import Lens
-from ..lens_optimizer import Merit
-from ..space import SPACES_DIR, ParameterSpace, SpaceError, bundled_spaces
+from ..design.optimizer import Merit
+from ..design.space import SPACES_DIR, ParameterSpace, SpaceError, bundled_spaces
 from ._common import dumps, friendly_errors
 
 MC_SPACES = ("proposed", "given")
@@ -158,8 +158,8 @@ def tolerance(lens_spec, space_spec, budget_um, spec_um, n_mc, seed, mc_space, s
     """
     from tqdm import tqdm
 
-    from .. import tolerance as tol
-    from ..sampling import Limits
+    from ..design import tolerance as tol
+    from ..design.sampling import Limits
 
     for opt, v in (("--budget-um", budget_um), ("--spec-um", spec_um)):
         if v is not None and not (math.isfinite(v) and v > 0):

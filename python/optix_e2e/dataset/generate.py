@@ -23,9 +23,9 @@ from typing import Callable
 import numpy as np
 
 from ..lens import Lens
-from ..focus import refocus_many
-from ..sampling import apertures, geometry_problem
-from ..space import ParameterSpace, load_space
+from ..design.focus import refocus_many
+from ..design.sampling import apertures, geometry_problem
+from ..design.space import ParameterSpace, load_space
 from .layout import ARRAYS, FORMAT, DatasetError, aligned_empty, fsync_dir, save_npy, shard_name, shards_dir, write_json_atomic
 from .manifest import prepare
 from .settings import DatasetSettings, engine_base
@@ -252,7 +252,7 @@ def generate(space_spec: "str | Path", n: int, seed: int, out: "str | Path",
     out = Path(out)
     space, base = load_space(space_spec)
     # before anything is written: auto fields take at most the largest K they try
-    from ..auto import K_FIELDS
+    from ..accuracy.auto import K_FIELDS
     s.check_memory(n, s.n_fields or max(K_FIELDS), len(base.rgb_channels("rgb" if s.channels == "auto" else s.channels)))
     man, designs = prepare(out, space, base, n, seed, s, log)
     n_shards = man["n_shards"]

@@ -13,8 +13,8 @@ from typing import Callable
 import numpy as np
 
 from ..lens import Lens
-from ..sampling import Limits, read_designs_csv, sample_designs, write_designs_csv
-from ..space import Parameter, ParameterSpace, SpaceError
+from ..design.sampling import Limits, read_designs_csv, sample_designs, write_designs_csv
+from ..design.space import Parameter, ParameterSpace, SpaceError
 from .layout import FORMAT, DatasetError, differing_keys, read_json, sha256_file, write_json_atomic
 from .settings import DatasetSettings, engine_base, field_positions
 
@@ -36,10 +36,10 @@ def _request(space: ParameterSpace, base: Lens, n: int, seed: int, s: DatasetSet
 def resolve_fields_and_channels(base: Lens, s: DatasetSettings,
                                 log: Callable[[str], None] = lambda m: None) -> tuple[list[float], list, dict]:
     """The K field positions and the channels' (wavelength, weight) lists.  ``n_fields`` 0
-    and ``channels`` "auto" are chosen for ``s.accuracy`` on the base design (optix_e2e.auto;
+    and ``channels`` "auto" are chosen for ``s.accuracy`` on the base design (optix_e2e.accuracy.auto;
     deterministic, so a resumed run recomputes and checks them); the choice and its
     estimated errors are returned for the manifest's ``auto`` entry."""
-    from .. import auto as _auto
+    from ..accuracy import auto as _auto
     from .settings import engine_base
 
     info: dict = {}

@@ -8,8 +8,8 @@ from typing import Collection
 
 import numpy as np
 
-from ..sampling import read_designs_csv
-from ..space import SpaceError
+from ..design.sampling import read_designs_csv
+from ..design.space import SpaceError
 from .layout import (FORMAT, VALUES, DatasetError, crc32_file, read_json, read_manifest, sha256_file, shard_name,
                      shards_dir)
 

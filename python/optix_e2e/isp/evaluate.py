@@ -11,7 +11,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from .. import metrics, scenes
+from .. import scenes
+from ..metrics import image as metrics
 from . import data
 from . import params as hp
 from .proxy import ISPProxy

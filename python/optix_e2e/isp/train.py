@@ -22,7 +22,7 @@ import torch
 from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
-from .. import metrics
+from ..metrics import image as metrics
 from . import data
 from .proxy import ISPProxy, save_atomic
 from .software import SoftwareISP

@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from .. import metrics
+from ..metrics import image as metrics
 from . import data, evaluate
 from . import params as hp
 from .proxy import ISPProxy

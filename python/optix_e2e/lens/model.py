@@ -15,7 +15,7 @@ from .prescription import PrescriptionError, resolve_prescription
 
 __all__ = ["Lens", "LensLoadError", "bundled_lenses", "DEFAULT_RGB_CHANNELS"]
 
-BUNDLED_DIR = Path(__file__).parent / "bundled"
+BUNDLED_DIR = Path(__file__).resolve().parent.parent / "bundled"
 #: Bundled lens name -> its shipped surrogate checkpoint in BUNDLED_DIR (optix_e2e.surrogate).
 BUNDLED_SURROGATES = {"paper-triplet-v1": "surrogate_paper_triplet.pt"}
 
@@ -39,7 +39,7 @@ def bundled_lenses() -> list[str]:
 
 
 def _engine():
-    from . import _engine as engine  # compiled Rust extension
+    from .. import _engine as engine  # compiled Rust extension
 
     return engine
 
@@ -114,7 +114,7 @@ class Lens:
             raise PrescriptionError(f"{source}: {crossing}")
         #: the prescription as given (catalog names unresolved): what save() writes
         self.raw = copy.deepcopy(data)
-        #: for a lens read from .zmx: the :class:`optix_e2e.zemax.ZemaxImport` report
+        #: for a lens read from .zmx: the :class:`optix_e2e.lens.zemax.ZemaxImport` report
         self.zemax_import = None
         self._json: str | None = None
 
@@ -282,7 +282,7 @@ class Lens:
         (Zemax's centroid reference) or per field; a Gaussian quadrature of ``rings`` x
         ``arms`` pupil points.  Keys of ``_engine.wavefront`` plus ``rms_waves_poly``, the
         wavelength-weighted quadratic mean."""
-        from .lens_optimizer import pupil_quadrature
+        from ..design.optimizer import pupil_quadrature
 
         px, py, pw = pupil_quadrature(rings, arms)
         ww = np.asarray(self.wavelength_weights, float)

@@ -43,10 +43,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .footprint import ray_footprint
-from .lens import Lens
+from ..lens.footprint import ray_footprint
+from ..lens import Lens
 from .space import ParameterSpace
-from .surface import sag as _surface_sag
+from ..lens.surface import sag as _surface_sag
 
 __all__ = ["Constraints", "LensProblem", "Merit", "OptimizeResult", "optimize", "polish", "sag",
            "element_geometry"]
@@ -64,14 +64,14 @@ MARGIN_MM = 1e-3        # the penalty aims this far inside each geometric limit,
 
 
 def _engine():
-    from . import _engine as engine
+    from .. import _engine as engine
 
     return engine
 
 
 # ----- geometry --------------------------------------------------------------------------
 def sag(s: dict, r) -> np.ndarray:
-    """Surface sag z(r) in mm (optix_e2e.surface.sag; beyond the conic's reach, its rim value)."""
+    """Surface sag z(r) in mm (optix_e2e.lens.surface.sag; beyond the conic's reach, its rim value)."""
     return _surface_sag(s, r, clip=True)
 
 
@@ -464,7 +464,7 @@ def optimize(lens: "Lens | dict", space: ParameterSpace, merit: Merit, max_nfev:
              progress: Callable[[int, float, float, bool], None] | None = None,
              ftol: float = 1e-8, xtol: float = 1e-8, x_scale="jac") -> OptimizeResult:
     """Minimize ``merit`` over ``space`` starting from ``lens`` (local: the minimum of the
-    start's basin; see :mod:`optix_e2e.lens_global` for the global search).
+    start's basin; see :mod:`optix_e2e.design.global_search` for the global search).
 
     Clear semi-diameters in ``lens`` are ignored while optimizing and kept as they are in
     the result (see :func:`set_semi_diameters` and ``OptimizeResult.after["semi_diameters_mm"]``).

@@ -31,10 +31,10 @@ from typing import Sequence
 
 import numpy as np
 
-from .lens import Lens
-from .lens_optimizer import Constraints
+from ..lens import Lens
+from .optimizer import Constraints
 from .space import ParameterSpace, SpaceError
-from .surface import sag
+from ..lens.surface import sag
 
 METHODS = ("uniform", "sobol", "lhs")
 REASONS = ("center_thickness", "edge_thickness", "air_gap", "back_focal_distance",

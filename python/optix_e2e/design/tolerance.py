@@ -1,11 +1,11 @@
 """Tolerance analysis over a parameter space: sensitivities, ranges from a budget, MC yield.
 
 Metric.  The polychromatic, centroid-referenced RMS spot radius of each field
-(:class:`optix_e2e.lens_optimizer.Merit`, Gaussian pupil quadrature); the figure that is
+(:class:`optix_e2e.design.optimizer.Merit`, Gaussian pupil quadrature); the figure that is
 budgeted is the worst field's.  Designs are traced with free apertures (clear
 semi-diameters removed, as the optimizer does), so a perturbation changes the image and not
 which rays a rim stops; the manufacturability checks of the Monte Carlo draws use the
-nominal's clear semi-diameters (:func:`optix_e2e.sampling.apertures`).
+nominal's clear semi-diameters (:func:`optix_e2e.design.sampling.apertures`).
 
 Sensitivity.  Each parameter alone is moved to nominal + k * step for k = -2, -1, +1, +2
 (the others at nominal) and the RMS spot of every field is traced.  Per field f a quadratic
@@ -50,8 +50,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .lens import Lens
-from .lens_optimizer import Merit, _is_design_error
+from ..lens import Lens
+from .optimizer import Merit, _is_design_error
 from .space import APERTURE_KINDS, ASPHERE_KINDS, Parameter, ParameterSpace, SpaceError
 
 __all__ = ["DEFAULT_STEPS", "OFFSETS", "default_step", "free_apertures", "evaluate_fields",
@@ -479,7 +479,7 @@ def monte_carlo(space: ParameterSpace, lens: "Lens | dict", merit: Merit, n: int
                 progress: Callable[[int, int], None] | None = None) -> MonteCarlo:
     """``n`` manufacturable designs drawn uniformly from ``space`` (every parameter at once),
     traced; yield = fraction with worst-field RMS <= ``spec_um``.  ``limits``: a
-    :class:`optix_e2e.sampling.Limits` (default: the space's ``[constraints]``)."""
+    :class:`optix_e2e.design.sampling.Limits` (default: the space's ``[constraints]``)."""
     from .sampling import Limits, sample_designs
 
     lens = Lens.load(lens)

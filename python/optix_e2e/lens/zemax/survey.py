@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._engine import EngineError
+from ..._engine import EngineError
 from .common import ZemaxError
 from .reader import _decode
 
@@ -118,7 +118,7 @@ def _trace_check(lens) -> str:
 
 
 def survey_file(path: Path, root: Path | None = None) -> FileResult:
-    from ..lens import Lens  # circular import otherwise
+    from ..model import Lens  # circular import otherwise
 
     name = str(path.relative_to(root)) if root else str(path)
     try:

@@ -587,8 +587,8 @@ def _engine_on(p: _Parser, out: dict, line: int, key: str, what: str, fn: str, *
     naming the line and keyword that needed it."""
     import json
 
-    from .._engine import EngineError
-    from ..lens import _engine_fn  # circular import otherwise
+    from ..._engine import EngineError
+    from ..model import _engine_fn  # circular import otherwise
     from ..prescription import PrescriptionError, resolve_prescription
 
     try:

@@ -177,7 +177,7 @@ class ParameterSpace:
         self.lens_ref = lens_ref          # base lens named by the file (bundled name or path)
         self.description = description
         self.notes = dict(notes or {})    # parameter name -> note
-        self.constraints = dict(constraints or {})  # manufacturability limits (optix_e2e.sampling)
+        self.constraints = dict(constraints or {})  # manufacturability limits (optix_e2e.design.sampling)
         names = [p.name for p in self.params]
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
@@ -253,7 +253,7 @@ class ParameterSpace:
     def base_lens(self):
         """The base lens the file names (``lens``): a bundled name, or a path relative to
         the space file."""
-        from .lens import Lens, LensLoadError
+        from ..lens import Lens, LensLoadError
 
         ref = self.lens_ref
         if not ref:
@@ -380,7 +380,7 @@ def _toml():
     return tomllib
 
 
-SPACES_DIR = Path(__file__).parent / "bundled" / "spaces"
+SPACES_DIR = Path(__file__).resolve().parent.parent / "bundled" / "spaces"
 
 
 def bundled_spaces() -> list[str]:

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .accuracy.metrics import rel_l1
-from .accuracy.sweep import CHANNEL_RESPONSE, channel_wavelengths
+from .metrics import rel_l1
+from .sweep import CHANNEL_RESPONSE, channel_wavelengths
 
 #: Wavelengths-per-channel choices (nested midpoint rules, and 5 predicted from 3).
 K_WAVELENGTHS = (1, 3, 5, 9)
@@ -32,7 +32,7 @@ DENSE_FIELDS = 33
 
 
 def _batch(lens_jsons, fields, channels, size, pixel_um):
-    from . import _engine
+    from .. import _engine
 
     r = _engine.psf_batch(list(lens_jsons), [float(f) for f in fields], channels, "fft", pixel_um, size, 64,
                           "paraxial", False, True)

@@ -23,8 +23,8 @@ import torch
 from torch import nn
 
 from .render import render
-from .surrogate.checkpoint import OpticsSurrogate
-from .surrogate.data import bin_psf
+from ..surrogate.checkpoint import OpticsSurrogate
+from ..surrogate.data import bin_psf
 
 
 class DifferentiableOptics(nn.Module):
@@ -54,7 +54,7 @@ class DifferentiableOptics(nn.Module):
 
     def base_values(self) -> torch.Tensor:
         """The base lens's values of the space's parameters (mid-range where outside the range)."""
-        from .dataset.manifest import space_and_base
+        from ..dataset.manifest import space_and_base
 
         man = self.surrogate.manifest
         if not man:
@@ -93,7 +93,7 @@ class DifferentiableOptics(nn.Module):
         """The exact engine's (psf, vignetting) for the current parameters, computed as the
         surrogate's training data was; ``render(image, *exact_psfs(), fields)`` checks a
         result against the real optics."""
-        from .surrogate.exact import exact_arrays
+        from ..surrogate.exact import exact_arrays
 
         arrays, meta = exact_arrays(self.surrogate.manifest, self.values().detach().double().numpy()[None])
         if meta["n_failed"]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .lens import Lens
+from .model import Lens
 
 
 def _image_point(lens: Lens, field_deg: float, wavelength_nm: float) -> tuple[float, float]:
@@ -62,7 +62,7 @@ def _optiland_tracer(lens: Lens, wavelength_nm: float):
 
 
 def _engine_tracer(lens: Lens, wavelength_nm: float):
-    from .lens import _engine_fn
+    from .model import _engine_fn
     trace_fn = _engine_fn("trace")
     text = lens.to_engine_json()
 

@@ -11,7 +11,7 @@ The learned perceptual metrics (LPIPS, DISTS, PieAPP) need network weights that 
 libraries download on first use (LPIPS also an ImageNet VGG/AlexNet backbone from
 torchvision); this toolkit must run without network access.  LPIPS (AlexNet, v0.1), the
 paper's metric, is available offline from weights installed with the project
-(optix_e2e.lpips, reproducing the original's distances); it is reported beside these, and
+(optix_e2e.metrics.lpips, reproducing the original's distances); it is reported beside these, and
 HaarPSI stays the training loss's perceptual term.  HaarPSI
 (Reisenhofer, Bosse, Kutyniok & Wiegand, "A Haar wavelet-based perceptual similarity index
 for image quality assessment", Signal Processing: Image Communication 61, 2018) is a

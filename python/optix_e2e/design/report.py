@@ -12,10 +12,10 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .footprint import ray_footprint
-from .lens import Lens
-from .mtf import NYQUIST_5P86_UM, default_frequencies, field_mtf, mtf_at, psf_sampling
-from .surface import curvature, sag
+from ..lens.footprint import ray_footprint
+from ..lens import Lens
+from ..lens.mtf import NYQUIST_5P86_UM, default_frequencies, field_mtf, mtf_at, psf_sampling
+from ..lens.surface import curvature, sag
 
 __all__ = ["sag", "surface_geometry", "ray_fans", "spot_diagram", "hexapolar", "write_report",
            "DEFAULT_MTF_FREQS"]
@@ -51,7 +51,7 @@ def surface_geometry(lens: Lens, footprint: Sequence[float]) -> list[dict[str, A
 
 
 def _trace_paths(lens: Lens, field: float, px, py, wavelength_nm: float, aiming: str) -> dict:
-    from . import _engine
+    from .. import _engine
 
     return _engine.trace_field_path(lens.to_engine_json(), float(field), np.ascontiguousarray(px, float),
                                     np.ascontiguousarray(py, float), float(wavelength_nm), aiming)
@@ -129,8 +129,8 @@ def write_report(lens: Lens, out_dir: str | Path, fields: Sequence[float] | None
                  rays: int = 9, freqs: Sequence[float] = DEFAULT_MTF_FREQS, max_freq: float | None = None,
                  per_wavelength: bool = False, psf_method: str = "fft", progress: Progress = None) -> dict[str, Any]:
     """layout.png, spots.png, mtf.png and report.json in ``out_dir``; returns the JSON."""
-    from . import plotting
-    from .cli._common import to_jsonable
+    from .. import plotting
+    from ..cli._common import to_jsonable
 
     say = progress or (lambda msg: None)
     t0 = time.perf_counter()

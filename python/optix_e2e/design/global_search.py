@@ -1,6 +1,6 @@
 """Global search for a nominal design (the role of Zemax's Global Search and Hammer).
 
-The local optimizer (:func:`optix_e2e.lens_optimizer.polish`, damped least squares) finds
+The local optimizer (:func:`optix_e2e.design.optimizer.polish`, damped least squares) finds
 the minimum of the basin it starts in.  This search visits many basins, in rounds:
 
 * **explore** (Global Search): scrambled Sobol' points over the variables' ranges
@@ -31,7 +31,7 @@ from typing import Callable
 
 import numpy as np
 
-from .lens_optimizer import polish
+from .optimizer import polish
 
 __all__ = ["Basin", "GlobalResult", "basins_csv", "global_search"]
 

@@ -17,7 +17,7 @@ def ray_footprint(lens_json: str, n_surfaces: int, fields_deg: Sequence[float],
     reflected does not pass the lens at that field, and its path on the surfaces before
     (far out on an extended sphere, say) would size them for light that never arrives.
     """
-    from . import _engine
+    from .. import _engine
 
     px = np.ascontiguousarray(px, float)
     py = np.ascontiguousarray(py, float)

@@ -24,7 +24,7 @@ def best_focus_shift(lens_json: str, fields_deg: Sequence[float], wavelengths_nm
     ``fields_deg`` of the polychromatic centroid RMS spot squared (the engine's
     ``best_focus_batch``: polar pupil grid of ``rings`` rings; failed rays left out).
     Raises the engine's error if the lens cannot be traced."""
-    from . import _engine
+    from .. import _engine
 
     r = _engine.best_focus_batch([lens_json], [float(f) for f in fields_deg], _pairs(wavelengths_nm, weights),
                                  rings, aiming)
@@ -40,7 +40,7 @@ def refocus_many(lenses: Sequence[dict], mode: str, fields_deg: Sequence[float],
     (:func:`best_focus_shift`, one parallel engine call for all), "paraxial" (the paraxial
     focus at ``primary_nm``) or "fixed" (unchanged).  Returns, per lens, the engine's
     error message where it could not be refocused (that lens is left unchanged), else None."""
-    from . import _engine
+    from .. import _engine
 
     if mode not in ("best", "paraxial", "fixed"):
         raise ValueError(f"focus must be 'best', 'paraxial' or 'fixed', got {mode!r}")
@@ -66,7 +66,7 @@ def refocus(lens: dict, mode: str, fields_deg: Sequence[float], wavelengths_nm: 
             weights: Sequence[float] | None = None, primary_nm: float | None = None) -> dict:
     """``lens`` (a resolved lens dict, changed in place and returned) with its image
     distance set by ``mode`` (see :func:`refocus_many`); raises the engine's error."""
-    from . import _engine
+    from .. import _engine
 
     err = refocus_many([lens], mode, fields_deg, wavelengths_nm, weights, primary_nm)[0]
     if err:
