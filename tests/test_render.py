@@ -112,3 +112,30 @@ def test_bad_inputs_are_named():
         render(torch.zeros(1, 1, 8, 8), psfs.float(), [0.0, 0.5, 0.2])
     with pytest.raises(ValueError, match="patch"):
         render(torch.zeros(1, 1, 8, 8), psfs.float(), fields, patch=5)
+
+
+def test_a_crop_at_its_offset_renders_as_that_part_of_the_frame():
+    # A crop rendered with offset_px (its centre's position from the axis) and the frame's full
+    # field equals the same region of the whole frame's render, away from the crop's border
+    # (light from outside a crop is not modelled); a crop rendered at offset 0 does not.
+    torch.manual_seed(0)
+    psfs, fields = comatic_stack()
+    vig = torch.linspace(1.0, 0.6, len(fields), dtype=torch.float64)[:, None].repeat(1, 3)
+    h, w = 48, 64
+    full = 0.5 * math.hypot(h - 1, w - 1)
+    frame = torch.rand(1, 3, h, w, dtype=torch.float64)
+    whole = render_exact(frame, psfs, fields, vig)
+    y0, x0, ch, cw = 4, 30, 24, 30
+    crop = frame[..., y0:y0 + ch, x0:x0 + cw]
+    offset = (y0 + (ch - 1) / 2 - (h - 1) / 2, x0 + (cw - 1) / 2 - (w - 1) / 2)
+    m = psfs.shape[-1] // 2
+    want = whole[..., y0 + m:y0 + ch - m, x0 + m:x0 + cw - m]
+    got = render_exact(crop, psfs, fields, vig, full_field_px=full, offset_px=offset)[..., m:-m, m:-m]
+    assert torch.allclose(got, want, atol=1e-12)
+    wrong = render_exact(crop, psfs, fields, vig, full_field_px=full)[..., m:-m, m:-m]
+    assert (wrong - want).abs().max() > 1e-3
+    # overlap-add: the same up to its patch blending (8 px patches)
+    ola = render(crop, psfs, fields, vig, patch=8, full_field_px=full, offset_px=offset)[..., m:-m, m:-m]
+    assert ((ola - want).abs().sum() / want.abs().sum()).item() < 0.01
+    with pytest.raises(ValueError, match="full_field_px"):
+        render(crop, psfs, fields, offset_px=offset)

@@ -85,9 +85,11 @@ class DifferentiableOptics(nn.Module):
     def fields(self) -> torch.Tensor:
         return self.surrogate.fields
 
-    def forward(self, image: torch.Tensor) -> torch.Tensor:
+    def forward(self, image: torch.Tensor, offset_px: tuple[float, float] = (0.0, 0.0)) -> torch.Tensor:
+        """offset_px: a crop's centre from the optical axis (rows, columns; needs ``full_field_px``)."""
         psf, vig = self.psfs()
-        return render(image, psf, self.fields, vig, patch=self.patch, full_field_px=self.full_field_px)
+        return render(image, psf, self.fields, vig, patch=self.patch, full_field_px=self.full_field_px,
+                      offset_px=offset_px)
 
     def exact_psfs(self) -> tuple[torch.Tensor, torch.Tensor]:
         """The exact engine's (psf, vignetting) for the current parameters, computed as the

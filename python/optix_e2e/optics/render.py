@@ -21,7 +21,9 @@ columns = image x, for field points on the +y axis whose image lies at +y (the e
 convention: ``chief_y_mm > 0`` for a positive field), so a PSF's outward radial direction
 is +row. ``fields`` are the K field radii normalized to the full field, ascending.
 Image pixels are [B, C, H, W]; the optical axis is at the image centre and the full field
-is at ``full_field_px`` pixels from it (default: the half-diagonal, i.e. the corners).
+is at ``full_field_px`` pixels from it (default: the half-diagonal, i.e. the corners). A crop
+of a larger frame passes ``offset_px`` = (rows, columns) of its centre from the optical axis
+(and the frame's ``full_field_px``): its pixels then see the PSFs of where they lie on the sensor.
 """
 
 from __future__ import annotations
@@ -43,10 +45,11 @@ def _polar(dy: torch.Tensor, dx: torch.Tensor, full: float) -> tuple[torch.Tenso
 
 
 def pixel_polar(h: int, w: int, full_field_px: float | None = None, *, device=None,
-                dtype=torch.float32) -> tuple[torch.Tensor, torch.Tensor]:
+                dtype=torch.float32, offset_px: tuple[float, float] = (0.0, 0.0)) -> tuple[torch.Tensor, torch.Tensor]:
     """Normalized field radius and azimuth (radians from +y towards +x) of pixel centres, [H, W] each."""
-    return _polar(torch.arange(h, device=device, dtype=dtype) - (h - 1) / 2,
-                  torch.arange(w, device=device, dtype=dtype) - (w - 1) / 2, _full_field(h, w, full_field_px))
+    return _polar(torch.arange(h, device=device, dtype=dtype) - (h - 1) / 2 + float(offset_px[0]),
+                  torch.arange(w, device=device, dtype=dtype) - (w - 1) / 2 + float(offset_px[1]),
+                  _full_field(h, w, full_field_px))
 
 
 def interpolate_fields(values: torch.Tensor, fields: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
@@ -87,7 +90,7 @@ def _triangle(p: int, dtype, device) -> torch.Tensor:
 
 
 def _prepare(image: torch.Tensor, psfs: torch.Tensor, fields, vignetting: torch.Tensor | None,
-             full_field_px: float | None) -> tuple[torch.Tensor, torch.Tensor, float]:
+             full_field_px: float | None, offset_px=(0.0, 0.0)) -> tuple[torch.Tensor, torch.Tensor, float]:
     """Checks shared by both renderers; returns (image times the relative illumination at each
     source pixel, fields as a tensor, full-field radius in pixels)."""
     if image.dim() != 4 or psfs.dim() != 4 or psfs.shape[1] != image.shape[1]:
@@ -99,22 +102,27 @@ def _prepare(image: torch.Tensor, psfs: torch.Tensor, fields, vignetting: torch.
     if fields.numel() != psfs.shape[0] or (fields.numel() > 1 and bool((fields.diff() <= 0).any())):
         raise ValueError(f"fields must be {psfs.shape[0]} strictly increasing radii, got {fields.tolist()}")
     b, c, h, w = image.shape
+    if offset_px != (0.0, 0.0) and full_field_px is None:
+        raise ValueError("a crop (offset_px) needs the frame's full_field_px")
     if vignetting is not None:
-        r, _ = pixel_polar(h, w, full_field_px, device=image.device, dtype=image.dtype)
+        r, _ = pixel_polar(h, w, full_field_px, device=image.device, dtype=image.dtype, offset_px=offset_px)
         image = image * interpolate_fields(vignetting.to(image), fields, r.reshape(-1)).T.reshape(1, c, h, w)
     return image, fields, _full_field(h, w, full_field_px)
 
 
 def render(image: torch.Tensor, psfs: torch.Tensor, fields, vignetting: torch.Tensor | None = None, *,
-           patch: int = 64, full_field_px: float | None = None) -> torch.Tensor:
+           patch: int = 64, full_field_px: float | None = None,
+           offset_px: tuple[float, float] = (0.0, 0.0)) -> torch.Tensor:
     """Blur ``image`` [B, C, H, W] with the field-dependent ``psfs`` [K, C, S, S] -> [B, C, H, W].
 
     vignetting: [K, C] relative illumination at the K fields (None: 1). patch: even, >= 2.
+    offset_px: the image centre's (row, column) offset from the optical axis (a crop).
     Light from outside the frame is not modelled (zero outside); light leaving the frame is lost.
     """
     if patch < 2 or patch % 2:
         raise ValueError(f"patch must be an even number >= 2, got {patch}")
-    image, fields, full = _prepare(image, psfs, fields, vignetting, full_field_px)
+    offset_px = (float(offset_px[0]), float(offset_px[1]))
+    image, fields, full = _prepare(image, psfs, fields, vignetting, full_field_px, offset_px)
     b, c, h, w = image.shape
     s, hop = psfs.shape[-1], patch // 2
     # Pad by one hop on each side (every frame pixel then lies under two windows per axis),
@@ -130,7 +138,7 @@ def render(image: torch.Tensor, psfs: torch.Tensor, fields, vignetting: torch.Te
     # PSF of every patch at its centre's field position (in frame coordinates).
     cy = torch.arange(ny, dtype=image.dtype, device=image.device) * hop - hop + (patch - 1) / 2 - (h - 1) / 2
     cx = torch.arange(nx, dtype=image.dtype, device=image.device) * hop - hop + (patch - 1) / 2 - (w - 1) / 2
-    r, az = _polar(cy, cx, full)
+    r, az = _polar(cy + offset_px[0], cx + offset_px[1], full)
     kern = psf_at(psfs, fields, r.reshape(-1), az.reshape(-1))
     n = patch + s - 1  # linear (not circular) convolution size
     spec = torch.fft.rfft2(blocks, s=(n, n)) * torch.fft.rfft2(kern, s=(n, n)).unsqueeze(0)
@@ -142,13 +150,14 @@ def render(image: torch.Tensor, psfs: torch.Tensor, fields, vignetting: torch.Te
 
 
 def render_exact(image: torch.Tensor, psfs: torch.Tensor, fields, vignetting: torch.Tensor | None = None, *,
-                 full_field_px: float | None = None) -> torch.Tensor:
+                 full_field_px: float | None = None, offset_px: tuple[float, float] = (0.0, 0.0)) -> torch.Tensor:
     """Brute force reference: every source pixel spreads with its own interpolated, rotated PSF.
     O(H W S^2) memory; for tests and small images only."""
-    image, fields, full = _prepare(image, psfs, fields, vignetting, full_field_px)
+    offset_px = (float(offset_px[0]), float(offset_px[1]))
+    image, fields, full = _prepare(image, psfs, fields, vignetting, full_field_px, offset_px)
     b, c, h, w = image.shape
     s = psfs.shape[-1]
-    r, az = pixel_polar(h, w, full, device=image.device, dtype=image.dtype)
+    r, az = pixel_polar(h, w, full, device=image.device, dtype=image.dtype, offset_px=offset_px)
     kern = psf_at(psfs, fields, r.reshape(-1), az.reshape(-1))  # [H*W, C, S, S]
     src = image.reshape(b, c, h * w).permute(0, 2, 1)  # [B, HW, C]
     contrib = (src[..., None, None] * kern.unsqueeze(0)).permute(0, 2, 3, 4, 1)  # [B, C, S, S, HW]
