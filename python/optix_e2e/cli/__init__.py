@@ -5,6 +5,7 @@ import click
 from .bench import bench
 from .dataset import dataset
 from .demo import demo
+from .design import design
 from .isp import isp
 from .lens import lens
 from .metrics import metrics
@@ -36,3 +37,4 @@ main.add_command(sensor)
 main.add_command(isp)
 main.add_command(surrogate)
 main.add_command(metrics)
+main.add_command(design)

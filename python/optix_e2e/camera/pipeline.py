@@ -1,0 +1,57 @@
+"""The composable camera of paper Eqs. 10-12: scene radiance -> optics -> sensor -> ISP.
+
+    O = f_ISP( f_SENSOR( f_OPTIC(I, P_OPTIC) ), P_ISP )                     (Eqs. 10-11)
+
+A scene crop is a window of the sensor frame: the caller says where its centre lies
+(``offset_px`` from the optical axis) so its pixels see the PSFs of their own field. The crop
+is rendered with a margin (the PSF half-width) and cut back before the sensor, so the light
+that reaches its border from just outside is modelled.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+
+import torch
+from torch import nn
+
+from .stages import SensorStage
+
+
+class Camera(nn.Module):
+    """optics (FixedOptics or DifferentiableOptics) -> SensorStage -> ISP stage.
+
+    forward(radiance [B, 3, H + 2m, W + 2m] linear, offset_px, generator) -> (sRGB [B, 3, H, W],
+    RAW [B, 1, H, W]) with m = :attr:`margin`; the ISP in the loop (the proxy for a hardware
+    ISP). ``final=True`` gives what the camera really outputs (the reference ISP for a
+    hardware ISP; not differentiable)."""
+
+    def __init__(self, optics: nn.Module, sensor: SensorStage, isp: nn.Module):
+        super().__init__()
+        self.optics, self.sensor, self.isp = optics, sensor, isp
+
+    @property
+    def margin(self) -> int:
+        psf, _ = self.optics.psfs()
+        return int(psf.shape[-1]) // 2
+
+    def blocks(self) -> "OrderedDict[str, list[nn.Parameter]]":
+        """The parameter blocks of the stages that have one, in pipeline order."""
+        out: OrderedDict[str, list[nn.Parameter]] = OrderedDict()
+        for stage in (self.optics, self.sensor, self.isp):
+            b = stage.block() if hasattr(stage, "block") else None
+            if b is None and hasattr(stage, "u"):  # DifferentiableOptics
+                b = ("optics", [stage.u])
+            if b is not None:
+                out[b[0]] = b[1]
+        return out
+
+    def forward(self, radiance: torch.Tensor, offset_px=(0.0, 0.0), generator: torch.Generator | None = None,
+                *, final: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        m = self.margin
+        image = self.optics(radiance, offset_px)
+        if m:
+            image = image[..., m:-m, m:-m]
+        raw = self.sensor(image, generator)
+        out = self.isp.final(raw) if final else self.isp(raw)
+        return out, raw

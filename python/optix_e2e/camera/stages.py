@@ -1,0 +1,144 @@
+"""The camera's stages as torch modules with their parameter blocks (paper Eqs. 10-12).
+
+Every stage says which of its parameters the end-to-end optimizer may move, as one named
+block (``block()`` -> (name, parameters) or None), so Algorithm 1 can take turns over them:
+
+* :class:`FixedOptics` - exact engine PSFs of one design (no block): the nominal lens in
+  evaluation, or any design checked against the real optics.
+* ``DifferentiableOptics`` (optics/) - the surrogate over the lens parameters (block "optics").
+* :class:`SensorStage` - the EMVA 1288 sensor at one exposure and gain (no block): Poisson
+  shot noise, dark current, read noise and quantisation on, seeded by the caller.
+* :class:`SoftwareISPStage` - the UNet f_NN (block "isp": its weights).
+* :class:`HardwareISPStage` - the hardware ISP: its learned proxy in the loop, with the
+  hyperparameters P_ISP as the block "isp" (kept in their ranges by a sigmoid); the true
+  reference ISP at the same hyperparameters for evaluation (``reference``).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from ..isp import params as hp
+from ..isp.proxy import ISPProxy
+from ..isp.reference import ReferenceISP
+from ..isp.software import SoftwareISP
+from ..optics.render import render
+from ..sensor import get_preset, simulate_raw
+from ..sensor.emva import calibrate_radiance_scale
+
+
+class FixedOptics(nn.Module):
+    """Fixed PSFs [K, C, S, S] (unit sum per channel) and vignetting [K, C] at ``fields`` [K]:
+    the same ``forward(image, offset_px)`` as DifferentiableOptics, nothing to learn."""
+
+    def __init__(self, psf: torch.Tensor, vignetting: torch.Tensor, fields: torch.Tensor, *, patch: int = 64,
+                 full_field_px: float | None = None):
+        super().__init__()
+        self.register_buffer("psf", torch.as_tensor(psf, dtype=torch.float32))
+        self.register_buffer("vignetting", torch.as_tensor(vignetting, dtype=torch.float32))
+        self.register_buffer("_fields", torch.as_tensor(fields, dtype=torch.float32))
+        self.patch, self.full_field_px = patch, full_field_px
+
+    @property
+    def fields(self) -> torch.Tensor:
+        return self._fields
+
+    def psfs(self) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.psf, self.vignetting
+
+    def block(self):
+        return None
+
+    def forward(self, image: torch.Tensor, offset_px=(0.0, 0.0)) -> torch.Tensor:
+        return render(image, self.psf, self.fields, self.vignetting, patch=self.patch,
+                      full_field_px=self.full_field_px, offset_px=offset_px)
+
+
+def calibrated_preset(preset="imx249", f_number: float | None = None, exposure_factor: float = 1.0,
+                      gain_factor: float = 1.0):
+    """The sensor preset for a lens of ``f_number``: its radiance scale set so that a white scene
+    (linear 1.0) through that lens on the axis gives 85 % of full well in green at the preset's
+    own exposure (the IMX249 at 5 ms, as the paper calibrates it); then exposure / gain scaled
+    (low light: exposure_factor 1/100, gain_factor 100: the same mean DN, 100x fewer photons)."""
+    p = get_preset(preset)
+    if f_number is not None:
+        p = p.with_(f_number=float(f_number))
+        p = p.with_(radiance_scale=calibrate_radiance_scale(p))
+    if exposure_factor != 1.0 or gain_factor != 1.0:
+        p = p.with_(name=f"{p.name}-x{exposure_factor:g}-g{gain_factor:g}", exposure_s=p.exposure_s * exposure_factor,
+                    gain_dn_per_e=p.gain_dn_per_e * gain_factor)
+    return p
+
+
+class SensorStage(nn.Module):
+    """Linear radiance [B, 3, H, W] -> RAW [B, 1, H, W] in DN (Eq. 5), noise on unless ``noise=False``."""
+
+    def __init__(self, preset, noise: bool = True):
+        super().__init__()
+        self.preset, self.noise = get_preset(preset), noise
+
+    def block(self):
+        return None
+
+    def forward(self, radiance: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        return simulate_raw(radiance, self.preset, noise=self.noise, quantize="uniform" if self.noise else "none",
+                            generator=generator)
+
+
+class SoftwareISPStage(nn.Module):
+    """RAW -> sRGB through the UNet f_NN (Eq. 11); its weights are the block "isp"."""
+
+    kind = "software"
+
+    def __init__(self, net: SoftwareISP):
+        super().__init__()
+        self.net = net
+
+    def block(self):
+        return "isp", list(self.net.parameters())
+
+    def forward(self, raw: torch.Tensor) -> torch.Tensor:
+        return self.net(raw)
+
+    def final(self, raw: torch.Tensor) -> torch.Tensor:
+        """What the camera outputs in evaluation: the same network."""
+        return self.forward(raw)
+
+
+class HardwareISPStage(nn.Module):
+    """The hardware ISP: its proxy in the loop (weights frozen) with the hyperparameters P_ISP
+    as the block "isp", each ``low + (high - low) sigmoid(logit)`` (inside its range by
+    construction); :meth:`final` runs the true reference ISP at the current hyperparameters."""
+
+    kind = "hardware"
+
+    def __init__(self, proxy: ISPProxy, init_unit: torch.Tensor, pattern: str = "RGGB", adc_bits: int = 12,
+                 eps: float = 1e-3):
+        super().__init__()
+        self.proxy = proxy.eval()
+        self.proxy.requires_grad_(False)
+        u = torch.as_tensor(init_unit, dtype=torch.float32).clamp(eps, 1 - eps)
+        self.logit = nn.Parameter(torch.log(u) - torch.log1p(-u))
+        self.reference = ReferenceISP(pattern, adc_bits)
+
+    def block(self):
+        return "isp", [self.logit]
+
+    def unit(self) -> torch.Tensor:
+        return torch.sigmoid(self.logit)
+
+    def hyperparameters(self) -> dict[str, float]:
+        return hp.from_unit(self.unit().detach().cpu().numpy())
+
+    def train(self, mode: bool = True):
+        super().train(mode)
+        self.proxy.eval()  # the proxy is a fixed function: never in training mode
+        return self
+
+    def forward(self, raw: torch.Tensor) -> torch.Tensor:
+        return self.proxy(raw, self.unit())
+
+    @torch.no_grad()
+    def final(self, raw: torch.Tensor) -> torch.Tensor:
+        return self.reference(raw.detach().cpu(), [self.hyperparameters()] * raw.shape[0]).to(raw)

@@ -1,0 +1,49 @@
+"""``optix design TASK --out DIR``: an end-to-end camera design (paper Sec. 6.1, Alg. 1)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ._common import dumps, friendly_errors
+
+
+@click.command("design")
+@click.argument("task", type=click.Choice(["iq-software", "iq-hardware", "low-light"]))
+@click.option("--out", type=click.Path(file_okay=False), required=True,
+              help="Run directory: config.json, checkpoints (resume), tb/ (TensorBoard), results.json, "
+                   "panels.png, psf_*.png, lens/, report/.")
+@click.option("--config", "config_file", type=click.Path(dir_okay=False),
+              help="TOML file overriding any setting of the budget by name (optix_e2e.optimize.config).")
+@click.option("--optimizer", type=click.Choice(["alg1", "vanilla"]), default=None,
+              help="Alg. 1 (alternating, proximal; default) or one Adam over everything (the paper's vanilla).")
+@click.option("--budget", type=click.Choice(["smoke", "quick", "full"]), default="quick", show_default=True,
+              help="smoke: seconds (tests); quick: the main job; full: the figures we report.")
+@click.option("--seed", type=click.IntRange(min=0), default=None, help="Initialization, batches and noise (default 0).")
+@click.option("--surrogate", default=None, help="Optics surrogate: bundled name, checkpoint or run dir "
+                                                "(default: paper-triplet-e2e).")
+@click.option("--images", type=click.Path(exists=True, file_okay=False), default=None,
+              help="A folder of your images, mixed into the training scenes.")
+@click.option("--threads", type=click.IntRange(min=0), default=None, help="torch CPU threads (0: default).")
+@click.option("--quiet", is_flag=True, help="No progress bars.")
+@friendly_errors
+def design(task, out, config_file, optimizer, budget, seed, surrogate, images, threads, quiet):
+    """Optimize lens and processing together for TASK, against the nominal lens with its
+    processing fine-tuned for the same budget, and evaluate both under the exact engine's PSFs
+    on held-out images. Running the same command again resumes an interrupted run."""
+    from ..optimize.config import make_config
+    from ..optimize.run import run_design
+
+    cfg = make_config(budget, config_file, task=task, optimizer=optimizer, seed=seed, surrogate=surrogate,
+                      images=images, threads=threads)
+    res = run_design(cfg, Path(out), progress=not quiet, log=click.echo)
+    n, e, p = res["nominal"], res["end_to_end"], res["paired"]
+    click.echo(f"held-out ({res['held_out']['n_images']} images x {len(res['held_out']['positions'])} positions), "
+               f"exact optics:")
+    for m, label in (("psnr_db", "PSNR dB"), ("ssim", "SSIM"), ("lpips", "LPIPS"), ("haarpsi", "HaarPSI")):
+        lo, hi = p[m]["ci95"]
+        click.echo(f"  {label:8s} nominal {n[m]:.4f}   end-to-end {e[m]:.4f}   diff {p[m]['mean']:+.4f} "
+                   f"[{lo:+.4f}, {hi:+.4f}]")
+    click.echo(f"results: {Path(out) / 'results.json'}  (lens: {Path(out) / res['lens_zmx']}, wall {res['wall_s']:.0f} s)")
+    click.echo(dumps({"results": str(Path(out) / "results.json"), "wall_s": res["wall_s"]}))

@@ -1,0 +1,140 @@
+"""Settings of an end-to-end design run (`optix design`): budgets and the config file.
+
+A budget fixes the schedule and the evaluation size; a TOML file (``--config``) may override
+any field by name. The run directory keeps the settings it was made with (config.json) and
+refuses to continue under others.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..tasks import get_task
+
+try:
+    import tomllib
+except ImportError:  # Python 3.10
+    import tomli as tomllib
+
+
+@dataclass(frozen=True)
+class DesignConfig:
+    task: str = "iq-software"
+    optimizer: str = "alg1"          # alg1 | vanilla
+    budget: str = "quick"
+    seed: int = 0
+    surrogate: str = "paper-triplet-e2e"  # bundled name, checkpoint or run directory
+    optics_init: str = "nominal"     # nominal | uniform (random in the space, from the seed)
+    images: str = ""                 # a folder of the user's images, mixed into training (half the crops)
+    software_isp: str = ""           # the pre-trained software ISP to start from ("": the bundled one)
+    # training
+    crop: int = 128                  # sensor pixels per side of a training crop
+    batch: int = 4
+    n_cycles: int = 4                # Alg. 1's n_c
+    steps_optics: int = 10           # n_i of the optics block
+    steps_isp: int = 10              # n_i of the ISP block
+    n_finetune: int = 20             # n_f
+    lr_optics: float = 1e-2          # Adam, on the sigmoid-reparameterized lens parameters (paper: 1e-2)
+    lr_isp_net: float = 1e-4         # the software ISP's weights (paper: 1e-4)
+    lr_isp_params: float = 1e-2      # the hardware ISP's hyperparameters (their logits)
+    beta_optics: float = 0.1         # Eq. 15's beta per block
+    beta_isp: float = 0.0
+    lr_vanilla: float = 1e-3         # the vanilla baseline's one learning rate
+    patch: int = 64                  # overlap-add patch of the renderer
+    checkpoint_every: int = 20
+    # evaluation
+    eval_size: int = 192
+    eval_procedural: int = 13        # + the bundled photos (9) = 22 held-out images, each at centre and corner
+    eval_level: float = 0.7
+    bootstrap: int = 2000
+    threads: int = 0                 # torch CPU threads (0: torch's default)
+
+    @property
+    def total_steps(self) -> int:
+        return self.n_cycles * (self.steps_optics + self.steps_isp) + self.n_finetune
+
+    def check(self) -> "DesignConfig":
+        get_task(self.task)
+        if self.optimizer not in ("alg1", "vanilla"):
+            raise ValueError(f"optimizer must be alg1 or vanilla, got {self.optimizer!r}")
+        if self.optics_init not in ("nominal", "uniform"):
+            raise ValueError(f"optics_init must be nominal or uniform, got {self.optics_init!r}")
+        for k in ("crop", "batch", "steps_optics", "steps_isp", "eval_size", "patch", "checkpoint_every"):
+            if getattr(self, k) < 1:
+                raise ValueError(f"{k} must be >= 1, got {getattr(self, k)}")
+        for k in ("crop", "eval_size", "patch"):
+            if getattr(self, k) % 16 if k != "patch" else getattr(self, k) % 2:
+                raise ValueError(f"{k} must be a multiple of {16 if k != 'patch' else 2}, got {getattr(self, k)}")
+        for k in ("lr_optics", "lr_isp_net", "lr_isp_params", "lr_vanilla", "eval_level"):
+            if not getattr(self, k) > 0:
+                raise ValueError(f"{k} must be > 0, got {getattr(self, k)}")
+        if self.n_cycles < 0 or self.n_finetune < 0 or self.eval_procedural < 0 or self.bootstrap < 100:
+            raise ValueError("n_cycles, n_finetune, eval_procedural must be >= 0 and bootstrap >= 100")
+        if self.total_steps < 1:
+            raise ValueError("the schedule has no step (n_cycles and n_finetune both 0)")
+        return self
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+# smoke: seconds, for tests; quick: the main job (./run.sh); full: the figures we report.
+BUDGETS: dict[str, dict] = {
+    "smoke": dict(crop=32, batch=1, n_cycles=1, steps_optics=2, steps_isp=2, n_finetune=2, eval_size=32,
+                  eval_procedural=1, checkpoint_every=2, bootstrap=200),
+    "quick": dict(),
+    "full": dict(crop=160, batch=6, n_cycles=12, steps_optics=25, steps_isp=25, n_finetune=300, eval_size=256),
+}
+
+
+def make_config(budget: str = "quick", file: "str | Path | None" = None, **overrides) -> DesignConfig:
+    """The budget's settings, then the TOML file's, then ``overrides`` (None values ignored)."""
+    if budget not in BUDGETS:
+        raise ValueError(f"unknown budget {budget!r}: known budgets are {', '.join(BUDGETS)}")
+    fields = {f.name for f in dataclasses.fields(DesignConfig)}
+    values = {"budget": budget, **BUDGETS[budget]}
+    if file is not None:
+        path = Path(file)
+        try:
+            data = tomllib.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise ValueError(f"config file not found: {path}") from None
+        except tomllib.TOMLDecodeError as err:
+            raise ValueError(f"{path}: not valid TOML: {err}") from None
+        unknown = sorted(set(data) - fields)
+        if unknown:
+            raise ValueError(f"{path}: unknown setting(s) {', '.join(unknown)} (known: {', '.join(sorted(fields))})")
+        for k, v in data.items():
+            want = type(getattr(DesignConfig, k))
+            if want is float and isinstance(v, int) and not isinstance(v, bool):
+                v = float(v)
+            if not isinstance(v, want) or isinstance(v, bool) != (want is bool):
+                raise ValueError(f"{path}: {k} must be a {want.__name__}, got {v!r}")
+            values[k] = v
+    values.update({k: v for k, v in overrides.items() if v is not None})
+    return DesignConfig(**values).check()
+
+
+def check_run_dir(out: Path, cfg: DesignConfig) -> None:
+    """Write config.json in a new run directory; in an existing one, refuse other settings."""
+    path = out / "config.json"
+    if path.is_file():
+        try:
+            old = json.loads(path.read_text())
+        except json.JSONDecodeError:
+            raise ValueError(f"{path} is damaged; remove the directory or choose another --out") from None
+        new = cfg.to_json()
+        diff = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+        if diff:
+            detail = ", ".join(f"{k}: {old.get(k)!r} -> {new.get(k)!r}" for k in diff)
+            raise ValueError(f"{out} was made with other settings ({detail}); use another --out or the same settings")
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    if any(out.iterdir()):
+        raise ValueError(f"{out} is not empty and holds no design run (config.json); choose another --out")
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(cfg.to_json(), indent=2))
+    tmp.replace(path)

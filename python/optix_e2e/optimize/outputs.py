@@ -1,0 +1,110 @@
+"""Files a design run leaves for a person to open: the exported lens (.zmx and JSON), checks
+of the final design, PSF grids from the engine, image panels and the lens reports."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..dataset.manifest import refocused_designs, space_and_base
+from ..design.sampling import Limits, apertures, check_design
+from ..lens import Lens
+from ..lens.zemax.writer import write_zmx
+
+
+def design_lens(manifest: dict, values, image_distance: float) -> dict:
+    """The lens dict of a design as the engine traced it: the values written into the base
+    lens, its image plane at the refocused distance."""
+    return refocused_designs(manifest, np.asarray(values, np.float64)[None], [image_distance])[0]
+
+
+def check_final_design(manifest: dict, values, image_distance: float) -> dict:
+    """Inside the space, manufacturable under the dataset's limits, refocused (best focus)."""
+    space, _ = space_and_base(manifest)
+    d = design_lens(manifest, values, image_distance)
+    outside = space.check_bounds(d)
+    lens = Lens(d, source="<end-to-end design>")
+    limits = Limits.from_dict(manifest.get("sampling_summary", {}).get("limits"))
+    reasons = check_design(d, apertures(lens), limits)
+    return {"inside_space": not outside, "outside": outside, "manufacturable": not reasons,
+            "manufacturability_problems": reasons, "limits": {k: getattr(limits, k) for k in limits.__dataclass_fields__},
+            "refocused": manifest["settings"]["focus"] == "best", "image_distance_mm": float(image_distance),
+            "focus": manifest["settings"]["focus"]}
+
+
+def catalog_material(material):
+    """A resolved material dict ("N-SF11 (schott)" with its formula) back to the catalog name
+    it came from, when that name resolves to the very same formula (so a .zmx can name it);
+    anything else is returned unchanged."""
+    import re
+
+    from ..lens import glass
+
+    if not isinstance(material, dict) or "formula" not in material:
+        return material
+    m = re.fullmatch(r"\s*(.+?)\s+\((\w[\w-]*)\)\s*", str(material.get("name", "")))
+    if not m:
+        return material
+    name, cat = m.groups()
+    for spec in (name, {"glass": name, "catalog": cat}):
+        try:
+            g = glass.resolve(spec)
+        except glass.GlassError:
+            continue
+        if (g.formula == material["formula"] and list(g.coefficients) == list(material["coefficients"])
+                and g.catalog == cat):
+            return spec
+    return material
+
+
+def export_lens(manifest: dict, values, image_distance: float, stem: Path, name: str, description: str) -> dict:
+    """stem.json and stem.zmx; returns their paths."""
+    d = design_lens(manifest, values, image_distance)
+    d["name"], d["description"] = name, description
+    for s in d["surfaces"]:  # the engine traced them with automatic apertures: write the footprint's
+        s.pop("semi_diameter", None)
+        s["material"] = catalog_material(s.get("material", "air"))
+    lens = Lens(d, source=name)
+    sd = apertures(lens)
+    for s, h in zip(d["surfaces"], sd):
+        s["semi_diameter"] = round(float(h), 4)
+    lens = Lens(d, source=name)
+    json_path = lens.save(stem.with_suffix(".json"))
+    zmx_path = write_zmx(lens.raw, stem.with_suffix(".zmx"), source=name)
+    return {"json": str(json_path), "zmx": str(zmx_path)}
+
+
+def psf_rel_l1_per_field(a: torch.Tensor, b: torch.Tensor) -> list[float]:
+    """Median over channels of sum|a - b| / sum|b| per field, PSFs [K, C, S, S]."""
+    err = (a - b).abs().sum((-2, -1)) / b.abs().sum((-2, -1)).clamp_min(1e-12)
+    return [float(x) for x in err.median(dim=1).values]
+
+
+def save_psf_grids(path: Path, psf: torch.Tensor, fields_deg, pixel_um: float, title: str) -> None:
+    from ..plotting import save_psf_grid
+
+    save_psf_grid(path, psf.detach().cpu().numpy(), fields_deg, pixel_um, ["R", "G", "B"], title=title, log=True)
+
+
+def save_panels(path: Path, rows: list[tuple[str, list[torch.Tensor]]], columns: list[str]) -> None:
+    """A grid of images [3, H, W] in [0, 1]: one row per (label, images), one column per method."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    n_r, n_c = len(rows), len(columns)
+    fig = Figure(figsize=(3.0 * n_c, 3.1 * n_r), dpi=110)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(n_r, n_c, squeeze=False)
+    for i, (label, imgs) in enumerate(rows):
+        for j, img in enumerate(imgs):
+            ax = axes[i][j]
+            ax.imshow(img.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy(), interpolation="nearest")
+            ax.set_xticks([]), ax.set_yticks([])
+            if i == 0:
+                ax.set_title(columns[j], fontsize=10)
+            if j == 0:
+                ax.set_ylabel(label, fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)

@@ -1,0 +1,346 @@
+"""An end-to-end design run (`optix design TASK --out DIR`): the paper's Sec. 6.1 experiment.
+
+Two trainings with the same seed, batches, sensor-noise draws and number of steps:
+
+* ``end_to_end``: lens (surrogate optics) and processing together, by Alg. 1 or vanilla Adam;
+* ``nominal``: the lens fixed at the nominal design, the processing fine-tuned with the same
+  task loss (the paper's fair comparison), the same number of steps;
+
+then both cameras are evaluated on the held-out set under the exact engine's PSFs of their
+lens (and, for reference, under the surrogate's), see optimize/evaluate.py.
+
+Resuming: each training checkpoints its parameters, optimizer state and step (atomically)
+every ``checkpoint_every`` steps; batches and noise are functions of (seed, step), so a run
+killed at any point and started again with the same command continues on the same path.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from ..camera import Camera, FixedOptics, HardwareISPStage, SensorStage, SoftwareISPStage, calibrated_preset
+from ..isp import params as hp
+from ..isp.proxy import ISPProxy, save_atomic
+from ..isp.software import SoftwareISP
+from ..lens import Lens
+from ..optics import DifferentiableOptics
+from ..surrogate.checkpoint import OpticsSurrogate
+from ..tasks import SensorFrame, TaskLoss, get_task, training_batch
+from ..torchfile import load_plain
+from .alg1 import Block, ProximalCompositional, Vanilla
+from .config import DesignConfig
+
+SOFTWARE_ISP = Path(__file__).resolve().parent.parent / "isp" / "bundled" / "software_isp.pt"
+
+
+def load_surrogate(spec: str) -> OpticsSurrogate:
+    return OpticsSurrogate.load(spec)
+
+
+def base_lens_f_number(sur: OpticsSurrogate) -> float:
+    from ..dataset.manifest import space_and_base
+
+    _, base = space_and_base(sur.manifest)
+    return float(base.paraxial()["f_number"])
+
+
+def initial_optics_values(cfg: DesignConfig, optics: DifferentiableOptics) -> torch.Tensor:
+    """The nominal design, or a uniform draw inside the space's ranges (seeded)."""
+    if cfg.optics_init == "nominal":
+        return optics.base_values()
+    g = torch.Generator().manual_seed(int(cfg.seed) * 7919 + 11)
+    u = torch.rand(len(optics.lo), generator=g, dtype=torch.float64).float()
+    return optics.lo + (optics.hi - optics.lo) * (0.02 + 0.96 * u)
+
+
+def initial_isp_unit(cfg: DesignConfig) -> torch.Tensor:
+    """Alg. 1's initialization of P_ISP: uniform random over the ranges (seeded)."""
+    rng = np.random.default_rng([int(cfg.seed), 17])
+    return torch.as_tensor(hp.to_unit(hp.sample(rng)), dtype=torch.float32)
+
+
+def build_camera(cfg: DesignConfig, sur: OpticsSurrogate, *, fixed_optics: FixedOptics | None = None,
+                 frame: SensorFrame = SensorFrame()) -> Camera:
+    """The camera at its initialization: the same for Alg. 1, vanilla and the nominal baseline
+    (apart from the optics, fixed at the nominal for the latter)."""
+    task = get_task(cfg.task)
+    if fixed_optics is None:
+        optics = DifferentiableOptics(sur, patch=cfg.patch, full_field_px=frame.full_field_px)
+        optics.set_values(initial_optics_values(cfg, optics))
+    else:
+        optics = fixed_optics
+    preset = calibrated_preset("imx249", base_lens_f_number(sur), task.exposure_factor, task.gain_factor)
+    sensor = SensorStage(preset)
+    if task.isp == "software":
+        path = Path(cfg.software_isp) if cfg.software_isp else SOFTWARE_ISP
+        if not path.is_file():
+            raise FileNotFoundError(f"the pre-trained software ISP is missing: {path}")
+        isp = SoftwareISPStage(SoftwareISP.load(path).train())
+    else:
+        isp = HardwareISPStage(ISPProxy.load(), initial_isp_unit(cfg), preset.cfa, preset.adc_bits)
+    return Camera(optics, sensor, isp)
+
+
+def make_optimizer(cfg: DesignConfig, camera: Camera, kind: str):
+    """Alg. 1 or vanilla over the camera's blocks; the nominal baseline ("nominal") takes the
+    same number of steps on its processing block alone, with that block's optimizer."""
+    task = get_task(cfg.task)
+    lr_isp = cfg.lr_isp_net if task.isp == "software" else cfg.lr_isp_params
+    blocks = []
+    for name, params in camera.blocks().items():
+        if name == "optics":
+            blocks.append(Block("optics", params, cfg.lr_optics, cfg.steps_optics, cfg.beta_optics))
+        else:
+            blocks.append(Block(name, params, lr_isp, cfg.steps_isp, cfg.beta_isp))
+    if kind == "nominal":
+        (b,) = blocks
+        return ProximalCompositional([Block(b.name, b.params, b.lr, 1, 0.0)], n_cycles=0, n_finetune=cfg.total_steps)
+    if kind == "vanilla":
+        return Vanilla(blocks, cfg.lr_vanilla, cfg.total_steps)
+    return ProximalCompositional(blocks, cfg.n_cycles, cfg.n_finetune)
+
+
+def _save_state(path: Path, camera: Camera, opt, wall_s: float, history: list) -> None:
+    save_atomic({"format": "optix-design-state/1", "camera": camera.state_dict(), "optimizer": opt.state_dict(),
+                 "wall_s": wall_s, "history": history}, path)
+
+
+def _load_state(path: Path, camera: Camera, opt) -> tuple[float, list]:
+    st = load_plain(path, "design checkpoint")
+    if not isinstance(st, dict) or st.get("format") != "optix-design-state/1":
+        raise ValueError(f"{path}: not a design checkpoint")
+    camera.load_state_dict(st["camera"])
+    opt.load_state_dict(st["optimizer"])
+    return float(st["wall_s"]), list(st["history"])
+
+
+def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progress: bool = True,
+          writer=None, frame: SensorFrame = SensorFrame(), folder=None, on_step=None) -> dict:
+    """Run ``opt`` to its last step on the task loss, checkpointing into out/{name}_state.pt."""
+    task = get_task(cfg.task)
+    state_path = out / f"{name}_state.pt"
+    wall_s, history = 0.0, []
+    if state_path.is_file():
+        wall_s, history = _load_state(state_path, camera, opt)
+    ran = opt.t < opt.total_steps
+    loss_mod = TaskLoss(task)
+    camera.train()
+    m = camera.margin
+    t_start = time.perf_counter()
+    bar = tqdm(total=opt.total_steps, initial=opt.t, desc=f"{name} ({opt.kind})", unit="step", disable=not progress,
+               leave=False)
+    while opt.t < opt.total_steps:
+        t = opt.t
+        batch = training_batch(cfg.seed, t, cfg.batch, cfg.crop, m, (task.level_min, task.level_max), frame, folder)
+        gen = torch.Generator().manual_seed(int(cfg.seed) * 1_000_003 + t)
+
+        def loss_fn():
+            out_img, _ = camera(batch.scene, batch.offset_px, gen)
+            return loss_mod(out_img, batch.target)
+
+        t0 = time.perf_counter()
+        info = opt.step(loss_fn)
+        info["seconds"] = time.perf_counter() - t0
+        history.append({k: info[k] for k in ("step", "phase", "block", "loss", "prox", "l1", "lpips", "seconds")})
+        if writer is not None:
+            writer.add_scalar(f"{name}/loss", info["loss"], info["step"])
+            writer.add_scalar(f"{name}/l1", info["l1"], info["step"])
+            writer.add_scalar(f"{name}/lpips", info["lpips"], info["step"])
+            if info["prox"]:
+                writer.add_scalar(f"{name}/prox", info["prox"], info["step"])
+        if on_step is not None:
+            on_step(info, camera)
+        bar.update(1)
+        bar.set_postfix(loss=f"{info['loss']:.4f}", block=info["block"])
+        if opt.t % cfg.checkpoint_every == 0 or opt.t == opt.total_steps:
+            _save_state(state_path, camera, opt, wall_s + time.perf_counter() - t_start, history)
+    bar.close()
+    wall = wall_s + (time.perf_counter() - t_start if ran else 0.0)
+    camera.eval()
+    return {"steps": opt.t, "wall_s": wall, "final_loss": history[-1]["loss"] if history else math.nan,
+            "history": history}
+
+
+def write_json_atomic(path: Path, obj) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=2))
+    os.replace(tmp, path)
+
+
+def _exact(sur: OpticsSurrogate, values: torch.Tensor) -> dict:
+    """The engine's PSFs, vignetting and refocused image distance of designs [N, P], computed
+    as the surrogate's training data was."""
+    from ..surrogate.data import bin_psf
+    from ..surrogate.exact import exact_arrays
+
+    arrays, meta = exact_arrays(sur.manifest, values.detach().double().numpy())
+    if meta["n_failed"]:
+        raise ValueError(f"the engine rejected a design: {meta['failures'][0]['reason']}")
+    psf = torch.stack([bin_psf(torch.as_tensor(p), sur.bin) for p in arrays[sur.psf_kind]]).float()
+    return {"psf": psf, "vignetting": torch.as_tensor(arrays["relative_illumination"], dtype=torch.float32),
+            "image_distance": [float(z) for z in arrays["image_distance"]]}
+
+
+def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, log=print) -> dict:
+    """The whole run; returns the results (also written to out/results.json)."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    from ..scenes import ImageFolder
+    from ..tasks import heldout_set
+    from . import evaluate as ev
+    from . import outputs
+    from .config import check_run_dir
+
+    out = Path(out)
+    check_run_dir(out, cfg)
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    task = get_task(cfg.task)
+    frame = SensorFrame()
+    sur = load_surrogate(cfg.surrogate)
+    folder = ImageFolder(cfg.images) if cfg.images else None
+    writer = SummaryWriter(str(out / "tb"))
+    try:
+        log(f"[1/4] end-to-end training: {cfg.task}, {cfg.optimizer}, {cfg.total_steps} steps")
+        camera = build_camera(cfg, sur, frame=frame)
+        e2e = train(cfg, camera, make_optimizer(cfg, camera, cfg.optimizer), out, "end_to_end", progress=progress,
+                    writer=writer, frame=frame, folder=folder)
+        nominal_values = camera.optics.base_values()
+        with torch.no_grad():
+            psf_ns, vig_ns = sur.psfs(nominal_values, check=False)
+        fixed = FixedOptics(psf_ns, vig_ns, sur.fields, patch=cfg.patch, full_field_px=frame.full_field_px)
+        log(f"[2/4] nominal lens + processing fine-tuned, the same {cfg.total_steps} steps")
+        nominal = build_camera(cfg, sur, fixed_optics=fixed, frame=frame)
+        nom = train(cfg, nominal, make_optimizer(cfg, nominal, "nominal"), out, "nominal", progress=progress,
+                    writer=writer, frame=frame, folder=folder)
+    finally:
+        writer.close()
+
+    t_eval = time.perf_counter()
+    log("[3/4] exact PSFs of both lenses (engine) and held-out evaluation")
+    final_values = camera.optics.values().detach()
+    exact = _exact(sur, torch.stack([nominal_values, final_values]))
+    with torch.no_grad():
+        psf_es, vig_es = sur.psfs(final_values, check=False)
+    optics = {"nominal": {"exact": (exact["psf"][0], exact["vignetting"][0]), "surrogate": (psf_ns, vig_ns)},
+              "end_to_end": {"exact": (exact["psf"][1], exact["vignetting"][1]), "surrogate": (psf_es, vig_es)}}
+    cams = {"nominal": nominal, "end_to_end": camera}
+    samples = heldout_set(cfg.eval_size, exact["psf"].shape[-1] // 2, cfg.eval_procedural, cfg.eval_level, frame)
+    rows: dict[str, dict[str, list]] = {}
+    for who in ("nominal", "end_to_end"):
+        rows[who] = {}
+        for kind in ("exact", "surrogate"):
+            path = out / f"eval_{who}_{kind}.json"
+            if path.is_file():
+                rows[who][kind] = json.loads(path.read_text())
+                continue
+            psf, vig = optics[who][kind]
+            fo = FixedOptics(psf, vig, sur.fields, patch=cfg.patch, full_field_px=frame.full_field_px)
+            rows[who][kind] = ev.evaluate(Camera(fo, cams[who].sensor, cams[who].isp), tqdm(
+                samples, desc=f"eval {who} ({kind} optics)", unit="img", disable=not progress, leave=False))
+            write_json_atomic(path, rows[who][kind])
+
+    log("[4/4] lens export, checks, PSF grids, panels, reports")
+    fields_deg = [float(f) for f in sur.manifest["fields_deg"]]
+    (out / "lens").mkdir(exist_ok=True)
+    names = sur.param_names
+    desc = (f"end-to-end design for {cfg.task} ({cfg.optimizer}, budget {cfg.budget}, seed {cfg.seed}) in the space of "
+            f"{sur.manifest['base_lens'].get('name', 'the base lens')}; made by optix design")
+    exported = outputs.export_lens(sur.manifest, final_values.numpy(), exact["image_distance"][1],
+                                   out / "lens" / "end_to_end", f"{cfg.task}-end-to-end", desc)
+    outputs.export_lens(sur.manifest, nominal_values.numpy(), exact["image_distance"][0], out / "lens" / "nominal",
+                        "nominal", "the nominal design, refocused as the dataset does")
+    checks = outputs.check_final_design(sur.manifest, final_values.numpy(), exact["image_distance"][1])
+    pitch = float(sur.manifest["settings"]["sensor_pixel_um"]) * sur.bin
+    outputs.save_psf_grids(out / "psf_nominal.png", exact["psf"][0], fields_deg, pitch, "nominal (engine)")
+    outputs.save_psf_grids(out / "psf_end_to_end.png", exact["psf"][1], fields_deg, pitch, "end-to-end (engine)")
+    _panels(out / "panels.png", samples, cams, optics)
+    from ..design.report import write_report
+    for who in ("nominal", "end_to_end"):
+        write_report(Lens.load(out / "lens" / f"{who}.json"), out / "report" / who)
+
+    summary = {who: {**ev.summarize(rows[who]["exact"]), "surrogate": ev.summarize(rows[who]["surrogate"])}
+               for who in ("nominal", "end_to_end")}
+    results = {
+        "task": cfg.task, "description": task.description, "optimizer": cfg.optimizer, "budget": cfg.budget,
+        "seed": cfg.seed, "optics_eval": "exact",
+        "nominal": summary["nominal"], "end_to_end": summary["end_to_end"],
+        "paired": ev.paired(rows["nominal"]["exact"], rows["end_to_end"]["exact"], cfg.bootstrap, cfg.seed),
+        "paired_surrogate_optics": ev.paired(rows["nominal"]["surrogate"], rows["end_to_end"]["surrogate"],
+                                             cfg.bootstrap, cfg.seed),
+        "lens_zmx": str(Path(exported["zmx"]).relative_to(out)), "lens_json": str(Path(exported["json"]).relative_to(out)),
+        "design": {"parameters": names, "nominal": [float(v) for v in nominal_values],
+                   "end_to_end": [float(v) for v in final_values], "checks": checks},
+        "surrogate_psf_rel_l1_per_field": {
+            "fields_deg": fields_deg,
+            "nominal": outputs.psf_rel_l1_per_field(psf_ns, exact["psf"][0]),
+            "end_to_end": outputs.psf_rel_l1_per_field(psf_es, exact["psf"][1])},
+        "held_out": {"n_images": len({s.name for s in samples}), "n_samples": len(samples),
+                     "positions": sorted({s.position for s in samples}), "size_px": cfg.eval_size},
+        "training": {k: {kk: v[kk] for kk in ("steps", "wall_s", "final_loss")} for k, v in
+                     (("end_to_end", e2e), ("nominal", nom))},
+        "surrogate": cfg.surrogate,
+    }
+    if task.isp == "hardware":
+        results["isp_hyperparameters"] = {"nominal": nominal.isp.hyperparameters(),
+                                          "end_to_end": camera.isp.hyperparameters()}
+    _write_history(out / "history.csv", {"end_to_end": e2e["history"], "nominal": nom["history"]})
+    _write_rows(out / "metrics.csv", rows)
+    results["wall_s"] = e2e["wall_s"] + nom["wall_s"] + (time.perf_counter() - t_eval)
+    write_json_atomic(out / "results.json", results)
+    return results
+
+
+@torch.no_grad()
+def _panels(path: Path, samples, cams: dict, optics: dict, n_images: int = 3) -> None:
+    from .outputs import save_panels
+
+    names = []
+    for s in samples:
+        if s.name not in names:
+            names.append(s.name)
+    rows = []
+    for s in samples:
+        if s.name not in names[:n_images]:
+            continue
+        imgs = [s.target]
+        for who in ("nominal", "end_to_end"):
+            psf, vig = optics[who]["exact"]
+            cam = cams[who]
+            fo = FixedOptics(psf, vig, cam.optics.fields, patch=cam.optics.patch, full_field_px=cam.optics.full_field_px)
+            out, _ = Camera(fo, cam.sensor, cam.isp)(s.scene[None], s.offset_px,
+                                                     torch.Generator().manual_seed(int(s.noise_seed)), final=True)
+            imgs.append(out[0])
+        rows.append((f"{s.name} ({s.position})", imgs))
+    save_panels(path, rows, ["target", "nominal + fine-tuned processing", "end-to-end"])
+
+
+def _write_history(path: Path, runs: dict) -> None:
+    import csv
+
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["run", "step", "phase", "block", "loss", "prox", "l1", "lpips", "seconds"])
+        for run, hist in runs.items():
+            for h in hist:
+                w.writerow([run] + [h[k] for k in ("step", "phase", "block", "loss", "prox", "l1", "lpips", "seconds")])
+
+
+def _write_rows(path: Path, rows: dict) -> None:
+    import csv
+
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["camera", "optics", "image", "position", "psnr_db", "ssim", "lpips", "haarpsi"])
+        for who, kinds in rows.items():
+            for kind, rs in kinds.items():
+                for r in rs:
+                    w.writerow([who, kind, r["image"], r["position"], r["psnr_db"], r["ssim"], r["lpips"], r["haarpsi"]])

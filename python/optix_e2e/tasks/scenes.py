@@ -1,0 +1,118 @@
+"""Scenes for the end-to-end tasks: training batches and the fixed held-out set.
+
+A sample is an sRGB scene crop, where it lies on the sensor, and how it is lit:
+
+* Training (``training_batch``): procedural scenes (dead leaves, slanted edges, colour charts;
+  scenes/procedural.py) or random crops of a user's image folder, at one random position on
+  the sensor per batch (top-left on even rows and columns: the CFA phase of the full frame),
+  brightness log-uniform in the task's range and a random illuminant tint. Every batch is a
+  function of (seed, step) alone, so a resumed run sees the batches it would have seen.
+* Evaluation (``heldout_set``): every bundled photo plus procedural scenes from seeds training
+  never draws, each at the centre and at the corner of the sensor, fixed brightness and
+  neutral light; the sensor-noise seed is fixed per sample, so every method and optics sees
+  the same noise (paired comparisons).
+
+Crops carry a margin of ``margin`` pixels on each side (the PSF half-width): light from just
+outside the crop is rendered, then the margin is cut before the sensor.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .. import color, scenes
+
+HELDOUT_SEED0 = 2_000_000_000  # procedural held-out scenes use seeds from here; training streams are [seed, step]
+
+
+@dataclass(frozen=True)
+class SensorFrame:
+    """The sensor's pixel grid: the optical axis at its centre, the full field at its corners."""
+    height: int = 1200
+    width: int = 1920
+
+    @property
+    def full_field_px(self) -> float:
+        return 0.5 * math.hypot(self.height - 1, self.width - 1)
+
+    def offset(self, y0: int, x0: int, size: int) -> tuple[float, float]:
+        """Centre of the size x size crop whose top-left pixel is (y0, x0), from the axis."""
+        return (y0 + (size - 1) / 2 - (self.height - 1) / 2, x0 + (size - 1) / 2 - (self.width - 1) / 2)
+
+    def corner(self, size: int) -> tuple[int, int]:
+        return self.height - size, self.width - size
+
+
+@dataclass
+class Batch:
+    scene: torch.Tensor     # [B, 3, S + 2m, S + 2m] linear radiance (1 = calibrated white)
+    target: torch.Tensor    # [B, 3, S, S] ideal sRGB rendering of the inner crop
+    offset_px: tuple[float, float]
+    names: list[str]
+
+
+def _light(srgb: torch.Tensor, level: np.ndarray, tint: np.ndarray, margin: int) -> tuple[torch.Tensor, torch.Tensor]:
+    lin = color.srgb_to_linear(srgb) * torch.as_tensor(level, dtype=srgb.dtype).reshape(-1, 1, 1, 1)
+    ideal = color.linear_to_srgb(lin.clamp(0, 1))
+    if margin:
+        ideal = ideal[..., margin:-margin, margin:-margin]
+    return lin * torch.as_tensor(tint, dtype=srgb.dtype).reshape(-1, 3, 1, 1), ideal
+
+
+def training_batch(seed: int, step: int, batch: int, size: int, margin: int, level_range: tuple[float, float],
+                   frame: SensorFrame = SensorFrame(), folder=None, tint: float = 0.15) -> Batch:
+    """Batch ``step`` of the training stream ``seed`` (see the module doc)."""
+    rng = np.random.default_rng([int(seed), int(step)])
+    full = size + 2 * margin
+    imgs, names = [], []
+    for _ in range(batch):
+        if folder is not None and rng.random() < 0.5:
+            i = int(rng.integers(len(folder)))
+            img = folder[i]
+            if min(img.shape[-2:]) < full:
+                img = scenes.fit_size(img, full)
+            imgs.append(scenes.random_crops(img, full, 1, rng)[0])
+            names.append(f"folder:{i}")
+        else:
+            imgs.append(scenes.mixed_scene(full, rng))
+            names.append("procedural")
+    y0 = 2 * int(rng.integers(0, (frame.height - size) // 2 + 1))
+    x0 = 2 * int(rng.integers(0, (frame.width - size) // 2 + 1))
+    lo, hi = level_range
+    level = np.exp(rng.uniform(math.log(lo), math.log(hi), batch))
+    tints = rng.uniform(1 - tint, 1 + tint, (batch, 3))
+    lin, ideal = _light(torch.stack(imgs), level, tints, margin)
+    return Batch(lin, ideal, frame.offset(y0, x0, size), names)
+
+
+@dataclass
+class HeldoutSample:
+    name: str
+    position: str           # "centre" or "corner"
+    scene: torch.Tensor     # [3, S + 2m, S + 2m] linear
+    target: torch.Tensor    # [3, S, S] sRGB
+    offset_px: tuple[float, float]
+    noise_seed: int
+
+
+def heldout_set(size: int, margin: int, n_procedural: int = 12, level: float = 0.7,
+                frame: SensorFrame = SensorFrame(), photos: list[str] | None = None,
+                positions: tuple[str, ...] = ("centre", "corner")) -> list[HeldoutSample]:
+    """The fixed evaluation set: bundled photos + ``n_procedural`` held-out procedural scenes,
+    each at ``positions`` (see the module doc); deterministic."""
+    full = size + 2 * margin
+    items = [(f"photo:{p}", scenes.load_photo(p, full)) for p in (scenes.bundled_photos() if photos is None else photos)]
+    items += [(f"procedural:{HELDOUT_SEED0 + i}", scenes.mixed_scene(full, HELDOUT_SEED0 + i)) for i in range(n_procedural)]
+    cy, cx = (frame.height - size) // 2 & ~1, (frame.width - size) // 2 & ~1
+    where = {"centre": (cy, cx), "corner": frame.corner(size)}
+    out = []
+    for k, (name, img) in enumerate(items):
+        lin, ideal = _light(img[None], np.array([level]), np.ones((1, 3)), margin)
+        for j, pos in enumerate(positions):
+            y0, x0 = where[pos]
+            out.append(HeldoutSample(name, pos, lin[0], ideal[0], frame.offset(y0, x0, size), 1000 * k + j))
+    return out

@@ -1,0 +1,106 @@
+"""The end-to-end pipeline (issue 18): gradients through the camera, the same start for every
+optimizer, the low-light setting and calibration, the held-out set, the run settings."""
+
+from __future__ import annotations
+
+
+import pytest
+import torch
+
+from optix_e2e.camera import Camera, SensorStage, SoftwareISPStage, calibrated_preset
+from optix_e2e.isp.software import SoftwareISP
+from optix_e2e.optics import DifferentiableOptics
+from optix_e2e.optimize.config import make_config
+from optix_e2e.optimize.run import build_camera, load_surrogate, make_optimizer
+from optix_e2e.tasks import SensorFrame, get_task, heldout_set, task_loss, training_batch
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+def test_the_task_loss_gradient_reaches_the_lens_through_sensor_and_isp():
+    # float64 camera without noise: autograd's d loss / d u_k against a central difference
+    torch.manual_seed(0)
+    frame = SensorFrame()
+    sur = load_surrogate("paper-triplet-v1").double()
+    optics = DifferentiableOptics(sur, patch=32, full_field_px=frame.full_field_px).double()
+    camera = Camera(optics, SensorStage(calibrated_preset("imx249", 4.4), noise=False),
+                    SoftwareISPStage(SoftwareISP(base=8, depth=2))).double()
+    from optix_e2e.metrics.lpips import LPIPS
+    lp = LPIPS().double()
+    m = camera.margin
+    b = training_batch(0, 0, 1, 32, m, (0.5, 0.5), frame)
+    scene, target = b.scene.double(), b.target.double()
+
+    def loss():
+        out, _ = camera(scene, b.offset_px)
+        return task_loss(out, target, lp, 1.0)[0]
+
+    k = 0  # s_1_radius
+    g = torch.autograd.grad(loss(), optics.u)[0][k].item()
+    eps = 1e-4
+    with torch.no_grad():
+        optics.u[k] += eps
+        up = loss().item()
+        optics.u[k] -= 2 * eps
+        down = loss().item()
+        optics.u[k] += eps
+    fd = (up - down) / (2 * eps)
+    assert g != 0.0 and abs(g - fd) <= 1e-3 * abs(fd) + 1e-9, (g, fd)
+
+
+def test_every_optimizer_and_the_nominal_baseline_start_from_the_same_camera(tmp_path):
+    cfg_a = make_config("smoke", surrogate="paper-triplet-v1", task="iq-hardware", optics_init="uniform", seed=3)
+    cfg_v = make_config("smoke", surrogate="paper-triplet-v1", task="iq-hardware", optics_init="uniform", seed=3,
+                        optimizer="vanilla")
+    sur = load_surrogate("paper-triplet-v1")
+    a, v = build_camera(cfg_a, sur), build_camera(cfg_v, sur)
+    sa, sv = a.state_dict(), v.state_dict()
+    assert sa.keys() == sv.keys() and all(torch.equal(sa[k], sv[k]) for k in sa)
+    # uniform init: inside the ranges, not the nominal; the seed changes it
+    vals = a.optics.values()
+    assert bool(((vals > a.optics.lo) & (vals < a.optics.hi)).all())
+    assert not torch.allclose(vals, a.optics.base_values())
+    other = build_camera(make_config("smoke", surrogate="paper-triplet-v1", task="iq-hardware", optics_init="uniform",
+                                     seed=4), sur)
+    assert not torch.equal(other.optics.u, a.optics.u)
+    # the blocks each optimizer sees
+    assert list(a.blocks()) == ["optics", "isp"]
+    assert make_optimizer(cfg_a, a, "alg1").total_steps == make_optimizer(cfg_v, v, "vanilla").total_steps \
+        == cfg_a.total_steps
+
+
+def test_low_light_is_the_same_mean_signal_from_a_hundred_times_fewer_photons():
+    base = calibrated_preset("imx249", 4.4)
+    low = calibrated_preset("imx249", 4.4, get_task("low-light").exposure_factor, get_task("low-light").gain_factor)
+    assert low.exposure_s == pytest.approx(base.exposure_s / 100) and low.gain_dn_per_e == pytest.approx(
+        base.gain_dn_per_e * 100)
+    # calibration: a white scene through an f/4.4 lens fills 85 % of full well in green
+    from optix_e2e.sensor import expected_electrons
+    e = expected_electrons(torch.ones(3, 1, 1, dtype=torch.float64), base)[1, 0, 0].item()
+    assert e == pytest.approx(0.85 * base.full_well_e, rel=1e-9)
+
+
+def test_the_heldout_set_is_fixed_and_large_enough():
+    a = heldout_set(32, 4)
+    b = heldout_set(32, 4)
+    names = {s.name for s in a}
+    assert len(names) >= 20 and {s.position for s in a} == {"centre", "corner"}
+    assert all(torch.equal(x.scene, y.scene) and x.noise_seed == y.noise_seed for x, y in zip(a, b))
+    corner = [s for s in a if s.position == "corner"][0]
+    r = (corner.offset_px[0] ** 2 + corner.offset_px[1] ** 2) ** 0.5 / SensorFrame().full_field_px
+    assert 0.95 < r < 1.0
+
+
+def test_config_files_and_run_directories_are_checked(tmp_path):
+    f = tmp_path / "c.toml"
+    f.write_text('crop = 48\nlr_optics = 0.02\n')
+    cfg = make_config("quick", f)
+    assert cfg.crop == 48 and cfg.lr_optics == 0.02
+    f.write_text('crops = 48\n')
+    with pytest.raises(ValueError, match="unknown setting.*crops"):
+        make_config("quick", f)
+    f.write_text('crop = "big"\n')
+    with pytest.raises(ValueError, match="crop must be a int"):
+        make_config("quick", f)
+    with pytest.raises(ValueError, match="unknown budget"):
+        make_config("huge")
