@@ -104,3 +104,49 @@ def test_config_files_and_run_directories_are_checked(tmp_path):
         make_config("quick", f)
     with pytest.raises(ValueError, match="unknown budget"):
         make_config("huge")
+
+
+def test_evaluation_noise_is_common_to_both_cameras_and_has_the_sensor_statistics():
+    # common random numbers: the same generator state gives the same shot/read/quantisation
+    # draws whatever the signal, so two cameras differ by their signal only; the statistics
+    # are Eq. 5's: mean b + K mu, variance K^2 (mu + sigma_d^2) + 1/12 (tolerances: 5 sigma)
+    p = calibrated_preset("imx249", 4.4)
+    sensor = SensorStage(p)
+    flat = torch.full((1, 3, 64, 64), 0.3)
+    a = sensor(flat, torch.Generator().manual_seed(5), common_noise=True)
+    b = sensor(flat * 1.01, torch.Generator().manual_seed(5), common_noise=True)
+    c = sensor(flat * 1.01, torch.Generator().manual_seed(6), common_noise=True)
+    assert (b - a).std() < 0.2 * (c - a).std()
+    from optix_e2e.sensor import expected_electrons
+    from optix_e2e.sensor.cfa import mosaic
+    from optix_e2e.sensor.emva import dark_current_mean
+    mu = mosaic(expected_electrons(flat, p), p.cfa) + dark_current_mean(p)
+    g = mu[0, 0, 0::2, 1::2]  # one green phase: a constant mean
+    y = torch.cat([sensor(flat, torch.Generator().manual_seed(s), common_noise=True)[0, 0, 0::2, 1::2].flatten()
+                   for s in range(8)])
+    m = g[0, 0].item()
+    want_mean = p.black_level_dn + p.gain_dn_per_e * m
+    want_var = p.gain_dn_per_e ** 2 * (m + p.dark_noise_e ** 2) + 1 / 12
+    n = y.numel()
+    assert abs(y.mean().item() - want_mean) < 5 * (want_var / n) ** 0.5
+    assert abs(y.var().item() / want_var - 1) < 5 * (2 / n) ** 0.5
+
+
+def test_paired_differences_and_their_bootstrap_interval():
+    from optix_e2e.optimize.evaluate import paired, summarize
+    rows_a, rows_b = [], []
+    for i in range(20):
+        for pos in ("centre", "corner"):
+            base = {"image": f"img{i}", "position": pos, "psnr_db": 30.0 + i, "ssim": 0.9, "lpips": 0.2, "haarpsi": 0.8}
+            rows_a.append(base)
+            rows_b.append({**base, "psnr_db": base["psnr_db"] + 1.0 + (0.5 if i % 2 else -0.5),
+                           "lpips": 0.1 + (0.02 if pos == "corner" else 0.0)})
+    p = paired(rows_a, rows_b, n_boot=2000, seed=0)
+    assert p["psnr_db"]["mean"] == pytest.approx(1.0) and p["psnr_db"]["n_images"] == 20
+    lo, hi = p["psnr_db"]["ci95"]
+    assert 0.7 < lo < 0.9 and 1.1 < hi < 1.3  # +-0.5 spread over 20 images: half-width ~ 1.96 * 0.5 / sqrt(20)
+    assert p["ssim"]["ci95"] == [0.0, 0.0] and p["lpips"]["mean"] == pytest.approx(-0.09)
+    s = summarize(rows_b)
+    assert s["one_minus_lpips"] == pytest.approx(1 - 0.11) and s["by_position"]["corner"]["lpips"] == pytest.approx(0.12)
+    with pytest.raises(ValueError, match="same held-out images"):
+        paired(rows_a, rows_b[:-2])

@@ -32,8 +32,7 @@ class Camera(nn.Module):
 
     @property
     def margin(self) -> int:
-        psf, _ = self.optics.psfs()
-        return int(psf.shape[-1]) // 2
+        return int(self.optics.psf_size) // 2
 
     def blocks(self) -> "OrderedDict[str, list[nn.Parameter]]":
         """The parameter blocks of the stages that have one, in pipeline order."""
@@ -48,10 +47,13 @@ class Camera(nn.Module):
 
     def forward(self, radiance: torch.Tensor, offset_px=(0.0, 0.0), generator: torch.Generator | None = None,
                 *, final: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        """``final``: the camera's real output (evaluation): the reference ISP for a hardware
+        ISP, and the sensor's common-random-number noise (the same draws for any camera given
+        the same generator state)."""
         m = self.margin
         image = self.optics(radiance, offset_px)
         if m:
             image = image[..., m:-m, m:-m]
-        raw = self.sensor(image, generator)
+        raw = self.sensor(image, generator, common_noise=final)
         out = self.isp.final(raw) if final else self.isp(raw)
         return out, raw

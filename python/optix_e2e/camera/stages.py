@@ -7,7 +7,8 @@ block (``block()`` -> (name, parameters) or None), so Algorithm 1 can take turns
   evaluation, or any design checked against the real optics.
 * ``DifferentiableOptics`` (optics/) - the surrogate over the lens parameters (block "optics").
 * :class:`SensorStage` - the EMVA 1288 sensor at one exposure and gain (no block): Poisson
-  shot noise, dark current, read noise and quantisation on, seeded by the caller.
+  shot noise, dark current, read noise and quantisation on, seeded by the caller; in
+  evaluation with common random numbers, so two cameras see the same noise draws.
 * :class:`SoftwareISPStage` - the UNet f_NN (block "isp": its weights).
 * :class:`HardwareISPStage` - the hardware ISP: its learned proxy in the loop, with the
   hyperparameters P_ISP as the block "isp" (kept in their ranges by a sigmoid); the true
@@ -25,7 +26,8 @@ from ..isp.reference import ReferenceISP
 from ..isp.software import SoftwareISP
 from ..optics.render import render
 from ..sensor import get_preset, simulate_raw
-from ..sensor.emva import calibrate_radiance_scale
+from ..sensor.cfa import mosaic
+from ..sensor.emva import calibrate_radiance_scale, dark_current_mean, expected_electrons
 
 
 class FixedOptics(nn.Module):
@@ -43,6 +45,10 @@ class FixedOptics(nn.Module):
     @property
     def fields(self) -> torch.Tensor:
         return self._fields
+
+    @property
+    def psf_size(self) -> int:
+        return int(self.psf.shape[-1])
 
     def psfs(self) -> tuple[torch.Tensor, torch.Tensor]:
         return self.psf, self.vignetting
@@ -72,7 +78,14 @@ def calibrated_preset(preset="imx249", f_number: float | None = None, exposure_f
 
 
 class SensorStage(nn.Module):
-    """Linear radiance [B, 3, H, W] -> RAW [B, 1, H, W] in DN (Eq. 5), noise on unless ``noise=False``."""
+    """Linear radiance [B, 3, H, W] -> RAW [B, 1, H, W] in DN (Eq. 5), noise on unless ``noise=False``.
+
+    ``common_noise=True`` (evaluation; not differentiable) draws the same noise for any two
+    inputs given the same generator state: the uniform, normal and uniform fields for shot
+    noise, read noise and quantisation are drawn first (their number does not depend on the
+    signal), and the shot noise is the Poisson quantile of its uniform at the pixel's mean.
+    ``torch.poisson`` instead consumes a signal-dependent amount of the random stream, so
+    two cameras seeded alike would still see unrelated noise."""
 
     def __init__(self, preset, noise: bool = True):
         super().__init__()
@@ -81,9 +94,26 @@ class SensorStage(nn.Module):
     def block(self):
         return None
 
-    def forward(self, radiance: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+    def forward(self, radiance: torch.Tensor, generator: torch.Generator | None = None, *,
+                common_noise: bool = False) -> torch.Tensor:
+        if common_noise and self.noise:
+            return self._common_noise(radiance, generator)
         return simulate_raw(radiance, self.preset, noise=self.noise, quantize="uniform" if self.noise else "none",
                             generator=generator)
+
+    @torch.no_grad()
+    def _common_noise(self, radiance: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
+        from scipy.stats import poisson
+
+        p = self.preset
+        mu = mosaic(expected_electrons(radiance, p), p.cfa) + dark_current_mean(p)  # Eq. 4-5 mean electrons
+        u_shot = torch.rand(mu.shape, generator=generator, dtype=torch.float64)
+        z_read = torch.randn(mu.shape, generator=generator, dtype=torch.float64)
+        u_q = torch.rand(mu.shape, generator=generator, dtype=torch.float64)
+        lam = mu.detach().double().clamp_min(0).numpy()
+        e = torch.from_numpy(poisson.ppf(u_shot.numpy(), lam)) + p.dark_noise_e * z_read
+        y = p.black_level_dn + p.gain_dn_per_e * torch.clamp(e, max=p.full_well_e) + u_q - 0.5
+        return y.clamp(0, p.adc_max_dn).to(radiance.dtype)
 
 
 class SoftwareISPStage(nn.Module):

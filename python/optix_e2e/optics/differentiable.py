@@ -85,6 +85,15 @@ class DifferentiableOptics(nn.Module):
     def fields(self) -> torch.Tensor:
         return self.surrogate.fields
 
+    @property
+    def psf_size(self) -> int:
+        return int(self.surrogate.cfg.psf_size)
+
+    def train(self, mode: bool = True):
+        super().train(mode)
+        self.surrogate.eval()  # frozen: never in training mode
+        return self
+
     def forward(self, image: torch.Tensor, offset_px: tuple[float, float] = (0.0, 0.0)) -> torch.Tensor:
         """offset_px: a crop's centre from the optical axis (rows, columns; needs ``full_field_px``)."""
         psf, vig = self.psfs()

@@ -13,6 +13,11 @@ that proximal problem: L' = L_TASK + beta_i ||P_i - anchor_i||^2. (Reading P_i(t
 value before every single step would make the term's gradient zero at each step, i.e. no
 term at all.) A larger beta_i keeps the turn's result closer to where it began.
 
+P_i is measured in the block's own coordinates (``Block.coords``): for the lens parameters and
+the hardware ISP's hyperparameters, their range-normalized values in [0, 1] (the sigmoid of
+what the optimizer moves), so beta weighs the same fraction of every range alike; for network
+weights, the weights.
+
 Both optimizers step one at a time (``step(loss_fn)``) so a run can be checkpointed at any
 step: ``state_dict`` holds the step counter, the Adam moments and the current anchor.
 """
@@ -20,6 +25,7 @@ step: ``state_dict`` holds the step counter, the Adam moments and the current an
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import torch
 from torch import nn
@@ -27,12 +33,17 @@ from torch import nn
 
 @dataclass
 class Block:
-    """One parameter block: its parameters, Adam learning rate, steps per turn and prox weight."""
+    """One parameter block: its parameters, Adam learning rate, steps per turn, prox weight and
+    the coordinates the prox term measures (``coords``: tensor -> tensor, default identity)."""
     name: str
     params: list[nn.Parameter]
     lr: float
     steps: int = 1
     beta: float = 0.0
+    coords: Callable[[torch.Tensor], torch.Tensor] | None = None
+
+    def coord(self, p: torch.Tensor) -> torch.Tensor:
+        return p if self.coords is None else self.coords(p)
 
 
 def _set_trainable(blocks: list[Block], active: set[str]) -> None:
@@ -90,8 +101,8 @@ class ProximalCompositional:
             raise RuntimeError(f"Alg. 1 has run all its {self.total_steps} steps")
         kind, block, first = self.phase()
         if kind == "cycle":
-            if first or self.anchor is None:
-                self.anchor = [p.detach().clone() for p in block.params]
+            if block.beta > 0 and (first or self.anchor is None):
+                self.anchor = [block.coord(p.detach()).clone() for p in block.params]
             _set_trainable(self.blocks, {block.name})
             opts = [self.opts[block.name]]
         else:
@@ -105,7 +116,7 @@ class ProximalCompositional:
         loss = task
         prox = None
         if kind == "cycle" and block.beta > 0:  # Eq. 15
-            prox = block.beta * sum(((p - a) ** 2).sum() for p, a in zip(block.params, self.anchor))
+            prox = block.beta * sum(((block.coord(p) - a) ** 2).sum() for p, a in zip(block.params, self.anchor))
             loss = task + prox
         loss.backward()
         for o in opts:
@@ -119,8 +130,11 @@ class ProximalCompositional:
                 "anchor": self.anchor}
 
     def load_state_dict(self, st: dict) -> None:
-        if st.get("kind") != self.kind:
-            raise ValueError(f"optimizer state is for {st.get('kind')!r}, not {self.kind!r}")
+        if not isinstance(st, dict) or st.get("kind") != self.kind:
+            raise ValueError(f"optimizer state is for {st.get('kind') if isinstance(st, dict) else st!r}, "
+                             f"not {self.kind!r}")
+        if set(st.get("opts", {})) != set(self.opts):
+            raise ValueError(f"optimizer state has blocks {sorted(st.get('opts', {}))}, this run {sorted(self.opts)}")
         self.t = int(st["t"])
         for k, o in self.opts.items():
             o.load_state_dict(st["opts"][k])

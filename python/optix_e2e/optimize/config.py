@@ -73,6 +73,16 @@ class DesignConfig:
                 raise ValueError(f"{k} must be > 0, got {getattr(self, k)}")
         if self.n_cycles < 0 or self.n_finetune < 0 or self.eval_procedural < 0 or self.bootstrap < 100:
             raise ValueError("n_cycles, n_finetune, eval_procedural must be >= 0 and bootstrap >= 100")
+        for k in ("beta_optics", "beta_isp", "seed", "threads"):
+            if getattr(self, k) < 0:
+                raise ValueError(f"{k} must be >= 0, got {getattr(self, k)}")
+        for k in ("crop", "eval_size"):
+            if getattr(self, k) > 1024:
+                raise ValueError(f"{k} must be at most 1024 pixels (the sensor frame is 1920 x 1200), got {getattr(self, k)}")
+        if self.images and not Path(self.images).is_dir():
+            raise ValueError(f"images: no such folder {self.images}")
+        if self.software_isp and not Path(self.software_isp).is_file():
+            raise ValueError(f"software_isp: no such file {self.software_isp}")
         if self.total_steps < 1:
             raise ValueError("the schedule has no step (n_cycles and n_finetune both 0)")
         return self
@@ -105,6 +115,8 @@ def make_config(budget: str = "quick", file: "str | Path | None" = None, **overr
         except tomllib.TOMLDecodeError as err:
             raise ValueError(f"{path}: not valid TOML: {err}") from None
         unknown = sorted(set(data) - fields)
+        if "budget" in data:
+            raise ValueError(f"{path}: the budget is chosen with --budget, not in the config file")
         if unknown:
             raise ValueError(f"{path}: unknown setting(s) {', '.join(unknown)} (known: {', '.join(sorted(fields))})")
         for k, v in data.items():
@@ -113,6 +125,8 @@ def make_config(budget: str = "quick", file: "str | Path | None" = None, **overr
                 v = float(v)
             if not isinstance(v, want) or isinstance(v, bool) != (want is bool):
                 raise ValueError(f"{path}: {k} must be a {want.__name__}, got {v!r}")
+            if k in ("images", "software_isp") and v and not Path(v).is_absolute():
+                v = str((path.parent / v).resolve())  # relative to the config file
             values[k] = v
     values.update({k: v for k, v in overrides.items() if v is not None})
     return DesignConfig(**values).check()
@@ -125,7 +139,9 @@ def check_run_dir(out: Path, cfg: DesignConfig) -> None:
         try:
             old = json.loads(path.read_text())
         except json.JSONDecodeError:
-            raise ValueError(f"{path} is damaged; remove the directory or choose another --out") from None
+            old = None
+        if not isinstance(old, dict):
+            raise ValueError(f"{path} is damaged; remove the directory or choose another --out")
         new = cfg.to_json()
         diff = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
         if diff:

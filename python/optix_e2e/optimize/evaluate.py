@@ -24,13 +24,13 @@ METRICS = ("psnr_db", "ssim", "lpips", "haarpsi")
 @torch.no_grad()
 def evaluate(camera, samples) -> list[dict]:
     """Per-sample metrics of ``camera`` (a Camera) on held-out ``samples``; the camera's
-    final output, clamped to [0, 1] as an image file would be."""
+    final output as an 8-bit image file would hold it (clamped to [0, 1], rounded to 1/255)."""
     camera.eval()
     rows = []
     for s in samples:
         gen = torch.Generator().manual_seed(int(s.noise_seed))
         out, _ = camera(s.scene[None], s.offset_px, gen, final=True)
-        x, y = out.clamp(0, 1), s.target[None]
+        x, y = (out.clamp(0, 1) * 255).round() / 255, s.target[None]
         rows.append({"image": s.name, "position": s.position, "psnr_db": float(psnr(x, y)[0]),
                      "ssim": float(ssim(x, y)[0]), "lpips": float(lpips(x, y)[0]), "haarpsi": float(haarpsi(x, y)[0])})
     return rows

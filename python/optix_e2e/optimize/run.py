@@ -28,11 +28,11 @@ from tqdm import tqdm
 
 from ..camera import Camera, FixedOptics, HardwareISPStage, SensorStage, SoftwareISPStage, calibrated_preset
 from ..isp import params as hp
-from ..isp.proxy import ISPProxy, save_atomic
+from ..isp.proxy import ISPProxy
 from ..isp.software import SoftwareISP
 from ..lens import Lens
 from ..optics import DifferentiableOptics
-from ..surrogate.checkpoint import OpticsSurrogate
+from ..surrogate.checkpoint import OpticsSurrogate, save_atomic
 from ..tasks import SensorFrame, TaskLoss, get_task, training_batch
 from ..torchfile import load_plain
 from .alg1 import Block, ProximalCompositional, Vanilla
@@ -41,8 +41,15 @@ from .config import DesignConfig
 SOFTWARE_ISP = Path(__file__).resolve().parent.parent / "isp" / "bundled" / "software_isp.pt"
 
 
-def load_surrogate(spec: str) -> OpticsSurrogate:
-    return OpticsSurrogate.load(spec)
+def load_surrogate(spec: str, pixel_um: float | None = None) -> OpticsSurrogate:
+    """The optics surrogate, checked to render at the sensor's pitch (``pixel_um``)."""
+    sur = OpticsSurrogate.load(spec)
+    if pixel_um is not None:
+        pitch = float(sur.manifest.get("settings", {}).get("sensor_pixel_um", float("nan"))) * sur.bin
+        if sur.psf_kind != "psf_sensor" or not math.isclose(pitch, pixel_um, rel_tol=1e-6):
+            raise ValueError(f"surrogate {spec}: its PSFs are {sur.psf_kind} at {pitch} um per pixel; the camera "
+                             f"renders at the sensor's {pixel_um} um (train it on psf_sensor, --bin 1)")
+    return sur
 
 
 def base_lens_f_number(sur: OpticsSurrogate) -> float:
@@ -56,14 +63,14 @@ def initial_optics_values(cfg: DesignConfig, optics: DifferentiableOptics) -> to
     """The nominal design, or a uniform draw inside the space's ranges (seeded)."""
     if cfg.optics_init == "nominal":
         return optics.base_values()
-    g = torch.Generator().manual_seed(int(cfg.seed) * 7919 + 11)
-    u = torch.rand(len(optics.lo), generator=g, dtype=torch.float64).float()
+    rng = np.random.default_rng([3, int(cfg.seed)])  # stream tag 3: optics init (1: batches, 2: ISP init)
+    u = torch.as_tensor(rng.random(len(optics.lo)), dtype=torch.float32)
     return optics.lo + (optics.hi - optics.lo) * (0.02 + 0.96 * u)
 
 
 def initial_isp_unit(cfg: DesignConfig) -> torch.Tensor:
     """Alg. 1's initialization of P_ISP: uniform random over the ranges (seeded)."""
-    rng = np.random.default_rng([int(cfg.seed), 17])
+    rng = np.random.default_rng([2, int(cfg.seed)])
     return torch.as_tensor(hp.to_unit(hp.sample(rng)), dtype=torch.float32)
 
 
@@ -96,10 +103,12 @@ def make_optimizer(cfg: DesignConfig, camera: Camera, kind: str):
     lr_isp = cfg.lr_isp_net if task.isp == "software" else cfg.lr_isp_params
     blocks = []
     for name, params in camera.blocks().items():
+        # the prox term in range-normalized units where the block is a sigmoid-reparameterized vector
         if name == "optics":
-            blocks.append(Block("optics", params, cfg.lr_optics, cfg.steps_optics, cfg.beta_optics))
+            blocks.append(Block("optics", params, cfg.lr_optics, cfg.steps_optics, cfg.beta_optics, torch.sigmoid))
         else:
-            blocks.append(Block(name, params, lr_isp, cfg.steps_isp, cfg.beta_isp))
+            coords = torch.sigmoid if task.isp == "hardware" else None
+            blocks.append(Block(name, params, lr_isp, cfg.steps_isp, cfg.beta_isp, coords))
     if kind == "nominal":
         (b,) = blocks
         return ProximalCompositional([Block(b.name, b.params, b.lr, 1, 0.0)], n_cycles=0, n_finetune=cfg.total_steps)
@@ -116,10 +125,13 @@ def _save_state(path: Path, camera: Camera, opt, wall_s: float, history: list) -
 def _load_state(path: Path, camera: Camera, opt) -> tuple[float, list]:
     st = load_plain(path, "design checkpoint")
     if not isinstance(st, dict) or st.get("format") != "optix-design-state/1":
-        raise ValueError(f"{path}: not a design checkpoint")
-    camera.load_state_dict(st["camera"])
-    opt.load_state_dict(st["optimizer"])
-    return float(st["wall_s"]), list(st["history"])
+        raise ValueError(f"{path}: not a design checkpoint (format optix-design-state/1)")
+    try:
+        camera.load_state_dict(st["camera"])
+        opt.load_state_dict(st["optimizer"])
+        return float(st["wall_s"]), list(st["history"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as err:
+        raise ValueError(f"{path}: damaged design checkpoint ({err}); remove it to restart that training") from None
 
 
 def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progress: bool = True,
@@ -140,7 +152,7 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
     while opt.t < opt.total_steps:
         t = opt.t
         batch = training_batch(cfg.seed, t, cfg.batch, cfg.crop, m, (task.level_min, task.level_max), frame, folder)
-        gen = torch.Generator().manual_seed(int(cfg.seed) * 1_000_003 + t)
+        gen = torch.Generator().manual_seed(int(np.random.SeedSequence([4, int(cfg.seed), t]).generate_state(1)[0]))
 
         def loss_fn():
             out_img, _ = camera(batch.scene, batch.offset_px, gen)
@@ -200,13 +212,15 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     from .config import check_run_dir
 
     out = Path(out)
-    check_run_dir(out, cfg)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     task = get_task(cfg.task)
     frame = SensorFrame()
-    sur = load_surrogate(cfg.surrogate)
+    # everything the run needs is checked before the run directory is claimed
+    sur = load_surrogate(cfg.surrogate, calibrated_preset("imx249").pixel_um)
     folder = ImageFolder(cfg.images) if cfg.images else None
+    build_camera(cfg, sur, frame=frame)
+    check_run_dir(out, cfg)
     writer = SummaryWriter(str(out / "tb"))
     try:
         log(f"[1/4] end-to-end training: {cfg.task}, {cfg.optimizer}, {cfg.total_steps} steps")

@@ -26,7 +26,8 @@ import torch
 
 from .. import color, scenes
 
-HELDOUT_SEED0 = 2_000_000_000  # procedural held-out scenes use seeds from here; training streams are [seed, step]
+HELDOUT_SEED0 = 2_000_000_000  # procedural held-out scenes use seeds from here; training streams are [1, seed, step]
+HELDOUT_NOISE0 = 1 << 60        # held-out noise seeds (training noise: SeedSequence([4, seed, step]))
 
 
 @dataclass(frozen=True)
@@ -63,10 +64,23 @@ def _light(srgb: torch.Tensor, level: np.ndarray, tint: np.ndarray, margin: int)
     return lin * torch.as_tensor(tint, dtype=srgb.dtype).reshape(-1, 3, 1, 1), ideal
 
 
+def training_scene(size: int, rng: np.random.Generator) -> torch.Tensor:
+    """A procedural training scene: dead leaves (70 %; uniform or grey colours, never the photo
+    palette, whose photos are held out), a slanted edge (15 %) or a colour chart (15 %)."""
+    u = rng.random()
+    if u < 0.7:
+        return scenes.dead_leaves(size, rng, alpha=float(rng.uniform(2.5, 3.5)),
+                                  colors=str(rng.choice(["uniform", "uniform", "grey"])))
+    if u < 0.85:
+        angle = float(rng.uniform(2, 10) * rng.choice([-1, 1]) + 90 * rng.integers(0, 4))
+        return scenes.slanted_edge(size, angle, float(rng.uniform(2, 10)), rng, light=float(rng.uniform(0.3, 0.9)))
+    return scenes.color_chart(size, surround=float(rng.uniform(0.2, 0.8)))
+
+
 def training_batch(seed: int, step: int, batch: int, size: int, margin: int, level_range: tuple[float, float],
                    frame: SensorFrame = SensorFrame(), folder=None, tint: float = 0.15) -> Batch:
     """Batch ``step`` of the training stream ``seed`` (see the module doc)."""
-    rng = np.random.default_rng([int(seed), int(step)])
+    rng = np.random.default_rng([1, int(seed), int(step)])  # stream tag 1: training batches
     full = size + 2 * margin
     imgs, names = [], []
     for _ in range(batch):
@@ -78,7 +92,7 @@ def training_batch(seed: int, step: int, batch: int, size: int, margin: int, lev
             imgs.append(scenes.random_crops(img, full, 1, rng)[0])
             names.append(f"folder:{i}")
         else:
-            imgs.append(scenes.mixed_scene(full, rng))
+            imgs.append(training_scene(full, rng))
             names.append("procedural")
     y0 = 2 * int(rng.integers(0, (frame.height - size) // 2 + 1))
     x0 = 2 * int(rng.integers(0, (frame.width - size) // 2 + 1))
@@ -114,5 +128,5 @@ def heldout_set(size: int, margin: int, n_procedural: int = 12, level: float = 0
         lin, ideal = _light(img[None], np.array([level]), np.ones((1, 3)), margin)
         for j, pos in enumerate(positions):
             y0, x0 = where[pos]
-            out.append(HeldoutSample(name, pos, lin[0], ideal[0], frame.offset(y0, x0, size), 1000 * k + j))
+            out.append(HeldoutSample(name, pos, lin[0], ideal[0], frame.offset(y0, x0, size), HELDOUT_NOISE0 + 1000 * k + j))
     return out
