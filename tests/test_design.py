@@ -169,3 +169,29 @@ def test_the_shipped_software_isp_is_pretrained():
         torch.manual_seed(0)
         untrained = psnr(SoftwareISP()(raw).clamp(0, 1), ideal).mean().item()
     assert shipped > 18.0 and shipped > untrained + 8.0, (shipped, untrained)
+
+
+def test_a_step_that_breaks_a_manufacturing_limit_is_cut_back_to_the_boundary():
+    from optix_e2e.optimize.run import Manufacturable, keep_manufacturable
+    sur = load_surrogate("paper-triplet-v1")
+    optics = DifferentiableOptics(sur)
+    guard = Manufacturable(sur.manifest)
+    start = optics.u.detach().clone()
+    assert guard.problems(optics.values().detach().numpy()) == []
+    g = torch.Generator().manual_seed(0)
+    cuts = 0
+    for _ in range(12):
+        with torch.no_grad():
+            optics.u.copy_(start + 6.0 * torch.randn(start.shape, generator=g))
+        step = optics.u.detach().clone() - start
+        if keep_manufacturable(optics, start, guard):
+            cuts += 1
+            assert guard.problems(optics.values().detach().numpy()) == []
+            frac = ((optics.u.detach() - start) @ step / (step @ step)).item()
+            assert 0.0 <= frac < 1.0
+            with torch.no_grad():  # a little further along the step is not manufacturable
+                optics.u.copy_(start + min(1.0, frac + 2.0 ** -10) * step)
+            assert guard.problems(optics.values().detach().numpy())
+        else:
+            assert guard.problems(optics.values().detach().numpy()) == []
+    assert cuts >= 3

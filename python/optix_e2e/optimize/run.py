@@ -38,6 +38,7 @@ from ..torchfile import load_plain
 from .alg1 import Block, ProximalCompositional, Vanilla
 from .config import DesignConfig
 
+HISTORY_KEYS = ("step", "phase", "block", "loss", "prox", "l1", "lpips", "cut", "seconds")
 SOFTWARE_ISP = Path(__file__).resolve().parent.parent / "isp" / "bundled" / "software_isp.pt"
 
 
@@ -59,13 +60,69 @@ def base_lens_f_number(sur: OpticsSurrogate) -> float:
     return float(base.paraxial()["f_number"])
 
 
+class Manufacturable:
+    """The dataset's manufacturability limits (centre and edge thickness, air gaps, BFD; the
+    space file's [constraints]) as a check on parameter values: ``problems(values)`` lists the
+    violated ones (empty: manufacturable). Edge thicknesses at the ray footprint, the image
+    plane at the base lens's distance (the BFD limit is far from binding in these spaces)."""
+
+    def __init__(self, manifest: dict):
+        from ..dataset.manifest import space_and_base
+        from ..design.sampling import Limits
+
+        self.manifest = manifest
+        self.limits = Limits.from_dict(manifest.get("sampling_summary", {}).get("limits"))
+        _, base = space_and_base(manifest)
+        self.image_distance = float(base.data["surfaces"][-1]["thickness"])
+        self.checks = 0
+
+    def problems(self, values) -> list[str]:
+        from ..design.sampling import apertures, check_design
+        from .outputs import design_lens
+
+        self.checks += 1
+        d = design_lens(self.manifest, np.asarray(values, np.float64), self.image_distance)
+        try:
+            return check_design(d, apertures(Lens(d, source="<design>")), self.limits)
+        except Exception as err:  # a design the engine cannot trace is not manufacturable either
+            return [f"untraceable: {' '.join(str(err).split())}"]
+
+
+def keep_manufacturable(optics: DifferentiableOptics, u_prev: torch.Tensor, guard: Manufacturable,
+                        iters: int = 12) -> bool:
+    """After an optimizer step: if the new lens parameters break a manufacturability limit,
+    go back along the step to the farthest manufacturable point (bisection on the step's
+    fraction; the previous point is manufacturable). Returns True when the step was cut."""
+    u_new = optics.u.detach().clone()
+    if not guard.problems(optics.values().detach().numpy()):
+        return False
+    lo, hi = 0.0, 1.0
+    for _ in range(iters):
+        mid = 0.5 * (lo + hi)
+        with torch.no_grad():
+            optics.u.copy_(u_prev + mid * (u_new - u_prev))
+        if guard.problems(optics.values().detach().numpy()):
+            hi = mid
+        else:
+            lo = mid
+    with torch.no_grad():
+        optics.u.copy_(u_prev + lo * (u_new - u_prev))
+    return True
+
+
 def initial_optics_values(cfg: DesignConfig, optics: DifferentiableOptics) -> torch.Tensor:
-    """The nominal design, or a uniform draw inside the space's ranges (seeded)."""
+    """The nominal design, or a uniform draw inside the space's ranges (seeded), redrawn until
+    it is manufacturable (as the dataset's designs are)."""
     if cfg.optics_init == "nominal":
         return optics.base_values()
     rng = np.random.default_rng([3, int(cfg.seed)])  # stream tag 3: optics init (1: batches, 2: ISP init)
-    u = torch.as_tensor(rng.random(len(optics.lo)), dtype=torch.float32)
-    return optics.lo + (optics.hi - optics.lo) * (0.02 + 0.96 * u)
+    guard = Manufacturable(optics.surrogate.manifest) if optics.surrogate.manifest else None
+    for _ in range(1000):
+        u = torch.as_tensor(rng.random(len(optics.lo)), dtype=torch.float32)
+        v = optics.lo + (optics.hi - optics.lo) * (0.02 + 0.96 * u)
+        if guard is None or not guard.problems(v.numpy()):
+            return v
+    raise ValueError("no manufacturable design in 1000 uniform draws of the space")
 
 
 def initial_isp_unit(cfg: DesignConfig) -> torch.Tensor:
@@ -144,6 +201,8 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
         wall_s, history = _load_state(state_path, camera, opt)
     ran = opt.t < opt.total_steps
     loss_mod = TaskLoss(task)
+    optics = camera.optics if isinstance(camera.optics, DifferentiableOptics) else None
+    guard = Manufacturable(optics.surrogate.manifest) if optics is not None and optics.surrogate.manifest else None
     camera.train()
     m = camera.margin
     t_start = time.perf_counter()
@@ -159,9 +218,13 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
             return loss_mod(out_img, batch.target)
 
         t0 = time.perf_counter()
+        u_prev = optics.u.detach().clone() if guard is not None else None
         info = opt.step(loss_fn)
+        # the paper enforces its limits on every lens: a step that breaks one is cut back
+        info["cut"] = int(guard is not None and info["block"] in ("optics", "all")
+                          and keep_manufacturable(optics, u_prev, guard))
         info["seconds"] = time.perf_counter() - t0
-        history.append({k: info[k] for k in ("step", "phase", "block", "loss", "prox", "l1", "lpips", "seconds")})
+        history.append({k: info[k] for k in HISTORY_KEYS})
         if writer is not None:
             writer.add_scalar(f"{name}/loss", info["loss"], info["step"])
             writer.add_scalar(f"{name}/l1", info["l1"], info["step"])
@@ -178,7 +241,7 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
     wall = wall_s + (time.perf_counter() - t_start if ran else 0.0)
     camera.eval()
     return {"steps": opt.t, "wall_s": wall, "final_loss": history[-1]["loss"] if history else math.nan,
-            "history": history}
+            "cut_steps": int(sum(h.get("cut", 0) for h in history)), "history": history}
 
 
 def write_json_atomic(path: Path, obj) -> None:
@@ -299,7 +362,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
             "end_to_end": outputs.psf_rel_l1_per_field(psf_es, exact["psf"][1])},
         "held_out": {"n_images": len({s.name for s in samples}), "n_samples": len(samples),
                      "positions": sorted({s.position for s in samples}), "size_px": cfg.eval_size},
-        "training": {k: {kk: v[kk] for kk in ("steps", "wall_s", "final_loss")} for k, v in
+        "training": {k: {kk: v[kk] for kk in ("steps", "wall_s", "final_loss", "cut_steps")} for k, v in
                      (("end_to_end", e2e), ("nominal", nom))},
         "surrogate": cfg.surrogate,
     }
@@ -342,10 +405,10 @@ def _write_history(path: Path, runs: dict) -> None:
 
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["run", "step", "phase", "block", "loss", "prox", "l1", "lpips", "seconds"])
+        w.writerow(["run", *HISTORY_KEYS])
         for run, hist in runs.items():
             for h in hist:
-                w.writerow([run] + [h[k] for k in ("step", "phase", "block", "loss", "prox", "l1", "lpips", "seconds")])
+                w.writerow([run] + [h[k] for k in HISTORY_KEYS])
 
 
 def _write_rows(path: Path, rows: dict) -> None:
