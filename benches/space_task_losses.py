@@ -30,6 +30,8 @@ from tqdm import tqdm
 
 def main() -> None:
     from optix_e2e.camera import Camera, FixedOptics, SensorStage, SoftwareISPStage, calibrated_preset
+    from optix_e2e.camera.stages import image_height_fractions
+    from optix_e2e.optimize.outputs import design_lens
     from optix_e2e.dataset.layout import read_manifest
     from optix_e2e.dataset.manifest import space_and_base
     from optix_e2e.isp import params as hp
@@ -55,12 +57,14 @@ def main() -> None:
     nominal = np.asarray(space.values(base.data))[None]
     nom, meta = exact_arrays(man, nominal)
     psfs, vigs, values = [nom["psf_sensor"][0]], [nom["relative_illumination"][0]], [nominal[0]]
+    zs = [float(nom["image_distance"][0])]
     for shard in sorted((Path(a.data) / "shards").iterdir()):
         if len(values) > a.n:
             break
         psfs += list(np.load(shard / "psf_sensor.npy"))
         vigs += list(np.load(shard / "relative_illumination.npy"))
         values += list(np.load(shard / "params.npy"))
+        zs += list(np.load(shard / "image_distance.npy"))
     psfs, vigs, values = psfs[:a.n + 1], vigs[:a.n + 1], np.asarray(values[:a.n + 1])
     fields = man["fields_deg"]
     frame = SensorFrame()
@@ -80,7 +84,9 @@ def main() -> None:
         for i in tqdm(range(len(values)), desc="designs", unit="design"):
             psf = torch.as_tensor(psfs[i]).float()
             vig = torch.as_tensor(vigs[i]).float()
-            fo = FixedOptics(psf, vig, torch.linspace(0, 1, len(fields)), full_field_px=frame.full_field_px)
+            # each design's fields where its chief rays land (its own distortion)
+            heights = image_height_fractions(design_lens(man, values[i], zs[i]), fields)
+            fo = FixedOptics(psf, vig, heights, full_field_px=frame.full_field_px)
             samples = heldout_set(a.size, psf.shape[-1] // 2, a.scenes, photos=[])
             for name in a.tasks:
                 task = get_task(name)
@@ -104,7 +110,7 @@ def main() -> None:
         summary["tasks"][name] = {"nominal_loss": nominal, "n": int(len(others)),
                                   "fraction_below_nominal": float((others < nominal).mean()),
                                   "median_loss": float(np.median(others)), "best_loss": r[best],
-                                  "best_design": dict(zip(space.names(), map(float, values[best])))}
+                                  "best_design": dict(zip(space.names, map(float, values[best])))}
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     print(json.dumps({t: {k: v for k, v in s.items() if k != "best_design"} for t, s in summary["tasks"].items()}))
 

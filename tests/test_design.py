@@ -9,6 +9,7 @@ import torch
 
 from optix_e2e.camera import Camera, SensorStage, SoftwareISPStage, calibrated_preset
 from optix_e2e.isp.software import SoftwareISP
+from optix_e2e.lens import Lens
 from optix_e2e.optics import DifferentiableOptics
 from optix_e2e.optimize.config import make_config
 from optix_e2e.optimize.run import build_camera, load_surrogate, make_optimizer
@@ -195,3 +196,22 @@ def test_a_step_that_breaks_a_manufacturing_limit_is_cut_back_to_the_boundary():
         else:
             assert guard.problems(optics.values().detach().numpy()) == []
     assert cuts >= 3
+
+
+def test_fields_are_rendered_where_their_chief_rays_land():
+    # a lens with little distortion images field angle theta at f tan(theta) (closed form);
+    # the paper-triplet nominal (+ distortion) puts its half field well inside half the height
+    from optix_e2e.camera.stages import image_height_fractions
+    import math
+    cooke = Lens.load("cooke-f50")
+    fields = [0.0, 5.0, 10.0, 15.0, 20.0]
+    got = image_height_fractions(cooke.data, fields)
+    want = [math.tan(math.radians(f)) / math.tan(math.radians(20.0)) for f in fields]
+    assert got[-1] == 1.0 and all(abs(g - w) < 0.01 for g, w in zip(got.tolist(), want))
+    pt = Lens.load("paper-triplet")
+    half = image_height_fractions(pt.data, [0.0, 7.45, 14.9])[1].item()
+    assert 0.44 < half < 0.48  # not the 0.5 of a mapping proportional to the angle
+    sur = load_surrogate("paper-triplet-v1")
+    cam = build_camera(make_config("smoke", surrogate="paper-triplet-v1", task="iq-hardware"), sur)
+    h = cam.optics.render_fields
+    assert h.shape == sur.fields.shape and h[0] == 0 and h[-1] == 1 and bool((h.diff() > 0).all())

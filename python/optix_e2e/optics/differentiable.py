@@ -47,6 +47,9 @@ class DifferentiableOptics(nn.Module):
         self.register_buffer("hi", surrogate.param_max.float().clone())
         self.u = nn.Parameter(torch.zeros(surrogate.cfg.n_params))
         self.set_values(self.base_values() if init is None else init)
+        # where the K fields land on the sensor, as fractions of the full field's image height
+        # (None: proportional to the field angle); see camera.stages.image_height_fractions
+        self.render_fields: torch.Tensor | None = None
 
     @property
     def names(self) -> list[str]:
@@ -97,7 +100,8 @@ class DifferentiableOptics(nn.Module):
     def forward(self, image: torch.Tensor, offset_px: tuple[float, float] = (0.0, 0.0)) -> torch.Tensor:
         """offset_px: a crop's centre from the optical axis (rows, columns; needs ``full_field_px``)."""
         psf, vig = self.psfs()
-        return render(image, psf, self.fields, vig, patch=self.patch, full_field_px=self.full_field_px,
+        fields = self.fields if self.render_fields is None else self.render_fields
+        return render(image, psf, fields, vig, patch=self.patch, full_field_px=self.full_field_px,
                       offset_px=offset_px)
 
     def exact_psfs(self) -> tuple[torch.Tensor, torch.Tensor]:

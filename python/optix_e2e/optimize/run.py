@@ -125,6 +125,20 @@ def initial_optics_values(cfg: DesignConfig, optics: DifferentiableOptics) -> to
     raise ValueError("no manufacturable design in 1000 uniform draws of the space")
 
 
+def nominal_field_heights(sur: OpticsSurrogate) -> torch.Tensor:
+    """The surrogate's fields placed where the nominal lens images them (refocused as its
+    dataset was): the renderer's field positions in training."""
+    from ..camera.stages import image_height_fractions
+    from ..dataset.manifest import space_and_base
+    from .outputs import design_lens
+
+    if not sur.manifest:
+        return sur.fields
+    space, base = space_and_base(sur.manifest)
+    z = float(base.data["surfaces"][-1]["thickness"])
+    return image_height_fractions(design_lens(sur.manifest, space.values(base.data), z), sur.fields_deg)
+
+
 def initial_isp_unit(cfg: DesignConfig) -> torch.Tensor:
     """Alg. 1's initialization of P_ISP: uniform random over the ranges (seeded)."""
     rng = np.random.default_rng([2, int(cfg.seed)])
@@ -139,6 +153,7 @@ def build_camera(cfg: DesignConfig, sur: OpticsSurrogate, *, fixed_optics: Fixed
     if fixed_optics is None:
         optics = DifferentiableOptics(sur, patch=cfg.patch, full_field_px=frame.full_field_px)
         optics.set_values(initial_optics_values(cfg, optics))
+        optics.render_fields = nominal_field_heights(sur)
     else:
         optics = fixed_optics
     preset = calibrated_preset("imx249", base_lens_f_number(sur), task.exposure_factor, task.gain_factor)
@@ -293,7 +308,8 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         nominal_values = camera.optics.base_values()
         with torch.no_grad():
             psf_ns, vig_ns = sur.psfs(nominal_values, check=False)
-        fixed = FixedOptics(psf_ns, vig_ns, sur.fields, patch=cfg.patch, full_field_px=frame.full_field_px)
+        fixed = FixedOptics(psf_ns, vig_ns, camera.optics.render_fields, patch=cfg.patch,
+                            full_field_px=frame.full_field_px)
         log(f"[2/4] nominal lens + processing fine-tuned, the same {cfg.total_steps} steps")
         nominal = build_camera(cfg, sur, fixed_optics=fixed, frame=frame)
         nom = train(cfg, nominal, make_optimizer(cfg, nominal, "nominal"), out, "nominal", progress=progress,
@@ -307,8 +323,17 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     exact = _exact(sur, torch.stack([nominal_values, final_values]))
     with torch.no_grad():
         psf_es, vig_es = sur.psfs(final_values, check=False)
-    optics = {"nominal": {"exact": (exact["psf"][0], exact["vignetting"][0]), "surrogate": (psf_ns, vig_ns)},
-              "end_to_end": {"exact": (exact["psf"][1], exact["vignetting"][1]), "surrogate": (psf_es, vig_es)}}
+    # field positions: each design's own chief-ray heights under exact optics, the nominal's
+    # (what training used) under the surrogate's
+    from ..camera.stages import image_height_fractions
+    heights = {who: image_height_fractions(outputs.design_lens(sur.manifest, v.numpy(), exact["image_distance"][i]),
+                                           sur.fields_deg)
+               for i, (who, v) in enumerate((("nominal", nominal_values), ("end_to_end", final_values)))}
+    h_train = camera.optics.render_fields
+    optics = {"nominal": {"exact": (exact["psf"][0], exact["vignetting"][0], heights["nominal"]),
+                          "surrogate": (psf_ns, vig_ns, h_train)},
+              "end_to_end": {"exact": (exact["psf"][1], exact["vignetting"][1], heights["end_to_end"]),
+                             "surrogate": (psf_es, vig_es, h_train)}}
     cams = {"nominal": nominal, "end_to_end": camera}
     samples = heldout_set(cfg.eval_size, exact["psf"].shape[-1] // 2, cfg.eval_procedural, cfg.eval_level, frame)
     rows: dict[str, dict[str, list]] = {}
@@ -319,8 +344,8 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
             if path.is_file():
                 rows[who][kind] = json.loads(path.read_text())
                 continue
-            psf, vig = optics[who][kind]
-            fo = FixedOptics(psf, vig, sur.fields, patch=cfg.patch, full_field_px=frame.full_field_px)
+            psf, vig, fh = optics[who][kind]
+            fo = FixedOptics(psf, vig, fh, patch=cfg.patch, full_field_px=frame.full_field_px)
             rows[who][kind] = ev.evaluate(Camera(fo, cams[who].sensor, cams[who].isp), tqdm(
                 samples, desc=f"eval {who} ({kind} optics)", unit="img", disable=not progress, leave=False))
             write_json_atomic(path, rows[who][kind])
@@ -390,9 +415,9 @@ def _panels(path: Path, samples, cams: dict, optics: dict, n_images: int = 3) ->
             continue
         imgs = [s.target]
         for who in ("nominal", "end_to_end"):
-            psf, vig = optics[who]["exact"]
+            psf, vig, fh = optics[who]["exact"]
             cam = cams[who]
-            fo = FixedOptics(psf, vig, cam.optics.fields, patch=cam.optics.patch, full_field_px=cam.optics.full_field_px)
+            fo = FixedOptics(psf, vig, fh, patch=cam.optics.patch, full_field_px=cam.optics.full_field_px)
             out, _ = Camera(fo, cam.sensor, cam.isp)(s.scene[None], s.offset_px,
                                                      torch.Generator().manual_seed(int(s.noise_seed)), final=True)
             imgs.append(out[0])
