@@ -183,6 +183,8 @@ def test_lens_list_json():
     assert pt["f_number"] == pytest.approx(4.4, rel=1e-3) and pt["full_field_deg"] == pytest.approx(2 * 14.9, abs=0.1)
     assert pt["parameter_space"] == "spaces/paper-triplet.toml" and pt["surrogate"] is None
     assert rows["paper-triplet-v1"]["surrogate"] == "surrogate_paper_triplet.pt"
+    assert pt["e2e_space"] == "spaces/paper-triplet-e2e.toml"
+    assert pt["e2e_surrogate"] == "surrogate_paper_triplet_e2e.pt"
     assert rows["cooke-f50"]["surrogate"] is None
     assert all(x["source"] for x in rows.values())
     r = CliRunner().invoke(main, ["lens", "list"])

@@ -97,12 +97,15 @@ def bundled_summary(name: str) -> dict:
                      if not (isinstance(s["material"], str) and s["material"].lower() == "air"))
     space = BUNDLED_DIR / "spaces" / f"{name}.toml"
     sur = BUNDLED_SURROGATES.get(name)
+    e2e = BUNDLED_SURROGATES.get(f"{name}-e2e")  # the end-to-end design space around this lens
     return {"name": name, "elements": n_elements, "efl_mm": par["efl_mm"], "f_number": par["f_number"],
             "full_field_deg": 2.0 * max(abs(f) for f in lens_.fields_deg),
             "wavelengths_nm": lens_.wavelengths_nm,
             "source": lens_.data.get("source"), "description": lens_.data.get("description"),
             "parameter_space": f"spaces/{space.name}" if space.is_file() else None,
-            "surrogate": sur if sur and (BUNDLED_DIR / sur).is_file() else None}
+            "surrogate": sur if sur and (BUNDLED_DIR / sur).is_file() else None,
+            "e2e_space": f"spaces/{name}-e2e.toml" if (BUNDLED_DIR / "spaces" / f"{name}-e2e.toml").is_file() else None,
+            "e2e_surrogate": e2e if e2e and (BUNDLED_DIR / e2e).is_file() else None}
 
 
 @lens.command("list")
@@ -121,7 +124,7 @@ def list_cmd(as_json):
     for r in rows:
         click.echo(f"{r['name']:<18} {r['elements']:>8} {r['efl_mm']:>9.3f} {r['f_number']:>6.2f} "
                    f"{r['full_field_deg']:>6.2f}d  {'yes' if r['parameter_space'] else 'no':<5}  "
-                   f"{'yes' if r['surrogate'] else 'no':<9}  {r['source'] or '-'}")
+                   f"{'yes' if r['surrogate'] else ('e2e' if r['e2e_surrogate'] else 'no'):<9}  {r['source'] or '-'}")
 
 
 def _rms_wavefront(lens_, field_deg, aiming):
