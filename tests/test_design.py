@@ -185,7 +185,7 @@ def test_a_step_that_breaks_a_manufacturing_limit_is_cut_back_to_the_boundary():
         with torch.no_grad():
             optics.u.copy_(start + 6.0 * torch.randn(start.shape, generator=g))
         step = optics.u.detach().clone() - start
-        if keep_manufacturable(optics, start, guard):
+        if keep_manufacturable(optics, start, guard, project=False):
             cuts += 1
             assert guard.problems(optics.values().detach().numpy()) == []
             frac = ((optics.u.detach() - start) @ step / (step @ step)).item()
@@ -215,3 +215,33 @@ def test_fields_are_rendered_where_their_chief_rays_land():
     cam = build_camera(make_config("smoke", surrogate="paper-triplet-v1", task="iq-hardware"), sur)
     h = cam.optics.render_fields
     assert h.shape == sur.fields.shape and h[0] == 0 and h[-1] == 1 and bool((h.diff() > 0).all())
+
+
+def test_a_step_across_an_active_limit_slides_along_it():
+    # from a point on the edge-thickness limit, a step leaning across it keeps its tangential
+    # part (projection), where cutting back along the step would stop almost at once
+    from optix_e2e.optimize.run import Manufacturable, keep_manufacturable
+    sur = load_surrogate("paper-triplet-v1")
+    optics = DifferentiableOptics(sur)
+    guard = Manufacturable(sur.manifest)
+    g = torch.Generator().manual_seed(1)
+    base = optics.u.detach().clone()
+    # walk to the boundary along a random direction that leaves the feasible set
+    for _ in range(20):
+        d = 6.0 * torch.randn(base.shape, generator=g)
+        with torch.no_grad():
+            optics.u.copy_(base + d)
+        if keep_manufacturable(optics, base, guard, project=False):
+            break
+    on_limit = optics.u.detach().clone()
+    assert guard.problems(optics.values().detach().numpy()) == []
+    moved_cut, moved_proj = [], []
+    for _ in range(6):
+        step = 0.3 * torch.randn(base.shape, generator=g) + 0.3 * d / d.norm()  # leaning outwards
+        for project, out in ((False, moved_cut), (True, moved_proj)):
+            with torch.no_grad():
+                optics.u.copy_(on_limit + step)
+            keep_manufacturable(optics, on_limit, guard, project=project)
+            assert guard.problems(optics.values().detach().numpy()) == []
+            out.append((optics.u.detach() - on_limit).norm().item())
+    assert sum(moved_proj) > 2 * sum(moved_cut), (moved_proj, moved_cut)
