@@ -24,7 +24,6 @@ from torch import nn
 
 from .render import render
 from ..surrogate.checkpoint import OpticsSurrogate
-from ..surrogate.data import bin_psf
 
 
 class DifferentiableOptics(nn.Module):
@@ -108,10 +107,7 @@ class DifferentiableOptics(nn.Module):
         """The exact engine's (psf, vignetting) for the current parameters, computed as the
         surrogate's training data was; ``render(image, *exact_psfs(), fields)`` checks a
         result against the real optics."""
-        from ..surrogate.exact import exact_arrays
+        from ..surrogate.exact import exact_optics
 
-        arrays, meta = exact_arrays(self.surrogate.manifest, self.values().detach().double().numpy()[None])
-        if meta["n_failed"]:
-            raise ValueError(f"engine rejected the design: {meta['failures'][0]['reason']}")
-        p = bin_psf(torch.as_tensor(arrays[self.surrogate.psf_kind][0]), self.surrogate.bin)
-        return p, torch.as_tensor(arrays["relative_illumination"][0], dtype=torch.float32)
+        ex = exact_optics(self.surrogate, self.values().detach().double().numpy()[None])
+        return ex["psf"][0], ex["vignetting"][0]

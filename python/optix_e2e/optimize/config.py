@@ -12,6 +12,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..dataset.layout import write_json_atomic
 from ..tasks import get_task
 
 try:
@@ -151,6 +152,4 @@ def check_run_dir(out: Path, cfg: DesignConfig) -> None:
     out.mkdir(parents=True, exist_ok=True)
     if any(out.iterdir()):
         raise ValueError(f"{out} is not empty and holds no design run (config.json); choose another --out")
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(cfg.to_json(), indent=2))
-    tmp.replace(path)
+    write_json_atomic(path, cfg.to_json())

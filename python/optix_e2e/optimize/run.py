@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import time
 from pathlib import Path
 
@@ -32,7 +31,9 @@ from ..isp.proxy import ISPProxy
 from ..isp.software import SoftwareISP
 from ..lens import Lens
 from ..optics import DifferentiableOptics
+from ..dataset.layout import write_json_atomic
 from ..surrogate.checkpoint import OpticsSurrogate, save_atomic
+from ..surrogate.exact import exact_optics
 from ..tasks import SensorFrame, TaskLoss, get_task, training_batch
 from ..torchfile import load_plain
 from .alg1 import Block, ProximalCompositional, Vanilla
@@ -308,26 +309,6 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
             "cut_steps": int(sum(h.get("cut", 0) for h in history)), "history": history}
 
 
-def write_json_atomic(path: Path, obj) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2))
-    os.replace(tmp, path)
-
-
-def _exact(sur: OpticsSurrogate, values: torch.Tensor) -> dict:
-    """The engine's PSFs, vignetting and refocused image distance of designs [N, P], computed
-    as the surrogate's training data was."""
-    from ..surrogate.data import bin_psf
-    from ..surrogate.exact import exact_arrays
-
-    arrays, meta = exact_arrays(sur.manifest, values.detach().double().numpy())
-    if meta["n_failed"]:
-        raise ValueError(f"the engine rejected a design: {meta['failures'][0]['reason']}")
-    psf = torch.stack([bin_psf(torch.as_tensor(p), sur.bin) for p in arrays[sur.psf_kind]]).float()
-    return {"psf": psf, "vignetting": torch.as_tensor(arrays["relative_illumination"], dtype=torch.float32),
-            "image_distance": [float(z) for z in arrays["image_distance"]]}
-
-
 def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, log=print) -> dict:
     """The whole run; returns the results (also written to out/results.json)."""
     from torch.utils.tensorboard import SummaryWriter
@@ -369,7 +350,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     t_eval = time.perf_counter()
     log("[3/4] exact PSFs of both lenses (engine) and held-out evaluation")
     final_values = camera.optics.values().detach()
-    exact = _exact(sur, torch.stack([nominal_values, final_values]))
+    exact = exact_optics(sur, torch.stack([nominal_values, final_values]).double().numpy())
     with torch.no_grad():
         psf_es, vig_es = sur.psfs(final_values, check=False)
     # field positions: each design's own chief-ray heights under exact optics, the nominal's

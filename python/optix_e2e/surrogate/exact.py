@@ -23,6 +23,22 @@ def exact_arrays(manifest: dict, values) -> tuple[dict, dict]:
     return arrays, meta
 
 
+def exact_optics(surrogate, values) -> dict:
+    """What the renderer needs from the engine for designs ``values`` [N, P] on a surrogate's
+    terms: ``psf`` [N, K, C, S, S] (the surrogate's PSF kind and binning), ``vignetting``
+    [N, K, C] and the refocused ``image_distance`` (mm, N); a rejected design is an error."""
+    import torch
+
+    from .data import bin_psf
+
+    arrays, meta = exact_arrays(surrogate.manifest, np.atleast_2d(np.asarray(values, np.float64)))
+    if meta["n_failed"]:
+        raise ValueError(f"engine rejected the design: {meta['failures'][0]['reason']}")
+    psf = torch.stack([bin_psf(torch.as_tensor(p), surrogate.bin) for p in arrays[surrogate.psf_kind]]).float()
+    return {"psf": psf, "vignetting": torch.as_tensor(arrays["relative_illumination"], dtype=torch.float32),
+            "image_distance": [float(z) for z in arrays["image_distance"]]}
+
+
 def rms_spot_um(manifest: dict, values, rings: int = 32) -> np.ndarray:
     """Polychromatic RMS spot radius (um, centroid-referenced, over the lens's wavelengths and
     weights) of each design [N, K] at the dataset's K fields, after the dataset's refocusing."""
