@@ -139,3 +139,25 @@ def test_a_crop_at_its_offset_renders_as_that_part_of_the_frame():
     assert ((ola - want).abs().sum() / want.abs().sum()).item() < 0.01
     with pytest.raises(ValueError, match="full_field_px"):
         render(crop, psfs, fields, offset_px=offset)
+
+
+def test_gradients_repeat_bit_for_bit_with_several_threads():
+    # a design run must follow the same path when run again: the field interpolation's
+    # backward once accumulated by advanced indexing, in parallel and in no fixed order
+    psfs, fields = comatic_stack(k=6, s=21)
+    psfs = psfs.float()
+    vig = torch.linspace(1.0, 0.7, 6)[:, None].repeat(1, 3)
+    image = torch.rand(2, 3, 96, 96, generator=torch.Generator().manual_seed(0))
+    threads = torch.get_num_threads()
+    torch.set_num_threads(4)
+    try:
+        grads = []
+        for _ in range(4):
+            p = psfs.clone().requires_grad_(True)
+            v = vig.clone().requires_grad_(True)
+            render(image, p, fields, v, patch=16, full_field_px=60.0).square().sum().backward()
+            grads.append(torch.cat([p.grad.reshape(-1), v.grad.reshape(-1)]))
+    finally:
+        torch.set_num_threads(threads)
+    for g in grads[1:]:
+        assert torch.equal(g, grads[0])

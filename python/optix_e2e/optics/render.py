@@ -59,8 +59,13 @@ def interpolate_fields(values: torch.Tensor, fields: torch.Tensor, r: torch.Tens
     r = r.to(values).clamp(fields[0], fields[-1])
     hi = torch.searchsorted(fields, r.contiguous(), right=True).clamp(1, len(fields) - 1)
     lo = hi - 1
-    t = ((r - fields[lo]) / (fields[hi] - fields[lo])).reshape(-1, *[1] * (values.dim() - 1))
-    return values[lo] * (1 - t) + values[hi] * t
+    t = (r - fields[lo]) / (fields[hi] - fields[lo])
+    # as a [N, K] weight matrix times values, not values[lo] / values[hi]: the backward of
+    # advanced indexing accumulates in parallel in no fixed order on the CPU (gradients that
+    # differ in the last bit from run to run); a matmul's backward is reproducible
+    k = torch.arange(len(fields), device=values.device)
+    w = (k == lo[:, None]) * (1 - t)[:, None] + (k == hi[:, None]) * t[:, None]
+    return (w @ values.reshape(len(fields), -1)).reshape(len(r), *values.shape[1:])
 
 
 def rotate_psfs(psfs: torch.Tensor, azimuth: torch.Tensor) -> torch.Tensor:
