@@ -4,6 +4,9 @@ optimizer, the low-light setting and calibration, the held-out set, the run sett
 from __future__ import annotations
 
 
+import math
+
+import numpy as np
 import pytest
 import torch
 
@@ -14,6 +17,7 @@ from optix_e2e.optics import DifferentiableOptics
 from optix_e2e.optimize.config import make_config
 from optix_e2e.optimize.run import build_camera, load_surrogate, make_optimizer
 from optix_e2e.tasks import SensorFrame, get_task, heldout_set, task_loss, training_batch
+from optix_e2e.tasks.scenes import POSITIONS
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -90,6 +94,31 @@ def test_the_heldout_set_is_fixed_and_large_enough():
     corner = [s for s in a if s.position == "corner"][0]
     r = (corner.offset_px[0] ** 2 + corner.offset_px[1] ** 2) ** 0.5 / SensorFrame().full_field_px
     assert 0.95 < r < 1.0
+
+
+def test_frame_positions_cover_the_frame_as_training_crops_do():
+    # a design run's held-out positions: one per quadrant, inside the frame, on the CFA phase,
+    # fixed; over many images their radii spread as uniform crop positions' do
+    frame, size = SensorFrame(), 32
+    samples = heldout_set(size, 4, 60, photos=[], positions=POSITIONS["frame"])
+    assert len(samples) == 240 and samples[0].noise_seed != samples[1].noise_seed
+    again = heldout_set(size, 4, 60, photos=[], positions=POSITIONS["frame"])
+    assert [s.offset_px for s in samples] == [s.offset_px for s in again]
+    for i, s in enumerate(samples):
+        y0 = s.offset_px[0] - (size - 1) / 2 + (frame.height - 1) / 2
+        x0 = s.offset_px[1] - (size - 1) / 2 + (frame.width - 1) / 2
+        assert y0 % 2 == 0 and x0 % 2 == 0 and 0 <= y0 <= frame.height - size and 0 <= x0 <= frame.width - size
+        qy, qx = divmod(i % 4, 2)
+        assert (s.offset_px[0] > 0) == bool(qy) or abs(s.offset_px[0]) < 2
+        assert (s.offset_px[1] > 0) == bool(qx) or abs(s.offset_px[1]) < 2
+    rng = np.random.default_rng(0)
+    y = rng.integers(0, (frame.height - size) // 2 + 1, 20000) * 2 + (size - 1) / 2 - (frame.height - 1) / 2
+    x = rng.integers(0, (frame.width - size) // 2 + 1, 20000) * 2 + (size - 1) / 2 - (frame.width - 1) / 2
+    uniform = np.median(np.hypot(y, x))
+    held = np.median([math.hypot(*s.offset_px) for s in samples])
+    assert abs(held - uniform) < 0.06 * uniform
+    with pytest.raises(ValueError, match="unknown held-out position"):
+        heldout_set(size, 4, 1, photos=[], positions=("edge",))
 
 
 def test_config_files_and_run_directories_are_checked(tmp_path):

@@ -39,7 +39,7 @@ def design(task, out, config_file, optimizer, budget, seed, surrogate, images, t
                       images=images, threads=threads)
     res = run_design(cfg, Path(out), progress=not quiet, log=click.echo)
     n, e, p = res["nominal"], res["end_to_end"], res["paired"]
-    click.echo(f"held-out ({res['held_out']['n_images']} images x {len(res['held_out']['positions'])} positions), "
+    click.echo(f"held-out ({res['held_out']['n_images']} images x {res['held_out']['per_image']} positions), "
                f"exact optics:")
     for m, label in (("psnr_db", "PSNR dB"), ("ssim", "SSIM"), ("lpips", "LPIPS"), ("haarpsi", "HaarPSI")):
         lo, hi = p[m]["ci95"]

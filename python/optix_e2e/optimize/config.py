@@ -14,6 +14,7 @@ from pathlib import Path
 
 from ..dataset.layout import write_json_atomic
 from ..tasks import get_task
+from ..tasks.scenes import POSITIONS
 
 try:
     import tomllib
@@ -34,10 +35,12 @@ class DesignConfig:
     # training
     crop: int = 128                  # sensor pixels per side of a training crop
     batch: int = 4
-    n_cycles: int = 4                # Alg. 1's n_c
+    # the schedule (docs/e2e.md, "Choosing the schedule"): one cycle, then joint fine-tuning,
+    # chosen on validation batches (a training stream of another seed), not the held-out set
+    n_cycles: int = 1                # Alg. 1's n_c
     steps_optics: int = 10           # n_i of the optics block
     steps_isp: int = 10              # n_i of the ISP block
-    n_finetune: int = 20             # n_f
+    n_finetune: int = 80             # n_f
     lr_optics: float = 1e-2          # Adam, on the sigmoid-reparameterized lens parameters (paper: 1e-2)
     lr_isp_net: float = 1e-4         # the software ISP's weights (paper: 1e-4)
     lr_isp_params: float = 1e-2      # the hardware ISP's hyperparameters (their logits)
@@ -50,6 +53,7 @@ class DesignConfig:
     eval_size: int = 192
     eval_procedural: int = 13        # + the bundled photos (9) = 22 held-out images, each at centre and corner
     eval_level: float = 0.7
+    eval_positions: str = "frame"    # frame: 4 stratified uniform positions per image | centre-corner
     bootstrap: int = 2000
     threads: int = 0                 # torch CPU threads (0: torch's default)
 
@@ -61,6 +65,8 @@ class DesignConfig:
         get_task(self.task)
         if self.optimizer not in ("alg1", "vanilla"):
             raise ValueError(f"optimizer must be alg1 or vanilla, got {self.optimizer!r}")
+        if self.eval_positions not in POSITIONS:
+            raise ValueError(f"eval_positions must be one of {', '.join(POSITIONS)}, got {self.eval_positions!r}")
         if self.optics_init not in ("nominal", "uniform"):
             raise ValueError(f"optics_init must be nominal or uniform, got {self.optics_init!r}")
         for k in ("crop", "batch", "steps_optics", "steps_isp", "eval_size", "patch", "checkpoint_every"):
@@ -97,7 +103,7 @@ BUDGETS: dict[str, dict] = {
     "smoke": dict(crop=32, batch=1, n_cycles=1, steps_optics=2, steps_isp=2, n_finetune=2, eval_size=32,
                   eval_procedural=1, checkpoint_every=2, bootstrap=200),
     "quick": dict(),
-    "full": dict(crop=160, batch=6, n_cycles=12, steps_optics=25, steps_isp=25, n_finetune=300, eval_size=256),
+    "full": dict(crop=160, batch=6, n_cycles=4, steps_optics=25, steps_isp=25, n_finetune=700, eval_size=256),
 }
 
 

@@ -35,6 +35,7 @@ from ..dataset.layout import write_json_atomic
 from ..surrogate.checkpoint import OpticsSurrogate, save_atomic
 from ..surrogate.exact import exact_optics
 from ..tasks import SensorFrame, TaskLoss, get_task, training_batch
+from ..tasks.scenes import POSITIONS
 from ..torchfile import load_plain
 from .alg1 import Block, ProximalCompositional, Vanilla
 from .config import DesignConfig
@@ -365,7 +366,8 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
               "end_to_end": {"exact": (exact["psf"][1], exact["vignetting"][1], heights["end_to_end"]),
                              "surrogate": (psf_es, vig_es, h_train)}}
     cams = {"nominal": nominal, "end_to_end": camera}
-    samples = heldout_set(cfg.eval_size, exact["psf"].shape[-1] // 2, cfg.eval_procedural, cfg.eval_level, frame)
+    samples = heldout_set(cfg.eval_size, exact["psf"].shape[-1] // 2, cfg.eval_procedural, cfg.eval_level, frame,
+                          positions=POSITIONS[cfg.eval_positions])
     rows: dict[str, dict[str, list]] = {}
     for who in ("nominal", "end_to_end"):
         rows[who] = {}
@@ -394,7 +396,10 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     pitch = float(sur.manifest["settings"]["sensor_pixel_um"]) * sur.bin
     outputs.save_psf_grids(out / "psf_nominal.png", exact["psf"][0], fields_deg, pitch, "nominal (engine)")
     outputs.save_psf_grids(out / "psf_end_to_end.png", exact["psf"][1], fields_deg, pitch, "end-to-end (engine)")
-    _panels(out / "panels.png", samples, cams, optics)
+    from ..scenes import bundled_photos
+    # the panels: three photos at the two extremes of the field, the centre and the corner
+    _panels(out / "panels.png", heldout_set(cfg.eval_size, exact["psf"].shape[-1] // 2, 0, cfg.eval_level, frame,
+                                            photos=bundled_photos()[:3]), cams, optics)
     from ..design.report import write_report
     for who in ("nominal", "end_to_end"):
         write_report(Lens.load(out / "lens" / f"{who}.json"), out / "report" / who)
@@ -406,6 +411,8 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         "seed": cfg.seed, "optics_eval": "exact",
         "nominal": summary["nominal"], "end_to_end": summary["end_to_end"],
         "paired": ev.paired(rows["nominal"]["exact"], rows["end_to_end"]["exact"], cfg.bootstrap, cfg.seed),
+        "paired_by_zone": ev.paired_by_zone(rows["nominal"]["exact"], rows["end_to_end"]["exact"], cfg.bootstrap,
+                                            cfg.seed),
         "paired_surrogate_optics": ev.paired(rows["nominal"]["surrogate"], rows["end_to_end"]["surrogate"],
                                              cfg.bootstrap, cfg.seed),
         "lens_zmx": str(Path(exported["zmx"]).relative_to(out)), "lens_json": str(Path(exported["json"]).relative_to(out)),
@@ -416,7 +423,8 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
             "nominal": outputs.psf_rel_l1_per_field(psf_ns, exact["psf"][0]),
             "end_to_end": outputs.psf_rel_l1_per_field(psf_es, exact["psf"][1])},
         "held_out": {"n_images": len({s.name for s in samples}), "n_samples": len(samples),
-                     "positions": sorted({s.position for s in samples}), "size_px": cfg.eval_size},
+                     "positions": cfg.eval_positions, "per_image": len(POSITIONS[cfg.eval_positions]),
+                     "size_px": cfg.eval_size},
         "training": {k: {kk: v[kk] for kk in ("steps", "wall_s", "final_loss", "cut_steps")} for k, v in
                      (("end_to_end", e2e), ("nominal", nom))},
         "surrogate": cfg.surrogate,
@@ -433,6 +441,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
 
 @torch.no_grad()
 def _panels(path: Path, samples, cams: dict, optics: dict, n_images: int = 3) -> None:
+    """target / nominal / end-to-end for the first ``n_images`` of ``samples``, every position."""
     from .outputs import save_panels
 
     names = []
@@ -471,8 +480,9 @@ def _write_rows(path: Path, rows: dict) -> None:
 
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["camera", "optics", "image", "position", "psnr_db", "ssim", "lpips", "haarpsi"])
+        w.writerow(["camera", "optics", "image", "position", "radius", "psnr_db", "ssim", "lpips", "haarpsi"])
         for who, kinds in rows.items():
             for kind, rs in kinds.items():
                 for r in rs:
-                    w.writerow([who, kind, r["image"], r["position"], r["psnr_db"], r["ssim"], r["lpips"], r["haarpsi"]])
+                    w.writerow([who, kind, r["image"], r["position"], r.get("radius", ""), r["psnr_db"], r["ssim"],
+                                r["lpips"], r["haarpsi"]])

@@ -8,9 +8,12 @@ A sample is an sRGB scene crop, where it lies on the sensor, and how it is lit:
   brightness log-uniform in the task's range and a random illuminant tint. Every batch is a
   function of (seed, step) alone, so a resumed run sees the batches it would have seen.
 * Evaluation (``heldout_set``): every bundled photo plus procedural scenes from seeds training
-  never draws, each at the centre and at the corner of the sensor, fixed brightness and
-  neutral light; the sensor-noise seed is fixed per sample, so every method and optics sees
-  the same noise (paired comparisons).
+  never draws, fixed brightness and neutral light, each at fixed positions on the sensor:
+  "frame" (the default of a design run) is four positions per image drawn uniformly over the
+  frame, one per quadrant (stratified), so the mean is the frame's average image quality as
+  training's uniform crop positions weigh it; "centre" and "corner" are the two extremes (the
+  image panels show them). The sensor-noise seed is fixed per sample, so every method and
+  optics sees the same noise (paired comparisons).
 
 Crops carry a margin of ``margin`` pixels on each side (the PSF half-width): light from just
 outside the crop is rendered, then the margin is cut before the sensor.
@@ -28,6 +31,7 @@ from .. import color, scenes
 
 HELDOUT_SEED0 = 2_000_000_000  # procedural held-out scenes use seeds from here; training streams are [1, seed, step]
 HELDOUT_NOISE0 = 1 << 60        # held-out noise seeds (training noise: SeedSequence([4, seed, step]))
+POSITIONS = {"frame": ("frame",) * 4, "centre-corner": ("centre", "corner")}  # a design run's eval_positions
 
 
 @dataclass(frozen=True)
@@ -106,7 +110,7 @@ def training_batch(seed: int, step: int, batch: int, size: int, margin: int, lev
 @dataclass
 class HeldoutSample:
     name: str
-    position: str           # "centre" or "corner"
+    position: str           # "centre", "corner" or "frame" (a stratified uniform position)
     scene: torch.Tensor     # [3, S + 2m, S + 2m] linear
     target: torch.Tensor    # [3, S, S] sRGB
     offset_px: tuple[float, float]
@@ -117,7 +121,11 @@ def heldout_set(size: int, margin: int, n_procedural: int = 12, level: float = 0
                 frame: SensorFrame = SensorFrame(), photos: list[str] | None = None,
                 positions: tuple[str, ...] = ("centre", "corner")) -> list[HeldoutSample]:
     """The fixed evaluation set: bundled photos + ``n_procedural`` held-out procedural scenes,
-    each at ``positions`` (see the module doc); deterministic."""
+    each at ``positions`` (see the module doc; the j-th "frame" entry of an image lies in
+    quadrant j % 4); deterministic."""
+    unknown = sorted(set(positions) - {"centre", "corner", "frame"})
+    if unknown:
+        raise ValueError(f"unknown held-out position(s) {unknown}: centre, corner or frame")
     full = size + 2 * margin
     items = [(f"photo:{p}", scenes.load_photo(p, full)) for p in (scenes.bundled_photos() if photos is None else photos)]
     items += [(f"procedural:{HELDOUT_SEED0 + i}", scenes.mixed_scene(full, HELDOUT_SEED0 + i)) for i in range(n_procedural)]
@@ -127,6 +135,13 @@ def heldout_set(size: int, margin: int, n_procedural: int = 12, level: float = 0
     for k, (name, img) in enumerate(items):
         lin, ideal = _light(img[None], np.array([level]), np.ones((1, 3)), margin)
         for j, pos in enumerate(positions):
-            y0, x0 = where[pos]
+            if pos == "frame":  # top-left pixel uniform in quadrant j % 4 of the valid range, on the CFA phase
+                rng = np.random.default_rng([5, k, j])  # stream tag 5: held-out positions
+                qy, qx = divmod(j % 4, 2)
+                hy, hx = (frame.height - size) // 4, (frame.width - size) // 4  # half the range, in 2-px steps
+                y0 = 2 * (qy * hy + int(rng.integers(0, hy + 1)))
+                x0 = 2 * (qx * hx + int(rng.integers(0, hx + 1)))
+            else:
+                y0, x0 = where[pos]
             out.append(HeldoutSample(name, pos, lin[0], ideal[0], frame.offset(y0, x0, size), HELDOUT_NOISE0 + 1000 * k + j))
     return out
