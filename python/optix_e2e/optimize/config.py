@@ -103,7 +103,7 @@ BUDGETS: dict[str, dict] = {
     "smoke": dict(crop=32, batch=1, n_cycles=1, steps_optics=2, steps_isp=2, n_finetune=2, eval_size=32,
                   eval_procedural=1, checkpoint_every=2, bootstrap=200),
     "quick": dict(),
-    "full": dict(crop=160, batch=6, n_cycles=4, steps_optics=25, steps_isp=25, n_finetune=700, eval_size=256),
+    "full": dict(n_cycles=2, steps_optics=25, steps_isp=25, n_finetune=300, eval_size=256),
 }
 
 

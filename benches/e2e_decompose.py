@@ -1,0 +1,73 @@
+#!/usr/bin/env python3
+"""Which part of an end-to-end run helps or hurts: swap lens and processing between its two
+cameras and measure the task loss on validation batches.
+
+    python benches/e2e_decompose.py RUN_DIR [--val-seed 7] [--batches 8] [--json OUT.json]
+
+RUN_DIR is a finished `optix design` run. The lens is the nominal or the run's end-to-end
+lens (surrogate optics, as in training); the processing is the pre-trained one (Alg. 1's
+start), the nominal baseline's or the end-to-end run's. Validation batches are the training
+stream of another seed (procedural scenes, uniform positions over the frame, the task's light
+levels, fixed noise): neither the batches training saw nor the held-out set, so a schedule
+can be chosen on them. It measures; it asserts nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import torch
+
+from optix_e2e.camera import Camera
+from optix_e2e.optimize.config import DesignConfig
+from optix_e2e.optimize.run import build_camera, load_surrogate
+from optix_e2e.tasks import SensorFrame, TaskLoss, get_task, training_batch
+from optix_e2e.torchfile import load_plain
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("run")
+    ap.add_argument("--val-seed", type=int, default=7)
+    ap.add_argument("--batches", type=int, default=8)
+    ap.add_argument("--json", default=None)
+    a = ap.parse_args()
+    run = Path(a.run)
+    cfg = DesignConfig(**json.loads((run / "config.json").read_text())).check()
+    if a.val_seed == cfg.seed:
+        raise SystemExit(f"--val-seed must differ from the run's seed {cfg.seed} (its training batches)")
+    sur = load_surrogate(cfg.surrogate)
+    task, frame = get_task(cfg.task), SensorFrame()
+    loss = TaskLoss(task)
+    e2e, nom, pre = (build_camera(cfg, sur) for _ in range(3))
+    e2e.load_state_dict(load_plain(run / "end_to_end_state.pt", "design checkpoint")["camera"])
+    st = load_plain(run / "nominal_state.pt", "design checkpoint")["camera"]
+    nom.isp.load_state_dict({k[len("isp."):]: v for k, v in st.items() if k.startswith("isp.")})
+    for c in (e2e, nom, pre):
+        c.eval()
+    batches = [training_batch(a.val_seed, t, cfg.batch, cfg.crop, e2e.margin, (task.level_min, task.level_max),
+                              frame, None) for t in range(a.batches)]
+
+    @torch.no_grad()
+    def val_loss(optics, isp) -> float:
+        tot = 0.0
+        for i, b in enumerate(batches):
+            out, _ = Camera(optics, e2e.sensor, isp)(b.scene, b.offset_px, torch.Generator().manual_seed(100 + i))
+            tot += float(loss(out, b.target)[0]) / len(batches)
+        return tot
+
+    rows = []
+    for lens, optics in (("nominal", nom.optics), ("end_to_end", e2e.optics)):  # nom.optics: the nominal design
+        for proc, isp in (("pretrained", pre.isp), ("nominal_run", nom.isp), ("end_to_end_run", e2e.isp)):
+            rows.append({"lens": lens, "processing": proc, "val_loss": val_loss(optics, isp)})
+            print(f"lens {lens:10s}  processing {proc:14s}  validation loss {rows[-1]['val_loss']:.4f}", flush=True)
+    res = {"run": str(run), "task": cfg.task, "val_seed": a.val_seed, "batches": a.batches, "batch": cfg.batch,
+           "crop": cfg.crop, "rows": rows}
+    if a.json:
+        Path(a.json).write_text(json.dumps(res, indent=2))
+
+
+if __name__ == "__main__":
+    main()
