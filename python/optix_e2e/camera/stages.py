@@ -26,8 +26,7 @@ from ..isp.reference import ReferenceISP
 from ..isp.software import SoftwareISP
 from ..optics.render import render
 from ..sensor import get_preset, simulate_raw
-from ..sensor.cfa import mosaic
-from ..sensor.emva import calibrate_radiance_scale, dark_current_mean, expected_electrons
+from ..sensor.emva import calibrate_radiance_scale
 
 
 def image_height_fractions(lens_data: dict, fields_deg) -> torch.Tensor:
@@ -95,11 +94,8 @@ class SensorStage(nn.Module):
     """Linear radiance [B, 3, H, W] -> RAW [B, 1, H, W] in DN (Eq. 5), noise on unless ``noise=False``.
 
     ``common_noise=True`` (evaluation; not differentiable) draws the same noise for any two
-    inputs given the same generator state: the uniform, normal and uniform fields for shot
-    noise, read noise and quantisation are drawn first (their number does not depend on the
-    signal), and the shot noise is the Poisson quantile of its uniform at the pixel's mean.
-    ``torch.poisson`` instead consumes a signal-dependent amount of the random stream, so
-    two cameras seeded alike would still see unrelated noise."""
+    inputs given the same generator state (sensor.emva.raw_from_electrons), so two cameras
+    seeded alike see the same noise draws."""
 
     def __init__(self, preset, noise: bool = True):
         super().__init__()
@@ -110,24 +106,8 @@ class SensorStage(nn.Module):
 
     def forward(self, radiance: torch.Tensor, generator: torch.Generator | None = None, *,
                 common_noise: bool = False) -> torch.Tensor:
-        if common_noise and self.noise:
-            return self._common_noise(radiance, generator)
         return simulate_raw(radiance, self.preset, noise=self.noise, quantize="uniform" if self.noise else "none",
-                            generator=generator)
-
-    @torch.no_grad()
-    def _common_noise(self, radiance: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
-        from scipy.stats import poisson
-
-        p = self.preset
-        mu = mosaic(expected_electrons(radiance, p), p.cfa) + dark_current_mean(p)  # Eq. 4-5 mean electrons
-        u_shot = torch.rand(mu.shape, generator=generator, dtype=torch.float64)
-        z_read = torch.randn(mu.shape, generator=generator, dtype=torch.float64)
-        u_q = torch.rand(mu.shape, generator=generator, dtype=torch.float64)
-        lam = mu.detach().double().clamp_min(0).numpy()
-        e = torch.from_numpy(poisson.ppf(u_shot.numpy(), lam)) + p.dark_noise_e * z_read
-        y = p.black_level_dn + p.gain_dn_per_e * torch.clamp(e, max=p.full_well_e) + u_q - 0.5
-        return y.clamp(0, p.adc_max_dn).to(radiance.dtype)
+                            generator=generator, common_noise=common_noise)
 
 
 class SoftwareISPStage(nn.Module):

@@ -73,7 +73,7 @@ def expected_electrons(linear_rgb: torch.Tensor, preset="imx249", *, exposure_s=
 
 def simulate_raw(linear_rgb: torch.Tensor, preset="imx249", *, exposure_s=None, gain=None, f_number=None,
                  temperature_c=None, cfa=None, noise: bool = True, quantize: str = "uniform",
-                 generator: torch.Generator | None = None) -> torch.Tensor:
+                 generator: torch.Generator | None = None, common_noise: bool = False) -> torch.Tensor:
     """Linear RGB [B, 3, H, W] (or [3, H, W]) -> RAW digital numbers [B, 1, H, W] (or [1, H, W]).
 
     linear_rgb: relative linear radiance (1.0 = the preset's ``radiance_scale``), >= 0.
@@ -82,7 +82,7 @@ def simulate_raw(linear_rgb: torch.Tensor, preset="imx249", *, exposure_s=None, 
     (no sampling, no quantisation noise). quantize: "uniform" adds n_q ~ U(-0.5, 0.5) (Eq. 5,
     differentiable), "round" rounds like a real ADC (straight-through gradient), "none" skips it.
     The output has the input's dtype (float32 unless the input is float64) and is differentiable
-    w.r.t. linear_rgb (Poisson gradient: see poisson.py).
+    w.r.t. linear_rgb (Poisson gradient: see poisson.py). common_noise: see raw_from_electrons.
     """
     p = _resolve(preset, exposure_s, gain, f_number, temperature_c, cfa)
     x = _check_image(linear_rgb)
@@ -90,21 +90,42 @@ def simulate_raw(linear_rgb: torch.Tensor, preset="imx249", *, exposure_s=None, 
     if squeeze:
         x = x[None]
     y = raw_from_electrons(mosaic(expected_electrons(x, p), p.cfa), p, noise=noise, quantize=quantize,
-                           generator=generator)
+                           generator=generator, common_noise=common_noise)
     return y[0] if squeeze else y
 
 
 def raw_from_electrons(photo_electrons: torch.Tensor, preset="imx249", *, noise: bool = True,
-                       quantize: str = "uniform", generator: torch.Generator | None = None) -> torch.Tensor:
+                       quantize: str = "uniform", generator: torch.Generator | None = None,
+                       common_noise: bool = False) -> torch.Tensor:
     """Eq. 5 from the mean photo-electrons per pixel (any shape, e.g. [B, 1, H, W]) to DN, same shape.
 
     Adds the dark current mu_I (Eq. 4), samples Poisson(mu_e + mu_I) and the dark noise n_d (noise=True),
     clips at full well, applies gain, quantisation (see simulate_raw) and black level, clamps to the ADC.
+
+    common_noise=True (with noise and uniform quantisation; no gradient) draws the same noise
+    for any two signals given the same generator state (common random numbers, for paired
+    comparisons): the uniform, normal and uniform fields of shot noise, dark noise and
+    quantisation are drawn first, in float64 (their number does not depend on the signal), and
+    the shot noise is the Poisson quantile of its uniform at the pixel's mean. Sampling
+    ``torch.poisson`` consumes a signal-dependent amount of the random stream instead.
     """
     if quantize not in QUANTIZE:
         raise ValueError(f"quantize must be one of {', '.join(QUANTIZE)}, got {quantize!r}")
     p = get_preset(preset)
     mu_e = photo_electrons + dark_current_mean(p)
+    if common_noise and noise:
+        if quantize != "uniform":
+            raise ValueError("common_noise needs quantize='uniform'")
+        from scipy.stats import poisson
+
+        with torch.no_grad():
+            u_shot = torch.rand(mu_e.shape, generator=generator, dtype=torch.float64)
+            z_read = torch.randn(mu_e.shape, generator=generator, dtype=torch.float64)
+            u_q = torch.rand(mu_e.shape, generator=generator, dtype=torch.float64)
+            lam = mu_e.detach().double().cpu().clamp_min(0).numpy()
+            e = torch.from_numpy(poisson.ppf(u_shot.numpy(), lam)) + p.dark_noise_e * z_read
+            y = p.black_level_dn + p.gain_dn_per_e * torch.clamp(e, max=p.full_well_e) + u_q - 0.5
+            return y.clamp(0, p.adc_max_dn).to(photo_electrons)
     if noise:
         e = poisson_sample(mu_e, generator=generator)  # photo-electrons + n_I
         e = e + p.dark_noise_e * torch.randn(e.shape, generator=generator, dtype=e.dtype, device=e.device)  # n_d
