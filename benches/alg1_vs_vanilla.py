@@ -36,11 +36,13 @@ def share_nominal(src: Path, dst: Path) -> None:
     import shutil
 
     files = ["nominal_state.pt", "eval_nominal_exact.json", "eval_nominal_surrogate.json"]
-    if dst.exists() or not all((src / f).is_file() for f in files):
+    if dst.exists() or not all((src / f).is_file() for f in files + ["config.json"]):
         return
     dst.mkdir(parents=True)
     for f in files:
         shutil.copy2(src / f, dst / f)
+    cfg = json.loads((src / "config.json").read_text())  # the run's settings but the optimizer
+    (dst / "config.json").write_text(json.dumps({**cfg, "optimizer": "vanilla"}))
 
 
 def main() -> None:
