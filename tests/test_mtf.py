@@ -116,3 +116,21 @@ def test_mtf_rejects_bad_requests(cooke):
         field_mtf(cooke, 0.0, [10.0], method="geometric")
     with pytest.raises(ValueError, match="pupil_samples"):
         field_mtf(cooke, 0.0, [10.0], pupil_samples=8)
+
+
+def test_a_refused_fft_psf_falls_back_to_huygens():
+    # an end-to-end design whose exit pupil at the full field is too distorted for the FFT:
+    # the engine refuses that PSF (at the grown window, 256 pupil samples), and the MTF (and the design run's lens report) uses the
+    # Huygens PSF there instead of failing; the other wavelengths keep the FFT
+    from pathlib import Path
+
+    from optix_e2e.lens import Lens
+
+    lens = Lens.load(Path(__file__).parent / "data" / "distorted_pupil_triplet.json")
+    m = field_mtf(lens, 14.9)
+    used = {p["wavelength_nm"]: s["method"] for p, s in zip(m["per_wavelength"], m["sampling_per_wavelength"])}
+    assert used[470.0] == "huygens" and "fft" in used.values()
+    assert any("FFT PSF refused" in w for w in m["warnings"])
+    ref = field_mtf(lens, 14.9, wavelengths_nm=[470.0], method="huygens")
+    np.testing.assert_allclose(m["per_wavelength"][0]["tangential"], ref["per_wavelength"][0]["tangential"], atol=1e-12)
+    assert np.all(np.isfinite(m["tangential"])) and 0.0 <= m["tangential"].min() and m["tangential"][0] == pytest.approx(1.0)

@@ -108,12 +108,28 @@ def _sized_psf(lens, field_deg: float, wl: float, samp: dict, aiming: str, metho
     window) grown by powers of two until the geometric spot extent, measured from the
     chief ray, stays inside 85% of the half window (FFT: the engine reports the extent)
     and the window holds 99% of the transmitted energy; at most MAX_PUPIL_SAMPLES.
-    Huygens PSFs keep the first window (see below)."""
+    Huygens PSFs keep the first window (see below); an FFT PSF the engine refuses is
+    replaced by the Huygens PSF at that sampling (its record says "method": "huygens")."""
+    from .. import _engine
+
     p_um, n_pupil = samp["pixel_um"], samp["pupil_samples"]
     while True:
         size = int(WINDOW_FRACTION * 4 * n_pupil) // 2 * 2
-        psf, d = lens.psf(field_deg, wl, method, pixel_um=p_um, size=size, pupil_samples=n_pupil,
-                          aiming=aiming, integrate=False)
+        try:
+            psf, d = lens.psf(field_deg, wl, method, pixel_um=p_um, size=size, pupil_samples=n_pupil,
+                              aiming=aiming, integrate=False)
+        except _engine.PsfError as err:
+            if method != "fft":
+                raise
+            # The engine refuses an FFT PSF that fails its own checks (an exit pupil too
+            # distorted for one FFT over the window): the Huygens PSF, the reference, instead,
+            # at the first window (as a Huygens request keeps it, see below).
+            method, n_pupil = "huygens", samp["pupil_samples"]
+            size = int(WINDOW_FRACTION * 4 * n_pupil) // 2 * 2
+            psf, d = lens.psf(field_deg, wl, method, pixel_um=p_um, size=size, pupil_samples=n_pupil,
+                              aiming=aiming, integrate=False)
+            d = {**d, "warnings": [f"FFT PSF refused ({str(err).split(' (')[0]}); Huygens PSF used",
+                                   *d.get("warnings", [])]}
         extent = max(float(d.get("spot_extent_x_um", 0.0)), float(d.get("spot_extent_y_um", 0.0)))
         need = extent / (0.85 * 0.5 * size * p_um)
         # Diffraction spreads light past the rays: also grow while the window holds
@@ -125,7 +141,8 @@ def _sized_psf(lens, field_deg: float, wl: float, samp: dict, aiming: str, metho
         if method == "huygens":
             need = 0.0
         if need <= 1.0 or n_pupil >= MAX_PUPIL_SAMPLES:
-            return psf, d, {"pupil_samples": n_pupil, "size": size, "window_um": size * p_um, "spot_extent_um": extent}
+            return psf, d, {"pupil_samples": n_pupil, "size": size, "window_um": size * p_um, "spot_extent_um": extent,
+                            "method": method}
         n_pupil = min(MAX_PUPIL_SAMPLES, n_pupil * 2 ** math.ceil(math.log2(need)))
 
 
