@@ -5,11 +5,12 @@ and number of steps, over several seeds.
     python benches/alg1_vs_vanilla.py --task iq-software --seeds 0 1 2 --budget full --out runs/fig12
                                       [--init uniform|nominal] [--config FILE.toml]
 
-Runs `optix design` for each (optimizer, seed) (resumable: run it again to continue), then
-writes OUT/fig12.csv (one row per run: held-out PSNR / SSIM / LPIPS / HaarPSI under exact
-optics, final training loss, wall time), OUT/fig12.json (per seed, Alg. 1 minus vanilla, and
-the mean over seeds) and OUT/fig12.png (training loss against step, both optimizers, every
-seed). The nominal baseline, identical for both optimizers, is trained once per seed. The
+Runs `optix design` for each (optimizer, seed) (resumable: run it again to continue; a run
+with its results.json is not run again), then writes OUT/fig12-TASK-INIT.csv (one row per run:
+held-out PSNR / SSIM / LPIPS / HaarPSI under exact optics, final training loss, wall time),
+OUT/fig12-TASK-INIT.json (per seed, Alg. 1 minus vanilla, and the mean over seeds) and
+OUT/fig12-TASK-INIT.png (training loss against step, both optimizers, every seed); several
+tasks can share one OUT. The nominal baseline, identical for both optimizers, is trained once per seed. The
 paper initializes the optics uniformly at random (--init uniform, the default here).
 It measures; it asserts nothing.
 """
@@ -69,8 +70,11 @@ def main() -> None:
                 share_nominal(out / f"{a.task}-alg1-seed{seed}", run)
             cmd = [sys.executable, "-m", "optix_e2e", "design", a.task, "--out", str(run), "--budget", a.budget,
                    "--optimizer", opt, "--seed", str(seed), "--config", str(cfg)]
-            print(" ".join(cmd), flush=True)
-            subprocess.run(cmd, check=True)
+            if (run / "results.json").is_file():
+                print(f"{run}: finished already", flush=True)
+            else:
+                print(" ".join(cmd), flush=True)
+                subprocess.run(cmd, check=True)
             res = json.loads((run / "results.json").read_text())
             rows.append({"task": a.task, "optimizer": opt, "seed": seed,
                          **{m: res["end_to_end"][m] for m in METRICS},
@@ -79,7 +83,8 @@ def main() -> None:
             with open(run / "history.csv") as f:
                 curves[(opt, seed)] = [(int(r["step"]), float(r["loss"])) for r in csv.DictReader(f)
                                        if r["run"] == "end_to_end"]
-    with open(out / "fig12.csv", "w", newline="") as f:
+    stem = f"fig12-{a.task}-{a.init}"
+    with open(out / f"{stem}.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
@@ -87,7 +92,7 @@ def main() -> None:
     diffs = {m: [by[("alg1", s)][m] - by[("vanilla", s)][m] for s in a.seeds] for m in METRICS}
     summary = {"task": a.task, "budget": a.budget, "init": a.init, "seeds": a.seeds,
                "alg1_minus_vanilla": {m: {"per_seed": d, "mean": float(np.mean(d))} for m, d in diffs.items()}}
-    (out / "fig12.json").write_text(json.dumps(summary, indent=2))
+    (out / f"{stem}.json").write_text(json.dumps(summary, indent=2))
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -105,7 +110,7 @@ def main() -> None:
     ax.set_title(f"{a.task}: Alg. 1 vs vanilla, {len(a.seeds)} seeds, same init and steps")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(out / "fig12.png")
+    fig.savefig(out / f"{stem}.png")
     print(json.dumps(summary))
 
 
