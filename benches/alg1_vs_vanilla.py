@@ -8,7 +8,9 @@ and number of steps, over several seeds.
 Runs `optix design` for each (optimizer, seed) (resumable: run it again to continue; a run
 with its results.json is not run again), then writes OUT/fig12-TASK-INIT.csv (one row per run:
 held-out PSNR / SSIM / LPIPS / HaarPSI under exact optics, final training loss, wall time),
-OUT/fig12-TASK-INIT.json (per seed, Alg. 1 minus vanilla, and the mean over seeds) and
+OUT/fig12-TASK-INIT.json (Alg. 1 minus vanilla per seed with its 95 % bootstrap interval over
+the held-out images, the mean over seeds and the interval of the images' seed-averaged
+differences) and
 OUT/fig12-TASK-INIT.png (training loss against step, both optimizers, every seed); several
 tasks can share one OUT. The nominal baseline, identical for both optimizers, is trained once per seed. The
 paper initializes the optics uniformly at random (--init uniform, the default here).
@@ -26,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-METRICS = ("psnr_db", "ssim", "lpips", "haarpsi")
+from optix_e2e.optimize.evaluate import METRICS, paired
 
 
 def share_nominal(src: Path, dst: Path) -> None:
@@ -44,6 +46,13 @@ def share_nominal(src: Path, dst: Path) -> None:
         shutil.copy2(src / f, dst / f)
     cfg = json.loads((src / "config.json").read_text())  # the run's settings but the optimizer
     (dst / "config.json").write_text(json.dumps({**cfg, "optimizer": "vanilla"}))
+
+
+def held_out_rows(run: Path) -> list[dict]:
+    """The end-to-end camera's held-out samples under exact optics, from the run's metrics.csv."""
+    with open(run / "metrics.csv") as f:
+        return [{**r, "radius": float(r["radius"]), **{m: float(r[m]) for m in METRICS}}
+                for r in csv.DictReader(f) if r["camera"] == "end_to_end" and r["optics"] == "exact"]
 
 
 def main() -> None:
@@ -90,8 +99,15 @@ def main() -> None:
         w.writerows(rows)
     by = {(r["optimizer"], r["seed"]): r for r in rows}
     diffs = {m: [by[("alg1", s)][m] - by[("vanilla", s)][m] for s in a.seeds] for m in METRICS}
+    # paired over held-out images (exact optics): per seed, and pooled (each image's
+    # difference averaged over seeds and positions, then bootstrapped over images)
+    held = {(opt, s): held_out_rows(out / f"{a.task}-{opt}-seed{s}") for s in a.seeds for opt in ("alg1", "vanilla")}
+    per_seed_ci = {s: paired(held[("vanilla", s)], held[("alg1", s)]) for s in a.seeds}
+    pooled = paired([r for s in a.seeds for r in held[("vanilla", s)]], [r for s in a.seeds for r in held[("alg1", s)]])
     summary = {"task": a.task, "budget": a.budget, "init": a.init, "seeds": a.seeds,
-               "alg1_minus_vanilla": {m: {"per_seed": d, "mean": float(np.mean(d))} for m, d in diffs.items()}}
+               "alg1_minus_vanilla": {m: {"per_seed": d, "mean": float(np.mean(d)),
+                                          "per_seed_ci95": [per_seed_ci[s][m]["ci95"] for s in a.seeds],
+                                          "pooled_ci95": pooled[m]["ci95"]} for m, d in diffs.items()}}
     (out / f"{stem}.json").write_text(json.dumps(summary, indent=2))
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
