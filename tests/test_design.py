@@ -274,3 +274,32 @@ def test_a_step_across_an_active_limit_slides_along_it():
             assert guard.problems(optics.values().detach().numpy()) == []
             out.append((optics.u.detach() - on_limit).norm().item())
     assert sum(moved_proj) > 2 * sum(moved_cut), (moved_proj, moved_cut)
+
+
+def test_a_step_to_an_untraceable_lens_is_cut_back_not_fatal():
+    # the projection linearizes the limits with the engine; where it cannot trace a point
+    # (found: margins raised and killed the run at the same step on every resume), the step
+    # falls back to the cut back along itself, and the result is manufacturable
+    from optix_e2e.optimize.run import Manufacturable, keep_manufacturable
+
+    class Untraceable(Manufacturable):
+        def margins(self, values):
+            if not np.allclose(values, self.ok):
+                raise ValueError("ray 0 missed surface 3")
+            return super().margins(values)
+
+    sur = load_surrogate("paper-triplet-v1")
+    optics = DifferentiableOptics(sur)
+    guard = Untraceable(sur.manifest)
+    start = optics.u.detach().clone()
+    guard.ok = optics.values().detach().double().numpy()
+    g = torch.Generator().manual_seed(0)
+    for _ in range(12):  # a random step that breaks a limit
+        with torch.no_grad():
+            optics.u.copy_(start + 6.0 * torch.randn(start.shape, generator=g))
+        if guard.problems(optics.values().detach().numpy()):
+            break
+    assert guard.problems(optics.values().detach().numpy())
+    assert keep_manufacturable(optics, start, guard, project=True)
+    assert guard.problems(optics.values().detach().numpy()) == []
+    assert not torch.equal(optics.u.detach(), start)

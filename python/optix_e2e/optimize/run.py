@@ -112,19 +112,24 @@ def project_step(optics: DifferentiableOptics, u_prev: torch.Tensor, step: torch
     """The step with its components across the limits it would break removed: the limits
     within ``near_mm`` of their bound at u_prev, linearized by forward differences in u
     (one margin evaluation per parameter), and the step projected onto {J d >= -m}
-    (least-distance projection, active set by nonnegative least squares)."""
+    (least-distance projection, active set by nonnegative least squares). Where the engine
+    cannot trace one of those points, the step is returned unchanged and the caller cuts it
+    back along itself (``problems`` calls such a point unmanufacturable)."""
     from scipy.optimize import nnls
 
-    m0 = guard.margins(_values(optics, u_prev))
-    m1 = guard.margins(_values(optics, u_prev + step))
-    active = np.flatnonzero((m0 < near_mm) | (m1 < 0))
-    if active.size == 0:
+    try:
+        m0 = guard.margins(_values(optics, u_prev))
+        m1 = guard.margins(_values(optics, u_prev + step))
+        active = np.flatnonzero((m0 < near_mm) | (m1 < 0))
+        if active.size == 0:
+            return step
+        jac = np.empty((active.size, u_prev.numel()))
+        for k in range(u_prev.numel()):
+            du = torch.zeros_like(u_prev)
+            du[k] = h
+            jac[:, k] = (guard.margins(_values(optics, u_prev + du))[active] - m0[active]) / h
+    except Exception:  # untraceable (a ray misses a surface, surfaces cross): no linearization here
         return step
-    jac = np.empty((active.size, u_prev.numel()))
-    for k in range(u_prev.numel()):
-        du = torch.zeros_like(u_prev)
-        du[k] = h
-        jac[:, k] = (guard.margins(_values(optics, u_prev + du))[active] - m0[active]) / h
     d = step.double().numpy()
     # min |d' - d|^2 s.t. J d' >= -m0: d' = d + J^T lam, lam >= 0 minimizing |J J^T lam - (-m0 - J d)|
     lam, _ = nnls(jac @ jac.T + 1e-12 * np.eye(active.size), np.maximum(-m0[active] - jac @ d, 0.0))
