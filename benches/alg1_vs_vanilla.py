@@ -9,8 +9,11 @@ Runs `optix design` for each (optimizer, seed) (resumable: run it again to conti
 with its results.json is not run again), then writes OUT/fig12-TASK-INIT.csv (one row per run:
 held-out PSNR / SSIM / LPIPS / HaarPSI under exact optics, final training loss, wall time),
 OUT/fig12-TASK-INIT.json (Alg. 1 minus vanilla per seed with its 95 % bootstrap interval over
-the held-out images, the mean over seeds and the interval of the images' seed-averaged
-differences) and
+the held-out images; the mean over seeds with two intervals: `seeds_ci95`, Student's t over
+the per-seed differences, which counts how much a training run varies from seed to seed (the
+interval to quote; wide with few seeds), and `pooled_ci95_given_runs`, a bootstrap over images
+of their seed-averaged differences, which takes these trained runs as fixed and so only says
+how sure the held-out set makes us about them) and
 OUT/fig12-TASK-INIT.png (training loss against step, both optimizers, every seed); several
 tasks can share one OUT. The nominal baseline, identical for both optimizers, is trained once per seed. The
 paper initializes the optics uniformly at random (--init uniform, the default here).
@@ -48,6 +51,39 @@ def share_nominal(src: Path, dst: Path) -> None:
     (dst / "config.json").write_text(json.dumps({**cfg, "optimizer": "vanilla"}))
 
 
+def run_config(user_toml: str | None, init: str) -> str:
+    """The settings file every run of the comparison gets: the user's, with its relative paths
+    made absolute (the copy lives in OUT) and ``optics_init`` set to ``init`` (a file that sets
+    another is refused rather than silently mislabelled)."""
+    try:
+        import tomllib
+    except ImportError:  # Python 3.10
+        import tomli as tomllib
+    import tomli_w
+
+    data = {}
+    if user_toml:
+        path = Path(user_toml)
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        for k in ("images", "software_isp"):
+            if data.get(k) and not Path(data[k]).is_absolute():
+                data[k] = str((path.parent / data[k]).resolve())
+    if data.setdefault("optics_init", init) != init:
+        sys.exit(f"{user_toml}: optics_init = {data['optics_init']!r}, but --init {init}; say it once")
+    return tomli_w.dumps(data)
+
+
+def seeds_interval(d: list[float], level: float = 0.95) -> list[float] | None:
+    """Student's t interval of the mean of per-seed differences (None with fewer than 2 seeds)."""
+    from scipy import stats
+
+    if len(d) < 2:
+        return None
+    m, se = float(np.mean(d)), float(np.std(d, ddof=1)) / np.sqrt(len(d))
+    h = float(stats.t.ppf(0.5 + level / 2, len(d) - 1)) * se
+    return [float(m - h), float(m + h)]
+
+
 def held_out_rows(run: Path) -> list[dict]:
     """The end-to-end camera's held-out samples under exact optics, from the run's metrics.csv."""
     with open(run / "metrics.csv") as f:
@@ -67,10 +103,7 @@ def main() -> None:
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     cfg = out / f"{a.task}-{a.init}.toml"
-    text = Path(a.config).read_text() if a.config else ""
-    if "optics_init" not in text:
-        text += f'\noptics_init = "{a.init}"\n'
-    cfg.write_text(text)
+    cfg.write_text(run_config(a.config, a.init))
     rows, curves = [], {}
     for seed in a.seeds:
         for opt in ("alg1", "vanilla"):
@@ -106,8 +139,11 @@ def main() -> None:
     pooled = paired([r for s in a.seeds for r in held[("vanilla", s)]], [r for s in a.seeds for r in held[("alg1", s)]])
     summary = {"task": a.task, "budget": a.budget, "init": a.init, "seeds": a.seeds,
                "alg1_minus_vanilla": {m: {"per_seed": d, "mean": float(np.mean(d)),
+                                          "seeds_ci95": seeds_interval(d),
+                                          "seeds_alg1_better": int(sum((x < 0) if m == "lpips" else (x > 0)
+                                                                       for x in d)),
                                           "per_seed_ci95": [per_seed_ci[s][m]["ci95"] for s in a.seeds],
-                                          "pooled_ci95": pooled[m]["ci95"]} for m, d in diffs.items()}}
+                                          "pooled_ci95_given_runs": pooled[m]["ci95"]} for m, d in diffs.items()}}
     (out / f"{stem}.json").write_text(json.dumps(summary, indent=2))
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure

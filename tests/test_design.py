@@ -134,6 +134,32 @@ def test_config_files_and_run_directories_are_checked(tmp_path):
         make_config("quick", f)
     with pytest.raises(ValueError, match="unknown budget"):
         make_config("huge")
+    # the file and the command line disagreeing is an error, not a silent choice
+    f.write_text('task = "low-light"\n')
+    assert make_config("quick", f, task="low-light").task == "low-light"
+    with pytest.raises(ValueError, match="task = 'low-light' here, 'iq-software' on the command line"):
+        make_config("quick", f, task="iq-software")
+    f.write_bytes(b"crop = 48 # \xff\xfe\n")
+    with pytest.raises(ValueError, match="not UTF-8"):
+        make_config("quick", f)
+    with pytest.raises(ValueError, match="cannot read"):
+        make_config("quick", tmp_path)
+    # a damaged run directory (config.json not UTF-8) and a damaged checkpoint: one error naming it
+    from optix_e2e.optimize.config import check_run_dir
+    from optix_e2e.optimize.run import _load_state, build_camera, make_optimizer
+    from optix_e2e.surrogate.checkpoint import save_atomic
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_bytes(b"\xff\xfe{")
+    with pytest.raises(ValueError, match="config.json is damaged"):
+        check_run_dir(run, make_config("smoke"))
+    cfg = make_config("smoke", surrogate="paper-triplet-v1", optimizer="vanilla")
+    cam = build_camera(cfg, load_surrogate("paper-triplet-v1"))
+    opt = make_optimizer(cfg, cam, "vanilla")
+    save_atomic({"format": "optix-design-state/1", "camera": cam.state_dict(), "optimizer": [1, 2],
+                 "wall_s": 0.0, "history": []}, run / "s.pt")
+    with pytest.raises(ValueError, match="damaged design checkpoint"):
+        _load_state(run / "s.pt", cam, opt)
 
 
 def test_evaluation_noise_is_common_to_both_cameras_and_has_the_sensor_statistics():
@@ -303,3 +329,18 @@ def test_a_step_to_an_untraceable_lens_is_cut_back_not_fatal():
     assert keep_manufacturable(optics, start, guard, project=True)
     assert guard.problems(optics.values().detach().numpy()) == []
     assert not torch.equal(optics.u.detach(), start)
+
+
+def test_the_final_design_check_finds_a_lens_out_of_focus():
+    # refocused = the dataset's best-focus criterion, evaluated again with a finer pupil, asks
+    # for (almost) no shift; 10 um off the refocused plane it asks for 10 um back
+    from optix_e2e.optimize.outputs import check_final_design
+    from optix_e2e.surrogate.exact import exact_optics
+    sur = load_surrogate("paper-triplet-e2e")
+    base = DifferentiableOptics(sur).base_values().double().numpy()
+    z = float(exact_optics(sur, base[None])["image_distance"][0])
+    at = check_final_design(sur.manifest, base, z)
+    off = check_final_design(sur.manifest, base, z + 0.010)
+    assert at["refocused"] and abs(at["focus_shift_um"]) < 1.0
+    assert not off["refocused"] and off["focus_shift_um"] == pytest.approx(at["focus_shift_um"] - 10.0, abs=0.5)
+    assert at["inside_space"] and at["manufacturable"]

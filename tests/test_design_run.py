@@ -31,14 +31,20 @@ def test_a_smoke_design_run_writes_every_output_and_resumes_after_kill_9(tmp_pat
     while not state.is_file() and time.time() < deadline and p.poll() is None:
         time.sleep(0.05)
     assert p.poll() is None, p.stdout.read().decode()
+    assert state.is_file(), "no checkpoint within the deadline"
     os.kill(p.pid, signal.SIGKILL)
     p.wait()
     assert not (out / "results.json").exists()
+    from optix_e2e.torchfile import load_plain
+    before = load_plain(state, "design checkpoint")
+    t_kill = int(before["optimizer"]["t"])
+    assert 1 <= t_kill < 14 and len(before["history"]) == t_kill
     # other settings are refused; the same command resumes and finishes
     r = subprocess.run(_design(out, "--config", str(cfg), "--seed", "1"), capture_output=True, text=True)
     assert r.returncode == 1 and "other settings" in r.stdout + r.stderr and "seed" in r.stdout + r.stderr
     r = subprocess.run(_design(out, "--config", str(cfg)), capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stdout + r.stderr
+    assert f"end_to_end: resuming at step {t_kill} of 14" in r.stdout, r.stdout
     res = json.loads((out / "results.json").read_text())
     for k in ("task", "optics_eval", "nominal", "end_to_end", "paired", "lens_zmx", "wall_s"):
         assert k in res, k
@@ -56,12 +62,15 @@ def test_a_smoke_design_run_writes_every_output_and_resumes_after_kill_9(tmp_pat
     # the steps ran once each, in order, across the kill
     rows = [r for r in csv.DictReader(open(out / "history.csv")) if r["run"] == "end_to_end"]
     assert [int(r["step"]) for r in rows] == list(range(1, 15))
+    # ... and the steps before the kill were not run again (a restart would re-time them)
+    assert [float(r["seconds"]) for r in rows[:t_kill]] == [h["seconds"] for h in before["history"]]
     # the exported lens reloads to the same design, in .zmx and JSON
     z, j = Lens.load(out / res["lens_zmx"]), Lens.load(out / res["lens_json"])
     assert z.paraxial()["efl_mm"] == pytest.approx(j.paraxial()["efl_mm"], rel=1e-9)
     for f in (0.0, 14.9):
         assert z.spot(f)["rms_um"] == pytest.approx(j.spot(f)["rms_um"], rel=1e-6)
     assert res["design"]["checks"]["inside_space"] and res["design"]["checks"]["manufacturable"]
+    assert res["design"]["checks"]["refocused"], res["design"]["checks"]
     # the same run uninterrupted lands on the same lens
     r = subprocess.run(_design(tmp_path / "again", "--config", str(cfg)), capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stdout + r.stderr

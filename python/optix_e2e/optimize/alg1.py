@@ -177,7 +177,8 @@ class Vanilla:
         return {"kind": self.kind, "t": self.t, "opt": self.opt.state_dict()}
 
     def load_state_dict(self, st: dict) -> None:
-        if st.get("kind") != self.kind:
-            raise ValueError(f"optimizer state is for {st.get('kind')!r}, not {self.kind!r}")
+        if not isinstance(st, dict) or st.get("kind") != self.kind:
+            raise ValueError(f"optimizer state is for {st.get('kind') if isinstance(st, dict) else st!r}, "
+                             f"not {self.kind!r}")
         self.t = int(st["t"])
         self.opt.load_state_dict(st["opt"])

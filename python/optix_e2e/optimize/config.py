@@ -51,7 +51,7 @@ class DesignConfig:
     checkpoint_every: int = 20
     # evaluation
     eval_size: int = 192
-    eval_procedural: int = 13        # + the bundled photos (9) = 22 held-out images, each at centre and corner
+    eval_procedural: int = 13        # + the bundled photos (9) = 22 held-out images, each at eval_positions
     eval_level: float = 0.7
     eval_positions: str = "frame"    # frame: 4 stratified uniform positions per image | centre-corner
     bootstrap: int = 2000
@@ -119,6 +119,10 @@ def make_config(budget: str = "quick", file: "str | Path | None" = None, **overr
             data = tomllib.loads(path.read_text(encoding="utf-8"))
         except FileNotFoundError:
             raise ValueError(f"config file not found: {path}") from None
+        except UnicodeDecodeError as err:
+            raise ValueError(f"{path}: not UTF-8 text ({err.reason} at byte {err.start})") from None
+        except OSError as err:
+            raise ValueError(f"{path}: cannot read the config file ({err.strerror})") from None
         except tomllib.TOMLDecodeError as err:
             raise ValueError(f"{path}: not valid TOML: {err}") from None
         unknown = sorted(set(data) - fields)
@@ -135,6 +139,8 @@ def make_config(budget: str = "quick", file: "str | Path | None" = None, **overr
             if k in ("images", "software_isp") and v and not Path(v).is_absolute():
                 v = str((path.parent / v).resolve())  # relative to the config file
             values[k] = v
+            if overrides.get(k) is not None and overrides[k] != v:  # the command line and the file disagree
+                raise ValueError(f"{path}: {k} = {v!r} here, {overrides[k]!r} on the command line; say it once")
     values.update({k: v for k, v in overrides.items() if v is not None})
     return DesignConfig(**values).check()
 
@@ -145,7 +151,7 @@ def check_run_dir(out: Path, cfg: DesignConfig) -> None:
     if path.is_file():
         try:
             old = json.loads(path.read_text())
-        except json.JSONDecodeError:
+        except (OSError, ValueError):  # unreadable, not UTF-8, not JSON
             old = None
         if not isinstance(old, dict):
             raise ValueError(f"{path} is damaged; remove the directory or choose another --out")

@@ -258,18 +258,20 @@ def _load_state(path: Path, camera: Camera, opt) -> tuple[float, list]:
         camera.load_state_dict(st["camera"])
         opt.load_state_dict(st["optimizer"])
         return float(st["wall_s"]), list(st["history"])
-    except (KeyError, TypeError, ValueError, RuntimeError) as err:
+    except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as err:
         raise ValueError(f"{path}: damaged design checkpoint ({err}); remove it to restart that training") from None
 
 
 def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progress: bool = True,
-          writer=None, frame: SensorFrame = SensorFrame(), folder=None, on_step=None) -> dict:
+          writer=None, frame: SensorFrame = SensorFrame(), folder=None, on_step=None, log=None) -> dict:
     """Run ``opt`` to its last step on the task loss, checkpointing into out/{name}_state.pt."""
     task = get_task(cfg.task)
     state_path = out / f"{name}_state.pt"
     wall_s, history = 0.0, []
     if state_path.is_file():
         wall_s, history = _load_state(state_path, camera, opt)
+        if log is not None:
+            log(f"{name}: resuming at step {opt.t} of {opt.total_steps} ({state_path.name})")
     ran = opt.t < opt.total_steps
     loss_mod = TaskLoss(task)
     optics = camera.optics if isinstance(camera.optics, DifferentiableOptics) else None
@@ -340,7 +342,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         log(f"[1/4] end-to-end training: {cfg.task}, {cfg.optimizer}, {cfg.total_steps} steps")
         camera = build_camera(cfg, sur, frame=frame)
         e2e = train(cfg, camera, make_optimizer(cfg, camera, cfg.optimizer), out, "end_to_end", progress=progress,
-                    writer=writer, frame=frame, folder=folder)
+                    writer=writer, frame=frame, folder=folder, log=log)
         nominal_values = camera.optics.base_values()
         with torch.no_grad():
             psf_ns, vig_ns = sur.psfs(nominal_values, check=False)
@@ -349,7 +351,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         log(f"[2/4] nominal lens + processing fine-tuned, the same {cfg.total_steps} steps")
         nominal = build_camera(cfg, sur, fixed_optics=fixed, frame=frame)
         nom = train(cfg, nominal, make_optimizer(cfg, nominal, "nominal"), out, "nominal", progress=progress,
-                    writer=writer, frame=frame, folder=folder)
+                    writer=writer, frame=frame, folder=folder, log=log)
     finally:
         writer.close()
 
@@ -374,18 +376,23 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     samples = heldout_set(cfg.eval_size, exact["psf"].shape[-1] // 2, cfg.eval_procedural, cfg.eval_level, frame,
                           positions=POSITIONS[cfg.eval_positions])
     rows: dict[str, dict[str, list]] = {}
+    reused_s = 0.0  # seconds of evaluations reused from an earlier call
     for who in ("nominal", "end_to_end"):
         rows[who] = {}
         for kind in ("exact", "surrogate"):
+            # an evaluation is reused only for the same camera: PSFs, vignetting, field heights and ISP
             path = out / f"eval_{who}_{kind}.json"
-            if path.is_file():
-                rows[who][kind] = json.loads(path.read_text())
-                continue
             psf, vig, fh = optics[who][kind]
+            key = _camera_digest(psf, vig, fh, cams[who].isp, len(samples))
+            cached = _read_eval_cache(path, key)
+            if cached is not None:
+                rows[who][kind], reused_s = cached["rows"], reused_s + float(cached.get("wall_s", 0.0))
+                continue
+            t0 = time.perf_counter()
             fo = FixedOptics(psf, vig, fh, patch=cfg.patch, full_field_px=frame.full_field_px)
             rows[who][kind] = ev.evaluate(Camera(fo, cams[who].sensor, cams[who].isp), tqdm(
                 samples, desc=f"eval {who} ({kind} optics)", unit="img", disable=not progress, leave=False))
-            write_json_atomic(path, rows[who][kind])
+            write_json_atomic(path, {"key": key, "wall_s": time.perf_counter() - t0, "rows": rows[who][kind]})
 
     log("[4/4] lens export, checks, PSF grids, panels, reports")
     fields_deg = [float(f) for f in sur.manifest["fields_deg"]]
@@ -439,9 +446,31 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
                                           "end_to_end": camera.isp.hyperparameters()}
     _write_history(out / "history.csv", {"end_to_end": e2e["history"], "nominal": nom["history"]})
     _write_rows(out / "metrics.csv", rows)
-    results["wall_s"] = e2e["wall_s"] + nom["wall_s"] + (time.perf_counter() - t_eval)
+    # training (both runs, across resumes) + exact PSFs, evaluation and outputs of this call
+    # + the evaluations it reused from an earlier one
+    results["wall_s"] = e2e["wall_s"] + nom["wall_s"] + reused_s + (time.perf_counter() - t_eval)
     write_json_atomic(out / "results.json", results)
     return results
+
+
+def _camera_digest(psf, vig, fh, isp, n_samples: int) -> str:
+    """A digest of what a held-out evaluation depends on besides the run's settings."""
+    import hashlib
+
+    h = hashlib.sha256(f"samples={n_samples}".encode())
+    for t in (psf, vig, fh, *isp.state_dict().values()):
+        h.update(torch.as_tensor(t).detach().cpu().contiguous().numpy().tobytes())
+    return h.hexdigest()
+
+
+def _read_eval_cache(path: Path, key: str) -> dict | None:
+    """An earlier evaluation of the same camera (None: absent, stale or unreadable: evaluate again)."""
+    try:
+        cached = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return cached if isinstance(cached, dict) and cached.get("key") == key and isinstance(cached.get("rows"), list) \
+        else None
 
 
 @torch.no_grad()
