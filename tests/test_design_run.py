@@ -71,6 +71,9 @@ def test_a_smoke_design_run_writes_every_output_and_resumes_after_kill_9(tmp_pat
         assert z.spot(f)["rms_um"] == pytest.approx(j.spot(f)["rms_um"], rel=1e-6)
     assert res["design"]["checks"]["inside_space"] and res["design"]["checks"]["manufacturable"]
     assert res["design"]["checks"]["refocused"], res["design"]["checks"]
+    win = res["exact_psf_energy_in_window"]
+    for who in ("nominal", "end_to_end"):
+        assert len(win[who]) == len(win["fields_deg"]) and all(0.5 < e <= 1.01 for e in win[who]), win
     # the same run uninterrupted lands on the same lens
     r = subprocess.run(_design(tmp_path / "again", "--config", str(cfg)), capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stdout + r.stderr

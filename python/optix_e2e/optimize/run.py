@@ -434,6 +434,12 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
             "fields_deg": fields_deg,
             "nominal": outputs.psf_rel_l1_per_field(psf_ns, exact["psf"][0]),
             "end_to_end": outputs.psf_rel_l1_per_field(psf_es, exact["psf"][1])},
+        # the exact PSFs are normalized over their window: how much of each field's flux that
+        # window holds (worst channel), for both lenses
+        "exact_psf_energy_in_window": {
+            "fields_deg": fields_deg, "window_px": int(exact["psf"].shape[-1]),
+            "nominal": [float(e) for e in exact["energy_in_window"][0].min(axis=-1)],
+            "end_to_end": [float(e) for e in exact["energy_in_window"][1].min(axis=-1)]},
         "held_out": {"n_images": len({s.name for s in samples}), "n_samples": len(samples),
                      "positions": cfg.eval_positions, "per_image": len(POSITIONS[cfg.eval_positions]),
                      "size_px": cfg.eval_size},

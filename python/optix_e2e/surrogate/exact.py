@@ -26,7 +26,9 @@ def exact_arrays(manifest: dict, values) -> tuple[dict, dict]:
 def exact_optics(surrogate, values) -> dict:
     """What the renderer needs from the engine for designs ``values`` [N, P] on a surrogate's
     terms: ``psf`` [N, K, C, S, S] (the surrogate's PSF kind and binning), ``vignetting``
-    [N, K, C] and the refocused ``image_distance`` (mm, N); a rejected design is an error."""
+    [N, K, C], the refocused ``image_distance`` (mm, N) and ``energy_in_window`` [N, K, C] (the
+    fraction of the transmitted flux inside the PSF window: the PSFs are normalized over the
+    window, so what falls outside is left out); a rejected design is an error."""
     import torch
 
     from .data import bin_psf
@@ -36,7 +38,8 @@ def exact_optics(surrogate, values) -> dict:
         raise ValueError(f"engine rejected the design: {meta['failures'][0]['reason']}")
     psf = torch.stack([bin_psf(torch.as_tensor(p), surrogate.bin) for p in arrays[surrogate.psf_kind]]).float()
     return {"psf": psf, "vignetting": torch.as_tensor(arrays["relative_illumination"], dtype=torch.float32),
-            "image_distance": [float(z) for z in arrays["image_distance"]]}
+            "image_distance": [float(z) for z in arrays["image_distance"]],
+            "energy_in_window": np.asarray(arrays["energy_in_window"], np.float64)}
 
 
 def rms_spot_um(manifest: dict, values, rings: int = 32) -> np.ndarray:
