@@ -11,6 +11,7 @@ from .lens import lens
 from .metrics import metrics
 from .psf import psf
 from .sample import sample
+from .scenes import scenes
 from .sensor import sensor
 from .surrogate import surrogate
 from .tolerance import tolerance
@@ -38,3 +39,4 @@ main.add_command(isp)
 main.add_command(surrogate)
 main.add_command(metrics)
 main.add_command(design)
+main.add_command(scenes)
