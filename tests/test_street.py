@@ -45,6 +45,7 @@ def test_scenes_are_seeded_and_have_the_sizes_classes_and_light_asked_for():
     for seed in range(60):
         s = street_scene((H, 360), seed)
         assert s.radiance.shape == (3, H, 360) and bool(torch.isfinite(s.radiance).all())
+        assert s.radiance.dtype == s.light.dtype == torch.float32
         heights += (s.boxes[:, 3] - s.boxes[:, 1]).tolist()
         classes |= set(s.labels.tolist())
         lo = float(s.light.min())

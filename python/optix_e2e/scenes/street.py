@@ -160,7 +160,7 @@ def _light_map(H: int, W: int, horizon: int, sky: np.ndarray, rng) -> np.ndarray
         factor = 10.0 ** -rng.uniform(1.0, 2.0)
         ramp = xx / (W - 1) if rng.random() < 0.5 else 1.0 - xx / (W - 1)
         light *= np.exp(np.log(factor) * np.clip((ramp - 0.3) / 0.6, 0.0, 1.0))
-    return np.clip(light, 0.01, 1.0)
+    return np.clip(light, 0.01, 1.0).astype(np.float32)
 
 
 def _background(H: int, W: int, horizon: int, rng) -> tuple[np.ndarray, np.ndarray]:

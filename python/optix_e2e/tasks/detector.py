@@ -1,0 +1,99 @@
+"""A small one-stage detector for the street scenes, and its mAP (issue 19 item 2).
+
+What it is: torchvision's FCOS (Tian et al. 2019; anchor-free, one stage: per-location
+classification with the focal loss, box regression with the GIoU loss, centre-ness, NMS),
+built with ``weights=None`` so nothing is downloaded, on a compact backbone of our own: four
+stride-2 stages of two 3x3 convolutions with GroupNorm (``width`` to 4 x ``width`` channels)
+and torchvision's FeaturePyramidNetwork (``fpn`` channels) at strides 4, 8, 16 and 32, so an
+8-pixel object still falls on a level with cells smaller than itself. Why: a ResNet-50 or
+MobileNet backbone trained from scratch costs 10-100x more per step on this 2-core CPU and
+needs far more data than a few thousand drawn scenes; the detection machinery (losses,
+target assignment, decoding, NMS) is the library's, tested by its maintainers.
+
+mAP: torchmetrics' ``MeanAveragePrecision`` (COCO's definition: mAP@[.5:.95] and mAP@0.5,
+101-point interpolation) with the faster-coco-eval backend, which works offline.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+
+import torch
+from torch import nn
+
+from ..scenes.street import CATEGORIES
+
+#: FCOS counts the background as a class: COCO ids 1..4 -> 5 outputs
+NUM_CLASSES = len(CATEGORIES) + 1
+
+
+def _stage(cin: int, cout: int) -> nn.Sequential:
+    def gn(c):
+        return nn.GroupNorm(min(8, c // 4), c)
+
+    return nn.Sequential(nn.Conv2d(cin, cout, 3, 2, 1, bias=False), gn(cout), nn.SiLU(),
+                         nn.Conv2d(cout, cout, 3, 1, 1, bias=False), gn(cout), nn.SiLU())
+
+
+class TinyBackbone(nn.Module):
+    """[B, 3, H, W] -> FPN features at strides 4, 8, 16, 32, ``out_channels`` each."""
+
+    def __init__(self, width: int = 32, fpn: int = 64):
+        super().__init__()
+        from torchvision.ops import FeaturePyramidNetwork
+
+        chans = [width, 2 * width, 4 * width, 4 * width]
+        self.stem = _stage(3, width // 2)
+        self.stages = nn.ModuleList([_stage(width // 2, chans[0])] + [_stage(a, b) for a, b in zip(chans, chans[1:])])
+        self.fpn = FeaturePyramidNetwork(chans, fpn)
+        self.out_channels = fpn
+
+    def forward(self, x: torch.Tensor) -> "OrderedDict[str, torch.Tensor]":
+        x = self.stem(x)
+        feats = OrderedDict()
+        for k, stage in enumerate(self.stages):
+            x = stage(x)
+            feats[f"p{k + 2}"] = x
+        return self.fpn(feats)
+
+
+def make_detector(width: int = 32, fpn: int = 64, image_size: tuple[int, int] = (256, 384),
+                  score_thresh: float = 0.05) -> nn.Module:
+    """The FCOS detector on ``TinyBackbone``; images of ``image_size`` are used at that size
+    (no resizing). Input: a list of [3, H, W] sRGB images in [0, 1]; in training also a list
+    of {"boxes" [N, 4] xyxy, "labels" [N] (COCO ids)}, returning the loss terms; in eval, a
+    list of {"boxes", "scores", "labels"}."""
+    from torchvision.models.detection import FCOS
+    from torchvision.models.detection.anchor_utils import AnchorGenerator
+
+    h, w = image_size
+    anchors = AnchorGenerator(sizes=((8,), (16,), (32,), (64,)), aspect_ratios=((1.0,),) * 4)
+    return FCOS(TinyBackbone(width, fpn), NUM_CLASSES, min_size=min(h, w), max_size=max(h, w),
+                image_mean=[0.45, 0.45, 0.45], image_std=[0.25, 0.25, 0.25], anchor_generator=anchors,
+                score_thresh=score_thresh, detections_per_img=100)
+
+
+def mean_average_precision(preds: list[dict], targets: list[dict]) -> dict:
+    """COCO mAP of detections ``preds`` ({"boxes", "scores", "labels"}) against ``targets``
+    ({"boxes", "labels"}), boxes xyxy: ``map`` (mAP@[.5:.95]), ``map_50``, ``map_75``, and
+    the number of target objects."""
+    from torchmetrics.detection import MeanAveragePrecision
+
+    m = MeanAveragePrecision(box_format="xyxy", iou_type="bbox", backend="faster_coco_eval")
+    m.update([{k: p[k].detach().cpu() for k in ("boxes", "scores", "labels")} for p in preds],
+             [{k: t[k].detach().cpu() for k in ("boxes", "labels")} for t in targets])
+    r = m.compute()
+    return {"map": float(r["map"]), "map_50": float(r["map_50"]), "map_75": float(r["map_75"]),
+            "n_objects": int(sum(len(t["labels"]) for t in targets))}
+
+
+@torch.no_grad()
+def detect(model: nn.Module, images: torch.Tensor, batch: int = 8) -> list[dict]:
+    """The model's detections for images [N, 3, H, W] (eval mode, in batches)."""
+    was = model.training
+    model.eval()
+    out = []
+    for i in range(0, len(images), batch):
+        out += model(list(images[i:i + batch]))
+    model.train(was)
+    return out

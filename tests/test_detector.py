@@ -1,0 +1,65 @@
+"""The detector and its mAP (issue 19 item 2): the mAP implementation against hand-made
+cases, the detector learns a tiny set, and its mAP falls as blur and noise grow."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from optix_e2e.color import linear_to_srgb
+from optix_e2e.scenes.street import street_scene
+from optix_e2e.tasks.detector import detect, make_detector, mean_average_precision
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+SIZE = (128, 192)
+
+
+def test_map_of_hand_made_detections():
+    t = [{"boxes": torch.tensor([[10.0, 10, 50, 50], [60, 60, 80, 80]]), "labels": torch.tensor([1, 2])}]
+    exact = [{"boxes": t[0]["boxes"].clone(), "scores": torch.tensor([0.9, 0.8]), "labels": torch.tensor([1, 2])}]
+    assert mean_average_precision(exact, t)["map"] == pytest.approx(1.0)
+    # the class-2 box at IoU 2/3 (20 x 20 against 20 x 30): counts at 0.5, not from 0.7 on
+    loose = [{"boxes": torch.tensor([[10.0, 10, 50, 50], [60, 60, 80, 90]]), "scores": torch.tensor([0.9, 0.8]),
+              "labels": torch.tensor([1, 2])}]
+    r = mean_average_precision(loose, t)
+    assert r["map_50"] == pytest.approx(1.0) and r["map_75"] == pytest.approx(0.5)
+    assert r["map"] == pytest.approx((1.0 + 0.4) / 2, abs=1e-6)  # class 2: 4 of 10 IoU thresholds
+    wrong = [{**exact[0], "labels": torch.tensor([2, 1])}]
+    assert mean_average_precision(wrong, t)["map"] == 0.0 and r["n_objects"] == 2
+
+
+@pytest.fixture(scope="module")
+def overfit():
+    torch.manual_seed(0)
+    scenes = [street_scene(SIZE, np.random.default_rng([9, i])) for i in range(4)]
+    images = torch.stack([linear_to_srgb(s.radiance.clamp(0, 1)) for s in scenes])
+    targets = [{"boxes": s.boxes, "labels": s.labels} for s in scenes]
+    model = make_detector(image_size=SIZE)
+    opt = torch.optim.AdamW(model.parameters(), 2e-3)
+    model.train()
+    for _ in range(300):
+        loss = sum(model(list(images), targets).values())
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return model, images, targets
+
+
+def test_the_detector_learns_a_tiny_set(overfit):
+    model, images, targets = overfit
+    r = mean_average_precision(detect(model, images), targets)
+    assert r["n_objects"] >= 20 and r["map_50"] >= 0.9, r
+
+
+def test_map_falls_as_blur_and_noise_grow(overfit):
+    from torchvision.transforms.functional import gaussian_blur
+    model, images, targets = overfit
+    g = torch.Generator().manual_seed(1)
+    noise = torch.randn(images.shape, generator=g)
+    maps = []
+    for sigma, std in ((0.0, 0.0), (1.2, 0.04), (2.5, 0.10)):
+        x = gaussian_blur(images, [2 * int(3 * sigma) + 1] * 2, [sigma] * 2) if sigma else images
+        maps.append(mean_average_precision(detect(model, (x + std * noise).clamp(0, 1)), targets))
+    assert maps[0]["map_50"] > maps[1]["map_50"] > maps[2]["map_50"], maps
+    assert maps[0]["map"] > maps[1]["map"] > maps[2]["map"], maps
