@@ -63,3 +63,27 @@ def test_map_falls_as_blur_and_noise_grow(overfit):
         maps.append(mean_average_precision(detect(model, (x + std * noise).clamp(0, 1)), targets))
     assert maps[0]["map_50"] > maps[1]["map_50"] > maps[2]["map_50"], maps
     assert maps[0]["map"] > maps[1]["map"] > maps[2]["map"], maps
+
+
+def test_detector_training_runs_resume_and_evaluate(tmp_path):
+    from click.testing import CliRunner
+
+    from optix_e2e.cli import main
+    from optix_e2e.scenes.coco import write_street_coco
+    from optix_e2e.tasks.detector_train import evaluate_detector, load_detector, train_detector
+    write_street_coco(tmp_path / "data", 6, (64, 96), seed=0)
+    a = train_detector(tmp_path / "data", tmp_path / "run", steps=3, batch=2, progress=False, log=lambda m: None)
+    said = []
+    b = train_detector(tmp_path / "data", tmp_path / "run", steps=5, batch=2, progress=False, log=said.append)
+    assert a["steps"] == 3 and b["steps"] == 5 and said == ["resuming at step 3 of 5"]
+    rows = (tmp_path / "run" / "history.csv").read_text().splitlines()
+    assert [r.split(",")[0] for r in rows[1:]] == ["1", "2", "3", "4", "5"]
+    model, ck = load_detector(tmp_path / "run")
+    assert ck["step"] == 5
+    r = evaluate_detector(model, tmp_path / "data")
+    assert 0.0 <= r["map"] <= r["map_50"] <= 1.0 and r["n_objects"] > 0 and "dark" in r
+    # other settings in the same run directory, a folder that is not a COCO set: one error each
+    with pytest.raises(ValueError, match="other settings"):
+        train_detector(tmp_path / "data", tmp_path / "run", steps=6, batch=2, seed=1, progress=False)
+    r = CliRunner().invoke(main, ["detect", "train", str(tmp_path), "--out", str(tmp_path / "x")])
+    assert r.exit_code == 1 and "annotations.json: annotation file not found" in r.output

@@ -6,6 +6,7 @@ from .bench import bench
 from .dataset import dataset
 from .demo import demo
 from .design import design
+from .detect import detect
 from .isp import isp
 from .lens import lens
 from .metrics import metrics
@@ -40,3 +41,4 @@ main.add_command(surrogate)
 main.add_command(metrics)
 main.add_command(design)
 main.add_command(scenes)
+main.add_command(detect)

@@ -1,0 +1,54 @@
+"""``optix detect train DATA --out RUN`` and ``optix detect eval RUN DATA``: the detector (issue 19)."""
+
+from __future__ import annotations
+
+import click
+
+from ._common import dumps, friendly_errors
+
+
+@click.group("detect")
+def detect():
+    """The street-scene detector: train it on a COCO folder, measure its mAP on another."""
+
+
+@detect.command("train")
+@click.argument("data", type=click.Path(exists=True, file_okay=False))
+@click.option("--out", type=click.Path(file_okay=False), required=True,
+              help="Run directory: detector.pt (resumable), history.csv, tb/.")
+@click.option("--steps", type=click.IntRange(min=1), default=4000, show_default=True)
+@click.option("--minutes", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Stop after this much training time (the learning rate anneals over it).")
+@click.option("--batch", type=click.IntRange(min=1), default=8, show_default=True)
+@click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=2e-3, show_default=True)
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--threads", type=click.IntRange(min=0), default=0, help="torch CPU threads (0: default).")
+@click.option("--quiet", is_flag=True)
+@friendly_errors
+def train(data, out, steps, minutes, batch, lr, seed, threads, quiet):
+    """Train the detector on DATA (images/ + annotations.json, e.g. from `optix scenes street`)."""
+    import torch
+
+    from ..tasks.detector_train import train_detector
+
+    if threads:
+        torch.set_num_threads(threads)
+    click.echo(dumps(train_detector(data, out, steps=steps, minutes=minutes, batch=batch, lr=lr, seed=seed,
+                                    progress=not quiet, log=click.echo)))
+
+
+@detect.command("eval")
+@click.argument("run", type=click.Path(exists=True))
+@click.argument("data", type=click.Path(exists=True, file_okay=False))
+@click.option("--threads", type=click.IntRange(min=0), default=0, help="torch CPU threads (0: default).")
+@friendly_errors
+def evaluate(run, data, threads):
+    """mAP@[.5:.95] and mAP@0.5 of the detector in RUN on DATA (and in its dark regions). One JSON line."""
+    import torch
+
+    from ..tasks.detector_train import evaluate_detector, load_detector
+
+    if threads:
+        torch.set_num_threads(threads)
+    model, ck = load_detector(run)
+    click.echo(dumps({**evaluate_detector(model, data), "steps": ck.get("step"), "train_wall_s": ck.get("wall_s")}))

@@ -1,0 +1,195 @@
+"""Training and evaluating the detector on a COCO set (``optix detect train|eval``).
+
+Training reads the whole set into memory as 8-bit images, draws each batch from (seed,
+step) alone (so a resumed run sees the batches it would have seen), flips half the images
+left-right, and runs AdamW with a linear warm-up and a cosine decay over ``steps`` or over
+``minutes`` when that budget ends first. The run directory holds ``detector.pt`` (weights,
+config, step, optimizer; written atomically every ``checkpoint_every`` steps: the same
+command continues a killed run), ``history.csv`` and ``tb/`` (TensorBoard).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..scenes.coco import CocoDetection
+from .detector import detect, make_detector, mean_average_precision
+
+FORMAT = "optix-detector/1"
+
+
+def load_coco_folder(folder: "str | Path") -> tuple[torch.Tensor, list[dict], CocoDetection]:
+    """A COCO folder (images/ + annotations.json, as ``optix scenes street`` writes) as uint8
+    images [N, 3, H, W] and targets; every image must have the same size."""
+    folder = Path(folder)
+    ds = CocoDetection(folder / "images", folder / "annotations.json")
+    if len(ds) == 0:
+        raise ValueError(f"{folder}: the annotation file lists no images")
+    sizes = {(im["height"], im["width"]) for im in ds.images}
+    if len(sizes) != 1:
+        raise ValueError(f"{folder}: images of several sizes ({', '.join(f'{h}x{w}' for h, w in sorted(sizes))}); "
+                         f"the detector trains on one size")
+    imgs, targets = [], []
+    for i in range(len(ds)):
+        img, t = ds[i]
+        imgs.append((img * 255 + 0.5).to(torch.uint8))
+        targets.append(t)
+    return torch.stack(imgs), targets, ds
+
+
+def save_detector(path: Path, model, config: dict, **extra) -> None:
+    from ..surrogate.checkpoint import save_atomic
+
+    save_atomic({"format": FORMAT, "config": config, "state_dict": model.state_dict(), **extra}, path)
+
+
+def load_detector(path: "str | Path"):
+    """(model, checkpoint dict) from a detector.pt or its run directory; plain data only."""
+    from ..torchfile import build_module, load_plain
+
+    path = Path(path)
+    if path.is_dir():
+        path = path / "detector.pt"
+    ck = load_plain(path, "detector checkpoint")
+    if not isinstance(ck, dict) or ck.get("format") != FORMAT:
+        raise ValueError(f"{path}: not a detector checkpoint ({FORMAT})")
+    cfg = ck.get("config")
+    model = build_module(lambda **c: make_detector(**{**c, "image_size": tuple(c["image_size"])}), cfg,
+                         ck.get("state_dict"), path, "detector checkpoint")
+    return model, ck
+
+
+def _batch(images: torch.Tensor, targets: list[dict], seed: int, step: int, batch: int):
+    rng = np.random.default_rng([5, int(seed), int(step)])  # stream tag 5: detector batches
+    idx = rng.choice(len(images), size=min(batch, len(images)), replace=False)
+    flip = rng.random(len(idx)) < 0.5
+    xs, ts = [], []
+    w = images.shape[-1]
+    for i, f in zip(idx.tolist(), flip.tolist()):
+        x, b = images[i].float() / 255, targets[i]["boxes"].clone()
+        if f:
+            x = x.flip(-1)
+            b[:, [0, 2]] = w - b[:, [2, 0]]
+        xs.append(x)
+        ts.append({"boxes": b, "labels": targets[i]["labels"]})
+    return xs, ts
+
+
+def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, minutes: float | None = None,
+                   batch: int = 8, lr: float = 2e-3, seed: int = 0, width: int = 32, fpn: int = 64,
+                   checkpoint_every: int = 100, progress: bool = True, log=print) -> dict:
+    """Train (or continue) a detector on the COCO folder ``data``; returns the run's summary."""
+    from torch.utils.tensorboard import SummaryWriter
+    from tqdm import tqdm
+
+    out = Path(out)
+    images, targets, _ = load_coco_folder(data)
+    size = tuple(images.shape[-2:])
+    config = {"width": width, "fpn": fpn, "image_size": list(size)}
+    ck_path = out / "detector.pt"
+    torch.manual_seed(seed)
+    if ck_path.is_file():
+        model, ck = load_detector(ck_path)
+        if ck["config"] != config or ck.get("data") != str(Path(data).resolve()) or ck.get("seed") != seed:
+            raise ValueError(f"{out} holds a detector trained with other settings (config {ck['config']}, data "
+                             f"{ck.get('data')}, seed {ck.get('seed')}); use another --out")
+        step, wall = int(ck["step"]), float(ck["wall_s"])  # a larger --steps continues the run
+        log(f"resuming at step {step} of {steps}")
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        model, ck, step, wall = make_detector(width, fpn, size), None, 0, 0.0
+    opt = torch.optim.AdamW(model.parameters(), lr, weight_decay=1e-4)
+    if ck is not None:
+        opt.load_state_dict(ck["optimizer"])
+    budget_s = None if minutes is None else 60.0 * minutes
+
+    def lr_at(s: int, frac: float) -> float:  # warm-up, then cosine to 1 % by the budget's end
+        warm = min(1.0, (s + 1) / 100)
+        return lr * warm * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * min(frac, 1.0))))
+
+    writer = SummaryWriter(str(out / "tb"))
+    hist_path = out / "history.csv"
+    new_hist = not hist_path.is_file()
+    hist = open(hist_path, "a", newline="")
+    hw = csv.writer(hist)
+    if new_hist:
+        hw.writerow(["step", "loss", "classification", "bbox_regression", "bbox_ctrness", "lr", "seconds"])
+    model.train()
+    t0 = time.perf_counter()
+    bar = tqdm(total=steps, initial=step, desc="detector", unit="step", disable=not progress)
+    try:
+        while step < steps:
+            elapsed = wall + time.perf_counter() - t0
+            if budget_s is not None and elapsed >= budget_s:
+                log(f"time budget reached at step {step}")
+                break
+            frac = step / steps if budget_s is None else max(step / steps, elapsed / budget_s)
+            for g in opt.param_groups:
+                g["lr"] = lr_at(step, frac)
+            ts = time.perf_counter()
+            xs, tg = _batch(images, targets, seed, step, batch)
+            losses = model(xs, tg)
+            loss = sum(losses.values())
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            step += 1
+            hw.writerow([step, f"{loss.item():.6g}", *(f"{losses[k].item():.6g}" for k in
+                         ("classification", "bbox_regression", "bbox_ctrness")), f"{opt.param_groups[0]['lr']:.3g}",
+                         f"{time.perf_counter() - ts:.4f}"])
+            writer.add_scalar("detector/loss", loss.item(), step)
+            bar.update(1)
+            bar.set_postfix(loss=f"{loss.item():.3f}")
+            if step % checkpoint_every == 0 or step == steps:
+                hist.flush()
+                save_detector(ck_path, model, config, optimizer=opt.state_dict(), step=step, steps=steps, seed=seed,
+                              wall_s=wall + time.perf_counter() - t0, data=str(Path(data).resolve()))
+    finally:
+        bar.close()
+        hist.close()
+        writer.close()
+    wall += time.perf_counter() - t0
+    save_detector(ck_path, model, config, optimizer=opt.state_dict(), step=step, steps=steps, seed=seed, wall_s=wall,
+                  data=str(Path(data).resolve()))
+    return {"run": str(out), "steps": step, "wall_s": wall, "n_images": len(images),
+            "n_objects": int(sum(len(t["labels"]) for t in targets)), "image_size": list(size)}
+
+
+def evaluate_detector(model, data: "str | Path", batch: int = 8, dark: float = 0.1) -> dict:
+    """mAP of ``model`` on the COCO folder ``data``, and mAP@0.5 over the objects in the dark
+    (mean illumination < ``dark`` of the sunlight, where the file says so) with the other
+    objects' boxes removed from both sides."""
+    images, targets, ds = load_coco_folder(data)
+    preds = detect(model, images.float() / 255, batch)
+    res = mean_average_precision(preds, targets)
+    import json
+
+    anns = json.loads(Path(ds.ann_file).read_text())["annotations"]
+    if anns and all("illumination" in a for a in anns):
+        from torchvision.ops import box_iou
+
+        light: dict[int, list[float]] = {}
+        for a in anns:
+            if not a.get("iscrowd", 0):
+                light.setdefault(a["image_id"], []).append(float(a["illumination"]))
+        dp, dt = [], []
+        for im, p, t in zip(ds.images, preds, targets):
+            keep = torch.tensor(light.get(im["id"], []), dtype=torch.float32) < dark
+            if len(keep) != len(t["labels"]):
+                break
+            drop_t = t["boxes"][~keep]
+            # detections that match a sunlit object are that object's, not false positives in the dark
+            far = (box_iou(p["boxes"], drop_t).max(1).values < 0.5) if len(drop_t) and len(p["boxes"]) else \
+                torch.ones(len(p["boxes"]), dtype=torch.bool)
+            dp.append({k: v[far] for k, v in p.items()})
+            dt.append({"boxes": t["boxes"][keep], "labels": t["labels"][keep]})
+        else:
+            r = mean_average_precision(dp, dt)
+            res["dark"] = {"threshold": dark, "map_50": r["map_50"], "map": r["map"], "n_objects": r["n_objects"]}
+    return res
