@@ -73,6 +73,8 @@ def test_detector_training_runs_resume_and_evaluate(tmp_path):
     from optix_e2e.tasks.detector_train import evaluate_detector, load_detector, train_detector
     write_street_coco(tmp_path / "data", 6, (64, 96), seed=0)
     a = train_detector(tmp_path / "data", tmp_path / "run", steps=3, batch=2, progress=False, log=lambda m: None)
+    with open(tmp_path / "run" / "history.csv", "a") as f:  # a row past the checkpoint, as a kill can leave
+        f.write("4,9,9,9,9,0.001,0.1\n")
     said = []
     b = train_detector(tmp_path / "data", tmp_path / "run", steps=5, batch=2, progress=False, log=said.append)
     assert a["steps"] == 3 and b["steps"] == 5 and said == ["resuming at step 3 of 5"]

@@ -115,6 +115,10 @@ def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, 
 
     writer = SummaryWriter(str(out / "tb"))
     hist_path = out / "history.csv"
+    if hist_path.is_file():  # rows written after the checkpoint we resume from are run again: drop them
+        lines = hist_path.read_text().splitlines(keepends=True)
+        keep = lines[:1] + [ln for ln in lines[1:] if ln.split(",")[0].isdigit() and int(ln.split(",")[0]) <= step]
+        hist_path.write_text("".join(keep))
     new_hist = not hist_path.is_file()
     hist = open(hist_path, "a", newline="")
     hw = csv.writer(hist)
