@@ -89,3 +89,36 @@ def test_detector_training_runs_resume_and_evaluate(tmp_path):
         train_detector(tmp_path / "data", tmp_path / "run", steps=6, batch=2, seed=1, progress=False)
     r = CliRunner().invoke(main, ["detect", "train", str(tmp_path), "--out", str(tmp_path / "x")])
     assert r.exit_code == 1 and "annotations.json: annotation file not found" in r.output
+
+
+def test_map_in_the_dark_counts_the_dark_objects_only(tmp_path):
+    # a stand-in detector that returns the true boxes: mAP 1 overall and in the dark; the same
+    # without its dark detections: 0 in the dark, and the sunlit objects alone keep theirs
+    import json
+
+    from optix_e2e.scenes.coco import write_street_coco
+    from optix_e2e.tasks.detector_train import evaluate_detector, load_coco_folder
+    ann = write_street_coco(tmp_path, 6, (96, 144), seed=2)
+    _, targets, ds = load_coco_folder(tmp_path)
+    n_dark = sum(a["illumination"] < 0.1 for a in json.loads(ann.read_text())["annotations"])
+    assert 0 < n_dark < sum(len(t["labels"]) for t in targets)
+
+    class Oracle(torch.nn.Module):
+        def __init__(self, hide_dark):
+            super().__init__()
+            self.k, self.hide_dark = 0, hide_dark
+
+        def forward(self, images):
+            out = []
+            for _ in images:
+                t, light = targets[self.k], torch.tensor(ds.images[self.k]["illumination"]).reshape(-1)
+                keep = light >= 0.1 if self.hide_dark else torch.ones(len(light), dtype=torch.bool)
+                out.append({"boxes": t["boxes"][keep], "labels": t["labels"][keep], "scores": torch.ones(int(keep.sum()))})
+                self.k += 1
+            return out
+
+    full = evaluate_detector(Oracle(False), tmp_path, batch=4)
+    assert full["map"] == pytest.approx(1.0) and full["dark"]["map"] == pytest.approx(1.0)
+    assert full["dark"]["n_objects"] == n_dark
+    blind = evaluate_detector(Oracle(True), tmp_path, batch=4)
+    assert blind["dark"]["map_50"] == 0.0 and 0.0 < blind["map_50"] < 1.0

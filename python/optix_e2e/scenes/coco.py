@@ -73,7 +73,8 @@ class CocoDetection(torch.utils.data.Dataset):
     numbers with positive width and height inside its image (1 px tolerance), a missing image
     file. ``ds[i]`` is (image [3, H, W] float sRGB in [0, 1], {"boxes", "labels", "image_id"});
     an image whose size differs from the file's record is an error naming it. Crowd
-    annotations (``iscrowd`` 1) are left out of the targets.
+    annotations (``iscrowd`` 1) are left out of the targets. ``images[i]["illumination"]``
+    keeps each target's ``illumination`` (the street scenes' extra key; None where absent).
     """
 
     def __init__(self, image_dir: "str | Path", ann_file: "str | Path"):
@@ -112,7 +113,8 @@ class CocoDetection(torch.utils.data.Dataset):
             if not (self.image_dir / name).is_file():
                 raise CocoFormatError(f"{where}: image file {self.image_dir / name} not found")
             index[iid] = len(self.images)
-            self.images.append({"id": iid, "file_name": name, "height": h, "width": w, "boxes": [], "labels": []})
+            self.images.append({"id": iid, "file_name": name, "height": h, "width": w, "boxes": [], "labels": [],
+                                "illumination": []})
         seen = set()
         for k, a in enumerate(anns):
             where = f"{f}: annotations[{k}]"
@@ -143,6 +145,9 @@ class CocoDetection(torch.utils.data.Dataset):
                 continue
             im["boxes"].append([x, y, x + bw, y + bh])
             im["labels"].append(cid)
+            light = a.get("illumination")  # our scenes' extra key; None where a file lacks it
+            im["illumination"].append(float(light) if isinstance(light, (int, float)) and not isinstance(light, bool)
+                                      else None)
 
     def __len__(self) -> int:
         return len(self.images)

@@ -126,6 +126,10 @@ def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, 
         hw.writerow(["step", "loss", "classification", "bbox_regression", "bbox_ctrness", "lr", "seconds"])
     model.train()
     t0 = time.perf_counter()
+
+    def checkpoint() -> None:
+        save_detector(ck_path, model, config, optimizer=opt.state_dict(), step=step, steps=steps, seed=seed,
+                      wall_s=wall + time.perf_counter() - t0, data=str(Path(data).resolve()))
     bar = tqdm(total=steps, initial=step, desc="detector", unit="step", disable=not progress)
     try:
         while step < steps:
@@ -152,15 +156,13 @@ def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, 
             bar.set_postfix(loss=f"{loss.item():.3f}")
             if step % checkpoint_every == 0 or step == steps:
                 hist.flush()
-                save_detector(ck_path, model, config, optimizer=opt.state_dict(), step=step, steps=steps, seed=seed,
-                              wall_s=wall + time.perf_counter() - t0, data=str(Path(data).resolve()))
+                checkpoint()
     finally:
         bar.close()
         hist.close()
         writer.close()
+    checkpoint()
     wall += time.perf_counter() - t0
-    save_detector(ck_path, model, config, optimizer=opt.state_dict(), step=step, steps=steps, seed=seed, wall_s=wall,
-                  data=str(Path(data).resolve()))
     return {"run": str(out), "steps": step, "wall_s": wall, "n_images": len(images),
             "n_objects": int(sum(len(t["labels"]) for t in targets)), "image_size": list(size)}
 
@@ -169,31 +171,22 @@ def evaluate_detector(model, data: "str | Path", batch: int = 8, dark: float = 0
     """mAP of ``model`` on the COCO folder ``data``, and mAP@0.5 over the objects in the dark
     (mean illumination < ``dark`` of the sunlight, where the file says so) with the other
     objects' boxes removed from both sides."""
+    from torchvision.ops import box_iou
+
     images, targets, ds = load_coco_folder(data)
     preds = detect(model, images.float() / 255, batch)
     res = mean_average_precision(preds, targets)
-    import json
-
-    anns = json.loads(Path(ds.ann_file).read_text())["annotations"]
-    if anns and all("illumination" in a for a in anns):
-        from torchvision.ops import box_iou
-
-        light: dict[int, list[float]] = {}
-        for a in anns:
-            if not a.get("iscrowd", 0):
-                light.setdefault(a["image_id"], []).append(float(a["illumination"]))
+    if any(im["illumination"] for im in ds.images) and all(x is not None for im in ds.images
+                                                            for x in im["illumination"]):
         dp, dt = [], []
         for im, p, t in zip(ds.images, preds, targets):
-            keep = torch.tensor(light.get(im["id"], []), dtype=torch.float32) < dark
-            if len(keep) != len(t["labels"]):
-                break
-            drop_t = t["boxes"][~keep]
+            keep = torch.tensor(im["illumination"], dtype=torch.float32).reshape(-1) < dark
+            drop = t["boxes"][~keep]
             # detections that match a sunlit object are that object's, not false positives in the dark
-            far = (box_iou(p["boxes"], drop_t).max(1).values < 0.5) if len(drop_t) and len(p["boxes"]) else \
+            far = box_iou(p["boxes"], drop).max(1).values < 0.5 if len(drop) and len(p["boxes"]) else \
                 torch.ones(len(p["boxes"]), dtype=torch.bool)
             dp.append({k: v[far] for k, v in p.items()})
             dt.append({"boxes": t["boxes"][keep], "labels": t["labels"][keep]})
-        else:
-            r = mean_average_precision(dp, dt)
-            res["dark"] = {"threshold": dark, "map_50": r["map_50"], "map": r["map"], "n_objects": r["n_objects"]}
+        r = mean_average_precision(dp, dt)
+        res["dark"] = {"threshold": dark, "map_50": r["map_50"], "map": r["map"], "n_objects": r["n_objects"]}
     return res
