@@ -55,19 +55,11 @@ def run_config(user_toml: str | None, init: str) -> str:
     """The settings file every run of the comparison gets: the user's, with its relative paths
     made absolute (the copy lives in OUT) and ``optics_init`` set to ``init`` (a file that sets
     another is refused rather than silently mislabelled)."""
-    try:
-        import tomllib
-    except ImportError:  # Python 3.10
-        import tomli as tomllib
     import tomli_w
 
-    data = {}
-    if user_toml:
-        path = Path(user_toml)
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-        for k in ("images", "software_isp"):
-            if data.get(k) and not Path(data[k]).is_absolute():
-                data[k] = str((path.parent / data[k]).resolve())
+    from optix_e2e.optimize.config import read_config_file
+
+    data = read_config_file(Path(user_toml)) if user_toml else {}
     if data.setdefault("optics_init", init) != init:
         sys.exit(f"{user_toml}: optics_init = {data['optics_init']!r}, but --init {init}; say it once")
     return tomli_w.dumps(data)

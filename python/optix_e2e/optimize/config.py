@@ -107,6 +107,29 @@ BUDGETS: dict[str, dict] = {
 }
 
 
+PATH_SETTINGS = ("images", "software_isp")  # settings that name files or folders
+
+
+def read_config_file(path: Path) -> dict:
+    """A design config file's settings as written, its relative paths (``PATH_SETTINGS``) made
+    absolute against the file's folder; one error naming the file if it cannot be read."""
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ValueError(f"config file not found: {path}") from None
+    except UnicodeDecodeError as err:
+        raise ValueError(f"{path}: not UTF-8 text ({err.reason} at byte {err.start})") from None
+    except OSError as err:
+        raise ValueError(f"{path}: cannot read the config file ({err.strerror})") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ValueError(f"{path}: not valid TOML: {err}") from None
+    for k in PATH_SETTINGS:
+        v = data.get(k)
+        if isinstance(v, str) and v and not Path(v).is_absolute():
+            data[k] = str((path.parent / v).resolve())  # relative to the config file
+    return data
+
+
 def make_config(budget: str = "quick", file: "str | Path | None" = None, **overrides) -> DesignConfig:
     """The budget's settings, then the TOML file's, then ``overrides`` (None values ignored)."""
     if budget not in BUDGETS:
@@ -115,16 +138,7 @@ def make_config(budget: str = "quick", file: "str | Path | None" = None, **overr
     values = {"budget": budget, **BUDGETS[budget]}
     if file is not None:
         path = Path(file)
-        try:
-            data = tomllib.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise ValueError(f"config file not found: {path}") from None
-        except UnicodeDecodeError as err:
-            raise ValueError(f"{path}: not UTF-8 text ({err.reason} at byte {err.start})") from None
-        except OSError as err:
-            raise ValueError(f"{path}: cannot read the config file ({err.strerror})") from None
-        except tomllib.TOMLDecodeError as err:
-            raise ValueError(f"{path}: not valid TOML: {err}") from None
+        data = read_config_file(path)
         unknown = sorted(set(data) - fields)
         if "budget" in data:
             raise ValueError(f"{path}: the budget is chosen with --budget, not in the config file")
@@ -136,8 +150,6 @@ def make_config(budget: str = "quick", file: "str | Path | None" = None, **overr
                 v = float(v)
             if not isinstance(v, want) or isinstance(v, bool) != (want is bool):
                 raise ValueError(f"{path}: {k} must be a {want.__name__}, got {v!r}")
-            if k in ("images", "software_isp") and v and not Path(v).is_absolute():
-                v = str((path.parent / v).resolve())  # relative to the config file
             values[k] = v
             if overrides.get(k) is not None and overrides[k] != v:  # the command line and the file disagree
                 raise ValueError(f"{path}: {k} = {v!r} here, {overrides[k]!r} on the command line; say it once")
