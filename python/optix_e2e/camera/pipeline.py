@@ -54,6 +54,8 @@ class Camera(nn.Module):
         image = self.optics(radiance, offset_px)
         if m:
             image = image[..., m:-m, m:-m]
-        raw = self.sensor(image, generator, common_noise=final)
+        # the photon count follows the lens's f-number where the optics carry one (Eq. 3)
+        f_number = self.optics.f_number() if hasattr(self.optics, "f_number") else None
+        raw = self.sensor(image, generator, common_noise=final, f_number=f_number)
         out = self.isp.final(raw) if final else self.isp(raw)
         return out, raw

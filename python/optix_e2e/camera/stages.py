@@ -27,6 +27,7 @@ from ..isp.software import SoftwareISP
 from ..optics.render import render
 from ..sensor import get_preset, simulate_raw
 from ..sensor.emva import calibrate_radiance_scale
+from ..sensor.spectral import aperture_gain
 
 
 def image_height_fractions(lens_data: dict, fields_deg) -> torch.Tensor:
@@ -45,11 +46,13 @@ def image_height_fractions(lens_data: dict, fields_deg) -> torch.Tensor:
 
 class FixedOptics(nn.Module):
     """Fixed PSFs [K, C, S, S] (unit sum per channel) and vignetting [K, C] at ``fields`` [K]:
-    the same ``forward(image, offset_px)`` as DifferentiableOptics, nothing to learn."""
+    the same ``forward(image, offset_px)`` as DifferentiableOptics, nothing to learn.
+    ``f_number``: the lens's, for a sensor whose photon count follows it (Eq. 3)."""
 
     def __init__(self, psf: torch.Tensor, vignetting: torch.Tensor, fields: torch.Tensor, *, patch: int = 64,
-                 full_field_px: float | None = None):
+                 full_field_px: float | None = None, f_number: float | None = None):
         super().__init__()
+        self._f_number = None if f_number is None else float(f_number)
         self.register_buffer("psf", torch.as_tensor(psf, dtype=torch.float32))
         self.register_buffer("vignetting", torch.as_tensor(vignetting, dtype=torch.float32))
         self.register_buffer("_fields", torch.as_tensor(fields, dtype=torch.float32))
@@ -65,6 +68,10 @@ class FixedOptics(nn.Module):
 
     def psfs(self) -> tuple[torch.Tensor, torch.Tensor]:
         return self.psf, self.vignetting
+
+    def f_number(self) -> torch.Tensor | None:
+        """The lens's f-number where the camera's photon count should follow it (None: the sensor preset's)."""
+        return None if self._f_number is None else torch.tensor(self._f_number)
 
     def block(self):
         return None
@@ -105,7 +112,13 @@ class SensorStage(nn.Module):
         return None
 
     def forward(self, radiance: torch.Tensor, generator: torch.Generator | None = None, *,
-                common_noise: bool = False) -> torch.Tensor:
+                common_noise: bool = False, f_number: "torch.Tensor | float | None" = None) -> torch.Tensor:
+        """``f_number``: the lens's (a tensor where the optics learn it): the photon count
+        follows it by Eq. 3's 1 / (1 + (2N)^2) relative to the preset's f-number, which the
+        preset's radiance scale was calibrated at (None: the preset's)."""
+        if f_number is not None:
+            radiance = radiance * aperture_gain(torch.as_tensor(f_number, dtype=radiance.dtype),
+                                                self.preset.f_number)
         return simulate_raw(radiance, self.preset, noise=self.noise, quantize="uniform" if self.noise else "none",
                             generator=generator, common_noise=common_noise)
 

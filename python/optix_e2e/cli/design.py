@@ -10,7 +10,7 @@ from ._common import dumps, friendly_errors
 
 
 @click.command("design")
-@click.argument("task", type=click.Choice(["iq-software", "iq-hardware", "low-light"]))
+@click.argument("task", type=click.Choice(["iq-software", "iq-hardware", "low-light", "detection"]))
 @click.option("--out", type=click.Path(file_okay=False), required=True,
               help="Run directory: config.json, checkpoints (resume), tb/ (TensorBoard), results.json, "
                    "panels.png, psf_*.png, lens/, report/.")
@@ -22,7 +22,7 @@ from ._common import dumps, friendly_errors
               help="smoke: seconds (tests); quick: the main job; full: the figures we report.")
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Initialization, batches and noise (default 0).")
 @click.option("--surrogate", default=None, help="Optics surrogate: bundled name, checkpoint or run dir "
-                                                "(default: paper-triplet-e2e).")
+                                                "(default: paper-triplet-e2e; detection: paper-triplet-detect).")
 @click.option("--images", type=click.Path(exists=True, file_okay=False), default=None,
               help="A folder of your images, mixed into the training scenes.")
 @click.option("--threads", type=click.IntRange(min=0), default=None, help="torch CPU threads (0: default).")
@@ -31,12 +31,32 @@ from ._common import dumps, friendly_errors
 def design(task, out, config_file, optimizer, budget, seed, surrogate, images, threads, quiet):
     """Optimize lens and processing together for TASK, against the nominal lens with its
     processing fine-tuned for the same budget, and evaluate both under the exact engine's PSFs
-    on held-out images. Running the same command again resumes an interrupted run."""
+    on held-out images. Running the same command again resumes an interrupted run.
+    detection: lens (with its f-number), hardware ISP and detector, scored by mAP on held-out
+    street scenes at dusk (docs/detection.md)."""
     from ..optimize.config import make_config
     from ..optimize.run import run_design
 
     cfg = make_config(budget, config_file, task=task, optimizer=optimizer, seed=seed, surrogate=surrogate,
                       images=images, threads=threads)
+    if cfg.task == "detection":
+        if images:
+            raise click.UsageError("--images is for the image-quality tasks; detection trains on street scenes")
+        from ..optimize.detection_run import run_detection_design
+
+        res = run_detection_design(cfg, Path(out), progress=not quiet, log=click.echo)
+        n, e, p = res["nominal"], res["end_to_end"], res["paired"]
+        click.echo(f"held-out ({res['held_out']['n_images']} street scenes, {res['held_out']['n_objects']} objects, "
+                   f"{res['held_out']['n_objects_dark']} in the dark), exact optics, reference ISP:")
+        click.echo(f"  f-number  nominal f/{n['f_number']:.2f}   end-to-end f/{e['f_number']:.2f}")
+        for k, label in (("map_50", "mAP@0.5"), ("map", "mAP")):
+            lo, hi = p[k]["ci95"]
+            click.echo(f"  {label:8s} nominal {n[k]:.4f}   end-to-end {e[k]:.4f}   diff {p[k]['mean']:+.4f} "
+                       f"[{lo:+.4f}, {hi:+.4f}]")
+        click.echo(f"results: {Path(out) / 'results.json'}  (lens: {Path(out) / res['lens_zmx']}, "
+                   f"wall {res['wall_s']:.0f} s)")
+        click.echo(dumps({"results": str(Path(out) / "results.json"), "wall_s": res["wall_s"]}))
+        return
     res = run_design(cfg, Path(out), progress=not quiet, log=click.echo)
     n, e, p = res["nominal"], res["end_to_end"], res["paired"]
     click.echo(f"held-out ({res['held_out']['n_images']} images x {res['held_out']['per_image']} positions), "

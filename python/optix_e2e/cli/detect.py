@@ -22,10 +22,13 @@ def detect():
 @click.option("--batch", type=click.IntRange(min=1), default=8, show_default=True)
 @click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=2e-3, show_default=True)
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--dim", type=click.FloatRange(min=0, max=1, min_open=True), default=1.0, show_default=True,
+              help="Darken each training image by a log-uniform factor in [DIM, 1] in linear light (dusk "
+                   "exposures; 1: as stored).")
 @click.option("--threads", type=click.IntRange(min=0), default=0, help="torch CPU threads (0: default).")
 @click.option("--quiet", is_flag=True)
 @friendly_errors
-def train(data, out, steps, minutes, batch, lr, seed, threads, quiet):
+def train(data, out, steps, minutes, batch, lr, seed, dim, threads, quiet):
     """Train the detector on DATA (images/ + annotations.json, e.g. from `optix scenes street`)."""
     import torch
 
@@ -34,7 +37,7 @@ def train(data, out, steps, minutes, batch, lr, seed, threads, quiet):
     if threads:
         torch.set_num_threads(threads)
     click.echo(dumps(train_detector(data, out, steps=steps, minutes=minutes, batch=batch, lr=lr, seed=seed,
-                                    progress=not quiet, log=click.echo)))
+                                    dim=dim, progress=not quiet, log=click.echo)))
 
 
 @detect.command("eval")

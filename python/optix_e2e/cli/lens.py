@@ -98,6 +98,7 @@ def bundled_summary(name: str) -> dict:
     space = BUNDLED_DIR / "spaces" / f"{name}.toml"
     sur = BUNDLED_SURROGATES.get(name)
     e2e = BUNDLED_SURROGATES.get(f"{name}-e2e")  # the end-to-end design space around this lens
+    det = BUNDLED_SURROGATES.get(f"{name}-detect")  # ... and with the f-number, for detection
     return {"name": name, "elements": n_elements, "efl_mm": par["efl_mm"], "f_number": par["f_number"],
             "full_field_deg": 2.0 * max(abs(f) for f in lens_.fields_deg),
             "wavelengths_nm": lens_.wavelengths_nm,
@@ -105,7 +106,10 @@ def bundled_summary(name: str) -> dict:
             "parameter_space": f"spaces/{space.name}" if space.is_file() else None,
             "surrogate": sur if sur and (BUNDLED_DIR / sur).is_file() else None,
             "e2e_space": f"spaces/{name}-e2e.toml" if (BUNDLED_DIR / "spaces" / f"{name}-e2e.toml").is_file() else None,
-            "e2e_surrogate": e2e if e2e and (BUNDLED_DIR / e2e).is_file() else None}
+            "e2e_surrogate": e2e if e2e and (BUNDLED_DIR / e2e).is_file() else None,
+            "detect_space": f"spaces/{name}-detect.toml" if (BUNDLED_DIR / "spaces" / f"{name}-detect.toml").is_file()
+            else None,
+            "detect_surrogate": det if det and (BUNDLED_DIR / det).is_file() else None}
 
 
 @lens.command("list")

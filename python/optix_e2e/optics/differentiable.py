@@ -78,6 +78,12 @@ class DifferentiableOptics(nn.Module):
         t = ((v - self.lo) / (self.hi - self.lo)).clamp(self.eps, 1 - self.eps)
         self.u.copy_(torch.log(t) - torch.log1p(-t))
 
+    def f_number(self) -> torch.Tensor | None:
+        """The lens's f-number where the space has it as a parameter (``f_number``, EFL held:
+        the detection space), differentiable w.r.t. ``u``; None where the aperture is fixed."""
+        names = self.surrogate.param_names
+        return self.values()[names.index("f_number")] if "f_number" in names else None
+
     def psfs(self) -> tuple[torch.Tensor, torch.Tensor]:
         """(psf [K, C, S, S] unit sum per channel, vignetting [K, C]) at the current parameters."""
         # inside the ranges by construction: no per-step range check (a device-to-host copy)

@@ -33,7 +33,8 @@ class DesignConfig:
     images: str = ""                 # a folder of the user's images, mixed into training (half the crops)
     software_isp: str = ""           # the pre-trained software ISP to start from ("": the bundled one)
     # training
-    crop: int = 128                  # sensor pixels per side of a training crop
+    crop: int = 128                  # sensor pixels per side of a training crop (its height)
+    crop_width: int = 0              # its width (0: square)
     batch: int = 4
     # the schedule (docs/e2e.md, "Choosing the schedule"): one cycle, then joint fine-tuning,
     # chosen on validation batches (a training stream of another seed), not the held-out set
@@ -46,6 +47,12 @@ class DesignConfig:
     lr_isp_params: float = 1e-2      # the hardware ISP's hyperparameters (their logits)
     beta_optics: float = 0.1         # Eq. 15's beta per block
     beta_isp: float = 0.0
+    # the detection task's third block, the detector (tasks/detection.py)
+    detector: str = ""               # the pre-trained detector to start from ("": the bundled one)
+    steps_detector: int = 10         # n_i of the detector block
+    lr_detector: float = 2e-4        # AdamW-free Adam on its weights
+    beta_detector: float = 0.0
+    eval_scenes: int = 100           # detection: held-out street scenes (one position each)
     lr_vanilla: float = 1e-3         # the vanilla baseline's one learning rate
     patch: int = 64                  # overlap-add patch of the renderer
     checkpoint_every: int = 20
@@ -59,7 +66,12 @@ class DesignConfig:
 
     @property
     def total_steps(self) -> int:
-        return self.n_cycles * (self.steps_optics + self.steps_isp) + self.n_finetune
+        per_cycle = self.steps_optics + self.steps_isp + (self.steps_detector if self.task == "detection" else 0)
+        return self.n_cycles * per_cycle + self.n_finetune
+
+    @property
+    def crop_hw(self) -> tuple[int, int]:
+        return self.crop, self.crop_width or self.crop
 
     def check(self) -> "DesignConfig":
         get_task(self.task)
@@ -69,27 +81,32 @@ class DesignConfig:
             raise ValueError(f"eval_positions must be one of {', '.join(POSITIONS)}, got {self.eval_positions!r}")
         if self.optics_init not in ("nominal", "uniform"):
             raise ValueError(f"optics_init must be nominal or uniform, got {self.optics_init!r}")
-        for k in ("crop", "batch", "steps_optics", "steps_isp", "eval_size", "patch", "checkpoint_every"):
+        for k in ("crop", "batch", "steps_optics", "steps_isp", "steps_detector", "eval_size", "eval_scenes", "patch",
+                  "checkpoint_every"):
             if getattr(self, k) < 1:
                 raise ValueError(f"{k} must be >= 1, got {getattr(self, k)}")
+        if self.crop_width < 0 or self.crop_width % 16:
+            raise ValueError(f"crop_width must be 0 (square) or a positive multiple of 16, got {self.crop_width}")
         for k in ("crop", "eval_size", "patch"):
             if getattr(self, k) % 16 if k != "patch" else getattr(self, k) % 2:
                 raise ValueError(f"{k} must be a multiple of {16 if k != 'patch' else 2}, got {getattr(self, k)}")
-        for k in ("lr_optics", "lr_isp_net", "lr_isp_params", "lr_vanilla", "eval_level"):
+        for k in ("lr_optics", "lr_isp_net", "lr_isp_params", "lr_detector", "lr_vanilla", "eval_level"):
             if not getattr(self, k) > 0:
                 raise ValueError(f"{k} must be > 0, got {getattr(self, k)}")
         if self.n_cycles < 0 or self.n_finetune < 0 or self.eval_procedural < 0 or self.bootstrap < 100:
             raise ValueError("n_cycles, n_finetune, eval_procedural must be >= 0 and bootstrap >= 100")
-        for k in ("beta_optics", "beta_isp", "seed", "threads"):
+        for k in ("beta_optics", "beta_isp", "beta_detector", "seed", "threads"):
             if getattr(self, k) < 0:
                 raise ValueError(f"{k} must be >= 0, got {getattr(self, k)}")
-        for k in ("crop", "eval_size"):
+        for k in ("crop", "crop_width", "eval_size"):
             if getattr(self, k) > 1024:
                 raise ValueError(f"{k} must be at most 1024 pixels (the sensor frame is 1920 x 1200), got {getattr(self, k)}")
         if self.images and not Path(self.images).is_dir():
             raise ValueError(f"images: no such folder {self.images}")
         if self.software_isp and not Path(self.software_isp).is_file():
             raise ValueError(f"software_isp: no such file {self.software_isp}")
+        if self.detector and not Path(self.detector).is_file():
+            raise ValueError(f"detector: no such file {self.detector}")
         if self.total_steps < 1:
             raise ValueError("the schedule has no step (n_cycles and n_finetune both 0)")
         return self
@@ -107,7 +124,19 @@ BUDGETS: dict[str, dict] = {
 }
 
 
-PATH_SETTINGS = ("images", "software_isp")  # settings that name files or folders
+# the detection task's own defaults under each budget (applied before the config file): the
+# detection space's surrogate, 3:2 crops, and held-out street scenes (>= 500 objects at quick)
+TASK_BUDGETS: dict[str, dict[str, dict]] = {
+    "detection": {
+        "smoke": dict(surrogate="paper-triplet-detect", crop=64, crop_width=96, steps_detector=2, eval_scenes=4),
+        "quick": dict(surrogate="paper-triplet-detect", crop=192, crop_width=288, batch=4, eval_scenes=100),
+        "full": dict(surrogate="paper-triplet-detect", crop=192, crop_width=288, batch=4, steps_detector=25,
+                     eval_scenes=200),
+    },
+}
+
+
+PATH_SETTINGS = ("images", "software_isp", "detector")  # settings that name files or folders
 
 
 def read_config_file(path: Path) -> dict:
@@ -136,6 +165,10 @@ def make_config(budget: str = "quick", file: "str | Path | None" = None, **overr
         raise ValueError(f"unknown budget {budget!r}: known budgets are {', '.join(BUDGETS)}")
     fields = {f.name for f in dataclasses.fields(DesignConfig)}
     values = {"budget": budget, **BUDGETS[budget]}
+    task = overrides.get("task")
+    if task is None and file is not None:
+        task = read_config_file(Path(file)).get("task")
+    values.update(TASK_BUDGETS.get(task or DesignConfig.task, {}).get(budget, {}))
     if file is not None:
         path = Path(file)
         data = read_config_file(path)

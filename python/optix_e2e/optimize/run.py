@@ -40,7 +40,11 @@ from ..torchfile import load_plain
 from .alg1 import Block, ProximalCompositional, Vanilla
 from .config import DesignConfig
 
-HISTORY_KEYS = ("step", "phase", "block", "loss", "prox", "l1", "lpips", "cut", "seconds")
+LOSS_PARTS = ("l1", "lpips")  # the image-quality tasks' loss terms, in history.csv
+
+
+def history_keys(parts: tuple[str, ...] = LOSS_PARTS) -> tuple[str, ...]:
+    return ("step", "phase", "block", "loss", "prox", *parts, "cut", "seconds")
 SOFTWARE_ISP = Path(__file__).resolve().parent.parent / "isp" / "bundled" / "software_isp.pt"
 
 
@@ -224,22 +228,28 @@ def build_camera(cfg: DesignConfig, sur: OpticsSurrogate, *, fixed_optics: Fixed
     return Camera(optics, sensor, isp)
 
 
-def make_optimizer(cfg: DesignConfig, camera: Camera, kind: str):
-    """Alg. 1 or vanilla over the camera's blocks; the nominal baseline ("nominal") takes the
-    same number of steps on its processing block alone, with that block's optimizer."""
+BLOCK_SETTINGS = {"optics": ("lr_optics", "steps_optics", "beta_optics"), "isp": (None, "steps_isp", "beta_isp"),
+                  "detector": ("lr_detector", "steps_detector", "beta_detector")}
+
+
+def make_optimizer(cfg: DesignConfig, camera, kind: str):
+    """Alg. 1 or vanilla over the camera's blocks (optics, ISP, and the detection task's
+    detector); the nominal baseline ("nominal") takes the same number of steps on its
+    processing blocks together (each with its own optimizer and learning rate)."""
     task = get_task(cfg.task)
-    lr_isp = cfg.lr_isp_net if task.isp == "software" else cfg.lr_isp_params
     blocks = []
     for name, params in camera.blocks().items():
-        # the prox term in range-normalized units where the block is a sigmoid-reparameterized vector
-        if name == "optics":
-            blocks.append(Block("optics", params, cfg.lr_optics, cfg.steps_optics, cfg.beta_optics, torch.sigmoid))
+        lr_key, steps_key, beta_key = BLOCK_SETTINGS[name]
+        if name == "isp":
+            lr = cfg.lr_isp_net if task.isp == "software" else cfg.lr_isp_params
         else:
-            coords = torch.sigmoid if task.isp == "hardware" else None
-            blocks.append(Block(name, params, lr_isp, cfg.steps_isp, cfg.beta_isp, coords))
+            lr = getattr(cfg, lr_key)
+        # the prox term in range-normalized units where the block is a sigmoid-reparameterized vector
+        coords = torch.sigmoid if name == "optics" or (name == "isp" and task.isp == "hardware") else None
+        blocks.append(Block(name, params, lr, getattr(cfg, steps_key), getattr(cfg, beta_key), coords))
     if kind == "nominal":
-        (b,) = blocks
-        return ProximalCompositional([Block(b.name, b.params, b.lr, 1, 0.0)], n_cycles=0, n_finetune=cfg.total_steps)
+        return ProximalCompositional([Block(b.name, b.params, b.lr, 1, 0.0) for b in blocks], n_cycles=0,
+                                     n_finetune=cfg.total_steps)
     if kind == "vanilla":
         return Vanilla(blocks, cfg.lr_vanilla, cfg.total_steps)
     return ProximalCompositional(blocks, cfg.n_cycles, cfg.n_finetune)
@@ -263,8 +273,11 @@ def _load_state(path: Path, camera: Camera, opt) -> tuple[float, list]:
 
 
 def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progress: bool = True,
-          writer=None, frame: SensorFrame = SensorFrame(), folder=None, on_step=None, log=None) -> dict:
-    """Run ``opt`` to its last step on the task loss, checkpointing into out/{name}_state.pt."""
+          writer=None, frame: SensorFrame = SensorFrame(), folder=None, on_step=None, log=None,
+          loss_at=None, parts: tuple[str, ...] = LOSS_PARTS) -> dict:
+    """Run ``opt`` to its last step on the task loss, checkpointing into out/{name}_state.pt.
+    ``loss_at(t, generator)`` -> (loss, {part: value}) is step t's loss (default: the
+    image-quality task's on ``training_batch``); ``parts`` name the values it reports."""
     task = get_task(cfg.task)
     state_path = out / f"{name}_state.pt"
     wall_s, history = 0.0, []
@@ -273,7 +286,14 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
         if log is not None:
             log(f"{name}: resuming at step {opt.t} of {opt.total_steps} ({state_path.name})")
     ran = opt.t < opt.total_steps
-    loss_mod = TaskLoss(task)
+    if loss_at is None:
+        loss_mod = TaskLoss(task)
+
+        def loss_at(t, gen):
+            batch = training_batch(cfg.seed, t, cfg.batch, cfg.crop, m, (task.level_min, task.level_max), frame,
+                                   folder)
+            out_img, _ = camera(batch.scene, batch.offset_px, gen)
+            return loss_mod(out_img, batch.target)
     optics = camera.optics if isinstance(camera.optics, DifferentiableOptics) else None
     guard = Manufacturable(optics.surrogate.manifest) if optics is not None and optics.surrogate.manifest else None
     camera.train()
@@ -283,12 +303,10 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
                leave=False)
     while opt.t < opt.total_steps:
         t = opt.t
-        batch = training_batch(cfg.seed, t, cfg.batch, cfg.crop, m, (task.level_min, task.level_max), frame, folder)
         gen = torch.Generator().manual_seed(int(np.random.SeedSequence([4, int(cfg.seed), t]).generate_state(1)[0]))
 
         def loss_fn():
-            out_img, _ = camera(batch.scene, batch.offset_px, gen)
-            return loss_mod(out_img, batch.target)
+            return loss_at(t, gen)
 
         t0 = time.perf_counter()
         u_prev = optics.u.detach().clone() if guard is not None else None
@@ -297,11 +315,10 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
         info["cut"] = int(guard is not None and info["block"] in ("optics", "all")
                           and keep_manufacturable(optics, u_prev, guard))
         info["seconds"] = time.perf_counter() - t0
-        history.append({k: info[k] for k in HISTORY_KEYS})
+        history.append({k: info[k] for k in history_keys(parts)})
         if writer is not None:
-            writer.add_scalar(f"{name}/loss", info["loss"], info["step"])
-            writer.add_scalar(f"{name}/l1", info["l1"], info["step"])
-            writer.add_scalar(f"{name}/lpips", info["lpips"], info["step"])
+            for k in ("loss", *parts):
+                writer.add_scalar(f"{name}/{k}", info[k], info["step"])
             if info["prox"]:
                 writer.add_scalar(f"{name}/prox", info["prox"], info["step"])
         if on_step is not None:
@@ -327,6 +344,10 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     from . import outputs
     from .config import check_run_dir
 
+    if cfg.task == "detection":
+        from .detection_run import run_detection_design
+
+        return run_detection_design(cfg, out, progress=progress, log=log)
     out = Path(out)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
@@ -504,15 +525,16 @@ def _panels(path: Path, samples, cams: dict, optics: dict, n_images: int = 3) ->
     save_panels(path, rows, ["target", "nominal + fine-tuned processing", "end-to-end"])
 
 
-def _write_history(path: Path, runs: dict) -> None:
+def _write_history(path: Path, runs: dict, parts: tuple[str, ...] = LOSS_PARTS) -> None:
     import csv
 
+    keys = history_keys(parts)
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["run", *HISTORY_KEYS])
+        w.writerow(["run", *keys])
         for run, hist in runs.items():
             for h in hist:
-                w.writerow([run] + [h[k] for k in HISTORY_KEYS])
+                w.writerow([run] + [h[k] for k in keys])
 
 
 def _write_rows(path: Path, rows: dict) -> None:

@@ -23,23 +23,46 @@ def exact_arrays(manifest: dict, values) -> tuple[dict, dict]:
     return arrays, meta
 
 
-def exact_optics(surrogate, values) -> dict:
+def exact_optics(surrogate, values, fallback: str | None = None) -> dict:
     """What the renderer needs from the engine for designs ``values`` [N, P] on a surrogate's
     terms: ``psf`` [N, K, C, S, S] (the surrogate's PSF kind and binning), ``vignetting``
     [N, K, C], the refocused ``image_distance`` (mm, N) and ``energy_in_window`` [N, K, C] (the
     fraction of the transmitted flux inside the PSF window: the PSFs are normalized over the
-    window, so what falls outside is left out); a rejected design is an error."""
+    window, so what falls outside is left out), and ``methods`` [N] (the PSF method used).
+    A design the engine rejects is an error, unless ``fallback="huygens"``: then its PSFs are
+    computed again by the Huygens method (the reference, where the FFT's pupil is too
+    distorted for its window, as in fast, aberrated designs), and ``methods`` says so."""
     import torch
 
     from .data import bin_psf
 
-    arrays, meta = exact_arrays(surrogate.manifest, np.atleast_2d(np.asarray(values, np.float64)))
+    values = np.atleast_2d(np.asarray(values, np.float64))
+    arrays, meta = exact_arrays(surrogate.manifest, values)
+    methods = [surrogate.manifest["settings"].get("psf_method", "fft")] * len(values)
     if meta["n_failed"]:
-        raise ValueError(f"engine rejected the design: {meta['failures'][0]['reason']}")
+        if fallback != "huygens":
+            raise ValueError(f"engine rejected the design: {meta['failures'][0]['reason']}")
+        failed = sorted(int(f["design"]) for f in meta["failures"])
+        # the same sensor-pitch PSFs from point samples at 2 um where the dataset's are finer
+        # (a quarter of the cost; the Huygens PSF is smooth where the FFT fails: aberrated)
+        st = surrogate.manifest["settings"]
+        man = {**surrogate.manifest, "settings": {**st, "psf_method": "huygens",
+                                                  "pixel_um": max(float(st["pixel_um"]), 2.0)}}
+        redo, meta2 = exact_arrays(man, values[failed])
+        if meta2["n_failed"]:
+            raise ValueError(f"engine rejected the design (Huygens too): {meta2['failures'][0]['reason']}")
+        ok = [i for i in range(len(values)) if i not in failed]
+        merged = {}
+        for k in (surrogate.psf_kind, "relative_illumination", "image_distance", "energy_in_window"):
+            rows = {i: arrays[k][j] for j, i in enumerate(ok)} | {i: redo[k][j] for j, i in enumerate(failed)}
+            merged[k] = np.stack([rows[i] for i in range(len(values))])
+        arrays = merged
+        for i in failed:
+            methods[i] = "huygens"
     psf = torch.stack([bin_psf(torch.as_tensor(p), surrogate.bin) for p in arrays[surrogate.psf_kind]]).float()
     return {"psf": psf, "vignetting": torch.as_tensor(arrays["relative_illumination"], dtype=torch.float32),
             "image_distance": [float(z) for z in arrays["image_distance"]],
-            "energy_in_window": np.asarray(arrays["energy_in_window"], np.float64)}
+            "energy_in_window": np.asarray(arrays["energy_in_window"], np.float64), "methods": methods}
 
 
 def rms_spot_um(manifest: dict, values, rings: int = 32) -> np.ndarray:

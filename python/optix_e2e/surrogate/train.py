@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, fields as dc_fields
+from dataclasses import asdict, dataclass, fields as dc_fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -127,14 +127,32 @@ def build_model(cfg: TrainConfig, man: dict, train_vig: np.ndarray, meta: dict) 
 
 def _start_from(model: OpticsSurrogate, spec: str) -> None:
     """Copy the network weights of the surrogate ``spec`` (a checkpoint, a run directory or a
-    bundled name) into ``model``: a fine-tune on new data. Its architecture, parameters,
-    fields and PSF grid must be the model's."""
+    bundled name) into ``model``: a fine-tune on new data. Its architecture (but the input
+    width), fields and PSF grid must be the model's, and its parameters the first of the
+    model's: a space widened by parameters appended at the end (the detection space adds the
+    f-number to the e2e space) starts from a network that ignores them (zero input weights).
+    The first layer is re-expressed for the model's input normalization, so the started
+    model gives the source's outputs exactly where the new parameters sit at their mean."""
     src = OpticsSurrogate.load(spec)
-    same = (src.cfg == model.cfg and list(src.param_names) == list(model.param_names)
+    n_src = src.cfg.n_params
+    same = (replace(src.cfg, n_params=model.cfg.n_params) == model.cfg
+            and list(model.param_names[:n_src]) == list(src.param_names)
             and torch.equal(src.fields.cpu(), model.fields.cpu()) and src.pitch_um == model.pitch_um)
     if not same:
-        raise ValueError(f"--init {spec}: its architecture, parameters, fields or PSF pitch differ from this run's")
-    model.net.load_state_dict({k: v.float() for k, v in src.net.state_dict().items()})
+        raise ValueError(f"--init {spec}: its architecture, parameters, fields or PSF pitch differ from this run's "
+                         f"(its parameters must be the first of this space's)")
+    state = {k: v.float() for k, v in src.net.state_dict().items()}
+    w, b = state["encoder.0.weight"].double(), state["encoder.0.bias"].double()   # [H, P_src + 1], [H]
+    # w x_src + b with x_src = (v - m_src) / s_src and v = m + s x: weights w s / s_src on x,
+    # the bias taking w (m - m_src) / s_src
+    m_src, s_src = src.param_mean.double().cpu(), src.param_std.double().cpu()
+    m, s = model.param_mean.double().cpu()[:n_src], model.param_std.double().cpu()[:n_src]
+    w_par = w[:, :n_src] * (s / s_src)
+    b = b + w[:, :n_src] @ ((m - m_src) / s_src)
+    extra = torch.zeros(w.shape[0], model.cfg.n_params - n_src, dtype=w.dtype)
+    state["encoder.0.weight"] = torch.cat([w_par, extra, w[:, n_src:]], dim=1).float()
+    state["encoder.0.bias"] = b.float()
+    model.net.load_state_dict(state)
 
 
 def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, progress: bool = True,

@@ -87,6 +87,25 @@ def mean_average_precision(preds: list[dict], targets: list[dict]) -> dict:
             "n_objects": int(sum(len(t["labels"]) for t in targets))}
 
 
+def in_the_dark(preds: list[dict], targets: list[dict], lights: list[torch.Tensor],
+                dark: float = 0.1) -> tuple[list[dict], list[dict]]:
+    """Detections and targets restricted to the objects lit under ``dark`` (``lights``: each
+    target's mean illumination, a fraction of the sunlight): the other objects' boxes are
+    removed from the targets, and detections matching one of them (IoU >= 0.5) from the
+    detections (they are that object's, not false positives in the dark)."""
+    from torchvision.ops import box_iou
+
+    dp, dt = [], []
+    for p, t, light in zip(preds, targets, lights):
+        keep = torch.as_tensor(light, dtype=torch.float32).reshape(-1) < dark
+        drop = t["boxes"][~keep]
+        far = box_iou(p["boxes"], drop).max(1).values < 0.5 if len(drop) and len(p["boxes"]) else \
+            torch.ones(len(p["boxes"]), dtype=torch.bool)
+        dp.append({k: v[far] for k, v in p.items()})
+        dt.append({"boxes": t["boxes"][keep], "labels": t["labels"][keep]})
+    return dp, dt
+
+
 @torch.no_grad()
 def detect(model: nn.Module, images: torch.Tensor, batch: int = 8) -> list[dict]:
     """The model's detections for images [N, 3, H, W] (eval mode, in batches)."""

@@ -18,8 +18,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .. import color
 from ..scenes.coco import CocoDetection
-from .detector import detect, make_detector, mean_average_precision
+from .detector import detect, in_the_dark, make_detector, mean_average_precision
 
 FORMAT = "optix-detector/1"
 
@@ -65,7 +66,7 @@ def load_detector(path: "str | Path"):
     return model, ck
 
 
-def _batch(images: torch.Tensor, targets: list[dict], seed: int, step: int, batch: int):
+def _batch(images: torch.Tensor, targets: list[dict], seed: int, step: int, batch: int, dim: float = 1.0):
     rng = np.random.default_rng([5, int(seed), int(step)])  # stream tag 5: detector batches
     idx = rng.choice(len(images), size=min(batch, len(images)), replace=False)
     flip = rng.random(len(idx)) < 0.5
@@ -73,6 +74,8 @@ def _batch(images: torch.Tensor, targets: list[dict], seed: int, step: int, batc
     w = images.shape[-1]
     for i, f in zip(idx.tolist(), flip.tolist()):
         x, b = images[i].float() / 255, targets[i]["boxes"].clone()
+        if dim < 1.0:  # a dimmer exposure of the same scene: scaled in linear light
+            x = color.linear_to_srgb(color.srgb_to_linear(x) * float(np.exp(rng.uniform(np.log(dim), 0.0))))
         if f:
             x = x.flip(-1)
             b[:, [0, 2]] = w - b[:, [2, 0]]
@@ -82,7 +85,7 @@ def _batch(images: torch.Tensor, targets: list[dict], seed: int, step: int, batc
 
 
 def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, minutes: float | None = None,
-                   batch: int = 8, lr: float = 2e-3, seed: int = 0, width: int = 32, fpn: int = 64,
+                   batch: int = 8, lr: float = 2e-3, seed: int = 0, width: int = 32, fpn: int = 64, dim: float = 1.0,
                    checkpoint_every: int = 100, progress: bool = True, log=print) -> dict:
     """Train (or continue) a detector on the COCO folder ``data``; returns the run's summary."""
     from torch.utils.tensorboard import SummaryWriter
@@ -96,9 +99,10 @@ def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, 
     torch.manual_seed(seed)
     if ck_path.is_file():
         model, ck = load_detector(ck_path)
-        if ck["config"] != config or ck.get("data") != str(Path(data).resolve()) or ck.get("seed") != seed:
+        if (ck["config"] != config or ck.get("data") != str(Path(data).resolve()) or ck.get("seed") != seed
+                or ck.get("dim", 1.0) != dim):
             raise ValueError(f"{out} holds a detector trained with other settings (config {ck['config']}, data "
-                             f"{ck.get('data')}, seed {ck.get('seed')}); use another --out")
+                             f"{ck.get('data')}, seed {ck.get('seed')}, dim {ck.get('dim', 1.0)}); use another --out")
         step, wall = int(ck["step"]), float(ck["wall_s"])  # a larger --steps continues the run
         log(f"resuming at step {step} of {steps}")
     else:
@@ -128,7 +132,7 @@ def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, 
     t0 = time.perf_counter()
 
     def checkpoint() -> None:
-        save_detector(ck_path, model, config, optimizer=opt.state_dict(), step=step, steps=steps, seed=seed,
+        save_detector(ck_path, model, config, optimizer=opt.state_dict(), step=step, steps=steps, seed=seed, dim=dim,
                       wall_s=wall + time.perf_counter() - t0, data=str(Path(data).resolve()))
     bar = tqdm(total=steps, initial=step, desc="detector", unit="step", disable=not progress)
     try:
@@ -141,7 +145,7 @@ def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, 
             for g in opt.param_groups:
                 g["lr"] = lr_at(step, frac)
             ts = time.perf_counter()
-            xs, tg = _batch(images, targets, seed, step, batch)
+            xs, tg = _batch(images, targets, seed, step, batch, dim)
             losses = model(xs, tg)
             loss = sum(losses.values())
             opt.zero_grad()
@@ -171,22 +175,12 @@ def evaluate_detector(model, data: "str | Path", batch: int = 8, dark: float = 0
     """mAP of ``model`` on the COCO folder ``data``, and mAP@0.5 over the objects in the dark
     (mean illumination < ``dark`` of the sunlight, where the file says so) with the other
     objects' boxes removed from both sides."""
-    from torchvision.ops import box_iou
-
     images, targets, ds = load_coco_folder(data)
     preds = detect(model, images.float() / 255, batch)
     res = mean_average_precision(preds, targets)
     if any(im["illumination"] for im in ds.images) and all(x is not None for im in ds.images
                                                             for x in im["illumination"]):
-        dp, dt = [], []
-        for im, p, t in zip(ds.images, preds, targets):
-            keep = torch.tensor(im["illumination"], dtype=torch.float32).reshape(-1) < dark
-            drop = t["boxes"][~keep]
-            # detections that match a sunlit object are that object's, not false positives in the dark
-            far = box_iou(p["boxes"], drop).max(1).values < 0.5 if len(drop) and len(p["boxes"]) else \
-                torch.ones(len(p["boxes"]), dtype=torch.bool)
-            dp.append({k: v[far] for k, v in p.items()})
-            dt.append({"boxes": t["boxes"][keep], "labels": t["labels"][keep]})
-        r = mean_average_precision(dp, dt)
+        lights = [torch.tensor(im["illumination"], dtype=torch.float32).reshape(-1) for im in ds.images]
+        r = mean_average_precision(*in_the_dark(preds, targets, lights, dark))
         res["dark"] = {"threshold": dark, "map_50": r["map_50"], "map": r["map"], "n_objects": r["n_objects"]}
     return res

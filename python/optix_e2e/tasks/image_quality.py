@@ -43,12 +43,6 @@ TASKS: dict[str, ImageQualityTask] = {
 }
 
 
-def get_task(name: str) -> ImageQualityTask:
-    if name not in TASKS:
-        raise ValueError(f"unknown task {name!r}: known tasks are {', '.join(TASKS)}")
-    return TASKS[name]
-
-
 def task_loss(output: torch.Tensor, target: torch.Tensor, lpips_module: nn.Module, lpips_weight: float,
               crop: int = 0) -> tuple[torch.Tensor, dict]:
     """L1 + w LPIPS of sRGB images [B, 3, H, W] (batch means); ``crop`` border pixels dropped.

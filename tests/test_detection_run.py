@@ -1,0 +1,69 @@
+"""`optix design detection` end to end at the smoke budget: every output, the issue's keys in
+results.json, the lens's f-number carried to the sensor, other settings refused, and a second
+call that reuses the finished trainings and evaluations."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+
+import pytest
+
+from optix_e2e.lens import Lens
+
+
+def _design(out, *extra):
+    return [sys.executable, "-m", "optix_e2e", "design", "detection", "--out", str(out), "--budget", "smoke",
+            "--threads", "1", "--quiet", *extra]
+
+
+def test_smoke_detection_design_writes_every_output(tmp_path):
+    out = tmp_path / "run"
+    r = subprocess.run(_design(out), capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "mAP@0.5" in r.stdout and "f-number" in r.stdout
+    res = json.loads((out / "results.json").read_text())
+    assert res["task"] == "detection" and res["optics_eval"] == "exact" and res["surrogate"] == "paper-triplet-detect"
+    for who in ("nominal", "end_to_end"):
+        c = res[who]
+        for k in ("map_50", "map"):
+            assert 0.0 <= c[k] <= 1.0 and 0.0 <= c["dark"][k] <= 1.0 and 0.0 <= c["surrogate"][k] <= 1.0
+        assert 2.9 <= c["f_number"] <= 4.6
+        # the exported lens has the f-number the surrogate's parameter says (EFL held)
+        assert c["f_number_paraxial"] == pytest.approx(c["f_number"], rel=1e-3)
+        assert len(c["rms_spot_um"]) == len(c["relative_illumination"]) == len(c["report_fields_deg"]) >= 3
+        assert c["relative_illumination"][0] == pytest.approx(1.0, abs=1e-6)
+    assert res["nominal"]["f_number"] == pytest.approx(4.4, abs=1e-3)
+    for k in ("map_50", "map"):
+        lo, hi = res["paired"][k]["ci95"]
+        assert lo <= hi and lo - 1e-9 <= res["paired"][k]["mean"] <= hi + 1e-9
+        assert "ci95" in res["paired"]["dark"][k]
+    assert res["held_out"]["n_images"] == 4 and res["held_out"]["n_objects"] > 0
+    assert set(res["isp_hyperparameters"]["end_to_end"]) == set(res["isp_hyperparameters"]["nominal"])
+    for f in ("panels.png", "psf_nominal.png", "psf_end_to_end.png", "history.csv", "metrics.csv",
+              "detections_end_to_end_exact.json", "report/end_to_end/layout.png", "report/nominal/spots.png"):
+        assert (out / f).is_file(), f
+    assert any((out / "tb").iterdir())
+    rows = list(csv.DictReader(open(out / "history.csv")))
+    e2e = [r for r in rows if r["run"] == "end_to_end"]
+    # Alg. 1 turns: optics, ISP, detector (2 steps each at smoke), then joint steps
+    assert [r["block"] for r in e2e[:6]] == ["optics"] * 2 + ["isp"] * 2 + ["detector"] * 2
+    assert all(float(r["classification"]) >= 0 for r in rows)
+    assert {r["block"] for r in rows if r["run"] == "nominal"} == {"all"}
+    z, j = Lens.load(out / res["lens_zmx"]), Lens.load(out / res["lens_json"])
+    assert z.paraxial()["f_number"] == pytest.approx(j.paraxial()["f_number"], rel=1e-9)
+    # other settings are refused; the same command reuses everything it finished
+    r = subprocess.run(_design(out, "--seed", "1"), capture_output=True, text=True)
+    assert r.returncode == 1 and "other settings" in r.stdout + r.stderr
+    r = subprocess.run(_design(out), capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stdout + r.stderr
+    again = json.loads((out / "results.json").read_text())
+    assert again["paired"] == res["paired"] and again["end_to_end"]["map"] == res["end_to_end"]["map"]
+
+
+def test_detection_needs_a_space_with_the_f_number(tmp_path):
+    r = subprocess.run(_design(tmp_path / "r", "--surrogate", "paper-triplet-e2e"), capture_output=True, text=True)
+    assert r.returncode == 1 and "f_number" in r.stdout + r.stderr
+    assert not (tmp_path / "r").exists()
