@@ -103,6 +103,22 @@ def summarize(m: dict, fields_deg) -> dict:
     return out
 
 
+def f_number_bands(m: dict, f_numbers: np.ndarray, fields_deg, edges=(2.9, 3.3, 3.7, 4.1, 4.6)) -> list[dict]:
+    """Median PSF relative L1 per field (and the vignetting error) for designs in each f-number band."""
+    out = []
+    f_numbers = np.asarray(f_numbers, float)
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        sel = (f_numbers >= lo) & ((f_numbers < hi) if hi != edges[-1] else (f_numbers <= hi))
+        if not sel.any():
+            continue
+        rel = m["psf_rel_l1"][sel]
+        out.append({"f_number": [lo, hi], "n_designs": int(sel.sum()),
+                    "psf_rel_l1_median": float(np.median(rel)),
+                    "psf_rel_l1_median_per_field": {f"{f:g}": float(np.median(rel[:, j])) for j, f in enumerate(fields_deg)},
+                    "vignetting_abs_err_median": float(np.median(m["vignetting_abs_err"][sel]))})
+    return out
+
+
 def evaluate(model: OpticsSurrogate, data_root, max_designs: int | None = None, png: "str | Path | None" = None,
              grid_designs: int = 3, grid_fields: int = 5) -> dict:
     """Score ``model`` on the designs of ``data_root`` it did not train on: all of them for
@@ -148,6 +164,9 @@ def evaluate(model: OpticsSurrogate, data_root, max_designs: int | None = None, 
         "model_training": {k: v for k, v in model.meta.get("training", {}).items() if k != "config"},
         "model_data": {k: v for k, v in data.items() if k != "val_designs"},
     }
+    if "f_number" in model.param_names:  # a space with the aperture: accuracy per f-number band too
+        report["per_f_number_band"] = f_number_bands(m, arrays.params[:, model.param_names.index("f_number")],
+                                                     model.fields_deg)
     if png:
         save_grid(png, model, arrays, psf.numpy(), m["psf_rel_l1"], grid_designs, grid_fields)
         report["png"] = str(png)
