@@ -226,17 +226,7 @@ def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool
     paired = paired_map(preds["nominal"]["exact"], preds["end_to_end"]["exact"], samples, cfg.bootstrap, cfg.seed,
                         task.dark)
     fields_deg = [float(f) for f in sur.manifest["fields_deg"]]
-    (out / "lens").mkdir(exist_ok=True)
-    desc = (f"end-to-end design for {cfg.task} ({cfg.optimizer}, budget {cfg.budget}, seed {cfg.seed}) in the space of "
-            f"{sur.manifest['base_lens'].get('name', 'the base lens')}; made by optix design")
-    exported = outputs.export_lens(sur.manifest, final_values.numpy(), exact["image_distance"][1],
-                                   out / "lens" / "end_to_end", f"{cfg.task}-end-to-end", desc)
-    outputs.export_lens(sur.manifest, nominal_values.numpy(), exact["image_distance"][0], out / "lens" / "nominal",
-                        "nominal", "the nominal design, refocused as the dataset does")
-    checks = outputs.check_final_design(sur.manifest, final_values.numpy(), exact["image_distance"][1])
-    pitch = float(sur.manifest["settings"]["sensor_pixel_um"]) * sur.bin
-    outputs.save_psf_grids(out / "psf_nominal.png", exact["psf"][0], fields_deg, pitch, "nominal (engine)")
-    outputs.save_psf_grids(out / "psf_end_to_end.png", exact["psf"][1], fields_deg, pitch, "end-to-end (engine)")
+    exported, checks = outputs.write_design_outputs(out, cfg, sur, nominal_values.numpy(), final_values.numpy(), exact)
     _detection_panels(out / "panels.png", samples, preds, optics, cams, f_numbers, cfg.patch, frame)
     reports = {who: write_report(Lens.load(out / "lens" / f"{who}.json"), out / "report" / who) for who in cams}
 

@@ -126,3 +126,22 @@ def save_panels(path: Path, rows: list[tuple[str, list[torch.Tensor]]], columns:
                 ax.set_ylabel(label, fontsize=8)
     fig.tight_layout()
     fig.savefig(path)
+
+
+def write_design_outputs(out: Path, cfg, sur, nominal_values, final_values, exact: dict) -> tuple[dict, dict]:
+    """A design run's lens outputs: both lenses exported (lens/end_to_end and lens/nominal,
+    .json and .zmx, refocused as the dataset does), the final design's checks, and both
+    lenses' exact PSF grids (psf_*.png). Returns (the exported end-to-end paths, checks)."""
+    fields_deg = [float(f) for f in sur.manifest["fields_deg"]]
+    (out / "lens").mkdir(exist_ok=True)
+    desc = (f"end-to-end design for {cfg.task} ({cfg.optimizer}, budget {cfg.budget}, seed {cfg.seed}) in the space of "
+            f"{sur.manifest['base_lens'].get('name', 'the base lens')}; made by optix design")
+    exported = export_lens(sur.manifest, np.asarray(final_values), exact["image_distance"][1],
+                           out / "lens" / "end_to_end", f"{cfg.task}-end-to-end", desc)
+    export_lens(sur.manifest, np.asarray(nominal_values), exact["image_distance"][0], out / "lens" / "nominal",
+                "nominal", "the nominal design, refocused as the dataset does")
+    checks = check_final_design(sur.manifest, np.asarray(final_values), exact["image_distance"][1])
+    pitch = float(sur.manifest["settings"]["sensor_pixel_um"]) * sur.bin
+    save_psf_grids(out / "psf_nominal.png", exact["psf"][0], fields_deg, pitch, "nominal (engine)")
+    save_psf_grids(out / "psf_end_to_end.png", exact["psf"][1], fields_deg, pitch, "end-to-end (engine)")
+    return exported, checks

@@ -417,18 +417,8 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
 
     log("[4/4] lens export, checks, PSF grids, panels, reports")
     fields_deg = [float(f) for f in sur.manifest["fields_deg"]]
-    (out / "lens").mkdir(exist_ok=True)
     names = sur.param_names
-    desc = (f"end-to-end design for {cfg.task} ({cfg.optimizer}, budget {cfg.budget}, seed {cfg.seed}) in the space of "
-            f"{sur.manifest['base_lens'].get('name', 'the base lens')}; made by optix design")
-    exported = outputs.export_lens(sur.manifest, final_values.numpy(), exact["image_distance"][1],
-                                   out / "lens" / "end_to_end", f"{cfg.task}-end-to-end", desc)
-    outputs.export_lens(sur.manifest, nominal_values.numpy(), exact["image_distance"][0], out / "lens" / "nominal",
-                        "nominal", "the nominal design, refocused as the dataset does")
-    checks = outputs.check_final_design(sur.manifest, final_values.numpy(), exact["image_distance"][1])
-    pitch = float(sur.manifest["settings"]["sensor_pixel_um"]) * sur.bin
-    outputs.save_psf_grids(out / "psf_nominal.png", exact["psf"][0], fields_deg, pitch, "nominal (engine)")
-    outputs.save_psf_grids(out / "psf_end_to_end.png", exact["psf"][1], fields_deg, pitch, "end-to-end (engine)")
+    exported, checks = outputs.write_design_outputs(out, cfg, sur, nominal_values.numpy(), final_values.numpy(), exact)
     from ..scenes import bundled_photos
     # the panels: three photos at the two extremes of the field, the centre and the corner
     _panels(out / "panels.png", heldout_set(cfg.eval_size, exact["psf"].shape[-1] // 2, 0, cfg.eval_level, frame,
