@@ -10,9 +10,9 @@ from optix_e2e.design.space import ParameterSpace, SpaceError, bundled_spaces, l
 
 
 def test_every_bundled_lens_ships_a_space_containing_it():
-    # one space per lens, named after it; other spaces (paper-triplet-e2e) are around a bundled lens
+    # one space per lens, named after it; other spaces (paper-triplet-e2e, -detect) are around a bundled lens
     assert set(bundled_lenses()) <= set(bundled_spaces())
-    assert set(bundled_spaces()) - set(bundled_lenses()) == {"paper-triplet-e2e"}
+    assert set(bundled_spaces()) - set(bundled_lenses()) == {"paper-triplet-e2e", "paper-triplet-detect"}
     for name in bundled_spaces():
         space, lens = load_space(name)
         assert lens.name == (name if name in bundled_lenses() else "paper-triplet")
