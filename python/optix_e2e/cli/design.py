@@ -25,10 +25,14 @@ from ._common import dumps, friendly_errors
                                                 "(default: paper-triplet-e2e; detection: paper-triplet-detect).")
 @click.option("--images", type=click.Path(exists=True, file_okay=False), default=None,
               help="A folder of your images, mixed into the training scenes.")
+@click.option("--optics", type=click.Choice(["surrogate", "exact", "hybrid", "auto"]), default=None,
+              help="The optics model in the loop: the surrogate (default), the exact engine with central-difference "
+                   "gradients, the surrogate checked and refined along the way, or auto (from the measured "
+                   "speed/accuracy trade-off; docs/optics-in-the-loop.md).")
 @click.option("--threads", type=click.IntRange(min=0), default=None, help="torch CPU threads (0: default).")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @friendly_errors
-def design(task, out, config_file, optimizer, budget, seed, surrogate, images, threads, quiet):
+def design(task, out, config_file, optimizer, budget, seed, surrogate, images, optics, threads, quiet):
     """Optimize lens and processing together for TASK, against the nominal lens with its
     processing fine-tuned for the same budget, and evaluate both under the exact engine's PSFs
     on held-out images. Running the same command again resumes an interrupted run.
@@ -38,10 +42,12 @@ def design(task, out, config_file, optimizer, budget, seed, surrogate, images, t
     from ..optimize.run import run_design
 
     cfg = make_config(budget, config_file, task=task, optimizer=optimizer, seed=seed, surrogate=surrogate,
-                      images=images, threads=threads)
+                      images=images, threads=threads, optics=optics)
     if cfg.task == "detection":
         if images:
             raise click.UsageError("--images is for the image-quality tasks; detection trains on street scenes")
+        if cfg.optics not in ("surrogate", "auto"):
+            raise click.UsageError("--optics exact and hybrid are for the image-quality tasks (detection: surrogate)")
         from ..optimize.detection_run import run_detection_design
 
         res = run_detection_design(cfg, Path(out), progress=not quiet, log=click.echo)
@@ -65,5 +71,10 @@ def design(task, out, config_file, optimizer, budget, seed, surrogate, images, t
         lo, hi = p[m]["ci95"]
         click.echo(f"  {label:8s} nominal {n[m]:.4f}   end-to-end {e[m]:.4f}   diff {p[m]['mean']:+.4f} "
                    f"[{lo:+.4f}, {hi:+.4f}]")
+    om = res["optics_model"]
+    click.echo(f"optics model {om['mode']} ({om['choice']['why']}); PSF rel. L1 at the final design, worst field: "
+               f"the model the last steps used {max(om['final_error_per_field']):.4f}, the network "
+               f"{max(om['final_network_error_per_field']):.4f}; {om['n_refinements']} refinements, "
+               f"{om['exact_gradient_steps']} lens steps on exact gradients")
     click.echo(f"results: {Path(out) / 'results.json'}  (lens: {Path(out) / res['lens_zmx']}, wall {res['wall_s']:.0f} s)")
     click.echo(dumps({"results": str(Path(out) / "results.json"), "wall_s": res["wall_s"]}))

@@ -12,6 +12,11 @@ inside [lo, hi], so the surrogate never extrapolates, and the gradient dp/du =
 paper's ranges are manufacturing tolerances: a design at a bound is allowed, beyond it not).
 ``values`` / ``set_values`` work in the parameters' own units.
 
+``backend``: "surrogate" (the network, the paper's way) or "exact" (the engine's PSFs and
+central-difference gradients, optics/exact.py: the same pipeline with no network; the
+surrogate file then only says on whose terms, its space, fields, settings and ranges).
+``backend`` can be switched on a live module (the hybrid runs of optimize/hybrid.py do).
+
 The image is in sensor pixels at the surrogate's PSF pitch (5.86 um for the shipped
 paper-triplet-v1 surrogate); the K fields span the axis to ``full_field_px`` pixels from the
 image centre (the half-diagonal by default: the corners see the lens's full field).
@@ -34,7 +39,7 @@ class DifferentiableOptics(nn.Module):
     frozen (``requires_grad=False``); only the lens parameters learn."""
 
     def __init__(self, surrogate: "OpticsSurrogate | str", init=None, *, patch: int = 64,
-                 full_field_px: float | None = None, eps: float = 1e-4):
+                 full_field_px: float | None = None, eps: float = 1e-4, backend: str = "surrogate"):
         super().__init__()
         if not isinstance(surrogate, OpticsSurrogate):
             surrogate = OpticsSurrogate.load(surrogate)
@@ -49,6 +54,32 @@ class DifferentiableOptics(nn.Module):
         # where the K fields land on the sensor, as fractions of the full field's image height
         # (None: proportional to the field angle); see camera.stages.image_height_fractions
         self.render_fields: torch.Tensor | None = None
+        self._exact = None
+        self.backend = backend
+        # an additive correction of the surrogate's output (psf [K, C, S, S], vignetting [K, C]):
+        # exact minus surrogate at an anchor design (optimize/hybrid.py); None: the network alone
+        self.correction: tuple[torch.Tensor, torch.Tensor] | None = None
+        # the fields the renderer uses (indices into the K trained fields; None: all of them)
+        self.field_index: list[int] | None = None
+
+    @property
+    def backend(self) -> str:
+        return self._backend
+
+    @backend.setter
+    def backend(self, name: str) -> None:
+        if name not in ("surrogate", "exact"):
+            raise ValueError(f"optics backend must be surrogate or exact, got {name!r}")
+        self._backend = name
+
+    @property
+    def exact(self):
+        """The engine on the surrogate's terms (optics.exact.ExactOptics), made on first use."""
+        if self._exact is None:
+            from .exact import ExactOptics
+
+            self._exact = ExactOptics.from_surrogate(self.surrogate)
+        return self._exact
 
     @property
     def names(self) -> list[str]:
@@ -85,9 +116,24 @@ class DifferentiableOptics(nn.Module):
         return self.values()[names.index("f_number")] if "f_number" in names else None
 
     def psfs(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """(psf [K, C, S, S] unit sum per channel, vignetting [K, C]) at the current parameters."""
+        """(psf [K, C, S, S] unit sum per channel, vignetting [K, C]) at the current parameters,
+        from the backend (exact: the engine, gradients by central differences)."""
+        if self._backend == "exact":
+            from .exact import exact_psfs
+
+            return exact_psfs(self.values(), self.exact)
+        return self._surrogate_psfs()
+
+    def _surrogate_psfs(self, index: list[int] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         # inside the ranges by construction: no per-step range check (a device-to-host copy)
-        return self.surrogate.psfs(self.values(), check=False)
+        psf, vig = self.surrogate.psfs(self.values(), check=False, field_index=index)
+        if self.correction is not None:
+            # exact at the anchor; away from it the surrogate's change (kept a non-negative unit-sum PSF)
+            dp, dv = self.correction if index is None else (self.correction[0][index], self.correction[1][index])
+            psf = (psf + dp).clamp_min(0.0)
+            psf = psf / psf.sum((-2, -1), keepdim=True).clamp_min(1e-12)
+            vig = vig + dv
+        return psf, vig
 
     @property
     def fields(self) -> torch.Tensor:
@@ -102,10 +148,26 @@ class DifferentiableOptics(nn.Module):
         self.surrogate.eval()  # frozen: never in training mode
         return self
 
+    def use_fields(self, k: int) -> None:
+        """Render from k of the K trained fields, spread evenly from the axis to the full field
+        (always both ends; k = 0 or K: all). Fewer fields: fewer surrogate evaluations per step,
+        a coarser interpolation of the PSF along the field."""
+        n = len(self.surrogate.fields_deg)
+        if k < 0 or k == 1 or k > n:
+            raise ValueError(f"field samples: 0 (all {n}) or 2..{n}, got {k}")
+        self.field_index = None if k in (0, n) else sorted({round(i * (n - 1) / (k - 1)) for i in range(k)})
+
     def forward(self, image: torch.Tensor, offset_px: tuple[float, float] = (0.0, 0.0)) -> torch.Tensor:
         """offset_px: a crop's centre from the optical axis (rows, columns; needs ``full_field_px``)."""
-        psf, vig = self.psfs()
         fields = self.fields if self.render_fields is None else self.render_fields
+        if self.field_index is None:
+            psf, vig = self.psfs()
+        elif self._backend == "surrogate":  # only the fields rendered are evaluated
+            psf, vig = self._surrogate_psfs(self.field_index)
+            fields = fields[self.field_index]
+        else:  # the engine computes every field of the dataset anyway
+            psf, vig = self.psfs()
+            psf, vig, fields = psf[self.field_index], vig[self.field_index], fields[self.field_index]
         return render(image, psf, fields, vig, patch=self.patch, full_field_px=self.full_field_px,
                       offset_px=offset_px)
 

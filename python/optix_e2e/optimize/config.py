@@ -54,6 +54,14 @@ class DesignConfig:
     beta_detector: float = 0.0
     eval_scenes: int = 100           # detection: held-out street scenes (one position each)
     lr_vanilla: float = 1e-3         # the vanilla baseline's one learning rate
+    # the optics model in the loop (optimize/hybrid.py, docs/optics-in-the-loop.md)
+    optics: str = "surrogate"        # surrogate | exact | hybrid | auto (from the measured trade-off)
+    check_every: int = 10            # exact check of the current design every N steps (and after the last)
+    hybrid_threshold: float = 0.02   # hybrid: refine when the worst field's PSF rel. L1 passes this
+    refine: str = "correction"       # hybrid: correction (exact minus surrogate at the design) | network
+    refine_designs: int = 192        # refine = network: engine designs about the design
+    refine_steps: int = 150          # refine = network: fine-tune steps
+    fields: int = 0                  # field samples K the renderer uses in training (0: all the surrogate's)
     patch: int = 64                  # overlap-add patch of the renderer
     checkpoint_every: int = 20
     # evaluation
@@ -79,10 +87,20 @@ class DesignConfig:
             raise ValueError(f"optimizer must be alg1 or vanilla, got {self.optimizer!r}")
         if self.eval_positions not in POSITIONS:
             raise ValueError(f"eval_positions must be one of {', '.join(POSITIONS)}, got {self.eval_positions!r}")
+        from .hybrid import OPTICS_MODES, REFINE_MODES
+
+        if self.optics not in OPTICS_MODES:
+            raise ValueError(f"optics must be one of {', '.join(OPTICS_MODES)}, got {self.optics!r}")
+        if self.refine not in REFINE_MODES:
+            raise ValueError(f"refine must be one of {', '.join(REFINE_MODES)}, got {self.refine!r}")
+        if not self.hybrid_threshold > 0:
+            raise ValueError(f"hybrid_threshold must be > 0, got {self.hybrid_threshold}")
+        if self.fields < 0 or self.fields == 1:
+            raise ValueError(f"fields must be 0 (all) or at least 2, got {self.fields}")
         if self.optics_init not in ("nominal", "uniform"):
             raise ValueError(f"optics_init must be nominal or uniform, got {self.optics_init!r}")
         for k in ("crop", "batch", "steps_optics", "steps_isp", "steps_detector", "eval_size", "eval_scenes", "patch",
-                  "checkpoint_every"):
+                  "checkpoint_every", "check_every", "refine_designs", "refine_steps"):
             if getattr(self, k) < 1:
                 raise ValueError(f"{k} must be >= 1, got {getattr(self, k)}")
         if self.crop_width < 0 or self.crop_width % 16:
@@ -117,7 +135,7 @@ class DesignConfig:
 
 # smoke: seconds, for tests; quick: the main job (./run.sh); full: the figures we report.
 BUDGETS: dict[str, dict] = {
-    "smoke": dict(crop=32, batch=1, n_cycles=1, steps_optics=2, steps_isp=2, n_finetune=2, eval_size=32,
+    "smoke": dict(crop=32, batch=1, n_cycles=1, steps_optics=2, steps_isp=2, n_finetune=2, eval_size=32, check_every=3,
                   eval_procedural=1, checkpoint_every=2, bootstrap=200),
     "quick": dict(),
     "full": dict(n_cycles=2, steps_optics=25, steps_isp=25, n_finetune=300, eval_size=256),

@@ -148,6 +148,9 @@ def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool
     task = get_task(cfg.task)
     frame = SensorFrame()
     sur = load_surrogate(cfg.surrogate, calibrated_preset("imx249").pixel_um)
+    if cfg.optics not in ("surrogate", "auto"):
+        raise ValueError(f"optics {cfg.optics}: the detection run trains through the surrogate (exact and hybrid "
+                         f"optics are for the image-quality tasks)")
     if "f_number" not in sur.param_names:
         raise ValueError(f"surrogate {cfg.surrogate}: its space has no f_number parameter; the detection task "
                          f"learns the aperture (use paper-triplet-detect)")

@@ -44,7 +44,7 @@ LOSS_PARTS = ("l1", "lpips")  # the image-quality tasks' loss terms, in history.
 
 
 def history_keys(parts: tuple[str, ...] = LOSS_PARTS) -> tuple[str, ...]:
-    return ("step", "phase", "block", "loss", "prox", *parts, "cut", "seconds")
+    return ("step", "phase", "block", "loss", "prox", *parts, "cut", "optics", "seconds")
 SOFTWARE_ISP = Path(__file__).resolve().parent.parent / "isp" / "bundled" / "software_isp.pt"
 
 
@@ -206,14 +206,19 @@ def initial_isp_unit(cfg: DesignConfig) -> torch.Tensor:
 
 
 def build_camera(cfg: DesignConfig, sur: OpticsSurrogate, *, fixed_optics: FixedOptics | None = None,
-                 frame: SensorFrame = SensorFrame()) -> Camera:
+                 frame: SensorFrame = SensorFrame(), own_surrogate: bool = False) -> Camera:
     """The camera at its initialization: the same for Alg. 1, vanilla and the nominal baseline
-    (apart from the optics, fixed at the nominal for the latter)."""
+    (apart from the optics, fixed at the nominal for the latter). ``own_surrogate``: the optics
+    get a copy of the surrogate (a hybrid run refines its own)."""
+    import copy
+
     task = get_task(cfg.task)
     if fixed_optics is None:
-        optics = DifferentiableOptics(sur, patch=cfg.patch, full_field_px=frame.full_field_px)
+        optics = DifferentiableOptics(copy.deepcopy(sur) if own_surrogate else sur, patch=cfg.patch,
+                                      full_field_px=frame.full_field_px)
         optics.set_values(initial_optics_values(cfg, optics))
         optics.render_fields = nominal_field_heights(sur)
+        optics.use_fields(cfg.fields)
     else:
         optics = fixed_optics
     preset = calibrated_preset("imx249", base_lens_f_number(sur), task.exposure_factor, task.gain_factor)
@@ -255,18 +260,21 @@ def make_optimizer(cfg: DesignConfig, camera, kind: str):
     return ProximalCompositional(blocks, cfg.n_cycles, cfg.n_finetune)
 
 
-def _save_state(path: Path, camera: Camera, opt, wall_s: float, history: list) -> None:
+def _save_state(path: Path, camera: Camera, opt, wall_s: float, history: list, monitor=None) -> None:
     save_atomic({"format": "optix-design-state/1", "camera": camera.state_dict(), "optimizer": opt.state_dict(),
-                 "wall_s": wall_s, "history": history}, path)
+                 "wall_s": wall_s, "history": history,
+                 "monitor": monitor.state_dict() if monitor is not None else None}, path)
 
 
-def _load_state(path: Path, camera: Camera, opt) -> tuple[float, list]:
+def _load_state(path: Path, camera: Camera, opt, monitor=None) -> tuple[float, list]:
     st = load_plain(path, "design checkpoint")
     if not isinstance(st, dict) or st.get("format") != "optix-design-state/1":
         raise ValueError(f"{path}: not a design checkpoint (format optix-design-state/1)")
     try:
         camera.load_state_dict(st["camera"])
         opt.load_state_dict(st["optimizer"])
+        if monitor is not None and st.get("monitor") is not None:
+            monitor.load_state_dict(st["monitor"])
         return float(st["wall_s"]), list(st["history"])
     except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as err:
         raise ValueError(f"{path}: damaged design checkpoint ({err}); remove it to restart that training") from None
@@ -274,15 +282,17 @@ def _load_state(path: Path, camera: Camera, opt) -> tuple[float, list]:
 
 def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progress: bool = True,
           writer=None, frame: SensorFrame = SensorFrame(), folder=None, on_step=None, log=None,
-          loss_at=None, parts: tuple[str, ...] = LOSS_PARTS) -> dict:
+          loss_at=None, parts: tuple[str, ...] = LOSS_PARTS, monitor=None) -> dict:
     """Run ``opt`` to its last step on the task loss, checkpointing into out/{name}_state.pt.
     ``loss_at(t, generator)`` -> (loss, {part: value}) is step t's loss (default: the
-    image-quality task's on ``training_batch``); ``parts`` name the values it reports."""
+    image-quality task's on ``training_batch``); ``parts`` name the values it reports.
+    ``monitor``: an optimize.hybrid.OpticsMonitor checking the optics model along the way
+    (before the first step, every ``check_every`` steps and after the last)."""
     task = get_task(cfg.task)
     state_path = out / f"{name}_state.pt"
     wall_s, history = 0.0, []
     if state_path.is_file():
-        wall_s, history = _load_state(state_path, camera, opt)
+        wall_s, history = _load_state(state_path, camera, opt, monitor)
         if log is not None:
             log(f"{name}: resuming at step {opt.t} of {opt.total_steps} ({state_path.name})")
     ran = opt.t < opt.total_steps
@@ -301,6 +311,8 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
     t_start = time.perf_counter()
     bar = tqdm(total=opt.total_steps, initial=opt.t, desc=f"{name} ({opt.kind})", unit="step", disable=not progress,
                leave=False)
+    if monitor is not None and opt.t == 0 and not monitor.checks:
+        monitor.check(0)
     while opt.t < opt.total_steps:
         t = opt.t
         gen = torch.Generator().manual_seed(int(np.random.SeedSequence([4, int(cfg.seed), t]).generate_state(1)[0]))
@@ -310,7 +322,9 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
 
         t0 = time.perf_counter()
         u_prev = optics.u.detach().clone() if guard is not None else None
+        backend = optics.backend if optics is not None else "fixed"
         info = opt.step(loss_fn)
+        info["optics"] = backend
         # the paper enforces its limits on every lens: a step that breaks one is cut back
         info["cut"] = int(guard is not None and info["block"] in ("optics", "all")
                           and keep_manufacturable(optics, u_prev, guard))
@@ -321,12 +335,14 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
                 writer.add_scalar(f"{name}/{k}", info[k], info["step"])
             if info["prox"]:
                 writer.add_scalar(f"{name}/prox", info["prox"], info["step"])
+        if monitor is not None and monitor.due(opt.t, opt.total_steps):
+            monitor.check(opt.t, final=opt.t == opt.total_steps)
         if on_step is not None:
             on_step(info, camera)
         bar.update(1)
         bar.set_postfix(loss=f"{info['loss']:.4f}", block=info["block"])
         if opt.t % cfg.checkpoint_every == 0 or opt.t == opt.total_steps:
-            _save_state(state_path, camera, opt, wall_s + time.perf_counter() - t_start, history)
+            _save_state(state_path, camera, opt, wall_s + time.perf_counter() - t_start, history, monitor)
     bar.close()
     wall = wall_s + (time.perf_counter() - t_start if ran else 0.0)
     camera.eval()
@@ -339,10 +355,12 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     from torch.utils.tensorboard import SummaryWriter
 
     from ..scenes import ImageFolder
+    from ..surrogate.refine import RefineSettings
     from ..tasks import heldout_set
     from . import evaluate as ev
     from . import outputs
     from .config import check_run_dir
+    from .hybrid import OpticsMonitor, resolve_optics
 
     if cfg.task == "detection":
         from .detection_run import run_detection_design
@@ -356,18 +374,30 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     # everything the run needs is checked before the run directory is claimed
     sur = load_surrogate(cfg.surrogate, calibrated_preset("imx249").pixel_um)
     folder = ImageFolder(cfg.images) if cfg.images else None
+    mode, choice = resolve_optics(cfg)
     build_camera(cfg, sur, frame=frame)
     check_run_dir(out, cfg)
     writer = SummaryWriter(str(out / "tb"))
     try:
-        log(f"[1/4] end-to-end training: {cfg.task}, {cfg.optimizer}, {cfg.total_steps} steps")
-        camera = build_camera(cfg, sur, frame=frame)
+        log(f"[1/4] end-to-end training: {cfg.task}, {cfg.optimizer}, {cfg.total_steps} steps, optics {mode}"
+            + (f" (auto: {choice['why']})" if cfg.optics == "auto" else ""))
+        camera = build_camera(cfg, sur, frame=frame, own_surrogate=mode == "hybrid")
+        monitor = OpticsMonitor(camera.optics, mode, cfg.check_every, cfg.hybrid_threshold, cfg.refine,
+                                RefineSettings(designs=cfg.refine_designs, steps=cfg.refine_steps, seed=cfg.seed),
+                                writer=writer, name="end_to_end", log=log)
         e2e = train(cfg, camera, make_optimizer(cfg, camera, cfg.optimizer), out, "end_to_end", progress=progress,
-                    writer=writer, frame=frame, folder=folder, log=log)
+                    writer=writer, frame=frame, folder=folder, log=log, monitor=monitor)
         nominal_values = camera.optics.base_values()
         with torch.no_grad():
             psf_ns, vig_ns = sur.psfs(nominal_values, check=False)
-        fixed = FixedOptics(psf_ns, vig_ns, camera.optics.render_fields, patch=cfg.patch,
+        # the baseline trains through the same optics model as the run: the engine's PSFs of the
+        # nominal lens where the run trusts the engine, the surrogate's where it does not
+        psf_nt, vig_nt = psf_ns, vig_ns
+        if mode != "surrogate":
+            psf_nt, vig_nt = (torch.as_tensor(a, dtype=torch.float32) for a in camera.optics.exact.psfs(
+                nominal_values.double().numpy()))
+        idx = camera.optics.field_index or list(range(len(sur.fields_deg)))
+        fixed = FixedOptics(psf_nt[idx], vig_nt[idx], camera.optics.render_fields[idx], patch=cfg.patch,
                             full_field_px=frame.full_field_px)
         log(f"[2/4] nominal lens + processing fine-tuned, the same {cfg.total_steps} steps")
         nominal = build_camera(cfg, sur, fixed_optics=fixed, frame=frame)
@@ -380,8 +410,8 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     log("[3/4] exact PSFs of both lenses (engine) and held-out evaluation")
     final_values = camera.optics.values().detach()
     exact = exact_optics(sur, torch.stack([nominal_values, final_values]).double().numpy())
-    with torch.no_grad():
-        psf_es, vig_es = sur.psfs(final_values, check=False)
+    with torch.no_grad():  # the run's surrogate (refined, in a hybrid run) at the final design
+        psf_es, vig_es = camera.optics._surrogate_psfs()
     # field positions: each design's own chief-ray heights under exact optics, the nominal's
     # (what training used) under the surrogate's
     from ..camera.stages import image_height_fractions
@@ -457,6 +487,9 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         "training": {k: {kk: v[kk] for kk in ("steps", "wall_s", "final_loss", "cut_steps")} for k, v in
                      (("end_to_end", e2e), ("nominal", nom))},
         "surrogate": cfg.surrogate,
+        "optics_model": {**monitor.summary(), "requested": cfg.optics, "choice": choice,
+                         "exact_gradient_steps": sum(h.get("optics") == "exact" and h["block"] in ("optics", "all")
+                                                     for h in e2e["history"])},
     }
     if task.isp == "hardware":
         results["isp_hyperparameters"] = {"nominal": nominal.isp.hyperparameters(),
@@ -524,7 +557,7 @@ def _write_history(path: Path, runs: dict, parts: tuple[str, ...] = LOSS_PARTS) 
         w.writerow(["run", *keys])
         for run, hist in runs.items():
             for h in hist:
-                w.writerow([run] + [h[k] for k in keys])
+                w.writerow([run] + [h.get(k, "") for k in keys])
 
 
 def _write_rows(path: Path, rows: dict) -> None:

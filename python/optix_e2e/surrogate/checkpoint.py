@@ -128,17 +128,19 @@ class OpticsSurrogate(nn.Module):
             field = field.expand(params.shape[0])
         return self.net(self.normalize(params), field)
 
-    def psfs(self, params: torch.Tensor, check: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+    def psfs(self, params: torch.Tensor, check: bool = True, field_index=None) -> tuple[torch.Tensor, torch.Tensor]:
         """Every trained field of each design: raw params [P] or [B, P] -> (psf [(B,) K, C, S, S]
         unit sum per channel, vignetting [(B,) K, C]); the renderer's inputs (with ``fields``).
-        ``check``: check the parameters against the training ranges (``out_of_range``)."""
+        ``check``: check the parameters against the training ranges (``out_of_range``).
+        ``field_index``: only these of the K fields (a list of indices; the cost is per field)."""
         params = torch.as_tensor(params)
         single = params.dim() == 1
         p = params.reshape(-1, self.cfg.n_params)
         if check:
             self.check_params(p)
-        b, k = p.shape[0], len(self.fields_deg)
-        psf, vig = self.net(self.normalize(p).repeat_interleave(k, 0), self.fields.repeat(b))
+        fields = self.fields if field_index is None else self.fields[list(field_index)]
+        b, k = p.shape[0], len(fields)
+        psf, vig = self.net(self.normalize(p).repeat_interleave(k, 0), fields.repeat(b))
         psf = psf.reshape(b, k, *psf.shape[1:])
         vig = vig.reshape(b, k, -1)
         return (psf[0], vig[0]) if single else (psf, vig)

@@ -1,0 +1,238 @@
+"""The optics model in the loop, checked along the way (issue 20): ``--optics surrogate | exact |
+hybrid``.
+
+Every ``check_every`` optimizer steps, and after the last, the exact engine computes the
+current design's PSFs (one design: milliseconds) and the error of the optics model the steps
+are using is logged per field (the PSF relative L1 of unit-sum PSFs, median over channels; the
+surrogate's evaluation measure) to TensorBoard and results.json, with the plain network's error
+beside it.
+
+* ``surrogate``: the paper's way; the checks only measure.
+* ``exact``: the engine's PSFs and central-difference gradients (optics/exact.py) in every
+  optics step; the checks measure what the network would have been off by.
+* ``hybrid``: the surrogate, kept honest. When a check finds the model's worst field above
+  ``threshold``, the model is refined at the current design: ``refine = "correction"`` (the
+  default) adds exact minus surrogate there to the network's output (an additive, zeroth-order
+  multi-fidelity correction: exact at the anchor, the network's change away from it; one
+  engine design), ``"network"`` fine-tunes the network on a few hundred engine designs about it
+  (surrogate/refine.py). If the next check finds the refined model above the threshold again,
+  the refinement does not hold over ``check_every`` steps: the optics steps fall back to exact
+  gradients until a check finds the model (refined at the check before) back under.
+  Every refinement and switch is an event in the log.
+
+The error reported for the final design is that of the model the last steps used, measured
+before any refinement there (a refinement at the final design would make it zero by
+construction).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+
+from ..surrogate.refine import RefineSettings, refine_around
+
+OPTICS_MODES = ("surrogate", "exact", "hybrid", "auto")
+REFINE_MODES = ("correction", "network")
+
+
+def psf_errors(psf: torch.Tensor, psf_true: torch.Tensor) -> list[float]:
+    """PSF relative L1 per field, median over channels: [K, C, S, S] x 2 -> K floats."""
+    err = (psf.double() - psf_true.double()).abs().sum((-2, -1)) / psf_true.double().abs().sum((-2, -1)).clamp_min(1e-12)
+    return [float(x) for x in err.median(dim=1).values]
+
+
+class OpticsMonitor:
+    """Checks (and, in hybrid mode, keeps) the optics model of a DifferentiableOptics."""
+
+    def __init__(self, optics, mode: str, every: int, threshold: float = 0.02, refine: str = "correction",
+                 refine_settings: RefineSettings = RefineSettings(), writer=None, name: str = "end_to_end",
+                 log=None):
+        if mode not in ("surrogate", "exact", "hybrid"):
+            raise ValueError(f"optics must be surrogate, exact or hybrid here, got {mode!r}")
+        if refine not in REFINE_MODES:
+            raise ValueError(f"refine must be one of {', '.join(REFINE_MODES)}, got {refine!r}")
+        if every < 1 or not threshold > 0:
+            raise ValueError(f"check_every >= 1 and hybrid_threshold > 0 required (got {every}, {threshold})")
+        self.optics, self.mode, self.every, self.threshold = optics, mode, int(every), float(threshold)
+        self.refine, self.refine_settings = refine, refine_settings
+        self.writer, self.name, self.log = writer, name, log
+        self.checks: list[dict] = []
+        self.events: list[dict] = []
+        self.refined_at_last_check = False
+        self.refine_seconds = 0.0
+        optics.backend = "exact" if mode == "exact" else "surrogate"
+
+    def due(self, step: int, total: int) -> bool:
+        return step % self.every == 0 or step == total
+
+    @torch.no_grad()
+    def _model_psfs(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The surrogate (with its correction, if any) at the current design."""
+        return self.optics._surrogate_psfs()
+
+    def check(self, step: int, final: bool = False) -> dict:
+        t0 = time.perf_counter()
+        optics = self.optics
+        values = optics.values().detach().double().numpy()
+        psf_x, vig_x = (torch.as_tensor(a) for a in optics.exact.psfs(values))
+        with torch.no_grad():
+            net_psf, _ = optics.surrogate.psfs(optics.values().detach(), check=False)
+            model_psf, model_vig = self._model_psfs()
+        used = optics.backend
+        model_err = psf_errors(model_psf, psf_x)
+        rec = {"step": int(step), "backend": used,
+               # the error of the PSFs the steps before this check used (0 for the engine's own)
+               "error_per_field": [0.0] * len(model_err) if used == "exact" else model_err,
+               "model_error_per_field": model_err,
+               "network_error_per_field": psf_errors(net_psf, psf_x),
+               "vignetting_abs_error_max": float((model_vig.double() - vig_x.double()).abs().max()),
+               "events": []}
+        over = max(model_err) > self.threshold
+        if self.mode == "hybrid" and not final:
+            if over:
+                ev = self._refine(step, values, psf_x, vig_x)
+                rec["events"].append(ev)
+                still_over = max(ev["error_after"]) > self.threshold
+                if used == "surrogate" and (self.refined_at_last_check or still_over):
+                    optics.backend = "exact"
+                    rec["events"].append(self._event(step, "exact_on", "the refined surrogate did not hold "
+                                                     f"(worst field {max(model_err):.4f} > {self.threshold})"))
+                self.refined_at_last_check = True
+            else:
+                if used == "exact":
+                    optics.backend = "surrogate"
+                    rec["events"].append(self._event(step, "exact_off", f"the refined surrogate is back under "
+                                                     f"the threshold (worst field {max(model_err):.4f})"))
+                self.refined_at_last_check = False
+        rec["seconds"] = time.perf_counter() - t0
+        self.checks.append(rec)
+        if self.writer is not None:
+            w, n = self.writer, self.name
+            w.add_scalar(f"{n}/optics_error/worst_field", max(rec["error_per_field"]), step)
+            w.add_scalar(f"{n}/optics_error/median_field", float(np.median(rec["error_per_field"])), step)
+            w.add_scalar(f"{n}/network_error/worst_field", max(rec["network_error_per_field"]), step)
+            for k, e in enumerate(rec["network_error_per_field"]):
+                w.add_scalar(f"{n}/network_error/field_{k:02d}", e, step)
+            w.add_scalar(f"{n}/optics_exact_gradients", float(optics.backend == "exact"), step)
+        if self.log is not None and rec["events"]:
+            for ev in rec["events"]:
+                self.log(f"{self.name} step {step}: {ev['event']}: {ev['detail']}")
+        return rec
+
+    def _event(self, step: int, kind: str, detail: str, **extra) -> dict:
+        ev = {"step": int(step), "event": kind, "detail": detail, **extra}
+        self.events.append(ev)
+        return ev
+
+    def _refine(self, step: int, values: np.ndarray, psf_x: torch.Tensor, vig_x: torch.Tensor) -> dict:
+        t0 = time.perf_counter()
+        optics = self.optics
+        before = psf_errors(self._model_psfs()[0], psf_x)
+        if self.refine == "correction":
+            optics.correction = None
+            with torch.no_grad():
+                net_psf, net_vig = optics.surrogate.psfs(optics.values().detach(), check=False)
+            optics.correction = ((psf_x.float() - net_psf).detach(), (vig_x.float() - net_vig).detach())
+            designs = 0
+        else:
+            optics.correction = None
+            rs = self.refine_settings
+            seed = rs.seed * 100003 + int(step)
+            designs = refine_around(optics.surrogate, optics.exact, values,
+                                    RefineSettings(rs.designs, rs.radius, rs.steps, rs.batch, rs.lr, seed))["designs"]
+        after = psf_errors(self._model_psfs()[0], psf_x)
+        seconds = time.perf_counter() - t0
+        self.refine_seconds += seconds
+        return self._event(step, "refine", f"{self.refine} at the current design: worst field {max(before):.4f} -> "
+                           f"{max(after):.4f} ({seconds:.1f} s)", error_before=before, error_after=after,
+                           engine_designs=designs, seconds=seconds)
+
+    # -- resuming ------------------------------------------------------------------------
+    def state_dict(self) -> dict:
+        c = self.optics.correction
+        return {"checks": self.checks, "events": self.events, "backend": self.optics.backend,
+                "refined_at_last_check": self.refined_at_last_check, "refine_seconds": self.refine_seconds,
+                "correction": None if c is None else [c[0].clone(), c[1].clone()]}
+
+    def load_state_dict(self, st: dict) -> None:
+        self.checks, self.events = list(st["checks"]), list(st["events"])
+        self.optics.backend = st["backend"]
+        self.refined_at_last_check = bool(st["refined_at_last_check"])
+        self.refine_seconds = float(st.get("refine_seconds", 0.0))
+        c = st.get("correction")
+        self.optics.correction = None if c is None else (c[0], c[1])
+
+    def summary(self) -> dict:
+        """For results.json: settings, every check, the events, and the final design's errors."""
+        last = self.checks[-1] if self.checks else None
+        ex = self.optics.exact if self.optics._exact is not None else None
+        return {"mode": self.mode, "check_every": self.every, "threshold": self.threshold,
+                "refine": self.refine if self.mode == "hybrid" else None,
+                "final_error_per_field": last["error_per_field"] if last else None,
+                "final_network_error_per_field": last["network_error_per_field"] if last else None,
+                "n_refinements": sum(e["event"] == "refine" for e in self.events),
+                "exact_gradient_steps": None,  # filled by the caller from the history
+                "engine_designs": ex.designs_computed if ex is not None else 0,
+                "engine_seconds": ex.seconds if ex is not None else 0.0,
+                "refine_seconds": self.refine_seconds,
+                "step_choice": ex.step_choice.to_json() if ex is not None and ex.step_choice is not None else None,
+                "checks": self.checks, "events": self.events}
+
+
+# --optics auto: the measured trade-off (benches/optics_tradeoff.py writes it; the package ships
+# the copy in bundled/), read for the run's task
+TRADEOFF_CSV = "optics_tradeoff.csv"
+AUTO_TOLERANCE_DB = 0.1   # "as good as the best": within this much held-out PSNR (exact optics)
+
+
+def tradeoff_path():
+    from pathlib import Path
+
+    return Path(__file__).resolve().parent.parent / "bundled" / TRADEOFF_CSV
+
+
+def read_tradeoff(path=None) -> list[dict]:
+    """The rows of the speed/accuracy table (all columns as written; numbers as floats)."""
+    import csv
+
+    path = tradeoff_path() if path is None else path
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
+    except OSError:
+        return []
+    out = []
+    for r in rows:
+        row = dict(r)
+        for k in ("patch", "fields", "psnr_db", "ssim", "wall_s", "final_worst_field_error"):
+            try:
+                row[k] = float(r[k])
+            except (KeyError, TypeError, ValueError):
+                row[k] = None
+        out.append(row)
+    return out
+
+
+def resolve_optics(cfg, path=None) -> tuple[str, dict]:
+    """The optics model a run uses, and why. surrogate | exact | hybrid: as asked. auto: among the
+    optics models measured for the task at the run's patch and field count (the optics sweep of
+    benches/optics_tradeoff.py), the fastest whose held-out PSNR under exact optics is within
+    AUTO_TOLERANCE_DB of the best; the surrogate where nothing was measured for the task."""
+    if cfg.optics != "auto":
+        return cfg.optics, {"requested": cfg.optics, "chosen": cfg.optics, "why": "asked for"}
+    rows = [r for r in read_tradeoff(path) if r.get("task") == cfg.task and r.get("sweep") == "optics"
+            and r["psnr_db"] is not None and r["wall_s"] is not None]
+    if not rows:
+        return "surrogate", {"requested": "auto", "chosen": "surrogate",
+                             "why": f"no measured trade-off for task {cfg.task}: the surrogate (the paper's way)"}
+    best = max(r["psnr_db"] for r in rows)
+    good = [r for r in rows if r["psnr_db"] >= best - AUTO_TOLERANCE_DB]
+    pick = min(good, key=lambda r: r["wall_s"])
+    table = {r["optics"]: {"psnr_db": r["psnr_db"], "wall_s": r["wall_s"]} for r in rows}
+    return pick["optics"], {
+        "requested": "auto", "chosen": pick["optics"], "table": table, "source": TRADEOFF_CSV,
+        "why": f"{pick['optics']}: the fastest ({pick['wall_s']:.0f} s) within {AUTO_TOLERANCE_DB} dB of the best "
+               f"held-out PSNR ({best:.2f} dB) measured for {cfg.task}"}
