@@ -29,8 +29,9 @@ def nominal_jacobian(sur):
 def test_exact_jacobian_matches_a_fourth_order_reference_on_every_parameter(nominal_jacobian):
     """Each parameter's column (PSFs and vignetting of all 13 fields x RGB) against the
     five-point stencil (Richardson: (4 D(h) - D(2h)) / 3, truncation O(h^4)) at the chosen step.
-    Measured on the paper-triplet e2e nominal: relative L1 error 0.002-0.9 % (s_6_conic, whose
-    derivative is tiny, 0.9 %); asserted below 3 % on every one of the 19 parameters."""
+    Measured on the paper-triplet e2e nominal (benches/exact_gradient.py): relative L1 error
+    1e-5 to 8e-5, 2.4e-4 for s_6_conic (whose derivative is tiny); asserted below 1 % on every
+    one of the 19 parameters."""
     eng, v, psf, vig, jp, jv = nominal_jacobian
     h = eng.steps
     p = len(v)
@@ -44,7 +45,7 @@ def test_exact_jacobian_matches_a_fourth_order_reference_on_every_parameter(nomi
         ref = (4 * d1 - d2) / 3
         errs.append(np.abs(d1 - ref).sum() / np.abs(ref).sum())
     assert np.isfinite(jp).all() and np.isfinite(jv).all()
-    assert max(errs) < 0.03, dict(zip(eng.names, np.round(errs, 4)))
+    assert max(errs) < 0.01, dict(zip(eng.names, np.round(errs, 5)))
     # the step choice's own error estimate is of the same order, and was computed for every parameter
     assert eng.step_choice is not None and np.all(eng.step_choice.rel_error < 0.03)
 
@@ -155,3 +156,30 @@ def test_render_with_fewer_field_samples(sur):
     assert 0 < float((out4 - out13).abs().mean()) < 0.05 * float(out13.abs().mean())
     with pytest.raises(ValueError, match="field samples"):
         o.use_fields(1)
+
+
+def test_a_step_choice_with_rejected_rungs_is_json_safe():
+    """A rung whose designs the engine rejects leaves no estimate (inf inside, null in JSON):
+    results.json (written with allow_nan=False) and the resume state take it."""
+    import json
+
+    from optix_e2e.optics.exact import StepChoice
+
+    sc = StepChoice(["a", "b"], np.array([1e-3, 2e-3]), [1e-2, 1e-3, 1e-4], np.array([1e-4, np.inf]),
+                    np.array([[1e-3, 1e-4], [np.inf, np.inf]]))
+    d = json.loads(json.dumps(sc.to_json(), allow_nan=False))
+    assert d["rel_error"] == [1e-4, None] and d["curves"][1] == [None, None]
+    back = StepChoice.from_json(d)
+    assert np.array_equal(back.steps, sc.steps) and np.isinf(back.rel_error[1]) and back.curves.shape == (2, 2)
+
+
+def test_sides_beyond_a_range_bound_are_not_computed(sur):
+    """Next to a bound the Jacobian is one-sided there and the outside design is never run."""
+    eng = ExactOptics.from_surrogate(sur)
+    v = DifferentiableOptics(sur).base_values().double().numpy()
+    i = eng.names.index("l_12")
+    eng.steps = 1e-3 * (eng.hi - eng.lo)
+    v[i] = eng.hi[i] - 0.5 * eng.steps[i]            # the + side would leave the range
+    _, _, jp, _ = eng.jacobian(v)
+    assert eng.last["one_sided"] == ["l_12"] and eng.last["designs"] == 2 * len(v)
+    assert np.isfinite(jp).all()

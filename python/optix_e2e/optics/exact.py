@@ -54,9 +54,18 @@ class StepChoice:
     curves: np.ndarray             # [P, L - 1]: that estimate at every rung
 
     def to_json(self) -> dict:
+        """JSON-safe: an estimate no rung gave (the engine rejected its designs) is null."""
+        def num(x):
+            return float(x) if np.isfinite(x) else None
         return {"names": self.names, "steps": [float(s) for s in self.steps], "ladder": self.ladder,
-                "rel_error": [float(e) for e in self.rel_error],
-                "curves": [[float(c) for c in row] for row in self.curves]}
+                "rel_error": [num(e) for e in self.rel_error], "curves": [[num(c) for c in row] for row in self.curves]}
+
+    @classmethod
+    def from_json(cls, d: dict) -> "StepChoice":
+        def arr(x):
+            return np.array([np.inf if e is None else e for e in x], float)
+        return cls(list(d["names"]), np.array(d["steps"], float), list(d["ladder"]), arr(d["rel_error"]),
+                   np.array([arr(row) for row in d["curves"]]))
 
 
 @dataclass
@@ -136,32 +145,37 @@ class ExactOptics:
         lo, hi = self._range()
         p = len(v)
         h = self.steps
-        # stay inside the ranges: a side beyond a bound is not computed (one-sided there)
-        plus = v[None] + np.diag(h)
-        minus = v[None] - np.diag(h)
+        # the sides inside the ranges (a side beyond a bound is not computed: one-sided there)
+        tol = 1e-12 * (hi - lo)
+        sides = [(i, s) for s in (1.0, -1.0) for i in range(p)
+                 if (v[i] + h[i] <= hi[i] + tol[i] if s > 0 else v[i] - h[i] >= lo[i] - tol[i])]
+        rows = [v] + [v + s * h[i] * np.eye(p)[i] for i, s in sides]
         t0 = time.perf_counter()
-        psf, vig, reasons = self._run(np.concatenate([v[None], plus, minus]))
+        psf, vig, reasons = self._run(np.stack(rows))
         if psf[0] is None:
             raise self._rejected(v, reasons.get(0, "engine error"))
+        at = {side: 1 + k for k, side in enumerate(sides)}   # (parameter, sign) -> row
         jp = np.empty((p, *psf[0].shape))
         jv = np.empty((p, *vig[0].shape))
         one_sided = []
         for i in range(p):
-            up = psf[1 + i] is not None and v[i] + h[i] <= hi[i] + 1e-12 * (hi[i] - lo[i])
-            dn = psf[1 + p + i] is not None and v[i] - h[i] >= lo[i] - 1e-12 * (hi[i] - lo[i])
+            ku, kd = at.get((i, 1.0)), at.get((i, -1.0))
+            up = ku is not None and psf[ku] is not None
+            dn = kd is not None and psf[kd] is not None
             if up and dn:
-                jp[i] = (psf[1 + i] - psf[1 + p + i]) / (2 * h[i])
-                jv[i] = (vig[1 + i] - vig[1 + p + i]) / (2 * h[i])
+                jp[i] = (psf[ku] - psf[kd]) / (2 * h[i])
+                jv[i] = (vig[ku] - vig[kd]) / (2 * h[i])
             elif up or dn:
-                k, s = (1 + i, 1.0) if up else (1 + p + i, -1.0)
+                k, s = (ku, 1.0) if up else (kd, -1.0)
                 jp[i] = s * (psf[k] - psf[0]) / h[i]
                 jv[i] = s * (vig[k] - vig[0]) / h[i]
                 one_sided.append(self.names[i])
             else:
-                why = reasons.get(1 + i) or reasons.get(1 + p + i) or "outside the parameter's range"
+                why = "; ".join(reasons[k] for k in (ku, kd) if k is not None and k in reasons) \
+                    or "both outside the parameter's range"
                 raise EngineRejectedDesign(f"no derivative in {self.names[i]}: the designs at "
                                            f"{self.names[i]} = {v[i]:.6g} +- {h[i]:.3g} are both rejected ({why})")
-        self.last = {"designs": 2 * p + 1, "seconds": time.perf_counter() - t0, "one_sided": one_sided}
+        self.last = {"designs": len(rows), "seconds": time.perf_counter() - t0, "one_sided": one_sided}
         self._cache = (v.reshape(1, -1).tobytes(), psf[0], vig[0])
         return psf[0], vig[0], jp, jv
 
@@ -215,8 +229,9 @@ class _ExactPSF(torch.autograd.Function):
         else:
             psf, vig = engine.psfs(v)
         ctx.dtype = values.dtype
-        return (torch.as_tensor(psf, dtype=values.dtype, device=values.device),
-                torch.as_tensor(vig, dtype=values.dtype, device=values.device))
+        # copies: the engine's arrays stay in its cache
+        return (torch.tensor(psf, dtype=values.dtype, device=values.device),
+                torch.tensor(vig, dtype=values.dtype, device=values.device))
 
     @staticmethod
     def backward(ctx, g_psf, g_vig):

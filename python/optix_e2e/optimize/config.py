@@ -219,6 +219,9 @@ def check_run_dir(out: Path, cfg: DesignConfig) -> None:
         if not isinstance(old, dict):
             raise ValueError(f"{path} is damaged; remove the directory or choose another --out")
         new = cfg.to_json()
+        # a setting added since the run was made counts as its default there
+        defaults = DesignConfig().to_json()
+        old = {**{k: v for k, v in defaults.items() if k not in old}, **old}
         diff = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
         if diff:
             detail = ", ".join(f"{k}: {old.get(k)!r} -> {new.get(k)!r}" for k in diff)

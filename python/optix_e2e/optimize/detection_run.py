@@ -148,6 +148,8 @@ def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool
     task = get_task(cfg.task)
     frame = SensorFrame()
     sur = load_surrogate(cfg.surrogate, calibrated_preset("imx249").pixel_um)
+    if cfg.fields:
+        raise ValueError("fields: the detection run renders from all the surrogate's field samples (fields = 0)")
     if cfg.optics not in ("surrogate", "auto"):
         raise ValueError(f"optics {cfg.optics}: the detection run trains through the surrogate (exact and hybrid "
                          f"optics are for the image-quality tasks)")

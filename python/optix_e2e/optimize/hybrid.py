@@ -152,18 +152,39 @@ class OpticsMonitor:
 
     # -- resuming ------------------------------------------------------------------------
     def state_dict(self) -> dict:
+        """Everything a resumed run needs to continue on the same path: the checks and events,
+        the backend and correction in force, and the engine's finite-difference steps (chosen
+        once, at the first design that needed a gradient) and its counters."""
         c = self.optics.correction
-        return {"checks": self.checks, "events": self.events, "backend": self.optics.backend,
-                "refined_at_last_check": self.refined_at_last_check, "refine_seconds": self.refine_seconds,
-                "correction": None if c is None else [c[0].clone(), c[1].clone()]}
+        ex = self.optics._exact
+        engine = None if ex is None else {
+            "steps": None if ex.steps is None else [float(h) for h in ex.steps],
+            "step_choice": ex.step_choice.to_json() if ex.step_choice is not None else None,
+            "designs_computed": int(ex.designs_computed), "seconds": float(ex.seconds)}
+        return {"mode": self.mode, "refine": self.refine, "checks": self.checks, "events": self.events,
+                "backend": self.optics.backend, "refined_at_last_check": self.refined_at_last_check,
+                "refine_seconds": self.refine_seconds,
+                "correction": None if c is None else [c[0].clone(), c[1].clone()], "engine": engine}
 
     def load_state_dict(self, st: dict) -> None:
+        from ..optics.exact import StepChoice
+
+        if st.get("mode", self.mode) != self.mode or (self.mode == "hybrid" and st.get("refine", self.refine) != self.refine):
+            raise ValueError(f"this run was started with optics {st.get('mode')} (refine {st.get('refine')}), not "
+                             f"{self.mode} (refine {self.refine}): with --optics auto the bundled trade-off has "
+                             f"changed since; use another --out or --optics {st.get('mode')}")
         self.checks, self.events = list(st["checks"]), list(st["events"])
         self.optics.backend = st["backend"]
         self.refined_at_last_check = bool(st["refined_at_last_check"])
         self.refine_seconds = float(st.get("refine_seconds", 0.0))
         c = st.get("correction")
         self.optics.correction = None if c is None else (c[0], c[1])
+        eng = st.get("engine")
+        if eng is not None:
+            ex = self.optics.exact
+            ex.steps = None if eng["steps"] is None else np.array(eng["steps"], float)
+            ex.step_choice = None if eng["step_choice"] is None else StepChoice.from_json(eng["step_choice"])
+            ex.designs_computed, ex.seconds = int(eng["designs_computed"]), float(eng["seconds"])
 
     def summary(self) -> dict:
         """For results.json: settings, every check, the events, and the final design's errors."""
@@ -185,7 +206,7 @@ class OpticsMonitor:
 # --optics auto: the measured trade-off (benches/optics_tradeoff.py writes it; the package ships
 # the copy in bundled/), read for the run's task
 TRADEOFF_CSV = "optics_tradeoff.csv"
-AUTO_TOLERANCE_DB = 0.1   # "as good as the best": within this much held-out PSNR (exact optics)
+NUMERIC = ("patch", "fields", "psnr_db", "ssim", "wall_s", "psnr_vs_best", "psnr_vs_best_lo", "psnr_vs_best_hi")
 
 
 def tradeoff_path():
@@ -195,7 +216,7 @@ def tradeoff_path():
 
 
 def read_tradeoff(path=None) -> list[dict]:
-    """The rows of the speed/accuracy table (all columns as written; numbers as floats)."""
+    """The rows of the speed/accuracy table (all columns as written; NUMERIC ones as floats)."""
     import csv
 
     path = tradeoff_path() if path is None else path
@@ -207,7 +228,7 @@ def read_tradeoff(path=None) -> list[dict]:
     out = []
     for r in rows:
         row = dict(r)
-        for k in ("patch", "fields", "psnr_db", "ssim", "wall_s", "final_worst_field_error"):
+        for k in NUMERIC:
             try:
                 row[k] = float(r[k])
             except (KeyError, TypeError, ValueError):
@@ -217,22 +238,27 @@ def read_tradeoff(path=None) -> list[dict]:
 
 
 def resolve_optics(cfg, path=None) -> tuple[str, dict]:
-    """The optics model a run uses, and why. surrogate | exact | hybrid: as asked. auto: among the
-    optics models measured for the task at the run's patch and field count (the optics sweep of
-    benches/optics_tradeoff.py), the fastest whose held-out PSNR under exact optics is within
-    AUTO_TOLERANCE_DB of the best; the surrogate where nothing was measured for the task."""
+    """The optics model a run uses, and why (with the hybrid refinement in ``["refine"]``).
+    surrogate | exact | hybrid: as asked. auto: among the
+    optics models measured for the task (the optics sweep of benches/optics_tradeoff.py), the
+    fastest that is not measurably worse than the best: its held-out PSNR under exact optics,
+    paired over the same images against the best model's, has a 95 % interval reaching zero.
+    The surrogate (the paper's way) where nothing was measured for the task."""
     if cfg.optics != "auto":
-        return cfg.optics, {"requested": cfg.optics, "chosen": cfg.optics, "why": "asked for"}
+        return cfg.optics, {"requested": cfg.optics, "chosen": cfg.optics, "refine": cfg.refine, "why": "asked for"}
     rows = [r for r in read_tradeoff(path) if r.get("task") == cfg.task and r.get("sweep") == "optics"
-            and r["psnr_db"] is not None and r["wall_s"] is not None]
+            and r["psnr_db"] is not None and r["wall_s"] is not None and r["psnr_vs_best_hi"] is not None]
     if not rows:
-        return "surrogate", {"requested": "auto", "chosen": "surrogate",
+        return "surrogate", {"requested": "auto", "chosen": "surrogate", "refine": cfg.refine,
                              "why": f"no measured trade-off for task {cfg.task}: the surrogate (the paper's way)"}
-    best = max(r["psnr_db"] for r in rows)
-    good = [r for r in rows if r["psnr_db"] >= best - AUTO_TOLERANCE_DB]
+    good = [r for r in rows if r["psnr_vs_best_hi"] >= 0.0]
     pick = min(good, key=lambda r: r["wall_s"])
-    table = {r["optics"]: {"psnr_db": r["psnr_db"], "wall_s": r["wall_s"]} for r in rows}
+    best = max(rows, key=lambda r: r["psnr_db"])
+    table = {r["point"]: {"optics": r["optics"], "refine": r.get("refine") or None, "psnr_db": r["psnr_db"], "wall_s": r["wall_s"],
+                           "psnr_vs_best_ci95": [r["psnr_vs_best_lo"], r["psnr_vs_best_hi"]]} for r in rows}
     return pick["optics"], {
-        "requested": "auto", "chosen": pick["optics"], "table": table, "source": TRADEOFF_CSV,
-        "why": f"{pick['optics']}: the fastest ({pick['wall_s']:.0f} s) within {AUTO_TOLERANCE_DB} dB of the best "
-               f"held-out PSNR ({best:.2f} dB) measured for {cfg.task}"}
+        "requested": "auto", "chosen": pick["optics"], "refine": pick.get("refine") or cfg.refine, "point": pick["point"],
+        "table": table, "source": TRADEOFF_CSV,
+        "why": f"{pick['point']}: the fastest ({pick['wall_s']:.0f} s of training) not measurably worse than the "
+               f"best held-out PSNR ({best['point']}, {best['psnr_db']:.2f} dB; paired interval "
+               f"[{pick['psnr_vs_best_lo']:+.3f}, {pick['psnr_vs_best_hi']:+.3f}] dB) measured for {cfg.task}"}

@@ -273,11 +273,12 @@ def _load_state(path: Path, camera: Camera, opt, monitor=None) -> tuple[float, l
     try:
         camera.load_state_dict(st["camera"])
         opt.load_state_dict(st["optimizer"])
-        if monitor is not None and st.get("monitor") is not None:
-            monitor.load_state_dict(st["monitor"])
-        return float(st["wall_s"]), list(st["history"])
+        wall_s, history = float(st["wall_s"]), list(st["history"])
     except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as err:
         raise ValueError(f"{path}: damaged design checkpoint ({err}); remove it to restart that training") from None
+    if monitor is not None and st.get("monitor") is not None:
+        monitor.load_state_dict(st["monitor"])  # its own error where the run's optics model differs
+    return wall_s, history
 
 
 def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progress: bool = True,
@@ -382,7 +383,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         log(f"[1/4] end-to-end training: {cfg.task}, {cfg.optimizer}, {cfg.total_steps} steps, optics {mode}"
             + (f" (auto: {choice['why']})" if cfg.optics == "auto" else ""))
         camera = build_camera(cfg, sur, frame=frame, own_surrogate=mode == "hybrid")
-        monitor = OpticsMonitor(camera.optics, mode, cfg.check_every, cfg.hybrid_threshold, cfg.refine,
+        monitor = OpticsMonitor(camera.optics, mode, cfg.check_every, cfg.hybrid_threshold, choice["refine"],
                                 RefineSettings(designs=cfg.refine_designs, steps=cfg.refine_steps, seed=cfg.seed),
                                 writer=writer, name="end_to_end", log=log)
         e2e = train(cfg, camera, make_optimizer(cfg, camera, cfg.optimizer), out, "end_to_end", progress=progress,
@@ -410,8 +411,8 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     log("[3/4] exact PSFs of both lenses (engine) and held-out evaluation")
     final_values = camera.optics.values().detach()
     exact = exact_optics(sur, torch.stack([nominal_values, final_values]).double().numpy())
-    with torch.no_grad():  # the run's surrogate (refined, in a hybrid run) at the final design
-        psf_es, vig_es = camera.optics._surrogate_psfs()
+    with torch.no_grad():  # the shipped surrogate at the final design (a hybrid run's refined model: optics_model)
+        psf_es, vig_es = sur.psfs(final_values, check=False)
     # field positions: each design's own chief-ray heights under exact optics, the nominal's
     # (what training used) under the surrogate's
     from ..camera.stages import image_height_fractions
