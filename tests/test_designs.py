@@ -272,3 +272,41 @@ def test_recentred_space_rules_reproduce_v1_and_contain_the_nominal(tmp_path):
         assert p.min < v < p.max, p.name
         if p.kind == "radius":
             assert (p.max - p.min) == pytest.approx(2 * 0.4 * 0.0375 * abs(v), rel=1e-4)
+
+
+# apo-gauss-8e: JP 2025-108279 A, Example 1 (issue 21). The patent's table: radius, thickness,
+# nd, vd per surface (None: air; the stop is its own flat surface), f = 49.10, Fno 3.56
+APO_PATENT = [(25.402, 1.10, 1.48749, 70.44), (16.246, 2.67, None, None), (27.070, 2.81, 1.88300, 40.81),
+              (51.591, 0.46, None, None), (16.622, 5.07, 1.72916, 54.67), (-49.139, 1.13, 1.60342, 38.01),
+              (11.798, 4.41, None, None), (math.inf, 3.49, None, None), (-34.603, 1.50, 1.56732, 42.84),
+              (48.429, 3.56, 1.49700, 81.61), (-98.252, 2.30, None, None), (344.130, 5.03, 1.71300, 53.94),
+              (-21.462, 1.46, None, None), (-21.458, 1.60, 1.68893, 31.16), (-29.225, 33.14, None, None)]
+
+
+def test_eight_element_lens_is_the_patents_example():
+    """The bundled prescription against the patent's table: every radius and thickness, each
+    glass's index at the d line (587.56 nm) to the table's 5 decimals and its Abbe number
+    (from our catalog's indices at F, d, C) to 0.05; 8 elements; the stated focal length
+    (49.10 mm) and f-number from our paraxial trace."""
+    lens = Lens.load("apo-gauss-8e")
+    surfs = lens.raw["surfaces"]
+    assert len(surfs) == len(APO_PATENT)
+    wl = {"F": 0.4861327, "d": 0.5875618, "C": 0.6562725}
+    from optix_e2e.lens.glass import resolve
+    elements = 0
+    for i, (s, (r, t, nd, vd)) in enumerate(zip(surfs, APO_PATENT), start=1):
+        radius = math.inf if s["radius"] == "inf" else s["radius"]
+        assert radius == r and s["thickness"] == t, i
+        if nd is None:
+            assert s["material"] == "air", i
+            continue
+        elements += 1
+        g = resolve(s["material"]["glass"], s["material"]["catalog"])
+        n = {k: float(g.n(v)) for k, v in wl.items()}
+        assert n["d"] == pytest.approx(nd, abs=6e-6), (i, n["d"])
+        assert (n["d"] - 1) / (n["F"] - n["C"]) == pytest.approx(vd, abs=0.05), i
+    assert elements == 8
+    par = lens.paraxial()
+    assert par["efl_mm"] == pytest.approx(49.10, abs=0.005)
+    assert par["f_number"] == pytest.approx(3.56, abs=1e-6)
+    assert par["bfl_mm"] == pytest.approx(33.14, abs=0.005)   # the patent's back focus: the image at paraxial focus

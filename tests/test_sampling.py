@@ -103,3 +103,22 @@ def test_cli_writes_csv_and_summary(tmp_path):
     assert out.read_bytes() == first  # same seed, same file
     r = CliRunner().invoke(sample, ["paper-triplet", "-n", "3", "--min-bfd", "100", "--out", str(tmp_path / "x.csv")])
     assert r.exit_code == 1 and "back_focal_distance" in r.output and not (tmp_path / "x.csv").exists()
+
+
+def test_eight_element_space_designs_pass_the_samplers_constraints():
+    """apo-gauss-8e (issue 21; provisional space): sampled designs pass the limits, checked
+    independently of the sampler, and the nominal itself passes them."""
+    space, lens = load_space("apo-gauss-8e")
+    limits = Limits.from_dict(space.constraints)
+    sd = apertures(lens)
+    assert check_design(lens.data, sd, limits) == []
+    res = sample_designs(space, lens, 32, seed=0, limits=limits)
+    assert res.values.shape == (32, len(space)) and len(space) == 20
+    for x in res.values:
+        d = space.apply(lens.data, x)
+        geo = element_geometry(d, sd)
+        assert len(geo["glass"]) == 8
+        assert min(g["edge_mm"] for g in geo["glass"]) >= limits.min_edge - 1e-9
+        assert min(g["center_mm"] for g in geo["glass"]) >= limits.min_center - 1e-9
+        assert min(min(g["edge_mm"], g["center_mm"]) for g in geo["air"]) >= limits.min_air_gap - 1e-9
+        assert d["surfaces"][-1]["thickness"] >= limits.min_bfd
