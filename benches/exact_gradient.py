@@ -7,6 +7,7 @@ the surrogate's gradients compare.
 At the space's nominal design:
 * per parameter: the chosen central-difference step, the step choice's own error estimate,
   and the error against a fourth-order reference (Richardson, (4 D(h) - D(2h)) / 3);
+* the whole Jacobian: J d against a central difference along a random direction d;
 * cost (median of --repeats): one exact Jacobian (2P + 1 designs in one engine call), the
   step choice (once per run), one surrogate forward + backward of the same PSFs;
 * agreement with the surrogate's lens gradient on two losses: a task-like one (L1 of a textured
@@ -60,6 +61,13 @@ def main() -> None:
         rows.append({"parameter": name, "step": float(h[i]), "step_fraction_of_range": float(h[i] / (eng.hi[i] - eng.lo[i])),
                      "estimated_rel_error": float(eng.step_choice.rel_error[i]),
                      "rel_error_vs_fourth_order": float(np.abs(d1 - ref).sum() / max(np.abs(ref).sum(), 1e-300))})
+    # the whole Jacobian at once: J d against a central difference along a random direction d
+    # (every parameter moving by up to 0.1 % of its range)
+    d = np.random.default_rng(7).uniform(-1, 1, p) * 1e-3 * (eng.hi - eng.lo)
+    pd, vd, _ = eng._run(np.stack([v + d, v - d]))
+    fd = np.concatenate([((pd[0] - pd[1]) / 2).ravel(), ((vd[0] - vd[1]) / 2).ravel()])
+    lin = np.concatenate([np.tensordot(d, jp, axes=1).ravel(), np.tensordot(d, jv, axes=1).ravel()])
+    direction_error = float(np.abs(fd - lin).sum() / np.abs(fd).sum())
     # the surrogate's forward + backward of the same PSFs
     st = []
     for _ in range(a.repeats):
@@ -102,7 +110,7 @@ def main() -> None:
            "exact_jacobian_s": float(np.median(times)), "exact_jacobian_designs": 2 * p + 1,
            "step_choice_s": step_choice_s, "step_choice_designs": 2 * p * len(eng.step_choice.ladder),
            "surrogate_forward_backward_s": float(np.median(st)),
-           "per_parameter": rows, "agreement": agreement}
+           "random_direction_rel_error": direction_error, "per_parameter": rows, "agreement": agreement}
     print(f"{'parameter':12s} {'step/range':>10s} {'est.err':>8s} {'vs 4th':>8s}")
     for r in rows:
         print(f"{r['parameter']:12s} {r['step_fraction_of_range']:10.0e} {r['estimated_rel_error']:8.2e} "
@@ -110,6 +118,7 @@ def main() -> None:
     print(f"exact Jacobian ({2 * p + 1} designs): {out['exact_jacobian_s'] * 1e3:.0f} ms; step choice (once, "
           f"{out['step_choice_designs']} designs): {step_choice_s:.1f} s; surrogate forward+backward: "
           f"{out['surrogate_forward_backward_s'] * 1e3:.0f} ms ({torch.get_num_threads()} threads)")
+    print(f"J d against the central difference along a random direction: {direction_error:.2e} relative L1")
     for k, g in agreement.items():
         print(f"{k}: cosine {g['cosine']:.4f}, sign agrees on {g['sign_agree_dominant']} of {g['dominant']} dominant "
               f"parameters" + (f" (not: {', '.join(g['disagree'])})" if g["disagree"] else ""))
