@@ -53,7 +53,7 @@ def run_point(name: str, seed: int, overrides: dict, a, log) -> dict:
     from optix_e2e.camera.stages import image_height_fractions
     from optix_e2e.optimize import evaluate as ev
     from optix_e2e.optimize.config import make_config
-    from optix_e2e.optimize.hybrid import OpticsMonitor
+    from optix_e2e.optimize.hybrid import OpticsMonitor, exact_gradient_steps
     from optix_e2e.optimize.outputs import design_lens
     from optix_e2e.optimize.run import build_camera, load_surrogate, make_optimizer, train
     from optix_e2e.surrogate.exact import exact_optics
@@ -94,8 +94,7 @@ def run_point(name: str, seed: int, overrides: dict, a, log) -> dict:
              "final_worst_field_error": max(om["final_error_per_field"]),
              "final_network_worst_field_error": max(om["final_network_error_per_field"]),
              "n_refinements": om["n_refinements"],
-             "exact_gradient_steps": sum(h.get("optics") == "exact" and h["block"] in ("optics", "all")
-                                         for h in res["history"]),
+             "exact_gradient_steps": exact_gradient_steps(res["history"]),
              "engine_designs": om["engine_designs"], "lens": [float(x) for x in values], "rows": rows,
              "checks": om["checks"], "events": om["events"]}
     done.write_text(json.dumps(point))

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from ..camera import Camera, FixedOptics, calibrated_preset
+from ..camera import Camera, FixedOptics
 from ..dataset.layout import write_json_atomic
 from ..lens import Lens
 from ..surrogate.exact import exact_optics
@@ -36,7 +36,7 @@ from ..tasks.detection import DetectionCamera, heldout_streets, street_batch
 from ..tasks.detector import in_the_dark, make_detector, mean_average_precision
 from . import outputs
 from .config import DesignConfig, check_run_dir
-from .run import build_camera, load_surrogate, train
+from .run import build_camera, start_run, train
 
 BUNDLED_DETECTOR = Path(__file__).resolve().parent.parent / "tasks" / "bundled" / "street_detector.pt"
 PANEL_SCORE = 0.3   # detections drawn in the panels: score at least this
@@ -142,12 +142,7 @@ def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool
     from ..design.report import write_report
     from .run import _write_history
 
-    out = Path(out)
-    if cfg.threads:
-        torch.set_num_threads(cfg.threads)
-    task = get_task(cfg.task)
-    frame = SensorFrame()
-    sur = load_surrogate(cfg.surrogate, calibrated_preset("imx249").pixel_um)
+    out, task, frame, sur = start_run(cfg, out)
     if cfg.fields:
         raise ValueError("fields: the detection run renders from all the surrogate's field samples (fields = 0)")
     if cfg.optics not in ("surrogate", "auto"):

@@ -39,9 +39,16 @@ REFINE_MODES = ("correction", "network")
 
 
 def psf_errors(psf: torch.Tensor, psf_true: torch.Tensor) -> list[float]:
-    """PSF relative L1 per field, median over channels: [K, C, S, S] x 2 -> K floats."""
-    err = (psf.double() - psf_true.double()).abs().sum((-2, -1)) / psf_true.double().abs().sum((-2, -1)).clamp_min(1e-12)
-    return [float(x) for x in err.median(dim=1).values]
+    """PSF relative L1 per field, median over channels: [K, C, S, S] x 2 -> K floats (the
+    results' ``surrogate_psf_rel_l1_per_field`` measure, in double precision)."""
+    from .outputs import psf_rel_l1_per_field
+
+    return psf_rel_l1_per_field(psf.double(), psf_true.double())
+
+
+def exact_gradient_steps(history: list[dict]) -> int:
+    """How many of a training's steps moved the lens on the engine's gradients."""
+    return sum(h.get("optics") == "exact" and h["block"] in ("optics", "all") for h in history)
 
 
 class OpticsMonitor:
@@ -195,7 +202,6 @@ class OpticsMonitor:
                 "final_error_per_field": last["error_per_field"] if last else None,
                 "final_network_error_per_field": last["network_error_per_field"] if last else None,
                 "n_refinements": sum(e["event"] == "refine" for e in self.events),
-                "exact_gradient_steps": None,  # filled by the caller from the history
                 "engine_designs": ex.designs_computed if ex is not None else 0,
                 "engine_seconds": ex.seconds if ex is not None else 0.0,
                 "refine_seconds": self.refine_seconds,

@@ -351,6 +351,15 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
             "cut_steps": int(sum(h.get("cut", 0) for h in history)), "history": history}
 
 
+def start_run(cfg: DesignConfig, out: "str | Path") -> tuple[Path, object, SensorFrame, OpticsSurrogate]:
+    """What every design run starts from: its folder, task, sensor frame and surrogate (checked
+    to render at the sensor's pitch), with the torch threads set."""
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    return Path(out), get_task(cfg.task), SensorFrame(), load_surrogate(cfg.surrogate,
+                                                                         calibrated_preset("imx249").pixel_um)
+
+
 def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, log=print) -> dict:
     """The whole run; returns the results (also written to out/results.json)."""
     from torch.utils.tensorboard import SummaryWriter
@@ -361,19 +370,14 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     from . import evaluate as ev
     from . import outputs
     from .config import check_run_dir
-    from .hybrid import OpticsMonitor, resolve_optics
+    from .hybrid import OpticsMonitor, exact_gradient_steps, resolve_optics
 
     if cfg.task == "detection":
         from .detection_run import run_detection_design
 
         return run_detection_design(cfg, out, progress=progress, log=log)
-    out = Path(out)
-    if cfg.threads:
-        torch.set_num_threads(cfg.threads)
-    task = get_task(cfg.task)
-    frame = SensorFrame()
     # everything the run needs is checked before the run directory is claimed
-    sur = load_surrogate(cfg.surrogate, calibrated_preset("imx249").pixel_um)
+    out, task, frame, sur = start_run(cfg, out)
     folder = ImageFolder(cfg.images) if cfg.images else None
     mode, choice = resolve_optics(cfg)
     build_camera(cfg, sur, frame=frame)
@@ -489,8 +493,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
                      (("end_to_end", e2e), ("nominal", nom))},
         "surrogate": cfg.surrogate,
         "optics_model": {**monitor.summary(), "requested": cfg.optics, "choice": choice,
-                         "exact_gradient_steps": sum(h.get("optics") == "exact" and h["block"] in ("optics", "all")
-                                                     for h in e2e["history"])},
+                         "exact_gradient_steps": exact_gradient_steps(e2e["history"])},
     }
     if task.isp == "hardware":
         results["isp_hyperparameters"] = {"nominal": nominal.isp.hyperparameters(),
