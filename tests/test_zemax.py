@@ -305,13 +305,15 @@ def _full_for_optiland() -> dict:
     return d
 
 
-@pytest.mark.parametrize("which", ["cooke", "full", "apo-gauss-8e"])
+@pytest.mark.parametrize("which", ["cooke", "full", "apo-gauss-8e", "apo-gauss-8e-mv"])
 def test_optiland_reads_our_file(tmp_path, which):
     """optiland's own .zmx reader loads our file to the same system: EFL/BFL to 1e-9
     and surface data (radius, thickness, conic, a2..a16, stop). apo-gauss-8e: the eight-element
-    lens (HOYA glasses by name; optiland finds them in its own copy of the catalog)."""
+    lens (HOYA glasses by name; optiland finds them in its own copy of the catalog), and the same
+    scaled to the sensor with the camera's wavelengths (apo-gauss-8e-mv, issue 21)."""
     lens = {"cooke": lambda: Lens.load("cooke-f50"), "full": lambda: Lens(_full_for_optiland()),
-            "apo-gauss-8e": lambda: Lens.load("apo-gauss-8e")}[which]()
+            "apo-gauss-8e": lambda: Lens.load("apo-gauss-8e"),
+            "apo-gauss-8e-mv": lambda: Lens.load("apo-gauss-8e-mv")}[which]()
     path = lens.save(tmp_path / f"{which}.zmx")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # optiland's fuzzy-match notice for POLYCARB

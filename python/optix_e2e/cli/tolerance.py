@@ -145,11 +145,14 @@ def plot_yield(path: Path, mc, nominal_um: float, label: str) -> None:
               help="Gaussian-quadrature pupil rings of the RMS spot.")
 @click.option("--arms", type=click.IntRange(2, 64), default=12, show_default=True,
               help="Pupil azimuths of the RMS spot.")
+@click.option("--apertures", type=click.Choice(["free", "fixed"]), default="free", show_default=True,
+              help="Trace with free apertures (no clipping) or the lens's clear semi-diameters (the stop's dropped: "
+                   "the iris follows the f-number), as optix dataset --apertures fixed; clipped rays are vignetting.")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Output folder (sensitivity.csv, tolerance.json, proposed.toml, *.png).")
 @friendly_errors
 def tolerance(lens_spec, space_spec, budget_um, spec_um, n_mc, seed, mc_space, step_scale, rings, arms,
-              out_dir):
+              apertures, out_dir):
     """Tolerance analysis of LENS over the parameters of SPACE.
 
     Traces each parameter at +-1 and +-2 steps, fits per-field quadratic models of the RMS
@@ -179,7 +182,7 @@ def tolerance(lens_spec, space_spec, budget_um, spec_um, n_mc, seed, mc_space, s
                dynamic_ncols=True)
     try:
         sens = tol.sensitivity(given, lens, merit, step_scale=step_scale,
-                               progress=lambda done, total: bar.update(done - bar.n))
+                               progress=lambda done, total: bar.update(done - bar.n), apertures=apertures)
     finally:
         bar.close()
     w0 = sens.nominal_worst
@@ -193,7 +196,7 @@ def tolerance(lens_spec, space_spec, budget_um, spec_um, n_mc, seed, mc_space, s
             budget_um = 0.2 * w0
     if spec_um is None:
         spec_um = w0 + budget_um
-    alloc = tol.allocate(sens, budget_um, given, merit=merit, lens=lens)
+    alloc = tol.allocate(sens, budget_um, given, merit=merit, lens=lens, apertures=apertures)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     desc = (f"proposed by optix tolerance: worst-field RMS budget {budget_um:.4g} um over the nominal "
@@ -208,7 +211,7 @@ def tolerance(lens_spec, space_spec, budget_um, spec_um, n_mc, seed, mc_space, s
         bar = tqdm(total=n_mc, unit="design", desc="monte carlo", file=sys.stderr, dynamic_ncols=True)
         try:
             mc = tol.monte_carlo(space_mc, lens, merit, n_mc, spec_um, seed=seed, limits=limits,
-                                 progress=lambda done, total: bar.update(done - bar.n))
+                                 progress=lambda done, total: bar.update(done - bar.n), apertures=apertures)
         finally:
             bar.close()
 
@@ -243,7 +246,7 @@ def tolerance(lens_spec, space_spec, budget_um, spec_um, n_mc, seed, mc_space, s
     y_model = float((tol.model_worst(sens, mc.values) <= spec_um).mean()) if mc is not None else None
     doc = {
         "lens": lens.name, "lens_source": lens.source, "space": str(space_path), "fields_deg": sens.fields_deg,
-        "rings": rings, "arms": arms, "step_scale": step_scale, "default_steps": tol.DEFAULT_STEPS,
+        "rings": rings, "arms": arms, "apertures": apertures, "step_scale": step_scale, "default_steps": tol.DEFAULT_STEPS,
         "offsets_in_steps": tol.OFFSETS,
         "nominal": {"rms_fields_um": sens.nominal_fields, "worst_rms_um": w0, "mean_rms_um": sens.nominal_mean},
         "budget_um": budget_um, "spec_um": spec_um, "share_um": alloc[0].share_um,
@@ -258,7 +261,7 @@ def tolerance(lens_spec, space_spec, budget_um, spec_um, n_mc, seed, mc_space, s
     }
     (out / "tolerance.json").write_text(dumps(doc, indent=1) + "\n", encoding="utf-8")
     summary = {
-        "lens": lens.name, "space": str(space_path), "out": str(out), "nominal_rms_um": w0,
+        "lens": lens.name, "space": str(space_path), "out": str(out), "apertures": apertures, "nominal_rms_um": w0,
         "budget_um": budget_um, "spec_um": spec_um, "share_um": alloc[0].share_um,
         "rss_predicted_growth_um": rss_model, "most_sensitive": ranking[:3],
         "capped": [a.name for a in alloc if a.capped], "mc_space": mc_space,

@@ -248,12 +248,13 @@ class Merit:
         E = _engine()
         res, per_field, n_failed = [], [], 0
         for f, fw in zip(self.fields, self.field_weights):
-            xs, ys, oks = [], [], []
+            xs, ys, oks, statuses = [], [], [], []
             for wl in self.wavelengths:
                 tr = E.trace_field(js, float(f), self.px, self.py, float(wl), self.aiming)
                 xs.append(tr["position"][:, 0])
                 ys.append(tr["position"][:, 1])
                 oks.append(tr["status"] == 0)
+                statuses.append(tr["status"])
             x, y, ok = np.stack(xs), np.stack(ys), np.stack(oks)
             w = self.wl_weights[:, None] * self.pw[None, :] * ok
             wsum = w.sum()
@@ -267,8 +268,9 @@ class Merit:
             n_failed += int((~ok).sum())
             # per-field RMS over transmitted rays (the reported figure)
             ms = ((w * ((x - cx) ** 2 + (y - cy) ** 2)).sum() / wsum) if wsum > 0 else math.inf
+            clipped = sum(int((tr_status == 2).sum()) for tr_status in statuses)
             per_field.append({"field_deg": f, "rms_spot_um": 1e3 * math.sqrt(ms),
-                              "failed_rays": int((~ok).sum())})
+                              "failed_rays": int((~ok).sum()), "clipped_rays": clipped})
             s = np.sqrt(fw * wt)
             res.append((s * dx).ravel())
             res.append((s * dy).ravel())

@@ -2,9 +2,13 @@
 
 Metric.  The polychromatic, centroid-referenced RMS spot radius of each field
 (:class:`optix_e2e.design.optimizer.Merit`, Gaussian pupil quadrature); the figure that is
-budgeted is the worst field's.  Designs are traced with free apertures (clear
+budgeted is the worst field's.  By default designs are traced with free apertures (clear
 semi-diameters removed, as the optimizer does), so a perturbation changes the image and not
-which rays a rim stops; the manufacturability checks of the Monte Carlo draws use the
+which rays a rim stops.  ``apertures="fixed"`` keeps the nominal's clear semi-diameters
+(the stop's is dropped: the iris follows the f-number), as ``optix dataset --apertures
+fixed`` does: a lens whose edge field is vignetted by design is then judged on the rays
+that pass, as Zemax's RMS spot of a vignetted field is (clipped rays are left out, lost
+rays still fail the design).  The manufacturability checks of the Monte Carlo draws use the
 nominal's clear semi-diameters (:func:`optix_e2e.design.sampling.apertures`).
 
 Sensitivity.  Each parameter alone is moved to nominal + k * step for k = -2, -1, +1, +2
@@ -54,7 +58,8 @@ from ..lens import Lens
 from .optimizer import Merit, _is_design_error
 from .space import APERTURE_KINDS, ASPHERE_KINDS, Parameter, ParameterSpace, SpaceError
 
-__all__ = ["DEFAULT_STEPS", "OFFSETS", "default_step", "free_apertures", "evaluate_fields",
+__all__ = ["DEFAULT_STEPS", "OFFSETS", "APERTURE_MODES", "default_step", "free_apertures", "traced_apertures",
+           "evaluate_fields",
            "ParamSensitivity", "Sensitivity", "sensitivity", "Allocation", "allocate",
            "proposed_space", "MonteCarlo", "monte_carlo", "check_space_fits", "model_worst", "rss"]
 
@@ -90,6 +95,9 @@ def default_step(p: Parameter, value: float, semi_diameter: float | None = None)
     raise SpaceError(f"parameter {p.name!r}: no default step for kind {p.kind!r}")
 
 
+APERTURE_MODES = ("free", "fixed")
+
+
 def free_apertures(lens: dict) -> dict:
     """A copy of a lens dict with every clear semi-diameter removed (no clipping)."""
     out = copy.deepcopy(lens)
@@ -98,12 +106,31 @@ def free_apertures(lens: dict) -> dict:
     return out
 
 
-def evaluate_fields(merit: Merit, design: dict) -> np.ndarray:
-    """Per-field RMS spot (um) of a resolved lens dict, traced with free apertures.
-    Raises ``ValueError`` when rays are lost (the RMS would be over the survivors only)."""
-    rep = merit.evaluate(free_apertures(design), footprint=False)
-    if rep["failed_rays"]:
-        raise ValueError(f"{rep['failed_rays']} rays lost (missed surface or total internal reflection)")
+def traced_apertures(lens: dict, apertures: str = "free") -> dict:
+    """The lens dict as the analysis traces it: ``free`` (no clear apertures) or ``fixed``
+    (the prescription's clear semi-diameters, the stop's dropped: the iris follows the
+    f-number, as in the dataset's ``--apertures fixed``)."""
+    if apertures not in APERTURE_MODES:
+        raise ValueError(f"apertures must be one of {', '.join(APERTURE_MODES)}, got {apertures!r}")
+    if apertures == "free":
+        return free_apertures(lens)
+    out = copy.deepcopy(lens)
+    for s in out["surfaces"]:
+        if s.get("stop"):
+            s["semi_diameter"] = None
+    return out
+
+
+def evaluate_fields(merit: Merit, design: dict, apertures: str = "free") -> np.ndarray:
+    """Per-field RMS spot (um) of a resolved lens dict, traced with ``apertures``
+    (:func:`traced_apertures`).  Raises ``ValueError`` when rays are lost (missed surface or
+    total internal reflection: the RMS would be over the survivors only); with fixed
+    apertures, rays a clear aperture stops are vignetting, not a failure, but a field that
+    they stop entirely is."""
+    rep = merit.evaluate(traced_apertures(design, apertures), footprint=False)
+    clipped = sum(f.get("clipped_rays", 0) for f in rep["fields"]) if apertures == "fixed" else 0
+    if rep["failed_rays"] - clipped:
+        raise ValueError(f"{rep['failed_rays'] - clipped} rays lost (missed surface or total internal reflection)")
     r = np.array([f["rms_spot_um"] for f in rep["fields"]], float)
     if not np.all(np.isfinite(r)):
         raise ValueError("no rays reach the image")
@@ -258,22 +285,23 @@ def check_space_fits(space: ParameterSpace, lens: dict) -> list[str]:
 
 def sensitivity(space: ParameterSpace, lens: "Lens | dict", merit: Merit, step_scale: float = 1.0,
                 steps: dict | None = None, semi_diameters: Sequence[float] | None = None,
-                progress: Callable[[int, int], None] | None = None) -> Sensitivity:
+                progress: Callable[[int, int], None] | None = None, apertures: str = "free") -> Sensitivity:
     """Trace each parameter at nominal + k step, k in :data:`OFFSETS`, and fit the models.
 
     ``lens``: the nominal (a Lens or a resolved lens dict); ``steps``: name -> step overriding
     :func:`default_step`; ``semi_diameters``: per-surface heights for the asphere steps
-    (default: the lens's clear semi-diameters, else its ray footprint)."""
+    (default: the lens's clear semi-diameters, else its ray footprint); ``apertures``: free
+    or fixed (:func:`traced_apertures`)."""
     if not step_scale > 0:
         raise ValueError(f"step scale must be > 0, got {step_scale}")
     lens = Lens.load(lens)
     base = lens.data
     check_space_fits(space, base)
     if semi_diameters is None:
-        from .sampling import apertures
+        from .sampling import apertures as clear_semi_diameters
 
-        semi_diameters = apertures(lens)
-    nominal_fields = evaluate_fields(merit, base)
+        semi_diameters = clear_semi_diameters(lens)
+    nominal_fields = evaluate_fields(merit, base, apertures)
     x0 = np.array(space.values(base), float)
     total = len(space) * len(OFFSETS)
     rows, done = [], 0
@@ -287,7 +315,7 @@ def sensitivity(space: ParameterSpace, lens: "Lens | dict", merit: Merit, step_s
             x = x0.copy()
             x[i] += d
             try:
-                fields[k] = evaluate_fields(merit, space.apply(base, x))
+                fields[k] = evaluate_fields(merit, space.apply(base, x), apertures)
             except Exception as exc:
                 if not _is_design_error(exc):
                     raise
@@ -347,7 +375,7 @@ def _solve_tolerance(r: ParamSensitivity, share: float, cap: float) -> tuple[flo
 
 
 def allocate(sens: Sensitivity, budget_um: float, given: ParameterSpace | None = None,
-             merit: Merit | None = None, lens: "Lens | dict | None" = None) -> list:
+             merit: Merit | None = None, lens: "Lens | dict | None" = None, apertures: str = "free") -> list:
     """Tolerances from an RSS-shared budget (see the module doc).  ``given`` (default: the
     analysed space) supplies the caps and the ranges the proposal is cut to.  With ``merit``
     and ``lens`` the two ends of each proposed range are traced (``growth_traced_um``)."""
@@ -376,7 +404,7 @@ def allocate(sens: Sensitivity, budget_um: float, given: ParameterSpace | None =
                 x = x0.copy()
                 x[i] = v
                 try:
-                    ends.append(float(evaluate_fields(merit, sens.space.apply(base, x)).max()))
+                    ends.append(float(evaluate_fields(merit, sens.space.apply(base, x), apertures).max()))
                 except Exception as exc:
                     if not _is_design_error(exc):
                         raise
@@ -476,7 +504,7 @@ class MonteCarlo:
 
 def monte_carlo(space: ParameterSpace, lens: "Lens | dict", merit: Merit, n: int, spec_um: float,
                 seed: int = 0, limits=None,
-                progress: Callable[[int, int], None] | None = None) -> MonteCarlo:
+                progress: Callable[[int, int], None] | None = None, apertures: str = "free") -> MonteCarlo:
     """``n`` manufacturable designs drawn uniformly from ``space`` (every parameter at once),
     traced; yield = fraction with worst-field RMS <= ``spec_um``.  ``limits``: a
     :class:`optix_e2e.design.sampling.Limits` (default: the space's ``[constraints]``)."""
@@ -491,7 +519,7 @@ def monte_carlo(space: ParameterSpace, lens: "Lens | dict", merit: Merit, n: int
     failed_index = []
     for j, x in enumerate(res.values):
         try:
-            fields[j] = evaluate_fields(merit, space.apply(lens.data, x))
+            fields[j] = evaluate_fields(merit, space.apply(lens.data, x), apertures)
         except Exception as exc:
             if not _is_design_error(exc):
                 raise

@@ -81,13 +81,19 @@ def export_lens(manifest: dict, values, image_distance: float, stem: Path, name:
     """stem.json and stem.zmx; returns their paths."""
     d = design_lens(manifest, values, image_distance)
     d["name"], d["description"] = name, description
-    for s in d["surfaces"]:  # the engine traced them with automatic apertures: write the footprint's
-        s.pop("semi_diameter", None)
+    # traced with automatic apertures: write the footprint's; with the base lens's fixed clear
+    # apertures (--apertures fixed): keep them, and give the stop (whose iris followed the
+    # f-number) its footprint
+    fixed = manifest["settings"].get("apertures") == "fixed"
+    for s in d["surfaces"]:
+        if not fixed:
+            s.pop("semi_diameter", None)
         s["material"] = catalog_material(s.get("material", "air"))
     lens = Lens(d, source=name)
     sd = apertures(lens)
     for s, h in zip(d["surfaces"], sd):
-        s["semi_diameter"] = round(float(h), 4)
+        if s.get("semi_diameter") is None:
+            s["semi_diameter"] = round(float(h), 4)
     lens = Lens(d, source=name)
     json_path = lens.save(stem.with_suffix(".json"))
     zmx_path = write_zmx(lens.raw, stem.with_suffix(".zmx"), source=name)
