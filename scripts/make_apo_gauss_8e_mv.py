@@ -30,14 +30,20 @@ HALF_DIAGONAL_MM = 0.5 * math.hypot(1920, 1200) * 5.86e-3
 WAVELENGTHS_NM = [470.0, 550.0, 650.0]   # the camera's B, G, R channel centres (as paper-triplet)
 
 
-# apo-gauss-8e's limits (0.3 / 0.5 / 0.8 / 25 mm) times the scale, rounded down
-GIVEN_CONSTRAINTS = {"min_air_gap": 0.09, "min_edge": 0.15, "min_center": 0.25, "min_bfd": 7.5}
+LENGTH_KINDS = ("radius", "thickness", "air_gap")
 
 
 def write_given_space(path: str, factor: float) -> None:
+    """apo-gauss-8e's space with its ranges and its manufacturability limits (rounded down to
+    0.01 mm) times ``factor``."""
     space, _ = load_space("apo-gauss-8e")
+    other = [p.name for p in space.params if p.kind not in LENGTH_KINDS]
+    if other:
+        raise SystemExit(f"apo-gauss-8e's space has parameters that are not lengths ({', '.join(other)}): "
+                         f"scale them by hand")
     params = [dataclasses.replace(p, min=p.min * factor, max=p.max * factor) for p in space.params]
-    ParameterSpace(params, constraints=GIVEN_CONSTRAINTS).save_toml(
+    limits = {k: math.floor(v * factor * 100) / 100 for k, v in space.constraints.items()}
+    ParameterSpace(params, constraints=limits).save_toml(
         path, lens_ref="apo-gauss-8e-mv",
         description=f"apo-gauss-8e's provisional space (radii +-5 %, air gaps +-20 %) scaled by {factor}: the "
                     f"given space of the tolerance analysis (scripts/make_apo_gauss_8e_mv.py)")

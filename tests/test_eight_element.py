@@ -53,6 +53,31 @@ def test_scaling_multiplies_focal_lengths_and_ray_heights_and_keeps_the_f_number
         scale_lens(lens.raw, -1.0)
 
 
+def test_scaling_covers_every_length_of_the_format():
+    """Every length the lens format has: a curvature given as such, odd and even aspheric
+    terms (a_k r^k keeps its value at s r when a_k scales by s^(1-k)), an EPD, a finite
+    object distance, the image's clear size; conics and the material untouched."""
+    lens = {"aperture": {"type": "epd", "value": 4.0}, "object_distance": 500.0, "fields_deg": [0.0, 5.0],
+            "wavelengths_nm": [550.0], "image": {"semi_diameter": 6.0},
+            "surfaces": [{"curvature": 0.02, "thickness": 3.0, "material": "N-BK7", "conic": -0.5,
+                          "aspheric": {"a3": 1e-4, "a4": -2e-5}, "semi_diameter": 5.0},
+                         {"radius": "inf", "thickness": 40.0, "material": "air", "stop": True}]}
+    s = 2.5
+    out = scale_lens(lens, s)
+    a, b = lens["surfaces"][0], out["surfaces"][0]
+    assert b["curvature"] == pytest.approx(a["curvature"] / s) and b["conic"] == a["conic"]
+    for k in (3, 4):
+        r = 3.0
+        assert b["aspheric"][f"a{k}"] * (s * r) ** k == pytest.approx(s * a["aspheric"][f"a{k}"] * r ** k)
+    assert [x["thickness"] for x in out["surfaces"]] == [7.5, 100.0]
+    assert b["semi_diameter"] == 12.5 and out["surfaces"][1]["radius"] == "inf"
+    assert out["aperture"] == {"type": "epd", "value": 10.0} and out["object_distance"] == 1250.0
+    assert out["image"]["semi_diameter"] == 15.0 and out["fields_deg"] == lens["fields_deg"]
+    assert lens["surfaces"][0]["semi_diameter"] == 5.0  # the input is not changed
+    p0, p1 = Lens(lens).paraxial(), Lens(out).paraxial()
+    assert p1["efl_mm"] == pytest.approx(s * p0["efl_mm"], rel=1e-12)
+
+
 def test_the_bundled_eight_element_lens_is_the_patent_lens_on_the_sensor():
     """apo-gauss-8e-mv: the patent's prescription times one factor (every radius, thickness and
     clear semi-diameter), the camera's wavelengths, and its full field's real chief ray on the
@@ -126,8 +151,20 @@ def test_tolerance_command_with_fixed_apertures(tmp_path):
     doc = json.loads((out / "tolerance.json").read_text())
     assert summary["apertures"] == doc["apertures"] == "fixed"
     lens = Lens.load("apo-gauss-8e-mv")
-    want = T.evaluate_fields(Merit(lens, rings=3, arms=6), lens.data, "fixed").max()
+    merit = Merit(lens, rings=3, arms=6)
+    want = T.evaluate_fields(merit, lens.data, "fixed").max()
     assert summary["nominal_rms_um"] == pytest.approx(want, rel=1e-12)
+    # the traced range ends and the Monte Carlo designs were traced with the apertures too
+    given, _ = load_space("apo-gauss-8e-mv")
+    x0 = np.array(given.values(lens.data))
+    row = doc["parameters"][0]
+    x = x0.copy()
+    x[0] = row["proposed"]["max"]
+    assert row["traced_ends_um"][1] == pytest.approx(T.evaluate_fields(merit, given.apply(lens.data, x), "fixed").max(),
+                                                     rel=1e-12)
+    mc = doc["monte_carlo"]
+    assert mc["worst_rms_um"][0] == pytest.approx(
+        T.evaluate_fields(merit, given.apply(lens.data, np.array(mc["values"][0])), "fixed").max(), rel=1e-12)
     load_space(out / "proposed.toml")
     bad = CliRunner().invoke(main, ["tolerance", "apo-gauss-8e-mv", "--space", "apo-gauss-8e-mv", "--apertures",
                                     "clear", "--out", str(tmp_path / "x")])
@@ -149,9 +186,14 @@ def test_export_keeps_the_clear_apertures_of_a_fixed_aperture_dataset(tmp_path):
     paths = export_lens(manifest, space.values(base.data), float(base.data["surfaces"][-1]["thickness"]),
                         tmp_path / "lens", "x", "test")
     back = Lens.load(paths["json"])
-    for a, b in zip(base.raw["surfaces"], back.raw["surfaces"]):
-        if a.get("stop"):
-            assert b["semi_diameter"] > 0
+    from optix_e2e.design.sampling import apertures
+
+    footprint = apertures(Lens(dict(back.raw, surfaces=[dict(x, semi_diameter=None) if x.get("stop") else x
+                                                        for x in back.raw["surfaces"]])))
+    for i, (a, b) in enumerate(zip(base.raw["surfaces"], back.raw["surfaces"])):
+        if a.get("stop"):  # sized by the beam, rounded up: no rim ray clipped
+            assert footprint[i] <= b["semi_diameter"] <= footprint[i] + 1e-4
         else:
             assert b["semi_diameter"] == pytest.approx(a["semi_diameter"], abs=1e-4)
     assert Lens.load(paths["zmx"]).paraxial()["efl_mm"] == pytest.approx(base.paraxial()["efl_mm"], rel=1e-6)
+

@@ -12,6 +12,7 @@ import click
 
 from ..lens import Lens
 from ..design.optimizer import Merit
+from ..design.tolerance import DEFAULT_PUPIL
 from ..design.space import SPACES_DIR, ParameterSpace, SpaceError, bundled_spaces
 from ._common import dumps, friendly_errors
 
@@ -141,11 +142,11 @@ def plot_yield(path: Path, mc, nominal_um: float, label: str) -> None:
               help="Draw the Monte Carlo designs from the proposed ranges or the given space's.")
 @click.option("--step-scale", type=float, default=1.0, show_default=True,
               help="Scale every default sensitivity step (docs/tolerance.md).")
-@click.option("--rings", type=click.IntRange(1, 32), default=6, show_default=True,
-              help="Gaussian-quadrature pupil rings of the RMS spot.")
-@click.option("--arms", type=click.IntRange(2, 64), default=12, show_default=True,
-              help="Pupil azimuths of the RMS spot.")
-@click.option("--apertures", type=click.Choice(["free", "fixed"]), default="free", show_default=True,
+@click.option("--rings", type=click.IntRange(1, 32), default=None,
+              help="Gaussian-quadrature pupil rings of the RMS spot [default: 6; 32 with --apertures fixed].")
+@click.option("--arms", type=click.IntRange(2, 64), default=None,
+              help="Pupil azimuths of the RMS spot [default: 12; 64 with --apertures fixed].")
+@click.option("--apertures", type=click.Choice(list(DEFAULT_PUPIL)), default="free", show_default=True,
               help="Trace with free apertures (no clipping) or the lens's clear semi-diameters (the stop's dropped: "
                    "the iris follows the f-number), as optix dataset --apertures fixed; clipped rays are vignetting.")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
@@ -176,6 +177,10 @@ def tolerance(lens_spec, space_spec, budget_um, spec_um, n_mc, seed, mc_space, s
     for w in warnings:
         click.echo(f"warning: {w}", err=True)
     limits = Limits.from_dict(given.constraints, f"{given.source}: [constraints]")
+    # a clipped pupil is not the smooth integrand Gaussian quadrature is exact for: its edge
+    # field converges slowly (docs/tolerance.md), so fixed apertures get the finest grid
+    default_rings, default_arms = DEFAULT_PUPIL[apertures]
+    rings, arms = rings or default_rings, arms or default_arms
     merit = Merit(lens, rings=rings, arms=arms)
 
     bar = tqdm(total=len(given) * len(tol.OFFSETS), unit="trace", desc="sensitivity", file=sys.stderr,

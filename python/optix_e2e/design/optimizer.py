@@ -51,6 +51,7 @@ from ..lens.surface import sag as _surface_sag
 __all__ = ["Constraints", "LensProblem", "Merit", "OptimizeResult", "optimize", "polish", "sag",
            "element_geometry"]
 
+RAY_CLIPPED = 2         # the engine's status code of a ray stopped by a clear aperture (_engine.pyi)
 FAILED_RAY_MM = 1.0     # residual given to each failed ray's x and y (mm)
 FAILED_RAY_WAVES = 100.0  # ... and to its OPD in the wavefront merit (waves): above the OPD
                           # of any design worth keeping, so that losing a ray never pays
@@ -268,7 +269,7 @@ class Merit:
             n_failed += int((~ok).sum())
             # per-field RMS over transmitted rays (the reported figure)
             ms = ((w * ((x - cx) ** 2 + (y - cy) ** 2)).sum() / wsum) if wsum > 0 else math.inf
-            clipped = sum(int((tr_status == 2).sum()) for tr_status in statuses)
+            clipped = sum(int((st == RAY_CLIPPED).sum()) for st in statuses)
             per_field.append({"field_deg": f, "rms_spot_um": 1e3 * math.sqrt(ms),
                               "failed_rays": int((~ok).sum()), "clipped_rays": clipped})
             s = np.sqrt(fw * wt)

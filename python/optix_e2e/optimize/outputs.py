@@ -3,6 +3,7 @@ of the final design, PSF grids from the engine, image panels and the lens report
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -92,8 +93,8 @@ def export_lens(manifest: dict, values, image_distance: float, stem: Path, name:
     lens = Lens(d, source=name)
     sd = apertures(lens)
     for s, h in zip(d["surfaces"], sd):
-        if s.get("semi_diameter") is None:
-            s["semi_diameter"] = round(float(h), 4)
+        if s.get("semi_diameter") is None:  # rounded up: the written aperture passes every rim ray
+            s["semi_diameter"] = math.ceil(float(h) * 1e4) / 1e4
     lens = Lens(d, source=name)
     json_path = lens.save(stem.with_suffix(".json"))
     zmx_path = write_zmx(lens.raw, stem.with_suffix(".zmx"), source=name)
