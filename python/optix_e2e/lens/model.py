@@ -19,7 +19,8 @@ BUNDLED_DIR = Path(__file__).resolve().parent.parent / "bundled"
 #: Bundled lens name -> its shipped surrogate checkpoint in BUNDLED_DIR (optix_e2e.surrogate).
 BUNDLED_SURROGATES = {"paper-triplet-v1": "surrogate_paper_triplet.pt",
                       "paper-triplet-e2e": "surrogate_paper_triplet_e2e.pt",  # the space, not a lens
-                      "paper-triplet-detect": "surrogate_paper_triplet_detect.pt"}  # e2e + the f-number
+                      "paper-triplet-detect": "surrogate_paper_triplet_detect.pt",  # e2e + the f-number
+                      "apo-gauss-8e-mv": "surrogate_apo_gauss_8e_mv.pt"}  # the eight-element experiment
 
 #: Default sensor channels (R, G, B): three wavelengths each, weights ~ a smooth
 #: spectral response.  Used when a lens does not list exactly three wavelengths or when
