@@ -1,13 +1,16 @@
 """Paper Table 5 and the numbers behind Fig. 11's PSF comparison, from an `optix design` run.
 
-    python benches/table5.py RUN_DIR [--out DIR]
+    python benches/table5.py RUN_DIR [RUN_DIR ...] [--out DIR]
 
 Reads RUN_DIR/results.json (held-out image quality of both cameras under the engine's exact
 PSFs, with the paired bootstrap intervals) and the two lens reports (RUN_DIR/report/*/report.json:
 per-field polychromatic RMS spot, Strehl ratio and MTF of each lens). Writes DIR/table5.csv,
 DIR/table5.md and DIR/psf_compactness.csv (default DIR: RUN_DIR), and prints the markdown.
 Nothing is recomputed: every figure is the run's own (the PSF grids themselves are the run's
-psf_nominal.png and psf_end_to_end.png).
+psf_nominal.png and psf_end_to_end.png). With several runs (the same task and budget, other
+seeds) the table is the first run's, and DIR/table5_seeds.csv and a second markdown table give
+each run's paired differences and their mean over the runs with Student's t interval over the
+seeds (how much a training run varies; docs/e2e.md).
 """
 
 from __future__ import annotations
@@ -87,18 +90,40 @@ def markdown(res: dict, rows: list[dict], comp: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def seeds_rows(results: list[dict]) -> list[dict]:
+    """Each run's paired differences (end-to-end minus nominal; 1 - LPIPS as such), then their
+    mean with Student's t 95 % interval over the runs."""
+    from alg1_vs_vanilla import seeds_interval
+
+    rows = [{"seed": r["seed"], **{key: table_rows(r)[-1][key][0] for _, key, _, _ in METRICS}} for r in results]
+    mean = {"seed": "mean"}
+    for _, key, _, _ in METRICS:
+        d = [r[key] for r in rows]
+        mean[key] = (sum(d) / len(d), *(seeds_interval(d) or (float("nan"), float("nan"))))
+    return rows + [mean]
+
+
+def _read_run(run: Path) -> dict:
+    res = json.loads((run / "results.json").read_text(encoding="utf-8"))
+    if "paired" not in res or "psnr_db" not in res.get("paired", {}):
+        raise ValueError(f"{run}/results.json: not an image-quality design run (task {res.get('task')!r})")
+    return res
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("run", type=Path)
+    ap.add_argument("run", type=Path, nargs="+")
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
-    out = a.out or a.run
+    out = a.out or a.run[0]
     try:
-        res = json.loads((a.run / "results.json").read_text(encoding="utf-8"))
-        if "paired" not in res or "psnr_db" not in res.get("paired", {}):
-            raise ValueError(f"{a.run}/results.json: not an image-quality design run (task {res.get('task')!r})")
+        results = [_read_run(r) for r in a.run]
+        if len({(r["task"], r["budget"], tuple(r["design"]["parameters"])) for r in results}) > 1:
+            raise ValueError("the runs differ in task, budget or lens space: not seeds of one experiment")
+        res = results[0]
         rows = table_rows(res)
-        comp = compactness_rows(a.run)
+        comp = compactness_rows(a.run[0])
+        seeds = seeds_rows(results) if len(results) > 1 else None
     except (OSError, ValueError, KeyError) as err:
         sys.exit(f"error: {err}")
     out.mkdir(parents=True, exist_ok=True)
@@ -115,6 +140,21 @@ def main() -> None:
         w.writeheader()
         w.writerows(comp)
     md = markdown(res, rows, comp)
+    if seeds:
+        with open(out / "table5_seeds.csv", "w", newline="", encoding="utf-8") as f:
+            w = csv.writer(f)
+            w.writerow(["seed"] + [k for _, k, _, _ in METRICS] + [f"{k}_ci95_{e}" for _, k, _, _ in METRICS
+                                                                   for e in ("lo", "hi")])
+            for r in seeds:
+                vals = [r[k] for _, k, _, _ in METRICS]
+                w.writerow([r["seed"]] + [v[0] if isinstance(v, tuple) else v for v in vals]
+                           + [x for v in vals for x in ((v[1], v[2]) if isinstance(v, tuple) else ("", ""))])
+        md += ("\nEnd-to-end minus nominal per seed, and the mean over the seeds with Student's t 95 % interval:\n\n"
+               "| seed | " + " | ".join(m for m, _, _, _ in METRICS) + " |\n" + "|---" * (len(METRICS) + 1) + "|\n")
+        for r in seeds:
+            cells = [f"{v[0]:+.3f} [{v[1]:+.3f}, {v[2]:+.3f}]" if isinstance(v, tuple) else f"{v:+.3f}"
+                     for v in (r[k] for _, k, _, _ in METRICS)]
+            md += f"| {r['seed']} | " + " | ".join(cells) + " |\n"
     (out / "table5.md").write_text(md, encoding="utf-8")
     print(md, end="")
 
