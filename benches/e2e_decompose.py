@@ -3,6 +3,7 @@
 cameras and measure the task loss on validation batches.
 
     python benches/e2e_decompose.py RUN_DIR [--val-seed 7] [--batches 8] [--json OUT.json]
+    python benches/e2e_decompose.py RUN_DIR --heldout [--json OUT.json]
 
 RUN_DIR is a finished `optix design` run. The lens is the nominal or the run's end-to-end
 lens (surrogate optics, as in training); the processing is the pre-trained one (Alg. 1's
@@ -10,6 +11,12 @@ start), the nominal baseline's or the end-to-end run's. Validation batches are t
 stream of another seed (procedural scenes, uniform positions over the frame, the task's light
 levels, fixed noise): neither the batches training saw nor the held-out set, so a schedule
 can be chosen on them. It measures; it asserts nothing.
+
+``--heldout`` asks the same of the run's own evaluation instead: the two lenses under the
+engine's exact PSFs, crossed with the two runs' processing (the hardware ISP: the reference ISP
+at each run's hyperparameters), on the run's held-out set, with paired bootstrap intervals of
+the lens's effect under each processing and of the processing's effect under each lens. The
+diagonal is results.json's two cameras.
 """
 
 from __future__ import annotations
@@ -33,6 +40,8 @@ def main() -> None:
     ap.add_argument("--val-seed", type=int, default=7)
     ap.add_argument("--batches", type=int, default=8)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--heldout", action="store_true", help="cross lens and processing on the held-out set, "
+                                                           "exact optics (paired intervals)")
     a = ap.parse_args()
     run = Path(a.run)
     cfg = DesignConfig(**json.loads((run / "config.json").read_text())).check()
@@ -47,6 +56,8 @@ def main() -> None:
     nom.isp.load_state_dict({k[len("isp."):]: v for k, v in st.items() if k.startswith("isp.")})
     for c in (e2e, nom, pre):
         c.eval()
+    if a.heldout:
+        return heldout_swap(run, cfg, sur, frame, nom, e2e, a.json)
     batches = [training_batch(a.val_seed, t, cfg.batch, cfg.crop, e2e.margin, (task.level_min, task.level_max),
                               frame, None) for t in range(a.batches)]
 
@@ -67,6 +78,48 @@ def main() -> None:
            "crop": cfg.crop, "rows": rows}
     if a.json:
         Path(a.json).write_text(json.dumps(res, indent=2))
+
+
+def heldout_swap(run: Path, cfg: DesignConfig, sur, frame, nom, e2e, json_out) -> None:
+    """Lens x processing on the held-out set under exact optics (see the module doc)."""
+    from optix_e2e.camera import FixedOptics
+    from optix_e2e.camera.stages import image_height_fractions
+    from optix_e2e.optimize import evaluate as ev
+    from optix_e2e.optimize.outputs import design_lens
+    from optix_e2e.surrogate.exact import exact_optics
+    from optix_e2e.tasks import heldout_set
+    from optix_e2e.tasks.scenes import POSITIONS
+
+    values = torch.stack([nom.optics.base_values(), e2e.optics.values().detach()])
+    exact = exact_optics(sur, values.double().numpy())
+    samples = heldout_set(cfg.eval_size, exact["psf"].shape[-1] // 2, cfg.eval_procedural, cfg.eval_level, frame,
+                          positions=POSITIONS[cfg.eval_positions])
+    rows = {}
+    for i, lens in enumerate(("nominal", "end_to_end")):
+        heights = image_height_fractions(design_lens(sur.manifest, values[i].numpy(), exact["image_distance"][i]),
+                                         sur.fields_deg)
+        optics = FixedOptics(exact["psf"][i], exact["vignetting"][i], heights, patch=cfg.patch,
+                             full_field_px=frame.full_field_px)
+        for proc, isp in (("nominal_run", nom.isp), ("end_to_end_run", e2e.isp)):
+            rows[(lens, proc)] = ev.evaluate(Camera(optics, e2e.sensor, isp), samples)
+            print(f"lens {lens:10s}  processing {proc:14s}  "
+                  + "  ".join(f"{k} {v:.4f}" for k, v in ev.summarize(rows[(lens, proc)]).items()
+                              if k in ("psnr_db", "ssim", "lpips", "haarpsi")), flush=True)
+    effects = {}
+    for proc in ("nominal_run", "end_to_end_run"):  # the lens's effect, processing held
+        effects[f"lens (processing {proc})"] = ev.paired(rows[("nominal", proc)], rows[("end_to_end", proc)],
+                                                        cfg.bootstrap, cfg.seed)
+    for lens in ("nominal", "end_to_end"):  # the processing's effect, lens held
+        effects[f"processing (lens {lens})"] = ev.paired(rows[(lens, "nominal_run")], rows[(lens, "end_to_end_run")],
+                                                        cfg.bootstrap, cfg.seed)
+    for name, p in effects.items():
+        print(f"{name:32s} " + "  ".join(f"{k} {v['mean']:+.4f} [{v['ci95'][0]:+.4f}, {v['ci95'][1]:+.4f}]"
+                                           for k, v in p.items()), flush=True)
+    if json_out:
+        Path(json_out).write_text(json.dumps({
+            "run": str(run), "task": cfg.task, "n_samples": len(samples),
+            "cameras": {f"{lens}|{proc}": ev.summarize(r) for (lens, proc), r in rows.items()},
+            "effects": effects}, indent=2))
 
 
 if __name__ == "__main__":
