@@ -103,6 +103,18 @@ def seeds_rows(results: list[dict]) -> list[dict]:
     return rows + [mean]
 
 
+def write_table_csv(path: Path, first: str, rows: list[dict]) -> None:
+    """One row per entry: its label, each metric, then each metric's interval (blank without one)."""
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow([first] + [k for _, k, _, _ in METRICS] + [f"{k}_ci95_{e}" for _, k, _, _ in METRICS
+                                                              for e in ("lo", "hi")])
+        for r in rows:
+            vals = [r[k] for _, k, _, _ in METRICS]
+            w.writerow([r[first]] + [v[0] if isinstance(v, tuple) else v for v in vals]
+                       + [x for v in vals for x in ((v[1], v[2]) if isinstance(v, tuple) else ("", ""))])
+
+
 def _read_run(run: Path) -> dict:
     res = json.loads((run / "results.json").read_text(encoding="utf-8"))
     if "paired" not in res or "psnr_db" not in res.get("paired", {}):
@@ -127,28 +139,14 @@ def main() -> None:
     except (OSError, ValueError, KeyError) as err:
         sys.exit(f"error: {err}")
     out.mkdir(parents=True, exist_ok=True)
-    with open(out / "table5.csv", "w", newline="", encoding="utf-8") as f:
-        w = csv.writer(f)
-        w.writerow(["method"] + [k for _, k, _, _ in METRICS] + [f"{k}_ci95_{e}" for _, k, _, _ in METRICS
-                                                                 for e in ("lo", "hi")])
-        for r in rows:
-            vals = [r[k] for _, k, _, _ in METRICS]
-            w.writerow([r["method"]] + [v[0] if isinstance(v, tuple) else v for v in vals]
-                       + [x for v in vals for x in ((v[1], v[2]) if isinstance(v, tuple) else ("", ""))])
+    write_table_csv(out / "table5.csv", "method", rows)
     with open(out / "psf_compactness.csv", "w", newline="", encoding="utf-8") as f:
         w = csv.DictWriter(f, fieldnames=list(comp[0]))
         w.writeheader()
         w.writerows(comp)
     md = markdown(res, rows, comp)
     if seeds:
-        with open(out / "table5_seeds.csv", "w", newline="", encoding="utf-8") as f:
-            w = csv.writer(f)
-            w.writerow(["seed"] + [k for _, k, _, _ in METRICS] + [f"{k}_ci95_{e}" for _, k, _, _ in METRICS
-                                                                   for e in ("lo", "hi")])
-            for r in seeds:
-                vals = [r[k] for _, k, _, _ in METRICS]
-                w.writerow([r["seed"]] + [v[0] if isinstance(v, tuple) else v for v in vals]
-                           + [x for v in vals for x in ((v[1], v[2]) if isinstance(v, tuple) else ("", ""))])
+        write_table_csv(out / "table5_seeds.csv", "seed", seeds)
         md += ("\nEnd-to-end minus nominal per seed, and the mean over the seeds with Student's t 95 % interval:\n\n"
                "| seed | " + " | ".join(m for m, _, _, _ in METRICS) + " |\n" + "|---" * (len(METRICS) + 1) + "|\n")
         for r in seeds:
