@@ -83,9 +83,8 @@ def main() -> None:
 def heldout_swap(run: Path, cfg: DesignConfig, sur, frame, nom, e2e, json_out) -> None:
     """Lens x processing on the held-out set under exact optics (see the module doc)."""
     from optix_e2e.camera import FixedOptics
-    from optix_e2e.camera.stages import image_height_fractions
     from optix_e2e.optimize import evaluate as ev
-    from optix_e2e.optimize.outputs import design_lens
+    from optix_e2e.optimize.run import design_field_heights
     from optix_e2e.surrogate.exact import exact_optics
     from optix_e2e.tasks import heldout_set
     from optix_e2e.tasks.scenes import POSITIONS
@@ -96,8 +95,7 @@ def heldout_swap(run: Path, cfg: DesignConfig, sur, frame, nom, e2e, json_out) -
                           positions=POSITIONS[cfg.eval_positions])
     rows = {}
     for i, lens in enumerate(("nominal", "end_to_end")):
-        heights = image_height_fractions(design_lens(sur.manifest, values[i].numpy(), exact["image_distance"][i]),
-                                         sur.fields_deg)
+        heights = design_field_heights(sur, values[i].numpy(), exact["image_distance"][i])
         optics = FixedOptics(exact["psf"][i], exact["vignetting"][i], heights, patch=cfg.patch,
                              full_field_px=frame.full_field_px)
         for proc, isp in (("nominal_run", nom.isp), ("end_to_end_run", e2e.isp)):

@@ -20,10 +20,8 @@ from pathlib import Path
 import torch
 
 from optix_e2e.camera import Camera, FixedOptics
-from optix_e2e.camera.stages import image_height_fractions
 from optix_e2e.optimize.config import make_config
-from optix_e2e.optimize.outputs import design_lens
-from optix_e2e.optimize.run import build_camera, load_surrogate
+from optix_e2e.optimize.run import build_camera, design_field_heights, load_surrogate
 from optix_e2e.surrogate.exact import exact_optics
 from optix_e2e.tasks import SensorFrame, TaskLoss, get_task, training_batch
 
@@ -70,8 +68,7 @@ def main() -> None:
             v = optics.values().detach()
             sur_loss = task_loss(optics)
             ex = exact_optics(sur, v[None].double().numpy())
-            h = image_height_fractions(design_lens(sur.manifest, v.double().numpy(), ex["image_distance"][0]),
-                                       sur.fields_deg)
+            h = design_field_heights(sur, v.double().numpy(), ex["image_distance"][0])
             exact = FixedOptics(ex["psf"][0], ex["vignetting"][0], h, patch=cfg.patch, full_field_px=frame.full_field_px)
             rows.append({"direction": name, "step_u": step, "loss_surrogate": sur_loss, "loss_exact": task_loss(exact)})
             print(f"{name:8s} step {step:5.2f}  loss: surrogate optics {sur_loss:.4f}  exact optics "

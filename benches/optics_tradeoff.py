@@ -50,12 +50,10 @@ EVAL_PATCH = 32
 
 def run_point(name: str, seed: int, overrides: dict, a, log) -> dict:
     from optix_e2e.camera import Camera, FixedOptics, calibrated_preset
-    from optix_e2e.camera.stages import image_height_fractions
     from optix_e2e.optimize import evaluate as ev
     from optix_e2e.optimize.config import make_config
     from optix_e2e.optimize.hybrid import OpticsMonitor, exact_gradient_steps
-    from optix_e2e.optimize.outputs import design_lens
-    from optix_e2e.optimize.run import build_camera, load_surrogate, make_optimizer, train
+    from optix_e2e.optimize.run import build_camera, design_field_heights, load_surrogate, make_optimizer, train
     from optix_e2e.surrogate.exact import exact_optics
     from optix_e2e.surrogate.refine import RefineSettings
     from optix_e2e.tasks import SensorFrame, heldout_set
@@ -76,8 +74,7 @@ def run_point(name: str, seed: int, overrides: dict, a, log) -> dict:
                 log=log, monitor=monitor)
     values = camera.optics.values().detach()
     exact = exact_optics(sur, values.double().numpy()[None])
-    heights = image_height_fractions(design_lens(sur.manifest, values.numpy(), exact["image_distance"][0]),
-                                     sur.fields_deg)
+    heights = design_field_heights(sur, values.numpy(), exact["image_distance"][0])
     samples = heldout_set(cfg.eval_size, exact["psf"].shape[-1] // 2, cfg.eval_procedural, cfg.eval_level, frame,
                           positions=POSITIONS[cfg.eval_positions])
     t0 = time.perf_counter()

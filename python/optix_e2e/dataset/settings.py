@@ -94,11 +94,12 @@ class DatasetSettings:
         return s if s % 2 else s - 1
 
 
-def engine_base(base: Lens, apertures: str) -> dict:
-    """The base prescription the sampled designs are traced with.  The aperture is always
-    the lens's f-number / EPD (the stop's clear semi-diameter is dropped: the iris follows
-    the aperture setting as the design changes); ``"auto"`` drops every clear aperture."""
-    d = copy.deepcopy(base.data)
+def engine_base(base: "Lens | dict", apertures: str) -> dict:
+    """The base prescription (a Lens or a resolved lens dict) the sampled designs are traced
+    with.  The aperture is always the lens's f-number / EPD (the stop's clear semi-diameter is
+    dropped: the iris follows the aperture setting as the design changes); ``"auto"`` drops
+    every clear aperture."""
+    d = copy.deepcopy(base.data if isinstance(base, Lens) else base)
     for s in d["surfaces"]:
         if apertures == "auto" or s.get("stop"):
             s["semi_diameter"] = None

@@ -249,14 +249,14 @@ class Merit:
         E = _engine()
         res, per_field, n_failed = [], [], 0
         for f, fw in zip(self.fields, self.field_weights):
-            xs, ys, oks, statuses = [], [], [], []
+            xs, ys, statuses = [], [], []
             for wl in self.wavelengths:
                 tr = E.trace_field(js, float(f), self.px, self.py, float(wl), self.aiming)
                 xs.append(tr["position"][:, 0])
                 ys.append(tr["position"][:, 1])
-                oks.append(tr["status"] == 0)
                 statuses.append(tr["status"])
-            x, y, ok = np.stack(xs), np.stack(ys), np.stack(oks)
+            x, y, status = np.stack(xs), np.stack(ys), np.stack(statuses)
+            ok = status == 0
             w = self.wl_weights[:, None] * self.pw[None, :] * ok
             wsum = w.sum()
             if wsum <= 0:
@@ -269,9 +269,8 @@ class Merit:
             n_failed += int((~ok).sum())
             # per-field RMS over transmitted rays (the reported figure)
             ms = ((w * ((x - cx) ** 2 + (y - cy) ** 2)).sum() / wsum) if wsum > 0 else math.inf
-            clipped = sum(int((st == RAY_CLIPPED).sum()) for st in statuses)
             per_field.append({"field_deg": f, "rms_spot_um": 1e3 * math.sqrt(ms),
-                              "failed_rays": int((~ok).sum()), "clipped_rays": clipped})
+                              "failed_rays": int((~ok).sum()), "clipped_rays": int((status == RAY_CLIPPED).sum())})
             s = np.sqrt(fw * wt)
             res.append((s * dx).ravel())
             res.append((s * dy).ravel())

@@ -47,7 +47,6 @@ standard error sqrt(y (1 - y) / n).  A design the engine rejects, or one losing 
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
@@ -105,10 +104,7 @@ DEFAULT_PUPIL = {"free": (6, 12), "fixed": (32, 64)}
 
 def free_apertures(lens: dict) -> dict:
     """A copy of a lens dict with every clear semi-diameter removed (no clipping)."""
-    out = copy.deepcopy(lens)
-    for s in out["surfaces"]:
-        s["semi_diameter"] = None
-    return out
+    return traced_apertures(lens, "free")
 
 
 def check_apertures(apertures: str) -> None:
@@ -119,15 +115,11 @@ def check_apertures(apertures: str) -> None:
 def traced_apertures(lens: dict, apertures: str = "free") -> dict:
     """The lens dict as the analysis traces it: ``free`` (no clear apertures) or ``fixed``
     (the prescription's clear semi-diameters, the stop's dropped: the iris follows the
-    f-number, as in the dataset's ``--apertures fixed``)."""
+    f-number): the dataset's ``--apertures auto`` and ``fixed``, by its own definition."""
+    from ..dataset.settings import engine_base
+
     check_apertures(apertures)
-    if apertures == "free":
-        return free_apertures(lens)
-    out = copy.deepcopy(lens)
-    for s in out["surfaces"]:
-        if s.get("stop"):
-            s["semi_diameter"] = None
-    return out
+    return engine_base(lens, "auto" if apertures == "free" else "fixed")
 
 
 def evaluate_fields(merit: Merit, design: dict, apertures: str = "free") -> np.ndarray:

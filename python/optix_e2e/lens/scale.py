@@ -30,7 +30,7 @@ def scale_lens(data: dict, factor: float) -> dict:
     if not (isinstance(factor, (int, float)) and math.isfinite(factor) and factor > 0):
         raise ValueError(f"scale factor must be a positive number, got {factor!r}")
     out = copy.deepcopy(data)
-    for i, srf in enumerate(out["surfaces"], start=1):
+    for srf in out["surfaces"]:
         if "radius" in srf:
             srf["radius"] = _len(srf["radius"], factor)
         if "curvature" in srf and srf["curvature"] is not None:

@@ -36,7 +36,7 @@ from ..tasks.detection import DetectionCamera, heldout_streets, street_batch
 from ..tasks.detector import in_the_dark, make_detector, mean_average_precision
 from . import outputs
 from .config import DesignConfig, check_run_dir
-from .run import build_camera, start_run, train
+from .run import build_camera, design_field_heights, start_run, train
 
 BUNDLED_DETECTOR = Path(__file__).resolve().parent.parent / "tasks" / "bundled" / "street_detector.pt"
 PANEL_SCORE = 0.3   # detections drawn in the panels: score at least this
@@ -184,9 +184,8 @@ def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool
     exact = exact_optics(sur, torch.stack([nominal_values, final_values]).double().numpy(), fallback="huygens")
     with torch.no_grad():
         psf_es, vig_es = sur.psfs(final_values, check=False)
-    from ..camera.stages import image_height_fractions
-    heights = {who: image_height_fractions(outputs.design_lens(sur.manifest, v.numpy(), exact["image_distance"][i]),
-                                           sur.fields_deg) for i, (who, v) in enumerate(values.items())}
+    heights = {who: design_field_heights(sur, v.numpy(), exact["image_distance"][i])
+               for i, (who, v) in enumerate(values.items())}
     h_train = cam.optics.render_fields
     optics = {"nominal": {"exact": (exact["psf"][0], exact["vignetting"][0], heights["nominal"]),
                           "surrogate": (psf_ns, vig_ns, h_train)},

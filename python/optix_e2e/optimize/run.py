@@ -185,18 +185,24 @@ def initial_optics_values(cfg: DesignConfig, optics: DifferentiableOptics) -> to
     raise ValueError("no manufacturable design in 1000 uniform draws of the space")
 
 
+def design_field_heights(sur: OpticsSurrogate, values, image_distance: float) -> torch.Tensor:
+    """The surrogate's fields placed where the design ``values`` images them, its image plane
+    at ``image_distance`` (the chief rays' heights as fractions of the full field)."""
+    from ..camera.stages import image_height_fractions
+    from .outputs import design_lens
+
+    return image_height_fractions(design_lens(sur.manifest, values, image_distance), sur.fields_deg)
+
+
 def nominal_field_heights(sur: OpticsSurrogate) -> torch.Tensor:
     """The surrogate's fields placed where the nominal lens images them (refocused as its
     dataset was): the renderer's field positions in training."""
-    from ..camera.stages import image_height_fractions
     from ..dataset.manifest import space_and_base
-    from .outputs import design_lens
 
     if not sur.manifest:
         return sur.fields
     space, base = space_and_base(sur.manifest)
-    z = float(base.data["surfaces"][-1]["thickness"])
-    return image_height_fractions(design_lens(sur.manifest, space.values(base.data), z), sur.fields_deg)
+    return design_field_heights(sur, space.values(base.data), float(base.data["surfaces"][-1]["thickness"]))
 
 
 def initial_isp_unit(cfg: DesignConfig) -> torch.Tensor:
@@ -419,9 +425,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         psf_es, vig_es = sur.psfs(final_values, check=False)
     # field positions: each design's own chief-ray heights under exact optics, the nominal's
     # (what training used) under the surrogate's
-    from ..camera.stages import image_height_fractions
-    heights = {who: image_height_fractions(outputs.design_lens(sur.manifest, v.numpy(), exact["image_distance"][i]),
-                                           sur.fields_deg)
+    heights = {who: design_field_heights(sur, v.numpy(), exact["image_distance"][i])
                for i, (who, v) in enumerate((("nominal", nominal_values), ("end_to_end", final_values)))}
     h_train = camera.optics.render_fields
     optics = {"nominal": {"exact": (exact["psf"][0], exact["vignetting"][0], heights["nominal"]),
