@@ -56,9 +56,14 @@ def dataset():
 @click.option("--sampling", type=click.Choice(["sobol", "uniform", "lhs"]), default="sobol", show_default=True)
 @click.option("--shards", "shard_range", default=None,
               help="Only these shards: A:B (B exclusive) or K; for several processes on one dataset.")
+@click.option("--dask", "dask_address", metavar="ADDRESS", default=None,
+              help="Run the missing shards as tasks on a Dask cluster: a scheduler address (tcp://host:8786), "
+                   "a scheduler file (*.json), or local:N to start N local worker processes of 1 thread. DIR "
+                   "must be on storage every worker sees at the same path.")
 @friendly_errors
 def generate_cmd(space_spec, n, seed, out_dir, n_fields, window_um, pixel_um, sensor_pixel_um, pupil_samples,
-                 psf_method, accuracy, aiming, channels, apertures, focus, shard_size, sampling, shard_range):
+                 psf_method, accuracy, aiming, channels, apertures, focus, shard_size, sampling, shard_range,
+                 dask_address):
     """Sample N designs from SPACE (a TOML space or a bundled lens's name) and write their
     RGB PSFs at K fields, shard by shard, into DIR.  Running the same command again resumes."""
     from ..dataset import DatasetSettings, generate
@@ -68,8 +73,12 @@ def generate_cmd(space_spec, n, seed, out_dir, n_fields, window_um, pixel_um, se
                         aiming=aiming, channels=channels, apertures=apertures, focus=focus, shard_size=shard_size,
                         sampling=sampling)
     rep = generate(space_spec, n, seed, out_dir, s, shards=shard_range,
-                   log=lambda m: click.echo(m, err=True))
+                   log=lambda m: click.echo(m, err=True), dask=dask_address)
     click.echo(dumps(rep.to_json()))
+    if rep.shard_errors:
+        ks = ", ".join(str(e["shard"]) for e in rep.shard_errors)
+        raise click.ClickException(f"{len(rep.shard_errors)} shard(s) failed on the cluster ({ks}; errors in the "
+                                   f"JSON above); the same command again redoes them")
 
 
 @dataset.command("verify")

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import socket
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
@@ -41,6 +42,7 @@ class GenerateReport:
     shards_skipped: list = field(default_factory=list)
     n_ok: int = 0                 # designs written by this run
     n_failed: int = 0             # designs that failed in the engine in this run
+    shard_errors: list = field(default_factory=list)  # --dask: shards whose task failed, with the error
     seconds: float = 0.0
 
     @property
@@ -62,15 +64,37 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def temporary_name(k: int) -> str:
+    """Shard ``k``'s temporary directory for this process: ``.NNNNN.tmp-<pid>@<host>`` (the
+    host, since Dask workers on several machines write into one shared directory)."""
+    return f".{shard_name(k)}.tmp-{os.getpid()}@{socket.gethostname()}"
+
+
 def _clean_stale(sdir: Path, k: int) -> None:
-    """Remove temporary directories of shard ``k`` left by processes that are gone."""
+    """Remove temporary directories of shard ``k`` left by processes of this host that are
+    gone (another host's processes cannot be asked; see :func:`clean_temporaries`)."""
     for p in sdir.glob(f".{shard_name(k)}.tmp-*"):
+        pid_s, _, host = p.name.split(".tmp-", 1)[1].partition("@")
+        if host and host != socket.gethostname():
+            continue
         try:
-            pid = int(p.name.rsplit("-", 1)[1])
+            pid = int(pid_s)
         except ValueError:
             pid = -1
         if pid != os.getpid() and not _pid_alive(pid):
             shutil.rmtree(p, ignore_errors=True)
+
+
+def clean_temporaries(root: Path, shards) -> int:
+    """Remove every temporary directory of the given finished shards, whoever left it (a
+    worker that died on another host); only safe once no process still works on them.
+    Returns how many were removed."""
+    sdir, n = shards_dir(root), 0
+    for k in shards:
+        for p in sdir.glob(f".{shard_name(k)}.tmp-*"):
+            shutil.rmtree(p, ignore_errors=True)
+            n += 1
+    return n
 
 
 def _complete(root: Path, k: int, man: dict, log: Callable[[str], None]) -> bool:
@@ -201,7 +225,7 @@ def write_shard(root: Path, k: int, arrays: dict, meta: dict) -> bool:
     sdir = shards_dir(root)
     sdir.mkdir(parents=True, exist_ok=True)
     final = sdir / shard_name(k)
-    tmp = sdir / f".{shard_name(k)}.tmp-{os.getpid()}"
+    tmp = sdir / temporary_name(k)
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir()
@@ -243,13 +267,20 @@ def parse_shard_range(spec: str | None, n_shards: int) -> range:
 
 def generate(space_spec: "str | Path", n: int, seed: int, out: "str | Path",
              settings: DatasetSettings | None = None, shards: str | None = None,
-             progress: bool = True, log: Callable[[str], None] = lambda m: None) -> GenerateReport:
-    """Create or finish the dataset in ``out`` (see the module docstring)."""
+             progress: bool = True, log: Callable[[str], None] = lambda m: None,
+             dask: str | None = None) -> GenerateReport:
+    """Create or finish the dataset in ``out`` (see the module docstring).  ``dask``: run
+    the missing shards as tasks on a Dask cluster instead (``local:N``, a scheduler address
+    or a scheduler file; :mod:`.cluster`); ``out`` must then be on storage every worker sees."""
     s = settings or DatasetSettings()
     s.check()
     if n < 1:
         raise ValueError(f"n must be >= 1, got {n}")
     out = Path(out)
+    if dask is not None:  # a malformed address is refused before anything is written
+        from .cluster import parse_address
+
+        parse_address(dask)
     space, base = load_space(space_spec)
     # before anything is written: auto fields take at most the largest K they try
     from ..accuracy.auto import K_FIELDS
@@ -269,6 +300,17 @@ def generate(space_spec: "str | Path", n: int, seed: int, out: "str | Path",
         from tqdm import tqdm
 
         bar = tqdm(total=total, unit="design", desc="dataset", dynamic_ncols=True)
+    if dask is not None:
+        from .cluster import run_shards
+
+        t0 = time.perf_counter()
+        try:
+            run_shards(dask, out, man, pending, rep, bar, log)
+        finally:
+            rep.seconds = time.perf_counter() - t0
+            if bar is not None:
+                bar.close()
+        return rep
     failed = {"n": 0}
 
     def on_batch(done, nfail):

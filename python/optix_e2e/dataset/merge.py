@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Sequence
 
 from .layout import DatasetError, differing_keys, read_manifest, shard_name, shards_dir, write_json_atomic
+from .generate import temporary_name
 from .verify import read_shard_meta
 
 # manifest keys that may differ between processes of one dataset
@@ -55,7 +56,7 @@ def merge(out: "str | Path", parts: Sequence["str | Path"]) -> dict:
             continue
         if srcs[0].resolve() == dst.resolve():
             continue
-        tmp = sdir / f".{shard_name(k)}.tmp-{os.getpid()}"
+        tmp = sdir / temporary_name(k)
         shutil.rmtree(tmp, ignore_errors=True)
         shutil.copytree(srcs[0], tmp)
         os.rename(tmp, dst)

@@ -1,0 +1,134 @@
+"""``optix dataset ... --dask``: shards as Dask tasks give the dataset a single process
+writes (the same verify digest, the same bytes), also when a worker is killed mid-shard;
+task failures are collected per shard and a second run redoes them."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from optix_e2e.cli.dataset import dataset
+from optix_e2e.dataset import DatasetSettings, generate, verify
+from optix_e2e.dataset.cluster import WORKER_ENV, ClusterError, parse_address
+
+distributed = pytest.importorskip("distributed")
+
+# Huygens PSFs make a shard of 24 designs take about half a second on one thread: long
+# enough to kill a worker while it computes one
+N, SEED = 96, 5
+SETTINGS = DatasetSettings(n_fields=3, window_um=32.0, pupil_samples=32, shard_size=24, psf_method="huygens")
+CLI_ARGS = ["paper-triplet", "-n", str(N), "--seed", str(SEED), "--fields", "3", "--window-um", "32",
+            "--pupil-samples", "32", "--shard-size", "24", "--psf-method", "huygens"]
+
+
+def _arrays(root: Path) -> dict:
+    return {f"{d.name}/{f.name}": f.read_bytes()
+            for d in sorted((root / "shards").iterdir()) for f in sorted(d.glob("*.npy"))}
+
+
+@pytest.fixture(scope="module")
+def single(tmp_path_factory) -> Path:
+    """The same dataset written by one process, no Dask."""
+    root = tmp_path_factory.mktemp("single") / "ds"
+    rep = generate("paper-triplet", N, SEED, root, SETTINGS, progress=False)
+    assert rep.shards_written == [0, 1, 2, 3] and rep.n_ok == N
+    return root
+
+
+@pytest.fixture
+def cluster():
+    c = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                                 env={v: "1" for v in WORKER_ENV})
+    yield c
+    c.close()
+
+
+def test_two_worker_local_cluster_has_the_digest_of_a_single_process(single, tmp_path):
+    root = tmp_path / "ds"
+    res = CliRunner().invoke(dataset, [*CLI_ARGS, "--out", str(root), "--dask", "local:2"])
+    assert res.exit_code == 0, res.output
+    assert _arrays(root) == _arrays(single)
+    assert verify(root)["digest"] == verify(single)["digest"]
+    assert not [p for p in (root / "shards").iterdir() if p.name.startswith(".")]
+    # finished: the same command computes nothing
+    rep = generate("paper-triplet", N, SEED, root, SETTINGS, progress=False, dask="local:1")
+    assert rep.shards_written == [] and rep.shards_skipped == [0, 1, 2, 3]
+
+
+def test_a_worker_killed_mid_shard_loses_nothing(single, tmp_path, cluster):
+    """SIGKILL a worker process while it computes a shard: the scheduler gives the task to
+    a worker again, and the finished dataset is byte-identical to a single process's."""
+    root = tmp_path / "ds"
+    box: dict = {}
+
+    def run():
+        try:
+            box["rep"] = generate("paper-triplet", N, SEED, root, SETTINGS, progress=False,
+                                  dask=cluster.scheduler_address)
+        except BaseException as exc:  # reported below
+            box["error"] = exc
+
+    t = threading.Thread(target=run)
+    t.start()
+    killed = None
+    with distributed.Client(cluster.scheduler_address) as client:
+        deadline = time.time() + 120
+        while killed is None and time.time() < deadline and t.is_alive():
+            for addr, keys in client.processing().items():
+                for key in keys:
+                    k = int(str(key).rsplit("-", 1)[1])
+                    if not (root / "shards" / f"{k:05d}").exists():
+                        pid = client.run(os.getpid, workers=[addr])[addr]
+                        os.kill(pid, signal.SIGKILL)
+                        killed = k
+                        break
+                if killed is not None:
+                    break
+            time.sleep(0.01)
+    t.join(300)
+    assert killed is not None, "no shard was caught in flight"
+    assert "error" not in box, box.get("error")
+    rep = box["rep"]
+    assert rep.shard_errors == [] and rep.n_ok == N
+    assert killed in rep.shards_written
+    assert _arrays(root) == _arrays(single)
+    assert verify(root)["digest"] == verify(single)["digest"]
+    assert not [p for p in (root / "shards").iterdir() if p.name.startswith(".")]
+
+
+def test_task_failures_are_collected_and_a_second_run_redoes_them(single, tmp_path, cluster):
+    root = tmp_path / "ds"
+    generate("paper-triplet", N, SEED, root, SETTINGS, progress=False, shards="0")
+    shutil.rmtree(root / "shards")
+    (root / "shards").write_text("not a directory")   # no worker can write a shard
+    rep = generate("paper-triplet", N, SEED, root, SETTINGS, progress=False, dask=cluster.scheduler_address)
+    assert [e["shard"] for e in rep.shard_errors] == [0, 1, 2, 3]
+    assert all("FileExistsError" in e["error"] or "NotADirectoryError" in e["error"] for e in rep.shard_errors)
+    res = CliRunner().invoke(dataset, [*CLI_ARGS, "--out", str(root), "--dask", cluster.scheduler_address])
+    assert res.exit_code == 1 and "4 shard(s) failed on the cluster (0, 1, 2, 3" in res.output
+    (root / "shards").unlink()
+    rep = generate("paper-triplet", N, SEED, root, SETTINGS, progress=False, dask=cluster.scheduler_address)
+    assert rep.shard_errors == [] and rep.shards_written == [0, 1, 2, 3]
+    assert verify(root)["digest"] == verify(single)["digest"]
+
+
+def test_addresses():
+    assert parse_address("local:3") == ("local", 3)
+    assert parse_address("tcp://10.0.0.1:8786") == ("address", "tcp://10.0.0.1:8786")
+    for bad, msg in [("local:0", "N >= 1"), ("local:x", "N >= 1"), ("/nowhere/scheduler.json", "no such scheduler file")]:
+        with pytest.raises(ClusterError, match=msg):
+            parse_address(bad)
+
+
+def test_cli_names_a_bad_address(tmp_path):
+    res = CliRunner().invoke(dataset, [*CLI_ARGS, "--out", str(tmp_path / "ds"), "--dask", "local:0"])
+    assert res.exit_code == 1 and "Error: --dask 'local:0': expected local:N" in res.output
+    assert not (tmp_path / "ds").exists()
+    assert "Traceback" not in res.output
