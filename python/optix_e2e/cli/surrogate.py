@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import click
@@ -50,11 +51,19 @@ def surrogate():
 @friendly_errors
 def train_cmd(data, out_dir, bin_, as_json, **kw):
     """Train a surrogate on the PSF dataset DATA (`optix dataset`). Running the same command
-    again resumes from DIR/state.pt (a larger --steps or --minutes continues a finished run)."""
+    again resumes from DIR/state.pt (a larger --steps or --minutes continues a finished run).
+    `torchrun --nproc_per_node N -m optix_e2e surrogate train ...` trains on N processes
+    (DistributedDataParallel; --batch is the global batch; docs/distributed.md)."""
+    from .. import parallel
     from ..surrogate.train import config_from_options, train
 
     cfg = config_from_options(bin=bin_, **kw)
-    summary = train(data, out_dir, cfg, log=lambda m: click.echo(m, err=True))
+    try:
+        summary = train(data, out_dir, cfg, log=lambda m: click.echo(m, err=True))
+    finally:
+        parallel.teardown()
+    if summary.get("processes", 1) > 1 and int(os.environ.get("RANK", "0")) != 0:
+        return  # rank 0 reports
     if as_json:
         click.echo(dumps({k: v for k, v in summary.items() if k != "history"}))
         return

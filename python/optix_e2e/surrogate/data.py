@@ -103,6 +103,30 @@ def load_arrays(root: "str | Path", psf: str = "psf_sensor", bin: int = 1,
     return out, man
 
 
+def design_indices(root: "str | Path", max_designs: int | None = None) -> tuple[np.ndarray, dict]:
+    """The global indices of the dataset's designs (those the engine traced), ascending; at
+    most ``max_designs`` of them, the first in index order (what :func:`load_arrays` reads
+    with the same argument). Reads only each shard's index array."""
+    root = Path(root)
+    man = read_manifest(root)
+    parts, n = [], 0
+    for k in range(man["n_shards"]):
+        if max_designs is not None and n >= max_designs:
+            break
+        d = shards_dir(root) / shard_name(k)
+        if not d.is_dir():
+            raise DatasetError(f"{d}: shard missing (finish the dataset with the same `optix dataset` command)")
+        arrays, _ = open_shard(root, k, man, check_hashes=("design",))
+        idx = np.asarray(arrays["design"])
+        if max_designs is not None:
+            idx = idx[:max_designs - n]
+        parts.append(idx)
+        n += len(idx)
+    if n == 0:
+        raise DatasetError(f"{root}: no designs to read")
+    return np.concatenate(parts), man
+
+
 def to_tensors(a: PsfArrays, device="cpu") -> dict[str, torch.Tensor]:
     return {"params": torch.as_tensor(a.params, dtype=torch.float32, device=device),
             "psf": torch.as_tensor(a.psf, device=device),

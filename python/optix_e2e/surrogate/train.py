@@ -6,6 +6,12 @@ held-out validation split, and checkpoints that a later run of the same command 
   state.pt       model + optimizer + step + random state + history: what resuming needs
   tb/            TensorBoard logs (train/loss and its four terms, val/*, lr)
   train.json     summary: config, data, steps, time, validation history
+
+Under ``torchrun --nproc_per_node N`` the N processes train one model with
+DistributedDataParallel (optix_e2e.parallel): every rank draws the same global batch of
+(design, field) samples from the seed and computes the samples of the training designs it
+holds (design positions rank, rank + N, ...: each design in one rank's memory, none twice),
+so the run follows the single-process run's path; rank 0 validates and writes everything.
 """
 
 from __future__ import annotations
@@ -21,9 +27,10 @@ import torch
 from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
+from .. import parallel
 from ..torchfile import load_plain
 from .checkpoint import OpticsSurrogate, save_atomic
-from .data import load_arrays, psf_grid, psf_pitch_um, to_tensors
+from .data import design_indices, load_arrays, psf_grid, psf_pitch_um, to_tensors
 from .loss import LossWeights, optics_loss_terms
 from .model import SurrogateConfig
 
@@ -61,12 +68,6 @@ class TrainConfig:
     @property
     def weights(self) -> LossWeights:
         return LossWeights(self.loss_pixel, self.loss_fourier, self.loss_gradient, self.loss_vignetting)
-
-
-def pick_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
 
 
 def _lr(cfg: TrainConfig, step: int, seconds: float) -> float:
@@ -155,15 +156,26 @@ def _start_from(model: OpticsSurrogate, spec: str) -> None:
     model.net.load_state_dict(state)
 
 
+def _vignetting_mean(vig: torch.Tensor, ranks: parallel.Ranks) -> np.ndarray:
+    """The mean relative illumination per channel over every rank's training designs and
+    fields, as a [1, C] array (what build_model averages)."""
+    v = vig.double().reshape(-1, vig.shape[-1])
+    tot = parallel.all_sum(torch.cat([v.sum(0), torch.tensor([float(v.shape[0])], dtype=torch.float64)]), ranks)
+    return (tot[:-1] / tot[-1]).numpy()[None]
+
+
 def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, progress: bool = True,
           log=lambda m: None, stop_after: int | None = None) -> dict:
     """Train a surrogate on the dataset in ``data_root``, or resume the run in ``out_dir``.
     ``stop_after``: leave this call after that many steps (as an interruption would; the
-    next call resumes)."""
+    next call resumes). Under torchrun, every rank calls it (see the module docstring)."""
     out_dir = Path(out_dir)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
-    device = pick_device(cfg.device)
+    ranks = parallel.setup(cfg.device)
+    device, W = ranks.device, ranks.world
+    if not ranks.is_main:
+        progress, log = False, (lambda m: None)
     state_path = out_dir / "state.pt"
     resumed = None
     if state_path.exists():
@@ -178,21 +190,25 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
                              f"use the same options or another --out")
         log(f"resuming {state_path} at step {resumed['step']}")
 
-    arrays, man = load_arrays(data_root, cfg.psf, cfg.bin, max_designs=cfg.max_designs or None,
-                              progress=None)
+    designs, man = design_indices(data_root, cfg.max_designs or None)
     if resumed and resumed["data"]["designs_csv_sha256"] != man["designs_csv_sha256"]:
         raise ValueError(f"{state_path}: that run trained on another dataset than {data_root}")
-    tr_rows, va_rows = _split(arrays.design, cfg.val_designs, cfg.seed)
-    train_t = to_tensors(arrays.subset(tr_rows), device)
-    val_t = to_tensors(arrays.subset(va_rows), device)
+    tr_rows, va_rows = _split(designs, cfg.val_designs, cfg.seed)
+    if len(tr_rows) < W:
+        raise ValueError(f"{len(tr_rows)} training designs cannot be shared by {W} processes")
+    mine = designs[tr_rows][ranks.rank::W]   # training design at position p: rank p % W, row p // W
+    arrays, man = load_arrays(data_root, cfg.psf, cfg.bin,
+                              designs=np.concatenate([mine, designs[va_rows]]) if ranks.is_main else mine)
+    in_train = np.isin(arrays.design, mine)
+    train_t = to_tensors(arrays.subset(np.flatnonzero(in_train)), device)
+    val_t = to_tensors(arrays.subset(np.flatnonzero(~in_train)), device) if ranks.is_main else None
     data_meta = {"root": str(Path(data_root).resolve()), "designs_csv_sha256": man["designs_csv_sha256"],
                  "n_train_designs": int(len(tr_rows)), "n_val_designs": int(len(va_rows)),
-                 "val_designs": arrays.design[va_rows].tolist()}
+                 "val_designs": designs[va_rows].tolist()}
     del arrays
 
     torch.manual_seed(cfg.seed)
-    model = build_model(cfg, man, train_t["vignetting"].cpu().numpy(),
-                        {"data": data_meta}).to(device)
+    model = build_model(cfg, man, _vignetting_mean(train_t["vignetting"].cpu(), ranks), {"data": data_meta}).to(device)
     opt = torch.optim.Adam(model.net.parameters(), lr=cfg.lr)
     gen = torch.Generator(device="cpu").manual_seed(cfg.seed)
     step, seconds, history = 0, 0.0, []
@@ -205,8 +221,13 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
         gen.set_state(resumed["generator"])
         step, seconds, history = resumed["step"], resumed["seconds"], resumed["history"]
     model.train()
-    writer = SummaryWriter(str(out_dir / "tb"))
-    n_tr, k = train_t["params"].shape[0], len(man["fields_deg"])
+    net = model.net
+    if ranks.distributed:  # averages the gradients over the ranks in backward
+        from torch.nn.parallel import DistributedDataParallel
+
+        net = DistributedDataParallel(model.net, device_ids=[device.index] if device.type == "cuda" else None)
+    writer = SummaryWriter(str(out_dir / "tb")) if ranks.is_main else None
+    n_tr, k = len(tr_rows), len(man["fields_deg"])
     fields = model.fields
     bar = tqdm(total=cfg.steps, initial=step, desc="train surrogate", unit="step", disable=not progress)
     t_start = time.time() - seconds
@@ -222,44 +243,64 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
                      "history": history, "data": data_meta}, state_path)
 
     while step < cfg.steps:
-        d = torch.randint(n_tr, (cfg.batch,), generator=gen).to(device)
-        f = torch.randint(k, (cfg.batch,), generator=gen).to(device)
-        psf, vig = model.net(model.normalize(train_t["params"][d]), fields[f])
-        terms = optics_loss_terms(psf, vig, train_t["psf"][d, f], train_t["vignetting"][d, f])
-        loss = cfg.weights.total(terms)
+        # the global batch, the same on every rank; this rank computes the samples of its designs
+        d = torch.randint(n_tr, (cfg.batch,), generator=gen)
+        f = torch.randint(k, (cfg.batch,), generator=gen)
+        if W > 1:
+            own = d % W == ranks.rank
+            d, f = d[own] // W, f[own]
+        d, f = d.to(device), f.to(device)
+        psf, vig = net(model.normalize(train_t["params"][d]), fields[f])
+        if len(d):
+            terms = optics_loss_terms(psf, vig, train_t["psf"][d, f], train_t["vignetting"][d, f])
+        else:  # none of this global batch's samples is in this rank's designs: a zero share
+            terms = dict.fromkeys(("pixel", "fourier", "gradient", "vignetting"), psf.sum() * 0 + vig.sum() * 0)
+        share = len(d) / cfg.batch  # this rank's part of the global batch mean
+        loss = cfg.weights.total(terms) * share
         opt.zero_grad(set_to_none=True)
-        loss.backward()
+        (loss * W).backward()       # DistributedDataParallel divides the summed gradients by W
         torch.nn.utils.clip_grad_norm_(model.net.parameters(), cfg.clip_grad)
-        lr = _lr(cfg, step, time.time() - t_start)
+        elapsed = time.time() - t_start
+        if cfg.minutes:  # rank 0's clock, so that every rank anneals and stops alike
+            elapsed = parallel.broadcast_value(elapsed, ranks)
+        lr = _lr(cfg, step, elapsed)
         for group in opt.param_groups:
             group["lr"] = lr
         opt.step()
         step += 1
-        if step % 10 == 0:
-            writer.add_scalar("train/loss", loss.item(), step)
-            for name, v in terms.items():
-                writer.add_scalar(f"train/{name}", v.item(), step)
+        out_of_time = cfg.minutes and elapsed > 60 * cfg.minutes
+        interrupted = stop_after is not None and step - first_step >= stop_after
+        validating = step % cfg.val_every == 0 or step >= cfg.steps or out_of_time or interrupted
+        if step % 10 == 0 or validating:  # the global batch's loss and terms (a collective call)
+            names = list(terms)
+            glob = parallel.all_sum(torch.stack([loss.detach()] + [terms[n].detach() * share for n in names]), ranks)
+            loss_g, terms_g = float(glob[0]), {n: float(v) for n, v in zip(names, glob[1:])}
+        if writer is not None and step % 10 == 0:
+            writer.add_scalar("train/loss", loss_g, step)
+            for name, v in terms_g.items():
+                writer.add_scalar(f"train/{name}", v, step)
             writer.add_scalar("train/lr", lr, step)
         bar.update(1)
         if step % 50 == 0:
-            bar.set_postfix(loss=f"{loss.item():.4f}", l1=f"{terms['pixel'].item():.4f}")
-        out_of_time = cfg.minutes and (time.time() - t_start) > 60 * cfg.minutes
-        interrupted = stop_after is not None and step - first_step >= stop_after
-        if step % cfg.val_every == 0 or step >= cfg.steps or out_of_time or interrupted:
+            bar.set_postfix(loss=f"{loss_g:.4f}", l1=f"{terms_g['pixel']:.4f}")
+        if validating and ranks.is_main:
             val = validate(model, val_t)
             for name, v in val.items():
                 writer.add_scalar(f"val/{name}", v, step)
-            history.append({"step": step, "seconds": round(time.time() - t_start, 1), "loss": loss.item(), **val})
+            history.append({"step": step, "seconds": round(time.time() - t_start, 1), "loss": loss_g, **val})
             checkpoint(val)
             writer.flush()
         if out_of_time or interrupted:
             break
     bar.close()
-    writer.close()
     summary = {"steps_done": step, "seconds": round(time.time() - t_start, 1), "device": str(device),
-               "config": asdict(cfg), "data": {k2: v for k2, v in data_meta.items() if k2 != "val_designs"},
+               "processes": W, "config": asdict(cfg),
+               "data": {k2: v for k2, v in data_meta.items() if k2 != "val_designs"},
                "final_val": history[-1] if history else None, "history": history}
-    (out_dir / "train.json").write_text(json.dumps(summary, indent=2))
+    if ranks.is_main:
+        writer.close()
+        (out_dir / "train.json").write_text(json.dumps(summary, indent=2))
+    parallel.barrier(ranks)  # the files are written when any rank returns
     return summary
 
 

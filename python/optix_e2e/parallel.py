@@ -1,0 +1,156 @@
+"""Data-parallel training over processes started by ``torchrun`` (docs/distributed.md).
+
+``torchrun --nproc_per_node N -m optix_e2e surrogate train ...`` (or ``... design ...``)
+starts N copies of the command; each reads its rank from the environment torchrun sets
+(RANK, WORLD_SIZE, LOCAL_RANK, MASTER_ADDR, MASTER_PORT) and :func:`setup` joins them in
+one process group: gloo on CPU, NCCL on CUDA (one GPU per process, ``cuda:LOCAL_RANK``).
+Without those variables everything here is the single-process no-op, so the same code
+runs with or without torchrun.
+
+Every rank computes its part of each global batch; gradients are averaged over the ranks
+before the optimizer step (by DistributedDataParallel for the surrogate, by
+:func:`average_gradients` where the optimizer switches parameter blocks on and off);
+rank 0 alone writes checkpoints, logs and results.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import torch
+import torch.distributed as dist
+
+
+@dataclass(frozen=True)
+class Ranks:
+    """This process's place in the group: rank, world size, local rank, its torch device."""
+    rank: int = 0
+    world: int = 1
+    local_rank: int = 0
+    device: torch.device = torch.device("cpu")
+
+    @property
+    def is_main(self) -> bool:
+        """Rank 0: the one process that writes files and logs."""
+        return self.rank == 0
+
+    @property
+    def distributed(self) -> bool:
+        return self.world > 1
+
+
+def _env_int(name: str, default: int) -> int:
+    v = os.environ.get(name)
+    if v is None:
+        return default
+    try:
+        return int(v)
+    except ValueError:
+        raise ValueError(f"environment variable {name}={v!r} is not an integer (set by torchrun)") from None
+
+
+def pick_device(name: str, local_rank: int = 0) -> torch.device:
+    """``auto``: CUDA when present (under torchrun, the process's own GPU), else CPU."""
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    dev = torch.device(name)
+    if dev.type == "cuda" and dev.index is None:
+        dev = torch.device("cuda", local_rank)
+    return dev
+
+
+def setup(device: str = "auto") -> Ranks:
+    """Join torchrun's process group (once; later calls return the same ranks) and pick the
+    device. A single process (no WORLD_SIZE, or 1) gets ``Ranks(device=...)``."""
+    world = _env_int("WORLD_SIZE", 1)
+    rank, local = _env_int("RANK", 0), _env_int("LOCAL_RANK", 0)
+    dev = pick_device(device, local)
+    if world <= 1:
+        return Ranks(device=dev)
+    if not 0 <= rank < world:
+        raise ValueError(f"RANK={rank} is outside WORLD_SIZE={world}")
+    if not dist.is_initialized():
+        if dev.type == "cuda":
+            torch.cuda.set_device(dev)
+        dist.init_process_group(backend="nccl" if dev.type == "cuda" else "gloo")
+    return Ranks(rank, world, local, dev)
+
+
+def teardown() -> None:
+    if dist.is_available() and dist.is_initialized():
+        dist.destroy_process_group()
+
+
+def barrier(ranks: Ranks) -> None:
+    if ranks.distributed:
+        dist.barrier()
+
+
+def all_sum(x: torch.Tensor, ranks: Ranks) -> torch.Tensor:
+    """The sum over ranks of ``x`` (a copy; ``x`` itself where single-process)."""
+    if not ranks.distributed:
+        return x
+    y = x.detach().clone().to(ranks.device)
+    dist.all_reduce(y, op=dist.ReduceOp.SUM)
+    return y.to(x.device)
+
+
+def broadcast_value(x: float, ranks: Ranks) -> float:
+    """Rank 0's value of a number (a clock reading every rank must agree on)."""
+    if not ranks.distributed:
+        return x
+    t = torch.tensor([x], dtype=torch.float64, device=ranks.device)
+    dist.broadcast(t, 0)
+    return float(t.item())
+
+
+def broadcast_params(params, ranks: Ranks) -> None:
+    """Copy rank 0's parameter values to every rank (in place)."""
+    if not ranks.distributed:
+        return
+    with torch.no_grad():
+        for p in params:
+            buf = p.data.to(ranks.device)
+            dist.broadcast(buf, 0)
+            p.data.copy_(buf.to(p.device))
+
+
+def average_gradients(params, ranks: Ranks, extra: torch.Tensor | None = None) -> torch.Tensor | None:
+    """Average the gradients of ``params`` over the ranks in one all-reduce, what
+    DistributedDataParallel does after backward; parameters without a gradient on this rank
+    count as zeros (every rank must pass the same list). ``extra`` (e.g. the loss) rides
+    along and comes back averaged."""
+    if not ranks.distributed:
+        return extra
+    params = [p for p in params if p.requires_grad]
+    flat = [(p.grad if p.grad is not None else torch.zeros_like(p)).reshape(-1) for p in params]
+    if extra is not None:
+        flat.append(extra.detach().reshape(-1).to(flat[0].dtype if flat else torch.float32))
+    if not flat:
+        return extra
+    dtype = torch.float64 if any(f.dtype == torch.float64 for f in flat) else torch.float32
+    buf = torch.cat([f.to(ranks.device, dtype) for f in flat])
+    dist.all_reduce(buf, op=dist.ReduceOp.SUM)
+    buf /= ranks.world
+    i = 0
+    for p in params:
+        n = p.numel()
+        g = buf[i:i + n].view_as(p).to(p.device, p.dtype)
+        if p.grad is None:
+            p.grad = g.clone()
+        else:
+            p.grad.copy_(g)
+        i += n
+    if extra is None:
+        return None
+    return buf[i:i + extra.numel()].view_as(extra).to(extra.device, extra.dtype)
+
+
+def batch_slice(batch: int, ranks: Ranks) -> slice:
+    """This rank's contiguous part of a global batch of ``batch`` samples (equal parts)."""
+    if batch % ranks.world:
+        raise ValueError(f"the batch of {batch} does not split evenly over {ranks.world} processes "
+                         f"(torchrun --nproc_per_node); use a multiple of {ranks.world}")
+    n = batch // ranks.world
+    return slice(ranks.rank * n, (ranks.rank + 1) * n)

@@ -1,0 +1,138 @@
+"""Training on several processes started by torchrun (gloo on CPU; optix_e2e.parallel):
+2 processes follow the single process's path for the same global batch and seed, rank 0
+alone writes, a run resumes, the training designs are split over the ranks without
+duplicates."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from optix_e2e import parallel
+from optix_e2e.dataset import DatasetSettings, generate
+from optix_e2e.surrogate import OpticsSurrogate
+
+HERE = Path(__file__).resolve().parent
+TINY = ["--hidden", "32", "--depth", "2", "--base-channels", "16", "--batch", "32", "--val-designs", "8",
+        "--val-every", "20", "--json"]
+# float32 gradients summed in another order (per rank, then across ranks): after 40 Adam
+# steps the losses agree to about 1e-7 relative; 1e-4 leaves room and still catches a rank
+# that computes the wrong samples (then they differ from the first step, by percents)
+REL_TOL = 1e-4
+
+
+def _torchrun(nproc: int, *args, spy: Path | None = None, out: Path | None = None) -> subprocess.CompletedProcess:
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    if spy is not None:
+        spy.mkdir(parents=True, exist_ok=True)
+        env.update(OPTIX_SPY_DIR=str(spy), OPTIX_SPY_OUT=str(out))
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", str(nproc),
+           str(HERE / "ddp_spy.py") if spy is not None else "-m", *([] if spy is not None else ["optix_e2e"]), *args]
+    res = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr[-3000:]
+    return res
+
+
+def _single(*args) -> subprocess.CompletedProcess:
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    res = subprocess.run([sys.executable, "-m", "optix_e2e", *args], capture_output=True, text=True, env=env,
+                         timeout=600)
+    assert res.returncode == 0, res.stderr[-3000:]
+    return res
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("ddp") / "data"
+    generate("paper-triplet-v1", 48, 3, root, DatasetSettings(shard_size=16), progress=False)
+    return root
+
+
+@pytest.fixture(scope="module")
+def one_process(data, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("ddp") / "one"
+    _single("surrogate", "train", str(data), "--out", str(out), "--steps", "40", *TINY)
+    return out
+
+
+def _history(run: Path) -> list[dict]:
+    return json.loads((run / "train.json").read_text())["history"]
+
+
+def test_two_processes_follow_the_single_process_and_rank_0_alone_writes(data, one_process, tmp_path):
+    out, spy = tmp_path / "two", tmp_path / "spy"
+    res = _torchrun(2, "surrogate", "train", str(data), "--out", str(out), "--steps", "40", *TINY, spy=spy, out=out)
+    summary = json.loads(res.stdout.strip().splitlines()[-1])   # rank 0 alone prints it
+    assert summary["processes"] == 2 and summary["steps_done"] == 40
+    one, two = _history(one_process), _history(out)
+    assert [h["step"] for h in two] == [h["step"] for h in one] == [20, 40]
+    for a, b in zip(one, two):
+        assert b["loss"] == pytest.approx(a["loss"], rel=REL_TOL)
+        assert b["psf_rel_l1_median"] == pytest.approx(a["psf_rel_l1_median"], rel=REL_TOL)
+    assert one[0]["loss"] != pytest.approx(one[1]["loss"], rel=1e-3)  # the training moved
+    # the two models predict the same PSFs (weights are compared through what they do: the
+    # last layer's bias is a direction the unit-sum PSF ignores, where Adam moves on noise)
+    m1, m2 = OpticsSurrogate.load(one_process / "surrogate.pt"), OpticsSurrogate.load(out / "surrogate.pt")
+    params = torch.as_tensor(np.loadtxt(data / "designs.csv", delimiter=",", skiprows=1)[:8, 1:], dtype=torch.float32)
+    with torch.no_grad():
+        (p1, v1), (p2, v2) = m1.psfs(params, check=False), m2.psfs(params, check=False)
+    torch.testing.assert_close(p2, p1, rtol=1e-3, atol=1e-6)
+    torch.testing.assert_close(v2, v1, rtol=1e-3, atol=1e-6)
+    # rank 0 wrote the checkpoints, the summary and the TensorBoard log; rank 1 nothing
+    rank0 = json.loads((spy / "rank0.json").read_text())
+    rank1 = json.loads((spy / "rank1.json").read_text())
+    assert rank1 == []
+    for name in ("surrogate.pt", "state.pt", "train.json"):
+        assert any(e.endswith(name) for e in rank0), name
+    assert len(list((out / "tb").iterdir())) == 1
+    assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in one_process.iterdir())
+
+
+def test_a_two_process_run_resumes(data, one_process, tmp_path):
+    """20 steps, then the same command with --steps 40 resumes from state.pt; the learning
+    rate is still in its warm-up (200 steps), so the path is the 40-step run's."""
+    out = tmp_path / "two"
+    _torchrun(2, "surrogate", "train", str(data), "--out", str(out), "--steps", "20", *TINY)
+    res = _torchrun(2, "surrogate", "train", str(data), "--out", str(out), "--steps", "40", *TINY)
+    assert "resuming" in res.stderr and json.loads(res.stdout.strip().splitlines()[-1])["steps_done"] == 40
+    one, two = _history(one_process), _history(out)
+    assert [h["step"] for h in two] == [20, 40]
+    assert two[-1]["loss"] == pytest.approx(one[-1]["loss"], rel=REL_TOL)
+
+
+def test_training_designs_are_split_over_the_ranks_without_duplicates(data):
+    """What each rank loads (train.py: positions rank, rank + W, ... of the training designs)
+    covers the training designs once, and the global batch's samples go to exactly one rank."""
+    from optix_e2e.surrogate.data import design_indices
+    from optix_e2e.surrogate.train import _split
+
+    designs, _ = design_indices(data)
+    tr, va = _split(designs, 8, 0)
+    for world in (1, 2, 3):
+        parts = [designs[tr][r::world] for r in range(world)]
+        joined = np.sort(np.concatenate(parts))
+        assert np.array_equal(joined, np.sort(designs[tr])) and len(set(joined.tolist())) == len(joined)
+        assert not set(joined.tolist()) & set(designs[va].tolist())
+        d = torch.randint(len(tr), (256,), generator=torch.Generator().manual_seed(0))
+        owners = [(d % world == r) for r in range(world)]
+        assert torch.equal(sum(o.int() for o in owners), torch.ones(256, dtype=torch.int32))
+        for r in range(world):  # local row d // world of rank r is the design at global position d
+            assert np.array_equal(parts[r][(d[owners[r]] // world).numpy()], designs[tr][d[owners[r]].numpy()])
+
+
+def test_single_process_helpers_are_no_ops():
+    ranks = parallel.setup("cpu")
+    assert ranks.world == 1 and ranks.is_main and not ranks.distributed
+    x = torch.tensor([1.0, 2.0])
+    assert parallel.all_sum(x, ranks) is x and parallel.broadcast_value(3.5, ranks) == 3.5
+    assert parallel.batch_slice(6, ranks) == slice(0, 6)
+    assert parallel.batch_slice(6, parallel.Ranks(rank=1, world=2)) == slice(3, 6)
+    with pytest.raises(ValueError, match="batch of 5 does not split evenly over 2 processes"):
+        parallel.batch_slice(5, parallel.Ranks(rank=0, world=2))
