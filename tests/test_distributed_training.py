@@ -136,3 +136,81 @@ def test_single_process_helpers_are_no_ops():
     assert parallel.batch_slice(6, parallel.Ranks(rank=1, world=2)) == slice(3, 6)
     with pytest.raises(ValueError, match="batch of 5 does not split evenly over 2 processes"):
         parallel.batch_slice(5, parallel.Ranks(rank=0, world=2))
+
+
+# ----- optix design: the optimizers' gradient average, and a run under torchrun ----------------
+def _toy(kind: str):
+    """Two parameter blocks of a small regression, float64, and Alg. 1 (with its prox term)
+    or vanilla over them; a batch of 8 samples."""
+    from optix_e2e.optimize.alg1 import Block, ProximalCompositional, Vanilla
+
+    g = torch.Generator().manual_seed(0)
+    x, y = torch.randn(8, 3, generator=g, dtype=torch.float64), torch.randn(8, generator=g, dtype=torch.float64)
+    a = torch.nn.Parameter(torch.randn(3, generator=g, dtype=torch.float64))
+    b = torch.nn.Parameter(torch.randn(1, generator=g, dtype=torch.float64))
+    blocks = [Block("a", [a], 0.05, steps=2, beta=0.5), Block("b", [b], 0.1, steps=1, beta=0.2)]
+    opt = ProximalCompositional(blocks, n_cycles=2, n_finetune=3) if kind == "alg1" else Vanilla(blocks, 0.05, 7)
+
+    def loss(part: slice):
+        r = torch.tanh(x[part] @ a) + b - y[part]
+        return (r ** 2).mean(), {"l1": float(r.detach().abs().mean())}
+    return [a, b], opt, loss
+
+
+def _toy_worker(rank: int, world: int, port: int, out: str, kind: str) -> None:
+    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world),
+                      LOCAL_RANK=str(rank))
+    ranks = parallel.setup("cpu")
+    params, opt, loss = _toy(kind)
+    opt.reduce = lambda ps, task, info: parallel.average_step(ranks, ps, task, info)
+    part = parallel.batch_slice(8, ranks)
+    losses = [opt.step(lambda: loss(part))["loss"] for _ in range(opt.total_steps)]
+    Path(out, f"rank{rank}.json").write_text(json.dumps({"params": [p.tolist() for p in params], "loss": losses}))
+    parallel.teardown()
+
+
+@pytest.mark.parametrize("kind", ["alg1", "vanilla"])
+def test_design_optimizers_average_gradients_over_processes(kind, tmp_path):
+    """Alg. 1 (block turns, prox terms, joint fine-tuning) and vanilla on 2 gloo processes,
+    each on half of every batch, land where 1 process on the whole batches does (float64:
+    to 1e-12), and report the whole batch's loss."""
+    import socket
+
+    import torch.multiprocessing as mp
+
+    params, opt, loss = _toy(kind)
+    ref_losses = [opt.step(lambda: loss(slice(0, 8)))["loss"] for _ in range(opt.total_steps)]
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    mp.spawn(_toy_worker, args=(2, port, str(tmp_path), kind), nprocs=2)
+    for r in (0, 1):
+        got = json.loads((tmp_path / f"rank{r}.json").read_text())
+        for p, q in zip(params, got["params"]):
+            np.testing.assert_allclose(q, p.tolist(), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(got["loss"], ref_losses, rtol=1e-6)  # float32 all-reduce of the loss
+    assert not np.allclose(params[0].tolist(), _toy(kind)[0][0].tolist())  # the parameters moved
+
+
+def test_a_design_run_under_torchrun_writes_from_rank_0_and_resumes(tmp_path):
+    cfg = tmp_path / "b2.toml"
+    cfg.write_text("batch = 2\n")
+    out, spy = tmp_path / "run", tmp_path / "spy"
+    args = ["design", "iq-hardware", "--budget", "smoke", "--config", str(cfg), "--out", str(out), "--quiet"]
+    res = _torchrun(2, *args, spy=spy, out=out)
+    assert res.stdout.count('"results"') == 1                     # rank 0 alone reports
+    assert json.loads((spy / "rank1.json").read_text()) == []     # and writes
+    results = json.loads((out / "results.json").read_text())
+    assert results["training"]["end_to_end"]["steps"] == 6 and np.isfinite(results["paired"]["psnr_db"]["mean"])
+    hist = (out / "history.csv").read_text()
+    res2 = _torchrun(2, *args)
+    assert "end_to_end: resuming at step 6 of 6" in res2.stdout
+    assert (out / "history.csv").read_text() == hist
+    bad = tmp_path / "b3.toml"
+    bad.write_text("batch = 3\n")
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    res3 = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+                           "-m", "optix_e2e", *args[:4], "--config", str(bad), "--out", str(tmp_path / "bad"), "--quiet"],
+                          capture_output=True, text=True, env=env, timeout=600)
+    assert res3.returncode != 0 and "the batch of 3 does not split evenly over 2 processes" in res3.stderr
+    assert not (tmp_path / "bad").exists()

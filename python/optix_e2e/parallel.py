@@ -147,6 +147,17 @@ def average_gradients(params, ranks: Ranks, extra: torch.Tensor | None = None) -
     return buf[i:i + extra.numel()].view_as(extra).to(extra.device, extra.dtype)
 
 
+def average_step(ranks: Ranks, params, task: torch.Tensor, info: dict) -> tuple[torch.Tensor, dict]:
+    """An optimizer's ``reduce`` (optimize/alg1.py): average the gradients of ``params``, the
+    task loss and the info's numbers over the ranks, in one all-reduce."""
+    keys = [k for k, v in info.items() if isinstance(v, (int, float)) and not isinstance(v, bool)]
+    extra = torch.tensor([float(task.detach()), *(float(info[k]) for k in keys)], dtype=torch.float64)
+    avg = average_gradients(params, ranks, extra)
+    if avg is None or not ranks.distributed:
+        return task, info
+    return avg[0].to(task.dtype), {**info, **{k: float(v) for k, v in zip(keys, avg[1:])}}
+
+
 def batch_slice(batch: int, ranks: Ranks) -> slice:
     """This rank's contiguous part of a global batch of ``batch`` samples (equal parts)."""
     if batch % ranks.world:

@@ -37,7 +37,10 @@ def design(task, out, config_file, optimizer, budget, seed, surrogate, images, o
     processing fine-tuned for the same budget, and evaluate both under the exact engine's PSFs
     on held-out images. Running the same command again resumes an interrupted run.
     detection: lens (with its f-number), hardware ISP and detector, scored by mAP on held-out
-    street scenes at dusk (docs/detection.md)."""
+    street scenes at dusk (docs/detection.md).
+    `torchrun --nproc_per_node N -m optix_e2e design ...` shares each training batch over N
+    processes (gloo; the batch must divide by N; docs/distributed.md)."""
+    from .. import parallel
     from ..optimize.config import make_config
     from ..optimize.run import run_design
 
@@ -50,7 +53,12 @@ def design(task, out, config_file, optimizer, budget, seed, surrogate, images, o
             raise click.UsageError("--optics exact and hybrid are for the image-quality tasks (detection: surrogate)")
         from ..optimize.detection_run import run_detection_design
 
-        res = run_detection_design(cfg, Path(out), progress=not quiet, log=click.echo)
+        try:
+            res = run_detection_design(cfg, Path(out), progress=not quiet, log=click.echo)
+        finally:
+            parallel.teardown()
+        if res is None:  # not rank 0 of a torchrun run: rank 0 reports
+            return
         n, e, p = res["nominal"], res["end_to_end"], res["paired"]
         click.echo(f"held-out ({res['held_out']['n_images']} street scenes, {res['held_out']['n_objects']} objects, "
                    f"{res['held_out']['n_objects_dark']} in the dark), exact optics, reference ISP:")
@@ -63,7 +71,12 @@ def design(task, out, config_file, optimizer, budget, seed, surrogate, images, o
                    f"wall {res['wall_s']:.0f} s)")
         click.echo(dumps({"results": str(Path(out) / "results.json"), "wall_s": res["wall_s"]}))
         return
-    res = run_design(cfg, Path(out), progress=not quiet, log=click.echo)
+    try:
+        res = run_design(cfg, Path(out), progress=not quiet, log=click.echo)
+    finally:
+        parallel.teardown()
+    if res is None:
+        return
     n, e, p = res["nominal"], res["end_to_end"], res["paired"]
     click.echo(f"held-out ({res['held_out']['n_images']} images x {res['held_out']['per_image']} positions), "
                f"exact optics:")

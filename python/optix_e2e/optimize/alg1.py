@@ -20,6 +20,10 @@ weights, the weights.
 
 Both optimizers step one at a time (``step(loss_fn)``) so a run can be checkpointed at any
 step: ``state_dict`` holds the step counter, the Adam moments and the current anchor.
+
+Data-parallel runs (torchrun) set ``reduce``: called after backward with the parameters
+about to step, the task loss and the loss's info, it averages the gradients over the
+processes (optix_e2e.parallel.average_step) and returns the averaged loss and info.
 """
 
 from __future__ import annotations
@@ -76,6 +80,7 @@ class ProximalCompositional:
         self.opts = {b.name: torch.optim.Adam(b.params, lr=b.lr) for b in blocks}
         self.t = 0
         self.anchor: list[torch.Tensor] | None = None
+        self.reduce: Callable | None = None
 
     @property
     def cycle_len(self) -> int:
@@ -119,6 +124,8 @@ class ProximalCompositional:
             prox = block.beta * sum(((block.coord(p) - a) ** 2).sum() for p, a in zip(block.params, self.anchor))
             loss = task + prox
         loss.backward()
+        if self.reduce is not None:
+            task, info = self.reduce([p for o in opts for g in o.param_groups for p in g["params"]], task, info)
         for o in opts:
             o.step()
         self.t += 1
@@ -153,6 +160,7 @@ class Vanilla:
         self.blocks, self.lr, self._total = blocks, float(lr), int(total_steps)
         self.opt = torch.optim.Adam([p for b in blocks for p in b.params], lr=self.lr)
         self.t = 0
+        self.reduce: Callable | None = None
 
     @property
     def total_steps(self) -> int:
@@ -169,6 +177,8 @@ class Vanilla:
         out = loss_fn()
         task, info = out if isinstance(out, tuple) else (out, {})
         task.backward()
+        if self.reduce is not None:
+            task, info = self.reduce([p for g in self.opt.param_groups for p in g["params"]], task, info)
         self.opt.step()
         self.t += 1
         return {"step": self.t, "phase": "joint", "block": "all", "loss": float(task.detach()), "prox": 0.0, **info}

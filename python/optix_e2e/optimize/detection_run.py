@@ -27,6 +27,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from .. import parallel
 from ..camera import Camera, FixedOptics
 from ..dataset.layout import write_json_atomic
 from ..lens import Lens
@@ -35,7 +36,7 @@ from ..tasks import SensorFrame, get_task
 from ..tasks.detection import DetectionCamera, heldout_streets, street_batch
 from ..tasks.detector import in_the_dark, make_detector, mean_average_precision
 from . import outputs
-from .config import DesignConfig, check_run_dir
+from .config import DesignConfig
 from .run import build_camera, design_field_heights, start_run, train
 
 BUNDLED_DETECTOR = Path(__file__).resolve().parent.parent / "tasks" / "bundled" / "street_detector.pt"
@@ -61,12 +62,13 @@ def build_detection_camera(cfg: DesignConfig, sur, *, fixed_optics: FixedOptics 
                            load_start_detector(cfg, cfg.crop_hw))
 
 
-def _loss_at(cfg: DesignConfig, cam: DetectionCamera, frame: SensorFrame):
+def _loss_at(cfg: DesignConfig, cam: DetectionCamera, frame: SensorFrame, ranks: parallel.Ranks = parallel.Ranks()):
     task = get_task(cfg.task)
+    part = parallel.batch_slice(cfg.batch, ranks)  # this rank's scenes of each batch (torchrun)
 
     def loss_at(t: int, gen: torch.Generator):
         b = street_batch(cfg.seed, t, cfg.batch, cfg.crop_hw, cam.margin, (task.level_min, task.level_max), frame)
-        return cam(b.scene, b.offset_px, gen, b.targets)
+        return cam(b.scene[part], b.offset_px, gen, b.targets[part])
     return loss_at
 
 
@@ -135,13 +137,15 @@ def _preds_from_json(rows: list[dict]) -> list[dict]:
              "labels": torch.tensor(r["labels"], dtype=torch.int64)} for r in rows]
 
 
-def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, log=print) -> dict:
-    """The whole detection run; returns the results (also written to out/results.json)."""
+def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, log=print) -> dict | None:
+    """The whole detection run; returns the results (also written to out/results.json).
+    Under torchrun, as run_design: the ranks share the batches, rank 0 evaluates and writes."""
     from torch.utils.tensorboard import SummaryWriter
 
     from ..design.report import write_report
-    from .run import _write_history
+    from .run import _write_history, claim_run_dir
 
+    ranks = parallel.setup("cpu")
     out, task, frame, sur = start_run(cfg, out)
     if cfg.fields:
         raise ValueError("fields: the detection run renders from all the surrogate's field samples (fields = 0)")
@@ -151,17 +155,21 @@ def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool
     if "f_number" not in sur.param_names:
         raise ValueError(f"surrogate {cfg.surrogate}: its space has no f_number parameter; the detection task "
                          f"learns the aperture (use paper-triplet-detect)")
+    parallel.batch_slice(cfg.batch, ranks)
     build_detection_camera(cfg, sur, frame=frame)  # everything is checked before the run directory is claimed
-    check_run_dir(out, cfg)
+    claim_run_dir(out, cfg, ranks)
+    if not ranks.is_main:
+        progress, log = False, (lambda m: None)
     parts = DetectionCamera.LOSS_PARTS
-    writer = SummaryWriter(str(out / "tb"))
+    writer = SummaryWriter(str(out / "tb")) if ranks.is_main else None
     try:
         log(f"[1/4] end-to-end training: {cfg.task}, {cfg.optimizer}, {cfg.total_steps} steps")
         cam = build_detection_camera(cfg, sur, frame=frame)
         opt_kind = cfg.optimizer
         from .run import make_optimizer
         e2e = train(cfg, cam, make_optimizer(cfg, cam, opt_kind), out, "end_to_end", progress=progress,
-                    writer=writer, frame=frame, log=log, loss_at=_loss_at(cfg, cam, frame), parts=parts)
+                    writer=writer, frame=frame, log=log, loss_at=_loss_at(cfg, cam, frame, ranks), parts=parts,
+                    ranks=ranks)
         nominal_values = cam.optics.base_values()
         n_nominal = float(nominal_values[sur.param_names.index("f_number")])
         with torch.no_grad():
@@ -171,9 +179,13 @@ def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool
         log(f"[2/4] nominal lens + ISP and detector fine-tuned, the same {cfg.total_steps} steps")
         nom_cam = build_detection_camera(cfg, sur, fixed_optics=fixed, frame=frame)
         nom = train(cfg, nom_cam, make_optimizer(cfg, nom_cam, "nominal"), out, "nominal", progress=progress,
-                    writer=writer, frame=frame, log=log, loss_at=_loss_at(cfg, nom_cam, frame), parts=parts)
+                    writer=writer, frame=frame, log=log, loss_at=_loss_at(cfg, nom_cam, frame, ranks), parts=parts,
+                    ranks=ranks)
     finally:
-        writer.close()
+        if writer is not None:
+            writer.close()
+    if not ranks.is_main:
+        return None
 
     t_eval = time.perf_counter()
     log("[3/4] exact PSFs of both lenses (engine) and held-out evaluation")

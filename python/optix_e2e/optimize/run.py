@@ -25,6 +25,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from .. import parallel
 from ..camera import Camera, FixedOptics, HardwareISPStage, SensorStage, SoftwareISPStage, calibrated_preset
 from ..isp import params as hp
 from ..isp.proxy import ISPProxy
@@ -287,30 +288,44 @@ def _load_state(path: Path, camera: Camera, opt, monitor=None) -> tuple[float, l
     return wall_s, history
 
 
+def noise_generator(seed: int, t: int, ranks: parallel.Ranks = parallel.Ranks()) -> torch.Generator:
+    """Step t's sensor-noise stream (stream tag 4); under torchrun each rank draws its own."""
+    key = [4, int(seed), int(t)] + ([ranks.rank, ranks.world] if ranks.distributed else [])
+    return torch.Generator().manual_seed(int(np.random.SeedSequence(key).generate_state(1)[0]))
+
+
 def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progress: bool = True,
           writer=None, frame: SensorFrame = SensorFrame(), folder=None, on_step=None, log=None,
-          loss_at=None, parts: tuple[str, ...] = LOSS_PARTS, monitor=None) -> dict:
+          loss_at=None, parts: tuple[str, ...] = LOSS_PARTS, monitor=None,
+          ranks: parallel.Ranks = parallel.Ranks()) -> dict:
     """Run ``opt`` to its last step on the task loss, checkpointing into out/{name}_state.pt.
     ``loss_at(t, generator)`` -> (loss, {part: value}) is step t's loss (default: the
     image-quality task's on ``training_batch``); ``parts`` name the values it reports.
     ``monitor``: an optimize.hybrid.OpticsMonitor checking the optics model along the way
-    (before the first step, every ``check_every`` steps and after the last)."""
+    (before the first step, every ``check_every`` steps and after the last).
+    ``ranks``: under torchrun, each rank computes its slice of every batch (a ``loss_at`` given
+    here must do so too), the gradients are averaged before each step, rank 0 writes."""
     task = get_task(cfg.task)
     state_path = out / f"{name}_state.pt"
     wall_s, history = 0.0, []
     if state_path.is_file():
         wall_s, history = _load_state(state_path, camera, opt, monitor)
-        if log is not None:
+        if log is not None and ranks.is_main:
             log(f"{name}: resuming at step {opt.t} of {opt.total_steps} ({state_path.name})")
     ran = opt.t < opt.total_steps
+    if ranks.distributed:
+        parallel.broadcast_params(camera.parameters(), ranks)  # one starting point, whatever each rank read
+        opt.reduce = lambda params, loss, info: parallel.average_step(ranks, params, loss, info)
+        progress = progress and ranks.is_main
     if loss_at is None:
         loss_mod = TaskLoss(task)
+        part = parallel.batch_slice(cfg.batch, ranks)
 
         def loss_at(t, gen):
             batch = training_batch(cfg.seed, t, cfg.batch, cfg.crop, m, (task.level_min, task.level_max), frame,
                                    folder)
-            out_img, _ = camera(batch.scene, batch.offset_px, gen)
-            return loss_mod(out_img, batch.target)
+            out_img, _ = camera(batch.scene[part], batch.offset_px, gen)
+            return loss_mod(out_img, batch.target[part])
     optics = camera.optics if isinstance(camera.optics, DifferentiableOptics) else None
     guard = Manufacturable(optics.surrogate.manifest) if optics is not None and optics.surrogate.manifest else None
     camera.train()
@@ -322,7 +337,7 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
         monitor.check(0)
     while opt.t < opt.total_steps:
         t = opt.t
-        gen = torch.Generator().manual_seed(int(np.random.SeedSequence([4, int(cfg.seed), t]).generate_state(1)[0]))
+        gen = noise_generator(cfg.seed, t, ranks)
 
         def loss_fn():
             return loss_at(t, gen)
@@ -348,7 +363,7 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
             on_step(info, camera)
         bar.update(1)
         bar.set_postfix(loss=f"{info['loss']:.4f}", block=info["block"])
-        if opt.t % cfg.checkpoint_every == 0 or opt.t == opt.total_steps:
+        if ranks.is_main and (opt.t % cfg.checkpoint_every == 0 or opt.t == opt.total_steps):
             _save_state(state_path, camera, opt, wall_s + time.perf_counter() - t_start, history, monitor)
     bar.close()
     wall = wall_s + (time.perf_counter() - t_start if ran else 0.0)
@@ -366,8 +381,21 @@ def start_run(cfg: DesignConfig, out: "str | Path") -> tuple[Path, object, Senso
                                                                          calibrated_preset("imx249").pixel_um)
 
 
-def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, log=print) -> dict:
-    """The whole run; returns the results (also written to out/results.json)."""
+def claim_run_dir(out: Path, cfg: DesignConfig, ranks: parallel.Ranks) -> None:
+    """Rank 0 checks or creates the run directory (config.json) while the others wait; the
+    design trainings run on the CPU, so several processes use gloo."""
+    from .config import check_run_dir
+
+    if ranks.is_main:
+        check_run_dir(out, cfg)
+    parallel.barrier(ranks)
+
+
+def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, log=print) -> dict | None:
+    """The whole run; returns the results (also written to out/results.json). Under torchrun
+    (``torchrun --nproc_per_node N -m optix_e2e design ...``) the N processes share each
+    training batch (optix_e2e.parallel); rank 0 alone evaluates and writes, and the other
+    ranks return None once the trainings are done."""
     from torch.utils.tensorboard import SummaryWriter
 
     from ..scenes import ImageFolder
@@ -375,7 +403,6 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     from ..tasks import heldout_set
     from . import evaluate as ev
     from . import outputs
-    from .config import check_run_dir
     from .hybrid import OpticsMonitor, exact_gradient_steps, resolve_optics
 
     if cfg.task == "detection":
@@ -383,12 +410,19 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
 
         return run_detection_design(cfg, out, progress=progress, log=log)
     # everything the run needs is checked before the run directory is claimed
+    ranks = parallel.setup("cpu")
     out, task, frame, sur = start_run(cfg, out)
     folder = ImageFolder(cfg.images) if cfg.images else None
     mode, choice = resolve_optics(cfg)
+    if ranks.distributed and mode != "surrogate":
+        raise ValueError(f"--optics {cfg.optics} ({mode}) runs the engine inside the training steps and is not "
+                         f"split over processes; under torchrun use --optics surrogate")
+    parallel.batch_slice(cfg.batch, ranks)
     build_camera(cfg, sur, frame=frame)
-    check_run_dir(out, cfg)
-    writer = SummaryWriter(str(out / "tb"))
+    claim_run_dir(out, cfg, ranks)
+    if not ranks.is_main:
+        progress, log = False, (lambda m: None)
+    writer = SummaryWriter(str(out / "tb")) if ranks.is_main else None
     try:
         log(f"[1/4] end-to-end training: {cfg.task}, {cfg.optimizer}, {cfg.total_steps} steps, optics {mode}"
             + (f" (auto: {choice['why']})" if cfg.optics == "auto" else ""))
@@ -397,7 +431,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
                                 RefineSettings(designs=cfg.refine_designs, steps=cfg.refine_steps, seed=cfg.seed),
                                 writer=writer, name="end_to_end", log=log)
         e2e = train(cfg, camera, make_optimizer(cfg, camera, cfg.optimizer), out, "end_to_end", progress=progress,
-                    writer=writer, frame=frame, folder=folder, log=log, monitor=monitor)
+                    writer=writer, frame=frame, folder=folder, log=log, monitor=monitor, ranks=ranks)
         nominal_values = camera.optics.base_values()
         with torch.no_grad():
             psf_ns, vig_ns = sur.psfs(nominal_values, check=False)
@@ -413,9 +447,12 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         log(f"[2/4] nominal lens + processing fine-tuned, the same {cfg.total_steps} steps")
         nominal = build_camera(cfg, sur, fixed_optics=fixed, frame=frame)
         nom = train(cfg, nominal, make_optimizer(cfg, nominal, "nominal"), out, "nominal", progress=progress,
-                    writer=writer, frame=frame, folder=folder, log=log)
+                    writer=writer, frame=frame, folder=folder, log=log, ranks=ranks)
     finally:
-        writer.close()
+        if writer is not None:
+            writer.close()
+    if not ranks.is_main:
+        return None
 
     t_eval = time.perf_counter()
     log("[3/4] exact PSFs of both lenses (engine) and held-out evaluation")
