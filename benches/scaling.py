@@ -10,7 +10,8 @@ into its own directory: one process with the engine on 1 and on all threads (its
 threading), and a Dask LocalCluster of W worker processes with 1 thread each (``optix
 dataset --dask``). Every directory's verify digest must be the single-process one (the
 bench stops otherwise). The Dask times include connecting to the running cluster and
-checking its workers, not starting it.
+checking its workers, not starting it or the workers' first import of the package (a
+long-running cluster's start-up).
 
 Surrogate: ``optix surrogate train`` on that dataset, the default network and global batch
 of 256, ``--steps`` steps: 1 process on 1 thread and on all threads, and ``torchrun
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import importlib
 import json
 import os
 import platform
@@ -87,6 +89,8 @@ def dataset_rows(work: Path, n: int, workers: list[int]) -> tuple[list[dict], Pa
         shutil.rmtree(root, ignore_errors=True)
         with distributed.LocalCluster(n_workers=w, threads_per_worker=1, processes=True, dashboard_address=None,
                                       env={v: "1" for v in WORKER_ENV}) as cluster:
+            with distributed.Client(cluster.scheduler_address) as client:  # workers import the package first
+                client.run(importlib.import_module, "optix_e2e.dataset.cluster")
             # seconds from after the sampling (the client's, as in one process) to the last shard
             rep = generate(SPACE, n, 0, root, DatasetSettings(), progress=False, dask=cluster.scheduler_address)
             sec = rep.seconds
@@ -155,21 +159,24 @@ def main() -> None:
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--procs", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--device", default="cpu", help="surrogate training device (cuda: NCCL)")
+    ap.add_argument("--parts", nargs="+", choices=["dataset", "surrogate"], default=["dataset", "surrogate"])
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     work = a.out / "work"
     work.mkdir(exist_ok=True)
-    rows, data = dataset_rows(work, a.designs, a.workers)
-    rows += surrogate_rows(work, data, a.steps, a.procs, a.device)
+    rows, data = dataset_rows(work, a.designs, a.workers if "dataset" in a.parts else [])
+    if "surrogate" in a.parts:
+        rows += surrogate_rows(work, data, a.steps, a.procs, a.device)
     result = {"machine": {"node": platform.node(), "cpus": os.cpu_count(), "python": platform.python_version()},
               "space": SPACE, "designs": a.designs, "steps": a.steps, "rows": rows}
-    (a.out / "scaling.json").write_text(json.dumps(result, indent=2))
-    with open(a.out / "scaling.csv", "w", newline="") as f:
+    name = "scaling" if len(a.parts) == 2 else f"scaling_{a.parts[0]}"
+    (a.out / f"{name}.json").write_text(json.dumps(result, indent=2))
+    with open(a.out / f"{name}.csv", "w", newline="") as f:
         keys = ["what", "how", "units", "threads_per_unit", "seconds", "rate", "rate_unit", "same_digest", "final_loss"]
         w = csv.DictWriter(f, keys, extrasaction="ignore")
         w.writeheader()
         w.writerows(rows)
-    chart(rows, a.out / "scaling.png")
+    chart(rows, a.out / f"{name}.png")
     shutil.rmtree(work)
     print(json.dumps(result, indent=2))
 

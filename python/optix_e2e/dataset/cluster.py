@@ -14,13 +14,21 @@ from __future__ import annotations
 import hashlib
 import os
 import socket
+import threading
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator
 
+import numpy as np
+
 # the engine's batch PSFs use every core of a worker's process unless told otherwise; a
 # Dask worker with T threads gets T cores' worth of engine threads
 WORKER_ENV = ("RAYON_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+# each worker thread's PSF buffers, reused from shard to shard (fresh arrays of a shard's
+# size cost their page faults every time)
+_buffers = threading.local()
 
 
 class ClusterError(RuntimeError):
@@ -110,7 +118,7 @@ def run_shard(out: str, k: int) -> dict:
     read from there) and write it atomically; a shard already complete is left alone."""
     from ..design.sampling import read_designs_csv
     from .generate import _clean_stale, _complete, compute_shard, write_shard
-    from .layout import read_manifest, shards_dir
+    from .layout import aligned_empty, read_manifest, shards_dir
     from .manifest import space_and_base
 
     root = Path(out)
@@ -123,7 +131,13 @@ def run_shard(out: str, k: int) -> dict:
     sdir = shards_dir(root)
     if sdir.exists():
         _clean_stale(sdir, k)
-    arrays, meta = compute_shard(k, man, designs, space, base, checked=True)
+    lead = (man["settings"]["shard_size"], len(man["fields_deg"]), len(man["channels"]))
+    shapes = (lead + (man["psf_size"],) * 2, lead + (man["sensor_size"],) * 2)
+    if getattr(_buffers, "shapes", None) != shapes:
+        _buffers.shapes, _buffers.arrays = shapes, tuple(aligned_empty(sh, np.float32) for sh in shapes)
+    psf_buf, sensor_buf = _buffers.arrays
+    arrays, meta = compute_shard(k, man, designs, space, base, checked=True, psf_buffer=psf_buf,
+                                 sensor_buffer=sensor_buf)
     written = write_shard(root, k, arrays, meta)
     return {"shard": k, "written": written, "n_ok": meta["n_ok"], "n_failed": meta["n_failed"],
             "seconds": meta["seconds"], "worker": f"{socket.gethostname()}:{os.getpid()}", "notes": notes}

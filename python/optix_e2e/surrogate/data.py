@@ -64,6 +64,16 @@ def psf_grid(manifest: dict, psf: str, bin: int = 1) -> int:
     return size // bin
 
 
+def _shards(root: Path, man: dict, check: tuple[str, ...]):
+    """(k, memory-mapped arrays) of each shard in order, the named arrays' checksums verified;
+    a missing shard is an error naming it."""
+    for k in range(man["n_shards"]):
+        d = shards_dir(root) / shard_name(k)
+        if not d.is_dir():
+            raise DatasetError(f"{d}: shard missing (finish the dataset with the same `optix dataset` command)")
+        yield k, open_shard(root, k, man, check_hashes=check)[0]
+
+
 def load_arrays(root: "str | Path", psf: str = "psf_sensor", bin: int = 1,
                 designs: Sequence[int] | None = None, max_designs: int | None = None,
                 progress: Callable[[int, int], None] | None = None) -> tuple[PsfArrays, dict]:
@@ -75,13 +85,7 @@ def load_arrays(root: "str | Path", psf: str = "psf_sensor", bin: int = 1,
     keep = None if designs is None else np.asarray(sorted(set(int(i) for i in designs)), np.int64)
     parts: dict[str, list] = {"params": [], "psf": [], "vignetting": [], "design": []}
     n = 0
-    for k in range(man["n_shards"]):
-        if max_designs is not None and n >= max_designs:
-            break
-        d = shards_dir(root) / shard_name(k)
-        if not d.is_dir():
-            raise DatasetError(f"{d}: shard missing (finish the dataset with the same `optix dataset` command)")
-        arrays, _ = open_shard(root, k, man, check_hashes=("design", "params", psf, "relative_illumination"))
+    for k, arrays in _shards(root, man, ("design", "params", psf, "relative_illumination")):
         idx = np.asarray(arrays["design"])
         rows = np.arange(len(idx)) if keep is None else np.flatnonzero(np.isin(idx, keep))
         if max_designs is not None:
@@ -94,6 +98,8 @@ def load_arrays(root: "str | Path", psf: str = "psf_sensor", bin: int = 1,
             n += len(rows)
         if progress:
             progress(k + 1, man["n_shards"])
+        if max_designs is not None and n >= max_designs:
+            break
     if n == 0:
         raise DatasetError(f"{root}: no designs to read" + ("" if keep is None else " among the requested ones"))
     out = PsfArrays(*(np.concatenate(parts[name]) for name in ("params", "psf", "vignetting", "design")))
@@ -110,18 +116,14 @@ def design_indices(root: "str | Path", max_designs: int | None = None) -> tuple[
     root = Path(root)
     man = read_manifest(root)
     parts, n = [], 0
-    for k in range(man["n_shards"]):
-        if max_designs is not None and n >= max_designs:
-            break
-        d = shards_dir(root) / shard_name(k)
-        if not d.is_dir():
-            raise DatasetError(f"{d}: shard missing (finish the dataset with the same `optix dataset` command)")
-        arrays, _ = open_shard(root, k, man, check_hashes=("design",))
+    for _, arrays in _shards(root, man, ("design",)):
         idx = np.asarray(arrays["design"])
         if max_designs is not None:
             idx = idx[:max_designs - n]
         parts.append(idx)
         n += len(idx)
+        if max_designs is not None and n >= max_designs:
+            break
     if n == 0:
         raise DatasetError(f"{root}: no designs to read")
     return np.concatenate(parts), man
