@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -108,23 +109,49 @@ def test_a_two_process_run_resumes(data, one_process, tmp_path):
 
 
 def test_training_designs_are_split_over_the_ranks_without_duplicates(data):
-    """What each rank loads (train.py: positions rank, rank + W, ... of the training designs)
-    covers the training designs once, and the global batch's samples go to exactly one rank."""
+    """What each rank loads (train.rank_designs) covers the training designs once, none of
+    the validation designs, and the global batch's samples go to exactly one rank, whose
+    row d // W holds the design at global position d."""
     from optix_e2e.surrogate.data import design_indices
-    from optix_e2e.surrogate.train import _split
+    from optix_e2e.surrogate.train import rank_designs
 
     designs, _ = design_indices(data)
-    tr, va = _split(designs, 8, 0)
     for world in (1, 2, 3):
-        parts = [designs[tr][r::world] for r in range(world)]
-        joined = np.sort(np.concatenate(parts))
-        assert np.array_equal(joined, np.sort(designs[tr])) and len(set(joined.tolist())) == len(joined)
-        assert not set(joined.tolist()) & set(designs[va].tolist())
+        parts = [rank_designs(designs, 8, 0, r, world) for r in range(world)]
+        tr, va = parts[0][0], parts[0][1]
+        assert len(tr) == len(designs) - 8 and not set(tr.tolist()) & set(va.tolist())
+        mine = [p[2] for p in parts]
+        joined = np.sort(np.concatenate(mine))
+        assert np.array_equal(joined, np.sort(tr)) and len(set(joined.tolist())) == len(joined)
         d = torch.randint(len(tr), (256,), generator=torch.Generator().manual_seed(0))
         owners = [(d % world == r) for r in range(world)]
         assert torch.equal(sum(o.int() for o in owners), torch.ones(256, dtype=torch.int32))
-        for r in range(world):  # local row d // world of rank r is the design at global position d
-            assert np.array_equal(parts[r][(d[owners[r]] // world).numpy()], designs[tr][d[owners[r]].numpy()])
+        for r in range(world):
+            assert np.array_equal(mine[r][(d[owners[r]] // world).numpy()], tr[d[owners[r]].numpy()])
+    with pytest.raises(ValueError, match="cannot be shared by 50 processes"):
+        rank_designs(designs, 8, 0, 0, 50)
+
+
+def test_max_designs_reads_no_shard_past_the_last_requested(data, tmp_path):
+    """A run on the first designs of a dataset whose later shards are missing (still being
+    generated) trains: the loader stops after the shard that holds the last design wanted."""
+    from optix_e2e.surrogate.data import design_indices, load_arrays
+
+    part = tmp_path / "part"
+    shutil.copytree(data, part)
+    shutil.rmtree(part / "shards" / "00002")
+    designs, _ = design_indices(part, max_designs=20)
+    arrays, _ = load_arrays(part, designs=designs[::2])
+    assert np.array_equal(arrays.design, designs[::2])
+    with pytest.raises(Exception, match="00002: shard missing"):
+        load_arrays(part, designs=[40])
+
+
+def test_an_explicit_gpu_index_is_refused_under_torchrun(monkeypatch):
+    monkeypatch.setenv("WORLD_SIZE", "2")
+    monkeypatch.setenv("RANK", "0")
+    with pytest.raises(ValueError, match="each process takes its own GPU"):
+        parallel.setup("cuda:1")
 
 
 def test_single_process_helpers_are_no_ops():
@@ -148,13 +175,14 @@ def _toy(kind: str):
     x, y = torch.randn(8, 3, generator=g, dtype=torch.float64), torch.randn(8, generator=g, dtype=torch.float64)
     a = torch.nn.Parameter(torch.randn(3, generator=g, dtype=torch.float64))
     b = torch.nn.Parameter(torch.randn(1, generator=g, dtype=torch.float64))
-    blocks = [Block("a", [a], 0.05, steps=2, beta=0.5), Block("b", [b], 0.1, steps=1, beta=0.2)]
+    unused = torch.nn.Parameter(torch.ones(2, dtype=torch.float64))  # no gradient anywhere: Adam skips it
+    blocks = [Block("a", [a], 0.05, steps=2, beta=0.5), Block("b", [b, unused], 0.1, steps=1, beta=0.2)]
     opt = ProximalCompositional(blocks, n_cycles=2, n_finetune=3) if kind == "alg1" else Vanilla(blocks, 0.05, 7)
 
     def loss(part: slice):
         r = torch.tanh(x[part] @ a) + b - y[part]
         return (r ** 2).mean(), {"l1": float(r.detach().abs().mean())}
-    return [a, b], opt, loss
+    return [a, b, unused], opt, loss
 
 
 def _toy_worker(rank: int, world: int, port: int, out: str, kind: str) -> None:

@@ -65,6 +65,9 @@ def setup(device: str = "auto") -> Ranks:
     device. A single process (no WORLD_SIZE, or 1) gets ``Ranks(device=...)``."""
     world = _env_int("WORLD_SIZE", 1)
     rank, local = _env_int("RANK", 0), _env_int("LOCAL_RANK", 0)
+    if world > 1 and torch.device(device if device != "auto" else "cpu").index is not None:
+        raise ValueError(f"--device {device}: under torchrun each process takes its own GPU (cuda:LOCAL_RANK); "
+                         f"give --device cuda or auto")
     dev = pick_device(device, local)
     if world <= 1:
         return Ranks(device=dev)
@@ -118,32 +121,36 @@ def broadcast_params(params, ranks: Ranks) -> None:
 
 def average_gradients(params, ranks: Ranks, extra: torch.Tensor | None = None) -> torch.Tensor | None:
     """Average the gradients of ``params`` over the ranks in one all-reduce, what
-    DistributedDataParallel does after backward; parameters without a gradient on this rank
-    count as zeros (every rank must pass the same list). ``extra`` (e.g. the loss) rides
-    along and comes back averaged."""
+    DistributedDataParallel does after backward (every rank must pass the same list). A
+    parameter without a gradient on some ranks counts as zeros there; one without a gradient
+    on every rank keeps none (the optimizer skips it, as it would in one process). ``extra``
+    (e.g. the loss) rides along and comes back averaged."""
     if not ranks.distributed:
         return extra
     params = [p for p in params if p.requires_grad]
     flat = [(p.grad if p.grad is not None else torch.zeros_like(p)).reshape(-1) for p in params]
+    flat.append(torch.tensor([float(p.grad is not None) for p in params]))  # who has a gradient
     if extra is not None:
-        flat.append(extra.detach().reshape(-1).to(flat[0].dtype if flat else torch.float32))
-    if not flat:
-        return extra
-    dtype = torch.float64 if any(f.dtype == torch.float64 for f in flat) else torch.float32
+        flat.append(extra.detach().reshape(-1))
+    dtype = torch.float64 if any(f.dtype == torch.float64 for f in flat[:len(params)]) else torch.float32
     buf = torch.cat([f.to(ranks.device, dtype) for f in flat])
     dist.all_reduce(buf, op=dist.ReduceOp.SUM)
+    n_grad = buf.numel() - len(params) - (0 if extra is None else extra.numel())
+    has = buf[n_grad:n_grad + len(params)] > 0
     buf /= ranks.world
     i = 0
-    for p in params:
+    for j, p in enumerate(params):
         n = p.numel()
-        g = buf[i:i + n].view_as(p).to(p.device, p.dtype)
-        if p.grad is None:
-            p.grad = g.clone()
-        else:
-            p.grad.copy_(g)
+        if has[j]:
+            g = buf[i:i + n].view_as(p).to(p.device, p.dtype)
+            if p.grad is None:
+                p.grad = g.clone()
+            else:
+                p.grad.copy_(g)
         i += n
     if extra is None:
         return None
+    i += len(params)
     return buf[i:i + extra.numel()].view_as(extra).to(extra.device, extra.dtype)
 
 

@@ -11,6 +11,7 @@ the dataset is the one a single process writes (the same ``verify`` digest).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import socket
@@ -27,8 +28,9 @@ WORKER_ENV = ("RAYON_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 # each worker thread's PSF buffers, reused from shard to shard (fresh arrays of a shard's
-# size cost their page faults every time)
-_buffers = threading.local()
+# size cost their page faults every time); released when a run ends
+_buffers: dict[int, tuple] = {}
+_buffers_lock = threading.Lock()
 
 
 class ClusterError(RuntimeError):
@@ -88,39 +90,71 @@ def connect(spec: str, log: Callable[[str], None] = lambda m: None, timeout_s: f
             cluster.close()
 
 
-def _worker_view(out: str, manifest_sha: str) -> dict:
-    """Runs on each worker: does it see the dataset directory, and which optix-e2e?"""
+def _identity(out: str) -> dict:
+    """What a worker must share with the client for the data to be the same: the dataset
+    directory (its manifest's bytes, on shared storage) and the optix-e2e build."""
     from .. import __version__
     from .layout import sha256_file
 
     p = Path(out) / "manifest.json"
-    sees = p.is_file() and sha256_file(p) == manifest_sha
-    return {"host": socket.gethostname(), "sees_manifest": sees, "optix_e2e": __version__,
-            "engine": _engine_file_sha()}
+    return {"host": socket.gethostname(), "manifest": sha256_file(p) if p.is_file() else None,
+            "optix_e2e": __version__, "engine": _engine_file_sha()}
 
 
+def _mismatch(mine: dict, expect: dict, out: str) -> str | None:
+    """Why a worker of identity ``mine`` cannot write the client's dataset, or None."""
+    if mine["manifest"] != expect["manifest"]:
+        return (f"it does not see {Path(out) / 'manifest.json'} as the client wrote it: the output directory "
+                f"must be on storage shared by the client and every worker, at the same path")
+    if (mine["optix_e2e"], mine["engine"]) != (expect["optix_e2e"], expect["engine"]):
+        return (f"it runs another optix-e2e build (version {mine['optix_e2e']}, engine {mine['engine']}) than "
+                f"the client ({expect['optix_e2e']}, {expect['engine']}); the data would not be the same")
+    return None
+
+
+@functools.lru_cache(maxsize=1)
 def _engine_file_sha() -> str:
     from .. import _engine
 
-    return _sha_of(Path(_engine.__file__))
-
-
-def _sha_of(path: Path) -> str:
     h = hashlib.sha256()
-    with open(path, "rb") as f:
+    with open(_engine.__file__, "rb") as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()[:16]
 
 
-def run_shard(out: str, k: int) -> dict:
+def _shard_buffers(shapes: tuple) -> tuple:
+    from .layout import aligned_empty
+
+    key = threading.get_ident()
+    with _buffers_lock:
+        got = _buffers.get(key)
+        if got is None or got[0] != shapes:
+            got = _buffers[key] = (shapes, tuple(aligned_empty(sh, np.float32) for sh in shapes))
+    return got[1]
+
+
+def _release_buffers() -> int:
+    with _buffers_lock:
+        n = len(_buffers)
+        _buffers.clear()
+    return n
+
+
+def run_shard(out: str, k: int, expect: dict) -> dict:
     """Dask task: compute shard ``k`` of the dataset in ``out`` (its manifest and designs
-    read from there) and write it atomically; a shard already complete is left alone."""
+    read from there) and write it atomically; a shard already complete is left alone.
+    ``expect``: the client's identity (:func:`_identity`), checked first on every task, so
+    a worker that joins late with another view or build writes nothing."""
     from ..design.sampling import read_designs_csv
     from .generate import _clean_stale, _complete, compute_shard, write_shard
-    from .layout import aligned_empty, read_manifest, shards_dir
+    from .layout import read_manifest, shards_dir
     from .manifest import space_and_base
 
+    mine = _identity(out)
+    why = _mismatch(mine, expect, out)
+    if why:
+        raise ClusterError(f"worker on {mine['host']}: {why}")
     root = Path(out)
     man = read_manifest(root)
     notes: list[str] = []
@@ -133,9 +167,7 @@ def run_shard(out: str, k: int) -> dict:
         _clean_stale(sdir, k)
     lead = (man["settings"]["shard_size"], len(man["fields_deg"]), len(man["channels"]))
     shapes = (lead + (man["psf_size"],) * 2, lead + (man["sensor_size"],) * 2)
-    if getattr(_buffers, "shapes", None) != shapes:
-        _buffers.shapes, _buffers.arrays = shapes, tuple(aligned_empty(sh, np.float32) for sh in shapes)
-    psf_buf, sensor_buf = _buffers.arrays
+    psf_buf, sensor_buf = _shard_buffers(shapes)
     arrays, meta = compute_shard(k, man, designs, space, base, checked=True, psf_buffer=psf_buf,
                                  sensor_buffer=sensor_buf)
     written = write_shard(root, k, arrays, meta)
@@ -144,34 +176,33 @@ def run_shard(out: str, k: int) -> dict:
 
 
 def run_shards(spec: str, out: Path, man: dict, pending: list[int], rep, bar=None,
-               log: Callable[[str], None] = lambda m: None) -> None:
+               log: Callable[[str], None] = lambda m: None, wait_s: float = 120.0) -> None:
     """Run shards ``pending`` of the dataset in ``out`` as Dask tasks on ``spec``'s cluster,
     filling ``rep`` (a GenerateReport): shards written, designs ok and failed, and in
-    ``rep.shard_errors`` the shards whose task failed (their error; run again to redo)."""
+    ``rep.shard_errors`` the shards whose task failed (their error; run again to redo).
+    ``wait_s``: how long to wait for a first worker to join."""
     from distributed import as_completed
-
-    from .layout import sha256_file
 
     out = Path(out).resolve()
     size, n = man["settings"]["shard_size"], man["n_designs"]
+    expect = _identity(str(out))
     with connect(spec, log) as client:
-        views = client.run(_worker_view, str(out), sha256_file(out / "manifest.json"))
-        if not views:
-            raise ClusterError(f"--dask {spec!r}: the cluster has no workers")
-        blind = sorted(w for w, v in views.items() if not v["sees_manifest"])
-        if blind:
-            raise ClusterError(f"Dask worker(s) {', '.join(blind)} do not see {out / 'manifest.json'}: the "
-                               f"output directory must be on storage shared by the client and every worker, "
-                               f"at the same path")
-        mine = {"optix_e2e": __import__("optix_e2e").__version__, "engine": _engine_file_sha()}
-        other = sorted(w for w, v in views.items() if (v["optix_e2e"], v["engine"]) != tuple(mine.values()))
-        if other:
-            raise ClusterError(f"Dask worker(s) {', '.join(other)} run another optix-e2e build than this client "
-                               f"({mine}); the data would not be the same")
+        try:  # a batch scheduler's workers may still be queued
+            client.wait_for_workers(1, timeout=wait_s)
+        except TimeoutError:
+            raise ClusterError(f"--dask {spec!r}: no worker joined the cluster within {wait_s:g} s") from None
+        # the workers there now are checked before any work; later ones by their first task
+        views = client.run(_identity, str(out))
+        bad = {w: _mismatch(v, expect, str(out)) for w, v in views.items()}
+        bad = {w: why for w, why in bad.items() if why}
+        if bad:
+            w, why = sorted(bad.items())[0]
+            raise ClusterError(f"Dask worker {w}" + (f" (and {len(bad) - 1} more)" if len(bad) > 1 else "")
+                               + f": {why}")
         log(f"Dask: {len(views)} worker(s) on {len({v['host'] for v in views.values()})} host(s), "
             f"{len(pending)} shard(s) to compute")
         tag = hashlib.sha256(str(out).encode() + man["designs_csv_sha256"].encode()).hexdigest()[:10]
-        futures = {client.submit(run_shard, str(out), k, key=f"optix-shard-{tag}-{k:05d}", retries=1): k
+        futures = {client.submit(run_shard, str(out), k, expect, key=f"optix-shard-{tag}-{k:05d}", retries=1): k
                    for k in pending}
         try:
             for fut in as_completed(futures):
@@ -193,6 +224,10 @@ def run_shards(spec: str, out: Path, man: dict, pending: list[int], rep, bar=Non
                     bar.set_postfix(failed=rep.n_failed, errors=len(rep.shard_errors), refresh=False)
         finally:
             client.cancel(list(futures))
+            try:
+                client.run(_release_buffers)
+            except Exception:  # a worker gone meanwhile keeps nothing anyway
+                pass
     rep.shards_written.sort()
     rep.shard_errors.sort(key=lambda e: e["shard"])
     from .generate import clean_temporaries

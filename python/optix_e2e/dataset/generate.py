@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import os
+import secrets
 import shutil
 import socket
 import time
@@ -65,9 +66,10 @@ def _pid_alive(pid: int) -> bool:
 
 
 def temporary_name(k: int) -> str:
-    """Shard ``k``'s temporary directory for this process: ``.NNNNN.tmp-<pid>@<host>`` (the
-    host, since Dask workers on several machines write into one shared directory)."""
-    return f".{shard_name(k)}.tmp-{os.getpid()}@{socket.gethostname()}"
+    """A temporary directory name for shard ``k``: ``.NNNNN.tmp-<pid>@<host>+<token>`` (the
+    host, since Dask workers on several machines write into one shared directory; a random
+    token, since containers may share a host name and process ids)."""
+    return f".{shard_name(k)}.tmp-{os.getpid()}@{socket.gethostname()}+{secrets.token_hex(4)}"
 
 
 def _clean_stale(sdir: Path, k: int) -> None:
@@ -75,6 +77,7 @@ def _clean_stale(sdir: Path, k: int) -> None:
     gone (another host's processes cannot be asked; see :func:`clean_temporaries`)."""
     for p in sdir.glob(f".{shard_name(k)}.tmp-*"):
         pid_s, _, host = p.name.split(".tmp-", 1)[1].partition("@")
+        host = host.rsplit("+", 1)[0]
         if host and host != socket.gethostname():
             continue
         try:
@@ -87,7 +90,8 @@ def _clean_stale(sdir: Path, k: int) -> None:
 
 def clean_temporaries(root: Path, shards) -> int:
     """Remove every temporary directory of the given finished shards, whoever left it (a
-    worker that died on another host); only safe once no process still works on them.
+    worker that died on another host). A process still writing one (a worker wrongly
+    declared dead) finds its temporary gone and the shard done: write_shard returns False.
     Returns how many were removed."""
     sdir, n = shards_dir(root), 0
     for k in shards:
@@ -226,22 +230,20 @@ def write_shard(root: Path, k: int, arrays: dict, meta: dict) -> bool:
     sdir.mkdir(parents=True, exist_ok=True)
     final = sdir / shard_name(k)
     tmp = sdir / temporary_name(k)
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir()
-    files = {}
-    for name in ARRAYS:
-        p = tmp / f"{name}.npy"
-        crc = save_npy(p, arrays[name])
-        files[name] = {"crc32": crc, "shape": list(arrays[name].shape),
-                       "dtype": str(arrays[name].dtype)}
-    write_json_atomic(tmp / "shard.json", {**meta, "files": files})
-    fsync_dir(tmp)
     try:
+        tmp.mkdir()
+        files = {}
+        for name in ARRAYS:
+            p = tmp / f"{name}.npy"
+            crc = save_npy(p, arrays[name])
+            files[name] = {"crc32": crc, "shape": list(arrays[name].shape),
+                           "dtype": str(arrays[name].dtype)}
+        write_json_atomic(tmp / "shard.json", {**meta, "files": files})
+        fsync_dir(tmp)
         os.rename(tmp, final)
     except OSError:
+        shutil.rmtree(tmp, ignore_errors=True)
         if final.is_dir():  # done meanwhile by another process on the same range
-            shutil.rmtree(tmp, ignore_errors=True)
             return False
         raise
     fsync_dir(sdir)
@@ -300,7 +302,7 @@ def generate(space_spec: "str | Path", n: int, seed: int, out: "str | Path",
         from tqdm import tqdm
 
         bar = tqdm(total=total, unit="design", desc="dataset", dynamic_ncols=True)
-    if dask is not None:
+    if dask is not None and pending:
         from .cluster import run_shards
 
         t0 = time.perf_counter()

@@ -431,7 +431,8 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
                                 RefineSettings(designs=cfg.refine_designs, steps=cfg.refine_steps, seed=cfg.seed),
                                 writer=writer, name="end_to_end", log=log)
         e2e = train(cfg, camera, make_optimizer(cfg, camera, cfg.optimizer), out, "end_to_end", progress=progress,
-                    writer=writer, frame=frame, folder=folder, log=log, monitor=monitor, ranks=ranks)
+                    writer=writer, frame=frame, folder=folder, log=log, ranks=ranks,
+                    monitor=monitor if ranks.is_main else None)  # surrogate optics: it only measures
         nominal_values = camera.optics.base_values()
         with torch.no_grad():
             psf_ns, vig_ns = sur.psfs(nominal_values, check=False)

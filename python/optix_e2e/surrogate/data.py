@@ -98,8 +98,8 @@ def load_arrays(root: "str | Path", psf: str = "psf_sensor", bin: int = 1,
             n += len(rows)
         if progress:
             progress(k + 1, man["n_shards"])
-        if max_designs is not None and n >= max_designs:
-            break
+        if (max_designs is not None and n >= max_designs) or (keep is not None and len(idx) and idx[-1] >= keep[-1]):
+            break  # shards hold ascending design ranges: the rest have none of the requested designs
     if n == 0:
         raise DatasetError(f"{root}: no designs to read" + ("" if keep is None else " among the requested ones"))
     out = PsfArrays(*(np.concatenate(parts[name]) for name in ("params", "psf", "vignetting", "design")))

@@ -111,6 +111,17 @@ def _split(designs: np.ndarray, n_val: int, seed: int) -> tuple[np.ndarray, np.n
     return np.sort(perm[n_val:]), np.sort(perm[:n_val])
 
 
+def rank_designs(designs: np.ndarray, val_designs: int, seed: int, rank: int = 0,
+                 world: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(training designs, validation designs, this rank's training designs): the seeded split
+    of the dataset's ``designs``, and the training designs at positions rank, rank + world,
+    ... (ascending: the global batch's position p is rank p % world's row p // world)."""
+    tr, va = _split(designs, val_designs, seed)
+    if len(tr) < world:
+        raise ValueError(f"{len(tr)} training designs cannot be shared by {world} processes")
+    return designs[tr], designs[va], designs[tr][rank::world]
+
+
 def build_model(cfg: TrainConfig, man: dict, train_vig: np.ndarray, meta: dict) -> OpticsSurrogate:
     params = man["space"]["parameters"]
     mc = SurrogateConfig(n_params=len(params), channels=len(man["channels"]), psf_size=psf_grid(man, cfg.psf, cfg.bin),
@@ -193,18 +204,15 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
     designs, man = design_indices(data_root, cfg.max_designs or None)
     if resumed and resumed["data"]["designs_csv_sha256"] != man["designs_csv_sha256"]:
         raise ValueError(f"{state_path}: that run trained on another dataset than {data_root}")
-    tr_rows, va_rows = _split(designs, cfg.val_designs, cfg.seed)
-    if len(tr_rows) < W:
-        raise ValueError(f"{len(tr_rows)} training designs cannot be shared by {W} processes")
-    mine = designs[tr_rows][ranks.rank::W]   # training design at position p: rank p % W, row p // W
+    tr_designs, va_designs, mine = rank_designs(designs, cfg.val_designs, cfg.seed, ranks.rank, W)
     arrays, man = load_arrays(data_root, cfg.psf, cfg.bin,
-                              designs=np.concatenate([mine, designs[va_rows]]) if ranks.is_main else mine)
+                              designs=np.concatenate([mine, va_designs]) if ranks.is_main else mine)
     in_train = np.isin(arrays.design, mine)
     train_t = to_tensors(arrays.subset(np.flatnonzero(in_train)), device)
     val_t = to_tensors(arrays.subset(np.flatnonzero(~in_train)), device) if ranks.is_main else None
     data_meta = {"root": str(Path(data_root).resolve()), "designs_csv_sha256": man["designs_csv_sha256"],
-                 "n_train_designs": int(len(tr_rows)), "n_val_designs": int(len(va_rows)),
-                 "val_designs": designs[va_rows].tolist()}
+                 "n_train_designs": int(len(tr_designs)), "n_val_designs": int(len(va_designs)),
+                 "val_designs": va_designs.tolist()}
     del arrays
 
     torch.manual_seed(cfg.seed)
@@ -227,7 +235,7 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
 
         net = DistributedDataParallel(model.net, device_ids=[device.index] if device.type == "cuda" else None)
     writer = SummaryWriter(str(out_dir / "tb")) if ranks.is_main else None
-    n_tr, k = len(tr_rows), len(man["fields_deg"])
+    n_tr, k = len(tr_designs), len(man["fields_deg"])
     fields = model.fields
     bar = tqdm(total=cfg.steps, initial=step, desc="train surrogate", unit="step", disable=not progress)
     t_start = time.time() - seconds
