@@ -128,40 +128,35 @@ def average_gradients(params, ranks: Ranks, extra: torch.Tensor | None = None) -
     if not ranks.distributed:
         return extra
     params = [p for p in params if p.requires_grad]
-    flat = [(p.grad if p.grad is not None else torch.zeros_like(p)).reshape(-1) for p in params]
-    flat.append(torch.tensor([float(p.grad is not None) for p in params]))  # who has a gradient
+    parts = [torch.tensor([float(p.grad is not None) for p in params])]  # who has a gradient
+    parts += [(p.grad if p.grad is not None else torch.zeros_like(p)).reshape(-1) for p in params]
     if extra is not None:
-        flat.append(extra.detach().reshape(-1))
-    dtype = torch.float64 if any(f.dtype == torch.float64 for f in flat[:len(params)]) else torch.float32
-    buf = torch.cat([f.to(ranks.device, dtype) for f in flat])
+        parts.append(extra.detach().reshape(-1))
+    dtype = torch.float64 if any(p.dtype == torch.float64 for p in params) else torch.float32
+    buf = torch.cat([t.to(ranks.device, dtype) for t in parts])
     dist.all_reduce(buf, op=dist.ReduceOp.SUM)
-    n_grad = buf.numel() - len(params) - (0 if extra is None else extra.numel())
-    has = buf[n_grad:n_grad + len(params)] > 0
+    has = (buf[:len(params)] > 0).tolist()
     buf /= ranks.world
-    i = 0
-    for j, p in enumerate(params):
-        n = p.numel()
-        if has[j]:
-            g = buf[i:i + n].view_as(p).to(p.device, p.dtype)
+    i = len(params)
+    for p, h in zip(params, has):
+        if h:
+            g = buf[i:i + p.numel()].view_as(p).to(p.device, p.dtype)
             if p.grad is None:
                 p.grad = g.clone()
             else:
                 p.grad.copy_(g)
-        i += n
-    if extra is None:
-        return None
-    i += len(params)
-    return buf[i:i + extra.numel()].view_as(extra).to(extra.device, extra.dtype)
+        i += p.numel()
+    return None if extra is None else buf[i:].view_as(extra).to(extra.device, extra.dtype)
 
 
 def average_step(ranks: Ranks, params, task: torch.Tensor, info: dict) -> tuple[torch.Tensor, dict]:
     """An optimizer's ``reduce`` (optimize/alg1.py): average the gradients of ``params``, the
     task loss and the info's numbers over the ranks, in one all-reduce."""
+    if not ranks.distributed:
+        return task, info
     keys = [k for k, v in info.items() if isinstance(v, (int, float)) and not isinstance(v, bool)]
     extra = torch.tensor([float(task.detach()), *(float(info[k]) for k in keys)], dtype=torch.float64)
     avg = average_gradients(params, ranks, extra)
-    if avg is None or not ranks.distributed:
-        return task, info
     return avg[0].to(task.dtype), {**info, **{k: float(v) for k, v in zip(keys, avg[1:])}}
 
 

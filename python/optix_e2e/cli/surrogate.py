@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import click
@@ -62,8 +61,8 @@ def train_cmd(data, out_dir, bin_, as_json, **kw):
         summary = train(data, out_dir, cfg, log=lambda m: click.echo(m, err=True))
     finally:
         parallel.teardown()
-    if summary.get("processes", 1) > 1 and int(os.environ.get("RANK", "0")) != 0:
-        return  # rank 0 reports
+    if summary is None:  # not rank 0 of a torchrun run: rank 0 reports
+        return
     if as_json:
         click.echo(dumps({k: v for k, v in summary.items() if k != "history"}))
         return

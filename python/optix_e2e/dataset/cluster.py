@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import os
 import socket
 import threading
 from contextlib import contextmanager
@@ -115,22 +114,22 @@ def _mismatch(mine: dict, expect: dict, out: str) -> str | None:
 @functools.lru_cache(maxsize=1)
 def _engine_file_sha() -> str:
     from .. import _engine
+    from .layout import sha256_file
 
-    h = hashlib.sha256()
-    with open(_engine.__file__, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()[:16]
+    return sha256_file(Path(_engine.__file__))[:16]
 
 
-def _shard_buffers(shapes: tuple) -> tuple:
-    from .layout import aligned_empty
+def _thread_buffers(man: dict) -> tuple:
+    """This worker thread's shard buffers for ``man``'s shard shape (generate.shard_buffers)."""
+    from .generate import shard_buffers
 
     key = threading.get_ident()
+    shape = (man["settings"]["shard_size"], len(man["fields_deg"]), len(man["channels"]), man["psf_size"],
+             man["sensor_size"])
     with _buffers_lock:
         got = _buffers.get(key)
-        if got is None or got[0] != shapes:
-            got = _buffers[key] = (shapes, tuple(aligned_empty(sh, np.float32) for sh in shapes))
+        if got is None or got[0] != shape:
+            got = _buffers[key] = (shape, shard_buffers(man))
     return got[1]
 
 
@@ -165,14 +164,11 @@ def run_shard(out: str, k: int, expect: dict) -> dict:
     sdir = shards_dir(root)
     if sdir.exists():
         _clean_stale(sdir, k)
-    lead = (man["settings"]["shard_size"], len(man["fields_deg"]), len(man["channels"]))
-    shapes = (lead + (man["psf_size"],) * 2, lead + (man["sensor_size"],) * 2)
-    psf_buf, sensor_buf = _shard_buffers(shapes)
+    psf_buf, sensor_buf = _thread_buffers(man)
     arrays, meta = compute_shard(k, man, designs, space, base, checked=True, psf_buffer=psf_buf,
                                  sensor_buffer=sensor_buf)
     written = write_shard(root, k, arrays, meta)
-    return {"shard": k, "written": written, "n_ok": meta["n_ok"], "n_failed": meta["n_failed"],
-            "seconds": meta["seconds"], "worker": f"{socket.gethostname()}:{os.getpid()}", "notes": notes}
+    return {"shard": k, "written": written, "n_ok": meta["n_ok"], "n_failed": meta["n_failed"], "notes": notes}
 
 
 def run_shards(spec: str, out: Path, man: dict, pending: list[int], rep, bar=None,

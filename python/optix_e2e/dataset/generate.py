@@ -224,6 +224,14 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
     return arrays, meta
 
 
+def shard_buffers(man: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Aligned float32 arrays for one shard's PSFs and sensor-pitch PSFs (compute_shard's
+    ``psf_buffer`` and ``sensor_buffer``), reused from shard to shard by their owner."""
+    lead = (man["settings"]["shard_size"], len(man["fields_deg"]), len(man["channels"]))
+    return (aligned_empty(lead + (man["psf_size"],) * 2, np.float32),
+            aligned_empty(lead + (man["sensor_size"],) * 2, np.float32))
+
+
 def write_shard(root: Path, k: int, arrays: dict, meta: dict) -> bool:
     """Write shard ``k`` atomically; False if another process finished it first."""
     sdir = shards_dir(root)
@@ -290,7 +298,6 @@ def generate(space_spec: "str | Path", n: int, seed: int, out: "str | Path",
     man, designs = prepare(out, space, base, n, seed, s, log)
     n_shards = man["n_shards"]
     todo = parse_shard_range(shards, n_shards)
-    sdir = shards_dir(out)
     rep = GenerateReport(out=str(out), n_designs=n, n_shards=n_shards)
     pending = [k for k in todo if not _complete(out, k, man, log)]
     rep.shards_skipped = [k for k in todo if k not in pending]
@@ -302,17 +309,25 @@ def generate(space_spec: "str | Path", n: int, seed: int, out: "str | Path",
         from tqdm import tqdm
 
         bar = tqdm(total=total, unit="design", desc="dataset", dynamic_ncols=True)
-    if dask is not None and pending:
-        from .cluster import run_shards
+    t0 = time.perf_counter()
+    try:
+        if dask is not None and pending:
+            from .cluster import run_shards
 
-        t0 = time.perf_counter()
-        try:
             run_shards(dask, out, man, pending, rep, bar, log)
-        finally:
-            rep.seconds = time.perf_counter() - t0
-            if bar is not None:
-                bar.close()
-        return rep
+        else:
+            _run_here(out, man, designs, space, base, pending, rep, bar)
+    finally:
+        rep.seconds = time.perf_counter() - t0
+        if bar is not None:
+            bar.close()
+    return rep
+
+
+def _run_here(out: Path, man: dict, designs: np.ndarray, space: ParameterSpace, base: Lens, pending: list,
+              rep: GenerateReport, bar) -> None:
+    """Compute and write shards ``pending`` in this process, filling ``rep``."""
+    sdir = shards_dir(out)
     failed = {"n": 0}
 
     def on_batch(done, nfail):
@@ -330,28 +345,19 @@ def generate(space_spec: "str | Path", n: int, seed: int, out: "str | Path",
 
     # a writer thread stores shard k while the engine (which releases the GIL) computes
     # shard k + 1; at most one shard waits, and an interruption lets its write finish
-    t0 = time.perf_counter()
     writing = None
     buffers = [None, None]  # the shard being computed and the one being written: (psf, sensor)
-    try:
-        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="shard-writer") as pool:
-            for n_done, k in enumerate(pending):
-                if sdir.exists():
-                    _clean_stale(sdir, k)
-                if buffers[n_done % 2] is None and len(pending) > 1:
-                    lead = (s.shard_size, len(man["fields_deg"]), len(man["channels"]))
-                    buffers[n_done % 2] = (aligned_empty(lead + (s.size, s.size), np.float32),
-                                           aligned_empty(lead + (s.sensor_size, s.sensor_size), np.float32))
-                psf_buf, sensor_buf = buffers[n_done % 2] or (None, None)
-                arrays, meta = compute_shard(k, man, designs, space, base, on_batch=on_batch, psf_buffer=psf_buf,
-                                             sensor_buffer=sensor_buf, checked=True)
-                if writing is not None:
-                    finish(writing)
-                writing = (k, meta, pool.submit(write_shard, out, k, arrays, meta))
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="shard-writer") as pool:
+        for n_done, k in enumerate(pending):
+            if sdir.exists():
+                _clean_stale(sdir, k)
+            if buffers[n_done % 2] is None and len(pending) > 1:
+                buffers[n_done % 2] = shard_buffers(man)
+            psf_buf, sensor_buf = buffers[n_done % 2] or (None, None)
+            arrays, meta = compute_shard(k, man, designs, space, base, on_batch=on_batch, psf_buffer=psf_buf,
+                                         sensor_buffer=sensor_buf, checked=True)
             if writing is not None:
                 finish(writing)
-    finally:
-        rep.seconds = time.perf_counter() - t0
-        if bar is not None:
-            bar.close()
-    return rep
+            writing = (k, meta, pool.submit(write_shard, out, k, arrays, meta))
+        if writing is not None:
+            finish(writing)

@@ -56,8 +56,7 @@ def merge(out: "str | Path", parts: Sequence["str | Path"]) -> dict:
             continue
         if srcs[0].resolve() == dst.resolve():
             continue
-        tmp = sdir / temporary_name(k)
-        shutil.rmtree(tmp, ignore_errors=True)
+        tmp = sdir / temporary_name(k)  # unique: nobody else's to clear
         shutil.copytree(srcs[0], tmp)
         os.rename(tmp, dst)
         copied.append(k)

@@ -140,8 +140,6 @@ def _preds_from_json(rows: list[dict]) -> list[dict]:
 def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, log=print) -> dict | None:
     """The whole detection run; returns the results (also written to out/results.json).
     Under torchrun, as run_design: the ranks share the batches, rank 0 evaluates and writes."""
-    from torch.utils.tensorboard import SummaryWriter
-
     from ..design.report import write_report
     from .run import _write_history, claim_run_dir
 
@@ -155,13 +153,9 @@ def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool
     if "f_number" not in sur.param_names:
         raise ValueError(f"surrogate {cfg.surrogate}: its space has no f_number parameter; the detection task "
                          f"learns the aperture (use paper-triplet-detect)")
-    parallel.batch_slice(cfg.batch, ranks)
     build_detection_camera(cfg, sur, frame=frame)  # everything is checked before the run directory is claimed
-    claim_run_dir(out, cfg, ranks)
-    if not ranks.is_main:
-        progress, log = False, (lambda m: None)
+    progress, log, writer = claim_run_dir(out, cfg, ranks, progress, log)
     parts = DetectionCamera.LOSS_PARTS
-    writer = SummaryWriter(str(out / "tb")) if ranks.is_main else None
     try:
         log(f"[1/4] end-to-end training: {cfg.task}, {cfg.optimizer}, {cfg.total_steps} steps")
         cam = build_detection_camera(cfg, sur, frame=frame)

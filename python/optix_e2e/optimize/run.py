@@ -381,14 +381,22 @@ def start_run(cfg: DesignConfig, out: "str | Path") -> tuple[Path, object, Senso
                                                                          calibrated_preset("imx249").pixel_um)
 
 
-def claim_run_dir(out: Path, cfg: DesignConfig, ranks: parallel.Ranks) -> None:
-    """Rank 0 checks or creates the run directory (config.json) while the others wait; the
-    design trainings run on the CPU, so several processes use gloo."""
+def claim_run_dir(out: Path, cfg: DesignConfig, ranks: parallel.Ranks, progress: bool, log):
+    """Check that the batch splits over the ranks, then rank 0 checks or creates the run
+    directory (config.json) while the others wait. Returns this rank's (progress, log,
+    TensorBoard writer): rank 0's as given with a writer into out/tb, the others' silent
+    with none."""
+    from torch.utils.tensorboard import SummaryWriter
+
     from .config import check_run_dir
 
+    parallel.batch_slice(cfg.batch, ranks)
     if ranks.is_main:
         check_run_dir(out, cfg)
     parallel.barrier(ranks)
+    if not ranks.is_main:
+        return False, (lambda m: None), None
+    return progress, log, SummaryWriter(str(out / "tb"))
 
 
 def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, log=print) -> dict | None:
@@ -396,8 +404,6 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     (``torchrun --nproc_per_node N -m optix_e2e design ...``) the N processes share each
     training batch (optix_e2e.parallel); rank 0 alone evaluates and writes, and the other
     ranks return None once the trainings are done."""
-    from torch.utils.tensorboard import SummaryWriter
-
     from ..scenes import ImageFolder
     from ..surrogate.refine import RefineSettings
     from ..tasks import heldout_set
@@ -410,19 +416,15 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
 
         return run_detection_design(cfg, out, progress=progress, log=log)
     # everything the run needs is checked before the run directory is claimed
-    ranks = parallel.setup("cpu")
+    ranks = parallel.setup("cpu")  # the design trainings run on the CPU: gloo
     out, task, frame, sur = start_run(cfg, out)
     folder = ImageFolder(cfg.images) if cfg.images else None
     mode, choice = resolve_optics(cfg)
     if ranks.distributed and mode != "surrogate":
         raise ValueError(f"--optics {cfg.optics} ({mode}) runs the engine inside the training steps and is not "
                          f"split over processes; under torchrun use --optics surrogate")
-    parallel.batch_slice(cfg.batch, ranks)
     build_camera(cfg, sur, frame=frame)
-    claim_run_dir(out, cfg, ranks)
-    if not ranks.is_main:
-        progress, log = False, (lambda m: None)
-    writer = SummaryWriter(str(out / "tb")) if ranks.is_main else None
+    progress, log, writer = claim_run_dir(out, cfg, ranks, progress, log)
     try:
         log(f"[1/4] end-to-end training: {cfg.task}, {cfg.optimizer}, {cfg.total_steps} steps, optics {mode}"
             + (f" (auto: {choice['why']})" if cfg.optics == "auto" else ""))

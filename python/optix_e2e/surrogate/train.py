@@ -176,10 +176,11 @@ def _vignetting_mean(vig: torch.Tensor, ranks: parallel.Ranks) -> np.ndarray:
 
 
 def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, progress: bool = True,
-          log=lambda m: None, stop_after: int | None = None) -> dict:
+          log=lambda m: None, stop_after: int | None = None) -> dict | None:
     """Train a surrogate on the dataset in ``data_root``, or resume the run in ``out_dir``.
     ``stop_after``: leave this call after that many steps (as an interruption would; the
-    next call resumes). Under torchrun, every rank calls it (see the module docstring)."""
+    next call resumes). Under torchrun, every rank calls it (see the module docstring) and
+    the ranks other than 0 return None."""
     out_dir = Path(out_dir)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
@@ -254,10 +255,8 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
         # the global batch, the same on every rank; this rank computes the samples of its designs
         d = torch.randint(n_tr, (cfg.batch,), generator=gen)
         f = torch.randint(k, (cfg.batch,), generator=gen)
-        if W > 1:
-            own = d % W == ranks.rank
-            d, f = d[own] // W, f[own]
-        d, f = d.to(device), f.to(device)
+        own = d % W == ranks.rank
+        d, f = (d[own] // W).to(device), f[own].to(device)
         psf, vig = net(model.normalize(train_t["params"][d]), fields[f])
         if len(d):
             terms = optics_loss_terms(psf, vig, train_t["psf"][d, f], train_t["vignetting"][d, f])
@@ -309,7 +308,7 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
         writer.close()
         (out_dir / "train.json").write_text(json.dumps(summary, indent=2))
     parallel.barrier(ranks)  # the files are written when any rank returns
-    return summary
+    return summary if ranks.is_main else None
 
 
 def config_from_options(**opts) -> TrainConfig:
