@@ -59,7 +59,7 @@ def main() -> None:
         c.append(time.perf_counter())
         raw = cam.sensor(img, gen)
         c.append(time.perf_counter())
-        out = cam.isp(raw)
+        out = cam.isp(raw, b.offset_px, frame.full_field_px)
         c.append(time.perf_counter())
         loss, _ = task_loss(out, b.target, lp, task.lpips_weight)
         c.append(time.perf_counter())

@@ -70,11 +70,11 @@ def main() -> None:
     frame = SensorFrame()
     lp = LPIPS()
     f_number = float(base.paraxial()["f_number"])
-    isp_sw = SoftwareISPStage(SoftwareISP.load(SOFTWARE_ISP))
+    isp_sw = SoftwareISP.load(SOFTWARE_ISP)
     ref = ReferenceISP()
 
     class DefaultHW(torch.nn.Module):  # the reference ISP at its default hyperparameters
-        def forward(self, raw):
+        def forward(self, raw, *where):  # the crop's position is not used
             return ref(raw, [hp.defaults()] * raw.shape[0])
 
         final = forward
@@ -91,7 +91,8 @@ def main() -> None:
             for name in a.tasks:
                 task = get_task(name)
                 preset = calibrated_preset("imx249", f_number, task.exposure_factor, task.gain_factor)
-                cam = Camera(fo, SensorStage(preset), isp_sw if task.isp == "software" else DefaultHW())
+                isp = SoftwareISPStage(isp_sw, preset) if task.isp == "software" else DefaultHW()
+                cam = Camera(fo, SensorStage(preset), isp)
                 losses = []
                 for smp in samples:
                     o, _ = cam(smp.scene[None], smp.offset_px, torch.Generator().manual_seed(smp.noise_seed), final=True)

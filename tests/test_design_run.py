@@ -52,6 +52,9 @@ def test_a_smoke_design_run_writes_every_output_and_resumes_after_kill_9(tmp_pat
     for who in ("nominal", "end_to_end"):
         for m in ("psnr_db", "ssim", "lpips", "haarpsi"):
             assert isinstance(res[who][m], float) and isinstance(res[who]["surrogate"][m], float)
+    # the lens's room: the nominal camera's processing behind a perfect lens, the same keys
+    assert set(res["perfect_lens"]) == set(res["nominal"]) - {"surrogate"}
+    assert res["perfect_lens"]["n_samples"] == res["nominal"]["n_samples"] and "perfect lens" in r.stdout
     for m in ("psnr_db", "ssim", "lpips", "haarpsi"):
         lo, hi = res["paired"][m]["ci95"]
         assert lo <= res["paired"][m]["mean"] <= hi

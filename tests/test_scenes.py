@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+from optix_e2e import scenes
 from optix_e2e.color import (COLORCHECKER_NAMES, COLORCHECKER_SRGB8, colorchecker_srgb,
                              linear_to_srgb, srgb_to_linear)
 from optix_e2e.scenes import (ImageFolder, bundled_photos, chart_patch_boxes, color_chart,
@@ -270,3 +271,34 @@ def test_image_folder_errors(tmp_path):
     assert ds[1].shape == (3, 4, 4)
     with pytest.raises(ValueError, match=r"cannot read image .*broken\.png"):
         ds[0]
+
+
+# --- the natural training mix and the held-out split -----------------------------------------
+
+def test_natural_training_scenes_are_images_and_repeat_with_their_seed():
+    from optix_e2e.scenes import natural
+    for kind in natural.NATURAL_MIX:
+        a = natural.natural_scene((40, 56), np.random.default_rng(3), mix={kind: 1.0})
+        b = natural.natural_scene((40, 56), np.random.default_rng(3), mix={kind: 1.0})
+        assert a.shape == (3, 40, 56) and a.dtype == torch.float32, kind
+        assert float(a.min()) >= 0 and float(a.max()) <= 1 and torch.equal(a, b), kind
+        assert float(a.std()) > 0.01 or kind == "color_chart", kind  # not flat
+    # the photographs the packages ship: four colour training photos, none of the held-out ones
+    assert len(natural.training_photos()) == 4
+    held = {tuple(scenes.load_photo(n, 32).flatten()[:50].tolist()) for n in scenes.bundled_photos()}
+    assert not held & {tuple(scenes.fit_size(p, 32).flatten()[:50].tolist()) for p in natural.training_photos()}
+
+
+def test_held_out_charts_are_not_the_training_chart():
+    standard = scenes.color_chart(96)
+    a, b = scenes.color_chart(96, 1, jitter=0.2), scenes.color_chart(96, 2, jitter=0.2)
+    assert not torch.allclose(a, standard, atol=0.02) and not torch.allclose(a, b, atol=0.02)
+    assert torch.equal(scenes.color_chart(96, 7), standard)  # no jitter: the standard chart, whatever the seed
+    # a held-out procedural chart (mixed_scene) has no patch of the standard chart's colours
+    ref = colorchecker_srgb()
+    boxes = chart_patch_boxes(96)
+    for seed in range(3):
+        img = scenes.mixed_scene(96, seed, weights={"color_chart": 1.0})
+        patches = torch.stack([img[:, (y0 + y1) // 2, (x0 + x1) // 2] for y0, y1, x0, x1 in boxes])
+        nearest = torch.cdist(patches, ref).min(1).values
+        assert (nearest > 2 / 255).sum() >= 20, nearest

@@ -57,5 +57,9 @@ class Camera(nn.Module):
         # the photon count follows the lens's f-number where the optics carry one (Eq. 3)
         f_number = self.optics.f_number() if hasattr(self.optics, "f_number") else None
         raw = self.sensor(image, generator, common_noise=final, f_number=f_number)
-        out = self.isp.final(raw) if final else self.isp(raw)
+        # the ISP is told where the crop lies in the frame (a software ISP that sees the field
+        # position undoes a blur and a shading that vary over it)
+        where = (offset_px, getattr(self.optics, "full_field_px", None)) if getattr(self.isp, "takes_position",
+                                                                                   False) else ()
+        out = self.isp.final(raw, *where) if final else self.isp(raw, *where)
         return out, raw

@@ -124,23 +124,26 @@ class SensorStage(nn.Module):
 
 
 class SoftwareISPStage(nn.Module):
-    """RAW -> sRGB through the UNet f_NN (Eq. 11); its weights are the block "isp"."""
+    """RAW -> sRGB through the software ISP f_NN (Eq. 11; isp/software.py: the classical
+    pipeline calibrated for this camera's sensor plus a learned correction that sees where the
+    crop lies in the frame); its weights are the block "isp"."""
 
     kind = "software"
+    takes_position = True  # the camera passes the crop's offset and the frame's full field
 
-    def __init__(self, net: SoftwareISP):
+    def __init__(self, net: SoftwareISP, preset=None):
         super().__init__()
-        self.net = net
+        self.net = net if preset is None else net.calibrate(preset)
 
     def block(self):
         return "isp", list(self.net.parameters())
 
-    def forward(self, raw: torch.Tensor) -> torch.Tensor:
-        return self.net(raw)
+    def forward(self, raw: torch.Tensor, offset_px=(0.0, 0.0), full_field_px: float | None = None) -> torch.Tensor:
+        return self.net(raw, offset_px, full_field_px)
 
-    def final(self, raw: torch.Tensor) -> torch.Tensor:
+    def final(self, raw: torch.Tensor, offset_px=(0.0, 0.0), full_field_px: float | None = None) -> torch.Tensor:
         """What the camera outputs in evaluation: the same network."""
-        return self.forward(raw)
+        return self.forward(raw, offset_px, full_field_px)
 
 
 class HardwareISPStage(nn.Module):
@@ -149,6 +152,7 @@ class HardwareISPStage(nn.Module):
     construction); :meth:`final` runs the true reference ISP at the current hyperparameters."""
 
     kind = "hardware"
+    takes_position = True
 
     def __init__(self, proxy: ISPProxy, init_unit: torch.Tensor, pattern: str = "RGGB", adc_bits: int = 12,
                  eps: float = 1e-3):
@@ -173,9 +177,10 @@ class HardwareISPStage(nn.Module):
         self.proxy.eval()  # the proxy is a fixed function: never in training mode
         return self
 
-    def forward(self, raw: torch.Tensor) -> torch.Tensor:
+    def forward(self, raw: torch.Tensor, offset_px=None, full_field_px=None) -> torch.Tensor:
+        """The proxy at the current hyperparameters (the crop's position is not used)."""
         return self.proxy(raw, self.unit())
 
     @torch.no_grad()
-    def final(self, raw: torch.Tensor) -> torch.Tensor:
+    def final(self, raw: torch.Tensor, offset_px=None, full_field_px=None) -> torch.Tensor:
         return self.reference(raw.detach().cpu(), [self.hyperparameters()] * raw.shape[0]).to(raw)

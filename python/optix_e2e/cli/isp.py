@@ -93,13 +93,49 @@ def train_proxy_cmd(out_dir, as_json, init, **kw):
 
 
 @isp.command("train-software")
-@_train_options
+@click.option("--out", "out_dir", type=OUT, required=True,
+              help="Run directory (state.pt, software_isp.pt, curve.csv, tb/); the same command continues it.")
+@click.option("--steps", type=click.IntRange(1, 10_000_000), default=200_000, show_default=True)
+@click.option("--minutes", type=FiniteFloatRange(min=0, max=1e6), default=0.0, show_default=True,
+              help="Stop after this wall time in this call (0 = no limit); state.pt resumes it.")
+@click.option("--anneal-minutes", type=FiniteFloatRange(min=0, max=1e6), default=0.0, show_default=True,
+              help="The cosine learning-rate decay ends after this much training time (0: at --steps).")
+@click.option("--batch", type=click.IntRange(1, 256), default=8, show_default=True)
+@click.option("--crop", type=click.IntRange(32, 512), default=128, show_default=True,
+              help="Sensor pixels per side of a training crop (a multiple of 16).")
+@click.option("--pool", type=click.IntRange(8, 65536), default=256, show_default=True,
+              help="Samples made at a time; a fresh pool every --pool-steps steps.")
+@click.option("--pool-steps", type=click.IntRange(1, 1_000_000), default=160, show_default=True)
+@click.option("--lr", type=FiniteFloatRange(min=0, max=1, min_open=True), default=5e-4, show_default=True)
+@click.option("--arch", type=click.Choice(["nafnet", "unet"]), default="nafnet", show_default=True)
+@click.option("--width", type=click.IntRange(4, 256), default=32, show_default=True,
+              help="Channels of the network's first level.")
+@click.option("--depth", type=click.IntRange(1, 5), default=3, show_default=True)
+@click.option("--blocks", type=click.IntRange(1, 8), default=1, show_default=True, help="NAF blocks per level.")
+@click.option("--no-position", "position", flag_value=False, default=True,
+              help="Do not give the network the field position.")
+@click.option("--surrogate", default="paper-triplet-e2e", show_default=True,
+              help="The optics surrogate whose space the training lenses are drawn from.")
+@click.option("--low-light", type=FiniteFloatRange(0, 1), default=0.3, show_default=True,
+              help="Fraction of samples at low light (exposure / 100, gain x 100).")
+@click.option("--val-every", type=click.IntRange(1, 1_000_000), default=500, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
+@click.option("--threads", type=click.IntRange(0, 256), default=0, help="torch threads (0 = default).")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @friendly_errors
-def train_software_cmd(out_dir, as_json, **kw):
-    """Train the software ISP: a UNet from RAW to the ideal rendering of the scene."""
-    from ..isp.train import train_software
-    summary = train_software(_config(kw), out_dir)
-    _report(summary, as_json, out_dir, "software_isp.pt")
+def train_software_cmd(out_dir, as_json, crop, **kw):
+    """Pre-train the software ISP on RAW through lenses of the design space (docs/isp.md)."""
+    from ..camera.isp_pretraining import PretrainConfig, pretrain
+
+    if crop % 16:
+        raise click.BadParameter(f"must be a multiple of 16, got {crop}", param_hint="--crop")
+    meta = pretrain(PretrainConfig(crop=crop, **kw), out_dir)
+    if as_json:
+        click.echo(dumps({k: v for k, v in meta.items() if k != "config"}))
+    else:
+        last = meta["curve"][-1] if meta["curve"] else {}
+        click.echo(f"{meta['steps']} steps, {meta['minutes']} min; validation PSNR {last.get('psnr_db', 'n/a')} dB; "
+                   f"wrote {out_dir / 'software_isp.pt'}")
 
 
 @isp.command("eval")

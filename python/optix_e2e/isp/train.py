@@ -1,8 +1,7 @@
-"""Training of the ISP networks with TensorBoard logs and a tqdm progress bar:
-
-- the proxy (Eq. 9): L1 + perceptual loss against the reference ISP's output on sensor RAW
-  over random hyperparameters;
-- the software ISP (Eq. 11's f_NN): the same loss against the ideal rendering of the scene.
+"""Training of the hardware ISP's proxy (Eq. 9) with TensorBoard logs and a tqdm progress
+bar: L1 + perceptual loss against the reference ISP's output on sensor RAW over random
+hyperparameters. (The software ISP is pre-trained through lenses of the design space:
+camera/isp_pretraining.py.)
 
 Data stream: pools of procedural scenes captured by the simulated sensor and rendered by the
 reference ISP under random hyperparameters (``data.make_pool``); a fresh pool replaces the
@@ -24,8 +23,7 @@ from tqdm import tqdm
 
 from ..metrics import image as metrics
 from . import data
-from .proxy import ISPProxy, save_atomic
-from .software import SoftwareISP
+from .proxy import ISPProxy
 
 
 @dataclass
@@ -62,11 +60,9 @@ def _cosine_lr(cfg: TrainConfig, step: int, seconds: float) -> float:
 
 
 def _predict(model, kind: str, pool: data.Pool, idx) -> tuple[torch.Tensor, torch.Tensor]:
-    """(prediction, target) of a batch: the proxy imitates the ISP, the software ISP the ideal."""
+    """(prediction, target) of a batch: the proxy imitates the reference ISP."""
     raw, u, target = pool.batch(idx)
-    if kind == "proxy":
-        return model(raw, u), target
-    return model(raw), pool.ideal[idx].float() / 255
+    return model(raw, u), target
 
 
 @torch.no_grad()
@@ -89,18 +85,8 @@ def train_proxy(cfg: TrainConfig, out_dir: Path, *, init: Path | None = None,
     return _train(model, "proxy", cfg, Path(out_dir), progress)
 
 
-def train_software(cfg: TrainConfig, out_dir: Path, *, progress: bool = True) -> dict:
-    """Train a software ISP from RAW to the ideal rendering; writes software_isp.pt, train.json, tb/."""
-    model = SoftwareISP(base=cfg.base, depth=cfg.depth)
-    return _train(model, "software", cfg, Path(out_dir), progress)
-
-
 def _save(model, kind: str, out_dir: Path, **meta) -> None:
-    if kind == "proxy":
-        model.save(out_dir / "proxy.pt", **meta)
-    else:
-        save_atomic({"format": "optix-software-isp/1", "config": model.net.config(),
-                     "state_dict": model.state_dict(), "meta": meta}, out_dir / "software_isp.pt")
+    model.save(out_dir / "proxy.pt", **meta)
 
 
 def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) -> dict:

@@ -234,7 +234,7 @@ def build_camera(cfg: DesignConfig, sur: OpticsSurrogate, *, fixed_optics: Fixed
         path = Path(cfg.software_isp) if cfg.software_isp else SOFTWARE_ISP
         if not path.is_file():
             raise FileNotFoundError(f"the pre-trained software ISP is missing: {path}")
-        isp = SoftwareISPStage(SoftwareISP.load(path).train())
+        isp = SoftwareISPStage(SoftwareISP.load(path).train(), preset)
     else:
         isp = HardwareISPStage(ISPProxy.load(), initial_isp_unit(cfg), preset.cfa, preset.adc_bits)
     return Camera(optics, sensor, isp)
@@ -494,6 +494,24 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
                 samples, desc=f"eval {who} ({kind} optics)", unit="img", disable=not progress, leave=False))
             write_json_atomic(path, {"key": key, "wall_s": time.perf_counter() - t0, "rows": rows[who][kind]})
 
+    # the room the lens has: the nominal camera's processing behind a perfect lens (a delta
+    # PSF at every field, no vignetting), the same samples and noise draws
+    k, c, size = exact["psf"].shape[1:4]
+    delta = torch.zeros(k, c, size, size)
+    delta[..., size // 2, size // 2] = 1.0
+    perfect = (delta, torch.ones(k, c), heights["nominal"])
+    path = out / "eval_perfect_lens_exact.json"
+    key = _camera_digest(*perfect, nominal.isp, len(samples))
+    cached = _read_eval_cache(path, key)
+    if cached is not None:
+        perfect_rows, reused_s = cached["rows"], reused_s + float(cached.get("wall_s", 0.0))
+    else:
+        t0 = time.perf_counter()
+        fo = FixedOptics(*perfect, patch=cfg.patch, full_field_px=frame.full_field_px)
+        perfect_rows = ev.evaluate(Camera(fo, nominal.sensor, nominal.isp), tqdm(
+            samples, desc="eval perfect lens", unit="img", disable=not progress, leave=False))
+        write_json_atomic(path, {"key": key, "wall_s": time.perf_counter() - t0, "rows": perfect_rows})
+
     log("[4/4] lens export, checks, PSF grids, panels, reports")
     fields_deg = [float(f) for f in sur.manifest["fields_deg"]]
     names = sur.param_names
@@ -512,6 +530,8 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         "task": cfg.task, "description": task.description, "optimizer": cfg.optimizer, "budget": cfg.budget,
         "seed": cfg.seed, "optics_eval": "exact",
         "nominal": summary["nominal"], "end_to_end": summary["end_to_end"],
+        # the nominal camera's processing with a delta PSF and no vignetting: the lens's room
+        "perfect_lens": ev.summarize(perfect_rows),
         "paired": ev.paired(rows["nominal"]["exact"], rows["end_to_end"]["exact"], cfg.bootstrap, cfg.seed),
         "paired_by_zone": ev.paired_by_zone(rows["nominal"]["exact"], rows["end_to_end"]["exact"], cfg.bootstrap,
                                             cfg.seed),

@@ -242,14 +242,22 @@ def chart_patch_boxes(size, gap: float = 0.25) -> list[tuple[int, int, int, int]
     return boxes
 
 
-def color_chart(size, seed=None, *, surround: float = 0.5, gap: float = 0.25) -> torch.Tensor:
+def color_chart(size, seed=None, *, surround: float = 0.5, gap: float = 0.25, jitter: float = 0.0) -> torch.Tensor:
     """The 24-patch ColorChecker (BabelColor averages, sRGB) as a 4x6 grid, centred on a
     uniform grey surround (sRGB value ``surround``).  Patch positions: :func:`chart_patch_boxes`.
-    The chart is deterministic: ``seed`` is accepted (and ignored) so that every scene
-    function can be called as ``f(size, seed)``."""
+    With ``jitter`` = 0 (the default) the chart is the standard one and ``seed`` is unused;
+    with ``jitter`` > 0 the ``seed`` shuffles the patches over the grid and scales each
+    patch's linear RGB by its own factors in [1 - jitter, 1 + jitter]: a chart no other seed
+    (and not the standard chart) gives, e.g. for held-out scenes."""
     h, w = _hw(size)
     img = torch.full((3, h, w), float(surround))
-    for (y0, y1, x0, x1), rgb in zip(chart_patch_boxes((h, w), gap), colorchecker_srgb()):
+    colours = colorchecker_srgb()
+    if jitter:
+        rng = _rng(seed)
+        colours = colours[torch.from_numpy(rng.permutation(len(colours)))]
+        scale = torch.from_numpy(rng.uniform(1 - jitter, 1 + jitter, colours.shape).astype(np.float32))
+        colours = linear_to_srgb((srgb_to_linear(colours) * scale).clamp(0, 1))
+    for (y0, y1, x0, x1), rgb in zip(chart_patch_boxes((h, w), gap), colours):
         img[:, y0:y1, x0:x1] = rgb[:, None, None]
     return img
 
@@ -258,7 +266,8 @@ def color_chart(size, seed=None, *, surround: float = 0.5, gap: float = 0.25) ->
 
 def mixed_scene(size, seed=None, *, weights: dict[str, float] | None = None) -> torch.Tensor:
     """A random procedural scene: by default dead leaves (70%, random alpha in [2.5, 3.5] and
-    palette), a slanted edge (15%, random angle/orientation/contrast) or a colour chart (15%).
+    palette), a slanted edge (15%, random angle/orientation/contrast) or a colour chart (15%:
+    shuffled and jittered by the seed, never the standard chart that training scenes use).
     The bundled photos are never used as structure, so they stay free for evaluation."""
     rng = _rng(seed)
     weights = weights or {"dead_leaves": 0.7, "slanted_edge": 0.15, "color_chart": 0.15}
@@ -273,7 +282,7 @@ def mixed_scene(size, seed=None, *, weights: dict[str, float] | None = None) -> 
         return slanted_edge(size, angle, float(rng.uniform(2, 10)), rng,
                             light=float(rng.uniform(0.3, 0.9)))
     if kind == "color_chart":
-        return color_chart(size, surround=float(rng.uniform(0.2, 0.8)))
+        return color_chart(size, rng, surround=float(rng.uniform(0.2, 0.8)), jitter=0.2)
     raise ValueError(f"unknown scene kind {kind!r}; use dead_leaves, slanted_edge, color_chart")
 
 

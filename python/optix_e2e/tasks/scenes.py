@@ -2,10 +2,13 @@
 
 A sample is an sRGB scene crop, where it lies on the sensor, and how it is lit:
 
-* Training (``training_batch``): procedural scenes (dead leaves, slanted edges, colour charts;
-  scenes/procedural.py) or random crops of a user's image folder, at one random position on
-  the sensor per batch (top-left on even rows and columns: the CFA phase of the full frame),
-  brightness log-uniform in the task's range and a random illuminant tint. Every batch is a
+* Training (``training_batch``): the natural training mix (scenes/natural.py: dead leaves in
+  real photos' colours, training photos, textures, text, gradients, edges, the chart) or
+  random crops of a user's image folder, at one random position on the sensor per batch
+  (top-left on even rows and columns: the CFA phase of the full frame), brightness
+  log-uniform in the task's range, under the neutral illuminant the camera is calibrated for
+  (``tint`` > 0 draws a per-channel illuminant the ISP is not told of: an ill-posed task,
+  off by default; docs/e2e.md, "Illuminant"). Every batch is a
   function of (seed, step) alone, so a resumed run sees the batches it would have seen.
 * Evaluation (``heldout_set``): every bundled photo plus procedural scenes from seeds training
   never draws, fixed brightness and neutral light, each at fixed positions on the sensor:
@@ -69,20 +72,14 @@ def _light(srgb: torch.Tensor, level: np.ndarray, tint: np.ndarray, margin: int)
 
 
 def training_scene(size: int, rng: np.random.Generator) -> torch.Tensor:
-    """A procedural training scene: dead leaves (70 %; uniform or grey colours, never the photo
-    palette, whose photos are held out), a slanted edge (15 %) or a colour chart (15 %)."""
-    u = rng.random()
-    if u < 0.7:
-        return scenes.dead_leaves(size, rng, alpha=float(rng.uniform(2.5, 3.5)),
-                                  colors=str(rng.choice(["uniform", "uniform", "grey"])))
-    if u < 0.85:
-        angle = float(rng.uniform(2, 10) * rng.choice([-1, 1]) + 90 * rng.integers(0, 4))
-        return scenes.slanted_edge(size, angle, float(rng.uniform(2, 10)), rng, light=float(rng.uniform(0.3, 0.9)))
-    return scenes.color_chart(size, surround=float(rng.uniform(0.2, 0.8)))
+    """A training scene from the natural mix (scenes/natural.py: dead leaves in the training
+    photos' colours, photo crops, textures, text, gradients, edges, the standard chart); the
+    held-out photos and seeds are never drawn."""
+    return scenes.natural_scene(size, rng)
 
 
 def training_batch(seed: int, step: int, batch: int, size: int, margin: int, level_range: tuple[float, float],
-                   frame: SensorFrame = SensorFrame(), folder=None, tint: float = 0.15) -> Batch:
+                   frame: SensorFrame = SensorFrame(), folder=None, tint: float = 0.0) -> Batch:
     """Batch ``step`` of the training stream ``seed`` (see the module doc)."""
     rng = np.random.default_rng([1, int(seed), int(step)])  # stream tag 1: training batches
     full = size + 2 * margin

@@ -1,0 +1,108 @@
+"""What the processing leaves to the lens: a software ISP on the design runs' held-out set.
+
+For each software ISP given (default: the shipped one) and the classical pipeline alone
+(isp/classical.py: calibrated black level, Malvar demosaick, 3x3, sRGB curve), the held-out
+set of `optix design` (9 photos + 13 procedural scenes, 4 positions each over the frame, level
+0.7, fixed noise seeds) is rendered through
+
+* a perfect lens: a delta PSF at every field, no vignetting, and
+* the nominal lens of the space: the engine's exact PSFs and relative illumination,
+
+at normal light and at low light (exposure / 100, gain x 100), and scored by PSNR and SSIM
+(8-bit output, as the design runs score). No fine-tuning: the network as shipped.
+
+    python benches/isp_headroom.py --out runs/isp_headroom [--isp runs/isp/software_isp.pt ...]
+
+Writes headroom.json (means, per image kind) and prints one line per figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from optix_e2e.camera import Camera, FixedOptics, SensorStage, SoftwareISPStage, calibrated_preset
+from optix_e2e.isp.classical import ClassicalISP
+from optix_e2e.isp.software import SoftwareISP
+from optix_e2e.metrics.image import psnr, ssim
+from optix_e2e.optimize.run import SOFTWARE_ISP, base_lens_f_number, design_field_heights, load_surrogate
+from optix_e2e.surrogate.exact import exact_optics
+from optix_e2e.tasks import SensorFrame, heldout_set
+from optix_e2e.tasks.scenes import POSITIONS
+
+
+class _Classical(torch.nn.Module):
+    def __init__(self, preset):
+        super().__init__()
+        self.net = ClassicalISP(preset)
+
+    def forward(self, raw):
+        return self.net(raw)
+
+    final = forward
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", type=Path, default=Path("runs/isp_headroom"))
+    ap.add_argument("--isp", action="append", default=None, help="software ISP checkpoint(s) (default: shipped)")
+    ap.add_argument("--surrogate", default="paper-triplet-e2e")
+    ap.add_argument("--size", type=int, default=192, help="held-out crop (the quick budget's)")
+    ap.add_argument("--procedural", type=int, default=13)
+    ap.add_argument("--threads", type=int, default=0)
+    a = ap.parse_args(argv)
+    if a.threads:
+        torch.set_num_threads(a.threads)
+    a.out.mkdir(parents=True, exist_ok=True)
+    frame = SensorFrame()
+    sur = load_surrogate(a.surrogate, 5.86)
+    f_number = base_lens_f_number(sur)
+    from optix_e2e.dataset.manifest import space_and_base
+
+    space, base = space_and_base(sur.manifest)
+    nominal = np.asarray(space.values(base.data), float)
+    ex = exact_optics(sur, nominal[None])
+    psf, vig = torch.as_tensor(ex["psf"][0]).float(), torch.as_tensor(ex["vignetting"][0]).float()
+    heights = design_field_heights(sur, nominal, ex["image_distance"][0])
+    k, c, s = psf.shape[:3]
+    delta = torch.zeros_like(psf)
+    delta[..., s // 2, s // 2] = 1.0
+    lenses = {"perfect": (delta, torch.ones(k, c)), "nominal": (psf, vig)}
+    samples = heldout_set(a.size, s // 2, a.procedural, 0.7, frame, positions=POSITIONS["frame"])
+    isps = {"classical": None} | {str(p): Path(p) for p in (a.isp or [SOFTWARE_ISP])}
+    res, t0 = {}, time.time()
+    for light, (ef, gf) in {"normal": (1.0, 1.0), "low": (0.01, 100.0)}.items():
+        preset = calibrated_preset("imx249", f_number, ef, gf)
+        for name, path in isps.items():
+            stage = _Classical(preset) if path is None else SoftwareISPStage(SoftwareISP.load(path), preset)
+            for lens, (p, v) in lenses.items():
+                cam = Camera(FixedOptics(p, v, heights, full_field_px=frame.full_field_px), SensorStage(preset), stage)
+                rows = []
+                with torch.no_grad():
+                    for smp in tqdm(samples, desc=f"{light} {Path(name).name} {lens}", leave=False):
+                        out, _ = cam(smp.scene[None], smp.offset_px, torch.Generator().manual_seed(smp.noise_seed),
+                                     final=True)
+                        x = (out.clamp(0, 1) * 255).round() / 255
+                        rows.append((smp.name, float(psnr(x, smp.target[None])[0]), float(ssim(x, smp.target[None])[0])))
+                key = f"{light}/{Path(name).name if path else name}/{lens}"
+                photo = [r for r in rows if r[0].startswith("photo:")]
+                proc = [r for r in rows if not r[0].startswith("photo:")]
+                res[key] = {"psnr_db": float(np.mean([r[1] for r in rows])), "ssim": float(np.mean([r[2] for r in rows])),
+                            "psnr_db_photos": float(np.mean([r[1] for r in photo])),
+                            "psnr_db_procedural": float(np.mean([r[1] for r in proc])), "n_samples": len(rows)}
+                print(f"{key}: PSNR {res[key]['psnr_db']:.2f} dB (photos {res[key]['psnr_db_photos']:.2f}, "
+                      f"procedural {res[key]['psnr_db_procedural']:.2f}), SSIM {res[key]['ssim']:.3f}", flush=True)
+    out = {"held_out": {"n_images": len({s.name for s in samples}), "n_samples": len(samples), "size_px": a.size,
+                        "level": 0.7}, "surrogate": a.surrogate, "results": res, "wall_s": round(time.time() - t0, 1)}
+    (a.out / "headroom.json").write_text(json.dumps(out, indent=2))
+    return out
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,297 @@
+"""Pre-training of the software ISP on what the camera will see (paper Sec. 5.2: "we first
+pre-train the software ISPs on synthetic training data"), resumable, with a validation curve.
+
+A training sample is made the way a design run makes one, with the lens drawn at random:
+
+* a scene from the natural training mix (scenes/natural.py), lit at a white level
+  log-uniform in [0.35, 1] of the calibrated white, under the neutral illuminant the camera is
+  calibrated for (docs/e2e.md, "Illuminant");
+* a lens: the perfect one (a delta PSF, no vignetting), the space's nominal, or a design drawn
+  uniformly from the space, through the optics surrogate (its PSFs and relative illumination
+  at the K fields, rendered with the same overlap-add renderer as the tasks);
+* a crop position uniform over the 1920 x 1200 frame (even rows and columns: the frame's CFA
+  phase), so the network sees every field;
+* the IMX249 at the tasks' light: normal, or low light (exposure / 100, gain x 100);
+* the target: the ideal rendering of the scene at its level (the tasks' target).
+
+Samples come in pools made ahead of the steps that use them (a pool is a function of the
+seed and its index alone); the loss is L1 in sRGB, Adam with cosine decay over the steps or
+the wall-time budget, whichever ends first. ``state.pt`` (weights, optimizer, step, curve)
+is written every ``checkpoint_every`` steps and atomically, so the same command continues
+after any stop, on the same curve.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from .. import color
+from ..isp.software import SoftwareISP
+from ..optics.render import render
+from ..scenes.natural import natural_scene
+from ..torchfile import load_plain
+from .stages import calibrated_preset
+from ..sensor import simulate_raw
+
+FORMAT = "optix-isp-pretraining/1"
+LENS_KINDS = ("perfect", "nominal", "space")
+
+
+@dataclass(frozen=True)
+class PretrainConfig:
+    steps: int = 200_000
+    minutes: float = 0.0             # stop after this wall time in this call (0: no limit)
+    batch: int = 8
+    crop: int = 128                  # sensor pixels per side
+    pool: int = 256                  # samples per pool
+    pool_steps: int = 160            # steps on one pool before the next
+    lr: float = 5e-4
+    lr_final: float = 0.02           # the cosine ends at lr * lr_final
+    anneal_minutes: float = 0.0      # the cosine's length in minutes when it is shorter than the steps (0: steps)
+    clip_grad: float = 1.0
+    arch: str = "nafnet"
+    width: int = 32
+    depth: int = 3
+    blocks: int = 1
+    position: bool = True
+    surrogate: str = "paper-triplet-e2e"
+    lens_mix: tuple = (0.2, 0.3, 0.5)   # perfect, nominal, drawn from the space
+    low_light: float = 0.3           # fraction of samples at low light
+    level_min: float = 0.35
+    level_max: float = 1.0
+    val_size: int = 48
+    val_every: int = 500
+    checkpoint_every: int = 100
+    seed: int = 0
+    threads: int = 0
+
+
+def _frame():
+    from ..tasks.scenes import SensorFrame
+
+    return SensorFrame()
+
+
+def _lens_psfs(sur, kind: str, rng, nominal) -> tuple[torch.Tensor, torch.Tensor] | None:
+    if kind == "perfect":
+        return None
+    if kind == "nominal":
+        v = nominal
+    else:
+        u = torch.as_tensor(rng.random(sur.cfg.n_params), dtype=torch.float64)
+        v = (sur.param_min + (sur.param_max - sur.param_min) * (0.02 + 0.96 * u)).float()
+    with torch.no_grad():
+        return sur.psfs(v, check=False)
+
+
+@dataclass
+class Pool:
+    raw: torch.Tensor       # [N, 1, S, S] DN
+    ideal: torch.Tensor     # [N, 3, S, S] uint8
+    offset: torch.Tensor    # [N, 2] crop centre from the axis, px
+    lens: list              # [N] lens kind
+    low: torch.Tensor       # [N] bool: low light
+
+
+def make_pool(cfg: PretrainConfig, n: int, seed, sur, heights, nominal, f_number: float, *,
+              progress: bool = False) -> Pool:
+    """``n`` samples (module doc); deterministic in ``seed``. The sensor is calibrated for the
+    space's nominal ``f_number``, as in the design runs."""
+    rng = np.random.default_rng(seed)
+    gen = torch.Generator().manual_seed(int(np.random.SeedSequence(seed).generate_state(1)[0]))
+    frame = _frame()
+    with torch.no_grad():
+        s, m = cfg.crop, int(sur.psfs(nominal, check=False)[0].shape[-1]) // 2
+    presets = {False: calibrated_preset("imx249", f_number), True: calibrated_preset("imx249", f_number, 0.01, 100.0)}
+    p_lens = np.asarray(cfg.lens_mix, float) / sum(cfg.lens_mix)
+    raws, ideals, offs, kinds, lows = [], [], [], [], []
+    for _ in tqdm(range(n), desc="ISP pre-training pool", unit="img", disable=not progress, leave=False):
+        kind = LENS_KINDS[rng.choice(3, p=p_lens)]
+        scene = natural_scene(s + 2 * m, rng)
+        level = float(np.exp(rng.uniform(math.log(cfg.level_min), math.log(cfg.level_max))))
+        lin = color.srgb_to_linear(scene)[None] * level
+        y0 = 2 * int(rng.integers(0, (frame.height - s) // 2 + 1))
+        x0 = 2 * int(rng.integers(0, (frame.width - s) // 2 + 1))
+        off = frame.offset(y0, x0, s)
+        psfs = _lens_psfs(sur, kind, rng, nominal)
+        with torch.no_grad():
+            if psfs is None:
+                img = lin
+            else:
+                img = render(lin, psfs[0], heights, psfs[1], patch=64, full_field_px=frame.full_field_px,
+                             offset_px=off)
+            img = img[..., m:m + s, m:m + s]
+            low = bool(rng.random() < cfg.low_light)
+            raw = simulate_raw(img.clamp(min=0), presets[low], quantize="uniform", generator=gen)
+        ideal = color.linear_to_srgb(lin[..., m:m + s, m:m + s].clamp(0, 1))
+        raws.append(raw)
+        ideals.append((ideal * 255).round().to(torch.uint8))
+        offs.append(off)
+        kinds.append(kind)
+        lows.append(low)
+    return Pool(torch.cat(raws), torch.cat(ideals), torch.tensor(offs, dtype=torch.float32), kinds,
+                torch.tensor(lows))
+
+
+def _psnr(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    mse = ((x - y) ** 2).flatten(1).mean(1).clamp(min=1e-10)
+    return -10 * torch.log10(mse)
+
+
+@torch.no_grad()
+def validate(model: SoftwareISP, pool: Pool, batch: int = 8) -> dict:
+    """Mean PSNR (8-bit output, as a file holds it) per lens kind and light, and overall."""
+    model.eval()
+    ps = []
+    full = _frame().full_field_px
+    for i in range(0, pool.raw.shape[0], batch):
+        sl = slice(i, i + batch)
+        out = model(pool.raw[sl], pool.offset[sl], full).clamp(0, 1)
+        ps.append(_psnr((out * 255).round() / 255, pool.ideal[sl].float() / 255))
+    model.train()
+    ps = torch.cat(ps)
+    res = {"psnr_db": float(ps.mean())}
+    for kind in LENS_KINDS:
+        for low in (False, True):
+            sel = torch.tensor([k == kind for k in pool.lens]) & (pool.low == low)
+            if sel.any():
+                res[f"psnr_db_{kind}_{'low' if low else 'normal'}"] = float(ps[sel].mean())
+    return res
+
+
+def _lr(cfg: PretrainConfig, step: int, minutes_done: float) -> float:
+    frac = step / max(cfg.steps, 1)
+    if cfg.anneal_minutes:
+        frac = max(frac, minutes_done / cfg.anneal_minutes)
+    return cfg.lr * (cfg.lr_final + (1 - cfg.lr_final) * 0.5 * (1 + math.cos(math.pi * min(frac, 1.0))))
+
+
+def _save_atomic(obj, path: Path) -> None:
+    from ..surrogate.checkpoint import save_atomic
+
+    save_atomic(obj, path)
+
+
+def export(model: SoftwareISP, path: Path, meta: dict) -> None:
+    """The weights in float16 with their manifest (``meta``): the shipped form."""
+    sd = {k: (v.half() if v.is_floating_point() and not k.startswith("classical.") else v)
+          for k, v in model.state_dict().items()}
+    _save_atomic({"format": "optix-software-isp/2", "config": model.config(), "state_dict": sd, "meta": meta}, path)
+
+
+def pretrain(cfg: PretrainConfig, out: "str | Path", *, progress: bool = True, log=print) -> dict:
+    """Train (or continue from out/state.pt) and write state.pt, software_isp.pt (float16),
+    curve.csv, train.json and tb/ into ``out``."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    from ..optimize.run import base_lens_f_number, load_surrogate, nominal_field_heights
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    sur = load_surrogate(cfg.surrogate, calibrated_preset("imx249").pixel_um)
+    heights = nominal_field_heights(sur)
+    from ..dataset.manifest import space_and_base
+
+    space, base = space_and_base(sur.manifest)
+    nominal = torch.as_tensor(space.values(base.data), dtype=torch.float32)
+    f_number = base_lens_f_number(sur)
+    torch.manual_seed(cfg.seed)
+    model = SoftwareISP(arch=cfg.arch, base=cfg.width, depth=cfg.depth, blocks=cfg.blocks, position=cfg.position)
+    model.calibrate(calibrated_preset("imx249", f_number))
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    state_path = out / "state.pt"
+    step, seconds, curve = 0, 0.0, []
+    if state_path.is_file():
+        st = load_plain(state_path, "ISP pre-training state")
+        if not isinstance(st, dict) or st.get("format") != FORMAT:
+            raise ValueError(f"{state_path}: not an ISP pre-training state ({FORMAT})")
+        if st.get("config") != {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(cfg).items()
+                                if k not in ("steps", "minutes", "threads", "anneal_minutes")}:
+            raise ValueError(f"{state_path}: made with other settings; use another --out or the same settings")
+        model.load_state_dict(st["model"])
+        model.calibrate(calibrated_preset("imx249", f_number))  # the classical path: today's calibration
+        opt.load_state_dict(st["optimizer"])
+        step, seconds, curve = int(st["step"]), float(st["seconds"]), list(st["curve"])
+        log(f"resuming ISP pre-training at step {step} ({seconds / 60:.1f} min done)")
+    n_params = sum(p.numel() for p in model.parameters())
+    val = make_pool(cfg, cfg.val_size, [7, cfg.seed, 0], sur, heights, nominal, f_number)
+    writer = SummaryWriter(str(out / "tb"))
+    model.train()
+    t0, pool, pool_id = time.time() - seconds, None, None
+    t_call, start_step = time.time(), step
+    bar = tqdm(total=cfg.steps, initial=step, desc="pre-train software ISP", unit="step", disable=not progress)
+
+    def save():
+        _save_atomic({"format": FORMAT, "config": {k: list(v) if isinstance(v, tuple) else v
+                                                   for k, v in asdict(cfg).items()
+                                                   if k not in ("steps", "minutes", "threads", "anneal_minutes")},
+                      "model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
+                      "seconds": time.time() - t0, "curve": curve}, state_path)
+
+    while step < cfg.steps:
+        if cfg.minutes and time.time() - t_call > 60 * cfg.minutes:
+            if step > start_step and (not curve or curve[-1]["step"] != step):  # the curve ends at the stop
+                v = validate(model, val)
+                curve.append({"step": step, "minutes": round((time.time() - t0) / 60, 2), "lr": lr,
+                              "loss": round(loss.item(), 5), **{k: round(x, 3) for k, x in v.items()}})
+            break
+        if pool_id != step // cfg.pool_steps:
+            pool_id = step // cfg.pool_steps
+            pool = make_pool(cfg, cfg.pool, [6, cfg.seed, pool_id], sur, heights, nominal, f_number)
+        rng = np.random.default_rng([8, cfg.seed, step])
+        idx = torch.as_tensor(rng.integers(pool.raw.shape[0], size=cfg.batch))
+        pred = model(pool.raw[idx], pool.offset[idx], _frame().full_field_px)
+        loss = (pred - pool.ideal[idx].float() / 255).abs().mean()
+        if not torch.isfinite(loss):
+            raise RuntimeError(f"ISP pre-training diverged at step {step + 1} (loss {float(loss)}); "
+                               f"{state_path} keeps the last good state")
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip_grad)
+        lr = _lr(cfg, step, (time.time() - t0) / 60)
+        for g in opt.param_groups:
+            g["lr"] = lr
+        opt.step()
+        step += 1
+        writer.add_scalar("train/loss", loss.item(), step)
+        bar.update(1)
+        bar.set_postfix(loss=f"{loss.item():.4f}")
+        if step % cfg.val_every == 0 or step == cfg.steps:
+            v = validate(model, val)
+            curve.append({"step": step, "minutes": round((time.time() - t0) / 60, 2), "lr": lr,
+                          "loss": round(loss.item(), 5), **{k: round(x, 3) for k, x in v.items()}})
+            for k, x in v.items():
+                writer.add_scalar(f"val/{k}", x, step)
+            bar.write(f"step {step}: val PSNR {v['psnr_db']:.2f} dB "
+                      f"(perfect lens {v.get('psnr_db_perfect_normal', float('nan')):.2f}, "
+                      f"nominal {v.get('psnr_db_nominal_normal', float('nan')):.2f}, "
+                      f"low light nominal {v.get('psnr_db_nominal_low', float('nan')):.2f})")
+        if step % cfg.checkpoint_every == 0 or step == cfg.steps:
+            save()
+    save()
+    bar.close()
+    writer.close()
+    meta = {"command": "optix " + " ".join(sys.argv[1:]) if Path(sys.argv[0]).name == "optix" else "pretrain()",
+            "config": asdict(cfg), "steps": step,
+            "minutes": round((time.time() - t0) / 60, 1), "parameters": n_params, "curve": curve,
+            "data": "natural training scenes through the perfect lens, the nominal and lenses drawn from "
+                    f"{cfg.surrogate} (its surrogate's PSFs), normal and low light, crops all over the frame"}
+    export(model, out / "software_isp.pt", meta)
+    with open(out / "curve.csv", "w") as f:
+        keys = sorted({k for c in curve for k in c}, key=lambda k: (k != "step", k))
+        f.write(",".join(keys) + "\n")
+        for c in curve:
+            f.write(",".join(str(c.get(k, "")) for k in keys) + "\n")
+    (out / "train.json").write_text(json.dumps(meta, indent=2))
+    return meta
