@@ -167,7 +167,7 @@ def test_proxy_save_load_round_trip_and_bad_files(tmp_path):
 def test_software_isp_pretraining_learns_and_resumes(tmp_path):
     # tiny shapes: the mechanism (pools through lenses of the space, the loss falls, the
     # validation curve, state.pt continues the same run, the float16 export loads)
-    from optix_e2e.camera.isp_pretraining import PretrainConfig, pretrain
+    from optix_e2e.optimize.isp_pretraining import PretrainConfig, pretrain
     cfg = PretrainConfig(steps=16, batch=2, crop=32, pool=8, pool_steps=8, width=8, depth=2, val_size=4,
                          val_every=8, checkpoint_every=4, lr=2e-3, threads=1)
     first = pretrain(dataclasses.replace(cfg, steps=8), tmp_path, progress=False, log=lambda m: None)

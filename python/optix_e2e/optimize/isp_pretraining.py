@@ -35,12 +35,16 @@ import torch
 from tqdm import tqdm
 
 from .. import color
+from ..camera import calibrated_preset
+from ..dataset.manifest import space_and_base
 from ..isp.software import SoftwareISP
 from ..optics.render import render
 from ..scenes.natural import natural_scene
-from ..torchfile import load_plain
-from .stages import calibrated_preset
 from ..sensor import simulate_raw
+from ..surrogate.checkpoint import save_atomic
+from ..tasks.scenes import SensorFrame
+from ..torchfile import load_plain
+from .run import base_lens_f_number, load_surrogate, nominal_field_heights
 
 FORMAT = "optix-isp-pretraining/1"
 LENS_KINDS = ("perfect", "nominal", "space")
@@ -75,12 +79,6 @@ class PretrainConfig:
     threads: int = 0
 
 
-def _frame():
-    from ..tasks.scenes import SensorFrame
-
-    return SensorFrame()
-
-
 def _lens_psfs(sur, kind: str, rng, nominal) -> tuple[torch.Tensor, torch.Tensor] | None:
     if kind == "perfect":
         return None
@@ -108,7 +106,7 @@ def make_pool(cfg: PretrainConfig, n: int, seed, sur, heights, nominal, f_number
     space's nominal ``f_number``, as in the design runs."""
     rng = np.random.default_rng(seed)
     gen = torch.Generator().manual_seed(int(np.random.SeedSequence(seed).generate_state(1)[0]))
-    frame = _frame()
+    frame = SensorFrame()
     with torch.no_grad():
         s, m = cfg.crop, int(sur.psfs(nominal, check=False)[0].shape[-1]) // 2
     presets = {False: calibrated_preset("imx249", f_number), True: calibrated_preset("imx249", f_number, 0.01, 100.0)}
@@ -152,7 +150,7 @@ def validate(model: SoftwareISP, pool: Pool, batch: int = 8) -> dict:
     """Mean PSNR (8-bit output, as a file holds it) per lens kind and light, and overall."""
     model.eval()
     ps = []
-    full = _frame().full_field_px
+    full = SensorFrame().full_field_px
     for i in range(0, pool.raw.shape[0], batch):
         sl = slice(i, i + batch)
         out = model(pool.raw[sl], pool.offset[sl], full).clamp(0, 1)
@@ -175,17 +173,11 @@ def _lr(cfg: PretrainConfig, step: int, minutes_done: float) -> float:
     return cfg.lr * (cfg.lr_final + (1 - cfg.lr_final) * 0.5 * (1 + math.cos(math.pi * min(frac, 1.0))))
 
 
-def _save_atomic(obj, path: Path) -> None:
-    from ..surrogate.checkpoint import save_atomic
-
-    save_atomic(obj, path)
-
-
 def export(model: SoftwareISP, path: Path, meta: dict) -> None:
     """The weights in float16 with their manifest (``meta``): the shipped form."""
     sd = {k: (v.half() if v.is_floating_point() and not k.startswith("classical.") else v)
           for k, v in model.state_dict().items()}
-    _save_atomic({"format": "optix-software-isp/2", "config": model.config(), "state_dict": sd, "meta": meta}, path)
+    save_atomic({"format": "optix-software-isp/2", "config": model.config(), "state_dict": sd, "meta": meta}, path)
 
 
 def pretrain(cfg: PretrainConfig, out: "str | Path", *, progress: bool = True, log=print) -> dict:
@@ -193,16 +185,12 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, progress: bool = True, l
     curve.csv, train.json and tb/ into ``out``."""
     from torch.utils.tensorboard import SummaryWriter
 
-    from ..optimize.run import base_lens_f_number, load_surrogate, nominal_field_heights
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     sur = load_surrogate(cfg.surrogate, calibrated_preset("imx249").pixel_um)
     heights = nominal_field_heights(sur)
-    from ..dataset.manifest import space_and_base
-
     space, base = space_and_base(sur.manifest)
     nominal = torch.as_tensor(space.values(base.data), dtype=torch.float32)
     f_number = base_lens_f_number(sur)
@@ -233,7 +221,7 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, progress: bool = True, l
     bar = tqdm(total=cfg.steps, initial=step, desc="pre-train software ISP", unit="step", disable=not progress)
 
     def save():
-        _save_atomic({"format": FORMAT, "config": {k: list(v) if isinstance(v, tuple) else v
+        save_atomic({"format": FORMAT, "config": {k: list(v) if isinstance(v, tuple) else v
                                                    for k, v in asdict(cfg).items()
                                                    if k not in ("steps", "minutes", "threads", "anneal_minutes")},
                       "model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
@@ -251,7 +239,7 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, progress: bool = True, l
             pool = make_pool(cfg, cfg.pool, [6, cfg.seed, pool_id], sur, heights, nominal, f_number)
         rng = np.random.default_rng([8, cfg.seed, step])
         idx = torch.as_tensor(rng.integers(pool.raw.shape[0], size=cfg.batch))
-        pred = model(pool.raw[idx], pool.offset[idx], _frame().full_field_px)
+        pred = model(pool.raw[idx], pool.offset[idx], SensorFrame().full_field_px)
         loss = (pred - pool.ideal[idx].float() / 255).abs().mean()
         if not torch.isfinite(loss):
             raise RuntimeError(f"ISP pre-training diverged at step {step + 1} (loss {float(loss)}); "
