@@ -181,6 +181,14 @@ def test_software_isp_pretraining_learns_and_resumes(tmp_path):
     assert back.meta["steps"] == 16 and back.config()["arch"] == "nafnet"
     with pytest.raises(ValueError, match="other settings"):
         pretrain(dataclasses.replace(cfg, width=16), tmp_path, progress=False)
+    # a new run from those weights (--init): the record of the first run is kept
+    said = []
+    again = pretrain(dataclasses.replace(cfg, steps=2, seed=1), tmp_path / "next", init=tmp_path / "software_isp.pt",
+                     progress=False, log=said.append)
+    assert "starting from the weights of" in said[0] and again["earlier_training"][0]["steps"] == 16
+    with pytest.raises(ValueError, match="not the"):
+        pretrain(dataclasses.replace(cfg, width=16), tmp_path / "other", init=tmp_path / "software_isp.pt",
+                 progress=False)
 
 
 @pytest.mark.parametrize("pattern", PATTERNS)

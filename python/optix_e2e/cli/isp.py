@@ -121,15 +121,17 @@ def train_proxy_cmd(out_dir, as_json, init, **kw):
 @click.option("--val-every", type=click.IntRange(1, 1_000_000), default=500, show_default=True)
 @click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--threads", type=click.IntRange(0, 256), default=0, help="torch threads (0 = default).")
+@click.option("--init", type=click.Path(dir_okay=False, exists=True, path_type=Path), default=None,
+              help="Start a new run from this software ISP's weights (e.g. the shipped one).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @friendly_errors
-def train_software_cmd(out_dir, as_json, crop, **kw):
+def train_software_cmd(out_dir, as_json, crop, init, **kw):
     """Pre-train the software ISP on RAW through lenses of the design space (docs/isp.md)."""
     from ..optimize.isp_pretraining import PretrainConfig, pretrain
 
     if crop % 16:
         raise click.BadParameter(f"must be a multiple of 16, got {crop}", param_hint="--crop")
-    meta = pretrain(PretrainConfig(crop=crop, **kw), out_dir)
+    meta = pretrain(PretrainConfig(crop=crop, **kw), out_dir, init=init)
     if as_json:
         click.echo(dumps({k: v for k, v in meta.items() if k != "config"}))
     else:

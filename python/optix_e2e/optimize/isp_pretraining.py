@@ -180,9 +180,12 @@ def export(model: SoftwareISP, path: Path, meta: dict) -> None:
     save_atomic({"format": "optix-software-isp/2", "config": model.config(), "state_dict": sd, "meta": meta}, path)
 
 
-def pretrain(cfg: PretrainConfig, out: "str | Path", *, progress: bool = True, log=print) -> dict:
+def pretrain(cfg: PretrainConfig, out: "str | Path", *, init: "str | Path | None" = None, progress: bool = True,
+             log=print) -> dict:
     """Train (or continue from out/state.pt) and write state.pt, software_isp.pt (float16),
-    curve.csv, train.json and tb/ into ``out``."""
+    curve.csv, train.json and tb/ into ``out``. ``init``: a software ISP checkpoint whose
+    weights a new run starts from (its architecture must be the config's; the optimizer
+    starts afresh); its training record is kept in the new one's manifest."""
     from torch.utils.tensorboard import SummaryWriter
 
     out = Path(out)
@@ -199,7 +202,16 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, progress: bool = True, l
     model.calibrate(calibrated_preset("imx249", f_number))
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     state_path = out / "state.pt"
-    step, seconds, curve = 0, 0.0, []
+    step, seconds, curve, earlier = 0, 0.0, [], []
+    if init is not None and not state_path.is_file():
+        start = SoftwareISP.load(init)
+        if start.config() != model.config():
+            raise ValueError(f"{init}: a {start.config()} network, not the {model.config()} this run trains")
+        model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in start.state_dict().items()})
+        model.calibrate(calibrated_preset("imx249", f_number))
+        meta0 = start.meta
+        earlier = list(meta0.get("earlier_training", [])) + [{k: meta0.get(k) for k in ("command", "steps", "minutes")}]
+        log(f"starting from the weights of {init} ({meta0.get('steps')} steps)")
     if state_path.is_file():
         st = load_plain(state_path, "ISP pre-training state")
         if not isinstance(st, dict) or st.get("format") != FORMAT:
@@ -211,6 +223,7 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, progress: bool = True, l
         model.calibrate(calibrated_preset("imx249", f_number))  # the classical path: today's calibration
         opt.load_state_dict(st["optimizer"])
         step, seconds, curve = int(st["step"]), float(st["seconds"]), list(st["curve"])
+        earlier = list(st.get("earlier_training", []))
         log(f"resuming ISP pre-training at step {step} ({seconds / 60:.1f} min done)")
     n_params = sum(p.numel() for p in model.parameters())
     val = make_pool(cfg, cfg.val_size, [7, cfg.seed, 0], sur, heights, nominal, f_number)
@@ -225,7 +238,7 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, progress: bool = True, l
                                                    for k, v in asdict(cfg).items()
                                                    if k not in ("steps", "minutes", "threads", "anneal_minutes")},
                       "model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
-                      "seconds": time.time() - t0, "curve": curve}, state_path)
+                      "seconds": time.time() - t0, "curve": curve, "earlier_training": earlier}, state_path)
 
     while step < cfg.steps:
         if cfg.minutes and time.time() - t_call > 60 * cfg.minutes:
@@ -273,6 +286,7 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, progress: bool = True, l
     meta = {"command": "optix " + " ".join(sys.argv[1:]) if Path(sys.argv[0]).name == "optix" else "pretrain()",
             "config": asdict(cfg), "steps": step,
             "minutes": round((time.time() - t0) / 60, 1), "parameters": n_params, "curve": curve,
+            "earlier_training": earlier,
             "data": "natural training scenes through the perfect lens, the nominal and lenses drawn from "
                     f"{cfg.surrogate} (its surrogate's PSFs), normal and low light, crops all over the frame"}
     export(model, out / "software_isp.pt", meta)
