@@ -224,7 +224,7 @@ def test_the_shipped_software_isp_is_pretrained():
     assert {s.name for s in held} == {"photo:coffee", "photo:rocket", f"procedural:{HELDOUT_SEED0}",
                                       f"procedural:{HELDOUT_SEED0 + 1}"}
     shipped = SoftwareISP.load(SOFTWARE_ISP)
-    assert shipped.meta["steps"] >= MIN_STEPS and shipped.config()["position"]
+    assert shipped.meta["steps"] >= 5000 and shipped.config()["position"]
     got = {}
     for light, (ef, gf) in {"normal": (1.0, 1.0), "low": (0.01, 100.0)}.items():
         preset = calibrated_preset("imx249", 4.4, ef, gf)
@@ -234,8 +234,9 @@ def test_the_shipped_software_isp_is_pretrained():
             out = torch.cat([shipped(raw[i:i + 1], s.offset_px, SensorFrame().full_field_px) for i, s in enumerate(held)])
             base = ClassicalISP(preset)(raw)
         got[light] = (psnr(out.clamp(0, 1), target).mean().item(), psnr(base.clamp(0, 1), target).mean().item())
-    assert got["normal"][0] > NORMAL_DB and got["normal"][0] > got["normal"][1] + NORMAL_GAIN_DB, got
-    assert got["low"][0] > LOW_DB and got["low"][0] > got["low"][1] + LOW_GAIN_DB, got
+    # measured 2026-11-26: normal 27.65 dB against the classical 25.74, low light 22.65 against 18.56
+    assert got["normal"][0] > 26.5 and got["normal"][0] > got["normal"][1] + 1.0, got
+    assert got["low"][0] > 21.5 and got["low"][0] > got["low"][1] + 3.0, got
 
 
 def test_a_step_that_breaks_a_manufacturing_limit_is_cut_back_to_the_boundary():
