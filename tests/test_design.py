@@ -209,34 +209,44 @@ def test_paired_differences_and_their_bootstrap_interval():
 
 
 def test_the_shipped_software_isp_is_pretrained():
-    # Alg. 1's initialization of f_NN (docs/isp.md): on held-out scenes (two bundled photos and
-    # two held-out procedural seeds, 96 px, the design runs' level 0.7) through a perfect lens
-    # at normal and low light, it must beat the classical pipeline it corrects by a clear margin.
+    # Alg. 1's initialization of f_NN (docs/isp.md), on held-out scenes (two bundled photos and
+    # two held-out procedural seeds, 96 px, the design runs' level 0.7) against the classical
+    # pipeline it corrects: through the nominal lens (the surrogate's PSFs) it must undo much
+    # of the blur, at low light much of the noise; through a perfect lens at normal light it
+    # may sharpen a little (it cannot tell a perfect lens from content) but not by much.
     from optix_e2e.camera import calibrated_preset
     from optix_e2e.isp.classical import ClassicalISP
     from optix_e2e.metrics.image import psnr
-    from optix_e2e.optimize.run import SOFTWARE_ISP
+    from optix_e2e.optics.render import render
+    from optix_e2e.optimize.run import SOFTWARE_ISP, nominal_field_heights
     from optix_e2e.sensor import simulate_raw
     from optix_e2e.tasks.scenes import HELDOUT_SEED0, SensorFrame, heldout_set
-    held = heldout_set(96, 0, 2, photos=["coffee", "rocket"], positions=("frame",))
-    lin = torch.stack([s.scene for s in held])
-    target = torch.stack([s.target for s in held])
+    sur = load_surrogate("paper-triplet-e2e")
+    psf, vig = sur.psfs(DifferentiableOptics(sur).base_values(), check=False)
+    m, full = psf.shape[-1] // 2, SensorFrame().full_field_px
+    held = heldout_set(96, m, 2, photos=["coffee", "rocket"], positions=("frame",))
     assert {s.name for s in held} == {"photo:coffee", "photo:rocket", f"procedural:{HELDOUT_SEED0}",
                                       f"procedural:{HELDOUT_SEED0 + 1}"}
+    target = torch.stack([s.target for s in held])
     shipped = SoftwareISP.load(SOFTWARE_ISP)
     assert shipped.meta["steps"] >= 5000 and shipped.config()["position"]
     got = {}
-    for light, (ef, gf) in {"normal": (1.0, 1.0), "low": (0.01, 100.0)}.items():
+    for case, (ef, gf, lens) in {"normal": (1.0, 1.0, "perfect"), "nominal": (1.0, 1.0, "nominal"),
+                                 "low": (0.01, 100.0, "perfect")}.items():
         preset = calibrated_preset("imx249", 4.4, ef, gf)
         shipped.calibrate(preset)
-        raw = simulate_raw(lin, preset, quantize="uniform", generator=torch.Generator().manual_seed(3))
         with torch.no_grad():
-            out = torch.cat([shipped(raw[i:i + 1], s.offset_px, SensorFrame().full_field_px) for i, s in enumerate(held)])
+            img = torch.cat([render(s.scene[None], psf, nominal_field_heights(sur), vig, full_field_px=full,
+                                    offset_px=s.offset_px) if lens == "nominal" else s.scene[None] for s in held])
+            raw = simulate_raw(img[..., m:-m, m:-m], preset, quantize="uniform", generator=torch.Generator().manual_seed(3))
+            out = torch.cat([shipped(raw[i:i + 1], s.offset_px, full) for i, s in enumerate(held)])
             base = ClassicalISP(preset)(raw)
-        got[light] = (psnr(out.clamp(0, 1), target).mean().item(), psnr(base.clamp(0, 1), target).mean().item())
-    # measured 2026-11-26: normal 27.65 dB against the classical 25.74, low light 22.65 against 18.56
-    assert got["normal"][0] > 26.5 and got["normal"][0] > got["normal"][1] + 1.0, got
-    assert got["low"][0] > 21.5 and got["low"][0] > got["low"][1] + 3.0, got
+        got[case] = (psnr(out.clamp(0, 1), target).mean().item(), psnr(base.clamp(0, 1), target).mean().item())
+    # measured 2026-11-26 (shipped / classical): nominal 25.60 / 23.29, low light 22.43 / 18.37, perfect
+    # lens 28.05 / 25.87 dB (on the full held-out set at 192 px the perfect lens gives 27.05 / 27.18)
+    assert got["nominal"][0] > got["nominal"][1] + 2.0, got
+    assert got["low"][0] > got["low"][1] + 3.0, got
+    assert got["normal"][0] > got["normal"][1] - 0.5, got
 
 
 def test_a_step_that_breaks_a_manufacturing_limit_is_cut_back_to_the_boundary():
