@@ -50,13 +50,14 @@ def _crop(x: torch.Tensor, c: int) -> torch.Tensor:
     return x[..., c:x.shape[-2] - c, c:x.shape[-1] - c] if c else x
 
 
-def _cosine_lr(cfg: TrainConfig, step: int, seconds: float) -> float:
-    """Cosine decay to 2% of the initial rate over the steps, or over the wall-time budget
-    when that runs out first (so a time-boxed CPU run still anneals)."""
-    frac = step / max(cfg.steps, 1)
-    if cfg.minutes:
-        frac = max(frac, seconds / (60 * cfg.minutes))
-    return cfg.lr * (0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * min(frac, 1.0))))
+def cosine_lr(lr: float, step: int, steps: int, minutes_done: float = 0.0, anneal_minutes: float = 0.0,
+              final: float = 0.02) -> float:
+    """Cosine decay from ``lr`` to ``final`` x ``lr`` over ``steps``, or over ``anneal_minutes``
+    of training when those run out first (so a time-boxed CPU run still anneals)."""
+    frac = step / max(steps, 1)
+    if anneal_minutes:
+        frac = max(frac, minutes_done / anneal_minutes)
+    return lr * (final + (1 - final) * 0.5 * (1 + math.cos(math.pi * min(frac, 1.0))))
 
 
 def _predict(model, kind: str, pool: data.Pool, idx) -> tuple[torch.Tensor, torch.Tensor]:
@@ -116,7 +117,7 @@ def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) ->
         # terms); without clipping one of them blew a run up at step ~475.
         torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip_grad)
         opt.step()
-        lr = _cosine_lr(cfg, step, time.time() - t0)
+        lr = cosine_lr(cfg.lr, step, cfg.steps, (time.time() - t0) / 60, cfg.minutes)
         for group in opt.param_groups:
             group["lr"] = lr
         writer.add_scalar("train/loss", loss.item(), step)

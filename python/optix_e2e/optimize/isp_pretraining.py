@@ -38,6 +38,7 @@ from .. import color
 from ..camera import calibrated_preset
 from ..dataset.manifest import space_and_base
 from ..isp.software import SoftwareISP
+from ..isp.train import cosine_lr
 from ..optics.render import render
 from ..scenes.natural import natural_scene
 from ..sensor import simulate_raw
@@ -141,6 +142,8 @@ def make_pool(cfg: PretrainConfig, n: int, seed, sur, heights, nominal, f_number
 
 
 def _psnr(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    # metrics.image.psnr gives inf for identical images; the curve is written to JSON/CSV and
+    # must stay finite, so the MSE is floored (100 dB)
     mse = ((x - y) ** 2).flatten(1).mean(1).clamp(min=1e-10)
     return -10 * torch.log10(mse)
 
@@ -166,11 +169,10 @@ def validate(model: SoftwareISP, pool: Pool, batch: int = 8) -> dict:
     return res
 
 
-def _lr(cfg: PretrainConfig, step: int, minutes_done: float) -> float:
-    frac = step / max(cfg.steps, 1)
-    if cfg.anneal_minutes:
-        frac = max(frac, minutes_done / cfg.anneal_minutes)
-    return cfg.lr * (cfg.lr_final + (1 - cfg.lr_final) * 0.5 * (1 + math.cos(math.pi * min(frac, 1.0))))
+def _resumable(cfg: PretrainConfig) -> dict:
+    """The settings a resumed run must share with the run it continues (JSON-like)."""
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(cfg).items()
+            if k not in ("steps", "minutes", "threads", "anneal_minutes")}
 
 
 def export(model: SoftwareISP, path: Path, meta: dict) -> None:
@@ -216,8 +218,7 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, init: "str | Path | None
         st = load_plain(state_path, "ISP pre-training state")
         if not isinstance(st, dict) or st.get("format") != FORMAT:
             raise ValueError(f"{state_path}: not an ISP pre-training state ({FORMAT})")
-        if st.get("config") != {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(cfg).items()
-                                if k not in ("steps", "minutes", "threads", "anneal_minutes")}:
+        if st.get("config") != _resumable(cfg):
             raise ValueError(f"{state_path}: made with other settings; use another --out or the same settings")
         model.load_state_dict(st["model"])
         model.calibrate(calibrated_preset("imx249", f_number))  # the classical path: today's calibration
@@ -234,18 +235,21 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, init: "str | Path | None
     bar = tqdm(total=cfg.steps, initial=step, desc="pre-train software ISP", unit="step", disable=not progress)
 
     def save():
-        save_atomic({"format": FORMAT, "config": {k: list(v) if isinstance(v, tuple) else v
-                                                   for k, v in asdict(cfg).items()
-                                                   if k not in ("steps", "minutes", "threads", "anneal_minutes")},
-                      "model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
-                      "seconds": time.time() - t0, "curve": curve, "earlier_training": earlier}, state_path)
+        save_atomic({"format": FORMAT, "config": _resumable(cfg), "model": model.state_dict(),
+                     "optimizer": opt.state_dict(), "step": step,
+                     "seconds": time.time() - t0, "curve": curve, "earlier_training": earlier}, state_path)
+
+    def record() -> dict:
+        """Validate and add a point to the curve."""
+        v = validate(model, val)
+        curve.append({"step": step, "minutes": round((time.time() - t0) / 60, 2), "lr": lr,
+                      "loss": round(loss.item(), 5), **{k: round(x, 3) for k, x in v.items()}})
+        return v
 
     while step < cfg.steps:
         if cfg.minutes and time.time() - t_call > 60 * cfg.minutes:
             if step > start_step and (not curve or curve[-1]["step"] != step):  # the curve ends at the stop
-                v = validate(model, val)
-                curve.append({"step": step, "minutes": round((time.time() - t0) / 60, 2), "lr": lr,
-                              "loss": round(loss.item(), 5), **{k: round(x, 3) for k, x in v.items()}})
+                record()
             break
         if pool_id != step // cfg.pool_steps:
             pool_id = step // cfg.pool_steps
@@ -260,7 +264,7 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, init: "str | Path | None
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip_grad)
-        lr = _lr(cfg, step, (time.time() - t0) / 60)
+        lr = cosine_lr(cfg.lr, step, cfg.steps, (time.time() - t0) / 60, cfg.anneal_minutes, cfg.lr_final)
         for g in opt.param_groups:
             g["lr"] = lr
         opt.step()
@@ -269,9 +273,7 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, init: "str | Path | None
         bar.update(1)
         bar.set_postfix(loss=f"{loss.item():.4f}")
         if step % cfg.val_every == 0 or step == cfg.steps:
-            v = validate(model, val)
-            curve.append({"step": step, "minutes": round((time.time() - t0) / 60, 2), "lr": lr,
-                          "loss": round(loss.item(), 5), **{k: round(x, 3) for k, x in v.items()}})
+            v = record()
             for k, x in v.items():
                 writer.add_scalar(f"val/{k}", x, step)
             bar.write(f"step {step}: val PSNR {v['psnr_db']:.2f} dB "
