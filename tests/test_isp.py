@@ -186,6 +186,12 @@ def test_software_isp_pretraining_learns_and_resumes(tmp_path):
     again = pretrain(dataclasses.replace(cfg, steps=2, seed=1), tmp_path / "next", init=tmp_path / "software_isp.pt",
                      progress=False, log=said.append)
     assert "starting from the weights of" in said[0] and again["earlier_training"][0]["steps"] == 16
+    (tmp_path / "design").mkdir()  # a folder with another run's files is refused, left as it was
+    (tmp_path / "design" / "train.json").write_text("{}")
+    with pytest.raises(ValueError, match="no ISP pre-training state"):
+        pretrain(cfg, tmp_path / "design", progress=False)
+    assert [p.name for p in (tmp_path / "design").iterdir()] == ["train.json"]
+    assert (tmp_path / "design" / "train.json").read_text() == "{}"
     with pytest.raises(ValueError, match="not the"):
         pretrain(dataclasses.replace(cfg, width=16), tmp_path / "other", init=tmp_path / "software_isp.pt",
                  progress=False)

@@ -191,6 +191,9 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, init: "str | Path | None
     from torch.utils.tensorboard import SummaryWriter
 
     out = Path(out)
+    if out.is_dir() and not (out / "state.pt").is_file() and any(out.iterdir()):
+        raise ValueError(f"{out} holds files but no ISP pre-training state (state.pt): another run's folder? "
+                         f"use a new --out")
     out.mkdir(parents=True, exist_ok=True)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
