@@ -5,11 +5,20 @@ For each software ISP given (default: the shipped one) and the classical pipelin
 set of `optix design` (9 photos + 13 procedural scenes, 4 positions each over the frame, level
 0.7, fixed noise seeds) is rendered through
 
-* a perfect lens: a delta PSF at every field, no vignetting, and
+* a perfect lens: the scene unblurred and unshaded (camera.PerfectOptics), and
 * the nominal lens of the space: the engine's exact PSFs and relative illumination,
 
 at normal light and at low light (exposure / 100, gain x 100), and scored by PSNR and SSIM
 (8-bit output, as the design runs score). No fine-tuning: the network as shipped.
+
+Two bounds split the error budget of the perfect lens (rows ``LIGHT/bound/...``):
+
+* ``no-cfa``: a sensor that sees all three colours at every pixel (the same noise model, noise
+  seeds, 3x3 and sRGB curve; no mosaic, so nothing to demosaick): what noise and the colour
+  calibration alone cost. Above it, every dB a pipeline loses is demosaicking (and the
+  denoising it does not do);
+* ``classical-noise-free``: the classical pipeline on the noise-free RAW: what Malvar
+  demosaicking alone costs.
 
     python benches/isp_headroom.py --out runs/isp_headroom [--isp runs/isp/software_isp.pt ...]
 
@@ -27,10 +36,13 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from optix_e2e.camera import Camera, FixedOptics, SensorStage, SoftwareISPStage, calibrated_preset
+from optix_e2e.camera import Camera, FixedOptics, PerfectOptics, SensorStage, SoftwareISPStage, calibrated_preset
 from optix_e2e.isp.classical import ClassicalISP
 from optix_e2e.isp.software import SoftwareISP
+from optix_e2e import color
 from optix_e2e.metrics.image import psnr, ssim
+from optix_e2e.sensor import get_preset
+from optix_e2e.sensor.emva import expected_electrons, raw_from_electrons, simulate_raw
 from optix_e2e.optimize.run import SOFTWARE_ISP, base_lens_f_number, design_field_heights, load_surrogate
 from optix_e2e.surrogate.exact import exact_optics
 from optix_e2e.tasks import SensorFrame, heldout_set
@@ -46,6 +58,29 @@ class _Classical(torch.nn.Module):
         return self.net(raw)
 
     final = forward
+
+
+def _no_cfa(scene: torch.Tensor, preset, to_linear: torch.Tensor, seed: int) -> torch.Tensor:
+    """[3, H, W] linear scene -> sRGB through a sensor with all three colours at each pixel."""
+    p = get_preset(preset)
+    y = raw_from_electrons(expected_electrons(scene[None], p), p, generator=torch.Generator().manual_seed(seed))
+    lin = torch.einsum("ij,bjhw->bihw", to_linear.to(y), y - p.black_level_dn)
+    return color.linear_to_srgb(lin.clamp(0, 1))
+
+
+def _score(rows: list, key: str, res: dict) -> None:
+    photo = [r for r in rows if r[0].startswith("photo:")]
+    proc = [r for r in rows if not r[0].startswith("photo:")]
+    res[key] = {"psnr_db": float(np.mean([r[1] for r in rows])), "ssim": float(np.mean([r[2] for r in rows])),
+                "psnr_db_photos": float(np.mean([r[1] for r in photo])),
+                "psnr_db_procedural": float(np.mean([r[1] for r in proc])), "n_samples": len(rows)}
+    print(f"{key}: PSNR {res[key]['psnr_db']:.2f} dB (photos {res[key]['psnr_db_photos']:.2f}, "
+          f"procedural {res[key]['psnr_db_procedural']:.2f}), SSIM {res[key]['ssim']:.3f}", flush=True)
+
+
+def _row(name: str, out: torch.Tensor, target: torch.Tensor) -> tuple[str, float, float]:
+    x = (out.clamp(0, 1) * 255).round() / 255
+    return name, float(psnr(x, target[None])[0]), float(ssim(x, target[None])[0])
 
 
 def main(argv=None) -> dict:
@@ -71,33 +106,36 @@ def main(argv=None) -> dict:
     psf, vig = torch.as_tensor(ex["psf"][0]).float(), torch.as_tensor(ex["vignetting"][0]).float()
     heights = design_field_heights(sur, nominal, ex["image_distance"][0])
     k, c, s = psf.shape[:3]
-    delta = torch.zeros_like(psf)
-    delta[..., s // 2, s // 2] = 1.0
-    lenses = {"perfect": (delta, torch.ones(k, c)), "nominal": (psf, vig)}
+    lenses = {"perfect": PerfectOptics(s, full_field_px=frame.full_field_px),
+              "nominal": FixedOptics(psf, vig, heights, full_field_px=frame.full_field_px)}
     samples = heldout_set(a.size, s // 2, a.procedural, 0.7, frame, positions=POSITIONS["frame"])
     isps = {"classical": None} | {str(p): Path(p) for p in (a.isp or [SOFTWARE_ISP])}
     res, t0 = {}, time.time()
+    m = s // 2
     for light, (ef, gf) in {"normal": (1.0, 1.0), "low": (0.01, 100.0)}.items():
         preset = calibrated_preset("imx249", f_number, ef, gf)
+        classical = ClassicalISP(preset)
+        bounds = {"no-cfa": [], "classical-noise-free": []}
+        with torch.no_grad():
+            for smp in tqdm(samples, desc=f"{light} bounds", leave=False):
+                inner = smp.scene[:, m:-m, m:-m]
+                bounds["no-cfa"].append(_row(smp.name, _no_cfa(inner, preset, classical.to_linear, smp.noise_seed),
+                                             smp.target))
+                clean = simulate_raw(inner[None], preset, noise=False)
+                bounds["classical-noise-free"].append(_row(smp.name, classical(clean), smp.target))
+        for bound, rows in bounds.items():
+            _score(rows, f"{light}/bound/{bound}/perfect", res)
         for name, path in isps.items():
             stage = _Classical(preset) if path is None else SoftwareISPStage(SoftwareISP.load(path), preset)
-            for lens, (p, v) in lenses.items():
-                cam = Camera(FixedOptics(p, v, heights, full_field_px=frame.full_field_px), SensorStage(preset), stage)
+            for lens, optics in lenses.items():
+                cam = Camera(optics, SensorStage(preset), stage)
                 rows = []
                 with torch.no_grad():
                     for smp in tqdm(samples, desc=f"{light} {Path(name).name} {lens}", leave=False):
                         out, _ = cam(smp.scene[None], smp.offset_px, torch.Generator().manual_seed(smp.noise_seed),
                                      final=True)
-                        x = (out.clamp(0, 1) * 255).round() / 255
-                        rows.append((smp.name, float(psnr(x, smp.target[None])[0]), float(ssim(x, smp.target[None])[0])))
-                key = f"{light}/{Path(name).name if path else name}/{lens}"
-                photo = [r for r in rows if r[0].startswith("photo:")]
-                proc = [r for r in rows if not r[0].startswith("photo:")]
-                res[key] = {"psnr_db": float(np.mean([r[1] for r in rows])), "ssim": float(np.mean([r[2] for r in rows])),
-                            "psnr_db_photos": float(np.mean([r[1] for r in photo])),
-                            "psnr_db_procedural": float(np.mean([r[1] for r in proc])), "n_samples": len(rows)}
-                print(f"{key}: PSNR {res[key]['psnr_db']:.2f} dB (photos {res[key]['psnr_db_photos']:.2f}, "
-                      f"procedural {res[key]['psnr_db_procedural']:.2f}), SSIM {res[key]['ssim']:.3f}", flush=True)
+                        rows.append(_row(smp.name, out, smp.target))
+                _score(rows, f"{light}/{Path(name).name if path else name}/{lens}", res)
     out = {"held_out": {"n_images": len({s.name for s in samples}), "n_samples": len(samples), "size_px": a.size,
                         "level": 0.7}, "surrogate": a.surrogate, "results": res, "wall_s": round(time.time() - t0, 1)}
     (a.out / "headroom.json").write_text(json.dumps(out, indent=2))

@@ -212,8 +212,8 @@ def test_the_shipped_software_isp_is_pretrained():
     # Alg. 1's initialization of f_NN (docs/isp.md), on held-out scenes (two bundled photos and
     # two held-out procedural seeds, 96 px, the design runs' level 0.7) against the classical
     # pipeline it corrects: through the nominal lens (the surrogate's PSFs) it must undo much
-    # of the blur, at low light much of the noise; through a perfect lens at normal light it
-    # may sharpen a little (it cannot tell a perfect lens from content) but not by much.
+    # of the blur, at low light much of the noise; through a perfect lens at normal light (the
+    # scene unblurred, not the renderer behind a delta PSF) it must beat the classical pipeline.
     from optix_e2e.camera import calibrated_preset
     from optix_e2e.isp.classical import ClassicalISP
     from optix_e2e.metrics.image import psnr
@@ -243,10 +243,11 @@ def test_the_shipped_software_isp_is_pretrained():
             base = ClassicalISP(preset)(raw)
         got[case] = (psnr(out.clamp(0, 1), target).mean().item(), psnr(base.clamp(0, 1), target).mean().item())
     # measured 2026-11-26 (shipped / classical): nominal 25.60 / 23.29, low light 22.43 / 18.37, perfect
-    # lens 28.05 / 25.87 dB (on the full held-out set at 192 px the perfect lens gives 27.05 / 27.18)
+    # lens 28.05 / 25.87 dB (the full held-out set at 192 px, benches/isp_headroom.py: perfect lens
+    # 27.16 / 26.69, nominal 26.38 / 23.53, low light 22.67 / 18.79)
     assert got["nominal"][0] > got["nominal"][1] + 2.0, got
     assert got["low"][0] > got["low"][1] + 3.0, got
-    assert got["normal"][0] > got["normal"][1] - 0.5, got
+    assert got["normal"][0] > got["normal"][1], got
 
 
 def test_a_step_that_breaks_a_manufacturing_limit_is_cut_back_to_the_boundary():

@@ -161,3 +161,25 @@ def test_gradients_repeat_bit_for_bit_with_several_threads():
         torch.set_num_threads(threads)
     for g in grads[1:]:
         assert torch.equal(g, grads[0])
+
+
+def test_bilinear_rotation_spreads_a_delta_so_a_perfect_lens_bypasses_the_renderer():
+    # Resampling a PSF to a patch's azimuth blurs it by the bilinear kernel: a delta keeps all
+    # of its energy in the centre pixel only at multiples of 90 degrees (at 45 degrees 0.745,
+    # the rest on its neighbours). A perfect lens (camera.PerfectOptics) must not pay that.
+    from optix_e2e.camera import Camera, PerfectOptics, SensorStage
+    from optix_e2e.isp.classical import ClassicalISP
+
+    d = torch.zeros(1, 1, 9, 9, dtype=torch.float64)
+    d[..., 4, 4] = 1.0
+    assert float(rotate_psfs(d, torch.tensor([math.pi / 2], dtype=torch.float64))[0, 0, 4, 4]) == pytest.approx(1.0)
+    assert float(rotate_psfs(d, torch.tensor([math.pi / 4], dtype=torch.float64))[0, 0, 4, 4]) == pytest.approx(0.745, abs=2e-3)
+
+    optics = PerfectOptics(9, full_field_px=500.0)
+    scene = torch.rand(2, 3, 24, 24)
+    assert optics.psf_size == 9 and optics.block() is None
+    assert torch.equal(optics(scene, (100.0, -50.0)), scene)
+    preset = "imx249"
+    cam = Camera(optics, SensorStage(preset), ClassicalISP(preset))
+    out, raw = cam(scene, (0.0, 0.0), torch.Generator().manual_seed(0))
+    assert raw.shape == (2, 1, 16, 16) and out.shape == (2, 3, 16, 16)  # the margin (4 px) cut

@@ -2,6 +2,6 @@
 ISP, each stage with its parameter block for the end-to-end optimizer (optimize/)."""
 
 from .pipeline import Camera
-from .stages import FixedOptics, HardwareISPStage, SensorStage, SoftwareISPStage, calibrated_preset
+from .stages import FixedOptics, HardwareISPStage, PerfectOptics, SensorStage, SoftwareISPStage, calibrated_preset
 
-__all__ = ["Camera", "FixedOptics", "SensorStage", "SoftwareISPStage", "HardwareISPStage", "calibrated_preset"]
+__all__ = ["Camera", "FixedOptics", "SensorStage", "SoftwareISPStage", "HardwareISPStage", "PerfectOptics", "calibrated_preset"]

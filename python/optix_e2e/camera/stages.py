@@ -81,6 +81,29 @@ class FixedOptics(nn.Module):
                       full_field_px=self.full_field_px, offset_px=offset_px)
 
 
+class PerfectOptics(nn.Module):
+    """A perfect lens: every point images to a point (the scene passes unchanged, no vignetting).
+
+    Not the renderer behind a delta PSF: the renderer turns each PSF to its patch's azimuth by
+    bilinear resampling (optics/render.py), which spreads a delta over its neighbours (45
+    degrees keeps 74 % in the centre pixel), a blur no lens makes. ``psf_size`` only sets the
+    margin the camera cuts, so a scene crop made for the real lens fits."""
+
+    def __init__(self, psf_size: int, *, full_field_px: float | None = None):
+        super().__init__()
+        self._psf_size, self.full_field_px = int(psf_size), full_field_px
+
+    @property
+    def psf_size(self) -> int:
+        return self._psf_size
+
+    def block(self):
+        return None
+
+    def forward(self, image: torch.Tensor, offset_px=(0.0, 0.0)) -> torch.Tensor:
+        return image
+
+
 def calibrated_preset(preset="imx249", f_number: float | None = None, exposure_factor: float = 1.0,
                       gain_factor: float = 1.0):
     """The sensor preset for a lens of ``f_number``: its radiance scale set so that a white scene

@@ -84,7 +84,7 @@ def design(task, out, config_file, optimizer, budget, seed, surrogate, images, o
         lo, hi = p[m]["ci95"]
         click.echo(f"  {label:8s} nominal {n[m]:.4f}   end-to-end {e[m]:.4f}   diff {p[m]['mean']:+.4f} "
                    f"[{lo:+.4f}, {hi:+.4f}]   perfect lens {res['perfect_lens'][m]:.4f}")
-    click.echo("  (perfect lens: the nominal camera's processing behind a delta PSF without vignetting)")
+    click.echo("  (perfect lens: the nominal camera's processing, the scene unblurred and unshaded)")
     om = res["optics_model"]
     click.echo(f"optics model {om['mode']} ({om['choice']['why']}); PSF rel. L1 at the final design, worst field: "
                f"the model the last steps used {max(om['final_error_per_field']):.4f}, the network "

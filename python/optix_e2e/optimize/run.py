@@ -26,7 +26,7 @@ import torch
 from tqdm import tqdm
 
 from .. import parallel
-from ..camera import Camera, FixedOptics, HardwareISPStage, SensorStage, SoftwareISPStage, calibrated_preset
+from ..camera import Camera, FixedOptics, HardwareISPStage, PerfectOptics, SensorStage, SoftwareISPStage, calibrated_preset
 from ..isp import params as hp
 from ..isp.proxy import ISPProxy
 from ..isp.software import SoftwareISP
@@ -494,21 +494,20 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
                 samples, desc=f"eval {who} ({kind} optics)", unit="img", disable=not progress, leave=False))
             write_json_atomic(path, {"key": key, "wall_s": time.perf_counter() - t0, "rows": rows[who][kind]})
 
-    # the room the lens has: the nominal camera's processing behind a perfect lens (a delta
-    # PSF at every field, no vignetting), the same samples and noise draws
-    k, c, size = exact["psf"].shape[1:4]
-    delta = torch.zeros(k, c, size, size)
-    delta[..., size // 2, size // 2] = 1.0
-    perfect = (delta, torch.ones(k, c), heights["nominal"])
+    # the room the lens has: the nominal camera's processing behind a perfect lens (the scene
+    # unchanged: no blur, no vignetting; camera/stages.py PerfectOptics), the same samples and
+    # noise draws
+    size = int(exact["psf"].shape[-1])
     path = out / "eval_perfect_lens_exact.json"
-    key = _camera_digest(*perfect, nominal.isp, len(samples))
+    key = _camera_digest(torch.tensor([float(size)]), torch.ones(1), torch.zeros(1), nominal.isp,
+                         len(samples), tag="perfect-optics")
     cached = _read_eval_cache(path, key)
     if cached is not None:
         perfect_rows, reused_s = cached["rows"], reused_s + float(cached.get("wall_s", 0.0))
     else:
         t0 = time.perf_counter()
-        fo = FixedOptics(*perfect, patch=cfg.patch, full_field_px=frame.full_field_px)
-        perfect_rows = ev.evaluate(Camera(fo, nominal.sensor, nominal.isp), tqdm(
+        po = PerfectOptics(size, full_field_px=frame.full_field_px)
+        perfect_rows = ev.evaluate(Camera(po, nominal.sensor, nominal.isp), tqdm(
             samples, desc="eval perfect lens", unit="img", disable=not progress, leave=False))
         write_json_atomic(path, {"key": key, "wall_s": time.perf_counter() - t0, "rows": perfect_rows})
 
@@ -530,7 +529,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         "task": cfg.task, "description": task.description, "optimizer": cfg.optimizer, "budget": cfg.budget,
         "seed": cfg.seed, "optics_eval": "exact",
         "nominal": summary["nominal"], "end_to_end": summary["end_to_end"],
-        # the nominal camera's processing with a delta PSF and no vignetting: the lens's room
+        # the nominal camera's processing behind a perfect lens (PerfectOptics): the lens's room
         "perfect_lens": ev.summarize(perfect_rows),
         "paired": ev.paired(rows["nominal"]["exact"], rows["end_to_end"]["exact"], cfg.bootstrap, cfg.seed),
         "paired_by_zone": ev.paired_by_zone(rows["nominal"]["exact"], rows["end_to_end"]["exact"], cfg.bootstrap,
@@ -571,11 +570,11 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     return results
 
 
-def _camera_digest(psf, vig, fh, isp, n_samples: int) -> str:
+def _camera_digest(psf, vig, fh, isp, n_samples: int, tag: str = "") -> str:
     """A digest of what a held-out evaluation depends on besides the run's settings."""
     import hashlib
 
-    h = hashlib.sha256(f"samples={n_samples}".encode())
+    h = hashlib.sha256(f"samples={n_samples}{tag}".encode())
     for t in (psf, vig, fh, *isp.state_dict().values()):
         h.update(torch.as_tensor(t).detach().cpu().contiguous().numpy().tobytes())
     return h.hexdigest()
