@@ -4,6 +4,7 @@ task failures are collected per shard and a second run redoes them."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -131,9 +132,28 @@ def test_a_task_refuses_a_worker_that_sees_another_directory_or_build(single):
 def test_addresses():
     assert parse_address("local:3") == ("local", 3)
     assert parse_address("tcp://10.0.0.1:8786") == ("address", "tcp://10.0.0.1:8786")
-    for bad, msg in [("local:0", "N >= 1"), ("local:x", "N >= 1"), ("/nowhere/scheduler.json", "no such scheduler file")]:
+    assert parse_address("localhost:8786") == ("address", "tcp://localhost:8786")
+    for bad, msg in [("local:0", "1 <= N <= 256"), ("local:x", "1 <= N"), ("local:50000", "1 <= N <= 256"),
+                     ("/nowhere/scheduler.json", "no such scheduler file"),
+                     # checked before any connection is tried (these waited 30 s or raised inside dask)
+                     ("tcp://256.1.1.1:1", "'256.1.1.1' is not an IP address"), ("ucx://10.0.0.1:1", "'ucx' is not"),
+                     ("tcp://10.0.0.1:0", "port from 1 to 65535"), ("tcp://10.0.0.1", "HOST:PORT")]:
         with pytest.raises(ClusterError, match=msg):
             parse_address(bad)
+
+
+def test_a_scheduler_file_is_read_and_checked_before_connecting(tmp_path):
+    sched = tmp_path / "scheduler.json"
+    sched.write_text(json.dumps({"type": "Scheduler", "address": "tcp://10.0.0.5:8786"}))
+    assert parse_address(str(sched)) == ("address", "tcp://10.0.0.5:8786")
+    for text, msg in (("", "not a scheduler file"), ("garbage{", "not a scheduler file"), ("[]", "no \"address\""),
+                      ('{"address": "tcp://999.0.0.1:1"}', "its address: '999.0.0.1'")):
+        sched.write_text(text)
+        with pytest.raises(ClusterError, match=msg):
+            parse_address(str(sched))
+    os.mkfifo(tmp_path / "pipe.json")
+    with pytest.raises(ClusterError, match="not a regular file"):
+        parse_address(str(tmp_path / "pipe.json"))
 
 
 def test_cli_names_a_bad_address(tmp_path):

@@ -49,9 +49,19 @@ def _roundtrip(lens: Lens, tmp_path, name="rt.zmx", **kw) -> Lens:
 
 
 def _same_optics(a: Lens, b: Lens):
-    """Every supported field equal, materials compared resolved (catalog page identity)."""
-    for key in ("aperture", "fields_deg", "wavelengths_nm", "primary_wavelength_nm", "surfaces", "image"):
+    """Every supported field equal, materials compared resolved (catalog page identity). A
+    surface of ``a`` without a semi-diameter comes back with the automatic one the writer
+    puts in its DIAM line (the beam's footprint, which our reader keeps as a clear aperture
+    that clips none of those rays: docs/zemax.md)."""
+    for key in ("aperture", "fields_deg", "wavelengths_nm", "primary_wavelength_nm", "image"):
         assert a.data.get(key) == b.data.get(key), key
+    auto = a.zmx_footprint() if any(s.get("semi_diameter") is None for s in a.data["surfaces"]) else None
+    assert len(a.data["surfaces"]) == len(b.data["surfaces"])
+    for i, (sa, sb) in enumerate(zip(a.data["surfaces"], b.data["surfaces"])):
+        if sa.get("semi_diameter") is None and sb.get("semi_diameter") is not None:
+            assert sb["semi_diameter"] == pytest.approx(auto[i], rel=1e-12), i
+            sb = {k: v for k, v in sb.items() if k != "semi_diameter"}
+        assert sa == sb, f"surface {i + 1}"
     assert a.wavelength_weights == b.wavelength_weights
     assert a.name == b.name
 
@@ -417,3 +427,25 @@ def test_cli_commands_take_zmx(tmp_path):
     assert np.allclose(outs[0], outs[1], rtol=1e-5, atol=1e-6 * outs[1].max())
     r = _cli("lens", "info", tmp_path / "missing.zmx")
     assert r.exit_code == 1 and "missing.zmx: no such lens file" in r.output
+
+
+def test_every_written_surface_has_a_diam_line_and_the_footprint_clips_nothing(tmp_path):
+    # other readers (DeepLens) need a DIAM on every surface, as OpticStudio writes; ours keeps
+    # an automatic DIAM as a clear aperture, so the footprint must not vignette any ray
+    import numpy as np
+
+    from optix_e2e import _engine
+
+    lens = Lens.load("cooke-f50")
+    text = lens.to_zmx()
+    surfs = text.split("SURF ")[1:]
+    assert len(surfs) == len(lens.surfaces) + 2  # object, body, image
+    assert all("  DIAM " in s for s in surfs)
+    back = _roundtrip(lens, tmp_path)
+    assert all(s.get("semi_diameter") for s in back.data["surfaces"])
+    channels = [[(420.0, 1.0)], [(587.6, 1.0)], [(700.0, 1.0)]]  # beyond the lens's 486-656 nm too
+    for field in (0.0, max(lens.fields_deg)):
+        pa, ria, _ = _engine.psf_rgb(lens.to_engine_json(), field, channels, pixel_um=2.0, size=48)
+        pb, rib, _ = _engine.psf_rgb(back.to_engine_json(), field, channels, pixel_um=2.0, size=48)
+        np.testing.assert_allclose(pb, pa, atol=1e-12)
+        np.testing.assert_allclose(rib, ria, rtol=1e-12)

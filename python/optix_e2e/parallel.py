@@ -22,6 +22,50 @@ import torch
 import torch.distributed as dist
 
 
+MAX_THREADS = 1024  # torch aborts with a segmentation fault when asked for tens of thousands
+
+
+def set_threads(n: int) -> None:
+    """torch's CPU threads: ``n`` in [1, MAX_THREADS], or 0 for torch's default (unchanged)."""
+    if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= MAX_THREADS:
+        raise ValueError(f"threads must be an integer from 0 (torch's default) to {MAX_THREADS}, got {n!r}")
+    if n:
+        torch.set_num_threads(n)
+
+
+class TrainingDiverged(ValueError):
+    """A training loss or the weights left the finite numbers; the last good checkpoint is kept."""
+
+
+def stop_if_diverged(step: int, kept: "os.PathLike | str | None", hint: str = "lower the learning rate",
+                     **values) -> None:
+    """Raise :class:`TrainingDiverged` naming ``step`` and the first non-finite entry of
+    ``values`` (floats, tensors or modules: a module counts by its weights). Call it before a
+    checkpoint is written, so a diverged run never overwrites the last good one (``kept``)."""
+    for name, v in values.items():
+        if isinstance(v, torch.nn.Module):
+            bad = next((n for n, p in v.state_dict().items() if p.is_floating_point() and not torch.isfinite(p).all()),
+                       None)
+            if bad is None:
+                continue
+            what = f"the weights ({bad}) are not finite"
+        else:
+            t = torch.as_tensor(v.detach() if isinstance(v, torch.Tensor) else v)
+            if bool(torch.isfinite(t).all()):
+                continue
+            what = f"the {name} is {t.flatten()[~torch.isfinite(t.flatten())][0].item()}"
+        keep = f"; the last good checkpoint ({kept}) is kept" if kept is not None and os.path.exists(kept) else ""
+        raise TrainingDiverged(f"training diverged at step {step}: {what}{keep}; {hint}")
+
+
+def check_finite_weights(state: dict, path: "os.PathLike | str") -> None:
+    """A saved state dict ``state`` whose floating tensors must be finite (resuming from NaN
+    weights would overwrite a good checkpoint with garbage): one error naming the file and key."""
+    for k, v in state.items():
+        if isinstance(v, torch.Tensor) and v.is_floating_point() and not bool(torch.isfinite(v).all()):
+            raise ValueError(f"{path}: the weights are not finite ({k}); this state came from a diverged run")
+
+
 @dataclass(frozen=True)
 class Ranks:
     """This process's place in the group: rank, world size, local rank, its torch device."""

@@ -19,7 +19,10 @@ def _reason(exc: BaseException) -> str:
     if found:
         return f"it asks for {found.group(1)}"
     found = re.search(r"WeightsUnpickler error: (.*?)(?: Check the documentation|$)", text)
-    return (found.group(1) if found else text)[:160]
+    text = found.group(1) if found else text
+    if len(text) > 160:  # cut at a word, and say so
+        text = text[:160].rsplit(" ", 1)[0] + " ..."
+    return text
 
 
 def load_plain(path: "str | Path", what: str, error: type[Exception] = ValueError, map_location="cpu"):

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..lens.glass import GlassError
 from ..lens import Lens
+from ..lens.text import printable
 from ..lens.prescription import PrescriptionError
 
 AIMING = click.Choice(["paraxial", "real"])
@@ -30,6 +31,7 @@ class FiniteFloatRange(click.FloatRange):
 
 FINITE = FiniteFloatRange()
 SEED = click.IntRange(0, 2 ** 63 - 1)  # what numpy and torch generators accept
+THREADS = click.IntRange(0, 1024)  # parallel.MAX_THREADS: torch aborts when asked for tens of thousands
 
 
 def _engine_errors() -> tuple[type[BaseException], ...]:
@@ -58,7 +60,7 @@ def friendly_errors(fn):
 
 
 def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
+    return printable(" ".join(str(exc).split())) or type(exc).__name__
 
 
 def load_lens(spec: str) -> Lens:

@@ -7,7 +7,7 @@ import sys
 
 import click
 
-from ._common import dumps, friendly_errors
+from ._common import FINITE, FiniteFloatRange, SEED, dumps, friendly_errors
 
 
 class _DefaultToGenerate(click.Group):
@@ -28,20 +28,20 @@ def dataset():
 
 @dataset.command("generate")
 @click.argument("space_spec", metavar="SPACE")
-@click.option("-n", "n", type=click.IntRange(min=1), required=True, help="Designs to sample.")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("-n", "n", type=click.IntRange(1, 10_000_000), required=True, help="Designs to sample.")
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True)
-@click.option("--fields", "n_fields", type=click.IntRange(min=0), default=13, show_default=True,
+@click.option("--fields", "n_fields", type=click.IntRange(0, 1000), default=13, show_default=True,
               help="K field positions, uniform along +y from the axis to the lens's full field; 0: auto, the "
                    "fewest whose linear interpolation meets --accuracy on the base design (manifest 'auto').")
-@click.option("--window-um", type=float, default=128.0, show_default=True, help="Super-resolved PSF window.")
-@click.option("--pixel-um", type=float, default=1.0, show_default=True, help="Super-resolved PSF pitch.")
-@click.option("--sensor-pixel-um", type=float, default=5.86, show_default=True, help="Pitch of the sensor-pitch PSFs.")
-@click.option("--pupil-samples", type=click.IntRange(min=4), default=64, show_default=True)
+@click.option("--window-um", type=FiniteFloatRange(min=0, min_open=True), default=128.0, show_default=True, help="Super-resolved PSF window.")
+@click.option("--pixel-um", type=FiniteFloatRange(min=0, min_open=True), default=1.0, show_default=True, help="Super-resolved PSF pitch.")
+@click.option("--sensor-pixel-um", type=FiniteFloatRange(min=0, min_open=True), default=5.86, show_default=True, help="Pitch of the sensor-pitch PSFs.")
+@click.option("--pupil-samples", type=click.IntRange(4, 4096), default=64, show_default=True)
 @click.option("--psf-method", type=click.Choice(["auto", "fft", "huygens", "geometric"]), default="auto", show_default=True,
               help="auto: per PSF, the cheapest method and sampling predicted to meet --accuracy; each "
                    "choice is recorded in the shard's meta.json (psf_methods) and counted by verify.")
-@click.option("--accuracy", type=click.FloatRange(min=0, min_open=True), default=0.02, show_default=True,
+@click.option("--accuracy", type=FiniteFloatRange(min=0, min_open=True), default=0.02, show_default=True,
               help="method auto: target relative L1 error of each monochromatic PSF.")
 @click.option("--aiming", type=click.Choice(["paraxial", "real"]), default="paraxial", show_default=True)
 @click.option("--channels", type=click.Choice(["lens", "rgb", "auto"]), default="lens", show_default=True,
@@ -52,7 +52,7 @@ def dataset():
                    "(mechanical vignetting), the stop's excepted. The aperture is the lens's f-number/EPD.")
 @click.option("--focus", type=click.Choice(["best", "paraxial", "fixed"]), default="best", show_default=True,
               help="Image plane of each design: best (least RMS spot over the fields), paraxial, or fixed (the base lens's).")
-@click.option("--shard-size", type=click.IntRange(min=1), default=64, show_default=True)
+@click.option("--shard-size", type=click.IntRange(1, 100_000), default=64, show_default=True)
 @click.option("--sampling", type=click.Choice(["sobol", "uniform", "lhs"]), default="sobol", show_default=True)
 @click.option("--shards", "shard_range", default=None,
               help="Only these shards: A:B (B exclusive) or K; for several processes on one dataset.")

@@ -9,7 +9,7 @@ import click
 import numpy as np
 from tqdm import tqdm
 
-from ._common import AIMING, dumps, friendly_errors, load_lens
+from ._common import AIMING, FiniteFloatRange, dumps, friendly_errors, load_lens
 
 
 MAX_PRINTED_WARNINGS = 8
@@ -37,15 +37,15 @@ def _collect_warnings(field_deg, rgb_diag, mono_diag) -> list[str]:
               help="JSON prescription path or bundled lens name.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("results"),
               show_default=True, help="Output folder (created).")
-@click.option("--n-fields", type=click.IntRange(min=1), default=5, show_default=True,
+@click.option("--n-fields", type=click.IntRange(1, 1000), default=5, show_default=True,
               help="Fields evenly spaced from the axis to the full field.")
 @click.option("--channels", type=click.Choice(["rgb", "lens"]), default="rgb", show_default=True,
               help="rgb: 3 wavelengths per channel with weights; lens: the lens's 3 wavelengths as R, G, B.")
 @click.option("--method", type=click.Choice(["geometric", "fft", "huygens"]), default="fft", show_default=True)
-@click.option("--pixel-um", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True)
-@click.option("--size", type=click.IntRange(min=8), default=128, show_default=True)
-@click.option("--pupil-samples", type=click.IntRange(min=8), default=64, show_default=True)
-@click.option("--rings", type=click.IntRange(min=1), default=128, show_default=True,
+@click.option("--pixel-um", type=FiniteFloatRange(min=0, min_open=True), default=1.0, show_default=True)
+@click.option("--size", type=click.IntRange(8, 4096), default=128, show_default=True)
+@click.option("--pupil-samples", type=click.IntRange(8, 4096), default=64, show_default=True)
+@click.option("--rings", type=click.IntRange(1, 100_000), default=128, show_default=True,
               help="Hexapolar rings per wavelength for the RMS spot.")
 @click.option("--aiming", type=AIMING, default="paraxial", show_default=True)
 @click.option("--log/--linear", "log", default=True, show_default=True, help="PNG intensity scale.")

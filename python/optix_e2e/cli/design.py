@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ._common import dumps, friendly_errors
+from ._common import SEED, THREADS, dumps, friendly_errors
 
 
 @click.command("design")
@@ -20,7 +20,7 @@ from ._common import dumps, friendly_errors
               help="Alg. 1 (alternating, proximal; default) or one Adam over everything (the paper's vanilla).")
 @click.option("--budget", type=click.Choice(["smoke", "quick", "full"]), default="quick", show_default=True,
               help="smoke: seconds (tests); quick: the main job; full: the figures we report.")
-@click.option("--seed", type=click.IntRange(min=0), default=None, help="Initialization, batches and noise (default 0).")
+@click.option("--seed", type=SEED, default=None, help="Initialization, batches and noise (default 0).")
 @click.option("--surrogate", default=None, help="Optics surrogate: bundled name, checkpoint or run dir "
                                                 "(default: paper-triplet-e2e; detection: paper-triplet-detect).")
 @click.option("--images", type=click.Path(exists=True, file_okay=False), default=None,
@@ -29,7 +29,7 @@ from ._common import dumps, friendly_errors
               help="The optics model in the loop: the surrogate (default), the exact engine with central-difference "
                    "gradients, the surrogate checked and refined along the way, or auto (from the measured "
                    "speed/accuracy trade-off; docs/optics-in-the-loop.md).")
-@click.option("--threads", type=click.IntRange(min=0), default=None, help="torch CPU threads (0: default).")
+@click.option("--threads", type=THREADS, default=None, help="torch CPU threads (0: default).")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @friendly_errors
 def design(task, out, config_file, optimizer, budget, seed, surrogate, images, optics, threads, quiet):

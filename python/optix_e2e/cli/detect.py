@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from ._common import dumps, friendly_errors
+from ._common import FiniteFloatRange, SEED, THREADS, dumps, friendly_errors
 
 
 @click.group("detect")
@@ -16,26 +16,24 @@ def detect():
 @click.argument("data", type=click.Path(exists=True, file_okay=False))
 @click.option("--out", type=click.Path(file_okay=False), required=True,
               help="Run directory: detector.pt (resumable), history.csv, tb/.")
-@click.option("--steps", type=click.IntRange(min=1), default=4000, show_default=True)
-@click.option("--minutes", type=click.FloatRange(min=0, min_open=True), default=None,
+@click.option("--steps", type=click.IntRange(1, 10_000_000), default=4000, show_default=True)
+@click.option("--minutes", type=FiniteFloatRange(min=0, min_open=True), default=None,
               help="Stop after this much training time (the learning rate anneals over it).")
-@click.option("--batch", type=click.IntRange(min=1), default=8, show_default=True)
-@click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=2e-3, show_default=True)
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
-@click.option("--dim", type=click.FloatRange(min=0, max=1, min_open=True), default=1.0, show_default=True,
+@click.option("--batch", type=click.IntRange(1, 256), default=8, show_default=True)
+@click.option("--lr", type=FiniteFloatRange(min=0, min_open=True), default=2e-3, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
+@click.option("--dim", type=FiniteFloatRange(min=0, max=1, min_open=True), default=1.0, show_default=True,
               help="Darken each training image by a log-uniform factor in [DIM, 1] in linear light (dusk "
                    "exposures; 1: as stored).")
-@click.option("--threads", type=click.IntRange(min=0), default=0, help="torch CPU threads (0: default).")
+@click.option("--threads", type=THREADS, default=0, help="torch CPU threads (0: default).")
 @click.option("--quiet", is_flag=True)
 @friendly_errors
 def train(data, out, steps, minutes, batch, lr, seed, dim, threads, quiet):
     """Train the detector on DATA (images/ + annotations.json, e.g. from `optix scenes street`)."""
-    import torch
-
+    from ..parallel import set_threads
     from ..tasks.detector_train import train_detector
 
-    if threads:
-        torch.set_num_threads(threads)
+    set_threads(threads)
     click.echo(dumps(train_detector(data, out, steps=steps, minutes=minutes, batch=batch, lr=lr, seed=seed,
                                     dim=dim, progress=not quiet, log=click.echo)))
 
@@ -43,15 +41,13 @@ def train(data, out, steps, minutes, batch, lr, seed, dim, threads, quiet):
 @detect.command("eval")
 @click.argument("run", type=click.Path(exists=True))
 @click.argument("data", type=click.Path(exists=True, file_okay=False))
-@click.option("--threads", type=click.IntRange(min=0), default=0, help="torch CPU threads (0: default).")
+@click.option("--threads", type=THREADS, default=0, help="torch CPU threads (0: default).")
 @friendly_errors
 def evaluate(run, data, threads):
     """mAP@[.5:.95] and mAP@0.5 of the detector in RUN on DATA (and in its dark regions). One JSON line."""
-    import torch
-
+    from ..parallel import set_threads
     from ..tasks.detector_train import evaluate_detector, load_detector
 
-    if threads:
-        torch.set_num_threads(threads)
+    set_threads(threads)
     model, ck = load_detector(run)
     click.echo(dumps({**evaluate_detector(model, data), "steps": ck.get("step"), "train_wall_s": ck.get("wall_s")}))

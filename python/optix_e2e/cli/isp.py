@@ -14,7 +14,7 @@ from pathlib import Path
 
 import click
 
-from ._common import SEED, FiniteFloatRange, dumps, friendly_errors
+from ._common import THREADS, SEED, FiniteFloatRange, dumps, friendly_errors
 
 OUT = click.Path(file_okay=False, path_type=Path)
 
@@ -27,7 +27,7 @@ def isp():
 def _train_options(fn):
     for opt in reversed([
         click.option("--out", "out_dir", type=OUT, required=True, help="Output directory."),
-        click.option("--steps", type=click.IntRange(min=1), default=8000, show_default=True),
+        click.option("--steps", type=click.IntRange(1, 10_000_000), default=8000, show_default=True),
         click.option("--minutes", type=FiniteFloatRange(min=0), default=0.0, show_default=True,
                      help="Wall-time budget; the learning rate anneals over it (0 = no limit)."),
         click.option("--batch", type=click.IntRange(1, 1024), default=16, show_default=True),
@@ -35,14 +35,14 @@ def _train_options(fn):
                      help="Training patch size (px, multiple of 16)."),
         click.option("--pool", type=click.IntRange(16, 65536), default=3072, show_default=True,
                      help="Training pairs per pool; a fresh pool every --refresh steps."),
-        click.option("--refresh", "refresh_every", type=click.IntRange(min=1), default=1500, show_default=True),
+        click.option("--refresh", "refresh_every", type=click.IntRange(1, 10_000_000), default=1500, show_default=True),
         click.option("--lr", type=FiniteFloatRange(min=0, min_open=True), default=1e-3, show_default=True),
         click.option("--perceptual-weight", type=FiniteFloatRange(min=0), default=0.1, show_default=True,
                      help="Weight of the perceptual term (1 - HaarPSI) next to L1."),
         click.option("--base", type=click.IntRange(4, 256), default=32, show_default=True,
                      help="UNet width (channels of the first level)."),
         click.option("--seed", type=SEED, default=0, show_default=True),
-        click.option("--threads", type=click.IntRange(min=0), default=0, help="torch threads (0 = default)."),
+        click.option("--threads", type=THREADS, default=0, help="torch threads (0 = default)."),
         click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON."),
     ]):
         fn = opt(fn)
@@ -120,7 +120,7 @@ def train_proxy_cmd(out_dir, as_json, init, **kw):
               help="Fraction of samples at low light (exposure / 100, gain x 100).")
 @click.option("--val-every", type=click.IntRange(1, 1_000_000), default=500, show_default=True)
 @click.option("--seed", type=SEED, default=0, show_default=True)
-@click.option("--threads", type=click.IntRange(0, 256), default=0, help="torch threads (0 = default).")
+@click.option("--threads", type=THREADS, default=0, help="torch threads (0 = default).")
 @click.option("--init", type=click.Path(dir_okay=False, exists=True, path_type=Path), default=None,
               help="Start a new run from this software ISP's weights (e.g. the shipped one).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
@@ -168,7 +168,7 @@ def eval_cmd(proxy, size, param_sets, photos, out_dir, as_json):
 @isp.command("tune")
 @click.option("--proxy", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Proxy checkpoint (default: the shipped one).")
-@click.option("--steps", type=click.IntRange(min=1), default=200, show_default=True)
+@click.option("--steps", type=click.IntRange(1, 10_000_000), default=200, show_default=True)
 @click.option("--scenes", "n_scenes", type=click.IntRange(1, 4096), default=48, show_default=True,
               help="Procedural training scenes to tune on.")
 @click.option("--perceptual-weight", type=FiniteFloatRange(min=0), default=1.0, show_default=True)

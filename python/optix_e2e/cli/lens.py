@@ -196,10 +196,13 @@ def survey_cmd(folder, out):
 
     summary, results = survey(Path(folder))
     text = dumps(summary, indent=1, ensure_ascii=False)
-    if out:
+    if out:  # both texts made before either file is touched, each written whole or not at all
+        from ..dataset.layout import write_text_atomic
+
+        table = results_csv(results)
         Path(out).mkdir(parents=True, exist_ok=True)
-        (Path(out) / "survey.json").write_text(text + "\n", encoding="utf-8")
-        (Path(out) / "survey.csv").write_text(results_csv(results), encoding="utf-8")
+        write_text_atomic(Path(out) / "survey.json", text + "\n")
+        write_text_atomic(Path(out) / "survey.csv", table)
     click.echo(text)
 
 

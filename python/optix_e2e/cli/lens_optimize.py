@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ._common import AIMING, dumps, friendly_errors
+from ._common import AIMING, FINITE, FiniteFloatRange, SEED, dumps, friendly_errors
 from ..lens import BUNDLED_DIR, Lens, LensLoadError
 from ..design.optimizer import Constraints, LensProblem, Merit, optimize
 from ..design.optimizer import set_semi_diameters as _with_semi_diameters
@@ -54,14 +54,14 @@ def _floats(text: str | None, what: str) -> list[float] | None:
               help="Where to write the optimized lens JSON.")
 @click.option("--summary", "summary_path", type=click.Path(dir_okay=False),
               help="Also write the JSON summary to this file.")
-@click.option("--efl", type=float, help="Effective focal length target (mm).")
-@click.option("--efl-tol", type=float, default=1e-3, show_default=True,
+@click.option("--efl", type=FINITE, help="Effective focal length target (mm).")
+@click.option("--efl-tol", type=FiniteFloatRange(min=0, min_open=True), default=1e-3, show_default=True,
               help="Relative EFL tolerance for calling the target met.")
-@click.option("--min-center", type=float, help="Minimum glass center thickness (mm).")
-@click.option("--min-edge", type=float, help="Minimum glass edge thickness at the clear semi-diameter (mm).")
-@click.option("--min-air-gap", type=float, help="Minimum air gap between optical surfaces, center and edge (mm).")
-@click.option("--min-bfd", type=float, help="Minimum back focal distance, last vertex to image (mm).")
-@click.option("--min-image-height", type=float,
+@click.option("--min-center", type=FINITE, help="Minimum glass center thickness (mm).")
+@click.option("--min-edge", type=FINITE, help="Minimum glass edge thickness at the clear semi-diameter (mm).")
+@click.option("--min-air-gap", type=FINITE, help="Minimum air gap between optical surfaces, center and edge (mm).")
+@click.option("--min-bfd", type=FINITE, help="Minimum back focal distance, last vertex to image (mm).")
+@click.option("--min-image-height", type=FINITE,
               help="Minimum image height (mm) of the chief ray (real trace, aimed per --aiming) at the largest field, "
                    "e.g. the sensor's half-diagonal.")
 @click.option("--focus", type=click.Choice(["fixed", "paraxial"]), default="fixed", show_default=True,
@@ -82,11 +82,11 @@ def _floats(text: str | None, what: str) -> list[float] | None:
 @click.option("--global", "global_", is_flag=True,
               help="Global search (Sobol' starts and Hammer jumps, each polished by damped least squares) "
                    "instead of one local optimization from LENS.")
-@click.option("--minutes", type=click.FloatRange(min=0.01), default=None,
+@click.option("--minutes", type=FiniteFloatRange(min=0.01), default=None,
               help="--global: time budget (default 5 minutes when --rounds is not given).")
 @click.option("--rounds", type=click.IntRange(1, 100000), default=None,
               help="--global: number of rounds (repeatable for a seed; the time budget still applies if given).")
-@click.option("--seed", type=int, default=None, help="--global: random seed (default 0).")
+@click.option("--seed", type=SEED, default=None, help="--global: random seed (default 0).")
 @click.option("--workers", type=click.IntRange(1, 256), default=None,
               help="--global: worker processes (default: the CPU count, at most --batch).")
 @click.option("--batch", type=click.IntRange(1, 1024), default=None, help="--global: polishes per round (default 4).")

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from ._common import AIMING, dumps, friendly_errors, load_lens
+from ._common import AIMING, FINITE, FiniteFloatRange, dumps, friendly_errors, load_lens
 
 FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
 
@@ -46,7 +46,7 @@ FIELDS = click.option("--fields", default=None, metavar="F1,F2,...",
 @click.option("--rays", type=click.IntRange(1, 101), default=9, show_default=True,
               help="Rays per field across the pupil (meridional fan).")
 @click.option("--aiming", type=AIMING, default="paraxial", show_default=True)
-@click.option("--wavelength-nm", type=float, default=None, help="Default: the lens's primary wavelength.")
+@click.option("--wavelength-nm", type=FiniteFloatRange(min=0, min_open=True), default=None, help="Default: the lens's primary wavelength.")
 @friendly_errors
 def plot(lens_spec, out, fields, rays, aiming, wavelength_nm):
     """Draw the y-z cross-section of LENS with ray fans for several fields."""
@@ -71,7 +71,7 @@ def plot(lens_spec, out, fields, rays, aiming, wavelength_nm):
 @click.option("--freqs", default=None, metavar="F1,F2,...",
               help="Frequencies (cycles/mm) whose MTF goes into report.json "
                    "[default: 10,20,40,85.32 (5.86 um pixel Nyquist),100].")
-@click.option("--max-freq", type=click.FloatRange(min=0, min_open=True), default=None,
+@click.option("--max-freq", type=FiniteFloatRange(min=0, min_open=True), default=None,
               help="Highest MTF frequency (cycles/mm) [default: the diffraction cutoff].")
 @click.option("--per-wavelength", is_flag=True, help="Also draw each wavelength's MTF.")
 @click.option("--psf-method", type=click.Choice(["fft", "huygens"]), default="fft", show_default=True,

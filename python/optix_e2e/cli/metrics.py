@@ -11,28 +11,50 @@ import click
 from ._common import dumps, friendly_errors
 
 
+MAX_PIXELS = 64_000_000  # larger files are refused before they are decoded (a decompression bomb)
+
+
 def _read(path: str):
+    """An 8-bit or 16-bit image file -> float32 [3, H, W] in [0, 1] at the file's own depth
+    (16-bit greyscale is scaled by 65535, not clipped at 255). One error for anything else."""
+    import warnings
+
     import numpy as np
     import torch
     from PIL import Image, UnidentifiedImageError
 
     try:
-        with Image.open(path) as im:
-            a = np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
-    except (OSError, UnidentifiedImageError) as exc:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            with Image.open(path) as im:
+                w, h = im.size
+                if w * h > MAX_PIXELS:
+                    raise click.ClickException(f"{path}: {w}x{h} pixels is more than this command reads "
+                                               f"({MAX_PIXELS} pixels)")
+                if im.mode.startswith("I;16"):
+                    a = np.asarray(im, dtype=np.uint16).astype(np.float32) / 65535.0
+                    a = np.repeat(a[:, :, None], 3, axis=2)
+                elif im.mode in ("I", "F"):
+                    raise click.ClickException(f"{path}: {'32-bit integer' if im.mode == 'I' else 'floating-point'} "
+                                               f"images are not read; save it with 8 or 16 bits per channel")
+                else:
+                    a = np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+        raise click.ClickException(f"{path}: too large to decode safely ({exc})") from None
+    except (OSError, UnidentifiedImageError, ValueError) as exc:
         raise click.ClickException(f"{path}: cannot read as an image ({exc})") from None
-    return torch.from_numpy(a).permute(2, 0, 1)
+    return torch.from_numpy(np.ascontiguousarray(a)).permute(2, 0, 1)
 
 
 @click.command("metrics")
 @click.argument("image", type=click.Path(exists=True, dir_okay=False))
 @click.argument("reference", type=click.Path(exists=True, dir_okay=False))
-@click.option("--crop", type=click.IntRange(min=0), default=0, show_default=True,
+@click.option("--crop", type=click.IntRange(0, 100_000), default=0, show_default=True,
               help="Pixels dropped from every border before scoring.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 @friendly_errors
 def metrics(image, reference, crop, as_json):
-    """Quality of IMAGE against REFERENCE (8-bit sRGB files of one size): PSNR (dB), SSIM,
+    """Quality of IMAGE against REFERENCE (8- or 16-bit sRGB files of one size): PSNR (dB), SSIM,
     LPIPS (AlexNet, v0.1; lower is closer; the paper reports 1 - LPIPS) and HaarPSI."""
     from ..metrics.lpips import lpips
     from ..metrics.image import summarize

@@ -7,22 +7,22 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ._common import AIMING, dumps, friendly_errors, load_lens
+from ._common import AIMING, FINITE, FiniteFloatRange, dumps, friendly_errors, load_lens
 
 
 @click.command()
 @click.argument("lens_spec", metavar="LENS")
-@click.option("--field-deg", type=float, default=0.0, show_default=True, help="Field angle along +y.")
-@click.option("--wavelength-nm", type=float, default=None, help="Default: the lens's primary wavelength.")
+@click.option("--field-deg", type=FiniteFloatRange(-90.0, 90.0), default=0.0, show_default=True, help="Field angle along +y.")
+@click.option("--wavelength-nm", type=FiniteFloatRange(min=0, min_open=True), default=None, help="Default: the lens's primary wavelength.")
 @click.option("--method", type=click.Choice(["auto", "geometric", "fft", "huygens"]), default="auto", show_default=True,
               help="auto: the cheapest method and sampling predicted to meet --accuracy (recorded under 'auto').")
-@click.option("--accuracy", type=click.FloatRange(min=0, min_open=True), default=0.02, show_default=True,
+@click.option("--accuracy", type=FiniteFloatRange(min=0, min_open=True), default=0.02, show_default=True,
               help="method auto: target relative L1 error of the PSF against the converged Huygens PSF.")
-@click.option("--pixel-um", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True)
-@click.option("--size", type=click.IntRange(min=1), default=64, show_default=True, help="Window is SIZE x SIZE pixels.")
-@click.option("--pupil-samples", type=click.IntRange(min=2), default=64, show_default=True,
+@click.option("--pixel-um", type=FiniteFloatRange(min=0, min_open=True), default=1.0, show_default=True)
+@click.option("--size", type=click.IntRange(1, 4096), default=64, show_default=True, help="Window is SIZE x SIZE pixels.")
+@click.option("--pupil-samples", type=click.IntRange(2, 4096), default=64, show_default=True,
               help="Samples across the pupil (the ray grid for the geometric method).")
-@click.option("--fft-grid", type=click.IntRange(min=2), default=None, help="FFT size (fft method; default: engine's choice).")
+@click.option("--fft-grid", type=click.IntRange(2, 16384), default=None, help="FFT size (fft method; default: engine's choice).")
 @click.option("--integrate/--sample", default=False, show_default=True,
               help="Integrate over each pixel (what a detector pixel collects) or sample the intensity at "
                    "pixel centres x pixel area (super-resolved PSF). Geometric PSFs always integrate.")

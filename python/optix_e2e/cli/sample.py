@@ -9,22 +9,22 @@ import click
 
 from ..design.sampling import METHODS, Limits, sample_designs, write_designs_csv
 from ..design.space import load_space
-from ._common import dumps, friendly_errors
+from ._common import FINITE, SEED, dumps, friendly_errors
 
 
 def limit_options(fn):
     """--min-air-gap / --min-center / --min-edge / --min-bfd, overriding the space's own."""
     for name, what in (("min-bfd", "back focal distance"), ("min-edge", "glass edge thickness"),
                        ("min-center", "glass center thickness"), ("min-air-gap", "air gap (center and rim)")):
-        fn = click.option(f"--{name}", type=float, default=None,
+        fn = click.option(f"--{name}", type=FINITE, default=None,
                           help=f"Minimum {what} (mm); default: the space's [constraints].")(fn)
     return fn
 
 
 @click.command("sample")
 @click.argument("space_spec", metavar="SPACE")
-@click.option("-n", "n", type=click.IntRange(min=1), required=True, help="Designs to accept.")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("-n", "n", type=click.IntRange(1, 10_000_000), required=True, help="Designs to accept.")
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--method", type=click.Choice(METHODS), default="sobol", show_default=True,
               help="uniform (PCG64), scrambled Sobol' or Latin hypercube (scipy.stats.qmc).")
 @click.option("--out", "out_path", type=click.Path(dir_okay=False), required=True, help="designs.csv")

@@ -6,7 +6,7 @@ import time
 
 import click
 
-from ._common import dumps, friendly_errors
+from ._common import SEED, dumps, friendly_errors
 
 
 @click.group("scenes")
@@ -14,22 +14,25 @@ def scenes():
     """Scenes that work offline: labelled street scenes for detection."""
 
 
+MAX_SIDE = 4096  # a scene is drawn in memory at float32: 4096 x 4096 x 3 is 200 MB per buffer
+
+
 def _size(ctx, param, value: str) -> tuple[int, int]:
     try:
         h, w = (int(x) for x in value.lower().split("x"))
     except ValueError:
         raise click.BadParameter(f"expected HxW, e.g. 256x384, got {value!r}") from None
-    if h < 32 or w < 32:
-        raise click.BadParameter(f"at least 32x32, got {value!r}")
+    if h < 32 or w < 32 or h > MAX_SIDE or w > MAX_SIDE:
+        raise click.BadParameter(f"each side from 32 to {MAX_SIDE} pixels, got {value!r}")
     return h, w
 
 
 @scenes.command("street")
 @click.option("--out", type=click.Path(file_okay=False), required=True,
               help="Folder: images/ (8-bit sRGB PNG) and annotations.json (COCO).")
-@click.option("-n", "n", type=click.IntRange(min=1), required=True, help="Number of scenes.")
+@click.option("-n", "n", type=click.IntRange(1, 1_000_000), required=True, help="Number of scenes.")
 @click.option("--size", default="256x384", show_default=True, callback=_size, help="HxW pixels.")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @friendly_errors
 def street(out, n, size, seed, quiet):

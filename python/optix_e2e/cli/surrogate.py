@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ._common import SEED, FiniteFloatRange, dumps, friendly_errors
+from ._common import THREADS, SEED, FiniteFloatRange, dumps, friendly_errors
 
 DATA = click.Path(file_okay=False, exists=True, path_type=Path)
 
@@ -29,20 +29,20 @@ def surrogate():
 @click.option("--base-channels", type=click.IntRange(1, 4096), default=64, show_default=True,
               help="Decoder channels at its coarsest level (halved at each upsampling).")
 @click.option("--n-up", type=click.IntRange(0, 6), default=2, show_default=True, help="Decoder x2 upsamplings.")
-@click.option("--steps", type=click.IntRange(min=1), default=20000, show_default=True)
+@click.option("--steps", type=click.IntRange(1, 10_000_000), default=20000, show_default=True)
 @click.option("--minutes", type=FiniteFloatRange(min=0), default=0.0, show_default=True,
               help="Training-time budget over all resumed runs; the learning rate anneals over it (0: none).")
 @click.option("--batch", type=click.IntRange(1, 65536), default=256, show_default=True,
               help="(design, field) samples per step.")
 @click.option("--lr", type=FiniteFloatRange(min=0, min_open=True), default=2e-3, show_default=True)
-@click.option("--val-designs", type=click.IntRange(min=0), default=256, show_default=True,
+@click.option("--val-designs", type=click.IntRange(0, 10_000_000), default=256, show_default=True,
               help="Designs held out of training for validation (and for `eval` on this dataset).")
-@click.option("--max-designs", type=click.IntRange(min=0), default=0, show_default=True,
+@click.option("--max-designs", type=click.IntRange(0, 100_000_000), default=0, show_default=True,
               help="Use only the first N designs of DATA (0: all).")
-@click.option("--val-every", type=click.IntRange(min=1), default=500, show_default=True,
+@click.option("--val-every", type=click.IntRange(1, 10_000_000), default=500, show_default=True,
               help="Validate and write the checkpoints every N steps.")
 @click.option("--seed", type=SEED, default=0, show_default=True)
-@click.option("--threads", type=click.IntRange(min=0), default=0, help="torch CPU threads (0: default).")
+@click.option("--threads", type=THREADS, default=0, help="torch CPU threads (0: default).")
 @click.option("--device", default="auto", show_default=True, help="auto (CUDA when present), cpu, cuda, cuda:1 ...")
 @click.option("--init", default="", help="Start from this surrogate's weights (a checkpoint, a run directory or "
               "`paper-triplet-v1`): a fine-tune, e.g. after the dataset was regenerated. Same architecture.")
@@ -76,7 +76,7 @@ def train_cmd(data, out_dir, bin_, as_json, **kw):
 @surrogate.command("eval")
 @click.argument("model")
 @click.argument("data", type=DATA)
-@click.option("--max-designs", type=click.IntRange(min=0), default=0, show_default=True,
+@click.option("--max-designs", type=click.IntRange(0, 100_000_000), default=0, show_default=True,
               help="Score at most N held-out designs (0: all).")
 @click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="PNG grid of predicted vs exact PSFs (default: OUT/grid.png with --out).")

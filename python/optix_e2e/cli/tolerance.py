@@ -14,7 +14,7 @@ from ..lens import Lens
 from ..design.optimizer import Merit
 from ..design.tolerance import DEFAULT_PUPIL
 from ..design.space import SPACES_DIR, ParameterSpace, SpaceError, bundled_spaces
-from ._common import dumps, friendly_errors
+from ._common import FINITE, SEED, FiniteFloatRange, dumps, friendly_errors
 
 MC_SPACES = ("proposed", "given")
 
@@ -130,17 +130,17 @@ def plot_yield(path: Path, mc, nominal_um: float, label: str) -> None:
 @click.argument("lens_spec", metavar="LENS")
 @click.option("--space", "space_spec", required=True, metavar="SPACE",
               help="Space TOML file, or a bundled lens's name (its bundled space).")
-@click.option("--budget-um", type=float, default=None,
+@click.option("--budget-um", type=FINITE, default=None,
               help="Allowed growth of the worst-field RMS spot (um); default 20 % of the nominal's "
                    "(or spec - nominal with --spec-um).")
-@click.option("--spec-um", type=float, default=None,
+@click.option("--spec-um", type=FINITE, default=None,
               help="Worst-field RMS spot a design must meet for the yield (um); default nominal + budget.")
-@click.option("--mc", "n_mc", type=click.IntRange(min=0), default=200, show_default=True,
+@click.option("--mc", "n_mc", type=click.IntRange(0, 1_000_000), default=200, show_default=True,
               help="Monte Carlo designs (0: no Monte Carlo).")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--mc-space", type=click.Choice(MC_SPACES), default="proposed", show_default=True,
               help="Draw the Monte Carlo designs from the proposed ranges or the given space's.")
-@click.option("--step-scale", type=float, default=1.0, show_default=True,
+@click.option("--step-scale", type=FiniteFloatRange(min=0, min_open=True), default=1.0, show_default=True,
               help="Scale every default sensitivity step (docs/tolerance.md).")
 @click.option("--rings", type=click.IntRange(1, 32), default=None,
               help="Gaussian-quadrature pupil rings of the RMS spot [default: 6; 32 with --apertures fixed].")

@@ -36,25 +36,63 @@ class ClusterError(RuntimeError):
     """The Dask cluster cannot be reached or cannot run the dataset's shards."""
 
 
+MAX_LOCAL_WORKERS = 256
+
+
+def _check_address(spec: str, address: str, where: str) -> str:
+    """``tcp://host:port`` or ``tls://host:port`` (a bare ``host:port`` is tcp), checked before
+    any connection is tried: a port in 1..65535, an IPv4 address with octets up to 255 or a
+    host name of letters, digits, dots and dashes."""
+    import ipaddress
+    import re
+
+    scheme, sep, rest = address.partition("://")
+    if not sep:
+        scheme, rest = "tcp", address
+    if scheme not in ("tcp", "tls"):
+        raise ClusterError(f"--dask {spec!r}: {where}: protocol {scheme!r} is not supported (tcp:// or tls://)")
+    host, colon, port = rest.rpartition(":")
+    host = host[1:-1] if host.startswith("[") and host.endswith("]") else host  # [IPv6]
+    if not colon or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ClusterError(f"--dask {spec!r}: {where}: expected HOST:PORT with a port from 1 to 65535")
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        if re.fullmatch(r"\d+(\.\d+){3}", host) or not re.fullmatch(r"[A-Za-z0-9]([A-Za-z0-9.-]{0,252})", host):
+            raise ClusterError(f"--dask {spec!r}: {where}: {host!r} is not an IP address or a host name") from None
+    return f"{scheme}://{rest}"
+
+
 def parse_address(spec: str) -> tuple[str, "str | int"]:
-    """``local:N`` -> ("local", N); ``PATH.json`` (a scheduler file) -> ("file", PATH);
-    anything else is a scheduler address (``tcp://host:8786``)."""
+    """``local:N`` -> ("local", N); ``PATH.json`` (a scheduler file, as ``dask scheduler
+    --scheduler-file`` writes it) -> ("address", its address); anything else is a scheduler
+    address (``tcp://host:8786``). Everything is checked here, before any connection."""
+    import json
+
     spec = spec.strip()
     if spec.startswith("local:"):
         try:
             n = int(spec[6:])
         except ValueError:
             n = 0
-        if n < 1:
-            raise ClusterError(f"--dask {spec!r}: expected local:N with N >= 1 workers")
+        if not 1 <= n <= MAX_LOCAL_WORKERS:
+            raise ClusterError(f"--dask {spec!r}: expected local:N with 1 <= N <= {MAX_LOCAL_WORKERS} workers")
         return "local", n
     if spec.endswith(".json"):
-        if not Path(spec).is_file():
-            raise ClusterError(f"--dask {spec!r}: no such scheduler file")
-        return "file", spec
+        from .layout import read_small_text
+
+        try:
+            info = json.loads(read_small_text(spec, what="scheduler file"))
+        except FileNotFoundError:
+            raise ClusterError(f"--dask {spec!r}: no such scheduler file") from None
+        except (OSError, ValueError, RecursionError) as exc:
+            raise ClusterError(f"--dask {spec!r}: not a scheduler file ({' '.join(str(exc).split())})") from None
+        if not isinstance(info, dict) or not isinstance(info.get("address"), str):
+            raise ClusterError(f"--dask {spec!r}: not a scheduler file (no \"address\" string)")
+        return "address", _check_address(spec, info["address"], "its address")
     if not spec:
         raise ClusterError("--dask: empty address")
-    return "address", spec
+    return "address", _check_address(spec, spec, "address")
 
 
 @contextmanager
@@ -73,11 +111,9 @@ def connect(spec: str, log: Callable[[str], None] = lambda m: None, timeout_s: f
             cluster = LocalCluster(n_workers=value, threads_per_worker=1, processes=True, dashboard_address=None,
                                    env={v: "1" for v in WORKER_ENV})
             client = Client(cluster, timeout=timeout_s)
-        elif kind == "file":
-            client = Client(scheduler_file=value, timeout=timeout_s)
         else:
             client = Client(value, timeout=timeout_s)
-    except (OSError, TimeoutError) as exc:
+    except (OSError, TimeoutError, ValueError, RuntimeError, ImportError) as exc:
         if cluster is not None:
             cluster.close()
         raise ClusterError(f"--dask {spec!r}: cannot reach the scheduler ({exc})") from None

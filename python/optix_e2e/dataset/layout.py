@@ -180,17 +180,54 @@ def fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
-def write_json_atomic(path: Path, obj) -> None:
-    """Write JSON to a temporary file, fsync, rename over ``path``."""
+def read_small_text(path: "str | Path", max_bytes: int = 1 << 20, what: str = "file") -> str:
+    """The UTF-8 text of a regular file of at most ``max_bytes``: a pipe, a device (/dev/zero)
+    or a folder is refused before anything is read, so reading never blocks or runs without
+    a limit. One ValueError naming the file; FileNotFoundError passes through."""
+    import stat
+
     path = Path(path)
+    st = path.stat()
+    if not stat.S_ISREG(st.st_mode):
+        raise ValueError(f"{path}: the {what} is not a regular file")
+    with open(path, "rb") as f:
+        data = f.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise ValueError(f"{path}: the {what} is larger than {max_bytes} bytes")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise ValueError(f"{path}: the {what} is not UTF-8 text ({err.reason} at byte {err.start})") from None
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write UTF-8 ``text`` to a temporary file, fsync, rename over ``path``: the old file
+    stays whole until the new one is; a failed write removes its temporary file."""
+    path = Path(path)
+    data = text.encode("utf-8")  # fails (UnicodeEncodeError) before any file is touched
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "w", encoding="utf-8") as f:
-        json.dump(obj, f, indent=2, allow_nan=False)
-        f.write("\n")
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     fsync_dir(path.parent)
+
+
+def write_json_atomic(path: Path, obj) -> None:
+    """Write JSON to a temporary file, fsync, rename over ``path``. The text is made first, so
+    an object JSON cannot hold (NaN, inf, a type it does not know) raises ValueError naming
+    ``path`` and leaves nothing behind; a failed write removes its temporary file."""
+    path = Path(path)
+    try:
+        text = json.dumps(obj, indent=2, allow_nan=False) + "\n"
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{path}: cannot be written as JSON ({err})") from None
+    write_text_atomic(path, text)
 
 
 def differing_keys(a: dict, b: dict, keys) -> list[str]:

@@ -21,6 +21,7 @@ import torch
 from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
+from ..parallel import set_threads
 from ..metrics import image as metrics
 from . import data
 from .proxy import ISPProxy
@@ -93,8 +94,7 @@ def _save(model, kind: str, out_dir: Path, **meta) -> None:
 def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) -> dict:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    if cfg.threads:
-        torch.set_num_threads(cfg.threads)
+    set_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     meta = getattr(model, "meta", {})  # a continued proxy keeps the record of its earlier runs
     earlier = list(meta.get("earlier_training", [])) + ([meta["training"]] if "training" in meta else [])

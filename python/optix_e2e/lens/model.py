@@ -11,6 +11,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .text import display_name
 from .prescription import PrescriptionError, resolve_prescription
 
 __all__ = ["Lens", "LensLoadError", "bundled_lenses", "DEFAULT_RGB_CHANNELS"]
@@ -166,15 +167,31 @@ class Lens:
             raise LensLoadError(f"{path}:{exc.lineno}:{exc.colno}: invalid JSON: {exc.msg}") from exc
         except RecursionError:
             raise LensLoadError(f"{path}: invalid JSON: nested too deeply to be a lens prescription") from None
-        data.setdefault("name", path.stem) if isinstance(data, dict) else None
+        data.setdefault("name", display_name(path.stem)) if isinstance(data, dict) else None
         return cls(data, source=source or str(path))
 
     # ----- saving -----------------------------------------------------------------
+    def zmx_footprint(self, n_rim: int = 32) -> list[float]:
+        """The automatic semi-diameters written to .zmx files (OpticStudio's: the largest
+        height of the pupil rim and chief rays of every field and wavelength) on each surface
+        and the image; 0 where no ray gets there. A reader that clips at semi-diameters (ours
+        does, docs/zemax.md) must then clip none of the light the lens passes: each height is
+        raised by 1 %, so rays at wavelengths between and a little beyond the lens's own pass
+        too (OpticStudio's automatic value has no margin; it does not clip)."""
+        import numpy as np
+
+        from .footprint import ray_footprint
+
+        t = np.linspace(0.0, 2 * np.pi, n_rim, endpoint=False)
+        h = ray_footprint(self.to_engine_json(), len(self.surfaces) + 1, self.fields_deg, self.wavelengths_nm,
+                          np.append(np.sin(t), 0.0), np.append(np.cos(t), 0.0))
+        return [float(v) * 1.01 for v in h]
+
     def to_zmx(self) -> str:
         """The prescription as Zemax .zmx text (docs/zemax.md)."""
         from .zemax import zmx_text
 
-        return zmx_text(self.raw, self.source)
+        return zmx_text(self.raw, self.source, self.zmx_footprint())
 
     def save(self, path: "str | Path", *, encoding: str = "utf-8") -> Path:
         """Write the prescription as ``.json`` or ``.zmx`` (by extension); ``encoding``
@@ -184,7 +201,7 @@ class Lens:
         if suffix == ".zmx":
             from .zemax import write_zmx
 
-            return write_zmx(self.raw, path, encoding=encoding, source=self.source)
+            return write_zmx(self.raw, path, encoding=encoding, source=self.source, footprint=self.zmx_footprint())
         if suffix == ".json":
             path.write_text(json.dumps(self.raw, indent=2) + "\n", encoding="utf-8")
             return path

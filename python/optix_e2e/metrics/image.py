@@ -101,7 +101,11 @@ def haarpsi(x: torch.Tensor, y: torch.Tensor, crop: int = 0) -> torch.Tensor:
                          f"pixels, got {x.shape[-2]}x{x.shape[-1]}")
     if x.shape[1] not in (1, 3):
         raise ValueError(f"HaarPSI takes 1 or 3 channels, got {x.shape[1]}")
-    return _out(piq.haarpsi(_clamp01(x), _clamp01(y), data_range=1.0, reduction="none"), single)
+    score = piq.haarpsi(_clamp01(x), _clamp01(y), data_range=1.0, reduction="none")
+    # Two images without any structure at HaarPSI's coarsest scale (black, both) weigh nothing:
+    # piq's ratio is then eps / eps = 1 and its logit infinite. Such images are identical as far
+    # as HaarPSI can see, so they score 1, as identical images do.
+    return _out(torch.where(torch.isfinite(score), score, torch.ones_like(score)), single)
 
 
 def perceptual_distance(x: torch.Tensor, y: torch.Tensor, crop: int = 0) -> torch.Tensor:

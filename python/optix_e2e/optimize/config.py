@@ -12,7 +12,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..dataset.layout import write_json_atomic
+from ..dataset.layout import read_small_text, write_json_atomic
 from ..tasks import get_task
 from ..tasks.scenes import POSITIONS
 
@@ -20,6 +20,43 @@ try:
     import tomllib
 except ImportError:  # Python 3.10
     import tomli as tomllib
+
+
+MAX_THREADS = 1024  # torch aborts (a segmentation fault) when asked for tens of thousands
+BIG = 10 ** 7       # steps and counts: far above any real run, far below what overflows
+
+# Every numeric setting's range, checked in one place (DesignConfig.check): (low, high, low
+# excluded). Floats must also be finite. A new numeric setting without a range is a test failure.
+RANGES: dict[str, tuple[float, float, bool]] = {
+    "seed": (0, 2 ** 63 - 1, False),
+    "crop": (16, 1024, False), "crop_width": (0, 1024, False), "batch": (1, 256, False),
+    "n_cycles": (0, BIG, False), "steps_optics": (1, BIG, False), "steps_isp": (1, BIG, False),
+    "n_finetune": (0, BIG, False), "steps_detector": (1, BIG, False),
+    "lr_optics": (0.0, 10.0, True), "lr_isp_net": (0.0, 10.0, True), "lr_isp_params": (0.0, 10.0, True),
+    "lr_detector": (0.0, 10.0, True), "lr_vanilla": (0.0, 10.0, True),
+    "beta_optics": (0.0, 1e6, False), "beta_isp": (0.0, 1e6, False), "beta_detector": (0.0, 1e6, False),
+    "eval_scenes": (1, 100_000, False), "check_every": (1, BIG, False), "hybrid_threshold": (0.0, 10.0, True),
+    "refine_designs": (1, 100_000, False), "refine_steps": (1, BIG, False), "fields": (0, 1000, False),
+    "patch": (2, 1024, False), "checkpoint_every": (1, BIG, False),
+    "eval_size": (16, 1024, False), "eval_procedural": (0, 10_000, False), "eval_level": (0.0, 10.0, True),
+    "bootstrap": (100, 1_000_000, False), "threads": (0, MAX_THREADS, False),
+}
+
+
+def check_ranges(values: dict, ranges: dict = RANGES, what: str = "setting") -> None:
+    """One error naming the first setting of ``values`` outside its range or not finite."""
+    import math
+
+    for k, (lo, hi, open_lo) in ranges.items():
+        if k not in values:
+            continue
+        v = values[k]
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ValueError(f"{what} {k} must be a number, got {v!r}")
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ValueError(f"{what} {k} must be a finite number, got {v}")
+        if v < lo or v > hi or (open_lo and v == lo):
+            raise ValueError(f"{what} {k} must be {'>' if open_lo else '>='} {lo} and <= {hi}, got {v}")
 
 
 @dataclass(frozen=True)
@@ -82,6 +119,7 @@ class DesignConfig:
         return self.crop, self.crop_width or self.crop
 
     def check(self) -> "DesignConfig":
+        check_ranges(dataclasses.asdict(self))
         get_task(self.task)
         if self.optimizer not in ("alg1", "vanilla"):
             raise ValueError(f"optimizer must be alg1 or vanilla, got {self.optimizer!r}")
@@ -161,15 +199,15 @@ def read_config_file(path: Path) -> dict:
     """A design config file's settings as written, its relative paths (``PATH_SETTINGS``) made
     absolute against the file's folder; one error naming the file if it cannot be read."""
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(read_small_text(path, what="config file"))
     except FileNotFoundError:
         raise ValueError(f"config file not found: {path}") from None
-    except UnicodeDecodeError as err:
-        raise ValueError(f"{path}: not UTF-8 text ({err.reason} at byte {err.start})") from None
     except OSError as err:
         raise ValueError(f"{path}: cannot read the config file ({err.strerror})") from None
     except tomllib.TOMLDecodeError as err:
         raise ValueError(f"{path}: not valid TOML: {err}") from None
+    except RecursionError:
+        raise ValueError(f"{path}: not a config file (nested too deeply to parse)") from None
     for k in PATH_SETTINGS:
         v = data.get(k)
         if isinstance(v, str) and v and not Path(v).is_absolute():
@@ -204,6 +242,7 @@ def make_config(budget: str = "quick", file: "str | Path | None" = None, **overr
             values[k] = v
             if overrides.get(k) is not None and overrides[k] != v:  # the command line and the file disagree
                 raise ValueError(f"{path}: {k} = {v!r} here, {overrides[k]!r} on the command line; say it once")
+        check_ranges(data, what=f"{path}: setting")
     values.update({k: v for k, v in overrides.items() if v is not None})
     return DesignConfig(**values).check()
 

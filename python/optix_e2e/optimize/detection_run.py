@@ -213,9 +213,12 @@ def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool
             except (OSError, ValueError):
                 cached = None
             if isinstance(cached, dict) and cached.get("key") == key:
-                preds[who][kind] = _preds_from_json(cached["detections"])
-                reused_s += float(cached.get("wall_s", 0.0))
-                continue
+                try:  # a damaged cache (hand-edited, cut short) is detected again, not a traceback
+                    preds[who][kind] = _preds_from_json(cached["detections"])
+                    reused_s += float(cached.get("wall_s", 0.0))
+                    continue
+                except (KeyError, TypeError, ValueError, RuntimeError):
+                    pass
             t0 = time.perf_counter()
             fo = FixedOptics(psf, vig, fh, patch=cfg.patch, full_field_px=frame.full_field_px,
                              f_number=f_numbers[who])

@@ -34,6 +34,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from ..parallel import set_threads
 from .. import color
 from ..camera import calibrated_preset
 from ..dataset.manifest import space_and_base
@@ -195,8 +196,7 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, init: "str | Path | None
         raise ValueError(f"{out} holds files but no ISP pre-training state (state.pt): another run's folder? "
                          f"use a new --out")
     out.mkdir(parents=True, exist_ok=True)
-    if cfg.threads:
-        torch.set_num_threads(cfg.threads)
+    set_threads(cfg.threads)
     sur = load_surrogate(cfg.surrogate, calibrated_preset("imx249").pixel_um)
     heights = nominal_field_heights(sur)
     space, base = space_and_base(sur.manifest)

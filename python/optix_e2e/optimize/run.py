@@ -281,10 +281,15 @@ def _load_state(path: Path, camera: Camera, opt, monitor=None) -> tuple[float, l
         camera.load_state_dict(st["camera"])
         opt.load_state_dict(st["optimizer"])
         wall_s, history = float(st["wall_s"]), list(st["history"])
-    except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as err:
-        raise ValueError(f"{path}: damaged design checkpoint ({err}); remove it to restart that training") from None
-    if monitor is not None and st.get("monitor") is not None:
-        monitor.load_state_dict(st["monitor"])  # its own error where the run's optics model differs
+        if not 0 <= opt.t <= opt.total_steps:
+            raise ValueError(f"step {opt.t} outside this run's 0..{opt.total_steps}")
+        if not (math.isfinite(wall_s) and wall_s >= 0):
+            raise ValueError(f"wall_s {wall_s}")
+        if monitor is not None and st.get("monitor") is not None:
+            monitor.load_state_dict(st["monitor"])  # its own error where the run's optics model differs
+    except (KeyError, TypeError, ValueError, RuntimeError, AttributeError, IndexError, OverflowError) as err:
+        raise ValueError(f"{path}: damaged design checkpoint ({type(err).__name__}: {' '.join(str(err).split())}); "
+                         f"remove it to restart that training") from None
     return wall_s, history
 
 
@@ -346,6 +351,8 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
         u_prev = optics.u.detach().clone() if guard is not None else None
         backend = optics.backend if optics is not None else "fixed"
         info = opt.step(loss_fn)
+        hint = "lower the learning rates (lr_optics, lr_isp_net, lr_isp_params, lr_detector, lr_vanilla)"
+        parallel.stop_if_diverged(opt.t, state_path, hint, loss=info["loss"])
         info["optics"] = backend
         # the paper enforces its limits on every lens: a step that breaks one is cut back
         info["cut"] = int(guard is not None and info["block"] in ("optics", "all")
@@ -364,6 +371,7 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
         bar.update(1)
         bar.set_postfix(loss=f"{info['loss']:.4f}", block=info["block"])
         if ranks.is_main and (opt.t % cfg.checkpoint_every == 0 or opt.t == opt.total_steps):
+            parallel.stop_if_diverged(opt.t, state_path, hint, camera=camera)
             _save_state(state_path, camera, opt, wall_s + time.perf_counter() - t_start, history, monitor)
     bar.close()
     wall = wall_s + (time.perf_counter() - t_start if ran else 0.0)
@@ -375,8 +383,7 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
 def start_run(cfg: DesignConfig, out: "str | Path") -> tuple[Path, object, SensorFrame, OpticsSurrogate]:
     """What every design run starts from: its folder, task, sensor frame and surrogate (checked
     to render at the sensor's pitch), with the torch threads set."""
-    if cfg.threads:
-        torch.set_num_threads(cfg.threads)
+    parallel.set_threads(cfg.threads)
     return Path(out), get_task(cfg.task), SensorFrame(), load_surrogate(cfg.surrogate,
                                                                          calibrated_preset("imx249").pixel_um)
 
@@ -586,8 +593,17 @@ def _read_eval_cache(path: Path, key: str) -> dict | None:
         cached = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
-    return cached if isinstance(cached, dict) and cached.get("key") == key and isinstance(cached.get("rows"), list) \
-        else None
+    if not (isinstance(cached, dict) and cached.get("key") == key and isinstance(cached.get("rows"), list)):
+        return None
+    # every row as the evaluation writes it; a hand-edited or damaged file is evaluated again
+    from .evaluate import METRICS
+
+    for r in cached["rows"]:
+        if not (isinstance(r, dict) and isinstance(r.get("image"), str) and isinstance(r.get("position"), str)
+                and all(isinstance(r.get(m), (int, float)) and not isinstance(r.get(m), bool) for m in METRICS)
+                and isinstance(r.get("radius"), (int, float))):
+            return None
+    return cached
 
 
 @torch.no_grad()

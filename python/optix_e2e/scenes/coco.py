@@ -33,6 +33,9 @@ def write_street_coco(out: "str | Path", n: int, size=(256, 384), seed: int = 0,
     from ..color import linear_to_srgb
 
     out = Path(out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise ValueError(f"{out} is not an empty folder; a street set is written whole into a new or empty "
+                         f"--out (nothing there is replaced)")
     (out / "images").mkdir(parents=True, exist_ok=True)
     images, anns = [], []
     for i in tqdm(range(n), desc="street scenes", unit="scene", disable=not progress):
@@ -110,6 +113,11 @@ class CocoDetection(torch.utils.data.Dataset):
                 raise CocoFormatError(f"{where}: duplicate image id {iid}")
             if h < 1 or w < 1:
                 raise CocoFormatError(f"{where} ({name}): height and width must be positive, got {h} x {w}")
+            # a file name is a path inside image_dir: no absolute path, no way out by "..", no link out
+            inside = self.image_dir.resolve()
+            if (Path(name).is_absolute() or ".." in Path(name).parts
+                    or not (inside / name).resolve().is_relative_to(inside)):
+                raise CocoFormatError(f"{where}: file_name {name!r} leaves the image folder {self.image_dir}")
             if not (self.image_dir / name).is_file():
                 raise CocoFormatError(f"{where}: image file {self.image_dir / name} not found")
             index[iid] = len(self.images)
@@ -146,8 +154,10 @@ class CocoDetection(torch.utils.data.Dataset):
             im["boxes"].append([x, y, x + bw, y + bh])
             im["labels"].append(cid)
             light = a.get("illumination")  # our scenes' extra key; None where a file lacks it
-            im["illumination"].append(float(light) if isinstance(light, (int, float)) and not isinstance(light, bool)
-                                      else None)
+            if light is not None and (isinstance(light, bool) or not isinstance(light, (int, float))
+                                      or not math.isfinite(light) or light < 0):
+                raise CocoFormatError(f"{where}: illumination must be a finite number >= 0, got {light!r}")
+            im["illumination"].append(None if light is None else float(light))
 
     def __len__(self) -> int:
         return len(self.images)

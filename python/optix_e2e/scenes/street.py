@@ -227,7 +227,7 @@ def street_scene(size=(256, 384), seed=None, *, n_objects: tuple[int, int] = (4,
     for _ in range(int(rng.integers(n_objects[0], n_objects[1] + 1))):
         cls = str(rng.choice(["vehicle", "pedestrian", "bike", "traffic light"], p=[0.35, 0.3, 0.15, 0.2]))
         if cls == "traffic light":
-            h = math.exp(rng.uniform(math.log(min_px), math.log(max_h / 2)))
+            h = math.exp(rng.uniform(math.log(min_px), math.log(max(max_h / 2, min_px))))  # small frames: min_px
             w = h * rng.uniform(0.34, 0.42)
             base = horizon + h * rng.uniform(0.3, 2.0)  # its pole's foot
             y0 = base - h * rng.uniform(2.2, 3.5)
@@ -237,7 +237,8 @@ def street_scene(size=(256, 384), seed=None, *, n_objects: tuple[int, int] = (4,
             w = h * rng.uniform(*aspects)
             base = horizon + h / height_m  # flat road: height proportional to the distance below the horizon
             y0 = base - h
-        objs.append((base, cls, int(round(y0)), int(round(rng.uniform(-0.1 * w, W - 0.9 * w))),
+        # an object wider than the frame straddles it (the bounds may cross in narrow frames)
+        objs.append((base, cls, int(round(y0)), int(round(rng.uniform(-0.1 * w, max(-0.1 * w, W - 0.9 * w)))),
                      max(int(round(h)), 2), max(int(round(w)), 2)))
     objs.sort(key=lambda o: o[0])  # far (near the horizon) first: nearer objects occlude them
     kept = []

@@ -182,6 +182,17 @@ class OpticsSurrogate(nn.Module):
             if key.startswith("param_") and arr.size != net.cfg.n_params:
                 raise SurrogateFileError(f"{where}: damaged surrogate checkpoint: {arr.size} values in {key} "
                                          f"for a {net.cfg.n_params}-parameter network")
+        lo, hi = np.asarray(st["param_min"], float), np.asarray(st["param_max"], float)
+        mean, std = np.asarray(st["param_mean"], float), np.asarray(st["param_std"], float)
+        # the normalization the network was trained with: a parameter that varies has a spread
+        # inside its range, its mean inside the range (a zeroed or swapped record would feed the
+        # network inputs it never saw, without a word)
+        if (lo > hi).any() or (std < 0).any() or ((hi > lo) & ~(std > 0)).any() or (std > (hi - lo) + 1e-9).any() \
+                or ((mean < lo - 1e-9) | (mean > hi + 1e-9)).any():
+            raise SurrogateFileError(f"{where}: damaged surrogate checkpoint: param_min/param_max/param_mean/param_std "
+                                     f"are not a range and a spread inside it")
+        if not float(st["pitch_um"]) > 0:
+            raise SurrogateFileError(f"{where}: damaged surrogate checkpoint: pitch_um must be > 0")
         for key in ("manifest", "meta"):
             if not isinstance(st.get(key) or {}, dict):
                 raise SurrogateFileError(f"{where}: damaged surrogate checkpoint: {key} is not a dict")

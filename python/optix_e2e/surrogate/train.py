@@ -182,8 +182,7 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
     next call resumes). Under torchrun, every rank calls it (see the module docstring) and
     the ranks other than 0 return None."""
     out_dir = Path(out_dir)
-    if cfg.threads:
-        torch.set_num_threads(cfg.threads)
+    parallel.set_threads(cfg.threads)
     ranks = parallel.setup(cfg.device)
     device, W = ranks.device, ranks.world
     if not ranks.is_main:
@@ -200,11 +199,16 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
         if diff:
             raise ValueError(f"{state_path}: this run was started with other settings ({', '.join(diff)}); "
                              f"use the same options or another --out")
-        log(f"resuming {state_path} at step {resumed['step']}")
+        log(f"resuming {state_path} at step {resumed.get('step')}")
 
     designs, man = design_indices(data_root, cfg.max_designs or None)
-    if resumed and resumed["data"]["designs_csv_sha256"] != man["designs_csv_sha256"]:
-        raise ValueError(f"{state_path}: that run trained on another dataset than {data_root}")
+    if resumed is not None:
+        old_data = resumed.get("data")
+        if not isinstance(old_data, dict) or "designs_csv_sha256" not in old_data:
+            raise ValueError(f"{state_path}: damaged surrogate training state (no data record); remove it to "
+                             f"train from the start")
+        if old_data["designs_csv_sha256"] != man["designs_csv_sha256"]:
+            raise ValueError(f"{state_path}: that run trained on another dataset than {data_root}")
     tr_designs, va_designs, mine = rank_designs(designs, cfg.val_designs, cfg.seed, ranks.rank, W)
     arrays, man = load_arrays(data_root, cfg.psf, cfg.bin,
                               designs=np.concatenate([mine, va_designs]) if ranks.is_main else mine)
@@ -225,10 +229,17 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
         _start_from(model, cfg.init)
         log(f"starting from the weights of {cfg.init}")
     if resumed:
-        model.net.load_state_dict(resumed["model"])
-        opt.load_state_dict(resumed["optimizer"])
-        gen.set_state(resumed["generator"])
-        step, seconds, history = resumed["step"], resumed["seconds"], resumed["history"]
+        try:
+            parallel.check_finite_weights(resumed["model"], state_path)
+            model.net.load_state_dict(resumed["model"])
+            opt.load_state_dict(resumed["optimizer"])
+            gen.set_state(resumed["generator"])
+            step, seconds, history = int(resumed["step"]), float(resumed["seconds"]), list(resumed["history"])
+            if not (0 <= step <= cfg.steps and math.isfinite(seconds) and seconds >= 0):
+                raise ValueError(f"step {step} of {cfg.steps}, seconds {seconds}")
+        except (KeyError, TypeError, ValueError, RuntimeError, AttributeError, IndexError, OverflowError) as err:
+            raise ValueError(f"{state_path}: damaged surrogate training state ({type(err).__name__}: "
+                             f"{' '.join(str(err).split())}); remove it to train from the start") from None
     model.train()
     net = model.net
     if ranks.distributed:  # averages the gradients over the ranks in backward
@@ -264,6 +275,10 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
             terms = dict.fromkeys(("pixel", "fourier", "gradient", "vignetting"), psf.sum() * 0 + vig.sum() * 0)
         share = len(d) / cfg.batch  # this rank's part of the global batch mean
         loss = cfg.weights.total(terms) * share
+        # every rank stops at the same step if any rank's loss left the finite numbers
+        finite = bool(torch.isfinite(loss.detach()))
+        if float(parallel.all_sum(torch.tensor([0.0 if finite else 1.0]), ranks)[0]) > 0:
+            parallel.stop_if_diverged(step + 1, state_path, "lower --lr", loss=math.nan if finite else loss.detach())
         opt.zero_grad(set_to_none=True)
         (loss * W).backward()       # DistributedDataParallel divides the summed gradients by W
         torch.nn.utils.clip_grad_norm_(model.net.parameters(), cfg.clip_grad)
@@ -291,6 +306,7 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
         if step % 50 == 0:
             bar.set_postfix(loss=f"{loss_g:.4f}", l1=f"{terms_g['pixel']:.4f}")
         if validating and ranks.is_main:
+            parallel.stop_if_diverged(step, state_path, "lower --lr", surrogate=model.net)
             val = validate(model, val_t)
             for name, v in val.items():
                 writer.add_scalar(f"val/{name}", v, step)

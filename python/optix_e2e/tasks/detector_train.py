@@ -19,7 +19,9 @@ import numpy as np
 import torch
 
 from .. import color
+from ..parallel import check_finite_weights, stop_if_diverged
 from ..scenes.coco import CocoDetection
+from ..scenes.street import CATEGORIES
 from .detector import detect, in_the_dark, make_detector, mean_average_precision
 
 FORMAT = "optix-detector/1"
@@ -32,6 +34,11 @@ def load_coco_folder(folder: "str | Path") -> tuple[torch.Tensor, list[dict], Co
     ds = CocoDetection(folder / "images", folder / "annotations.json")
     if len(ds) == 0:
         raise ValueError(f"{folder}: the annotation file lists no images")
+    ours = {c["id"]: c["name"] for c in CATEGORIES}
+    for cid, name in sorted(ds.categories.items()):  # the detector's classes are the street set's
+        if ours.get(cid) != name:
+            raise ValueError(f"{folder / 'annotations.json'}: category {cid} {name!r} is not one the detector "
+                             f"knows ({', '.join(f'{k} {v!r}' for k, v in ours.items())})")
     sizes = {(im["height"], im["width"]) for im in ds.images}
     if len(sizes) != 1:
         raise ValueError(f"{folder}: images of several sizes ({', '.join(f'{h}x{w}' for h, w in sorted(sizes))}); "
@@ -42,6 +49,9 @@ def load_coco_folder(folder: "str | Path") -> tuple[torch.Tensor, list[dict], Co
         imgs.append((img * 255 + 0.5).to(torch.uint8))
         targets.append(t)
     return torch.stack(imgs), targets, ds
+
+
+MAX_STEPS = 10_000_000  # the command line's maximum of --steps
 
 
 def save_detector(path: Path, model, config: dict, **extra) -> None:
@@ -99,18 +109,31 @@ def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, 
     torch.manual_seed(seed)
     if ck_path.is_file():
         model, ck = load_detector(ck_path)
+        check_finite_weights(model.state_dict(), ck_path)
         if (ck["config"] != config or ck.get("data") != str(Path(data).resolve()) or ck.get("seed") != seed
                 or ck.get("dim", 1.0) != dim):
             raise ValueError(f"{out} holds a detector trained with other settings (config {ck['config']}, data "
                              f"{ck.get('data')}, seed {ck.get('seed')}, dim {ck.get('dim', 1.0)}); use another --out")
-        step, wall = int(ck["step"]), float(ck["wall_s"])  # a larger --steps continues the run
+        try:  # a larger --steps continues the run
+            step, wall = int(ck["step"]), float(ck["wall_s"])
+            if not (0 <= step <= MAX_STEPS and math.isfinite(wall) and wall >= 0):
+                raise ValueError(f"step {step}, wall_s {wall}")
+        except (KeyError, TypeError, ValueError, OverflowError) as err:
+            raise ValueError(f"{ck_path}: damaged detector checkpoint ({type(err).__name__}: {err}); remove it to "
+                             f"train from the start") from None
         log(f"resuming at step {step} of {steps}")
     else:
+        if out.is_dir() and any(out.iterdir()):
+            raise ValueError(f"{out} is not empty and holds no detector run (detector.pt); choose another --out")
         out.mkdir(parents=True, exist_ok=True)
         model, ck, step, wall = make_detector(width, fpn, size), None, 0, 0.0
     opt = torch.optim.AdamW(model.parameters(), lr, weight_decay=1e-4)
     if ck is not None:
-        opt.load_state_dict(ck["optimizer"])
+        try:
+            opt.load_state_dict(ck["optimizer"])
+        except (KeyError, TypeError, ValueError, RuntimeError, IndexError) as err:
+            raise ValueError(f"{ck_path}: damaged detector checkpoint (optimizer: {type(err).__name__}: {err}); "
+                             f"remove it to train from the start") from None
     budget_s = None if minutes is None else 60.0 * minutes
 
     def lr_at(s: int, frac: float) -> float:  # warm-up, then cosine to 1 % by the budget's end
@@ -148,6 +171,7 @@ def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, 
             xs, tg = _batch(images, targets, seed, step, batch, dim)
             losses = model(xs, tg)
             loss = sum(losses.values())
+            stop_if_diverged(step + 1, ck_path, "lower --lr", loss=loss.detach())
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -160,11 +184,13 @@ def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, 
             bar.set_postfix(loss=f"{loss.item():.3f}")
             if step % checkpoint_every == 0 or step == steps:
                 hist.flush()
+                stop_if_diverged(step, ck_path, "lower --lr", detector=model)
                 checkpoint()
     finally:
         bar.close()
         hist.close()
         writer.close()
+    stop_if_diverged(step, ck_path, "lower --lr", detector=model)
     checkpoint()
     wall += time.perf_counter() - t0
     return {"run": str(out), "steps": step, "wall_s": wall, "n_images": len(images),
@@ -176,11 +202,15 @@ def evaluate_detector(model, data: "str | Path", batch: int = 8, dark: float = 0
     (mean illumination < ``dark`` of the sunlight, where the file says so) with the other
     objects' boxes removed from both sides."""
     images, targets, ds = load_coco_folder(data)
+    if not any(len(t["labels"]) for t in targets):
+        raise ValueError(f"{data}: no objects to score (the annotation file lists none that is not a crowd)")
     preds = detect(model, images.float() / 255, batch)
     res = mean_average_precision(preds, targets)
     if any(im["illumination"] for im in ds.images) and all(x is not None for im in ds.images
                                                             for x in im["illumination"]):
         lights = [torch.tensor(im["illumination"], dtype=torch.float32).reshape(-1) for im in ds.images]
         r = mean_average_precision(*in_the_dark(preds, targets, lights, dark))
-        res["dark"] = {"threshold": dark, "map_50": r["map_50"], "map": r["map"], "n_objects": r["n_objects"]}
+        none = r["n_objects"] == 0  # no object in the dark: nothing to score (torchmetrics says -1)
+        res["dark"] = {"threshold": dark, "map_50": None if none else r["map_50"], "map": None if none else r["map"],
+                       "n_objects": r["n_objects"]}
     return res

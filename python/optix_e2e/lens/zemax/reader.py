@@ -6,6 +6,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from ..text import display_name
 from .. import glass as _glass
 from .common import (GCAT_TO_CATALOG, IGNORED, MAX_FIELDS, MAX_PARM, MAX_SURFACES, MAX_WAVES, N_EVENASPH,
                      N_ODDASPHE, SURFACE_FEATURES, SURFACE_TYPES, UNITS_MM, UNSUPPORTED, ZemaxError, ZemaxImport)
@@ -40,7 +41,7 @@ def read_zmx(path: "str | Path", *, strict: bool = True) -> ZemaxImport:
     except OSError as exc:
         raise ZemaxError(f"{path}: cannot read ({exc.strerror or exc})") from exc
     text, enc = _decode(raw, str(path))
-    imp = parse_zmx(text, source=str(path), strict=strict, name=path.stem)
+    imp = parse_zmx(text, source=str(path), strict=strict, name=display_name(path.stem))
     imp.notes.insert(0, f"encoding {enc}")
     return imp
 
@@ -360,7 +361,7 @@ def _build(p: _Parser, end: int, name: str) -> dict:
 
     surfaces = [_surface(p, s, scale, last=s is body[-1]) for s in body]
     out: dict[str, Any] = {"name": h.get("name") or name, "units": "mm"}
-    out["description"] = f"Imported from Zemax file {Path(p.source).name}"
+    out["description"] = f"Imported from Zemax file {display_name(Path(p.source).name)}"
     if scale != 1:
         out["description"] += f" (lens units {h['unit']}, converted to mm)"
     kind, value = h["aperture"]

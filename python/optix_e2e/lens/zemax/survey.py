@@ -24,7 +24,10 @@ import numpy as np
 
 from ..._engine import EngineError
 from .common import ZemaxError
+from ..text import display_name
 from .reader import _decode
+
+MAX_FILE_BYTES = 16 << 20  # real .zmx files are kilobytes; a larger one is not read into memory
 
 TARGET_TYPES = {"STANDARD", "EVENASPH", "ODDASPHE"}
 EFL_TOLERANCE = 0.01
@@ -120,8 +123,11 @@ def _trace_check(lens) -> str:
 def survey_file(path: Path, root: Path | None = None) -> FileResult:
     from ..model import Lens  # circular import otherwise
 
-    name = str(path.relative_to(root)) if root else str(path)
+    name = display_name(path.relative_to(root) if root else path)  # UTF-8, no control bytes
     try:
+        size = path.stat().st_size
+        if size > MAX_FILE_BYTES:
+            raise OSError(f"{size} bytes: larger than a lens file can be ({MAX_FILE_BYTES} bytes at most)")
         text, _ = _decode(path.read_bytes(), str(path))
     except (OSError, ZemaxError) as exc:
         return FileResult(name, False, "unreadable", False, False, None, None, None, str(exc))

@@ -14,8 +14,14 @@ def _f(v: float) -> str:
     return repr(float(v))  # shortest string that reads back to the same double
 
 
-def zmx_text(data: dict, source: str = "<lens>") -> str:
-    """The .zmx text of an (unresolved, validated) prescription dict."""
+def zmx_text(data: dict, source: str = "<lens>", footprint: "list[float] | None" = None) -> str:
+    """The .zmx text of an (unresolved, validated) prescription dict.
+
+    Every surface gets a DIAM line, as OpticStudio writes them (other readers, DeepLens's
+    among them, need one): a fixed semi-diameter (solve 1, with a CLAP) where the lens has
+    one, else the automatic one (solve 0) from ``footprint``: the ray heights on the body
+    surfaces and the image (``len(surfaces) + 1`` values, as :meth:`Lens.to_zmx` traces
+    them; 0 where unknown)."""
     from ..prescription import resolve_prescription
 
     resolve_prescription(data, source)  # validate first: errors name the JSON location
@@ -51,7 +57,12 @@ def zmx_text(data: dict, source: str = "<lens>") -> str:
     lines.append(f"PWAV {wls.index(primary) + 1}")
     dist = data.get("object_distance")
     finite = dist is not None and not isinstance(dist, str)
-    lines += ["SURF 0", "  TYPE STANDARD", "  CURV 0.0", f"  DISZ {_f(dist) if finite else 'INFINITY'}"]
+    n_surf = len(data["surfaces"])
+    auto = [0.0] * (n_surf + 1) if footprint is None else [float(h) for h in footprint]
+    if len(auto) != n_surf + 1:
+        fail("footprint", f"{len(auto)} heights for {n_surf} surfaces and the image")
+    lines += ["SURF 0", "  TYPE STANDARD", "  CURV 0.0", f"  DISZ {_f(dist) if finite else 'INFINITY'}",
+              '  DIAM 0 0 0 0 1 ""']
     for i, s in enumerate(data["surfaces"]):
         where = f"surface {i + 1} (surfaces[{i}])"
         lines.append(f"SURF {i + 1}")
@@ -76,6 +87,8 @@ def zmx_text(data: dict, source: str = "<lens>") -> str:
         sd = s.get("semi_diameter")
         if sd:  # fixed semi-diameter plus a circular aperture: Zemax clips there too
             lines += [f'  DIAM {_f(sd)} 1 0 0 1 ""', f"  CLAP 0 {_f(sd)} 0"]
+        else:  # automatic: the beam's footprint
+            lines.append(f'  DIAM {_f(auto[i])} 0 0 0 1 ""')
         for k in sorted(asph, key=lambda k: int(k[1:])):
             # EVENASPH: PARM i is the r^(2i) term; ODDASPHE: PARM i is the r^i term
             lines.append(f"  PARM {int(k[1:]) if odd else int(k[1:]) // 2} {_f(asph[k])}")
@@ -83,6 +96,8 @@ def zmx_text(data: dict, source: str = "<lens>") -> str:
     isd = (data.get("image") or {}).get("semi_diameter")
     if isd:
         lines += [f'  DIAM {_f(isd)} 1 0 0 1 ""', f"  CLAP 0 {_f(isd)} 0"]
+    else:
+        lines.append(f'  DIAM {_f(auto[n_surf])} 0 0 0 1 ""')
     return "\n".join(lines) + "\n"
 
 
@@ -113,13 +128,14 @@ def _glas_line(m, where: str, fail) -> "tuple[str, str | None] | None":
          "glass name or a model glass {\"nd\", \"vd\"}")
 
 
-def write_zmx(data: dict, path: "str | Path", *, encoding: str = "utf-8", source: str = "<lens>") -> Path:
+def write_zmx(data: dict, path: "str | Path", *, encoding: str = "utf-8", source: str = "<lens>",
+              footprint: "list[float] | None" = None) -> Path:
     """Write ``data`` as a .zmx file; ``encoding="utf-16"`` gives OpticStudio's own
     encoding (UTF-16 LE with a BOM)."""
     if encoding.lower().replace("_", "-") not in ("utf-8", "utf-16"):
         raise ZemaxError(f"encoding must be utf-8 or utf-16, got {encoding!r}")
     path = Path(path)
-    text = zmx_text(data, source)
+    text = zmx_text(data, source, footprint)
     if encoding.lower().replace("_", "-") == "utf-16":
         path.write_bytes(b"\xff\xfe" + text.replace("\n", "\r\n").encode("utf-16-le"))
     else:

@@ -1,0 +1,74 @@
+"""A probe of every command's numeric options with hostile values (seeded, bounded).
+
+For every command of ``optix`` and every integer or float option, the probe passes a value a
+careless or hostile user might type (nan, inf, huge, negative, not a number), first on the
+command line so click checks it before anything else, in a folder holding a file the command
+must not touch. It asserts what the issue "bad input" asks of every command: exit status 2
+(a usage error), one ``Error:`` line that names the option, no traceback, nothing written and
+every pre-existing file byte-identical. tests/test_bad_input.py holds the probes that need a
+run to exist first (damaged states, diverging training, other runs' folders).
+"""
+
+from __future__ import annotations
+
+import random
+
+import click
+import pytest
+from click.testing import CliRunner
+
+from optix_e2e.cli import main
+
+HOSTILE_INT = ["nan", "inf", "-1", "9223372036854775807", "99999999999999999999999", "1e3", "abc", ""]
+HOSTILE_FLOAT = ["nan", "inf", "-inf", "1e999", "abc", "", "0x1p2000"]
+
+
+def _options():
+    def walk(cmd, path):
+        if isinstance(cmd, click.Group):
+            for name, sub in sorted(cmd.commands.items()):
+                yield from walk(sub, [*path, name])
+        else:
+            for p in cmd.params:
+                if isinstance(p, click.Option) and isinstance(p.type, (click.types.IntParamType,
+                                                                       click.types.FloatParamType)):
+                    yield path, p, any("--out" in q.opts for q in cmd.params)
+
+    yield from walk(main, [])
+
+
+def _cases(seed: int = 0, per_option: int = 2):
+    rng = random.Random(seed)
+    for path, opt, _ in _options():
+        pool = HOSTILE_INT if isinstance(opt.type, click.types.IntParamType) else HOSTILE_FLOAT
+        for value in rng.sample(pool, per_option):
+            yield pytest.param(path, opt.opts[0], value, id=f"{' '.join(path)} {opt.opts[0]}={value!r}")
+
+
+def _rejects(opt, value: str) -> bool:
+    """Whether ``value`` is out of ``opt``'s domain (some hostile values are fine for some options:
+    -1 for a signed float, 1e3 for a float)."""
+    try:
+        v = opt.type.convert(value, None, None)
+    except click.BadParameter:
+        return True
+    return v is None
+
+
+@pytest.mark.parametrize("path, option, value", list(_cases()))
+def test_a_hostile_numeric_option_is_one_usage_error_and_touches_nothing(tmp_path, path, option, value):
+    opt, has_out = next((p, o) for pp, p, o in _options() if pp == path and p.opts[0] == option)
+    if not _rejects(opt, value):
+        pytest.skip(f"{value!r} is a valid {option}")  # e.g. -1 for a signed offset
+    keep = tmp_path / "keep.txt"
+    keep.write_bytes(b"a file no command may touch\n")
+    out = tmp_path / "out"
+    args = [*path, option, value] + (["--out", str(out)] if has_out else [])
+    res = CliRunner().invoke(main, args, catch_exceptions=True)
+    assert res.exit_code == 2, (res.exit_code, res.output, res.exception)
+    assert "Traceback" not in res.output
+    assert res.exception is None or isinstance(res.exception, SystemExit), res.exception
+    errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+    assert len(errors) == 1 and option in errors[0], res.output
+    assert keep.read_bytes() == b"a file no command may touch\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.txt"]  # nothing written, --out not made
