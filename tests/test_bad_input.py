@@ -146,6 +146,12 @@ def test_a_diverging_surrogate_training_stops_and_keeps_the_good_state(tmp_path)
         with pytest.raises(ValueError, match="damaged surrogate training state") as err:
             train(data, tmp_path / "ok", TrainConfig(steps=10, **tiny), progress=False)
         assert words in str(err.value)
+    other = tmp_path / "design-run"  # another run's folder: refused, untouched
+    other.mkdir()
+    (other / "config.json").write_text("{}\n")
+    with pytest.raises(ValueError, match="holds no surrogate training"):
+        train(data, other, TrainConfig(steps=5, **tiny), progress=False)
+    assert sorted(p.name for p in other.iterdir()) == ["config.json"]
 
 
 def test_a_diverging_detector_training_stops_and_another_run_folder_is_refused(tmp_path):
@@ -268,6 +274,11 @@ def test_lens_survey_names_any_file_name_in_utf8_and_writes_its_files_whole(tmp_
     assert len(rows) == 2 and all(",True,True," in r for r in rows), table  # both import and trace
     assert "\x1b" not in res.output
     assert json.loads((out / "survey.json").read_text())["imported"] == 2
+    # a refused file whose text holds an escape sequence: the reason is shown escaped
+    (folder / "evil.zmx").write_text(text.replace("DISZ ", "DISZ \x1b]0;pwned\x07", 1))
+    res = CliRunner().invoke(main, ["lens", "survey", str(folder), "--out", str(out)])
+    assert res.exit_code == 0 and "\x1b" not in res.output and "\x07" not in res.output, res.output
+    assert "\x1b" not in (out / "survey.csv").read_text() and "\\x1b]0;pwned" in (out / "survey.csv").read_text()
 
 
 # ----- COCO sets: names stay inside, categories the detector knows, finite extras ----------------
@@ -459,3 +470,32 @@ def test_a_surrogate_with_a_normalization_out_of_reason_is_refused(change):
     change(st)
     with pytest.raises(SurrogateFileError, match="bad.pt: damaged surrogate checkpoint"):
         OpticsSurrogate.from_state(st, "bad.pt")
+
+
+def test_a_surrogate_whose_manifest_lost_its_space_is_named():
+    import torch
+
+    from optix_e2e.surrogate import OpticsSurrogate
+    from optix_e2e.surrogate.checkpoint import SurrogateFileError, resolve
+
+    st = torch.load(resolve("paper-triplet-v1"), weights_only=True)
+    for change in (lambda m: m.pop("space"), lambda m: m.update(space={"parameters": [3]}),
+                   lambda m: m.update(space={"parameters": [{"nme": "x"}]}), lambda m: m.pop("base_lens")):
+        man = json.loads(json.dumps(st["manifest"]))
+        change(man)
+        with pytest.raises(SurrogateFileError, match="bad.pt: damaged surrogate checkpoint: .*manifest"):
+            OpticsSurrogate.from_state({**st, "manifest": man}, "bad.pt")
+
+
+def test_json_nested_too_deeply_is_one_error_naming_the_file(tmp_path):
+    from optix_e2e.scenes.coco import CocoDetection, CocoFormatError
+
+    deep = "[" * 200_000 + "]" * 200_000
+    (tmp_path / "images").mkdir()
+    (tmp_path / "annotations.json").write_text(deep)
+    with pytest.raises(CocoFormatError, match="annotations.json: invalid JSON: nested too deeply"):
+        CocoDetection(tmp_path / "images", tmp_path / "annotations.json")
+    (tmp_path / "space.json").write_text(deep)
+    res = CliRunner().invoke(main, ["sample", str(tmp_path / "space.json"), "-n", "1", "--out", str(tmp_path / "s.csv")])
+    assert res.exit_code == 1 and "space.json: invalid JSON: nested too deeply" in res.output, res.output
+    assert not (tmp_path / "s.csv").exists()

@@ -72,3 +72,25 @@ def test_a_hostile_numeric_option_is_one_usage_error_and_touches_nothing(tmp_pat
     assert len(errors) == 1 and option in errors[0], res.output
     assert keep.read_bytes() == b"a file no command may touch\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.txt"]  # nothing written, --out not made
+
+
+def test_whole_commands_under_a_time_bound_exit_with_one_line(tmp_path):
+    # as a user runs them (a real process, so a hang, a crash or a traceback would show):
+    # a pipe as a config file used to block forever, a huge thread count to segfault
+    import os
+    import subprocess
+    import sys
+
+    fifo = tmp_path / "pipe.toml"
+    os.mkfifo(fifo)
+    probes = [
+        (["design", "iq-software", "--config", str(fifo), "--out", str(tmp_path / "a")], 1, "not a regular file"),
+        (["design", "iq-software", "--threads", "50000", "--out", str(tmp_path / "b")], 2, "--threads"),
+        (["scenes", "street", "--out", str(tmp_path / "c"), "-n", "1", "--size", "100000x100000"], 2, "--size"),
+    ]
+    for args, code, words in probes:
+        res = subprocess.run([sys.executable, "-m", "optix_e2e", *args], capture_output=True, text=True, timeout=120)
+        assert res.returncode == code, (args, res.returncode, res.stderr[-2000:])
+        lines = [ln for ln in res.stderr.splitlines() if ln.startswith("Error:")]
+        assert len(lines) == 1 and words in lines[0] and "Traceback" not in res.stderr, res.stderr[-2000:]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pipe.toml"]  # no --out folder claimed

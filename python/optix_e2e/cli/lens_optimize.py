@@ -29,6 +29,8 @@ def _raw_lens(spec: str) -> tuple[dict, str]:
         data = json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
         raise LensLoadError(f"{path}:{exc.lineno}:{exc.colno}: invalid JSON: {exc.msg}") from exc
+    except RecursionError:
+        raise LensLoadError(f"{path}: invalid JSON: nested too deeply to be a lens prescription") from None
     if isinstance(data, dict):
         data.setdefault("name", path.stem)
     Lens(data, source=str(path))  # validate with file-named errors

@@ -127,9 +127,19 @@ def prepare(out: Path, space: ParameterSpace, base: Lens, n: int, seed: int, s: 
 
 
 def space_and_base(manifest: dict) -> tuple[ParameterSpace, Lens]:
-    """The parameter space and base lens a manifest records (no files needed)."""
-    space = ParameterSpace([Parameter(**p) for p in manifest["space"]["parameters"]],
-                           source=str(manifest["space"].get("source", "<manifest>")))
+    """The parameter space and base lens a manifest records (no files needed); a manifest
+    without them (a damaged or hand-made checkpoint's) is one ValueError naming the key."""
+    sp = manifest.get("space") if isinstance(manifest, dict) else None
+    if not isinstance(sp, dict) or not isinstance(sp.get("parameters"), list) \
+            or not all(isinstance(p, dict) for p in sp["parameters"]):
+        raise ValueError("the manifest has no parameter space ('space' with a list of 'parameters'); "
+                         "it is damaged or not a dataset's")
+    if not isinstance(manifest.get("base_lens"), dict):
+        raise ValueError("the manifest has no base lens ('base_lens'); it is damaged or not a dataset's")
+    try:
+        space = ParameterSpace([Parameter(**p) for p in sp["parameters"]], source=str(sp.get("source", "<manifest>")))
+    except TypeError as err:
+        raise ValueError(f"the manifest's parameter space is damaged ({err})") from None
     return space, Lens(manifest["base_lens"], source="<manifest base lens>")
 
 

@@ -223,6 +223,8 @@ class ParameterSpace:
                 data = json.loads(text)
             except json.JSONDecodeError as exc:
                 raise SpaceError(f"{path}:{exc.lineno}:{exc.colno}: invalid JSON: {exc.msg}") from exc
+            except RecursionError:
+                raise SpaceError(f"{path}: invalid JSON: nested too deeply to be a parameter space") from None
             key = "parameters"
         lens_ref = None
         if isinstance(data, dict):

@@ -253,7 +253,7 @@ def check_run_dir(out: Path, cfg: DesignConfig) -> None:
     if path.is_file():
         try:
             old = json.loads(path.read_text())
-        except (OSError, ValueError):  # unreadable, not UTF-8, not JSON
+        except (OSError, ValueError, RecursionError):  # unreadable, not UTF-8, not JSON, nested too deeply
             old = None
         if not isinstance(old, dict):
             raise ValueError(f"{path} is damaged; remove the directory or choose another --out")

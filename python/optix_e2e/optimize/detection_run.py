@@ -210,7 +210,7 @@ def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool
             key = _digest(psf, vig, fh, f_numbers[who], cams[who], len(samples))
             try:
                 cached = json.loads(path.read_text())
-            except (OSError, ValueError):
+            except (OSError, ValueError, RecursionError):
                 cached = None
             if isinstance(cached, dict) and cached.get("key") == key:
                 try:  # a damaged cache (hand-edited, cut short) is detected again, not a traceback

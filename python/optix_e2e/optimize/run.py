@@ -591,7 +591,7 @@ def _read_eval_cache(path: Path, key: str) -> dict | None:
     """An earlier evaluation of the same camera (None: absent, stale or unreadable: evaluate again)."""
     try:
         cached = json.loads(path.read_text())
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return None
     if not (isinstance(cached, dict) and cached.get("key") == key and isinstance(cached.get("rows"), list)):
         return None

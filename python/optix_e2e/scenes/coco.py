@@ -93,6 +93,8 @@ class CocoDetection(torch.utils.data.Dataset):
                                   f"{err.msg}") from None
         except OSError as err:
             raise CocoFormatError(f"{self.ann_file}: cannot read ({err.strerror})") from None
+        except RecursionError:
+            raise CocoFormatError(f"{self.ann_file}: invalid JSON: nested too deeply to be a COCO file") from None
         f = str(self.ann_file)
         if not isinstance(data, dict):
             raise CocoFormatError(f"{f}: the top level must be an object with images, annotations, categories")

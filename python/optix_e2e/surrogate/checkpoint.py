@@ -203,6 +203,13 @@ class OpticsSurrogate(nn.Module):
                     channel_names=st["channel_names"], manifest=st.get("manifest"), meta=st.get("meta"))
         except (KeyError, TypeError, ValueError, RuntimeError) as exc:
             raise SurrogateFileError(f"{where}: damaged surrogate checkpoint ({type(exc).__name__}: {exc})") from None
+        if m.manifest:  # the dataset record the design tools read: its space and base lens
+            from ..dataset.manifest import space_and_base
+
+            try:
+                space_and_base(m.manifest)
+            except (ValueError, TypeError, KeyError) as exc:
+                raise SurrogateFileError(f"{where}: damaged surrogate checkpoint: {exc}") from None
         m.net = net
         return m
 

@@ -183,11 +183,15 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
     the ranks other than 0 return None."""
     out_dir = Path(out_dir)
     parallel.set_threads(cfg.threads)
+    state_path = out_dir / "state.pt"
+    # another run's folder is not written into (checked by every rank before they meet, so
+    # before rank 0 writes anything)
+    if not state_path.exists() and out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
+        raise ValueError(f"{out_dir} is not empty and holds no surrogate training (state.pt); choose another --out")
     ranks = parallel.setup(cfg.device)
     device, W = ranks.device, ranks.world
     if not ranks.is_main:
         progress, log = False, (lambda m: None)
-    state_path = out_dir / "state.pt"
     resumed = None
     if state_path.exists():
         resumed = load_plain(state_path, "surrogate training state")

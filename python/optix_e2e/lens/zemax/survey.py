@@ -24,7 +24,7 @@ import numpy as np
 
 from ..._engine import EngineError
 from .common import ZemaxError
-from ..text import display_name
+from ..text import display_name, printable
 from .reader import _decode
 
 MAX_FILE_BYTES = 16 << 20  # real .zmx files are kilobytes; a larger one is not read into memory
@@ -130,7 +130,7 @@ def survey_file(path: Path, root: Path | None = None) -> FileResult:
             raise OSError(f"{size} bytes: larger than a lens file can be ({MAX_FILE_BYTES} bytes at most)")
         text, _ = _decode(path.read_bytes(), str(path))
     except (OSError, ZemaxError) as exc:
-        return FileResult(name, False, "unreadable", False, False, None, None, None, str(exc))
+        return FileResult(name, False, "unreadable", False, False, None, None, None, printable(str(exc)))
     feats = _features(text)
     nominal = nominal_focal_length(text)
     res = FileResult(name, not feats, " ".join(feats), False, False, None, nominal, None, "")
@@ -153,8 +153,8 @@ def survey_file(path: Path, root: Path | None = None) -> FileResult:
 
 
 def _one_line(exc: Exception, path: Path) -> str:
-    msg = str(exc).replace(str(path), path.name).splitlines()
-    return f"{type(exc).__name__}: {msg[0] if msg else ''}"
+    msg = str(exc).replace(str(path), display_name(path.name)).splitlines()
+    return printable(f"{type(exc).__name__}: {msg[0] if msg else ''}")  # a file's bytes, escaped
 
 
 def reason(error: str) -> str:
