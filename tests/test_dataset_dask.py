@@ -133,10 +133,11 @@ def test_addresses():
     assert parse_address("local:3") == ("local", 3)
     assert parse_address("tcp://10.0.0.1:8786") == ("address", "tcp://10.0.0.1:8786")
     assert parse_address("localhost:8786") == ("address", "tcp://localhost:8786")
+    assert parse_address("tcp://proj_scheduler_1:8786") == ("address", "tcp://proj_scheduler_1:8786")  # compose
     for bad, msg in [("local:0", "1 <= N <= 256"), ("local:x", "1 <= N"), ("local:50000", "1 <= N <= 256"),
                      ("/nowhere/scheduler.json", "no such scheduler file"),
                      # checked before any connection is tried (these waited 30 s or raised inside dask)
-                     ("tcp://256.1.1.1:1", "'256.1.1.1' is not an IP address"), ("ucx://10.0.0.1:1", "'ucx' is not"),
+                     ("tcp://256.1.1.1:1", "'256.1.1.1' is not an IP address"), ("udp://10.0.0.1:1", "'udp' is not one of dask's"),
                      ("tcp://10.0.0.1:0", "port from 1 to 65535"), ("tcp://10.0.0.1", "HOST:PORT")]:
         with pytest.raises(ClusterError, match=msg):
             parse_address(bad)

@@ -31,12 +31,16 @@ def _read(path: str):
                 if w * h > MAX_PIXELS:
                     raise click.ClickException(f"{path}: {w}x{h} pixels is more than this command reads "
                                                f"({MAX_PIXELS} pixels)")
-                if im.mode.startswith("I;16"):
-                    a = np.asarray(im, dtype=np.uint16).astype(np.float32) / 65535.0
-                    a = np.repeat(a[:, :, None], 3, axis=2)
-                elif im.mode in ("I", "F"):
-                    raise click.ClickException(f"{path}: {'32-bit integer' if im.mode == 'I' else 'floating-point'} "
-                                               f"images are not read; save it with 8 or 16 bits per channel")
+                if im.mode.startswith("I;16") or im.mode == "I":
+                    # 16-bit greyscale (Pillow opens some 16-bit files, PGM among them, as "I")
+                    a = np.asarray(im, dtype=np.int64)
+                    if a.min() < 0 or a.max() > 65535:
+                        raise click.ClickException(f"{path}: 32-bit integer values beyond 16 bits are not read; "
+                                                   f"save it with 8 or 16 bits per channel")
+                    a = np.repeat((a.astype(np.float32) / 65535.0)[:, :, None], 3, axis=2)
+                elif im.mode == "F":
+                    raise click.ClickException(f"{path}: floating-point images are not read; save it with 8 or 16 "
+                                               f"bits per channel")
                 else:
                     a = np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
     except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:

@@ -19,8 +19,8 @@ from ._common import AIMING, FINITE, FiniteFloatRange, dumps, friendly_errors, l
 @click.option("--accuracy", type=FiniteFloatRange(min=0, min_open=True), default=0.02, show_default=True,
               help="method auto: target relative L1 error of the PSF against the converged Huygens PSF.")
 @click.option("--pixel-um", type=FiniteFloatRange(min=0, min_open=True), default=1.0, show_default=True)
-@click.option("--size", type=click.IntRange(1, 1 << 20), default=64, show_default=True, help="Window is SIZE x SIZE pixels.")
-@click.option("--pupil-samples", type=click.IntRange(2, 1 << 20), default=64, show_default=True,
+@click.option("--size", type=click.IntRange(2, 8192), default=64, show_default=True, help="Window is SIZE x SIZE pixels.")
+@click.option("--pupil-samples", type=click.IntRange(4, 4096), default=64, show_default=True,
               help="Samples across the pupil (the ray grid for the geometric method).")
 @click.option("--fft-grid", type=click.IntRange(2, 1 << 20), default=None, help="FFT size (fft method; default: engine's choice).")
 @click.option("--integrate/--sample", default=False, show_default=True,

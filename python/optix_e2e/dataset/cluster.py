@@ -37,20 +37,22 @@ class ClusterError(RuntimeError):
 
 
 MAX_LOCAL_WORKERS = 256
+PROTOCOLS = ("tcp", "tls", "ws", "wss", "ucx")  # dask.distributed's network protocols
 
 
 def _check_address(spec: str, address: str, where: str) -> str:
-    """``tcp://host:port`` or ``tls://host:port`` (a bare ``host:port`` is tcp), checked before
-    any connection is tried: a port in 1..65535, an IPv4 address with octets up to 255 or a
-    host name of letters, digits, dots and dashes."""
+    """``PROTOCOL://host:port`` with one of dask's protocols (a bare ``host:port`` is tcp),
+    checked before any connection is tried: a port in 1..65535, an IPv4 address with octets up
+    to 255 or a host name of letters, digits, dots, dashes and underscores."""
     import ipaddress
     import re
 
     scheme, sep, rest = address.partition("://")
     if not sep:
         scheme, rest = "tcp", address
-    if scheme not in ("tcp", "tls"):
-        raise ClusterError(f"--dask {spec!r}: {where}: protocol {scheme!r} is not supported (tcp:// or tls://)")
+    if scheme not in PROTOCOLS:
+        raise ClusterError(f"--dask {spec!r}: {where}: protocol {scheme!r} is not one of dask's "
+                           f"({', '.join(p + '://' for p in PROTOCOLS)})")
     host, colon, port = rest.rpartition(":")
     host = host[1:-1] if host.startswith("[") and host.endswith("]") else host  # [IPv6]
     if not colon or not port.isdigit() or not 1 <= int(port) <= 65535:
@@ -58,7 +60,7 @@ def _check_address(spec: str, address: str, where: str) -> str:
     try:
         ipaddress.ip_address(host)
     except ValueError:
-        if re.fullmatch(r"\d+(\.\d+){3}", host) or not re.fullmatch(r"[A-Za-z0-9]([A-Za-z0-9.-]{0,252})", host):
+        if re.fullmatch(r"\d+(\.\d+){3}", host) or not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9._-]{0,252}", host):
             raise ClusterError(f"--dask {spec!r}: {where}: {host!r} is not an IP address or a host name") from None
     return f"{scheme}://{rest}"
 

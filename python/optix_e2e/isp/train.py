@@ -21,7 +21,7 @@ import torch
 from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
-from ..parallel import set_threads
+from ..parallel import set_threads, stop_if_diverged
 from ..metrics import image as metrics
 from . import data
 from .proxy import ISPProxy
@@ -111,6 +111,7 @@ def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) ->
             pool = data.make_pool(cfg.pool, cfg.patch, seed=int(rng.integers(2**31)), progress=progress)
         pred, target = _predict(model, kind, pool, torch.as_tensor(rng.integers(pool.raw.shape[0], size=cfg.batch)))
         loss = loss_fn(_crop(pred, cfg.crop), _crop(target, cfg.crop))
+        stop_if_diverged(step, out_dir / "proxy.pt", "lower --lr", loss=loss.detach())
         opt.zero_grad(set_to_none=True)
         loss.backward()
         # The perceptual term's gradient has rare spikes (HaarPSI divides by local similarity
@@ -130,6 +131,7 @@ def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) ->
             writer.add_scalar("val/ssim", val["ssim"], step)
             writer.add_scalar("train/lr", lr, step)
             history.append({"step": step, "loss": loss.item(), **val, "seconds": time.time() - t0})
+            stop_if_diverged(step, out_dir / "proxy.pt", "lower --lr", proxy=model)  # before a NaN proxy.pt
             _save(model, kind, out_dir, training={"config": asdict(cfg), "steps_done": step, "val": val},
                   earlier_training=earlier)
         if out_of_time:

@@ -183,8 +183,11 @@ class Lens:
         from .footprint import ray_footprint
 
         t = np.linspace(0.0, 2 * np.pi, n_rim, endpoint=False)
-        h = ray_footprint(self.to_engine_json(), len(self.surfaces) + 1, self.fields_deg, self.wavelengths_nm,
-                          np.append(np.sin(t), 0.0), np.append(np.cos(t), 0.0))
+        try:
+            h = ray_footprint(self.to_engine_json(), len(self.surfaces) + 1, self.fields_deg, self.wavelengths_nm,
+                              np.append(np.sin(t), 0.0), np.append(np.cos(t), 0.0))
+        except Exception:  # noqa: BLE001 - a lens the engine cannot trace (afocal, say) still exports
+            return [0.0] * (len(self.surfaces) + 1)  # DIAM 0: automatic, size unknown
         return [float(v) * 1.01 for v in h]
 
     def to_zmx(self) -> str:

@@ -51,6 +51,10 @@ def exact_gradient_steps(history: list[dict]) -> int:
     return sum(h.get("optics") == "exact" and h["block"] in ("optics", "all") for h in history)
 
 
+class OpticsModeMismatch(ValueError):
+    """A run resumed under another optics model than it was started with (not damage)."""
+
+
 class OpticsMonitor:
     """Checks (and, in hybrid mode, keeps) the optics model of a DifferentiableOptics."""
 
@@ -177,7 +181,7 @@ class OpticsMonitor:
         from ..optics.exact import StepChoice
 
         if st.get("mode", self.mode) != self.mode or (self.mode == "hybrid" and st.get("refine", self.refine) != self.refine):
-            raise ValueError(f"this run was started with optics {st.get('mode')} (refine {st.get('refine')}), not "
+            raise OpticsModeMismatch(f"this run was started with optics {st.get('mode')} (refine {st.get('refine')}), not "
                              f"{self.mode} (refine {self.refine}): with --optics auto the bundled trade-off has "
                              f"changed since; use another --out or --optics {st.get('mode')}")
         self.checks, self.events = list(st["checks"]), list(st["events"])

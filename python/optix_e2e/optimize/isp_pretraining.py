@@ -34,7 +34,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from ..parallel import set_threads
+from ..parallel import set_threads, stop_if_diverged
 from .. import color
 from ..camera import calibrated_preset
 from ..dataset.manifest import space_and_base
@@ -238,6 +238,7 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, init: "str | Path | None
     bar = tqdm(total=cfg.steps, initial=step, desc="pre-train software ISP", unit="step", disable=not progress)
 
     def save():
+        stop_if_diverged(step, state_path, "lower --lr", software_isp=model)  # never a NaN state over a good one
         save_atomic({"format": FORMAT, "config": _resumable(cfg), "model": model.state_dict(),
                      "optimizer": opt.state_dict(), "step": step,
                      "seconds": time.time() - t0, "curve": curve, "earlier_training": earlier}, state_path)
@@ -261,9 +262,7 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, init: "str | Path | None
         idx = torch.as_tensor(rng.integers(pool.raw.shape[0], size=cfg.batch))
         pred = model(pool.raw[idx], pool.offset[idx], SensorFrame().full_field_px)
         loss = (pred - pool.ideal[idx].float() / 255).abs().mean()
-        if not torch.isfinite(loss):
-            raise RuntimeError(f"ISP pre-training diverged at step {step + 1} (loss {float(loss)}); "
-                               f"{state_path} keeps the last good state")
+        stop_if_diverged(step + 1, state_path, "lower --lr", loss=loss.detach())
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip_grad)

@@ -97,7 +97,7 @@ def export_lens(manifest: dict, values, image_distance: float, stem: Path, name:
             s["semi_diameter"] = math.ceil(float(h) * 1e4) / 1e4
     lens = Lens(d, source=name)
     json_path = lens.save(stem.with_suffix(".json"))
-    zmx_path = write_zmx(lens.raw, stem.with_suffix(".zmx"), source=name)
+    zmx_path = write_zmx(lens.raw, stem.with_suffix(".zmx"), source=name, footprint=lens.zmx_footprint())
     return {"json": str(json_path), "zmx": str(zmx_path)}
 
 

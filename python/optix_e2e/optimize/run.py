@@ -274,6 +274,8 @@ def _save_state(path: Path, camera: Camera, opt, wall_s: float, history: list, m
 
 
 def _load_state(path: Path, camera: Camera, opt, monitor=None) -> tuple[float, list]:
+    from .hybrid import OpticsModeMismatch
+
     st = load_plain(path, "design checkpoint")
     if not isinstance(st, dict) or st.get("format") != "optix-design-state/1":
         raise ValueError(f"{path}: not a design checkpoint (format optix-design-state/1)")
@@ -286,7 +288,9 @@ def _load_state(path: Path, camera: Camera, opt, monitor=None) -> tuple[float, l
         if not (math.isfinite(wall_s) and wall_s >= 0):
             raise ValueError(f"wall_s {wall_s}")
         if monitor is not None and st.get("monitor") is not None:
-            monitor.load_state_dict(st["monitor"])  # its own error where the run's optics model differs
+            monitor.load_state_dict(st["monitor"])
+    except OpticsModeMismatch:
+        raise  # its own message: the run's optics model differs, the checkpoint is fine
     except (KeyError, TypeError, ValueError, RuntimeError, AttributeError, IndexError, OverflowError) as err:
         raise ValueError(f"{path}: damaged design checkpoint ({type(err).__name__}: {' '.join(str(err).split())}); "
                          f"remove it to restart that training") from None
@@ -351,7 +355,7 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
         u_prev = optics.u.detach().clone() if guard is not None else None
         backend = optics.backend if optics is not None else "fixed"
         info = opt.step(loss_fn)
-        hint = "lower the learning rates (lr_optics, lr_isp_net, lr_isp_params, lr_detector, lr_vanilla)"
+        hint = "lower the learning rates (lr_optics, lr_isp_net, lr_isp_params, lr_detector) in another --out"
         parallel.stop_if_diverged(opt.t, state_path, hint, loss=info["loss"])
         info["optics"] = backend
         # the paper enforces its limits on every lens: a step that breaks one is cut back
@@ -370,8 +374,9 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
             on_step(info, camera)
         bar.update(1)
         bar.set_postfix(loss=f"{info['loss']:.4f}", block=info["block"])
+        if opt.t % cfg.checkpoint_every == 0 or opt.t == opt.total_steps:
+            parallel.stop_if_diverged(opt.t, state_path, hint, camera=camera)  # every rank: all stop together
         if ranks.is_main and (opt.t % cfg.checkpoint_every == 0 or opt.t == opt.total_steps):
-            parallel.stop_if_diverged(opt.t, state_path, hint, camera=camera)
             _save_state(state_path, camera, opt, wall_s + time.perf_counter() - t_start, history, monitor)
     bar.close()
     wall = wall_s + (time.perf_counter() - t_start if ran else 0.0)

@@ -115,10 +115,9 @@ class CocoDetection(torch.utils.data.Dataset):
                 raise CocoFormatError(f"{where}: duplicate image id {iid}")
             if h < 1 or w < 1:
                 raise CocoFormatError(f"{where} ({name}): height and width must be positive, got {h} x {w}")
-            # a file name is a path inside image_dir: no absolute path, no way out by "..", no link out
-            inside = self.image_dir.resolve()
-            if (Path(name).is_absolute() or ".." in Path(name).parts
-                    or not (inside / name).resolve().is_relative_to(inside)):
+            # a file name is a path inside image_dir: no absolute path, no way out by ".." (links
+            # that the folder's owner put there are followed: shared stores, git-annex)
+            if "\x00" in name or Path(name).is_absolute() or ".." in Path(name).parts:
                 raise CocoFormatError(f"{where}: file_name {name!r} leaves the image folder {self.image_dir}")
             if not (self.image_dir / name).is_file():
                 raise CocoFormatError(f"{where}: image file {self.image_dir / name} not found")

@@ -35,6 +35,7 @@ from .loss import LossWeights, optics_loss_terms
 from .model import SurrogateConfig
 
 # changing these makes a different model or different data: resuming refuses
+MAX_STEPS = 10_000_000  # the command line's maximum of --steps
 _FIXED = ("psf", "bin", "hidden", "depth", "base_channels", "n_up", "val_designs", "max_designs", "seed",
           "batch", "loss_pixel", "loss_fourier", "loss_gradient", "loss_vignetting", "init")
 
@@ -186,7 +187,9 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
     state_path = out_dir / "state.pt"
     # another run's folder is not written into (checked by every rank before they meet, so
     # before rank 0 writes anything)
-    if not state_path.exists() and out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
+    # (a run stopped before its first checkpoint leaves only tb/: it starts again there)
+    if not state_path.exists() and out_dir.exists() and (
+            not out_dir.is_dir() or any(p.name != "tb" for p in out_dir.iterdir())):
         raise ValueError(f"{out_dir} is not empty and holds no surrogate training (state.pt); choose another --out")
     ranks = parallel.setup(cfg.device)
     device, W = ranks.device, ranks.world
@@ -239,8 +242,8 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
             opt.load_state_dict(resumed["optimizer"])
             gen.set_state(resumed["generator"])
             step, seconds, history = int(resumed["step"]), float(resumed["seconds"]), list(resumed["history"])
-            if not (0 <= step <= cfg.steps and math.isfinite(seconds) and seconds >= 0):
-                raise ValueError(f"step {step} of {cfg.steps}, seconds {seconds}")
+            if not (0 <= step <= MAX_STEPS and math.isfinite(seconds) and seconds >= 0):
+                raise ValueError(f"step {step}, seconds {seconds}")
         except (KeyError, TypeError, ValueError, RuntimeError, AttributeError, IndexError, OverflowError) as err:
             raise ValueError(f"{state_path}: damaged surrogate training state ({type(err).__name__}: "
                              f"{' '.join(str(err).split())}); remove it to train from the start") from None
@@ -309,8 +312,9 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
         bar.update(1)
         if step % 50 == 0:
             bar.set_postfix(loss=f"{loss_g:.4f}", l1=f"{terms_g['pixel']:.4f}")
-        if validating and ranks.is_main:
+        if validating:  # every rank (their weights are the same), so all stop together
             parallel.stop_if_diverged(step, state_path, "lower --lr", surrogate=model.net)
+        if validating and ranks.is_main:
             val = validate(model, val_t)
             for name, v in val.items():
                 writer.add_scalar(f"val/{name}", v, step)

@@ -76,6 +76,26 @@ def load_detector(path: "str | Path"):
     return model, ck
 
 
+HISTORY_HEADER = ["step", "loss", "classification", "bbox_regression", "bbox_ctrness", "lr", "seconds"]
+
+
+def _own_leftovers(out: Path) -> bool:
+    """Whether ``out`` is empty or holds only what a detector run writes before its first
+    checkpoint (a run stopped early, by divergence say): that run starts again there."""
+    if not out.is_dir():
+        return False
+    names = {p.name for p in out.iterdir()}
+    if not names <= {"history.csv", "tb"}:
+        return False
+    if "history.csv" in names:
+        try:
+            first = (out / "history.csv").read_text(encoding="utf-8").splitlines()[:1]
+        except (OSError, UnicodeDecodeError):
+            return False
+        return first in ([], [",".join(HISTORY_HEADER)])
+    return True
+
+
 def _batch(images: torch.Tensor, targets: list[dict], seed: int, step: int, batch: int, dim: float = 1.0):
     rng = np.random.default_rng([5, int(seed), int(step)])  # stream tag 5: detector batches
     idx = rng.choice(len(images), size=min(batch, len(images)), replace=False)
@@ -123,7 +143,7 @@ def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, 
                              f"train from the start") from None
         log(f"resuming at step {step} of {steps}")
     else:
-        if out.is_dir() and any(out.iterdir()):
+        if out.exists() and not _own_leftovers(out):
             raise ValueError(f"{out} is not empty and holds no detector run (detector.pt); choose another --out")
         out.mkdir(parents=True, exist_ok=True)
         model, ck, step, wall = make_detector(width, fpn, size), None, 0, 0.0
@@ -150,7 +170,7 @@ def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, 
     hist = open(hist_path, "a", newline="")
     hw = csv.writer(hist)
     if new_hist:
-        hw.writerow(["step", "loss", "classification", "bbox_regression", "bbox_ctrness", "lr", "seconds"])
+        hw.writerow(HISTORY_HEADER)
     model.train()
     t0 = time.perf_counter()
 
