@@ -126,3 +126,32 @@ def test_glas_line_outside_the_catalog_that_has_the_glass_is_an_error():
         parse_zmx(HEAD.format(gcat="SCHOTT", glass="ECO550"), source="<t>")
     with pytest.raises(ZemaxError, match=r"unknown glass 'K3' in the file's catalogs \(GCAT LIGHTPATH\)"):
         parse_zmx(HEAD.format(gcat="LIGHTPATH", glass="K3"), source="<t>")
+
+
+@pytest.mark.parametrize("glas, gcat, want", [
+    ("LAKN7", "SCHOTT", ("N-LAK7", "schott")),      # Schott's inner N: LaKN7 -> N-LAK7
+    ("SSKN5", "SCHOTT OHARA", ("N-SSK5", "schott")),
+    ("SK16", "SCHOTT", ("N-SK16", "schott")),       # lead-free successor
+    ("E-LAK7R", "HIKARI", ("J-LAK7R", "hikari")),   # Hikari's E- series became J-
+    ("FD1", "HOYA", ("E-FD1", "hoya")),
+])
+def test_an_older_catalog_name_without_nd_vd_imports_as_its_successor_with_a_note(glas, gcat, want):
+    """A glass of an older catalog edition that the database lacks, on a GLAS line without
+    usable nd/vd (OpticStudio's placeholder 1.5, 40), imports as the same vendor's
+    reformulated glass, and the note names both and the indices used."""
+    imp = parse_zmx(HEAD.format(gcat=gcat, glass=f"{glas} 0 0 1.5 40"), source="<t>")
+    m = imp.data["surfaces"][0]["material"]
+    assert (m["glass"], m["catalog"]) == want
+    note = next(n for n in imp.notes if "reformulated" in n)
+    assert f"glass {glas} (line" in note and f"imported as {want[0]} ({want[1]}, nd 1." in note
+
+
+def test_successor_names_stay_inside_the_vendors_renaming():
+    from optix_e2e.lens.zemax.glass_names import successor_names
+
+    assert successor_names("LAKN7", "schott") == ["N-LAKN7", "N-LAK7", "LAK7"]
+    assert successor_names("E-LAK7R", "hikari")[:3] == ["J-LAK7R", "LAK7R", "J-LAK7"]
+    assert successor_names("K3", "lightpath") == []  # no known renaming: no guess
+    # a name the catalog has under no successor stays an error that says why
+    with pytest.raises(ZemaxError, match=r"unknown glass 'QQ99'.*records no nd/vd|unknown glass 'QQ99'.*placeholder"):
+        parse_zmx(HEAD.format(gcat="SCHOTT", glass="QQ99 0 0 1.5 40"), source="<t>")

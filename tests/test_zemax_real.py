@@ -14,7 +14,7 @@ from click.testing import CliRunner
 
 from optix_e2e.cli import main
 from optix_e2e.lens import Lens
-from optix_e2e.lens.zemax import ZemaxError, parse_zmx
+from optix_e2e.lens.zemax import ZemaxError, parse_zmx, read_zmx
 from optix_e2e.lens.zemax.survey import nominal_focal_length, survey
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -298,3 +298,25 @@ def test_diams_that_make_surfaces_cross_are_dropped_with_a_note():
         Lens({**imp.data, "surfaces": [s[0], {**s[1], "semi_diameter": 4}, {**s[2], "semi_diameter": 4}]}).paraxial()
     assert any("surfaces 2 and 3 would cross inside their DIAMs" in n for n in imp.notes)
     Lens(imp.data).paraxial()
+
+
+def test_parameter_and_conic_pickups_import_the_values_written_with_them(samples):
+    """Edmund's 83616 (an asphere whose back surface picks up the front one's PARM values
+    with scale -1, PPAR, and its conic, PKUP) imports in strict mode; the pickups agree with
+    the written values and are listed. A hand-edited PARM that disagrees is noted; a pickup
+    on a parameter the surface does not give is an error naming the line."""
+    path = samples / "zmf_Edmund_Optics_2019" / "83616.zmx"
+    imp = read_zmx(path)
+    assert "parameter pickup solve (agrees" in imp.ignored_summary()
+    assert "conic pickup solve" in imp.ignored_summary()
+    s1, s2 = imp.data["surfaces"][0], imp.data["surfaces"][1]
+    assert s2["aspheric"] == {k: -v for k, v in s1["aspheric"].items()}
+    text = path.read_text(encoding="latin-1")
+    edited = text.replace("PARM 3 0.00019956902508819999", "PARM 3 0.0002", 1)
+    imp2 = parse_zmx(edited, source="<t>")
+    assert any("PPAR picks up 0.000199569025088 for parameter 3" in n and "PARM 3 holds 0.0002" in n
+               for n in imp2.notes)
+    assert imp2.data["surfaces"][1]["aspheric"]["a6"] == pytest.approx(0.0002)
+    with pytest.raises(ZemaxError, match=r"<t>:\d+: PPAR: SURF 2: pickup solve on parameter 3, but the "
+                                         r"surface has no PARM 3 line"):
+        parse_zmx(text.replace("PARM 3 0.00019956902508819999\n", "", 1), source="<t>")

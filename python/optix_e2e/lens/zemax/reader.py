@@ -10,6 +10,7 @@ from ..text import display_name
 from .. import glass as _glass
 from .common import (GCAT_TO_CATALOG, IGNORED, MAX_FIELDS, MAX_PARM, MAX_SURFACES, MAX_WAVES, N_EVENASPH,
                      N_ODDASPHE, SURFACE_FEATURES, SURFACE_TYPES, UNITS_MM, UNSUPPORTED, ZemaxError, ZemaxImport)
+from .glass_names import successor_names
 from .numbers import _from_um, _radius
 
 
@@ -267,6 +268,23 @@ class _Parser:
         i = self.int_(line, key, tok, 1, lo=0, hi=MAX_PARM, what="parameter number")
         s["parm"][i] = (self.num(line, key, tok, 2), line)
 
+    def k_PPAR(self, line, key, tok, rest, s):
+        # PPAR n surface scale offset [column]: parameter n is a pickup solve, scale x the
+        # other surface's parameter + offset. OpticStudio writes the solved value on the
+        # PARM line as well; that value is imported and the pickup checked against it.
+        n = self.int_(line, key, tok, 1, lo=0, hi=MAX_PARM, what="parameter number")
+        src = self.int_(line, key, tok, 2, lo=-MAX_SURFACES, hi=MAX_SURFACES, what="pickup surface")
+        scale, offset = self.num(line, key, tok, 3, 1.0), self.num(line, key, tok, 4, 0.0)
+        column = self.int_(line, key, tok, 5, 0, lo=0, hi=MAX_PARM, what="pickup column")
+        s.setdefault("ppar", {})[n] = (line, src, scale, offset, column)
+
+    def k_PKUP(self, line, key, tok, rest, s):
+        # PKUP surface scale offset: the conic is a pickup solve; OpticStudio writes the
+        # solved value on the CONI line, which is what is imported.
+        self.int_(line, key, tok, 1, lo=-MAX_SURFACES, hi=MAX_SURFACES, what="pickup surface")
+        self.num(line, key, tok, 2, 1.0), self.num(line, key, tok, 3, 0.0)
+        self.ignored.append((line, key, "conic pickup solve (the CONI value written with it is imported)"))
+
     def k_STOP(self, line, key, tok, rest, s):
         s["stop"] = True
 
@@ -326,6 +344,7 @@ def _build(p: _Parser, end: int, name: str) -> dict:
         p.fail(end, "SURF", f"{len(p.surfs)} surface(s); a lens needs the object surface, at least one "
                "surface and the image surface (truncated file?)")
 
+    _check_pickups(p)
     obj, image, body = p.surfs[0], p.surfs[-1], p.surfs[1:-1]
     finite_object = not math.isinf(obj["disz"])
     if finite_object and obj["disz"] < 0:
@@ -394,6 +413,31 @@ def _build(p: _Parser, end: int, name: str) -> dict:
         _image_at_infinity(p, body[-1], out)
     _note_extrapolated_glass(p, body, out)
     return out
+
+
+def _check_pickups(p: _Parser):
+    """Parameter pickups (PPAR): the PARM value written with each is imported; a pickup
+    that disagrees with it (a hand-edited file) is noted, one that names no PARM is an error."""
+    for s in p.surfs:
+        for n, (line, src, scale, offset, column) in sorted(s.get("ppar", {}).items()):
+            if n not in s["parm"]:
+                p.fail(line, "PPAR", f"{p.where(s)}: pickup solve on parameter {n}, but the surface "
+                       f"has no PARM {n} line with its value (truncated file?)")
+            value = s["parm"][n][0]
+            source = p.surfs[src] if 0 <= src < len(p.surfs) else None
+            from_n = column or n
+            if source is None or from_n not in source["parm"]:
+                p.ignored.append((line, "PPAR", "parameter pickup solve (its source is not a parameter "
+                                  "of this file; the PARM value written with it is imported)"))
+                continue
+            picked = scale * source["parm"][from_n][0] + offset
+            if abs(picked - value) > 1e-9 * max(1.0, abs(value), abs(picked)):
+                p.notes.append(f"line {line}: {p.where(s)}: PPAR picks up {picked:.12g} for parameter {n} "
+                               f"(SURF {src} x {scale:g} + {offset:g}) but PARM {n} holds {value:.12g}; "
+                               "the PARM value is imported")
+            else:
+                p.ignored.append((line, "PPAR", "parameter pickup solve (agrees with the PARM value written "
+                                  "with it, which is imported)"))
 
 
 def _surface(p: _Parser, s: dict, scale: float, last: bool = False) -> dict:
@@ -512,6 +556,14 @@ def _catalog_glass(p: _Parser, line: int, s: dict, name: str, nd: float, vd: flo
                            f"{' '.join(gcat_names)}); imported as a model glass from the nd {nd:g}, "
                            f"vd {vd:g} on line {line} (dispersion away from the d line is approximate)")
             return {"nd": nd, "vd": vd} if vd > 0 else {"n": nd}
+        successor = _successor_glass(name, searched)
+        if successor is not None:
+            snd, svd = _nd_vd(successor)
+            p.notes.append(f"{p.where(s)}: glass {name} (line {line}) is not in the glass database "
+                           f"(GCAT {' '.join(gcat_names) or 'none'}) and the GLAS line records no nd/vd; "
+                           f"imported as {successor.name} ({successor.catalog}, nd {snd:.5f}, vd {svd:.2f}), "
+                           "the name its vendor gave the reformulated glass: check the indices")
+            return {"glass": successor.name, "catalog": successor.catalog}
         try:
             elsewhere = _glass.resolve(name)
             where = (f"; not substituted: {name} exists in catalog {elsewhere.catalog} "
@@ -526,6 +578,17 @@ def _catalog_glass(p: _Parser, line: int, s: dict, name: str, nd: float, vd: flo
     if nd > 1 and len(hits) > 1:  # nearest (nd, vd); ties keep the GCAT order
         g = min(hits, key=lambda h: abs(_nd_vd(h)[0] - nd) + abs(_nd_vd(h)[1] - vd) * 1e-3)
     return {"glass": g.name, "catalog": g.catalog}
+
+
+def _successor_glass(name: str, catalogs: list):
+    """The first of :func:`successor_names` found in the searched catalogs, or None."""
+    for cat in catalogs:
+        for cand in successor_names(name, cat):
+            try:
+                return _glass.resolve(cand, cat)
+            except _glass.GlassError:
+                continue
+    return None
 
 
 def _fields(p: _Parser, end: int, finite_object: bool = False) -> dict:
