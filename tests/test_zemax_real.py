@@ -320,3 +320,21 @@ def test_parameter_and_conic_pickups_import_the_values_written_with_them(samples
     with pytest.raises(ZemaxError, match=r"<t>:\d+: PPAR: SURF 2: pickup solve on parameter 3, but the "
                                          r"surface has no PARM 3 line"):
         parse_zmx(text.replace("PARM 3 0.00019956902508819999\n", "", 1), source="<t>")
+
+
+def test_curved_image_with_paraxial_image_height_fields(samples):
+    """Edmund's AC-069 (68146): a curved image surface (CURV -0.1675 on the last SURF) and
+    fields given as paraxial image heights (FTYP 2, 0 and 0.25 mm). It imports in strict mode
+    with image.radius = 1/c, its field angle puts the paraxial image point at 0.25 mm, and
+    the real chief ray ends on the sphere near there."""
+    import numpy as np
+
+    lens = Lens.from_file(samples / "zmf_Edmund_Optics_2019" / "68146.zmx")
+    assert lens.data["image"]["radius"] == pytest.approx(-1 / 0.1675117441171350974, rel=1e-12)
+    assert lens.paraxial()["paraxial_image_height_mm"] == pytest.approx(0.25, rel=1e-9)
+    assert any("paraxial image-height fields 0, 0.25 -> field angles" in n for n in lens.zemax_import.notes)
+    hit = lens.trace_field(lens.max_field_deg, np.zeros(1), np.zeros(1))["position"][0]
+    z_vertex, radius = lens.paraxial()["image_z_mm"], lens.data["image"]["radius"]
+    centre = np.array([0.0, 0.0, z_vertex + radius])
+    assert np.linalg.norm(hit - centre) == pytest.approx(abs(radius), abs=1e-9)
+    assert hit[1] == pytest.approx(0.25, abs=2e-3)

@@ -70,18 +70,20 @@ impl SurfConst {
     }
 }
 
-/// The image plane.
+/// The image surface: a plane, or a sphere of curvature `c` through (0, 0, z).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct ImageConst {
     pub z: f64,
     pub n: f64,
     pub sd2: f64,
+    pub c: f64,
 }
 
 pub(crate) fn constants(lens: &Lens, n: &[f64]) -> (Vec<SurfConst>, ImageConst) {
     let s = lens.surfaces.iter().enumerate().map(|(i, s)| SurfConst::new(s, n[i], n[i + 1])).collect();
     let k = lens.surfaces.len();
-    (s, ImageConst { z: lens.image_z, n: n[k], sd2: lens.image_semi_diameter.map_or(f64::INFINITY, |d| d * d) })
+    let sd2 = lens.image_semi_diameter.map_or(f64::INFINITY, |d| d * d);
+    (s, ImageConst { z: lens.image_z, n: n[k], sd2, c: lens.image_curvature })
 }
 
 /// A ray's state in plain numbers.
@@ -216,13 +218,20 @@ fn asphere_block(b: &Block, sc: &SurfConst, s: &Surface) -> surface::AsphereHits
 /// The image plane on one ray.
 #[inline(always)]
 pub(crate) fn step_image(im: &ImageConst, r: &mut Ray, clip: bool) -> u8 {
-    let t = (im.z - r.z) / r.dz;
+    let (t, hit) = if im.c == 0.0 {
+        ((im.z - r.z) / r.dz, r.dz > 0.0)
+    } else {
+        // A curved sensor: the sphere's sheet through the vertex, met going forward.
+        let sc = SurfConst { kind: Kind::Sphere, z: im.z, c: im.c, kk: 1.0, sd2: im.sd2, n1: im.n, mu: 1.0, same: true, nterms: 0 };
+        let (t, _, _, _, hit) = hit_conic(&sc, Kind::Sphere, r);
+        (t, hit & (r.dz > 0.0) & (t >= -BEHIND_TOL_MM))
+    };
     r.x += t * r.dx;
     r.y += t * r.dy;
     r.z += t * r.dz;
     r.opl += im.n * t;
     let inside = !clip | (r.x * r.x + r.y * r.y <= im.sd2);
-    verdict(r.dz > 0.0, inside, true)
+    verdict(hit, inside, true)
 }
 
 /// Whether a launched ray is usable: finite, with a unit direction.

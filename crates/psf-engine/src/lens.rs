@@ -73,6 +73,9 @@ pub struct Lens {
     pub primary_nm: f64,
     pub image_z: f64,
     pub image_semi_diameter: Option<f64>,
+    /// Curvature of the image surface (1/mm; 0 for a flat sensor). Ray traces end on the
+    /// sphere; wave-optics analyses of one field use `image::flat_at_field`.
+    pub image_curvature: f64,
     /// Object plane to first vertex (mm, >= 0); infinite for an object at infinity.
     pub object_distance: f64,
 }
@@ -305,8 +308,25 @@ impl Lens {
             z += thickness;
         }
         let stop = stop.ok_or_else(|| EngineError::Lens("no surface has \"stop\": true".into()))?;
-        let image_semi_diameter = root.get("image").and_then(Value::as_object).map(|o| get_f64(o, "semi_diameter", "image")).transpose()?.flatten();
-        let lens = Lens { name, surfaces, media, stop, aperture, fields_deg, wavelengths_nm, weights, primary_nm, image_z: z, image_semi_diameter, object_distance };
+        let image = root.get("image").and_then(Value::as_object);
+        let image_semi_diameter = image.map(|o| get_f64(o, "semi_diameter", "image")).transpose()?.flatten();
+        if let Some(sd) = image_semi_diameter {
+            if !(sd > 0.0 && sd.is_finite()) {
+                return lens_err(format!("image: \"semi_diameter\" must be positive, got {sd}"));
+            }
+        }
+        let image_curvature = match image.map(|o| get_f64(o, "radius", "image")).transpose()?.flatten() {
+            None => 0.0,
+            Some(r) if r.is_infinite() => 0.0,
+            Some(r) if r == 0.0 => return lens_err("image: \"radius\" 0 is not a surface (use \"inf\" for a flat image)".into()),
+            Some(r) => 1.0 / r,
+        };
+        if let Some(sd) = image_semi_diameter {
+            if image_curvature * image_curvature * sd * sd >= 1.0 {
+                return lens_err(format!("image: \"semi_diameter\" {sd} exceeds the curved image surface (radius {})", 1.0 / image_curvature));
+            }
+        }
+        let lens = Lens { name, surfaces, media, stop, aperture, fields_deg, wavelengths_nm, weights, primary_nm, image_z: z, image_semi_diameter, image_curvature, object_distance };
         lens.check_geometry()?;
         Ok(lens)
     }

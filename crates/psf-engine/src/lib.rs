@@ -10,6 +10,7 @@ pub mod aim;
 pub mod budget;
 pub mod error;
 pub mod focus;
+pub mod image;
 pub mod kernel;
 pub mod lens;
 pub mod material;

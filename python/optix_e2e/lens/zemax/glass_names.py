@@ -8,6 +8,11 @@ trailing R, A, HS or -W marks a variant of one glass type.  A file from an older
 OpticStudio may name the old glass and, when the catalog it was saved with lacked it
 too, record no nd/vd to rebuild it.  The reader then imports the successor in the same
 vendor's catalog and says so in its notes (docs/zemax.md).
+
+Schott's classic names (F1, SK16, BAF10, ...) were the industry's common names; Hikari
+still lists its equivalents of them under the same names, meant to match Schott's nd and
+vd (its F2, SF1 and SK16 do to 1e-4: tests/test_zemax_glasses.py).  For a Schott name
+the database lacks, Hikari's glass of that name comes first, then Schott's N- successor.
 """
 
 from __future__ import annotations
@@ -30,12 +35,18 @@ SUFFIXES = ("-W", "HS", "R", "A")
 _INNER_N = re.compile(r"([A-Z]{2,5})N(\d+[A-Z]?)")
 
 
-def successor_names(name: str, catalog: str) -> list[str]:
-    """Names the glass ``name`` may carry in ``catalog``'s newer editions, most likely
-    first (upper case; the database lookup ignores case); never ``name`` itself, and
-    none for a catalog without a known renaming."""
+def successor_names(name: str, catalog: str) -> list[tuple[str, str]]:
+    """(name, catalog) pairs the glass ``name`` of ``catalog`` may be found as in newer
+    catalogs, most likely first (names upper case; the database lookup ignores case);
+    never ``name`` in ``catalog`` itself, none for a catalog without a known renaming."""
     if catalog not in VENDOR_PREFIXES:
         return []
+    equivalent = [(name.strip().upper(), "hikari")] if catalog == "schott" else []
+    return equivalent + [(n, catalog) for n in _renamed(name, catalog)]
+
+
+def _renamed(name: str, catalog: str) -> list[str]:
+    """Names ``name`` may carry in ``catalog``'s newer editions."""
     new, old = VENDOR_PREFIXES[catalog]
     up = name.strip().upper()
     core = next((up[len(p):] for p in old if up.startswith(p) and len(up) > len(p)), up)

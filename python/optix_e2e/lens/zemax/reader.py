@@ -361,11 +361,10 @@ def _build(p: _Parser, end: int, name: str) -> dict:
     if "glas" in image:
         p.fail(image["glas"][0], "GLAS", f"{p.where(image)} is the last surface, taken as the image "
                "plane, but has glass after it: the file looks truncated")
-    if image["curv"] != 0:
-        p.fail(image["lines"].get("CURV", image["line"]), "CURV",
-               f"{p.where(image)} (image): curved image surfaces are not supported "
-               "(or the file is truncated)")
-    if image["type"] != "STANDARD" or image["parm"]:
+    if image.get("coni", 0.0) != 0 and image["curv"] != 0:
+        p.fail(image["lines"]["CONI"], "CONI", f"{p.where(image)} (image): a conic image surface is "
+               "not supported (a spherical or flat one is)")
+    if image["type"] != "STANDARD" or any(v != 0 for v, _ in image["parm"].values()):
         p.fail(image["line"], "SURF", f"{p.where(image)} (image) must be a plain STANDARD surface")
     if image["disz"] != 0:  # OpticStudio always writes DISZ 0 on the image surface
         p.fail(image["lines"].get("DISZ", image["line"]), "DISZ",
@@ -392,6 +391,7 @@ def _build(p: _Parser, end: int, name: str) -> dict:
         out["object_distance"] = obj["disz"] * scale
     fields = _fields(p, end, finite_object)
     heights = fields.pop("object_heights", None)  # (line, values): placed once glass is known
+    image_heights = fields.pop("image_heights", None)
     out.update(fields)
     out.update(_waves(p, end))
     out["surfaces"] = surfaces
@@ -401,6 +401,11 @@ def _build(p: _Parser, end: int, name: str) -> dict:
         p.ignored.append((image["lines"]["DIAM"], "DIAM",
                           "automatic image semi-diameter (not a clear aperture)"))
     out["image"] = {"semi_diameter": img_sd * scale if img_sd else None}
+    if image["curv"] != 0:  # a curved sensor: traced to the sphere (docs/zemax.md)
+        out["image"]["radius"] = _radius(image["curv"]) * scale
+        if img_sd and abs(image["curv"]) * img_sd >= 1:
+            p.fail(image["lines"].get("DIAM", image["line"]), "DIAM", f"{p.where(image)} (image): "
+                   f"semi-diameter {img_sd:g} exceeds the curved image surface (radius {_radius(image['curv']):g})")
     if "DISZ" not in image["lines"]:  # OpticStudio (and our writer) write DISZ in every SURF block
         p.fail(end, "SURF", f"{p.where(image)}, the last surface (taken as the image plane), has no "
                "DISZ line: the file looks truncated")
@@ -409,6 +414,8 @@ def _build(p: _Parser, end: int, name: str) -> dict:
         _resolve_floa(p, out, h["aperture_line"])
     if heights:
         _object_heights_to_angles(p, out, scale, *heights)
+    if image_heights:
+        _image_heights_to_angles(p, out, scale, *image_heights)
     if math.isinf(body[-1]["disz"]):
         _image_at_infinity(p, body[-1], out)
     _note_extrapolated_glass(p, body, out)
@@ -562,7 +569,7 @@ def _catalog_glass(p: _Parser, line: int, s: dict, name: str, nd: float, vd: flo
             p.notes.append(f"{p.where(s)}: glass {name} (line {line}) is not in the glass database "
                            f"(GCAT {' '.join(gcat_names) or 'none'}) and the GLAS line records no nd/vd; "
                            f"imported as {successor.name} ({successor.catalog}, nd {snd:.5f}, vd {svd:.2f}), "
-                           "the name its vendor gave the reformulated glass: check the indices")
+                           "its vendor's newer name for it or another vendor's equivalent of that name: check the indices")
             return {"glass": successor.name, "catalog": successor.catalog}
         try:
             elsewhere = _glass.resolve(name)
@@ -583,9 +590,9 @@ def _catalog_glass(p: _Parser, line: int, s: dict, name: str, nd: float, vd: flo
 def _successor_glass(name: str, catalogs: list):
     """The first of :func:`successor_names` found in the searched catalogs, or None."""
     for cat in catalogs:
-        for cand in successor_names(name, cat):
+        for cand, cand_cat in successor_names(name, cat):
             try:
-                return _glass.resolve(cand, cat)
+                return _glass.resolve(cand, cand_cat)
             except _glass.GlassError:
                 continue
     return None
@@ -612,12 +619,19 @@ def _fields(p: _Parser, end: int, finite_object: bool = False) -> dict:
             if y < 0:
                 p.fail(line, key, f"negative object height {y:g}: give fields along +y")
         return {"fields_deg": [0.0] * len(ys), "object_heights": (line, ys)}
+    if ftype == 2:
+        # paraxial image heights: angles once the paraxial optics are known (_image_heights_to_angles)
+        for y in ys:
+            if y < 0:
+                p.fail(line, key, f"negative image height {y:g}: give fields along +y")
+        return {"fields_deg": [0.0] * len(ys), "image_heights": (line, ys)}
     if ftype != 0:  # only the on-axis field means the same in every field type
         if any(y != 0 for y in ys):
             kinds = {1: "object height", 2: "paraxial image height", 3: "real image height",
                      4: "theodolite angle"}
             p.fail(fline, "FTYP", f"field type {ftype} ({kinds.get(ftype, 'unknown')}); only angle "
-                   "fields (type 0), and object heights (type 1) for a finite object, are supported")
+                   "fields (type 0), paraxial image heights (type 2) and, for a finite object, object "
+                   "heights (type 1) are supported")
         p.notes.append(f"field type {ftype} with only the on-axis field: read as angle 0")
     for y in ys:
         if y < 0:
@@ -718,6 +732,26 @@ def _object_heights_to_angles(p: _Parser, out: dict, scale: float, line: int, he
     p.notes.append(f"line {line}: object-height fields {', '.join(f'{h:g}' for h in heights)} -> field "
                    f"angles {', '.join(f'{a:.10g}' for a in angles)} deg (object to entrance pupil "
                    f"{abs(L):.10g} mm)")
+
+
+def _image_heights_to_angles(p: _Parser, out: dict, scale: float, line: int, heights: list[float]):
+    """Paraxial image-height fields (FTYP 2) as the angles optix takes. The paraxial image
+    height is linear in tan(angle) (EFL tan(angle) from infinity; for a finite object the
+    object height L tan(angle) times the magnification), so one paraxial trace at a known
+    angle gives the slope (taken at the paraxial image, wherever the image plane is)."""
+    probe_deg = 10.0
+    out["fields_deg"] = [probe_deg]
+    par = _engine_on(p, out, line, "YFLN", "place the image-height fields", "paraxial", None)
+    k = abs(float(par["paraxial_image_height_mm"])) / math.tan(math.radians(probe_deg))
+    if not (math.isfinite(k) and k > 1e-12):
+        p.fail(line, "YFLN", "image-height fields of a system that forms no finite image (afocal)")
+    angles = [math.degrees(math.atan(h * scale / k)) for h in heights]
+    if any(a >= 89.9 for a in angles):
+        p.fail(line, "YFLN", f"image height {max(heights):g} is beyond 89.9 deg of field")
+    out["fields_deg"] = angles
+    p.notes.append(f"line {line}: paraxial image-height fields {', '.join(f'{h:g}' for h in heights)} -> "
+                   f"field angles {', '.join(f'{a:.10g}' for a in angles)} deg (paraxial image height "
+                   f"{k:.10g} mm per unit tan(angle))")
 
 
 def _image_at_infinity(p: _Parser, last: dict, out: dict):

@@ -92,8 +92,11 @@ def zmx_text(data: dict, source: str = "<lens>", footprint: "list[float] | None"
         for k in sorted(asph, key=lambda k: int(k[1:])):
             # EVENASPH: PARM i is the r^(2i) term; ODDASPHE: PARM i is the r^i term
             lines.append(f"  PARM {int(k[1:]) if odd else int(k[1:]) // 2} {_f(asph[k])}")
-    lines += [f"SURF {len(data['surfaces']) + 1}", "  TYPE STANDARD", "  CURV 0.0", "  DISZ 0.0"]
-    isd = (data.get("image") or {}).get("semi_diameter")
+    image = data.get("image") or {}
+    img_curv = _surface_curv({"radius": image.get("radius")})  # a curved sensor, or 0
+    lines += [f"SURF {len(data['surfaces']) + 1}", "  TYPE STANDARD", f"  CURV {_f(img_curv) if img_curv else '0.0'}",
+              "  DISZ 0.0"]
+    isd = image.get("semi_diameter")
     if isd:
         lines += [f'  DIAM {_f(isd)} 1 0 0 1 ""', f"  CLAP 0 {_f(isd)} 0"]
     else:
