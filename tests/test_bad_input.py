@@ -413,7 +413,7 @@ def test_damaged_detector_checkpoints_are_named_not_tracebacks(tmp_path):
     run = tmp_path / "run"
     train_detector(tmp_path / "data", run, steps=1, batch=1, progress=False, log=lambda m: None)
     good = torch.load(run / "detector.pt", weights_only=True)
-    for change, words in ((lambda c: c.pop("step"), "KeyError"), (lambda c: c.update(step=10 ** 12), "step"),
+    for change, words in ((lambda c: c.pop("step"), "step missing"), (lambda c: c.update(step=10 ** 12), "step"),
                           (lambda c: c.update(wall_s=float("inf")), "wall_s inf"),
                           (lambda c: c.update(optimizer={"state": 3}), "optimizer")):
         ck = dict(good)
@@ -503,3 +503,52 @@ def test_json_nested_too_deeply_is_one_error_naming_the_file(tmp_path):
     res = CliRunner().invoke(main, ["sample", str(tmp_path / "space.json"), "-n", "1", "--out", str(tmp_path / "s.csv")])
     assert res.exit_code == 1 and "space.json: invalid JSON: nested too deeply" in res.output, res.output
     assert not (tmp_path / "s.csv").exists()
+
+
+def test_claim_out_dir_accepts_only_an_empty_folder_its_own_run_or_its_own_files(tmp_path):
+    """The one rule behind every --out: absent, empty, this kind's run (its marker), or only
+    the files this command writes (and what ``own`` accepts) is fine; anything else is one
+    error naming the folder and a few of the files it did not write."""
+    from optix_e2e.dataset.layout import claim_out_dir
+
+    assert claim_out_dir(tmp_path / "new", "x run", {"a.json"}) is False
+    (tmp_path / "empty").mkdir()
+    assert claim_out_dir(tmp_path / "empty", "x run") is False
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "a.json").write_text("{}")
+    assert claim_out_dir(run, "x run", {"a.json"}) is False               # its own files
+    with pytest.raises(ValueError, match="holds no x run but a.json"):  # its names, not its content
+        claim_out_dir(run, "x run", {"a.json"}, own=lambda p: False)
+    (run / "state.pt").write_bytes(b"")
+    assert claim_out_dir(run, "x run", marker="state.pt") is True         # its own run: resume
+    other = tmp_path / "other"
+    other.mkdir()
+    for name in ("history.csv", "detector.pt", "notes.md", "z.txt"):
+        (other / name).write_text("x")
+    with pytest.raises(ValueError, match=r"other is not empty and holds no x run \(state\.pt\) but detector\.pt, "
+                                         r"history\.csv, notes\.md, \.\.\.; choose another --out"):
+        claim_out_dir(other, "x run", marker="state.pt")
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ValueError, match="is not a folder"):
+        claim_out_dir(tmp_path / "file", "x run")
+
+
+@pytest.mark.parametrize("args", [
+    ["tolerance", "cooke-f50", "--space", "cooke-f50", "--mc", "0"],
+    ["bench", "accuracy", "--quick"],
+    ["lens", "report", "cooke-f50"],
+    ["sensor", "ptc", "--levels", "10", "--patch", "32"],
+])
+def test_report_commands_refuse_a_folder_of_another_run(tmp_path, args):
+    from click.testing import CliRunner
+
+    from optix_e2e.cli import main
+
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "detector.pt").write_bytes(b"weights")
+    res = CliRunner().invoke(main, [*args, "--out", str(other)])
+    assert res.exit_code == 1 and "holds no" in res.output and "detector.pt" in res.output, res.output
+    assert sorted(p.name for p in other.iterdir()) == ["detector.pt"]
+    assert (other / "detector.pt").read_bytes() == b"weights"

@@ -188,7 +188,7 @@ def test_software_isp_pretraining_learns_and_resumes(tmp_path):
     assert "starting from the weights of" in said[0] and again["earlier_training"][0]["steps"] == 16
     (tmp_path / "design").mkdir()  # a folder with another run's files is refused, left as it was
     (tmp_path / "design" / "train.json").write_text("{}")
-    with pytest.raises(ValueError, match="no ISP pre-training state"):
+    with pytest.raises(ValueError, match="holds no ISP pre-training"):
         pretrain(cfg, tmp_path / "design", progress=False)
     assert [p.name for p in (tmp_path / "design").iterdir()] == ["train.json"]
     assert (tmp_path / "design" / "train.json").read_text() == "{}"

@@ -12,6 +12,12 @@ import re
 from pathlib import Path
 
 
+#: What restoring a damaged state raises once it is loaded as plain data: a missing or
+#: misspelt key, a value of another type or shape, a count out of reason. Every resume
+#: (design runs, surrogate and detector training) turns these into one error naming the file.
+DAMAGED_STATE_ERRORS = (KeyError, TypeError, ValueError, RuntimeError, AttributeError, IndexError, OverflowError)
+
+
 def _reason(exc: BaseException) -> str:
     """torch's long weights_only message cut to what went wrong."""
     text = " ".join(str(exc).split())

@@ -80,6 +80,22 @@ pub struct Lens {
     pub object_distance: f64,
 }
 
+/// Largest length (mm) a thickness, semi-diameter, EPD or object distance may have, and the
+/// largest radius (a huge radius is a way to write a plane): perturbing a length near the
+/// float maximum overflows; these leave any design room.
+pub const MAX_LENGTH_MM: f64 = 1e12;
+pub const MAX_RADIUS_MM: f64 = 1e30;
+
+/// `v` of at most [`MAX_LENGTH_MM`] ([`MAX_RADIUS_MM`] for a radius); infinite values are the
+/// caller's to allow or refuse.
+fn check_length(v: f64, ctx: &str, key: &str) -> Result<()> {
+    let max = if key == "radius" { MAX_RADIUS_MM } else { MAX_LENGTH_MM };
+    if v.is_finite() && v.abs() > max {
+        return lens_err(format!("{ctx}: \"{key}\" {v:e} mm is beyond {max:e} mm"));
+    }
+    Ok(())
+}
+
 fn lens_err<T>(msg: String) -> Result<T> {
     Err(EngineError::Lens(msg))
 }
@@ -195,6 +211,7 @@ impl Lens {
         if !(ap_value.is_finite() && ap_value > 0.0) {
             return lens_err(format!("aperture: \"value\" must be positive, got {ap_value}"));
         }
+        check_length(ap_value, "aperture", "value")?;
         let aperture = match ap.get("type").and_then(Value::as_str).map(str::to_ascii_lowercase).as_deref() {
             Some("epd") => Aperture::Epd(ap_value),
             Some("fno") | Some("f_number") => Aperture::FNumber(ap_value),
@@ -202,6 +219,7 @@ impl Lens {
             other => return lens_err(format!("aperture: \"type\" must be \"epd\", \"fno\" or \"object_na\", got {other:?}")),
         };
         let object_distance = get_f64(root, "object_distance", "lens")?.unwrap_or(f64::INFINITY);
+        check_length(object_distance, "lens", "object_distance")?;
         if !(object_distance >= 0.0) {
             return lens_err(format!("object_distance = {object_distance} must be >= 0 mm (object plane to the first surface) or \"inf\""));
         }
@@ -247,6 +265,9 @@ impl Lens {
             let ctx = format!("surface {}", i + 1);
             let s = sv.as_object().ok_or_else(|| EngineError::Lens(format!("{ctx}: must be an object")))?;
             let radius = get_f64(s, "radius", &ctx)?;
+            if let Some(r) = radius {
+                check_length(r, &ctx, "radius")?;
+            }
             let curv = get_f64(s, "curvature", &ctx)?;
             let curvature = match (radius, curv) {
                 (Some(_), Some(_)) => return lens_err(format!("{ctx}: give \"radius\" or \"curvature\", not both")),
@@ -258,6 +279,7 @@ impl Lens {
                 (None, None) => 0.0,
             };
             let thickness = get_f64(s, "thickness", &ctx)?.ok_or_else(|| EngineError::Lens(format!("{ctx}: missing \"thickness\"")))?;
+            check_length(thickness, &ctx, "thickness")?;
             if !thickness.is_finite() {
                 return lens_err(format!("{ctx}: \"thickness\" must be finite (the object distance is \"object_distance\")"));
             }
@@ -287,6 +309,9 @@ impl Lens {
             }
             let semi_diameter = get_f64(s, "semi_diameter", &ctx)?;
             if let Some(sd) = semi_diameter {
+                check_length(sd, &ctx, "semi_diameter")?;
+            }
+            if let Some(sd) = semi_diameter {
                 if !(sd > 0.0 && sd.is_finite()) {
                     return lens_err(format!("{ctx}: \"semi_diameter\" must be positive, got {sd}"));
                 }
@@ -310,6 +335,11 @@ impl Lens {
         let stop = stop.ok_or_else(|| EngineError::Lens("no surface has \"stop\": true".into()))?;
         let image = root.get("image").and_then(Value::as_object);
         let image_semi_diameter = image.map(|o| get_f64(o, "semi_diameter", "image")).transpose()?.flatten();
+        for (key, v) in [("semi_diameter", image_semi_diameter), ("radius", image.map(|o| get_f64(o, "radius", "image")).transpose()?.flatten())] {
+            if let Some(v) = v {
+                check_length(v, "image", key)?;
+            }
+        }
         if let Some(sd) = image_semi_diameter {
             if !(sd > 0.0 && sd.is_finite()) {
                 return lens_err(format!("image: \"semi_diameter\" must be positive, got {sd}"));

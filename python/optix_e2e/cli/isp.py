@@ -70,8 +70,11 @@ def _report(summary: dict, as_json: bool, out_dir: Path, name: str) -> None:
 def _emit(res: dict, out_dir: Path | None, name: str, as_json: bool) -> bool:
     """Write OUT/name if asked; print the JSON if asked. True when the JSON was printed."""
     if out_dir is not None:
+        from ..dataset.layout import claim_out_dir, write_text_atomic
+
+        claim_out_dir(out_dir, f"ISP {name}", {name})
         out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / name).write_text(dumps(res, indent=2))
+        write_text_atomic(out_dir / name, dumps(res, indent=2))
     if as_json:
         click.echo(dumps(res))
     return as_json

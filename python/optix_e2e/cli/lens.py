@@ -192,8 +192,11 @@ def survey_cmd(folder, out):
     """Import rate of every .zmx under FOLDER (read leniently): how many import, trace
     (paraxial EFL, a real chief and marginal ray) and match the nominal focal length of
     their NAME/NOTE line within 1 %, and the top reasons for what is refused."""
+    from ..dataset.layout import claim_out_dir
     from ..lens.zemax.survey import results_csv, survey
 
+    if out:
+        claim_out_dir(out, "lens survey", {"survey.json", "survey.csv"})
     summary, results = survey(Path(folder))
     text = dumps(summary, indent=1, ensure_ascii=False)
     if out:  # both texts made before either file is touched, each written whole or not at all

@@ -84,8 +84,10 @@ def report(lens_spec, out, fields, aiming, rays, freqs, max_freq, per_wavelength
     relative illumination, MTF (tangential, sagittal, diffraction limit) at the chosen
     frequencies and the MTF curves.
     """
+    from ..dataset.layout import claim_out_dir
     from ..design.report import DEFAULT_MTF_FREQS, write_report
 
+    claim_out_dir(out, "lens report", {"layout.png", "spots.png", "mtf.png", "report.json"})
     lens_ = load_lens(lens_spec)
     freq_list = _floats(freqs, "--freqs") or list(DEFAULT_MTF_FREQS)
     if any(f < 0 for f in freq_list):

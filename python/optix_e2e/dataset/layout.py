@@ -200,6 +200,32 @@ def read_small_text(path: "str | Path", max_bytes: int = 1 << 20, what: str = "f
         raise ValueError(f"{path}: the {what} is not UTF-8 text ({err.reason} at byte {err.start})") from None
 
 
+def claim_out_dir(out: "str | Path", kind: str, writes: "set[str] | frozenset[str]" = frozenset(),
+                  marker: str | None = None, own=None) -> bool:
+    """Check an ``--out`` folder before a command writes into it; True when it holds this
+    kind of run already (its ``marker`` file: the command resumes or rewrites its own).
+
+    Accepted: a folder that does not exist, is empty, holds ``marker``, or holds only names
+    in ``writes`` (what this command writes: a previous run of it, or a start that stopped
+    early) and passes ``own(folder)`` where given. Anything else holds files this command did
+    not write, and is one ValueError naming the folder and a few of them: a command never
+    writes into another kind of run or over a file it did not make."""
+    out = Path(out)
+    if not out.exists():
+        return False
+    if not out.is_dir():
+        raise ValueError(f"{out} is not a folder; choose another --out")
+    if marker and (out / marker).is_file():
+        return True
+    names = sorted(p.name for p in out.iterdir())
+    foreign = [n for n in names if n not in writes]
+    if not foreign and (own is None or own(out)):
+        return False
+    shown = ", ".join(foreign[:3] or names[:3]) + (", ..." if len(foreign) > 3 else "")
+    what = f"no {kind}" + (f" ({marker})" if marker else "")
+    raise ValueError(f"{out} is not empty and holds {what} but {shown}; choose another --out")
+
+
 def write_text_atomic(path: Path, text: str) -> None:
     """Write UTF-8 ``text`` to a temporary file, fsync, rename over ``path``: the old file
     stays whole until the new one is; a failed write removes its temporary file."""
@@ -292,6 +318,16 @@ def check_manifest(man: dict, path) -> None:
         bad("space.parameters", "must be a list of parameters with a name, min and max")
     numbers("param_mean", man.get("param_mean"), len(params))
     numbers("param_std", man.get("param_std"), len(params))
+    base = man.get("base_lens")
+    if not isinstance(base, dict):
+        bad("base_lens", f"must be the base lens's prescription (an object), got {str(base)[:60]}")
+    from ..lens.glass import GlassError
+    from ..lens.prescription import PrescriptionError, resolve_prescription
+
+    try:
+        resolve_prescription(base, "base_lens")
+    except (PrescriptionError, GlassError) as exc:
+        bad("base_lens", f"is not a lens prescription ({exc})")
     sha = man.get("designs_csv_sha256")
     if sha is not None and not (isinstance(sha, str) and len(sha) == 64):
         bad("designs_csv_sha256", f"is not a sha256 hex digest: {str(sha)[:70]}")

@@ -15,7 +15,7 @@ import numpy as np
 from ..lens import Lens
 from ..design.sampling import Limits, read_designs_csv, sample_designs, write_designs_csv
 from ..design.space import Parameter, ParameterSpace, SpaceError
-from .layout import FORMAT, DatasetError, differing_keys, read_json, sha256_file, write_json_atomic
+from .layout import FORMAT, DatasetError, claim_out_dir, differing_keys, read_json, sha256_file, write_json_atomic
 from .settings import DatasetSettings, engine_base, field_positions
 
 
@@ -107,6 +107,8 @@ def prepare(out: Path, space: ParameterSpace, base: Lens, n: int, seed: int, s: 
                 raise DatasetError(f"{dpath}: not the designs of seed {seed} (and the manifest has no "
                                    f"designs_csv_sha256 to check it by)")
         return man, designs
+    # a new dataset: only into an empty folder or one a start that stopped early left
+    claim_out_dir(out, "dataset", {"designs.csv", "shards"}, marker="manifest.json")
     log(f"sampling {n} designs ({s.sampling}, seed {seed})")
     limits = Limits.from_dict(space.constraints, f"{space.source}: [constraints]")
     res = sample_designs(space, base, n, seed=seed, method=s.sampling, limits=limits)

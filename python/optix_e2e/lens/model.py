@@ -267,26 +267,36 @@ class Lens:
             self._json = json.dumps(self.data)
         return self._json
 
+    def _engine_call(self, name: str, *args, **kwargs):
+        """The engine's ``name`` on this lens; an engine error names the lens's source
+        (its file) before the engine's own words (surface, parameter)."""
+        try:
+            return _engine_fn(name)(self.to_engine_json(), *args, **kwargs)
+        except _engine().EngineError as exc:
+            if str(exc).startswith(str(self.source)):
+                raise
+            raise type(exc)(f"{self.source}: {exc}") from None
+
     def __repr__(self) -> str:
         return f"Lens({self.name!r}, {len(self.surfaces)} surfaces, source={self.source!r})"
 
     # ----- engine wrappers --------------------------------------------------------
     def validate(self) -> None:
-        _engine_fn("validate_lens")(self.to_engine_json())
+        self._engine_call("validate_lens")
 
     def refractive_indices(self, wavelength_nm: float | None = None) -> np.ndarray:
         wl = self.primary_wavelength_nm if wavelength_nm is None else wavelength_nm
-        return _engine_fn("refractive_indices")(self.to_engine_json(), float(wl))
+        return self._engine_call("refractive_indices", float(wl))
 
     def paraxial(self, wavelength_nm: float | None = None) -> dict[str, float]:
-        return _engine_fn("paraxial")(self.to_engine_json(), wavelength_nm)
+        return self._engine_call("paraxial", wavelength_nm)
 
     def trace_field(self, field_deg: float, px, py, wavelength_nm: float | None = None,
                     aiming: str = "paraxial") -> dict[str, np.ndarray]:
         wl = self.primary_wavelength_nm if wavelength_nm is None else wavelength_nm
         px = np.ascontiguousarray(px, dtype=np.float64)
         py = np.ascontiguousarray(py, dtype=np.float64)
-        return _engine_fn("trace_field")(self.to_engine_json(), float(field_deg), px, py, float(wl), aiming)
+        return self._engine_call("trace_field", float(field_deg), px, py, float(wl), aiming)
 
     def spot(self, field_deg: float, wavelengths_nm: Sequence[float] | None = None,
              weights: Sequence[float] | None = None, rings: int = 64,
@@ -295,7 +305,7 @@ class Lens:
         if wavelengths_nm is None:
             wavelengths_nm = self.wavelengths_nm
             weights = self.wavelength_weights if weights is None else weights
-        return _engine_fn("spot")(self.to_engine_json(), float(field_deg), list(wavelengths_nm),
+        return self._engine_call("spot", float(field_deg), list(wavelengths_nm),
                                   None if weights is None else list(weights), rings, aiming)
 
     def wavefront(self, field_deg: float, rings: int = 8, arms: int = 16, tilt: str = "wavelength",
@@ -309,7 +319,7 @@ class Lens:
 
         px, py, pw = pupil_quadrature(rings, arms)
         ww = np.asarray(self.wavelength_weights, float)
-        out = _engine_fn("wavefront")(self.to_engine_json(), float(field_deg), px, py, pw,
+        out = self._engine_call("wavefront", float(field_deg), px, py, pw,
                                       list(self.wavelengths_nm), list(ww), aiming, tilt)
         out["rms_waves_poly"] = float(np.sqrt(np.sum(ww * np.asarray(out["rms_waves"]) ** 2) / ww.sum()))
         return out
@@ -334,11 +344,11 @@ class Lens:
         "auto" picks the cheapest method and sampling predicted to meet
         ``accuracy`` (relative L1, default 0.02) and records its choice under ``"auto"``."""
         wl = self.primary_wavelength_nm if wavelength_nm is None else wavelength_nm
-        return _engine_fn("psf")(self.to_engine_json(), float(field_deg), float(wl), method, **kwargs)
+        return self._engine_call("psf", float(field_deg), float(wl), method, **kwargs)
 
     def psf_rgb(self, field_deg: float, channels=None, method: str = "fft", **kwargs):
         """Per-channel PSFs (C, size, size) and relative illumination (C,); channels default
         to :meth:`rgb_channels` ("rgb")."""
         channels = self.rgb_channels("rgb") if channels is None else channels
         channels = [[(float(w), float(k)) for w, k in ch] for ch in channels]
-        return _engine_fn("psf_rgb")(self.to_engine_json(), float(field_deg), channels, method, **kwargs)
+        return self._engine_call("psf_rgb", float(field_deg), channels, method, **kwargs)

@@ -40,7 +40,8 @@ class _Checker:
     def fail(self, where: str, msg: str):
         raise PrescriptionError(f"{self.source}: {where}: {msg}")
 
-    def number(self, where: str, value: Any, *, positive=False, nonneg=False) -> float:
+    def number(self, where: str, value: Any, *, positive=False, nonneg=False, length=False,
+               radius=False) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             self.fail(where, f"must be a number, got {_short(value)}")
         try:
@@ -53,6 +54,10 @@ class _Checker:
             self.fail(where, f"must be > 0, got {value!r}")
         if nonneg and value < 0:
             self.fail(where, f"must be >= 0, got {value!r}")
+        if length and abs(value) > MAX_LENGTH_MM:
+            self.fail(where, f"{value:g} mm is beyond {MAX_LENGTH_MM:g} mm")
+        if radius and abs(value) > MAX_RADIUS_MM:
+            self.fail(where, f"{value:g} mm is beyond {MAX_RADIUS_MM:g} mm (write \"inf\" for a plane)")
         return float(value)
 
     def numbers(self, where: str, value: Any, **kw) -> list[float]:
@@ -64,6 +69,13 @@ class _Checker:
         unknown = sorted(set(obj) - allowed)
         if unknown:
             self.fail(where, f"unknown key(s) {', '.join(map(repr, unknown))}; allowed: {', '.join(sorted(allowed))}")
+
+
+#: Largest length (mm) a thickness, semi-diameter, EPD or object distance may have, and the
+#: largest radius (a huge radius is a way to write a plane): perturbing lengths near the
+#: float maximum overflowed to NaN; these leave any design room.
+MAX_LENGTH_MM = 1e12
+MAX_RADIUS_MM = 1e30
 
 
 def _short(value: Any, n: int = 60) -> str:
@@ -97,12 +109,12 @@ def _resolve(data: Any, source: str) -> dict:
     ck.keys("aperture", ap, {"type", "value"})
     if ap.get("type") not in ("epd", "fno", "object_na"):
         ck.fail("aperture.type", f"must be \"epd\", \"fno\" or \"object_na\", got {ap.get('type')!r}")
-    ck.number("aperture.value", ap.get("value"), positive=True)
+    ck.number("aperture.value", ap.get("value"), positive=True, length=True)
 
     # object plane to the first surface; absent, null or "inf": an object at infinity
     dist = out.get("object_distance")
     if dist is not None and not (isinstance(dist, str) and dist.casefold() in ("inf", "infinity")):
-        ck.number("object_distance", dist, nonneg=True)
+        ck.number("object_distance", dist, nonneg=True, length=True)
     finite = dist is not None and not isinstance(dist, str)
     if ap["type"] == "object_na":
         if not finite:
@@ -146,13 +158,13 @@ def _resolve(data: Any, source: str) -> dict:
             ck.fail("image", "must be an object {\"semi_diameter\": ..., \"radius\": ...}")
         ck.keys("image", image, {"semi_diameter", "radius"})
         if image.get("semi_diameter") is not None:
-            ck.number("image.semi_diameter", image["semi_diameter"], positive=True)
+            ck.number("image.semi_diameter", image["semi_diameter"], positive=True, length=True)
         r = image.get("radius")  # a curved image surface (a curved sensor); absent or "inf": flat
         if isinstance(r, str):
             if r.strip().lower() not in ("inf", "infinity"):
                 ck.fail("image.radius", f"must be a number, \"inf\" or null, got {_short(r)}")
             image["radius"] = "inf"
-        elif r is not None and ck.number("image.radius", r) == 0:
+        elif r is not None and ck.number("image.radius", r, radius=True) == 0:
             ck.fail("image.radius", "must not be 0 (use \"inf\" for a flat image)")
     return out
 
@@ -172,11 +184,11 @@ def _check_surface(ck: _Checker, where: str, s: Any):
                 ck.fail(f"{where} radius", f"must be a number, \"inf\" or null, got {_short(r)}")
             s["radius"] = "inf"
         elif r is not None:
-            if ck.number(f"{where} radius", r) == 0:
+            if ck.number(f"{where} radius", r, radius=True) == 0:
                 ck.fail(f"{where} radius", "must not be 0 (use \"inf\" for a plane)")
     if "thickness" not in s:
         ck.fail(f"{where} thickness", "missing (distance to the next surface; for the last one, to the image plane)")
-    ck.number(f"{where} thickness", s["thickness"])
+    ck.number(f"{where} thickness", s["thickness"], length=True)
     if "material" not in s:
         ck.fail(f"{where} material", "missing (\"air\", a glass name or a material object)")
     s["material"] = _resolve_material(ck, f"{where} material", s["material"])
@@ -190,7 +202,7 @@ def _check_surface(ck: _Checker, where: str, s: Any):
         for k, v in a.items():
             ck.number(f"{where} aspheric.{k}", v)
     if s.get("semi_diameter") is not None:
-        ck.number(f"{where} semi_diameter", s["semi_diameter"], positive=True)
+        ck.number(f"{where} semi_diameter", s["semi_diameter"], positive=True, length=True)
     if not isinstance(s.get("stop", False), bool):
         ck.fail(f"{where} stop", f"must be true or false, got {s['stop']!r}")
     if not isinstance(s.get("name", ""), str):

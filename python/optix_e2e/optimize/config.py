@@ -12,7 +12,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..dataset.layout import read_small_text, write_json_atomic
+from ..dataset.layout import claim_out_dir, read_small_text, write_json_atomic
 from ..tasks import get_task
 from ..tasks.scenes import POSITIONS
 
@@ -266,7 +266,6 @@ def check_run_dir(out: Path, cfg: DesignConfig) -> None:
             detail = ", ".join(f"{k}: {old.get(k)!r} -> {new.get(k)!r}" for k in diff)
             raise ValueError(f"{out} was made with other settings ({detail}); use another --out or the same settings")
         return
+    claim_out_dir(out, "design run", marker="config.json")
     out.mkdir(parents=True, exist_ok=True)
-    if any(out.iterdir()):
-        raise ValueError(f"{out} is not empty and holds no design run (config.json); choose another --out")
     write_json_atomic(path, cfg.to_json())

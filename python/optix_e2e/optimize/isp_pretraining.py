@@ -191,10 +191,10 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, init: "str | Path | None
     starts afresh); its training record is kept in the new one's manifest."""
     from torch.utils.tensorboard import SummaryWriter
 
+    from ..dataset.layout import claim_out_dir
+
     out = Path(out)
-    if out.is_dir() and not (out / "state.pt").is_file() and any(out.iterdir()):
-        raise ValueError(f"{out} holds files but no ISP pre-training state (state.pt): another run's folder? "
-                         f"use a new --out")
+    claim_out_dir(out, "ISP pre-training", {"tb"}, marker="state.pt")  # tb/: a start that stopped early
     out.mkdir(parents=True, exist_ok=True)
     set_threads(cfg.threads)
     sur = load_surrogate(cfg.surrogate, calibrated_preset("imx249").pixel_um)

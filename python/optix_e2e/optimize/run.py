@@ -37,7 +37,7 @@ from ..surrogate.checkpoint import OpticsSurrogate, save_atomic
 from ..surrogate.exact import exact_optics
 from ..tasks import SensorFrame, TaskLoss, get_task, training_batch
 from ..tasks.scenes import POSITIONS
-from ..torchfile import load_plain
+from ..torchfile import DAMAGED_STATE_ERRORS, load_plain
 from .alg1 import Block, ProximalCompositional, Vanilla
 from .config import DesignConfig
 
@@ -291,7 +291,7 @@ def _load_state(path: Path, camera: Camera, opt, monitor=None) -> tuple[float, l
             monitor.load_state_dict(st["monitor"])
     except OpticsModeMismatch:
         raise  # its own message: the run's optics model differs, the checkpoint is fine
-    except (KeyError, TypeError, ValueError, RuntimeError, AttributeError, IndexError, OverflowError) as err:
+    except DAMAGED_STATE_ERRORS as err:
         raise ValueError(f"{path}: damaged design checkpoint ({type(err).__name__}: {' '.join(str(err).split())}); "
                          f"remove it to restart that training") from None
     return wall_s, history

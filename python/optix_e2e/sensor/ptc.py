@@ -158,7 +158,10 @@ def save_ptc(result: dict, out_dir) -> dict:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from ..dataset.layout import claim_out_dir
+
     out = Path(out_dir)
+    claim_out_dir(out, "photon transfer curve", {"ptc.json", "ptc.png"})
     out.mkdir(parents=True, exist_ok=True)
     paths = {"json": str(out / "ptc.json"), "png": str(out / "ptc.png")}
     Path(paths["json"]).write_text(dumps(result, indent=2) + "\n", encoding="utf-8")

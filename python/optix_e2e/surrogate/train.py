@@ -28,7 +28,8 @@ from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
 from .. import parallel
-from ..torchfile import load_plain
+from ..dataset.layout import claim_out_dir
+from ..torchfile import DAMAGED_STATE_ERRORS, load_plain
 from .checkpoint import OpticsSurrogate, save_atomic
 from .data import design_indices, load_arrays, psf_grid, psf_pitch_um, to_tensors
 from .loss import LossWeights, optics_loss_terms
@@ -188,9 +189,7 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
     # another run's folder is not written into (checked by every rank before they meet, so
     # before rank 0 writes anything)
     # (a run stopped before its first checkpoint leaves only tb/: it starts again there)
-    if not state_path.exists() and out_dir.exists() and (
-            not out_dir.is_dir() or any(p.name != "tb" for p in out_dir.iterdir())):
-        raise ValueError(f"{out_dir} is not empty and holds no surrogate training (state.pt); choose another --out")
+    claim_out_dir(out_dir, "surrogate training", {"tb"}, marker="state.pt")
     ranks = parallel.setup(cfg.device)
     device, W = ranks.device, ranks.world
     if not ranks.is_main:
@@ -244,7 +243,7 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
             step, seconds, history = int(resumed["step"]), float(resumed["seconds"]), list(resumed["history"])
             if not (0 <= step <= MAX_STEPS and math.isfinite(seconds) and seconds >= 0):
                 raise ValueError(f"step {step}, seconds {seconds}")
-        except (KeyError, TypeError, ValueError, RuntimeError, AttributeError, IndexError, OverflowError) as err:
+        except DAMAGED_STATE_ERRORS as err:
             raise ValueError(f"{state_path}: damaged surrogate training state ({type(err).__name__}: "
                              f"{' '.join(str(err).split())}); remove it to train from the start") from None
     model.train()

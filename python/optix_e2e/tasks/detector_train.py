@@ -19,6 +19,8 @@ import numpy as np
 import torch
 
 from .. import color
+from ..dataset.layout import claim_out_dir
+from ..torchfile import DAMAGED_STATE_ERRORS
 from ..parallel import check_finite_weights, stop_if_diverged
 from ..scenes.coco import CocoDetection
 from ..scenes.street import CATEGORIES
@@ -70,30 +72,37 @@ def load_detector(path: "str | Path"):
     ck = load_plain(path, "detector checkpoint")
     if not isinstance(ck, dict) or ck.get("format") != FORMAT:
         raise ValueError(f"{path}: not a detector checkpoint ({FORMAT})")
+    _check_record(ck, path)
     cfg = ck.get("config")
     model = build_module(lambda **c: make_detector(**{**c, "image_size": tuple(c["image_size"])}), cfg,
                          ck.get("state_dict"), path, "detector checkpoint")
     return model, ck
 
 
+def _check_record(ck: dict, path: Path) -> None:
+    """The training record every detector checkpoint carries: its step and wall time."""
+    checks = {"step": lambda v: isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= MAX_STEPS,
+              "wall_s": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+              and v >= 0}
+    for key, ok in checks.items():
+        if key not in ck or not ok(ck[key]):
+            what = "missing" if key not in ck else f"{ck[key]}"[:40]
+            raise ValueError(f"{path}: damaged detector checkpoint ({key} {what}); remove it to train from the start")
+
+
 HISTORY_HEADER = ["step", "loss", "classification", "bbox_regression", "bbox_ctrness", "lr", "seconds"]
 
 
-def _own_leftovers(out: Path) -> bool:
-    """Whether ``out`` is empty or holds only what a detector run writes before its first
-    checkpoint (a run stopped early, by divergence say): that run starts again there."""
-    if not out.is_dir():
+def _history_is_ours(out: Path) -> bool:
+    """Whether a history.csv in ``out`` is a detector run's (what a run stopped before its
+    first checkpoint leaves, by divergence say: that run starts again there)."""
+    if not (out / "history.csv").exists():
+        return True
+    try:
+        first = (out / "history.csv").read_text(encoding="utf-8").splitlines()[:1]
+    except (OSError, UnicodeDecodeError):
         return False
-    names = {p.name for p in out.iterdir()}
-    if not names <= {"history.csv", "tb"}:
-        return False
-    if "history.csv" in names:
-        try:
-            first = (out / "history.csv").read_text(encoding="utf-8").splitlines()[:1]
-        except (OSError, UnicodeDecodeError):
-            return False
-        return first in ([], [",".join(HISTORY_HEADER)])
-    return True
+    return first in ([], [",".join(HISTORY_HEADER)])
 
 
 def _batch(images: torch.Tensor, targets: list[dict], seed: int, step: int, batch: int, dim: float = 1.0):
@@ -134,24 +143,17 @@ def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, 
                 or ck.get("dim", 1.0) != dim):
             raise ValueError(f"{out} holds a detector trained with other settings (config {ck['config']}, data "
                              f"{ck.get('data')}, seed {ck.get('seed')}, dim {ck.get('dim', 1.0)}); use another --out")
-        try:  # a larger --steps continues the run
-            step, wall = int(ck["step"]), float(ck["wall_s"])
-            if not (0 <= step <= MAX_STEPS and math.isfinite(wall) and wall >= 0):
-                raise ValueError(f"step {step}, wall_s {wall}")
-        except (KeyError, TypeError, ValueError, OverflowError) as err:
-            raise ValueError(f"{ck_path}: damaged detector checkpoint ({type(err).__name__}: {err}); remove it to "
-                             f"train from the start") from None
+        step, wall = ck["step"], float(ck["wall_s"])  # checked by load_detector; a larger --steps continues
         log(f"resuming at step {step} of {steps}")
     else:
-        if out.exists() and not _own_leftovers(out):
-            raise ValueError(f"{out} is not empty and holds no detector run (detector.pt); choose another --out")
+        claim_out_dir(out, "detector run", {"history.csv", "tb"}, marker="detector.pt", own=_history_is_ours)
         out.mkdir(parents=True, exist_ok=True)
         model, ck, step, wall = make_detector(width, fpn, size), None, 0, 0.0
     opt = torch.optim.AdamW(model.parameters(), lr, weight_decay=1e-4)
     if ck is not None:
         try:
             opt.load_state_dict(ck["optimizer"])
-        except (KeyError, TypeError, ValueError, RuntimeError, IndexError) as err:
+        except DAMAGED_STATE_ERRORS as err:
             raise ValueError(f"{ck_path}: damaged detector checkpoint (optimizer: {type(err).__name__}: {err}); "
                              f"remove it to train from the start") from None
     budget_s = None if minutes is None else 60.0 * minutes
