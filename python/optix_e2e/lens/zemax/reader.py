@@ -724,14 +724,20 @@ def _object_heights_to_angles(p: _Parser, out: dict, scale: float, line: int, he
     paraxial entrance pupil's centre, L = object plane to entrance pupil (as OpticStudio
     defines angle fields for a finite object), so each field is the same object point."""
     par = _engine_on(p, out, line, "YFLN", "place the object-height fields", "paraxial", None)
-    L = float(par["object_to_pupil_mm"])
-    angles = [math.degrees(math.atan(h * scale / abs(L))) for h in heights]
+    L = abs(float(par["object_to_pupil_mm"]))
+    _height_fields(p, out, line, heights, scale, L, "object-height", f"object to entrance pupil {L:.10g} mm")
+
+
+def _height_fields(p: _Parser, out: dict, line: int, heights: list[float], scale: float, per_tan: float,
+                   what: str, detail: str):
+    """Fields given as heights h (lens units) that are ``per_tan`` mm per unit tan(angle):
+    the angles atan(h / per_tan), with a note."""
+    angles = [math.degrees(math.atan(h * scale / per_tan)) for h in heights]
     if any(a >= 89.9 for a in angles):
-        p.fail(line, "YFLN", f"object height {max(heights):g} is beyond 89.9 deg seen from the entrance pupil")
+        p.fail(line, "YFLN", f"{what} {max(heights):g} is beyond 89.9 deg of field")
     out["fields_deg"] = angles
-    p.notes.append(f"line {line}: object-height fields {', '.join(f'{h:g}' for h in heights)} -> field "
-                   f"angles {', '.join(f'{a:.10g}' for a in angles)} deg (object to entrance pupil "
-                   f"{abs(L):.10g} mm)")
+    p.notes.append(f"line {line}: {what} fields {', '.join(f'{h:g}' for h in heights)} -> field angles "
+                   f"{', '.join(f'{a:.10g}' for a in angles)} deg ({detail})")
 
 
 def _image_heights_to_angles(p: _Parser, out: dict, scale: float, line: int, heights: list[float]):
@@ -745,13 +751,8 @@ def _image_heights_to_angles(p: _Parser, out: dict, scale: float, line: int, hei
     k = abs(float(par["paraxial_image_height_mm"])) / math.tan(math.radians(probe_deg))
     if not (math.isfinite(k) and k > 1e-12):
         p.fail(line, "YFLN", "image-height fields of a system that forms no finite image (afocal)")
-    angles = [math.degrees(math.atan(h * scale / k)) for h in heights]
-    if any(a >= 89.9 for a in angles):
-        p.fail(line, "YFLN", f"image height {max(heights):g} is beyond 89.9 deg of field")
-    out["fields_deg"] = angles
-    p.notes.append(f"line {line}: paraxial image-height fields {', '.join(f'{h:g}' for h in heights)} -> "
-                   f"field angles {', '.join(f'{a:.10g}' for a in angles)} deg (paraxial image height "
-                   f"{k:.10g} mm per unit tan(angle))")
+    _height_fields(p, out, line, heights, scale, k, "paraxial image-height",
+                   f"paraxial image height {k:.10g} mm per unit tan(angle)")
 
 
 def _image_at_infinity(p: _Parser, last: dict, out: dict):
