@@ -29,7 +29,7 @@ import torch
 
 def main() -> None:
     from optix_e2e.optics import DifferentiableOptics
-    from optix_e2e.optics.exact import ExactOptics, choose_steps, exact_psfs
+    from optix_e2e.optics.exact import ExactOptics, choose_steps
     from optix_e2e.optimize.run import load_surrogate
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -7,7 +7,6 @@ time the engine takes per value. Writes a JSON report (and prints it with --json
 from __future__ import annotations
 
 import argparse
-import copy
 import json
 import sys
 import time

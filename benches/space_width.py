@@ -20,7 +20,7 @@ import json
 import numpy as np
 
 from optix_e2e import _engine
-from optix_e2e.dataset.settings import engine_base
+from optix_e2e.lens.apertures import engine_base
 from optix_e2e.design.focus import refocus
 from optix_e2e.design.sampling import Limits, sample_designs
 from optix_e2e.design.space import Parameter, ParameterSpace, load_space

@@ -16,7 +16,7 @@ import pytest
 from click.testing import CliRunner
 
 from optix_e2e.cli import main
-from optix_e2e.dataset.layout import read_small_text, write_json_atomic
+from optix_e2e.io import read_small_text, write_json_atomic
 from optix_e2e.optimize.config import RANGES, DesignConfig, make_config, read_config_file
 from optix_e2e.parallel import MAX_THREADS, set_threads
 
@@ -509,7 +509,7 @@ def test_claim_out_dir_accepts_only_an_empty_folder_its_own_run_or_its_own_files
     """The one rule behind every --out: absent, empty, this kind's run (its marker), or only
     the files this command writes (and what ``own`` accepts) is fine; anything else is one
     error naming the folder and a few of the files it did not write."""
-    from optix_e2e.dataset.layout import claim_out_dir
+    from optix_e2e.io import claim_out_dir
 
     assert claim_out_dir(tmp_path / "new", "x run", {"a.json"}) is False
     (tmp_path / "empty").mkdir()

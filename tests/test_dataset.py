@@ -89,7 +89,7 @@ def test_layout_shapes_and_physics(reference):
 
 def test_designs_match_the_sampler_and_psfs_match_the_engine(reference):
     from optix_e2e import _engine
-    from optix_e2e.dataset.settings import engine_base
+    from optix_e2e.lens.apertures import engine_base
     from optix_e2e.design.space import load_space
 
     space, base = load_space("paper-triplet")
@@ -228,7 +228,8 @@ def test_engine_failures_are_recorded_not_written(tmp_path):
     assert meta["failures"][1]["params"] == {"s_2_thickness": 6.00755, "s_5_radius": 6.0, "s_6_radius": -18.39533}
     assert np.load(root / "shards" / "00000" / "design.npy").tolist() == [0]
     # these designs replace the sampled ones: designs.csv and its checksum must say so
-    from optix_e2e.dataset.layout import sha256_file, write_json_atomic
+    from optix_e2e.dataset.layout import sha256_file
+    from optix_e2e.io import write_json_atomic
     from optix_e2e.design.sampling import write_designs_csv
     write_designs_csv(root / "designs.csv", space.names, designs)
     write_json_atomic(root / "manifest.json", {**man, "designs_csv_sha256": sha256_file(root / "designs.csv")})

@@ -147,7 +147,7 @@ def test_config_files_and_run_directories_are_checked(tmp_path):
     # a damaged run directory (config.json not UTF-8) and a damaged checkpoint: one error naming it
     from optix_e2e.optimize.config import check_run_dir
     from optix_e2e.optimize.run import _load_state, build_camera, make_optimizer
-    from optix_e2e.surrogate.checkpoint import save_atomic
+    from optix_e2e.io import save_atomic
     run = tmp_path / "run"
     run.mkdir()
     (run / "config.json").write_bytes(b"\xff\xfe{")

@@ -18,7 +18,8 @@ from optix_e2e.cli import main
 from optix_e2e.lens import Lens
 from optix_e2e.design.global_search import global_search
 from optix_e2e import _engine
-from optix_e2e.design.optimizer import Constraints, LensProblem, Merit, polish, pupil_quadrature
+from optix_e2e.design.optimizer import Constraints, LensProblem, Merit, polish
+from optix_e2e.lens.pupil import pupil_quadrature
 from optix_e2e.design.space import ParameterSpace
 
 

@@ -1,5 +1,5 @@
 """Layout, spot diagrams, report and the ``plot``/``report`` commands (optix_e2e.design.report,
-optix_e2e.plotting, cli/lens_report.py), and the engine's ray paths (trace_field_path).
+optix_e2e.design.plots, cli/lens_report.py), and the engine's ray paths (trace_field_path).
 
 Geometry is checked against closed forms (sphere, parabola and asphere sags) and against
 the engine: every path point lies on the Python sag of its surface to 1e-12 mm, which
@@ -123,7 +123,7 @@ def test_plot_command_draws_every_ray(tmp_path, cooke):
     line = json.loads(res.output)
     assert [f["reached_image"] for f in line["fields"]] == [7, 7, 7]
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    from optix_e2e.plotting import save_layout_png
+    from optix_e2e.design.plots import save_layout_png
 
     r = save_layout_png(tmp_path / "again.png", cooke, fields=[0, 10, 20], rays=7)
     (x0, x1), (y0, y1) = r["xlim"], r["ylim"]

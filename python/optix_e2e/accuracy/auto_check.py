@@ -112,7 +112,7 @@ def held_out_cases(spaces, n_designs: int, seed: int) -> list[Case]:
     """Random designs of the bundled parameter spaces (uniform draws that pass the
     manufacturability checks, best focus as in the dataset, no clear apertures), each at
     a random field in [0, full] and a random wavelength in 450-650 nm."""
-    from ..dataset.settings import engine_base
+    from ..lens.apertures import engine_base
     from ..design.focus import refocus_many
     from ..design.sampling import sample_designs
     from ..design.space import load_space

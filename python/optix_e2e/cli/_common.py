@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import functools
-import json
 import math
 
 import click
-import numpy as np
 
 from ..lens.glass import GlassError
 from ..lens import Lens
+from ..io import dumps, to_jsonable  # noqa: F401  (the subcommands' strict JSON)
 from ..lens.text import printable
 from ..lens.prescription import PrescriptionError
 
@@ -65,22 +64,3 @@ def _one_line(exc: BaseException) -> str:
 
 def load_lens(spec: str) -> Lens:
     return Lens.load(spec)
-
-
-def to_jsonable(obj):
-    """Numpy scalars/arrays -> Python; non-finite floats -> None (strict JSON)."""
-    if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
-def dumps(obj, **kw) -> str:
-    return json.dumps(to_jsonable(obj), allow_nan=False, **kw)

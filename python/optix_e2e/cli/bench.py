@@ -26,7 +26,7 @@ def accuracy(lenses, quick, out_dir):
     marked), sampling.csv, accuracy.json and the charts speed_accuracy.png and sampling.png
     into OUT; prints accuracy.json."""
     from ..accuracy.run import DEFAULT_LENSES, run
-    from ..dataset.layout import claim_out_dir
+    from ..io import claim_out_dir
 
     claim_out_dir(out_dir, "accuracy bench", {"rows.csv", "summary.csv", "sampling.csv", "speed_accuracy.png",
                                               "sampling.png", "accuracy.json"})

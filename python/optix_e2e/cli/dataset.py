@@ -7,7 +7,7 @@ import sys
 
 import click
 
-from ._common import FINITE, FiniteFloatRange, SEED, dumps, friendly_errors
+from ._common import FiniteFloatRange, SEED, dumps, friendly_errors
 
 
 class _DefaultToGenerate(click.Group):

@@ -70,7 +70,7 @@ def _report(summary: dict, as_json: bool, out_dir: Path, name: str) -> None:
 def _emit(res: dict, out_dir: Path | None, name: str, as_json: bool) -> bool:
     """Write OUT/name if asked; print the JSON if asked. True when the JSON was printed."""
     if out_dir is not None:
-        from ..dataset.layout import claim_out_dir, write_text_atomic
+        from ..io import claim_out_dir, write_text_atomic
 
         claim_out_dir(out_dir, f"ISP {name}", {name})
         out_dir.mkdir(parents=True, exist_ok=True)

@@ -192,7 +192,7 @@ def survey_cmd(folder, out):
     """Import rate of every .zmx under FOLDER (read leniently): how many import, trace
     (paraxial EFL, a real chief and marginal ray) and match the nominal focal length of
     their NAME/NOTE line within 1 %, and the top reasons for what is refused."""
-    from ..dataset.layout import claim_out_dir
+    from ..io import claim_out_dir
     from ..lens.zemax.survey import results_csv, survey
 
     if out:
@@ -200,7 +200,7 @@ def survey_cmd(folder, out):
     summary, results = survey(Path(folder))
     text = dumps(summary, indent=1, ensure_ascii=False)
     if out:  # both texts made before either file is touched, each written whole or not at all
-        from ..dataset.layout import write_text_atomic
+        from ..io import write_text_atomic
 
         table = results_csv(results)
         Path(out).mkdir(parents=True, exist_ok=True)

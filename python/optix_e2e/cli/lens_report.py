@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from ._common import AIMING, FINITE, FiniteFloatRange, dumps, friendly_errors, load_lens
+from ._common import AIMING, FiniteFloatRange, dumps, friendly_errors, load_lens
 
 FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
 
@@ -53,7 +53,7 @@ def plot(lens_spec, out, fields, rays, aiming, wavelength_nm):
     if out.suffix.lower() not in FIGURE_SUFFIXES:
         raise click.BadParameter(f"{out.name}: use one of {', '.join(FIGURE_SUFFIXES)}", param_hint="--out")
     lens_ = load_lens(lens_spec)
-    from ..plotting import save_layout_png
+    from ..design.plots import save_layout_png
 
     out.parent.mkdir(parents=True, exist_ok=True)
     res = save_layout_png(out, lens_, fields=_fields(fields), rays=rays, aiming=aiming, wavelength_nm=wavelength_nm)
@@ -84,7 +84,7 @@ def report(lens_spec, out, fields, aiming, rays, freqs, max_freq, per_wavelength
     relative illumination, MTF (tangential, sagittal, diffraction limit) at the chosen
     frequencies and the MTF curves.
     """
-    from ..dataset.layout import claim_out_dir
+    from ..io import claim_out_dir
     from ..design.report import DEFAULT_MTF_FREQS, write_report
 
     claim_out_dir(out, "lens report", {"layout.png", "spots.png", "mtf.png", "report.json"})

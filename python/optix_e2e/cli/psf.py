@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ._common import AIMING, FINITE, FiniteFloatRange, dumps, friendly_errors, load_lens
+from ._common import AIMING, FiniteFloatRange, dumps, friendly_errors, load_lens
 
 
 @click.command()

@@ -162,7 +162,7 @@ def tolerance(lens_spec, space_spec, budget_um, spec_um, n_mc, seed, mc_space, s
     """
     from tqdm import tqdm
 
-    from ..dataset.layout import claim_out_dir
+    from ..io import claim_out_dir
     from ..design import tolerance as tol
 
     claim_out_dir(out_dir, "tolerance analysis", {"proposed.toml", "sensitivity.csv", "sensitivity.png",

@@ -19,7 +19,6 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator
 
-import numpy as np
 
 # the engine's batch PSFs use every core of a worker's process unless told otherwise; a
 # Dask worker with T threads gets T cores' worth of engine threads
@@ -81,7 +80,7 @@ def parse_address(spec: str) -> tuple[str, "str | int"]:
             raise ClusterError(f"--dask {spec!r}: expected local:N with 1 <= N <= {MAX_LOCAL_WORKERS} workers")
         return "local", n
     if spec.endswith(".json"):
-        from .layout import read_small_text
+        from ..io import read_small_text
 
         try:
             info = json.loads(read_small_text(spec, what="scheduler file"))

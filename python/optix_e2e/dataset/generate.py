@@ -28,9 +28,11 @@ from ..lens import Lens
 from ..design.focus import refocus_many
 from ..design.sampling import apertures, geometry_problem
 from ..design.space import ParameterSpace, load_space
-from .layout import ARRAYS, FORMAT, DatasetError, aligned_empty, fsync_dir, save_npy, shard_name, shards_dir, write_json_atomic
+from ..io import fsync_dir, write_json_atomic
+from .layout import ARRAYS, FORMAT, DatasetError, aligned_empty, save_npy, shard_name, shards_dir
 from .manifest import prepare
-from .settings import DatasetSettings, engine_base
+from ..lens.apertures import engine_base
+from .settings import DatasetSettings
 from .verify import check_shard
 
 

@@ -15,8 +15,10 @@ import numpy as np
 from ..lens import Lens
 from ..design.sampling import Limits, read_designs_csv, sample_designs, write_designs_csv
 from ..design.space import Parameter, ParameterSpace, SpaceError
-from .layout import FORMAT, DatasetError, claim_out_dir, differing_keys, read_json, sha256_file, write_json_atomic
-from .settings import DatasetSettings, engine_base, field_positions
+from ..io import claim_out_dir, write_json_atomic
+from .layout import FORMAT, DatasetError, differing_keys, read_json, sha256_file
+from ..lens.apertures import engine_base
+from .settings import DatasetSettings, field_positions
 
 
 def _request(space: ParameterSpace, base: Lens, n: int, seed: int, s: DatasetSettings,
@@ -40,7 +42,6 @@ def resolve_fields_and_channels(base: Lens, s: DatasetSettings,
     deterministic, so a resumed run recomputes and checks them); the choice and its
     estimated errors are returned for the manifest's ``auto`` entry."""
     from ..accuracy import auto as _auto
-    from .settings import engine_base
 
     info: dict = {}
     js = [json.dumps(engine_base(base, s.apertures))]

@@ -7,7 +7,8 @@ import shutil
 from pathlib import Path
 from typing import Sequence
 
-from .layout import DatasetError, differing_keys, read_manifest, shard_name, shards_dir, write_json_atomic
+from ..io import write_json_atomic
+from .layout import DatasetError, differing_keys, read_manifest, shard_name, shards_dir
 from .generate import temporary_name
 from .verify import read_shard_meta
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass
 
@@ -92,18 +91,6 @@ class DatasetSettings:
         """Whole sensor pixels inside the window, odd so one is centred on the chief ray."""
         s = int(math.floor(self.window_um / self.sensor_pixel_um + 1e-9))
         return s if s % 2 else s - 1
-
-
-def engine_base(base: "Lens | dict", apertures: str) -> dict:
-    """The base prescription (a Lens or a resolved lens dict) the sampled designs are traced
-    with.  The aperture is always the lens's f-number / EPD (the stop's clear semi-diameter is
-    dropped: the iris follows the aperture setting as the design changes); ``"auto"`` drops
-    every clear aperture."""
-    d = copy.deepcopy(base.data if isinstance(base, Lens) else base)
-    for s in d["surfaces"]:
-        if apertures == "auto" or s.get("stop"):
-            s["semi_diameter"] = None
-    return d
 
 
 def field_positions(base: Lens, k: int) -> list[float]:

@@ -44,6 +44,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..lens.footprint import ray_footprint
+from ..lens.pupil import pupil_quadrature
 from ..lens import Lens
 from .space import ParameterSpace
 from ..lens.surface import sag as _surface_sag
@@ -178,20 +179,6 @@ class Constraints:
 
 
 # ----- merit -----------------------------------------------------------------------------
-def pupil_quadrature(rings: int, arms: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Gauss-Legendre in rho^2 x uniform azimuths: points (px, py) and weights summing to 1
-    such that sum w f(p) ~ mean of f over the unit pupil disk."""
-    t, w = np.polynomial.legendre.leggauss(rings)
-    t = 0.5 * (t + 1.0)            # rho^2 nodes in (0, 1)
-    w = 0.5 * w
-    theta = (np.arange(arms) + 0.5) * 2.0 * np.pi / arms
-    rho = np.sqrt(t)[:, None]
-    px = (rho * np.cos(theta)[None, :]).ravel()
-    py = (rho * np.sin(theta)[None, :]).ravel()
-    weights = np.repeat(w / arms, arms)
-    return px, py, weights
-
-
 class Merit:
     """Spot merit and constraint residuals of lens dicts (resolved materials) sharing the
     fields, wavelengths and sampling of ``base``."""

@@ -129,8 +129,8 @@ def write_report(lens: Lens, out_dir: str | Path, fields: Sequence[float] | None
                  rays: int = 9, freqs: Sequence[float] = DEFAULT_MTF_FREQS, max_freq: float | None = None,
                  per_wavelength: bool = False, psf_method: str = "fft", progress: Progress = None) -> dict[str, Any]:
     """layout.png, spots.png, mtf.png and report.json in ``out_dir``; returns the JSON."""
-    from .. import plotting
-    from ..cli._common import to_jsonable
+    from . import plots as plotting
+    from ..io import to_jsonable
 
     say = progress or (lambda msg: None)
     t0 = time.perf_counter()

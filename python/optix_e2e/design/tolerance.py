@@ -116,7 +116,7 @@ def traced_apertures(lens: dict, apertures: str = "free") -> dict:
     """The lens dict as the analysis traces it: ``free`` (no clear apertures) or ``fixed``
     (the prescription's clear semi-diameters, the stop's dropped: the iris follows the
     f-number): the dataset's ``--apertures auto`` and ``fixed``, by its own definition."""
-    from ..dataset.settings import engine_base
+    from ..lens.apertures import engine_base
 
     check_apertures(apertures)
     return engine_base(lens, "auto" if apertures == "free" else "fixed")

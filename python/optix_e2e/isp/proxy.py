@@ -8,26 +8,17 @@ hyperparameters, which is what end-to-end optimization needs; the reference ISP 
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import torch
 from torch import nn
 
+from ..io import save_atomic
 from ..torchfile import build_module, load_plain
 from . import params as hp
 from .rawnet import RawUNet
 
 BUNDLED = Path(__file__).with_name("bundled") / "isp_proxy.pt"
-
-
-def save_atomic(obj, path) -> None:
-    """torch.save through a temporary file and a rename: an interrupted save never leaves a
-    truncated checkpoint where the previous good one was."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
 
 
 class ISPProxy(nn.Module):

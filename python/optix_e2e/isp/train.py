@@ -92,7 +92,7 @@ def _save(model, kind: str, out_dir: Path, **meta) -> None:
 
 
 def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) -> dict:
-    from ..dataset.layout import claim_out_dir
+    from ..io import claim_out_dir
 
     out_dir = Path(out_dir)
     claim_out_dir(out_dir, "ISP proxy training", {"proxy.pt", "train.json", "tb"})  # its own files: trained again

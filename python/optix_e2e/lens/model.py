@@ -13,6 +13,7 @@ import numpy as np
 
 from .text import display_name
 from .prescription import PrescriptionError, resolve_prescription
+from .pupil import pupil_quadrature
 
 __all__ = ["Lens", "LensLoadError", "bundled_lenses", "DEFAULT_RGB_CHANNELS"]
 
@@ -315,8 +316,6 @@ class Lens:
         (Zemax's centroid reference) or per field; a Gaussian quadrature of ``rings`` x
         ``arms`` pupil points.  Keys of ``_engine.wavefront`` plus ``rms_waves_poly``, the
         wavelength-weighted quadratic mean."""
-        from ..design.optimizer import pupil_quadrature
-
         px, py, pw = pupil_quadrature(rings, arms)
         ww = np.asarray(self.wavelength_weights, float)
         out = self._engine_call("wavefront", float(field_deg), px, py, pw,

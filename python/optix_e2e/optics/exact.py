@@ -35,12 +35,8 @@ import numpy as np
 import torch
 
 from ..surrogate.data import bin_psf
+from ..surrogate.exact import EngineRejectedDesign
 from ..surrogate.exact import exact_arrays
-
-
-class EngineRejectedDesign(ValueError):
-    """The engine cannot compute the design (or a neighbour a derivative needs); the message
-    names the parameter values (or the parameter) and the engine's reason."""
 
 
 @dataclass

@@ -12,7 +12,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..dataset.layout import claim_out_dir, read_small_text, write_json_atomic
+from ..io import claim_out_dir, read_small_text, write_json_atomic
 from ..tasks import get_task
 from ..tasks.scenes import POSITIONS
 

@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 from .. import parallel
 from ..camera import Camera, FixedOptics
-from ..dataset.layout import write_json_atomic
+from ..io import write_json_atomic
 from ..lens import Lens
 from ..surrogate.exact import exact_optics
 from ..tasks import SensorFrame, get_task

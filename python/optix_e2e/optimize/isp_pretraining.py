@@ -43,7 +43,7 @@ from ..isp.train import cosine_lr
 from ..optics.render import render
 from ..scenes.natural import natural_scene
 from ..sensor import simulate_raw
-from ..surrogate.checkpoint import save_atomic
+from ..io import save_atomic
 from ..tasks.scenes import SensorFrame
 from ..torchfile import load_plain
 from .run import base_lens_f_number, load_surrogate, nominal_field_heights
@@ -191,7 +191,7 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, init: "str | Path | None
     starts afresh); its training record is kept in the new one's manifest."""
     from torch.utils.tensorboard import SummaryWriter
 
-    from ..dataset.layout import claim_out_dir
+    from ..io import claim_out_dir
 
     out = Path(out)
     claim_out_dir(out, "ISP pre-training", {"tb"}, marker="state.pt")  # tb/: a start that stopped early

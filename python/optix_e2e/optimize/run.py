@@ -32,8 +32,9 @@ from ..isp.proxy import ISPProxy
 from ..isp.software import SoftwareISP
 from ..lens import Lens
 from ..optics import DifferentiableOptics
-from ..dataset.layout import write_json_atomic
-from ..surrogate.checkpoint import OpticsSurrogate, save_atomic
+from ..io import write_json_atomic
+from ..io import save_atomic
+from ..surrogate.checkpoint import OpticsSurrogate
 from ..surrogate.exact import exact_optics
 from ..tasks import SensorFrame, TaskLoss, get_task, training_batch
 from ..tasks.scenes import POSITIONS

@@ -153,12 +153,10 @@ def save_ptc(result: dict, out_dir) -> dict:
     """Write ptc.json and ptc.png (variance vs mean with the fit; linearity) to out_dir; returns the paths."""
     import matplotlib
 
-    from ..cli._common import dumps  # the project's strict JSON (non-finite -> null)
+    from ..io import claim_out_dir, dumps  # strict JSON: non-finite -> null
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from ..dataset.layout import claim_out_dir
 
     out = Path(out_dir)
     claim_out_dir(out, "photon transfer curve", {"ptc.json", "ptc.png"})

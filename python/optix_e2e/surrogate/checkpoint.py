@@ -11,8 +11,6 @@ nothing).
 
 from __future__ import annotations
 
-import io
-import os
 import warnings
 from pathlib import Path
 
@@ -20,6 +18,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from ..io import save_atomic
 from ..lens import BUNDLED_SURROGATES
 from ..torchfile import build_module, load_plain
 from .model import SurrogateConfig, SurrogateNet
@@ -223,14 +222,3 @@ class OpticsSurrogate(nn.Module):
         return m
 
 
-def save_atomic(obj, path: "str | Path") -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    buf = io.BytesIO()
-    torch.save(obj, buf)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "wb") as f:
-        f.write(buf.getvalue())
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)

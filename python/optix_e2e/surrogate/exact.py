@@ -12,6 +12,11 @@ from ..dataset.manifest import refocused_designs, space_and_base
 from ..lens import Lens
 
 
+class EngineRejectedDesign(ValueError):
+    """The engine cannot compute the design (or a neighbour a derivative needs); the message
+    names the parameter values (or the parameter) and the engine's reason."""
+
+
 def exact_arrays(manifest: dict, values) -> tuple[dict, dict]:
     """The dataset record (arrays as in a shard: psf, psf_sensor, relative_illumination,
     image_distance, ...) of the designs ``values`` [N, P]; designs the engine rejects are

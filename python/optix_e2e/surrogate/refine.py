@@ -59,7 +59,7 @@ def refine_around(sur, engine, values, settings: RefineSettings = RefineSettings
     psf, vig, _ = engine._run(designs)
     ok = [i for i, p in enumerate(psf) if p is not None]
     if 0 not in ok:
-        from ..optics.exact import EngineRejectedDesign
+        from .exact import EngineRejectedDesign
 
         raise EngineRejectedDesign("cannot refine the surrogate: the engine rejects the current design")
     params = torch.as_tensor(designs[ok], dtype=torch.float32)

@@ -28,9 +28,9 @@ from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
 from .. import parallel
-from ..dataset.layout import claim_out_dir
 from ..torchfile import DAMAGED_STATE_ERRORS, load_plain
-from .checkpoint import OpticsSurrogate, save_atomic
+from ..io import claim_out_dir, save_atomic
+from .checkpoint import OpticsSurrogate
 from .data import design_indices, load_arrays, psf_grid, psf_pitch_um, to_tensors
 from .loss import LossWeights, optics_loss_terms
 from .model import SurrogateConfig

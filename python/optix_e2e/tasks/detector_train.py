@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from .. import color
-from ..dataset.layout import claim_out_dir
+from ..io import claim_out_dir
 from ..torchfile import DAMAGED_STATE_ERRORS
 from ..parallel import check_finite_weights, stop_if_diverged
 from ..scenes.coco import CocoDetection
@@ -57,7 +57,7 @@ MAX_STEPS = 10_000_000  # the command line's maximum of --steps
 
 
 def save_detector(path: Path, model, config: dict, **extra) -> None:
-    from ..surrogate.checkpoint import save_atomic
+    from ..io import save_atomic
 
     save_atomic({"format": FORMAT, "config": config, "state_dict": model.state_dict(), **extra}, path)
 

@@ -1,0 +1,99 @@
+"""The layering of docs/architecture.md, enforced on the source (an AST walk, so imports
+inside functions count): a module imports only from its own subpackage, the foundations and
+the layers below; nothing imports the CLI; the Rust extension is imported only through the
+engine's door (the modules that still call it directly are listed, and the list can only
+shrink)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[1] / "python" / "optix_e2e"
+
+#: Each subpackage or top-level module and its layer (docs/architecture.md); a module may import
+#: what sits on a lower layer, never a sibling of its own layer nor anything above.
+LAYER = {
+    "_engine": 0,
+    "engine": 1, "io": 1, "color": 1, "parallel": 1, "torchfile": 1, "plotting": 1, "__version__": 1,
+    "lens": 2, "sensor": 2, "scenes": 2, "metrics": 2,
+    "isp": 3, "design": 3,
+    "accuracy": 4,
+    "dataset": 5,
+    "surrogate": 6,
+    "optics": 7,
+    "camera": 8,
+    "tasks": 9,
+    "optimize": 10,
+    "cli": 11,
+    "__main__": 12,
+}
+#: Modules that still import the extension directly (issue 33: each moves behind the engine module).
+DIRECT_ENGINE_IMPORTERS = {
+    "accuracy.auto", "accuracy.auto_check", "accuracy.reference", "accuracy.sweep", "cli._common", "cli.lens",
+    "cli.psf", "dataset.cluster", "dataset.generate", "dataset.layout", "dataset.settings", "design.focus",
+    "design.optimizer", "design.report", "lens.footprint", "lens.model", "lens.mtf", "lens.zemax.reader",
+    "lens.zemax.survey",
+}
+
+
+def _imports() -> list[tuple[str, str, int]]:
+    """(importing module, imported optix_e2e module, line) for every import in the package."""
+    found = []
+    for path in PACKAGE.rglob("*.py"):
+        rel = path.relative_to(PACKAGE).with_suffix("")
+        parts = list(rel.parts)
+        is_init = parts[-1] == "__init__"
+        if is_init:
+            parts = parts[:-1]
+        module = ".".join(parts)
+        package = parts if is_init else parts[:-1]
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package[: len(package) - (node.level - 1)]
+                    target = ".".join(base + ([node.module] if node.module else []))
+                elif (node.module or "").startswith("optix_e2e"):
+                    target = node.module[len("optix_e2e"):].lstrip(".")
+                else:
+                    continue
+                found.extend((module, f"{target}.{a.name}" if target else a.name, node.lineno) for a in node.names)
+            elif isinstance(node, ast.Import):
+                for a in node.names:
+                    if a.name.startswith("optix_e2e."):
+                        found.append((module, a.name[len("optix_e2e."):], node.lineno))
+    return found
+
+
+def _top(name: str) -> str:
+    return name.split(".")[0]
+
+
+def test_every_subpackage_has_a_layer():
+    tops = {p.stem if p.is_file() else p.name for p in PACKAGE.iterdir()
+            if (p.suffix == ".py" or (p.is_dir() and (p / "__init__.py").exists())) and p.name != "__init__.py"}
+    assert tops - {"_engine"} <= set(LAYER), f"no layer for {sorted(tops - set(LAYER))}: add it to docs/architecture.md"
+
+
+def test_no_module_imports_upwards_or_sideways():
+    bad = []
+    for module, target, line in _imports():
+        a, b = _top(module), _top(target)
+        if not b or a == b or b == "_engine" or b not in LAYER:
+            continue
+        if LAYER[b] >= LAYER[a]:
+            bad.append(f"{module}:{line} imports {target} (layer {LAYER[a]} -> {LAYER[b]})")
+    assert not bad, "imports against docs/architecture.md:\n" + "\n".join(sorted(bad))
+
+
+def test_nothing_imports_the_cli():
+    bad = [f"{m}:{line}" for m, t, line in _imports() if _top(t) == "cli" and _top(m) not in ("cli", "__main__")]
+    assert not bad, bad
+
+
+def test_the_extension_is_imported_only_through_the_engine_door():
+    importers = {m for m, t, _ in _imports() if "_engine" in t.split(".")}
+    new = importers - DIRECT_ENGINE_IMPORTERS - {"engine"}
+    assert not new, f"import the engine through optix_e2e.engine, not _engine: {sorted(new)}"
+    gone = DIRECT_ENGINE_IMPORTERS - importers
+    assert not gone, f"no longer import _engine directly: remove {sorted(gone)} from DIRECT_ENGINE_IMPORTERS"
