@@ -1,8 +1,7 @@
 """The layering of docs/architecture.md, enforced on the source (an AST walk, so imports
 inside functions count): a module imports only from its own subpackage, the foundations and
-the layers below; nothing imports the CLI; the Rust extension is imported only through the
-engine's door (the modules that still call it directly are listed, and the list can only
-shrink)."""
+the layers below; nothing imports the CLI; the Rust extension is imported only by the
+engine's door, optix_e2e.engine."""
 
 from __future__ import annotations
 
@@ -28,15 +27,6 @@ LAYER = {
     "cli": 11,
     "__main__": 12,
 }
-#: Modules that still import the extension directly (issue 33: each moves behind the engine module).
-DIRECT_ENGINE_IMPORTERS = {
-    "accuracy.auto", "accuracy.auto_check", "accuracy.reference", "accuracy.sweep", "cli._common", "cli.lens",
-    "cli.psf", "dataset.cluster", "dataset.generate", "dataset.layout", "dataset.settings", "design.focus",
-    "design.optimizer", "design.report", "lens.footprint", "lens.model", "lens.mtf", "lens.zemax.reader",
-    "lens.zemax.survey",
-}
-
-
 def _imports() -> list[tuple[str, str, int]]:
     """(importing module, imported optix_e2e module, line) for every import in the package."""
     found = []
@@ -93,7 +83,4 @@ def test_nothing_imports_the_cli():
 
 def test_the_extension_is_imported_only_through_the_engine_door():
     importers = {m for m, t, _ in _imports() if "_engine" in t.split(".")}
-    new = importers - DIRECT_ENGINE_IMPORTERS - {"engine"}
-    assert not new, f"import the engine through optix_e2e.engine, not _engine: {sorted(new)}"
-    gone = DIRECT_ENGINE_IMPORTERS - importers
-    assert not gone, f"no longer import _engine directly: remove {sorted(gone)} from DIRECT_ENGINE_IMPORTERS"
+    assert importers == {"engine"}, f"import the engine through optix_e2e.engine, not _engine: {sorted(importers)}"

@@ -22,7 +22,7 @@ Conventions shared by every function:
   ``"real"`` (each ray iterated onto the real stop).
 """
 
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -159,8 +159,13 @@ def psf(
     exact: bool = False,
     fast: bool = False,
     accuracy: float = 0.02,
+    progress: Callable[[int, int], None] | None = None,
 ) -> tuple[NDArray[np.float64], dict[str, Any]]:
     """Monochromatic PSF with method "geometric", "fft", "huygens" or "auto".
+
+    ``progress(done, total)``: the computation runs on a thread of its own while the caller's
+    thread calls it every 0.2 s and checks for Ctrl-C (an interrupt stops the computation and
+    is re-raised).
 
     "auto": the cheapest method and sampling predicted to meet ``accuracy`` (relative L1
     error against the converged Huygens PSF) for this lens, field and wavelength
@@ -244,6 +249,7 @@ def psf_batch(
     out: NDArray[np.float32] | None = None,
     sensor: tuple[float, int] | None = None,
     sensor_out: NDArray[np.float32] | None = None,
+    accuracy: float = 0.02,
 ) -> dict[str, Any]:
     """Many designs x fields x channels in one call (GIL released, parallel over
     design x field, each PSF single threaded; the output does not depend on the number
@@ -282,3 +288,16 @@ def psf_batch(
     does one with a PSF whose window holds more than 1.01 times the transmitted energy
     (method auto escalates to a more accurate candidate first) or with no energy in a PSF.
     """
+
+def predicted_psf_seconds(
+    method: str,
+    pixel_um: float,
+    size: int,
+    pupil_samples: int,
+    fft_grid: int | None = None,
+    n_surfaces: int = 10,
+) -> float | None:
+    """Single-thread seconds the engine's cost model predicts for one PSF (None for "auto")."""
+
+def available_memory() -> float:
+    """Memory available for new allocations (bytes), as the engine's size checks see it."""

@@ -32,10 +32,10 @@ DENSE_FIELDS = 33
 
 
 def _batch(lens_jsons, fields, channels, size, pixel_um):
-    from .. import _engine
+    from .. import engine
 
-    r = _engine.psf_batch(list(lens_jsons), [float(f) for f in fields], channels, "fft", pixel_um, size, 64,
-                          "paraxial", False, True)
+    r = engine.psf_batch(lens_jsons, fields_deg=fields, channels=channels, method="fft", pixel_um=pixel_um,
+                         size=size, pupil_samples=64, aiming="paraxial", integrate=False, fast=True)
     return r["psf"].astype(np.float64), r["ok"]
 
 

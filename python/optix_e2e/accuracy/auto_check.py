@@ -26,20 +26,22 @@ def check_case(case: Case, *, target: float, size: int = 128, pixel_um: float = 
                repeats: int = 3) -> dict:
     """One case: the reference, every candidate's measured error and time, auto's choice
     and its error and time, and the cheapest candidate meeting ``target`` in hindsight."""
-    from .. import _engine
+    from .. import engine
 
     js, f, wl = case.lens_json, case.field_deg, case.wavelength_nm
     ref = converged_reference(js, f, wl, size=size, pixel_um=pixel_um)
-    info = _engine.auto_candidates(js, f, wl, pixel_um, size)
+    info = engine.auto_candidates(js, field_deg=f, wavelength_nm=wl, pixel_um=pixel_um, size=size)
     cands = []
     for c in info["candidates"]:
         reps = repeats if (c["predicted_cost_s"] or 0) < 0.05 else 1
-        (psf, diag), t = timed(lambda: _engine.psf(js, f, wl, c["method"], pixel_um, size, c["pupil_samples"], None,
-                                                    "paraxial", False, False, c["fast"]), reps)
+        (psf, diag), t = timed(lambda: engine.psf(js, field_deg=f, wavelength_nm=wl, method=c["method"],
+                                                   pixel_um=pixel_um, size=size, pupil_samples=c["pupil_samples"],
+                                                   fast=c["fast"]), reps)
         cands.append({**c, "rel_l1": rel_l1(psf, ref.psf), "time_s": t,
                       "ran_as": diag.get("fft_mode") or diag["method"]})
-    (psf, diag), t_auto = timed(lambda: _engine.psf(js, f, wl, "auto", pixel_um, size, 64, None, "paraxial",
-                                                      False, False, False, target), repeats)
+    (psf, diag), t_auto = timed(lambda: engine.psf(js, field_deg=f, wavelength_nm=wl, method="auto",
+                                                     pixel_um=pixel_um, size=size, pupil_samples=64, accuracy=target),
+                                repeats)
     auto = diag["auto"]
     meeting = [c for c in cands if c["rel_l1"] <= target]
     best = min(meeting, key=lambda c: c["time_s"]) if meeting else None

@@ -29,15 +29,15 @@ def converged_reference(lens_json: str, field_deg: float, wavelength_nm: float, 
     """Huygens PSFs at ``start``, 2 ``start``, ... pupil samples until the relative L1
     between two successive ones is within ``tol``; returns the last.  Raises RuntimeError
     if ``max_samples`` is reached first."""
-    from .. import _engine
+    from .. import engine
 
     t0 = time.perf_counter()
     prev, n, change = None, start, float("inf")
     while n <= max_samples:
         try:
-            psf, diag = _engine.psf(lens_json, field_deg, wavelength_nm, "huygens", pixel_um, size, n,
-                                    None, "paraxial", False, False, False)
-        except _engine.PsfError:  # refused by its own checks (aliased at this sampling): not yet
+            psf, diag = engine.psf(lens_json, field_deg=field_deg, wavelength_nm=wavelength_nm, method="huygens",
+                                   pixel_um=pixel_um, size=size, pupil_samples=n)
+        except engine.PsfError:  # refused by its own checks (aliased at this sampling): not yet
             prev, n = None, 2 * n
             continue
         if prev is not None:

@@ -75,12 +75,12 @@ def timed(fn, repeats: int, max_s: float = float("inf")):
 
 
 def _engine_psf(js: str, f: float, wl: float, s: Setting, cfg: Config):
-    from .. import _engine
+    from .. import engine
 
     method = "fft" if s.method == "fft-fast" else s.method
     grid = s.pad * s.pupil_samples if s.pad else None
-    return _engine.psf(js, f, wl, method, cfg.pixel_um, cfg.size, s.pupil_samples, grid, "paraxial",
-                       False, False, s.method == "fft-fast")
+    return engine.psf(js, field_deg=f, wavelength_nm=wl, method=method, pixel_um=cfg.pixel_um, size=cfg.size,
+                      pupil_samples=s.pupil_samples, fft_grid=grid, fast=s.method == "fft-fast")
 
 
 def _costs(s: Setting, diag: dict, n_surfaces: int, size: int) -> dict:
@@ -158,13 +158,14 @@ def channel_wavelengths(name: str, k: int) -> list[tuple[float, float]]:
 def spectral_rows(lens: Lens, field_deg: float, cfg: Config) -> list[dict]:
     """Each channel's PSF from 1, 3, 5, 9 wavelengths against ``cfg.spectral_reference``
     wavelengths (fast FFT, 64 pupil samples; each channel normalized to unit sum)."""
-    from .. import _engine
+    from .. import engine
 
     js = lens.to_engine_json()
     rows = []
 
     def run(ch):
-        p, ri, _ = _engine.psf_rgb(js, field_deg, [ch], "fft", cfg.pixel_um, cfg.size, 64, "paraxial", False, True)
+        p, ri, _ = engine.psf_rgb(js, field_deg=field_deg, channels=[ch], method="fft", pixel_um=cfg.pixel_um,
+                                  size=cfg.size, pupil_samples=64, fast=True)
         return p[0]
 
     for name in CHANNEL_RESPONSE:
@@ -182,15 +183,15 @@ def field_rows(lens: Lens, wavelength_nm: float, cfg: Config) -> list[dict]:
     """PSFs at ``cfg.dense_fields`` fields from K uniformly spaced samples, linearly
     interpolated in field angle (the PSFs are centred on the chief ray), against the PSF
     computed at each field (fast FFT, 64 pupil samples); error = the mean over the fields."""
-    from .. import _engine
+    from .. import engine
 
     js = lens.to_engine_json()
     fmax = lens.max_field_deg
     dense = np.linspace(0.0, fmax, cfg.dense_fields)
 
     def one(f):
-        return _engine.psf(js, float(f), wavelength_nm, "fft", cfg.pixel_um, cfg.size, 64, None, "paraxial",
-                           False, False, True)[0]
+        return engine.psf(js, field_deg=f, wavelength_nm=wavelength_nm, method="fft", pixel_um=cfg.pixel_um,
+                          size=cfg.size, pupil_samples=64, fast=True)[0]
 
     exact = [one(f) for f in dense]
     rows = []

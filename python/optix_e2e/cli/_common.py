@@ -35,10 +35,10 @@ THREADS = click.IntRange(0, 1024)  # parallel.MAX_THREADS: torch aborts when ask
 
 def _engine_errors() -> tuple[type[BaseException], ...]:
     try:
-        from .. import _engine
+        from ..engine import EngineError
     except ImportError:
         return ()
-    return (_engine.EngineError,)
+    return (EngineError,)
 
 
 def friendly_errors(fn):

@@ -135,12 +135,12 @@ def _rms_wavefront(lens_, field_deg, aiming):
     """Polychromatic RMS wavefront error of a field (waves), or None where the reference
     sphere is undefined (image-space telecentric), the chief ray fails or no ray of a
     wavelength arrives."""
-    from .. import _engine
+    from ..engine import EngineError
 
     try:
         wf = lens_.wavefront(field_deg, aiming=aiming)
         return None if (wf["status"] != 0).all(axis=1).any() else wf["rms_waves_poly"]
-    except _engine.EngineError:
+    except EngineError:
         return None
 
 

@@ -69,10 +69,12 @@ def _with_estimate(compute, method: str, kw: dict, n_surfaces: int):
     shows the engine's progress (image rows or row blocks done; Ctrl-C stops it)."""
     if method != "huygens" or kw["size"] < 512:
         return compute(None)
-    from .. import _engine
     from tqdm import tqdm
 
-    single = _engine.predicted_psf_seconds(method, kw["pixel_um"], kw["size"], kw["pupil_samples"], None, n_surfaces)
+    from .. import engine
+
+    single = engine.predicted_psf_seconds(method=method, pixel_um=kw["pixel_um"], size=kw["size"],
+                                          pupil_samples=kw["pupil_samples"], n_surfaces=n_surfaces)
     click.echo(f"huygens: {kw['size']}x{kw['size']} pixels from about {0.785 * kw['pupil_samples'] ** 2:.0f} "
                f"pupil wavelets (cost model: >= {single:.0f} s on one thread; more where the window needs the "
                f"exact distance sum); Ctrl-C stops", err=True)

@@ -150,10 +150,10 @@ def _mismatch(mine: dict, expect: dict, out: str) -> str | None:
 
 @functools.lru_cache(maxsize=1)
 def _engine_file_sha() -> str:
-    from .. import _engine
+    from .. import engine
     from .layout import sha256_file
 
-    return sha256_file(Path(_engine.__file__))[:16]
+    return sha256_file(Path(engine.extension_file()))[:16]
 
 
 def _thread_buffers(man: dict) -> tuple:

@@ -133,7 +133,7 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
     the PSFs and their sensor-pixel versions (saves the page faults of fresh arrays per
     shard).  ``checked``: the designs passed the sampler's geometry check already (same
     apertures), so it is not repeated.  The engine computes both versions of each PSF."""
-    from .. import _engine
+    from .. import engine
 
     s = DatasetSettings(**man["settings"])
     a = k * s.shard_size
@@ -189,10 +189,10 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
         # the engine writes straight into the shard's rows from row0 on; a failed design's
         # rows are zeros and the later ones move up over them
         row0 = len(ok_idx)
-        r = _engine.psf_batch(jsons, fields, channels, s.psf_method, s.pixel_um, S, s.pupil_samples,
-                              s.aiming, False, True, psf_arr[row0:row0 + len(jsons)],
-                              (s.sensor_pixel_um, s.sensor_size), sensor_arr[row0:row0 + len(jsons)],
-                              s.accuracy) if jsons else {"ok": []}
+        r = engine.psf_batch(jsons, fields_deg=fields, channels=channels, method=s.psf_method, pixel_um=s.pixel_um,
+                             size=S, pupil_samples=s.pupil_samples, aiming=s.aiming, integrate=False, fast=True,
+                             out=psf_arr[row0:row0 + len(jsons)], sensor=(s.sensor_pixel_um, s.sensor_size),
+                             sensor_out=sensor_arr[row0:row0 + len(jsons)], accuracy=s.accuracy) if jsons else {"ok": []}
         n_wl = sum(len(c) for c in channels)
         for j, (i, image_mm) in enumerate(todo):
             if r["ok"][j]:

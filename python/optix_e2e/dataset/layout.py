@@ -69,9 +69,9 @@ def crc32(data, crc: int = 0) -> int:
     (crc32fast, ~10 GB/s, GIL released) for large buffers, zlib's for small ones."""
     if len(data) < 1 << 16:
         return zlib.crc32(data, crc)
-    from .. import _engine
+    from .. import engine
 
-    return _engine.crc32(np.frombuffer(data, np.uint8), crc)
+    return engine.crc32(np.frombuffer(data, np.uint8), crc=crc)
 
 
 def crc32_file(path: Path, chunk: int = 1 << 22) -> str:

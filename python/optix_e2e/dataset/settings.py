@@ -70,12 +70,12 @@ class DatasetSettings:
         available; the message says what they would need."""
         import os
 
-        from .. import _engine
+        from .. import engine
 
         rows = min(self.shard_size, n_designs) * n_fields * n_channels
         buffers = rows * (self.size ** 2 + self.sensor_size ** 2) * 4.0
         work = (os.cpu_count() or 1) * (self.size ** 2 * 24.0 + (4 * self.pupil_samples) ** 2 * 32.0)
-        avail = _engine.available_memory()
+        avail = engine.available_memory()
         if buffers + work > avail:
             raise ValueError(f"a shard of {min(self.shard_size, n_designs)} designs x {n_fields} fields x {n_channels} "
                              f"channels at {self.size}x{self.size} pixels would need about {human(buffers + work)} "

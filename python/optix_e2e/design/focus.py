@@ -24,12 +24,12 @@ def best_focus_shift(lens_json: str, fields_deg: Sequence[float], wavelengths_nm
     ``fields_deg`` of the polychromatic centroid RMS spot squared (the engine's
     ``best_focus_batch``: polar pupil grid of ``rings`` rings; failed rays left out).
     Raises the engine's error if the lens cannot be traced."""
-    from .. import _engine
+    from .. import engine
 
-    r = _engine.best_focus_batch([lens_json], [float(f) for f in fields_deg], _pairs(wavelengths_nm, weights),
-                                 rings, aiming)
+    r = engine.best_focus_batch([lens_json], fields_deg=fields_deg, wavelengths=_pairs(wavelengths_nm, weights),
+                                rings=rings, aiming=aiming)
     if not r["ok"][0]:
-        raise _engine.EngineError(r["errors"][0])
+        raise engine.EngineError(r["errors"][0])
     return float(r["shift_mm"][0])
 
 
@@ -40,7 +40,7 @@ def refocus_many(lenses: Sequence[dict], mode: str, fields_deg: Sequence[float],
     (:func:`best_focus_shift`, one parallel engine call for all), "paraxial" (the paraxial
     focus at ``primary_nm``) or "fixed" (unchanged).  Returns, per lens, the engine's
     error message where it could not be refocused (that lens is left unchanged), else None."""
-    from .. import _engine
+    from .. import engine
 
     if mode not in ("best", "paraxial", "fixed"):
         raise ValueError(f"focus must be 'best', 'paraxial' or 'fixed', got {mode!r}")
@@ -48,12 +48,13 @@ def refocus_many(lenses: Sequence[dict], mode: str, fields_deg: Sequence[float],
     if mode == "paraxial":
         for k, lens in enumerate(lenses):
             try:
-                lens["surfaces"][-1]["thickness"] = float(_engine.paraxial(json.dumps(lens), primary_nm)["bfl_mm"])
-            except _engine.EngineError as exc:
+                bfl = engine.paraxial(json.dumps(lens), wavelength_nm=primary_nm)["bfl_mm"]
+                lens["surfaces"][-1]["thickness"] = float(bfl)
+            except engine.EngineError as exc:
                 errors[k] = str(exc)
     elif mode == "best" and lenses:
-        r = _engine.best_focus_batch([json.dumps(d) for d in lenses], [float(f) for f in fields_deg],
-                                     _pairs(wavelengths_nm, weights), rings, aiming)
+        r = engine.best_focus_batch([json.dumps(d) for d in lenses], fields_deg=fields_deg,
+                                    wavelengths=_pairs(wavelengths_nm, weights), rings=rings, aiming=aiming)
         for k, (lens, dz, err) in enumerate(zip(lenses, r["shift_mm"], r["errors"])):
             if err:
                 errors[k] = err
@@ -66,9 +67,9 @@ def refocus(lens: dict, mode: str, fields_deg: Sequence[float], wavelengths_nm: 
             weights: Sequence[float] | None = None, primary_nm: float | None = None) -> dict:
     """``lens`` (a resolved lens dict, changed in place and returned) with its image
     distance set by ``mode`` (see :func:`refocus_many`); raises the engine's error."""
-    from .. import _engine
+    from .. import engine
 
     err = refocus_many([lens], mode, fields_deg, wavelengths_nm, weights, primary_nm)[0]
     if err:
-        raise _engine.EngineError(err)
+        raise engine.EngineError(err)
     return lens

@@ -12,7 +12,7 @@ radius, and ``merit = sqrt(sum of squares)`` is an RMS spot radius (reported in 
 
 Wavefront merit (``kind="wavefront"``, OpticStudio's default "wavefront, centroid" merit):
 the same pupil grid's optical path differences against the reference sphere about the
-chief ray's image point, from the engine (``_engine.wavefront``, per-ray arrays handed over
+chief ray's image point, from the engine (``engine.wavefront``, per-ray arrays handed over
 without a copy), piston removed per wavelength and tilt per wavelength (OpticStudio's
 centroid reference, which leaves lateral colour to other operands) or per field
 (``tilt="field"``: one image point for all wavelengths, lateral colour counts).  Residuals
@@ -43,6 +43,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from .. import engine
 from ..lens.footprint import ray_footprint
 from ..lens.pupil import pupil_quadrature
 from ..lens import Lens
@@ -63,12 +64,6 @@ W_EFL = 100.0           # weight of the relative EFL error
 W_GEOM = 100.0          # weight of a geometric violation (per mm)
 MARGIN_MM = 1e-3        # the penalty aims this far inside each geometric limit, so that the
                         # small residual violation a penalty leaves still meets the limit
-
-
-def _engine():
-    from .. import _engine as engine
-
-    return engine
 
 
 # ----- geometry --------------------------------------------------------------------------
@@ -221,7 +216,7 @@ class Merit:
         """Apply the focus solve (image at the paraxial focus of the primary wavelength)."""
         if self.focus == "paraxial":
             lens = copy.deepcopy(lens)
-            par = _engine().paraxial(json.dumps(lens), None)
+            par = engine.paraxial(json.dumps(lens))
             lens["surfaces"][-1]["thickness"] = float(par["bfl_mm"])
         return lens
 
@@ -233,12 +228,11 @@ class Merit:
 
     def _spot_terms(self, js: str) -> tuple[list, list, int]:
         """Spot residuals (mm x sqrt(weight)) and per-field RMS spot radii."""
-        E = _engine()
         res, per_field, n_failed = [], [], 0
         for f, fw in zip(self.fields, self.field_weights):
             xs, ys, statuses = [], [], []
             for wl in self.wavelengths:
-                tr = E.trace_field(js, float(f), self.px, self.py, float(wl), self.aiming)
+                tr = engine.trace_field(js, field_deg=f, px=self.px, py=self.py, wavelength_nm=wl, aiming=self.aiming)
                 xs.append(tr["position"][:, 0])
                 ys.append(tr["position"][:, 1])
                 statuses.append(tr["status"])
@@ -265,11 +259,11 @@ class Merit:
 
     def _wavefront_terms(self, js: str) -> tuple[list, list, int]:
         """OPD residuals (waves x sqrt(weight)) and per-field RMS wavefront errors."""
-        E = _engine()
         res, per_field, n_failed = [], [], 0
         for f, fw in zip(self.fields, self.field_weights):
-            wf = E.wavefront(js, float(f), self.px, self.py, self.pw, self.wavelengths,
-                             self.wl_weights.tolist(), self.aiming, self.tilt)
+            wf = engine.wavefront(js, field_deg=f, px=self.px, py=self.py, weights=self.pw,
+                                  wavelengths_nm=self.wavelengths, wavelength_weights=self.wl_weights,
+                                  aiming=self.aiming, tilt=self.tilt)
             ok = wf["status"] == 0
             opd = np.where(ok, wf["opd_waves"], FAILED_RAY_WAVES)
             n_failed += int((~ok).sum())
@@ -291,7 +285,7 @@ class Merit:
             c = self.constraints
             footprint = c.min_edge is not None or c.min_air_gap is not None
         js = json.dumps(lens)
-        par = _engine().paraxial(js, None)
+        par = engine.paraxial(js)
         terms = self._spot_terms if self.kind == "spot" else self._wavefront_terms
         res, per_field, n_failed = terms(js)
         if full:
@@ -310,7 +304,8 @@ class Merit:
         chief = None
         if self.constraints.min_image_height is not None:
             f = max(self.fields, key=abs)
-            tr = _engine().trace_field(js, float(f), np.zeros(1), np.zeros(1), float(self.primary), self.aiming)
+            tr = engine.trace_field(js, field_deg=f, px=np.zeros(1), py=np.zeros(1), wavelength_nm=self.primary,
+                                    aiming=self.aiming)
             # a failed chief ray: no image height (the constraint then counts fully violated)
             chief = abs(float(tr["position"][0, 1])) if tr["status"][0] == 0 else 0.0
         rows = self.constraints.evaluate(lens, par, sd, chief)
@@ -484,13 +479,7 @@ def optimize(lens: "Lens | dict", space: ParameterSpace, merit: Merit, max_nfev:
 
 
 def _is_design_error(exc: Exception) -> bool:
-    try:
-        eng = _engine()
-        if isinstance(exc, eng.EngineError):
-            return True
-    except ImportError:
-        pass
-    return isinstance(exc, (ValueError, ArithmeticError))
+    return isinstance(exc, (engine.EngineError, ValueError, ArithmeticError))
 
 
 def set_semi_diameters(lens: dict, semi_diameters: Sequence[float], margin: float = 0.0,

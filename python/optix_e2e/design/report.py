@@ -51,10 +51,10 @@ def surface_geometry(lens: Lens, footprint: Sequence[float]) -> list[dict[str, A
 
 
 def _trace_paths(lens: Lens, field: float, px, py, wavelength_nm: float, aiming: str) -> dict:
-    from .. import _engine
+    from .. import engine
 
-    return _engine.trace_field_path(lens.to_engine_json(), float(field), np.ascontiguousarray(px, float),
-                                    np.ascontiguousarray(py, float), float(wavelength_nm), aiming)
+    return engine.trace_field_path(lens.to_engine_json(), field_deg=field, px=px, py=py, wavelength_nm=wavelength_nm,
+                                   aiming=aiming)
 
 
 def footprint(lens: Lens, fields: Sequence[float], aiming: str = "paraxial", n_edge: int = 32) -> np.ndarray:

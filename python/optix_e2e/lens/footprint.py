@@ -17,14 +17,12 @@ def ray_footprint(lens_json: str, n_surfaces: int, fields_deg: Sequence[float],
     reflected does not pass the lens at that field, and its path on the surfaces before
     (far out on an extended sphere, say) would size them for light that never arrives.
     """
-    from .. import _engine
+    from .. import engine
 
-    px = np.ascontiguousarray(px, float)
-    py = np.ascontiguousarray(py, float)
     h = np.zeros(n_surfaces)
     for f in fields_deg:
         for wl in wavelengths_nm:
-            d = _engine.trace_field_path(lens_json, float(f), px, py, float(wl), aiming)
+            d = engine.trace_field_path(lens_json, field_deg=f, px=px, py=py, wavelength_nm=wl, aiming=aiming)
             ok = d["status"] == 0
             if ok.any():
                 p = d["path"][ok, :n_surfaces]

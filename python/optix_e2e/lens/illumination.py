@@ -62,12 +62,12 @@ def _optiland_tracer(lens: Lens, wavelength_nm: float):
 
 
 def _engine_tracer(lens: Lens, wavelength_nm: float):
-    from .model import _engine_fn
-    trace_fn = _engine_fn("trace")
+    from .. import engine
+
     text = lens.to_engine_json()
 
     def trace(origins: np.ndarray, dirs: np.ndarray):
-        t = trace_fn(text, origins, dirs, float(wavelength_nm))
+        t = engine.trace(text, origins=origins, directions=dirs, wavelength_nm=wavelength_nm)
         ok = t["status"] == 0
         return t["position"][:, 0], t["position"][:, 1], ok
     return trace

@@ -1,5 +1,5 @@
 """The :class:`Lens` object: a validated, material-resolved prescription plus thin
-wrappers around the Rust engine (:mod:`optix_e2e._engine`)."""
+wrappers around the Rust engine (:mod:`optix_e2e.engine`)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .. import engine
 from .text import display_name
 from .prescription import PrescriptionError, resolve_prescription
 from .pupil import pupil_quadrature
@@ -43,19 +44,6 @@ def bundled_lenses() -> list[str]:
     return sorted(p.stem for p in BUNDLED_DIR.glob("*.json"))
 
 
-def _engine():
-    from .. import _engine as engine  # compiled Rust extension
-
-    return engine
-
-
-def _engine_fn(name: str):
-    fn = getattr(_engine(), name, None)
-    if fn is None:
-        raise RuntimeError(f"the compiled engine has no '{name}' (rebuild: maturin develop --release)")
-    return fn
-
-
 def _surfaces_crossing_in_beam(data: dict) -> str | None:
     """Two consecutive surfaces that cross inside the beam, where either lacks a clear
     semi-diameter (the engine checks the edges of given apertures itself): the beam's
@@ -69,8 +57,8 @@ def _surfaces_crossing_in_beam(data: dict) -> str | None:
         return None
     js = json.dumps(data)
     try:
-        par = _engine_fn("paraxial")(js, None)
-        n = _engine_fn("refractive_indices")(js, float(par["wavelength_nm"]))
+        par = engine.paraxial(js)
+        n = engine.refractive_indices(js, wavelength_nm=par["wavelength_nm"])
     except Exception:  # the engine's own checks report it when the lens is used
         return None
     u_chief = math.tan(math.radians(max(abs(f) for f in data["fields_deg"])))
@@ -268,12 +256,12 @@ class Lens:
             self._json = json.dumps(self.data)
         return self._json
 
-    def _engine_call(self, name: str, *args, **kwargs):
-        """The engine's ``name`` on this lens; an engine error names the lens's source
-        (its file) before the engine's own words (surface, parameter)."""
+    def _engine_call(self, fn, **kwargs):
+        """The engine function ``fn`` (optix_e2e.engine) on this lens; an engine error names the
+        lens's source (its file) before the engine's own words (surface, parameter)."""
         try:
-            return _engine_fn(name)(self.to_engine_json(), *args, **kwargs)
-        except _engine().EngineError as exc:
+            return fn(self.to_engine_json(), **kwargs)
+        except engine.EngineError as exc:
             if str(exc).startswith(str(self.source)):
                 raise
             raise type(exc)(f"{self.source}: {exc}") from None
@@ -283,21 +271,20 @@ class Lens:
 
     # ----- engine wrappers --------------------------------------------------------
     def validate(self) -> None:
-        self._engine_call("validate_lens")
+        self._engine_call(engine.validate_lens)
 
     def refractive_indices(self, wavelength_nm: float | None = None) -> np.ndarray:
         wl = self.primary_wavelength_nm if wavelength_nm is None else wavelength_nm
-        return self._engine_call("refractive_indices", float(wl))
+        return self._engine_call(engine.refractive_indices, wavelength_nm=wl)
 
     def paraxial(self, wavelength_nm: float | None = None) -> dict[str, float]:
-        return self._engine_call("paraxial", wavelength_nm)
+        return self._engine_call(engine.paraxial, wavelength_nm=wavelength_nm)
 
     def trace_field(self, field_deg: float, px, py, wavelength_nm: float | None = None,
                     aiming: str = "paraxial") -> dict[str, np.ndarray]:
         wl = self.primary_wavelength_nm if wavelength_nm is None else wavelength_nm
-        px = np.ascontiguousarray(px, dtype=np.float64)
-        py = np.ascontiguousarray(py, dtype=np.float64)
-        return self._engine_call("trace_field", float(field_deg), px, py, float(wl), aiming)
+        return self._engine_call(engine.trace_field, field_deg=field_deg, px=px, py=py, wavelength_nm=wl,
+                                 aiming=aiming)
 
     def spot(self, field_deg: float, wavelengths_nm: Sequence[float] | None = None,
              weights: Sequence[float] | None = None, rings: int = 64,
@@ -306,20 +293,20 @@ class Lens:
         if wavelengths_nm is None:
             wavelengths_nm = self.wavelengths_nm
             weights = self.wavelength_weights if weights is None else weights
-        return self._engine_call("spot", float(field_deg), list(wavelengths_nm),
-                                  None if weights is None else list(weights), rings, aiming)
+        return self._engine_call(engine.spot, field_deg=field_deg, wavelengths_nm=wavelengths_nm, weights=weights,
+                                 rings=rings, aiming=aiming)
 
     def wavefront(self, field_deg: float, rings: int = 8, arms: int = 16, tilt: str = "wavelength",
                   aiming: str = "paraxial") -> dict[str, Any]:
         """RMS wavefront error (waves) of a field over the lens's wavelengths: OPD against the
         chief ray's reference sphere, piston removed per wavelength, tilt per wavelength
         (Zemax's centroid reference) or per field; a Gaussian quadrature of ``rings`` x
-        ``arms`` pupil points.  Keys of ``_engine.wavefront`` plus ``rms_waves_poly``, the
+        ``arms`` pupil points.  Keys of ``engine.wavefront`` plus ``rms_waves_poly``, the
         wavelength-weighted quadratic mean."""
         px, py, pw = pupil_quadrature(rings, arms)
         ww = np.asarray(self.wavelength_weights, float)
-        out = self._engine_call("wavefront", float(field_deg), px, py, pw,
-                                      list(self.wavelengths_nm), list(ww), aiming, tilt)
+        out = self._engine_call(engine.wavefront, field_deg=field_deg, px=px, py=py, weights=pw,
+                                wavelengths_nm=self.wavelengths_nm, wavelength_weights=ww, aiming=aiming, tilt=tilt)
         out["rms_waves_poly"] = float(np.sqrt(np.sum(ww * np.asarray(out["rms_waves"]) ** 2) / ww.sum()))
         return out
 
@@ -339,15 +326,15 @@ class Lens:
 
     def psf(self, field_deg: float, wavelength_nm: float | None = None, method: str = "fft",
             **kwargs) -> tuple[np.ndarray, dict[str, Any]]:
-        """Monochromatic PSF; keyword arguments as :func:`optix_e2e._engine.psf`.  ``method``
+        """Monochromatic PSF; keyword arguments as :func:`optix_e2e.engine.psf`.  ``method``
         "auto" picks the cheapest method and sampling predicted to meet
         ``accuracy`` (relative L1, default 0.02) and records its choice under ``"auto"``."""
         wl = self.primary_wavelength_nm if wavelength_nm is None else wavelength_nm
-        return self._engine_call("psf", float(field_deg), float(wl), method, **kwargs)
+        return self._engine_call(engine.psf, field_deg=field_deg, wavelength_nm=wl, method=method, **kwargs)
 
     def psf_rgb(self, field_deg: float, channels=None, method: str = "fft", **kwargs):
         """Per-channel PSFs (C, size, size) and relative illumination (C,); channels default
         to :meth:`rgb_channels` ("rgb")."""
         channels = self.rgb_channels("rgb") if channels is None else channels
         channels = [[(float(w), float(k)) for w, k in ch] for ch in channels]
-        return self._engine_call("psf_rgb", float(field_deg), channels, method, **kwargs)
+        return self._engine_call(engine.psf_rgb, field_deg=field_deg, channels=channels, method=method, **kwargs)

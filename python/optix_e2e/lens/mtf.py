@@ -110,7 +110,7 @@ def _sized_psf(lens, field_deg: float, wl: float, samp: dict, aiming: str, metho
     and the window holds 99% of the transmitted energy; at most MAX_PUPIL_SAMPLES.
     Huygens PSFs keep the first window (see below); an FFT PSF the engine refuses is
     replaced by the Huygens PSF at that sampling (its record says "method": "huygens")."""
-    from .. import _engine
+    from .. import engine
 
     p_um, n_pupil = samp["pixel_um"], samp["pupil_samples"]
     while True:
@@ -118,7 +118,7 @@ def _sized_psf(lens, field_deg: float, wl: float, samp: dict, aiming: str, metho
         try:
             psf, d = lens.psf(field_deg, wl, method, pixel_um=p_um, size=size, pupil_samples=n_pupil,
                               aiming=aiming, integrate=False)
-        except _engine.PsfError as err:
+        except engine.PsfError as err:
             if method != "fft":
                 raise
             # The engine refuses an FFT PSF that fails its own checks (an exit pupil too

@@ -660,24 +660,26 @@ def _waves(p: _Parser, end: int) -> dict:
     return {"wavelengths_nm": wl, "wavelength_weights": w, "primary_wavelength_nm": wl[pw - 1]}
 
 
-def _engine_on(p: _Parser, out: dict, line: int, key: str, what: str, fn: str, *args):
-    """The engine's `fn` on the lens built so far (resolved), its error one ZemaxError
-    naming the line and keyword that needed it."""
+def _engine_on(p: _Parser, out: dict, line: int, key: str, what: str, fn, **kwargs):
+    """The engine function ``fn`` (optix_e2e.engine) on the lens built so far (resolved), its
+    error one ZemaxError naming the line and keyword that needed it."""
     import json
 
-    from ..._engine import EngineError
-    from ..model import _engine_fn  # circular import otherwise
+    from ... import engine
     from ..prescription import PrescriptionError, resolve_prescription
 
     try:
-        return _engine_fn(fn)(json.dumps(resolve_prescription(out, p.source)), *args)
-    except (PrescriptionError, EngineError) as exc:
+        return fn(json.dumps(resolve_prescription(out, p.source)), **kwargs)
+    except (PrescriptionError, engine.EngineError) as exc:
         raise ZemaxError(f"{p.source}:{line}: {key}: cannot {what}: {exc}") from None
 
 
 def _indices(p: _Parser, out: dict, line: int, key: str, what: str) -> list[float]:
     """Refractive indices of the media (object space first) at the primary wavelength."""
-    return list(_engine_on(p, out, line, key, what, "refractive_indices", float(out["primary_wavelength_nm"])))
+    from ... import engine
+
+    return list(_engine_on(p, out, line, key, what, engine.refractive_indices,
+                           wavelength_nm=out["primary_wavelength_nm"]))
 
 
 def _marginal_heights(surfaces: list[dict], n: list[float],
@@ -723,7 +725,9 @@ def _object_heights_to_angles(p: _Parser, out: dict, scale: float, line: int, he
     object point at height h is the one whose chief ray leaves at atan(h / L) towards the
     paraxial entrance pupil's centre, L = object plane to entrance pupil (as OpticStudio
     defines angle fields for a finite object), so each field is the same object point."""
-    par = _engine_on(p, out, line, "YFLN", "place the object-height fields", "paraxial", None)
+    from ... import engine
+
+    par = _engine_on(p, out, line, "YFLN", "place the object-height fields", engine.paraxial)
     L = abs(float(par["object_to_pupil_mm"]))
     _height_fields(p, out, line, heights, scale, L, "object-height", f"object to entrance pupil {L:.10g} mm")
 
@@ -747,7 +751,9 @@ def _image_heights_to_angles(p: _Parser, out: dict, scale: float, line: int, hei
     angle gives the slope (taken at the paraxial image, wherever the image plane is)."""
     probe_deg = 10.0
     out["fields_deg"] = [probe_deg]
-    par = _engine_on(p, out, line, "YFLN", "place the image-height fields", "paraxial", None)
+    from ... import engine
+
+    par = _engine_on(p, out, line, "YFLN", "place the image-height fields", engine.paraxial)
     k = abs(float(par["paraxial_image_height_mm"])) / math.tan(math.radians(probe_deg))
     if not (math.isfinite(k) and k > 1e-12):
         p.fail(line, "YFLN", "image-height fields of a system that forms no finite image (afocal)")

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..._engine import EngineError
+from ...engine import EngineError
 from .common import ZemaxError
 from ..text import display_name, printable
 from .reader import _decode
