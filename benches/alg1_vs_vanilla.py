@@ -79,8 +79,11 @@ def seeds_interval(d: list[float], level: float = 0.95) -> list[float] | None:
 def held_out_rows(run: Path) -> list[dict]:
     """The end-to-end camera's held-out samples under exact optics, from the run's metrics.csv."""
     with open(run / "metrics.csv") as f:
-        return [{**r, "radius": float(r["radius"]), **{m: float(r[m]) for m in METRICS}}
-                for r in csv.DictReader(f) if r["camera"] == "end_to_end" and r["optics"] == "exact"]
+        return [
+            {**r, "radius": float(r["radius"]), **{m: float(r[m]) for m in METRICS}}
+            for r in csv.DictReader(f)
+            if r["camera"] == "end_to_end" and r["optics"] == "exact"
+        ]
 
 
 def main() -> None:
@@ -102,21 +105,43 @@ def main() -> None:
             run = out / f"{a.task}-{opt}-seed{seed}"
             if opt == "vanilla":
                 share_nominal(out / f"{a.task}-alg1-seed{seed}", run)
-            cmd = [sys.executable, "-m", "optix_e2e", "design", a.task, "--out", str(run), "--budget", a.budget,
-                   "--optimizer", opt, "--seed", str(seed), "--config", str(cfg)]
+            cmd = [
+                sys.executable,
+                "-m",
+                "optix_e2e",
+                "design",
+                a.task,
+                "--out",
+                str(run),
+                "--budget",
+                a.budget,
+                "--optimizer",
+                opt,
+                "--seed",
+                str(seed),
+                "--config",
+                str(cfg),
+            ]
             if (run / "results.json").is_file():
                 print(f"{run}: finished already", flush=True)
             else:
                 print(" ".join(cmd), flush=True)
                 subprocess.run(cmd, check=True)
             res = json.loads((run / "results.json").read_text())
-            rows.append({"task": a.task, "optimizer": opt, "seed": seed,
-                         **{m: res["end_to_end"][m] for m in METRICS},
-                         "final_train_loss": res["training"]["end_to_end"]["final_loss"],
-                         "wall_s": res["training"]["end_to_end"]["wall_s"]})
+            rows.append(
+                {
+                    "task": a.task,
+                    "optimizer": opt,
+                    "seed": seed,
+                    **{m: res["end_to_end"][m] for m in METRICS},
+                    "final_train_loss": res["training"]["end_to_end"]["final_loss"],
+                    "wall_s": res["training"]["end_to_end"]["wall_s"],
+                }
+            )
             with open(run / "history.csv") as f:
-                curves[(opt, seed)] = [(int(r["step"]), float(r["loss"])) for r in csv.DictReader(f)
-                                       if r["run"] == "end_to_end"]
+                curves[(opt, seed)] = [
+                    (int(r["step"]), float(r["loss"])) for r in csv.DictReader(f) if r["run"] == "end_to_end"
+                ]
     stem = f"fig12-{a.task}-{a.init}"
     with open(out / f"{stem}.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
@@ -129,13 +154,23 @@ def main() -> None:
     held = {(opt, s): held_out_rows(out / f"{a.task}-{opt}-seed{s}") for s in a.seeds for opt in ("alg1", "vanilla")}
     per_seed_ci = {s: paired(held[("vanilla", s)], held[("alg1", s)]) for s in a.seeds}
     pooled = paired([r for s in a.seeds for r in held[("vanilla", s)]], [r for s in a.seeds for r in held[("alg1", s)]])
-    summary = {"task": a.task, "budget": a.budget, "init": a.init, "seeds": a.seeds,
-               "alg1_minus_vanilla": {m: {"per_seed": d, "mean": float(np.mean(d)),
-                                          "seeds_ci95": seeds_interval(d),
-                                          "seeds_alg1_better": int(sum((x < 0) if m == "lpips" else (x > 0)
-                                                                       for x in d)),
-                                          "per_seed_ci95": [per_seed_ci[s][m]["ci95"] for s in a.seeds],
-                                          "pooled_ci95_given_runs": pooled[m]["ci95"]} for m, d in diffs.items()}}
+    summary = {
+        "task": a.task,
+        "budget": a.budget,
+        "init": a.init,
+        "seeds": a.seeds,
+        "alg1_minus_vanilla": {
+            m: {
+                "per_seed": d,
+                "mean": float(np.mean(d)),
+                "seeds_ci95": seeds_interval(d),
+                "seeds_alg1_better": int(sum((x < 0) if m == "lpips" else (x > 0) for x in d)),
+                "per_seed_ci95": [per_seed_ci[s][m]["ci95"] for s in a.seeds],
+                "pooled_ci95_given_runs": pooled[m]["ci95"],
+            }
+            for m, d in diffs.items()
+        },
+    }
     (out / f"{stem}.json").write_text(json.dumps(summary, indent=2))
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -147,8 +182,13 @@ def main() -> None:
         steps, loss = zip(*c)
         k = max(1, len(loss) // 50)
         smooth = np.convolve(loss, np.ones(k) / k, mode="valid")
-        ax.plot(steps[k - 1:], smooth, color="C0" if opt == "alg1" else "C3", alpha=0.8,
-                label=f"{opt}" if seed == a.seeds[0] else None)
+        ax.plot(
+            steps[k - 1 :],
+            smooth,
+            color="C0" if opt == "alg1" else "C3",
+            alpha=0.8,
+            label=f"{opt}" if seed == a.seeds[0] else None,
+        )
     ax.set_xlabel("step")
     ax.set_ylabel("training loss (L1 + w LPIPS)")
     ax.set_title(f"{a.task}: Alg. 1 vs vanilla, {len(a.seeds)} seeds, same init and steps")

@@ -34,10 +34,12 @@ def main() -> None:
     if a.json:
         print(json.dumps(s))
         return
-    print(f"{s['n_cases']} cases, auto met {a.target:.1%} in {s['met_fraction']:.0%}; time auto / hindsight: "
-          f"{s['cost_ratio_of_means']:.2f} (means), per case median {s['cost_ratio_median']:.2f}, "
-          f"max {s['cost_ratio_max']:.2f}; modelled cost ratio {s['modelled_cost_ratio_of_means']:.2f}; "
-          f"choices {s['choices']}")
+    print(
+        f"{s['n_cases']} cases, auto met {a.target:.1%} in {s['met_fraction']:.0%}; time auto / hindsight: "
+        f"{s['cost_ratio_of_means']:.2f} (means), per case median {s['cost_ratio_median']:.2f}, "
+        f"max {s['cost_ratio_max']:.2f}; modelled cost ratio {s['modelled_cost_ratio_of_means']:.2f}; "
+        f"choices {s['choices']}"
+    )
 
 
 if __name__ == "__main__":

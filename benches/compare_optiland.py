@@ -80,25 +80,39 @@ def main() -> None:
     ours = {a: ours_rms_um(a, args.rings) for a in ("paraxial", "real")}
     result = {
         "fields_deg": list(FIELDS_DEG),
-        "optiland_0_6_3": {"paraxial_um": theirs["paraxial"], "real_um": theirs["iterative"],
-                           "real_over_paraxial": [r / p for r, p in zip(theirs["iterative"], theirs["paraxial"])]},
-        "optix_e2e": {"paraxial_um": ours["paraxial"], "real_um": ours["real"],
-                      "real_over_paraxial": [r / p for r, p in zip(ours["real"], ours["paraxial"])]},
-        "mono_rms_converged_um": {"optiland_hexapolar_extrapolated": theirs_converged,
-                                  "optix_e2e_256_rings": ours_rms_um("paraxial", 256)},
+        "optiland_0_6_3": {
+            "paraxial_um": theirs["paraxial"],
+            "real_um": theirs["iterative"],
+            "real_over_paraxial": [r / p for r, p in zip(theirs["iterative"], theirs["paraxial"])],
+        },
+        "optix_e2e": {
+            "paraxial_um": ours["paraxial"],
+            "real_um": ours["real"],
+            "real_over_paraxial": [r / p for r, p in zip(ours["real"], ours["paraxial"])],
+        },
+        "mono_rms_converged_um": {
+            "optiland_hexapolar_extrapolated": theirs_converged,
+            "optix_e2e_256_rings": ours_rms_um("paraxial", 256),
+        },
     }
     if args.json:
         print(json.dumps(result))
         return
     for tool in ("optiland_0_6_3", "optix_e2e"):
         r = result[tool]
-        rows = ", ".join(f"{f:g} deg {p:.3f} -> {q:.3f} um (x{k:.3f})"
-                         for f, p, q, k in zip(FIELDS_DEG, r["paraxial_um"], r["real_um"], r["real_over_paraxial"]))
+        rows = ", ".join(
+            f"{f:g} deg {p:.3f} -> {q:.3f} um (x{k:.3f})"
+            for f, p, q, k in zip(FIELDS_DEG, r["paraxial_um"], r["real_um"], r["real_over_paraxial"])
+        )
         print(f"{tool:15s} paraxial -> real aiming: {rows}")
     c = result["mono_rms_converged_um"]
-    print("converged mono RMS, paraxial aiming: " + ", ".join(
-        f"{f:g} deg optiland {a:.4f} / ours {b:.4f} um"
-        for f, a, b in zip(FIELDS_DEG, c["optiland_hexapolar_extrapolated"], c["optix_e2e_256_rings"])))
+    print(
+        "converged mono RMS, paraxial aiming: "
+        + ", ".join(
+            f"{f:g} deg optiland {a:.4f} / ours {b:.4f} um"
+            for f, a, b in zip(FIELDS_DEG, c["optiland_hexapolar_extrapolated"], c["optix_e2e_256_rings"])
+        )
+    )
 
 
 if __name__ == "__main__":

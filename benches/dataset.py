@@ -50,9 +50,22 @@ def engine_only(root: str) -> float:
     sensor = np.zeros(lead + (s.sensor_size, s.sensor_size), np.float32)
     t = time.perf_counter()
     for i in range(0, len(jsons), 16):
-        m = len(jsons[i:i + 16])
-        _engine.psf_batch(jsons[i:i + 16], man["fields_deg"], channels, s.psf_method, s.pixel_um, s.size,
-                          s.pupil_samples, s.aiming, False, True, psf[:m], (s.sensor_pixel_um, s.sensor_size), sensor[:m])
+        m = len(jsons[i : i + 16])
+        _engine.psf_batch(
+            jsons[i : i + 16],
+            man["fields_deg"],
+            channels,
+            s.psf_method,
+            s.pixel_um,
+            s.size,
+            s.pupil_samples,
+            s.aiming,
+            False,
+            True,
+            psf[:m],
+            (s.sensor_pixel_um, s.sensor_size),
+            sensor[:m],
+        )
     return len(jsons) / (time.perf_counter() - t)
 
 
@@ -72,11 +85,21 @@ def main() -> None:
         sampling_s = time.perf_counter() - t
         rep = generate(a.space, a.n, a.seed, tmp, s, progress=not a.json)
         engine_rate = engine_only(tmp)
-    out = {"space": a.space, "n": a.n, "n_failed": rep.n_failed, "seconds": rep.seconds,
-           "designs_per_s": rep.designs_per_s, "engine_designs_per_s": engine_rate,
-           "sampling_s": sampling_s, "settings": asdict(s),
-           "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
-                       "rayon_threads": os.environ.get("RAYON_NUM_THREADS", "all")}}
+    out = {
+        "space": a.space,
+        "n": a.n,
+        "n_failed": rep.n_failed,
+        "seconds": rep.seconds,
+        "designs_per_s": rep.designs_per_s,
+        "engine_designs_per_s": engine_rate,
+        "sampling_s": sampling_s,
+        "settings": asdict(s),
+        "machine": {
+            "cpus": os.cpu_count(),
+            "processor": platform.processor() or platform.machine(),
+            "rayon_threads": os.environ.get("RAYON_NUM_THREADS", "all"),
+        },
+    }
     print(json.dumps(out, indent=None if a.json else 2))
 
 

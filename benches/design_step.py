@@ -45,8 +45,9 @@ def main() -> None:
     params = [p for ps in cam.blocks().values() for p in ps]
     opt = torch.optim.Adam(params, lr=1e-6)
     m = cam.margin
-    times: dict[str, list[float]] = {k: [] for k in ("surrogate", "render", "sensor", "isp", "loss", "backward",
-                                                     "optimizer", "total")}
+    times: dict[str, list[float]] = {
+        k: [] for k in ("surrogate", "render", "sensor", "isp", "loss", "backward", "optimizer", "total")
+    }
     for t in range(a.steps + 2):
         b = training_batch(cfg.seed, t, cfg.batch, cfg.crop, m, (task.level_min, task.level_max), frame)
         gen = torch.Generator().manual_seed(t)
@@ -54,8 +55,15 @@ def main() -> None:
         c = [time.perf_counter()]
         psf, vig = cam.optics.psfs()
         c.append(time.perf_counter())
-        img = render(b.scene, psf, cam.optics.fields, vig, patch=cfg.patch, full_field_px=frame.full_field_px,
-                     offset_px=b.offset_px)[..., m:-m, m:-m]
+        img = render(
+            b.scene,
+            psf,
+            cam.optics.fields,
+            vig,
+            patch=cfg.patch,
+            full_field_px=frame.full_field_px,
+            offset_px=b.offset_px,
+        )[..., m:-m, m:-m]
         c.append(time.perf_counter())
         raw = cam.sensor(img, gen)
         c.append(time.perf_counter())
@@ -71,15 +79,24 @@ def main() -> None:
             for k, (x, y) in zip(list(times)[:-1], zip(c, c[1:])):
                 times[k].append(1e3 * (y - x))
             times["total"].append(1e3 * (c[-1] - c[0]))
-    res = {"task": cfg.task, "budget": cfg.budget, "crop": cfg.crop, "batch": cfg.batch,
-           "psf_size": int(psf.shape[-1]), "threads": torch.get_num_threads(), "steps": a.steps,
-           "median_ms": {k: round(float(np.median(v)), 1) for k, v in times.items()}}
+    res = {
+        "task": cfg.task,
+        "budget": cfg.budget,
+        "crop": cfg.crop,
+        "batch": cfg.batch,
+        "psf_size": int(psf.shape[-1]),
+        "threads": torch.get_num_threads(),
+        "steps": a.steps,
+        "median_ms": {k: round(float(np.median(v)), 1) for k, v in times.items()},
+    }
     res["steps_per_s"] = round(1e3 / res["median_ms"]["total"], 2)
     if a.json:
         print(json.dumps(res))
     else:
-        print(f"{cfg.task}, crop {cfg.crop}, batch {cfg.batch}, {res['threads']} threads: "
-              + ", ".join(f"{k} {v} ms" for k, v in res["median_ms"].items()))
+        print(
+            f"{cfg.task}, crop {cfg.crop}, batch {cfg.batch}, {res['threads']} threads: "
+            + ", ".join(f"{k} {v} ms" for k, v in res["median_ms"].items())
+        )
 
 
 if __name__ == "__main__":

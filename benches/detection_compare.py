@@ -41,10 +41,14 @@ def main() -> None:
         if d["images"] != [s.name for s in samples]:
             raise SystemExit(f"{run}: its detections are for other scenes")
         preds.append(_preds_from_json(d["detections"]))
-    out = {"a": str(args.run_a), "b": str(args.run_b), "camera": args.camera,
-           "a_scores": detection_scores(preds[0], samples, task.dark),
-           "b_scores": detection_scores(preds[1], samples, task.dark),
-           "b_minus_a": paired_map(preds[0], preds[1], samples, a.bootstrap, a.seed, task.dark)}
+    out = {
+        "a": str(args.run_a),
+        "b": str(args.run_b),
+        "camera": args.camera,
+        "a_scores": detection_scores(preds[0], samples, task.dark),
+        "b_scores": detection_scores(preds[1], samples, task.dark),
+        "b_minus_a": paired_map(preds[0], preds[1], samples, a.bootstrap, a.seed, task.dark),
+    }
     text = json.dumps(out, indent=1)
     if args.out:
         args.out.write_text(text)

@@ -40,8 +40,11 @@ def main() -> None:
     ap.add_argument("--val-seed", type=int, default=7)
     ap.add_argument("--batches", type=int, default=8)
     ap.add_argument("--json", default=None)
-    ap.add_argument("--heldout", action="store_true", help="cross lens and processing on the held-out set, "
-                                                           "exact optics (paired intervals)")
+    ap.add_argument(
+        "--heldout",
+        action="store_true",
+        help="cross lens and processing on the held-out set, exact optics (paired intervals)",
+    )
     a = ap.parse_args()
     run = Path(a.run)
     cfg = DesignConfig(**json.loads((run / "config.json").read_text())).check()
@@ -53,13 +56,15 @@ def main() -> None:
     e2e, nom, pre = (build_camera(cfg, sur) for _ in range(3))
     e2e.load_state_dict(load_plain(run / "end_to_end_state.pt", "design checkpoint")["camera"])
     st = load_plain(run / "nominal_state.pt", "design checkpoint")["camera"]
-    nom.isp.load_state_dict({k[len("isp."):]: v for k, v in st.items() if k.startswith("isp.")})
+    nom.isp.load_state_dict({k[len("isp.") :]: v for k, v in st.items() if k.startswith("isp.")})
     for c in (e2e, nom, pre):
         c.eval()
     if a.heldout:
         return heldout_swap(run, cfg, sur, frame, nom, e2e, a.json)
-    batches = [training_batch(a.val_seed, t, cfg.batch, cfg.crop, e2e.margin, (task.level_min, task.level_max),
-                              frame, None) for t in range(a.batches)]
+    batches = [
+        training_batch(a.val_seed, t, cfg.batch, cfg.crop, e2e.margin, (task.level_min, task.level_max), frame, None)
+        for t in range(a.batches)
+    ]
 
     @torch.no_grad()
     def val_loss(optics, isp) -> float:
@@ -74,8 +79,15 @@ def main() -> None:
         for proc, isp in (("pretrained", pre.isp), ("nominal_run", nom.isp), ("end_to_end_run", e2e.isp)):
             rows.append({"lens": lens, "processing": proc, "val_loss": val_loss(optics, isp)})
             print(f"lens {lens:10s}  processing {proc:14s}  validation loss {rows[-1]['val_loss']:.4f}", flush=True)
-    res = {"run": str(run), "task": cfg.task, "val_seed": a.val_seed, "batches": a.batches, "batch": cfg.batch,
-           "crop": cfg.crop, "rows": rows}
+    res = {
+        "run": str(run),
+        "task": cfg.task,
+        "val_seed": a.val_seed,
+        "batches": a.batches,
+        "batch": cfg.batch,
+        "crop": cfg.crop,
+        "rows": rows,
+    }
     if a.json:
         Path(a.json).write_text(json.dumps(res, indent=2))
 
@@ -91,33 +103,59 @@ def heldout_swap(run: Path, cfg: DesignConfig, sur, frame, nom, e2e, json_out) -
 
     values = torch.stack([nom.optics.base_values(), e2e.optics.values().detach()])
     exact = exact_optics(sur, values.double().numpy())
-    samples = heldout_set(cfg.eval_size, exact["psf"].shape[-1] // 2, cfg.eval_procedural, cfg.eval_level, frame,
-                          positions=POSITIONS[cfg.eval_positions])
+    samples = heldout_set(
+        cfg.eval_size,
+        exact["psf"].shape[-1] // 2,
+        cfg.eval_procedural,
+        cfg.eval_level,
+        frame,
+        positions=POSITIONS[cfg.eval_positions],
+    )
     rows = {}
     for i, lens in enumerate(("nominal", "end_to_end")):
         heights = design_field_heights(sur, values[i].numpy(), exact["image_distance"][i])
-        optics = FixedOptics(exact["psf"][i], exact["vignetting"][i], heights, patch=cfg.patch,
-                             full_field_px=frame.full_field_px)
+        optics = FixedOptics(
+            exact["psf"][i], exact["vignetting"][i], heights, patch=cfg.patch, full_field_px=frame.full_field_px
+        )
         for proc, isp in (("nominal_run", nom.isp), ("end_to_end_run", e2e.isp)):
             rows[(lens, proc)] = ev.evaluate(Camera(optics, e2e.sensor, isp), samples)
-            print(f"lens {lens:10s}  processing {proc:14s}  "
-                  + "  ".join(f"{k} {v:.4f}" for k, v in ev.summarize(rows[(lens, proc)]).items()
-                              if k in ("psnr_db", "ssim", "lpips", "haarpsi")), flush=True)
+            print(
+                f"lens {lens:10s}  processing {proc:14s}  "
+                + "  ".join(
+                    f"{k} {v:.4f}"
+                    for k, v in ev.summarize(rows[(lens, proc)]).items()
+                    if k in ("psnr_db", "ssim", "lpips", "haarpsi")
+                ),
+                flush=True,
+            )
     effects = {}
     for proc in ("nominal_run", "end_to_end_run"):  # the lens's effect, processing held
-        effects[f"lens (processing {proc})"] = ev.paired(rows[("nominal", proc)], rows[("end_to_end", proc)],
-                                                        cfg.bootstrap, cfg.seed)
+        effects[f"lens (processing {proc})"] = ev.paired(
+            rows[("nominal", proc)], rows[("end_to_end", proc)], cfg.bootstrap, cfg.seed
+        )
     for lens in ("nominal", "end_to_end"):  # the processing's effect, lens held
-        effects[f"processing (lens {lens})"] = ev.paired(rows[(lens, "nominal_run")], rows[(lens, "end_to_end_run")],
-                                                        cfg.bootstrap, cfg.seed)
+        effects[f"processing (lens {lens})"] = ev.paired(
+            rows[(lens, "nominal_run")], rows[(lens, "end_to_end_run")], cfg.bootstrap, cfg.seed
+        )
     for name, p in effects.items():
-        print(f"{name:32s} " + "  ".join(f"{k} {v['mean']:+.4f} [{v['ci95'][0]:+.4f}, {v['ci95'][1]:+.4f}]"
-                                           for k, v in p.items()), flush=True)
+        print(
+            f"{name:32s} "
+            + "  ".join(f"{k} {v['mean']:+.4f} [{v['ci95'][0]:+.4f}, {v['ci95'][1]:+.4f}]" for k, v in p.items()),
+            flush=True,
+        )
     if json_out:
-        Path(json_out).write_text(json.dumps({
-            "run": str(run), "task": cfg.task, "n_samples": len(samples),
-            "cameras": {f"{lens}|{proc}": ev.summarize(r) for (lens, proc), r in rows.items()},
-            "effects": effects}, indent=2))
+        Path(json_out).write_text(
+            json.dumps(
+                {
+                    "run": str(run),
+                    "task": cfg.task,
+                    "n_samples": len(samples),
+                    "cameras": {f"{lens}|{proc}": ev.summarize(r) for (lens, proc), r in rows.items()},
+                    "effects": effects,
+                },
+                indent=2,
+            )
+        )
 
 
 if __name__ == "__main__":

@@ -39,8 +39,10 @@ def main() -> None:
     cam.eval()
     task, frame = get_task(cfg.task), SensorFrame()
     loss = TaskLoss(task)
-    batches = [training_batch(7, t, cfg.batch, cfg.crop, cam.margin, (task.level_min, task.level_max), frame, None)
-               for t in range(a.batches)]
+    batches = [
+        training_batch(7, t, cfg.batch, cfg.crop, cam.margin, (task.level_min, task.level_max), frame, None)
+        for t in range(a.batches)
+    ]
     for p in cam.isp.parameters():
         p.requires_grad_(False)
     optics = cam.optics
@@ -69,10 +71,15 @@ def main() -> None:
             sur_loss = task_loss(optics)
             ex = exact_optics(sur, v[None].double().numpy())
             h = design_field_heights(sur, v.double().numpy(), ex["image_distance"][0])
-            exact = FixedOptics(ex["psf"][0], ex["vignetting"][0], h, patch=cfg.patch, full_field_px=frame.full_field_px)
+            exact = FixedOptics(
+                ex["psf"][0], ex["vignetting"][0], h, patch=cfg.patch, full_field_px=frame.full_field_px
+            )
             rows.append({"direction": name, "step_u": step, "loss_surrogate": sur_loss, "loss_exact": task_loss(exact)})
-            print(f"{name:8s} step {step:5.2f}  loss: surrogate optics {sur_loss:.4f}  exact optics "
-                  f"{rows[-1]['loss_exact']:.4f}", flush=True)
+            print(
+                f"{name:8s} step {step:5.2f}  loss: surrogate optics {sur_loss:.4f}  exact optics "
+                f"{rows[-1]['loss_exact']:.4f}",
+                flush=True,
+            )
     if a.json:
         Path(a.json).write_text(json.dumps({"task": a.task, "rows": rows}, indent=2))
 

@@ -38,24 +38,60 @@ def main() -> None:
     rows, table = [], {}
     for task in a.tasks:
         run = out / task
-        cmd = [sys.executable, "-m", "optix_e2e", "design", task, "--out", str(run), "--budget", a.budget,
-               "--seed", str(a.seed), "--optimizer", a.optimizer] + (["--config", a.config] if a.config else [])
+        cmd = [
+            sys.executable,
+            "-m",
+            "optix_e2e",
+            "design",
+            task,
+            "--out",
+            str(run),
+            "--budget",
+            a.budget,
+            "--seed",
+            str(a.seed),
+            "--optimizer",
+            a.optimizer,
+        ] + (["--config", a.config] if a.config else [])
         print(" ".join(cmd), flush=True)
         subprocess.run(cmd, check=True)
         res = json.loads((run / "results.json").read_text())
         table[task] = res
         for who in ("nominal", "end_to_end"):
-            rows.append({"task": task, "camera": who, **{m: res[who][m] for m, _ in METRICS},
-                         **{f"{m}_surrogate_optics": res[who]["surrogate"][m] for m, _ in METRICS}})
+            rows.append(
+                {
+                    "task": task,
+                    "camera": who,
+                    **{m: res[who][m] for m, _ in METRICS},
+                    **{f"{m}_surrogate_optics": res[who]["surrogate"][m] for m, _ in METRICS},
+                }
+            )
     with open(out / "table.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
-    (out / "table.json").write_text(json.dumps(
-        {t: {k: r[k] for k in ("nominal", "end_to_end", "paired", "surrogate_psf_rel_l1_per_field", "training",
-                               "wall_s", "held_out", "lens_zmx")} for t, r in table.items()}, indent=2))
-    lines = ["| task | camera | " + " | ".join(h for _, h in METRICS) + " |",
-             "|---|---|" + "---|" * len(METRICS)]
+    (out / "table.json").write_text(
+        json.dumps(
+            {
+                t: {
+                    k: r[k]
+                    for k in (
+                        "nominal",
+                        "end_to_end",
+                        "paired",
+                        "surrogate_psf_rel_l1_per_field",
+                        "training",
+                        "wall_s",
+                        "held_out",
+                        "lens_zmx",
+                    )
+                }
+                for t, r in table.items()
+            },
+            indent=2,
+        )
+    )
+    lines = ["| task | camera | " + " | ".join(h for _, h in METRICS) + " |", "|---|---|" + "---|" * len(METRICS)]
     for task, res in table.items():
         for who, label in (("nominal", "nominal + fine-tuned processing"), ("end_to_end", "end-to-end")):
             lines.append(f"| {task} | {label} | " + " | ".join(f"{res[who][m]:.4f}" for m, _ in METRICS) + " |")

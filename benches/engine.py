@@ -82,23 +82,35 @@ def main() -> None:
         "fft_psf_ms": t_fft * 1e3,
         "huygens_psf_ms": t_huy * 1e3,
         "settings": {
-            "rays": args.rays, "rays_ok": n_ok, "field_deg": field, "wavelength_nm": wl, "aiming": "paraxial",
+            "rays": args.rays,
+            "rays_ok": n_ok,
+            "field_deg": field,
+            "wavelength_nm": wl,
+            "aiming": "paraxial",
             "fft": {"pupil_samples": 64, "fft_grid": 256, "size": 64, "pixel_um": 1.0},
             "huygens": {"pupil_samples": 64, "size": 128, "pixel_um": 0.5},
-            "statistic": "median", "repeats": args.repeats, "fft_repeats": args.fft_repeats,
+            "statistic": "median",
+            "repeats": args.repeats,
+            "fft_repeats": args.fft_repeats,
         },
         "min_s": {"trace": min(trace_all), "fft": min(fft_all), "huygens": min(huy_all)},
         "samples_s": {"trace": trace_all, "huygens": huy_all},
-        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
-                    "engine_version": getattr(_engine, "__version__", None),
-                    "simd": getattr(_engine, "simd", None)},
+        "machine": {
+            "cpus": os.cpu_count(),
+            "platform": platform.platform(),
+            "python": platform.python_version(),
+            "engine_version": getattr(_engine, "__version__", None),
+            "simd": getattr(_engine, "simd", None),
+        },
     }
     if args.json:
         print(json.dumps(result))
     else:
-        print(f"{lens.name}: {result['rays_per_s'] / 1e6:.2f} M rays/s, FFT PSF {result['fft_psf_ms']:.3f} ms, "
-              f"Huygens PSF {result['huygens_psf_ms']:.1f} ms (medians of {args.repeats} / {args.fft_repeats} / "
-              f"{max(3, args.repeats // 2)} runs; kernel {result['machine']['simd']})")
+        print(
+            f"{lens.name}: {result['rays_per_s'] / 1e6:.2f} M rays/s, FFT PSF {result['fft_psf_ms']:.3f} ms, "
+            f"Huygens PSF {result['huygens_psf_ms']:.1f} ms (medians of {args.repeats} / {args.fft_repeats} / "
+            f"{max(3, args.repeats // 2)} runs; kernel {result['machine']['simd']})"
+        )
 
 
 if __name__ == "__main__":

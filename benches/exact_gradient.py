@@ -55,12 +55,20 @@ def main() -> None:
     psf2, vig2, _ = eng._run(np.concatenate([v[None] + s * np.diag(2 * h) for s in (1.0, -1.0)]))
     rows = []
     for i, name in enumerate(eng.names):
-        d2 = np.concatenate([((psf2[i] - psf2[p + i]) / (4 * h[i])).ravel(), ((vig2[i] - vig2[p + i]) / (4 * h[i])).ravel()])
+        d2 = np.concatenate(
+            [((psf2[i] - psf2[p + i]) / (4 * h[i])).ravel(), ((vig2[i] - vig2[p + i]) / (4 * h[i])).ravel()]
+        )
         d1 = np.concatenate([jp[i].ravel(), jv[i].ravel()])
         ref = (4 * d1 - d2) / 3
-        rows.append({"parameter": name, "step": float(h[i]), "step_fraction_of_range": float(h[i] / (eng.hi[i] - eng.lo[i])),
-                     "estimated_rel_error": float(eng.step_choice.rel_error[i]),
-                     "rel_error_vs_fourth_order": float(np.abs(d1 - ref).sum() / max(np.abs(ref).sum(), 1e-300))})
+        rows.append(
+            {
+                "parameter": name,
+                "step": float(h[i]),
+                "step_fraction_of_range": float(h[i] / (eng.hi[i] - eng.lo[i])),
+                "estimated_rel_error": float(eng.step_choice.rel_error[i]),
+                "rel_error_vs_fourth_order": float(np.abs(d1 - ref).sum() / max(np.abs(ref).sum(), 1e-300)),
+            }
+        )
     # the whole Jacobian at once: J d against a central difference along a random direction d
     # (every parameter moving by up to 0.1 % of its range)
     d = np.random.default_rng(7).uniform(-1, 1, p) * 1e-3 * (eng.hi - eng.lo)
@@ -74,7 +82,7 @@ def main() -> None:
         x = torch.tensor(v, dtype=torch.float32, requires_grad=True)
         t0 = time.perf_counter()
         ps, vs = sur.psfs(x, check=False)
-        (ps.sum() * 0 + (ps ** 2).sum() + vs.sum()).backward()
+        (ps.sum() * 0 + (ps**2).sum() + vs.sum()).backward()
         st.append(time.perf_counter() - t0)
 
     def spot2(psf):
@@ -103,25 +111,42 @@ def main() -> None:
         dom = np.abs(e) >= 0.05 * np.abs(e).max()
         agreement[loss_name] = {
             "cosine": float(e @ s / np.linalg.norm(e) / np.linalg.norm(s)),
-            "dominant": int(dom.sum()), "sign_agree_dominant": int((np.sign(e[dom]) == np.sign(s[dom])).sum()),
+            "dominant": int(dom.sum()),
+            "sign_agree_dominant": int((np.sign(e[dom]) == np.sign(s[dom])).sum()),
             "disagree": [n for n, d, x, y in zip(sur.param_names, dom, e, s) if d and np.sign(x) != np.sign(y)],
-            "exact": [float(x) for x in e], "surrogate": [float(x) for x in s]}
-    out = {"surrogate": a.surrogate, "parameters": p, "torch_threads": torch.get_num_threads(),
-           "exact_jacobian_s": float(np.median(times)), "exact_jacobian_designs": 2 * p + 1,
-           "step_choice_s": step_choice_s, "step_choice_designs": 2 * p * len(eng.step_choice.ladder),
-           "surrogate_forward_backward_s": float(np.median(st)),
-           "random_direction_rel_error": direction_error, "per_parameter": rows, "agreement": agreement}
+            "exact": [float(x) for x in e],
+            "surrogate": [float(x) for x in s],
+        }
+    out = {
+        "surrogate": a.surrogate,
+        "parameters": p,
+        "torch_threads": torch.get_num_threads(),
+        "exact_jacobian_s": float(np.median(times)),
+        "exact_jacobian_designs": 2 * p + 1,
+        "step_choice_s": step_choice_s,
+        "step_choice_designs": 2 * p * len(eng.step_choice.ladder),
+        "surrogate_forward_backward_s": float(np.median(st)),
+        "random_direction_rel_error": direction_error,
+        "per_parameter": rows,
+        "agreement": agreement,
+    }
     print(f"{'parameter':12s} {'step/range':>10s} {'est.err':>8s} {'vs 4th':>8s}")
     for r in rows:
-        print(f"{r['parameter']:12s} {r['step_fraction_of_range']:10.0e} {r['estimated_rel_error']:8.2e} "
-              f"{r['rel_error_vs_fourth_order']:8.2e}")
-    print(f"exact Jacobian ({2 * p + 1} designs): {out['exact_jacobian_s'] * 1e3:.0f} ms; step choice (once, "
-          f"{out['step_choice_designs']} designs): {step_choice_s:.1f} s; surrogate forward+backward: "
-          f"{out['surrogate_forward_backward_s'] * 1e3:.0f} ms ({torch.get_num_threads()} threads)")
+        print(
+            f"{r['parameter']:12s} {r['step_fraction_of_range']:10.0e} {r['estimated_rel_error']:8.2e} "
+            f"{r['rel_error_vs_fourth_order']:8.2e}"
+        )
+    print(
+        f"exact Jacobian ({2 * p + 1} designs): {out['exact_jacobian_s'] * 1e3:.0f} ms; step choice (once, "
+        f"{out['step_choice_designs']} designs): {step_choice_s:.1f} s; surrogate forward+backward: "
+        f"{out['surrogate_forward_backward_s'] * 1e3:.0f} ms ({torch.get_num_threads()} threads)"
+    )
     print(f"J d against the central difference along a random direction: {direction_error:.2e} relative L1")
     for k, g in agreement.items():
-        print(f"{k}: cosine {g['cosine']:.4f}, sign agrees on {g['sign_agree_dominant']} of {g['dominant']} dominant "
-              f"parameters" + (f" (not: {', '.join(g['disagree'])})" if g["disagree"] else ""))
+        print(
+            f"{k}: cosine {g['cosine']:.4f}, sign agrees on {g['sign_agree_dominant']} of {g['dominant']} dominant "
+            f"parameters" + (f" (not: {', '.join(g['disagree'])})" if g["disagree"] else "")
+        )
     if a.json:
         with open(a.json, "w") as f:
             json.dump(out, f, indent=1)

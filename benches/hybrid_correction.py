@@ -63,12 +63,16 @@ def main() -> None:
         sv = net(v)
         zeroth = sv + (psf0 - s0)
         first = zeroth + np.tensordot(v - v0, jp - jn, axes=1)
-        err = {k: max(psf_errors(torch.tensor(p), torch.tensor(ex)))
-               for k, p in (("network", sv), ("zeroth", unit(zeroth)), ("first", unit(first)))}
+        err = {
+            k: max(psf_errors(torch.tensor(p), torch.tensor(ex)))
+            for k, p in (("network", sv), ("zeroth", unit(zeroth)), ("first", unit(first)))
+        }
         move = float(np.abs((v - v0) / (eng.hi - eng.lo)).max())
         rows.append({"t": t, "max_move_fraction_of_range": move, **err})
-        print(f"t {t:5.2f} (largest move {100 * move:5.2f} % of a range): worst-field error network {err['network']:.4f}, "
-              f"zeroth order {err['zeroth']:.4f}, first order {err['first']:.4f}")
+        print(
+            f"t {t:5.2f} (largest move {100 * move:5.2f} % of a range): worst-field error network {err['network']:.4f}, "
+            f"zeroth order {err['zeroth']:.4f}, first order {err['first']:.4f}"
+        )
     if a.json:
         with open(a.json, "w") as f:
             json.dump({"surrogate": a.surrogate, "point": a.point, "rows": rows}, f, indent=1)

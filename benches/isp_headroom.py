@@ -71,11 +71,18 @@ def _no_cfa(scene: torch.Tensor, preset, to_linear: torch.Tensor, seed: int) -> 
 def _score(rows: list, key: str, res: dict) -> None:
     photo = [r for r in rows if r[0].startswith("photo:")]
     proc = [r for r in rows if not r[0].startswith("photo:")]
-    res[key] = {"psnr_db": float(np.mean([r[1] for r in rows])), "ssim": float(np.mean([r[2] for r in rows])),
-                "psnr_db_photos": float(np.mean([r[1] for r in photo])),
-                "psnr_db_procedural": float(np.mean([r[1] for r in proc])), "n_samples": len(rows)}
-    print(f"{key}: PSNR {res[key]['psnr_db']:.2f} dB (photos {res[key]['psnr_db_photos']:.2f}, "
-          f"procedural {res[key]['psnr_db_procedural']:.2f}), SSIM {res[key]['ssim']:.3f}", flush=True)
+    res[key] = {
+        "psnr_db": float(np.mean([r[1] for r in rows])),
+        "ssim": float(np.mean([r[2] for r in rows])),
+        "psnr_db_photos": float(np.mean([r[1] for r in photo])),
+        "psnr_db_procedural": float(np.mean([r[1] for r in proc])),
+        "n_samples": len(rows),
+    }
+    print(
+        f"{key}: PSNR {res[key]['psnr_db']:.2f} dB (photos {res[key]['psnr_db_photos']:.2f}, "
+        f"procedural {res[key]['psnr_db_procedural']:.2f}), SSIM {res[key]['ssim']:.3f}",
+        flush=True,
+    )
 
 
 def _row(name: str, out: torch.Tensor, target: torch.Tensor) -> tuple[str, float, float]:
@@ -106,8 +113,10 @@ def main(argv=None) -> dict:
     psf, vig = torch.as_tensor(ex["psf"][0]).float(), torch.as_tensor(ex["vignetting"][0]).float()
     heights = design_field_heights(sur, nominal, ex["image_distance"][0])
     k, c, s = psf.shape[:3]
-    lenses = {"perfect": PerfectOptics(s, full_field_px=frame.full_field_px),
-              "nominal": FixedOptics(psf, vig, heights, full_field_px=frame.full_field_px)}
+    lenses = {
+        "perfect": PerfectOptics(s, full_field_px=frame.full_field_px),
+        "nominal": FixedOptics(psf, vig, heights, full_field_px=frame.full_field_px),
+    }
     samples = heldout_set(a.size, s // 2, a.procedural, 0.7, frame, positions=POSITIONS["frame"])
     isps = {"classical": None} | {str(p): Path(p) for p in (a.isp or [SOFTWARE_ISP])}
     res, t0 = {}, time.time()
@@ -119,8 +128,9 @@ def main(argv=None) -> dict:
         with torch.no_grad():
             for smp in tqdm(samples, desc=f"{light} bounds", leave=False):
                 inner = smp.scene[:, m:-m, m:-m]
-                bounds["no-cfa"].append(_row(smp.name, _no_cfa(inner, preset, classical.to_linear, smp.noise_seed),
-                                             smp.target))
+                bounds["no-cfa"].append(
+                    _row(smp.name, _no_cfa(inner, preset, classical.to_linear, smp.noise_seed), smp.target)
+                )
                 clean = simulate_raw(inner[None], preset, noise=False)
                 bounds["classical-noise-free"].append(_row(smp.name, classical(clean), smp.target))
         for bound, rows in bounds.items():
@@ -132,12 +142,22 @@ def main(argv=None) -> dict:
                 rows = []
                 with torch.no_grad():
                     for smp in tqdm(samples, desc=f"{light} {Path(name).name} {lens}", leave=False):
-                        out, _ = cam(smp.scene[None], smp.offset_px, torch.Generator().manual_seed(smp.noise_seed),
-                                     final=True)
+                        out, _ = cam(
+                            smp.scene[None], smp.offset_px, torch.Generator().manual_seed(smp.noise_seed), final=True
+                        )
                         rows.append(_row(smp.name, out, smp.target))
                 _score(rows, f"{light}/{Path(name).name if path else name}/{lens}", res)
-    out = {"held_out": {"n_images": len({s.name for s in samples}), "n_samples": len(samples), "size_px": a.size,
-                        "level": 0.7}, "surrogate": a.surrogate, "results": res, "wall_s": round(time.time() - t0, 1)}
+    out = {
+        "held_out": {
+            "n_images": len({s.name for s in samples}),
+            "n_samples": len(samples),
+            "size_px": a.size,
+            "level": 0.7,
+        },
+        "surrogate": a.surrogate,
+        "results": res,
+        "wall_s": round(time.time() - t0, 1),
+    }
     (a.out / "headroom.json").write_text(json.dumps(out, indent=2))
     return out
 

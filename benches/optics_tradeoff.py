@@ -68,32 +68,68 @@ def run_point(name: str, seed: int, overrides: dict, a, log) -> dict:
     frame = SensorFrame()
     sur = load_surrogate(cfg.surrogate, calibrated_preset("imx249").pixel_um)
     camera = build_camera(cfg, sur, frame=frame, own_surrogate=cfg.optics == "hybrid")
-    monitor = OpticsMonitor(camera.optics, cfg.optics, cfg.check_every, cfg.hybrid_threshold, cfg.refine,
-                            RefineSettings(designs=cfg.refine_designs, steps=cfg.refine_steps, seed=cfg.seed), log=log)
-    res = train(cfg, camera, make_optimizer(cfg, camera, cfg.optimizer), out, "end_to_end", progress=not a.quiet,
-                log=log, monitor=monitor)
+    monitor = OpticsMonitor(
+        camera.optics,
+        cfg.optics,
+        cfg.check_every,
+        cfg.hybrid_threshold,
+        cfg.refine,
+        RefineSettings(designs=cfg.refine_designs, steps=cfg.refine_steps, seed=cfg.seed),
+        log=log,
+    )
+    res = train(
+        cfg,
+        camera,
+        make_optimizer(cfg, camera, cfg.optimizer),
+        out,
+        "end_to_end",
+        progress=not a.quiet,
+        log=log,
+        monitor=monitor,
+    )
     values = camera.optics.values().detach()
     exact = exact_optics(sur, values.double().numpy()[None])
     heights = design_field_heights(sur, values.numpy(), exact["image_distance"][0])
-    samples = heldout_set(cfg.eval_size, exact["psf"].shape[-1] // 2, cfg.eval_procedural, cfg.eval_level, frame,
-                          positions=POSITIONS[cfg.eval_positions])
+    samples = heldout_set(
+        cfg.eval_size,
+        exact["psf"].shape[-1] // 2,
+        cfg.eval_procedural,
+        cfg.eval_level,
+        frame,
+        positions=POSITIONS[cfg.eval_positions],
+    )
     t0 = time.perf_counter()
-    fo = FixedOptics(exact["psf"][0], exact["vignetting"][0], heights, patch=EVAL_PATCH,
-                     full_field_px=frame.full_field_px)
+    fo = FixedOptics(
+        exact["psf"][0], exact["vignetting"][0], heights, patch=EVAL_PATCH, full_field_px=frame.full_field_px
+    )
     rows = ev.evaluate(Camera(fo, camera.sensor, camera.isp), samples)
     summ = ev.summarize(rows)
     om = monitor.summary()
-    point = {"name": name, "task": cfg.task, "budget": cfg.budget, "optics": cfg.optics,
-             "refine": cfg.refine if cfg.optics == "hybrid" else "", "patch": cfg.patch,
-             "fields": cfg.fields or len(sur.fields_deg), "steps": res["steps"], "wall_s": res["wall_s"],
-             "eval_s": time.perf_counter() - t0, "psnr_db": summ["psnr_db"], "ssim": summ["ssim"],
-             "lpips": summ["lpips"], "haarpsi": summ["haarpsi"],
-             "final_worst_field_error": max(om["final_error_per_field"]),
-             "final_network_worst_field_error": max(om["final_network_error_per_field"]),
-             "n_refinements": om["n_refinements"],
-             "exact_gradient_steps": exact_gradient_steps(res["history"]),
-             "engine_designs": om["engine_designs"], "lens": [float(x) for x in values], "rows": rows,
-             "checks": om["checks"], "events": om["events"]}
+    point = {
+        "name": name,
+        "task": cfg.task,
+        "budget": cfg.budget,
+        "optics": cfg.optics,
+        "refine": cfg.refine if cfg.optics == "hybrid" else "",
+        "patch": cfg.patch,
+        "fields": cfg.fields or len(sur.fields_deg),
+        "steps": res["steps"],
+        "wall_s": res["wall_s"],
+        "eval_s": time.perf_counter() - t0,
+        "psnr_db": summ["psnr_db"],
+        "ssim": summ["ssim"],
+        "lpips": summ["lpips"],
+        "haarpsi": summ["haarpsi"],
+        "final_worst_field_error": max(om["final_error_per_field"]),
+        "final_network_worst_field_error": max(om["final_network_error_per_field"]),
+        "n_refinements": om["n_refinements"],
+        "exact_gradient_steps": exact_gradient_steps(res["history"]),
+        "engine_designs": om["engine_designs"],
+        "lens": [float(x) for x in values],
+        "rows": rows,
+        "checks": om["checks"],
+        "events": om["events"],
+    }
     done.write_text(json.dumps(point))
     return point
 
@@ -105,9 +141,12 @@ def main() -> None:
     ap.add_argument("--out", required=True)
     ap.add_argument("--task", default="iq-software")
     ap.add_argument("--budget", default="quick")
-    ap.add_argument("--points", default="all",
-                    help="all, optics (the optics models), or names, comma-separated; NAME@0+1 runs that point "
-                         "with those seeds only")
+    ap.add_argument(
+        "--points",
+        default="all",
+        help="all, optics (the optics models), or names, comma-separated; NAME@0+1 runs that point "
+        "with those seeds only",
+    )
     ap.add_argument("--seeds", default="0", help="seeds of every point, comma-separated (default 0)")
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--quiet", action="store_true")
@@ -116,8 +155,13 @@ def main() -> None:
     if a.threads:
         torch.set_num_threads(a.threads)
     seeds = [int(x) for x in a.seeds.split(",")]
-    specs = (list(POINTS) if a.points == "all" else [n for n, (s, _) in POINTS.items() if s == "optics"]
-             if a.points == "optics" else a.points.split(","))
+    specs = (
+        list(POINTS)
+        if a.points == "all"
+        else [n for n, (s, _) in POINTS.items() if s == "optics"]
+        if a.points == "optics"
+        else a.points.split(",")
+    )
     plan = {}
     for spec in specs:
         name, _, own = spec.partition("@")
@@ -135,9 +179,12 @@ def main() -> None:
             print(f"== {n}, seed {seed}", flush=True)
             p = run_point(n, seed, POINTS[n][1], a, lambda m: print(m, flush=True))
             runs.setdefault(n, []).append(p)
-            print(f"   training {p['wall_s']:.0f} s, held-out PSNR {p['psnr_db']:.3f} dB, SSIM {p['ssim']:.4f} "
-                  f"(exact optics); surrogate worst-field error at the final design "
-                  f"{p['final_network_worst_field_error']:.4f}", flush=True)
+            print(
+                f"   training {p['wall_s']:.0f} s, held-out PSNR {p['psnr_db']:.3f} dB, SSIM {p['ssim']:.4f} "
+                f"(exact optics); surrogate worst-field error at the final design "
+                f"{p['final_network_worst_field_error']:.4f}",
+                flush=True,
+            )
     # a point's figures: over its seeds; its rows pooled (per image: the mean over seeds and positions)
     rows_of = {n: [r for p in ps for r in p["rows"]] for n, ps in runs.items()}
     table = []
@@ -145,20 +192,34 @@ def main() -> None:
         summ = ev.summarize(rows_of[n])
         pr = ev.paired(rows_of["surrogate"], rows_of[n], 2000, 0)
         mean = lambda k: float(np.mean([p[k] for p in ps]))  # noqa: E731
-        table.append({"task": ps[0]["task"], "budget": ps[0]["budget"], "sweep": POINTS[n][0], "point": n,
-                      "optics": ps[0]["optics"], "refine": ps[0].get("refine", ""), "patch": ps[0]["patch"],
-                      "fields": ps[0]["fields"], "steps": ps[0]["steps"], "seeds": len(ps),
-                      "wall_s": round(mean("wall_s"), 1), "psnr_db": round(summ["psnr_db"], 4),
-                      "ssim": round(summ["ssim"], 5), "lpips": round(summ["lpips"], 5),
-                      "haarpsi": round(summ["haarpsi"], 5),
-                      "psnr_per_seed": ";".join(f"{p['psnr_db']:.3f}" for p in ps),
-                      "psnr_vs_surrogate": round(pr["psnr_db"]["mean"], 4),
-                      "psnr_vs_surrogate_lo": round(pr["psnr_db"]["ci95"][0], 4),
-                      "psnr_vs_surrogate_hi": round(pr["psnr_db"]["ci95"][1], 4),
-                      "final_worst_field_error": round(mean("final_worst_field_error"), 5),
-                      "final_network_worst_field_error": round(mean("final_network_worst_field_error"), 5),
-                      "n_refinements": mean("n_refinements"), "exact_gradient_steps": mean("exact_gradient_steps"),
-                      "engine_designs": mean("engine_designs")})
+        table.append(
+            {
+                "task": ps[0]["task"],
+                "budget": ps[0]["budget"],
+                "sweep": POINTS[n][0],
+                "point": n,
+                "optics": ps[0]["optics"],
+                "refine": ps[0].get("refine", ""),
+                "patch": ps[0]["patch"],
+                "fields": ps[0]["fields"],
+                "steps": ps[0]["steps"],
+                "seeds": len(ps),
+                "wall_s": round(mean("wall_s"), 1),
+                "psnr_db": round(summ["psnr_db"], 4),
+                "ssim": round(summ["ssim"], 5),
+                "lpips": round(summ["lpips"], 5),
+                "haarpsi": round(summ["haarpsi"], 5),
+                "psnr_per_seed": ";".join(f"{p['psnr_db']:.3f}" for p in ps),
+                "psnr_vs_surrogate": round(pr["psnr_db"]["mean"], 4),
+                "psnr_vs_surrogate_lo": round(pr["psnr_db"]["ci95"][0], 4),
+                "psnr_vs_surrogate_hi": round(pr["psnr_db"]["ci95"][1], 4),
+                "final_worst_field_error": round(mean("final_worst_field_error"), 5),
+                "final_network_worst_field_error": round(mean("final_network_worst_field_error"), 5),
+                "n_refinements": mean("n_refinements"),
+                "exact_gradient_steps": mean("exact_gradient_steps"),
+                "engine_designs": mean("engine_designs"),
+            }
+        )
     # the default point appears in every sweep
     for sweep in ("patch", "fields"):
         if any(r["sweep"] == sweep for r in table):
@@ -169,8 +230,14 @@ def main() -> None:
         best = max(rows, key=lambda r: r["psnr_db"])
         for r in rows:
             pr = ev.paired(rows_of[best["point"]], rows_of[r["point"]], 2000, 0)["psnr_db"]
-            r.update({"best_in_sweep": best["point"], "psnr_vs_best": round(pr["mean"], 4),
-                      "psnr_vs_best_lo": round(pr["ci95"][0], 4), "psnr_vs_best_hi": round(pr["ci95"][1], 4)})
+            r.update(
+                {
+                    "best_in_sweep": best["point"],
+                    "psnr_vs_best": round(pr["mean"], 4),
+                    "psnr_vs_best_lo": round(pr["ci95"][0], 4),
+                    "psnr_vs_best_hi": round(pr["ci95"][1], 4),
+                }
+            )
     with open(out / "tradeoff.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(table[0]))
         w.writeheader()
@@ -182,15 +249,27 @@ def main() -> None:
         if POINTS[n][0] != "optics":
             continue
         last = [p["checks"][-1] for p in ps]
-        final_fields[n] = {k: [float(x) for x in np.mean([c[k] for c in last], axis=0)]
-                           for k in ("error_per_field", "network_error_per_field")}
+        final_fields[n] = {
+            k: [float(x) for x in np.mean([c[k] for c in last], axis=0)]
+            for k in ("error_per_field", "network_error_per_field")
+        }
         final_fields[n]["last_steps_on"] = [c["backend"] for c in last]
-        print(f"{n}: final design, worst field: model used {max(final_fields[n]['error_per_field']):.4f}, network "
-              f"{max(final_fields[n]['network_error_per_field']):.4f}; per field (network) "
-              + " ".join(f"{x:.3f}" for x in final_fields[n]["network_error_per_field"]))
-    (out / "tradeoff.json").write_text(json.dumps(
-        {"points": table, "eval_patch": EVAL_PATCH, "final_error_per_field": final_fields,
-         "runs": {n: [{k: v for k, v in p.items() if k != "rows"} for p in ps] for n, ps in runs.items()}}, indent=1))
+        print(
+            f"{n}: final design, worst field: model used {max(final_fields[n]['error_per_field']):.4f}, network "
+            f"{max(final_fields[n]['network_error_per_field']):.4f}; per field (network) "
+            + " ".join(f"{x:.3f}" for x in final_fields[n]["network_error_per_field"])
+        )
+    (out / "tradeoff.json").write_text(
+        json.dumps(
+            {
+                "points": table,
+                "eval_patch": EVAL_PATCH,
+                "final_error_per_field": final_fields,
+                "runs": {n: [{k: v for k, v in p.items() if k != "rows"} for p in ps] for n, ps in runs.items()},
+            },
+            indent=1,
+        )
+    )
     chart(out / "tradeoff.png", table)
     print(f"wrote {out / 'tradeoff.csv'}, {out / 'tradeoff.json'}, {out / 'tradeoff.png'}")
     if a.bundle:
@@ -232,11 +311,15 @@ def chart(path: Path, table: list[dict]) -> None:
     for ax in axes:
         ax.set_xlabel("training wall time (s)")
         ax.grid(alpha=0.3)
-    handles = [plt.Line2D([], [], marker="o", ls="", color=c, label=k) for k, c in
-               (("default (surrogate, 64 px, K = 13)", "black"), *((f"{k} dial", v) for k, v in colours.items()))]
+    handles = [
+        plt.Line2D([], [], marker="o", ls="", color=c, label=k)
+        for k, c in (("default (surrogate, 64 px, K = 13)", "black"), *((f"{k} dial", v) for k, v in colours.items()))
+    ]
     axes[1].legend(handles=handles, fontsize=8)
-    fig.suptitle(f"{table[0]['task']}: the optics model in the loop, speed against task accuracy "
-                 f"({table[0]['budget']} budget, {ref['seeds']} seeds per point unless marked)")
+    fig.suptitle(
+        f"{table[0]['task']}: the optics model in the loop, speed against task accuracy "
+        f"({table[0]['budget']} budget, {ref['seeds']} seeds per point unless marked)"
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -41,15 +41,18 @@ from optix_e2e.design.global_search import global_search
 from optix_e2e.design.optimizer import Constraints, LensProblem, Merit, polish
 from optix_e2e.design.space import ParameterSpace
 
-SPH = ("s_1_radius,s_2_radius,s_6_radius,s_7_radius,s_1_thickness,s_2_thickness,s_4_thickness,"
-       "s_5_thickness,s_6_thickness,s_7_thickness")
+SPH = (
+    "s_1_radius,s_2_radius,s_6_radius,s_7_radius,s_1_thickness,s_2_thickness,s_4_thickness,"
+    "s_5_thickness,s_6_thickness,s_7_thickness"
+)
 ASP = "s_1_conic,s_1_4th,s_1_6th,s_1_8th,s_1_10th,s_6_conic,s_6_4th,s_6_6th,s_6_8th,s_6_10th"
 HALF_DIAGONAL_MM = 6.634
 
 
 def variants(raw: dict) -> dict:
-    base = dict(efl=25.0, min_center=2.0, min_edge=2.0, min_air_gap=1.0, min_bfd=10.0,
-                min_image_height=HALF_DIAGONAL_MM)
+    base = dict(
+        efl=25.0, min_center=2.0, min_edge=2.0, min_air_gap=1.0, min_bfd=10.0, min_image_height=HALF_DIAGONAL_MM
+    )
     nlak = copy.deepcopy(raw)
     n_pmma = Lens(raw).refractive_indices(550.0)[1]
     for s in nlak["surfaces"]:
@@ -58,7 +61,7 @@ def variants(raw: dict) -> dict:
     n_lak = Lens(nlak).refractive_indices(550.0)[1]
     k = (n_pmma - 1.0) / (n_lak - 1.0)
     pmma = [i for i, s in enumerate(raw["surfaces"]) if s["material"] == "PMMA"]
-    for i in pmma + [i + 1 for i in pmma]:   # both surfaces of each PMMA element
+    for i in pmma + [i + 1 for i in pmma]:  # both surfaces of each PMMA element
         s = nlak["surfaces"][i]
         if s.get("radius") not in (None, "inf"):
             s["radius"] = s["radius"] / k
@@ -91,12 +94,13 @@ def main() -> None:
         if a.only and name not in a.only:
             continue
         lens = Lens(lens_raw)
-        merit = Merit(lens, Constraints(**con), field_weights=[float(w) for w in a.field_weights.split(",")], rings=4, arms=8)
+        merit = Merit(
+            lens, Constraints(**con), field_weights=[float(w) for w in a.field_weights.split(",")], rings=4, arms=8
+        )
         space = ParameterSpace.from_names(names, lens.data, merit.footprint(lens.data, lens.to_engine_json()))
         problem = LensProblem(lens_raw, space, merit)
         if a.minutes > 0:
-            g = global_search(problem, minutes=a.minutes, seed=a.seed, workers=os.cpu_count() or 1,
-                              polish_nfev=300)
+            g = global_search(problem, minutes=a.minutes, seed=a.seed, workers=os.cpu_count() or 1, polish_nfev=300)
             u, merit_value, feasible = np.asarray(g.best.u), g.best.merit, g.best.feasible
             polishes, basins, wall = g.polishes, len(g.basins), g.wall_s
         else:
@@ -109,24 +113,55 @@ def main() -> None:
         (out / f"{name}.json").write_text(json.dumps(designed, indent=2) + "\n")
         L = Lens(designed)
         spots = [L.spot(f, rings=128)["rms_um"] for f in L.fields_deg]
-        row = {"variant": name, "merit_um": merit_value, "feasible": feasible,
-               "worst_field_um": max(spots), "rms_spot_um": spots,
-               "petzval_radius_mm": L.petzval()["petzval_radius_mm"],
-               "bfd_mm": float(designed["surfaces"][-1]["thickness"]),
-               "chief_y_corner_mm": L.spot(L.max_field_deg, rings=4)["chief_y_mm"],
-               "polishes": polishes, "basins": basins, "wall_s": wall}
+        row = {
+            "variant": name,
+            "merit_um": merit_value,
+            "feasible": feasible,
+            "worst_field_um": max(spots),
+            "rms_spot_um": spots,
+            "petzval_radius_mm": L.petzval()["petzval_radius_mm"],
+            "bfd_mm": float(designed["surfaces"][-1]["thickness"]),
+            "chief_y_corner_mm": L.spot(L.max_field_deg, rings=4)["chief_y_mm"],
+            "polishes": polishes,
+            "basins": basins,
+            "wall_s": wall,
+        }
         rows.append(row)
         print(json.dumps(row), flush=True)
     (out / "limits.json").write_text(json.dumps(rows, indent=2) + "\n")
     with open(out / "limits.csv", "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["variant", "merit_um", "feasible", "worst_field_um", "rms_spot_um_per_field",
-                    "petzval_radius_mm", "bfd_mm", "chief_y_corner_mm", "polishes", "basins", "wall_s"])
+        w.writerow(
+            [
+                "variant",
+                "merit_um",
+                "feasible",
+                "worst_field_um",
+                "rms_spot_um_per_field",
+                "petzval_radius_mm",
+                "bfd_mm",
+                "chief_y_corner_mm",
+                "polishes",
+                "basins",
+                "wall_s",
+            ]
+        )
         for r in rows:
-            w.writerow([r["variant"], f"{r['merit_um']:.4f}", r["feasible"], f"{r['worst_field_um']:.4f}",
-                        " ".join(f"{s:.3f}" for s in r["rms_spot_um"]), f"{r['petzval_radius_mm']:.3f}",
-                        f"{r['bfd_mm']:.4f}", f"{r['chief_y_corner_mm']:.4f}", r["polishes"], r["basins"],
-                        f"{r['wall_s']:.1f}"])
+            w.writerow(
+                [
+                    r["variant"],
+                    f"{r['merit_um']:.4f}",
+                    r["feasible"],
+                    f"{r['worst_field_um']:.4f}",
+                    " ".join(f"{s:.3f}" for s in r["rms_spot_um"]),
+                    f"{r['petzval_radius_mm']:.3f}",
+                    f"{r['bfd_mm']:.4f}",
+                    f"{r['chief_y_corner_mm']:.4f}",
+                    r["polishes"],
+                    r["basins"],
+                    f"{r['wall_s']:.1f}",
+                ]
+            )
 
 
 def _raw(spec: str) -> dict:

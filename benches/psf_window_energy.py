@@ -30,16 +30,23 @@ def main() -> None:
     psf = np.concatenate([np.load(f) for f in files])  # [N, K, C, S, S]
     s, c = psf.shape[-1], psf.shape[-1] // 2
     tot = psf.sum((-2, -1))
-    out = {"data": a.data, "n_designs": int(psf.shape[0]), "window_px": int(s),
-           "stored_sum_range": [float(tot.min()), float(tot.max())], "windows": {}}
+    out = {
+        "data": a.data,
+        "n_designs": int(psf.shape[0]),
+        "window_px": int(s),
+        "stored_sum_range": [float(tot.min()), float(tot.max())],
+        "windows": {},
+    }
     for w in a.windows:
         if w > s:
             continue
         h = w // 2
-        lost = (1 - psf[..., c - h:c + h + 1, c - h:c + h + 1].sum((-2, -1)) / tot).max(-1)  # worst channel
-        out["windows"][w] = {"median_per_field": np.round(np.median(lost, 0), 4).tolist(),
-                             "p90_per_field": np.round(np.percentile(lost, 90, 0), 4).tolist(),
-                             "frac_designs_over_1pct": float((lost.max(1) > 0.01).mean())}
+        lost = (1 - psf[..., c - h : c + h + 1, c - h : c + h + 1].sum((-2, -1)) / tot).max(-1)  # worst channel
+        out["windows"][w] = {
+            "median_per_field": np.round(np.median(lost, 0), 4).tolist(),
+            "p90_per_field": np.round(np.percentile(lost, 90, 0), 4).tolist(),
+            "frac_designs_over_1pct": float((lost.max(1) > 0.01).mean()),
+        }
     print(json.dumps(out))
 
 

@@ -4,6 +4,7 @@ time the engine takes per value. Writes a JSON report (and prints it with --json
 
     python benches/relative_illumination.py --json [--rays 2097152] [--out ri.json]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -27,8 +28,8 @@ def ri(lens: Lens, f: float) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--rays", type=int, default=2 ** 21, help="rays per brute-force point (ours)")
-    ap.add_argument("--optiland-rays", type=int, default=2 ** 19)
+    ap.add_argument("--rays", type=int, default=2**21, help="rays per brute-force point (ours)")
+    ap.add_argument("--optiland-rays", type=int, default=2**19)
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
@@ -36,14 +37,26 @@ def main() -> None:
     for dz in (0.0, 1.0):
         lens = thin_lens(dz)
         for f in (10.0, 20.0, 30.0):
-            rows.append({"lens": "thin f/50, f 50 mm", "defocus_mm": dz, "field_deg": f, "engine": ri(lens, f),
-                         "cos4": float(np.cos(np.radians(f)) ** 4)})
+            rows.append(
+                {
+                    "lens": "thin f/50, f 50 mm",
+                    "defocus_mm": dz,
+                    "field_deg": f,
+                    "engine": ri(lens, f),
+                    "cos4": float(np.cos(np.radians(f)) ** 4),
+                }
+            )
         lens = vignetted_cooke(dz)
         for f in (14.0, 20.0):
             ours = relative_illumination_count(lens, f, 550.0, n_rays=a.rays)
-            row = {"lens": "cooke-f50 with clear apertures 5.6 / 6.2 mm", "defocus_mm": dz, "field_deg": f,
-                   "engine": ri(lens, f), "count_engine_tracer": ours["relative_illumination"],
-                   "count_sigma": ours["sigma"]}
+            row = {
+                "lens": "cooke-f50 with clear apertures 5.6 / 6.2 mm",
+                "defocus_mm": dz,
+                "field_deg": f,
+                "engine": ri(lens, f),
+                "count_engine_tracer": ours["relative_illumination"],
+                "count_sigma": ours["sigma"],
+            }
             if f == 20.0:
                 try:
                     theirs = relative_illumination_count(lens, f, 550.0, n_rays=a.optiland_rays, tracer="optiland")
@@ -54,8 +67,10 @@ def main() -> None:
             rows.append(row)
     # time per relative-illumination value (both irradiances; clear and vignetted beams)
     timing = {}
-    for name, lens, f in [("clear beam (cooke-f50, 20 deg)", Lens.load("cooke-f50"), 20.0),
-                          ("vignetted beam (cooke with apertures, 20 deg)", vignetted_cooke(0.0), 20.0)]:
+    for name, lens, f in [
+        ("clear beam (cooke-f50, 20 deg)", Lens.load("cooke-f50"), 20.0),
+        ("vignetted beam (cooke with apertures, 20 deg)", vignetted_cooke(0.0), 20.0),
+    ]:
         t = []
         for _ in range(5):
             t0 = time.perf_counter()

@@ -80,15 +80,25 @@ def dataset_rows(work: Path, n: int, workers: list[int]) -> tuple[list[dict], Pa
         rep = json.loads(res.stdout.strip().splitlines()[-1])
         d = _digest(root)
         ref = ref or d
-        rows.append({"what": "dataset", "how": "one process", "units": 1, "threads_per_unit": threads,
-                     "seconds": rep["seconds"], "rate": rep["designs_per_s"], "rate_unit": "designs/s",
-                     "same_digest": d == ref})
+        rows.append(
+            {
+                "what": "dataset",
+                "how": "one process",
+                "units": 1,
+                "threads_per_unit": threads,
+                "seconds": rep["seconds"],
+                "rate": rep["designs_per_s"],
+                "rate_unit": "designs/s",
+                "same_digest": d == ref,
+            }
+        )
         print(f"dataset, one process, {threads} thread(s): {rep['designs_per_s']:.1f} designs/s", file=sys.stderr)
     for w in workers:
         root = work / f"dask_w{w}"
         shutil.rmtree(root, ignore_errors=True)
-        with distributed.LocalCluster(n_workers=w, threads_per_worker=1, processes=True, dashboard_address=None,
-                                      env={v: "1" for v in WORKER_ENV}) as cluster:
+        with distributed.LocalCluster(
+            n_workers=w, threads_per_worker=1, processes=True, dashboard_address=None, env={v: "1" for v in WORKER_ENV}
+        ) as cluster:
             with distributed.Client(cluster.scheduler_address) as client:  # workers import the package first
                 client.run(importlib.import_module, "optix_e2e.dataset.cluster")
             # seconds from after the sampling (the client's, as in one process) to the last shard
@@ -99,16 +109,38 @@ def dataset_rows(work: Path, n: int, workers: list[int]) -> tuple[list[dict], Pa
         d = _digest(root)
         if d != ref:
             sys.exit(f"dask with {w} workers: digest {d} differs from the single process's {ref}")
-        rows.append({"what": "dataset", "how": "Dask LocalCluster", "units": w, "threads_per_unit": 1,
-                     "seconds": sec, "rate": n / sec, "rate_unit": "designs/s", "same_digest": True})
+        rows.append(
+            {
+                "what": "dataset",
+                "how": "Dask LocalCluster",
+                "units": w,
+                "threads_per_unit": 1,
+                "seconds": sec,
+                "rate": n / sec,
+                "rate_unit": "designs/s",
+                "same_digest": True,
+            }
+        )
         print(f"dataset, Dask, {w} worker(s) x 1 thread: {n / sec:.1f} designs/s", file=sys.stderr)
     return rows, work / "single_t1"
 
 
 def surrogate_rows(work: Path, data: Path, steps: int, procs: list[int], device: str) -> list[dict]:
     rows = []
-    common = ["surrogate", "train", str(data), "--steps", str(steps), "--val-every", str(10 * steps),
-              "--val-designs", "64", "--device", device, "--json"]
+    common = [
+        "surrogate",
+        "train",
+        str(data),
+        "--steps",
+        str(steps),
+        "--val-every",
+        str(10 * steps),
+        "--val-designs",
+        "64",
+        "--device",
+        device,
+        "--json",
+    ]
     runs = [("one process", 1, t) for t in sorted({1, os.cpu_count() or 1})] + [("torchrun DDP", p, 1) for p in procs]
     for how, p, threads in runs:
         out = work / f"sur_{how.split()[0]}_p{p}_t{threads}"
@@ -116,16 +148,40 @@ def surrogate_rows(work: Path, data: Path, steps: int, procs: list[int], device:
         if how == "one process":
             cmd = [sys.executable, "-m", "optix_e2e", *common, "--out", str(out)]
         else:
-            cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", str(p),
-                   "-m", "optix_e2e", *common, "--out", str(out)]
+            cmd = [
+                sys.executable,
+                "-m",
+                "torch.distributed.run",
+                "--standalone",
+                "--nproc_per_node",
+                str(p),
+                "-m",
+                "optix_e2e",
+                *common,
+                "--out",
+                str(out),
+            ]
         _run(cmd, _env(threads))
         summary = json.loads((out / "train.json").read_text())
         sec = summary["seconds"]
-        rows.append({"what": "surrogate training", "how": how, "units": p, "threads_per_unit": threads,
-                     "seconds": sec, "rate": summary["steps_done"] / sec, "rate_unit": "steps/s",
-                     "final_loss": summary["history"][-1]["loss"], "device": summary["device"]})
-        print(f"surrogate, {how}, {p} process(es) x {threads} thread(s): {rows[-1]['rate']:.2f} steps/s, "
-              f"loss {rows[-1]['final_loss']:.5f}", file=sys.stderr)
+        rows.append(
+            {
+                "what": "surrogate training",
+                "how": how,
+                "units": p,
+                "threads_per_unit": threads,
+                "seconds": sec,
+                "rate": summary["steps_done"] / sec,
+                "rate_unit": "steps/s",
+                "final_loss": summary["history"][-1]["loss"],
+                "device": summary["device"],
+            }
+        )
+        print(
+            f"surrogate, {how}, {p} process(es) x {threads} thread(s): {rows[-1]['rate']:.2f} steps/s, "
+            f"loss {rows[-1]['final_loss']:.5f}",
+            file=sys.stderr,
+        )
     return rows
 
 
@@ -139,8 +195,11 @@ def chart(rows: list[dict], path: Path) -> None:
     for ax, what in zip(axes, ("dataset", "surrogate training")):
         rs = [r for r in rows if r["what"] == what]
         labels = [f"{r['how']}\n{r['units']} x {r['threads_per_unit']} thr" for r in rs]
-        ax.bar(range(len(rs)), [r["rate"] for r in rs], color=["#999" if r["units"] == 1 and r["how"].startswith("one")
-                                                               else "#3a7" for r in rs])
+        ax.bar(
+            range(len(rs)),
+            [r["rate"] for r in rs],
+            color=["#999" if r["units"] == 1 and r["how"].startswith("one") else "#3a7" for r in rs],
+        )
         ax.set_xticks(range(len(rs)), labels, fontsize=7)
         ax.set_ylabel(rs[0]["rate_unit"] if rs else "")
         ax.set_title(what)
@@ -167,8 +226,13 @@ def main() -> None:
     rows, data = dataset_rows(work, a.designs, a.workers if "dataset" in a.parts else [])
     if "surrogate" in a.parts:
         rows += surrogate_rows(work, data, a.steps, a.procs, a.device)
-    result = {"machine": {"node": platform.node(), "cpus": os.cpu_count(), "python": platform.python_version()},
-              "space": SPACE, "designs": a.designs, "steps": a.steps, "rows": rows}
+    result = {
+        "machine": {"node": platform.node(), "cpus": os.cpu_count(), "python": platform.python_version()},
+        "space": SPACE,
+        "designs": a.designs,
+        "steps": a.steps,
+        "rows": rows,
+    }
     name = "scaling" if len(a.parts) == 2 else f"scaling_{a.parts[0]}"
     (a.out / f"{name}.json").write_text(json.dumps(result, indent=2))
     with open(a.out / f"{name}.csv", "w", newline="") as f:

@@ -65,7 +65,7 @@ def main() -> None:
         vigs += list(np.load(shard / "relative_illumination.npy"))
         values += list(np.load(shard / "params.npy"))
         zs += list(np.load(shard / "image_distance.npy"))
-    psfs, vigs, values = psfs[:a.n + 1], vigs[:a.n + 1], np.asarray(values[:a.n + 1])
+    psfs, vigs, values = psfs[: a.n + 1], vigs[: a.n + 1], np.asarray(values[: a.n + 1])
     fields = man["fields_deg"]
     frame = SensorFrame()
     lp = LPIPS()
@@ -95,7 +95,9 @@ def main() -> None:
                 cam = Camera(fo, SensorStage(preset), isp)
                 losses = []
                 for smp in samples:
-                    o, _ = cam(smp.scene[None], smp.offset_px, torch.Generator().manual_seed(smp.noise_seed), final=True)
+                    o, _ = cam(
+                        smp.scene[None], smp.offset_px, torch.Generator().manual_seed(smp.noise_seed), final=True
+                    )
                     losses.append(float(task_loss(o.clamp(0, 1), smp.target[None], lp, task.lpips_weight)[0]))
                 rows.append({"design": i, "task": name, "loss": float(np.mean(losses))})
     with open(out / "losses.csv", "w", newline="") as f:
@@ -108,10 +110,14 @@ def main() -> None:
         nominal = r.get(0)
         others = np.array([v for k, v in r.items() if k != 0])
         best = min((k for k in r if k != 0), key=r.get)
-        summary["tasks"][name] = {"nominal_loss": nominal, "n": int(len(others)),
-                                  "fraction_below_nominal": float((others < nominal).mean()),
-                                  "median_loss": float(np.median(others)), "best_loss": r[best],
-                                  "best_design": dict(zip(space.names, map(float, values[best])))}
+        summary["tasks"][name] = {
+            "nominal_loss": nominal,
+            "n": int(len(others)),
+            "fraction_below_nominal": float((others < nominal).mean()),
+            "median_loss": float(np.median(others)),
+            "best_loss": r[best],
+            "best_design": dict(zip(space.names, map(float, values[best]))),
+        }
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     print(json.dumps({t: {k: v for k, v in s.items() if k != "best_design"} for t, s in summary["tasks"].items()}))
 

@@ -36,8 +36,10 @@ def main() -> None:
     nominal = space.values(lens.data)
     focus_fields = np.linspace(0.0, lens.max_field_deg, 7)
     for f in a.scales:
-        params = [Parameter(p.name, p.kind, p.surface, v - f * (v - p.min), v + f * (p.max - v), p.unit)
-                  for p, v in zip(space.params, nominal)]
+        params = [
+            Parameter(p.name, p.kind, p.surface, v - f * (v - p.min), v + f * (p.max - v), p.unit)
+            for p, v in zip(space.params, nominal)
+        ]
         scaled = ParameterSpace(params, constraints=space.constraints)
         res = sample_designs(scaled, lens, a.n, seed=0, method="sobol", limits=Limits.from_dict(space.constraints))
         worst = []
@@ -48,15 +50,27 @@ def main() -> None:
                 continue
             js = json.dumps(d)
             try:
-                worst.append(max(_engine.spot(js, fd, lens.wavelengths_nm, None, 12)["rms_um"] for fd in lens.fields_deg))
+                worst.append(
+                    max(_engine.spot(js, fd, lens.wavelengths_nm, None, 12)["rms_um"] for fd in lens.fields_deg)
+                )
             except _engine.EngineError:  # no ray of a field reaches the image: a failed design
                 worst.append(np.inf)
         w = np.array(worst)
-        print(json.dumps({"space": a.space, "scale": f, "n": a.n, "acceptance_rate": round(res.summary()["acceptance_rate"], 3),
-                          "worst_rms_um_median": round(float(np.median(w)), 1),
-                          "worst_rms_um_p90": round(float(np.percentile(w, 90)), 1),
-                          "frac_under_25um": float(np.mean(w < 25)), "frac_under_40um": float(np.mean(w < 40)),
-                          "failed": int(np.sum(~np.isfinite(w)))}))
+        print(
+            json.dumps(
+                {
+                    "space": a.space,
+                    "scale": f,
+                    "n": a.n,
+                    "acceptance_rate": round(res.summary()["acceptance_rate"], 3),
+                    "worst_rms_um_median": round(float(np.median(w)), 1),
+                    "worst_rms_um_p90": round(float(np.percentile(w, 90)), 1),
+                    "frac_under_25um": float(np.mean(w < 25)),
+                    "frac_under_40um": float(np.mean(w < 40)),
+                    "failed": int(np.sum(~np.isfinite(w))),
+                }
+            )
+        )
 
 
 if __name__ == "__main__":

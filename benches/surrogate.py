@@ -90,8 +90,10 @@ def main() -> None:
     rend = {}
     for patch in (64, 128):
         with torch.no_grad():
-            rend[f"render_s_patch{patch}"] = _median_s(lambda: render(frame, psf, model.fields, vig, patch=patch),
-                                                       max(1, a.repeat // 2))
+            rend[f"render_s_patch{patch}"] = _median_s(
+                lambda: render(frame, psf, model.fields, vig, patch=patch), max(1, a.repeat // 2)
+            )
+
         def through_lens(patch=patch):  # lens parameters -> surrogate -> render -> loss, and back
             p, v = optics.psfs()
             render(frame, p, model.fields, v, patch=patch).mean().backward()
@@ -99,13 +101,26 @@ def main() -> None:
         rend[f"render_fwd_bwd_s_patch{patch}"] = _median_s(through_lens, max(1, a.repeat // 2))
     sur_rate = a.batch * k / infer_s
     eng_rate = engine_designs_per_s * k
-    out = {"model": a.model, "psf_shape": [model.cfg.channels, model.cfg.psf_size, model.cfg.psf_size],
-           "fields": k, "device": str(dev), "torch_threads": torch.get_num_threads(),
-           "surrogate_rgb_psfs_per_s": sur_rate, "surrogate_batch_designs": a.batch,
-           "engine_rgb_psfs_per_s": eng_rate, "engine_designs": a.n, "speedup": sur_rate / eng_rate,
-           "surrogate_design_fwd_bwd_s": grad_s, "render_frame": [1200, 1920], **rend,
-           "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
-                       "gpu": torch.cuda.get_device_name(0) if dev.type == "cuda" else None}}
+    out = {
+        "model": a.model,
+        "psf_shape": [model.cfg.channels, model.cfg.psf_size, model.cfg.psf_size],
+        "fields": k,
+        "device": str(dev),
+        "torch_threads": torch.get_num_threads(),
+        "surrogate_rgb_psfs_per_s": sur_rate,
+        "surrogate_batch_designs": a.batch,
+        "engine_rgb_psfs_per_s": eng_rate,
+        "engine_designs": a.n,
+        "speedup": sur_rate / eng_rate,
+        "surrogate_design_fwd_bwd_s": grad_s,
+        "render_frame": [1200, 1920],
+        **rend,
+        "machine": {
+            "cpus": os.cpu_count(),
+            "processor": platform.processor() or platform.machine(),
+            "gpu": torch.cuda.get_device_name(0) if dev.type == "cuda" else None,
+        },
+    }
     print(json.dumps(out, indent=None if a.json else 2))
 
 

@@ -24,9 +24,13 @@ from pathlib import Path
 from optix_e2e.design.report import DEFAULT_MTF_FREQS
 from optix_e2e.lens.mtf import NYQUIST_5P86_UM
 
-METRICS = [("1 - LPIPS", "one_minus_lpips", "lpips", -1.0), ("PSNR (dB)", "psnr_db", "psnr_db", 1.0),
-           ("SSIM", "ssim", "ssim", 1.0), ("HaarPSI", "haarpsi", "haarpsi", 1.0)]
-NYQUIST = round(NYQUIST_5P86_UM, 2)   # cycles/mm at the 5.86 um pixel pitch, a key of the reports' MTF
+METRICS = [
+    ("1 - LPIPS", "one_minus_lpips", "lpips", -1.0),
+    ("PSNR (dB)", "psnr_db", "psnr_db", 1.0),
+    ("SSIM", "ssim", "ssim", 1.0),
+    ("HaarPSI", "haarpsi", "haarpsi", 1.0),
+]
+NYQUIST = round(NYQUIST_5P86_UM, 2)  # cycles/mm at the 5.86 um pixel pitch, a key of the reports' MTF
 assert NYQUIST in DEFAULT_MTF_FREQS
 
 
@@ -53,8 +57,10 @@ def table_rows(res: dict) -> list[dict]:
 def compactness_rows(run: Path) -> list[dict]:
     """Per field: each lens's polychromatic RMS spot, mean Strehl over the wavelengths and
     MTF at the sensor's Nyquist frequency (mean of tangential and sagittal)."""
-    reps = {who: json.loads((run / "report" / who / "report.json").read_text(encoding="utf-8"))
-            for who in ("nominal", "end_to_end")}
+    reps = {
+        who: json.loads((run / "report" / who / "report.json").read_text(encoding="utf-8"))
+        for who in ("nominal", "end_to_end")
+    }
     if [f["field_deg"] for f in reps["nominal"]["fields"]] != [f["field_deg"] for f in reps["end_to_end"]["fields"]]:
         raise ValueError(f"{run}/report: the two lens reports have different fields")
     out = []
@@ -79,14 +85,20 @@ def markdown(res: dict, rows: list[dict], comp: list[dict]) -> str:
             cells.append(f"{v[0]:+.3f} [{v[1]:+.3f}, {v[2]:+.3f}]" if isinstance(v, tuple) else _fmt(v, key))
         lines.append(f"| {r['method']} | " + " | ".join(cells) + " |")
     n = res["held_out"]
-    lines += ["", f"{n['n_images']} held-out images x {n['per_image']} positions ({n['n_samples']} samples), "
-              f"exact engine PSFs, reference ISP; task {res['task']}, budget {res['budget']}, seed {res['seed']}.", "",
-              "| field (deg) | RMS spot nominal / e2e (um) | Strehl nominal / e2e | MTF at Nyquist nominal / e2e |",
-              "|---|---|---|---|"]
+    lines += [
+        "",
+        f"{n['n_images']} held-out images x {n['per_image']} positions ({n['n_samples']} samples), "
+        f"exact engine PSFs, reference ISP; task {res['task']}, budget {res['budget']}, seed {res['seed']}.",
+        "",
+        "| field (deg) | RMS spot nominal / e2e (um) | Strehl nominal / e2e | MTF at Nyquist nominal / e2e |",
+        "|---|---|---|---|",
+    ]
     for c in comp:
-        lines.append(f"| {c['field_deg']:.2f} | {c['nominal_rms_spot_um']:.2f} / {c['end_to_end_rms_spot_um']:.2f} | "
-                     f"{c['nominal_strehl']:.3f} / {c['end_to_end_strehl']:.3f} | "
-                     f"{c['nominal_mtf_nyquist']:.3f} / {c['end_to_end_mtf_nyquist']:.3f} |")
+        lines.append(
+            f"| {c['field_deg']:.2f} | {c['nominal_rms_spot_um']:.2f} / {c['end_to_end_rms_spot_um']:.2f} | "
+            f"{c['nominal_strehl']:.3f} / {c['end_to_end_strehl']:.3f} | "
+            f"{c['nominal_mtf_nyquist']:.3f} / {c['end_to_end_mtf_nyquist']:.3f} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -107,12 +119,16 @@ def write_table_csv(path: Path, first: str, rows: list[dict]) -> None:
     """One row per entry: its label, each metric, then each metric's interval (blank without one)."""
     with open(path, "w", newline="", encoding="utf-8") as f:
         w = csv.writer(f)
-        w.writerow([first] + [k for _, k, _, _ in METRICS] + [f"{k}_ci95_{e}" for _, k, _, _ in METRICS
-                                                              for e in ("lo", "hi")])
+        w.writerow(
+            [first] + [k for _, k, _, _ in METRICS] + [f"{k}_ci95_{e}" for _, k, _, _ in METRICS for e in ("lo", "hi")]
+        )
         for r in rows:
             vals = [r[k] for _, k, _, _ in METRICS]
-            w.writerow([r[first]] + [v[0] if isinstance(v, tuple) else v for v in vals]
-                       + [x for v in vals for x in ((v[1], v[2]) if isinstance(v, tuple) else ("", ""))])
+            w.writerow(
+                [r[first]]
+                + [v[0] if isinstance(v, tuple) else v for v in vals]
+                + [x for v in vals for x in ((v[1], v[2]) if isinstance(v, tuple) else ("", ""))]
+            )
 
 
 def _read_run(run: Path) -> dict:
@@ -147,11 +163,15 @@ def main() -> None:
     md = markdown(res, rows, comp)
     if seeds:
         write_table_csv(out / "table5_seeds.csv", "seed", seeds)
-        md += ("\nEnd-to-end minus nominal per seed, and the mean over the seeds with Student's t 95 % interval:\n\n"
-               "| seed | " + " | ".join(m for m, _, _, _ in METRICS) + " |\n" + "|---" * (len(METRICS) + 1) + "|\n")
+        md += (
+            "\nEnd-to-end minus nominal per seed, and the mean over the seeds with Student's t 95 % interval:\n\n"
+            "| seed | " + " | ".join(m for m, _, _, _ in METRICS) + " |\n" + "|---" * (len(METRICS) + 1) + "|\n"
+        )
         for r in seeds:
-            cells = [f"{v[0]:+.3f} [{v[1]:+.3f}, {v[2]:+.3f}]" if isinstance(v, tuple) else f"{v:+.3f}"
-                     for v in (r[k] for _, k, _, _ in METRICS)]
+            cells = [
+                f"{v[0]:+.3f} [{v[1]:+.3f}, {v[2]:+.3f}]" if isinstance(v, tuple) else f"{v:+.3f}"
+                for v in (r[k] for _, k, _, _ in METRICS)
+            ]
             md += f"| {r['seed']} | " + " | ".join(cells) + " |\n"
     (out / "table5.md").write_text(md, encoding="utf-8")
     print(md, end="")

@@ -77,8 +77,15 @@ def parse(path: Path):
             if entry:
                 yield entry
             status = int(float(tok[7])) if len(tok) > 7 else 0
-            entry = {"name": tok[1], "zf": int(float(tok[2])), "nd": float(tok[4]), "vd": float(tok[5]),
-                     "cd": [], "range": None, "status": status}
+            entry = {
+                "name": tok[1],
+                "zf": int(float(tok[2])),
+                "nd": float(tok[4]),
+                "vd": float(tok[5]),
+                "cd": [],
+                "range": None,
+                "status": status,
+            }
         elif entry and tok[0] == "CD":
             entry["cd"] = [float(v) for v in tok[1:]]
         elif entry and tok[0] == "LD":
@@ -90,8 +97,11 @@ def parse(path: Path):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("folder", type=Path)
-    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1]
-                    / "python" / "optix_e2e" / "bundled" / "glass" / "agf_glasses.json")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=Path(__file__).resolve().parents[1] / "python" / "optix_e2e" / "bundled" / "glass" / "agf_glasses.json",
+    )
     args = ap.parse_args()
     out: dict[str, dict] = {}
     kept = dropped = 0
@@ -115,13 +125,21 @@ def main():
                     nd, nf, nc = (float(_glass._eval_formula(formula, coeffs, w)) for w in (D, F, C))
                     vd = (nd - 1) / (nf - nc) if nf != nc else float("nan")
                 if not (abs(nd - e["nd"]) <= 1e-4 and abs(vd - e["vd"]) <= 0.5):
-                    print(f"{catalog}/{e['name']}: formula {e['zf']} gives nd {nd:.6f}, vd "
-                          f"{vd:.2f}, the NM line {e['nd']}, {e['vd']}: left out")
+                    print(
+                        f"{catalog}/{e['name']}: formula {e['zf']} gives nd {nd:.6f}, vd "
+                        f"{vd:.2f}, the NM line {e['nd']}, {e['vd']}: left out"
+                    )
                     dropped += 1
                     continue
-                table[e["name"]] = {"formula": formula, "coefficients": coeffs, "range_um": list(e["range"]),
-                                    "nd": e["nd"], "vd": e["vd"], "obsolete": e["status"] == 2,
-                                    "source": f"Zemax {fname} ({REPO}/{fname})"}
+                table[e["name"]] = {
+                    "formula": formula,
+                    "coefficients": coeffs,
+                    "range_um": list(e["range"]),
+                    "nd": e["nd"],
+                    "vd": e["vd"],
+                    "obsolete": e["status"] == 2,
+                    "source": f"Zemax {fname} ({REPO}/{fname})",
+                }
                 kept += 1
         out[catalog] = dict(sorted(table.items()))
     args.out.write_text(json.dumps(out, indent=0, separators=(",", ":")) + "\n")

@@ -27,7 +27,7 @@ from optix_e2e.lens import Lens
 from optix_e2e.lens.scale import scale_lens
 
 HALF_DIAGONAL_MM = 0.5 * math.hypot(1920, 1200) * 5.86e-3
-WAVELENGTHS_NM = [470.0, 550.0, 650.0]   # the camera's B, G, R channel centres (as paper-triplet)
+WAVELENGTHS_NM = [470.0, 550.0, 650.0]  # the camera's B, G, R channel centres (as paper-triplet)
 
 
 LENGTH_KINDS = ("radius", "thickness", "air_gap")
@@ -39,14 +39,17 @@ def write_given_space(path: str, factor: float) -> None:
     space, _ = load_space("apo-gauss-8e")
     other = [p.name for p in space.params if p.kind not in LENGTH_KINDS]
     if other:
-        raise SystemExit(f"apo-gauss-8e's space has parameters that are not lengths ({', '.join(other)}): "
-                         f"scale them by hand")
+        raise SystemExit(
+            f"apo-gauss-8e's space has parameters that are not lengths ({', '.join(other)}): scale them by hand"
+        )
     params = [dataclasses.replace(p, min=p.min * factor, max=p.max * factor) for p in space.params]
     limits = {k: math.floor(v * factor * 100) / 100 for k, v in space.constraints.items()}
     ParameterSpace(params, constraints=limits).save_toml(
-        path, lens_ref="apo-gauss-8e-mv",
+        path,
+        lens_ref="apo-gauss-8e-mv",
         description=f"apo-gauss-8e's provisional space (radii +-5 %, air gaps +-20 %) scaled by {factor}: the "
-                    f"given space of the tolerance analysis (scripts/make_apo_gauss_8e_mv.py)")
+        f"given space of the tolerance analysis (scripts/make_apo_gauss_8e_mv.py)",
+    )
 
 
 def main(out: str, given_space: str | None) -> None:
@@ -63,16 +66,16 @@ def main(out: str, given_space: str | None) -> None:
     factor = round(HALF_DIAGONAL_MM / h, 6)
     out_d = scale_lens(d, factor)
     out_d["name"] = "apo-gauss-8e-mv"
-    out_d["source"] = (f"apo-gauss-8e (JP 2025-108279 A, Example 1) scaled by {factor} "
-                       "(scripts/make_apo_gauss_8e_mv.py)")
+    out_d["source"] = f"apo-gauss-8e (JP 2025-108279 A, Example 1) scaled by {factor} (scripts/make_apo_gauss_8e_mv.py)"
     out_d["description"] = (
         f"The eight-element apo-gauss-8e (JP 2025-108279 A, Example 1, Cosina; 8 elements in 6 groups, all "
         f"spherical) scaled by {factor} so that the real chief ray of its full field, {field} deg, lands on the "
         f"IMX249 sensor's corner ({HALF_DIAGONAL_MM:.4f} mm), and with the camera's channel wavelengths 470 / 550 "
         f"/ 650 nm (the patent: F, d, C): a 1/1.2-inch machine-vision lens for the paper's Sec. 6.2 experiment. "
         f"Radii, thicknesses, clear semi-diameters (Beam42's estimates, scaled) and the back focus are the "
-        f"patent's times the factor; glasses, f-number and field angles unchanged; not re-optimized.")
-    for s in out_d["surfaces"]:   # 9 significant digits: the .zmx round trip stays exact
+        f"patent's times the factor; glasses, f-number and field angles unchanged; not re-optimized."
+    )
+    for s in out_d["surfaces"]:  # 9 significant digits: the .zmx round trip stays exact
         for k in ("radius", "thickness", "semi_diameter"):
             if isinstance(s.get(k), float):
                 s[k] = float(f"{s[k]:.9g}")

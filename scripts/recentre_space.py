@@ -19,7 +19,6 @@ from optix_e2e.lens import Lens
 from optix_e2e.design.space import ASPHERE_KINDS, Parameter, ParameterSpace, load_space
 
 
-
 def rule(p, v: float, lens: dict) -> tuple[float, float] | None:
     if p.kind == "radius":
         return v * (1 - 0.0375), v * (1 + 0.0375)
@@ -31,10 +30,12 @@ def rule(p, v: float, lens: dict) -> tuple[float, float] | None:
     if order >= 4:
         h = lens["surfaces"][p.surface - 1].get("semi_diameter")
         if not h:
-            raise SystemExit(f"{p.name}: surface {p.surface} of the new lens has no clear semi-diameter "
-                             f"(write them with optix lens optimize --set-semi-diameters)")
+            raise SystemExit(
+                f"{p.name}: surface {p.surface} of the new lens has no clear semi-diameter "
+                f"(write them with optix lens optimize --set-semi-diameters)"
+            )
         h = float(h)
-        w = 0.25 * max(0.5 * abs(v), 0.01 / h ** order)
+        w = 0.25 * max(0.5 * abs(v), 0.01 / h**order)
         return v - w, v + w
     return None
 
@@ -56,8 +57,14 @@ def main() -> None:
         lo, hi = a1 - a.scale * (a1 - lo), a1 + a.scale * (hi - a1)
         lo, hi = float(f"{lo:.6g}"), float(f"{hi:.6g}")
         params.append(Parameter(p.name, p.kind, p.surface, min(lo, hi), max(lo, hi), p.unit))
-    out = ParameterSpace(params, source=a.out, lens_ref=a.lens_ref or space.lens_ref,
-                         description=space.description, notes=space.notes, constraints=space.constraints)
+    out = ParameterSpace(
+        params,
+        source=a.out,
+        lens_ref=a.lens_ref or space.lens_ref,
+        description=space.description,
+        notes=space.notes,
+        constraints=space.constraints,
+    )
     out.save_toml(a.out)
     for p, x in zip(params, v1):
         print(f"{p.name:>12}  {p.min:+.6g} .. {p.max:+.6g}  (nominal {x:+.6g})")

@@ -25,8 +25,11 @@ def reference_dir() -> Path:
 def ref_dir() -> Path:
     path = reference_dir()
     if not (path / "cooke_triplet_reference.json").is_file():
-        pytest.fail(f"reference data not found at {path}: clone the repository with shared/ beside it "
-                    f"(../shared/reference) or set OPTIX_REFERENCE_DIR", pytrace=False)
+        pytest.fail(
+            f"reference data not found at {path}: clone the repository with shared/ beside it "
+            f"(../shared/reference) or set OPTIX_REFERENCE_DIR",
+            pytrace=False,
+        )
     return path
 
 
@@ -56,6 +59,7 @@ def cooke():
 def one_torch_thread():
     """Small tensors: one torch thread is fastest and immune to a busy shared CPU."""
     import torch
+
     n = torch.get_num_threads()
     torch.set_num_threads(1)
     yield

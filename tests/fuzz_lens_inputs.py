@@ -7,6 +7,7 @@ a child process, so that an abort of the process is seen as such):
 
     python tests/fuzz_lens_inputs.py --n 400 --seed 0 --out fuzz.json
 """
+
 from __future__ import annotations
 
 import argparse
@@ -29,8 +30,24 @@ from optix_e2e.lens.zemax.common import ZemaxError
 # what a bad input may raise: the project's own error types (the file readers' and the
 # engine's hierarchy); a plain ValueError, TypeError, ... is a bug
 OURS = (PrescriptionError, ZemaxError, GlassError, _engine.EngineError)
-EXTREMES = ["0", "-0", "1e300", "-1e300", "1e-320", "nan", "inf", "-inf", "1" + "0" * 400, "-7", "3.5", "1e7",
-            "123456789", "0.0001", "-1e-9", "2147483648"]
+EXTREMES = [
+    "0",
+    "-0",
+    "1e300",
+    "-1e300",
+    "1e-320",
+    "nan",
+    "inf",
+    "-inf",
+    "1" + "0" * 400,
+    "-7",
+    "3.5",
+    "1e7",
+    "123456789",
+    "0.0001",
+    "-1e-9",
+    "2147483648",
+]
 NUMBER = re.compile(r"(?<![A-Za-z_])-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?")
 
 
@@ -41,7 +58,7 @@ def mutate(text: str, rng: random.Random) -> str:
         spots = list(NUMBER.finditer(text))
         if spots:
             m = rng.choice(spots)
-            return text[:m.start()] + rng.choice(EXTREMES) + text[m.end():]
+            return text[: m.start()] + rng.choice(EXTREMES) + text[m.end() :]
     if kind == 3 and len(lines) > 1:  # a line dropped
         del lines[rng.randrange(len(lines))]
         return "".join(lines)
@@ -54,10 +71,10 @@ def mutate(text: str, rng: random.Random) -> str:
         lines[i], lines[j] = lines[j], lines[i]
         return "".join(lines)
     if kind == 6:  # truncated
-        return text[:rng.randrange(len(text) + 1)]
+        return text[: rng.randrange(len(text) + 1)]
     # stray characters or bytes inserted
     i = rng.randrange(len(text) + 1)
-    return text[:i] + rng.choice(["\x00", "\u00e9", "}", "{", "[", "\"", ",", " SURF 3\n", "\ufeff", "é"]) + text[i:]
+    return text[:i] + rng.choice(["\x00", "\u00e9", "}", "{", "[", '"', ",", " SURF 3\n", "\ufeff", "é"]) + text[i:]
 
 
 def _finite(x) -> bool:
@@ -110,8 +127,9 @@ def run(n: int, seed: int) -> dict:
                 what = exercise(path)
             except BaseException as exc:  # anything not ours: recorded with the mutant
                 what = f"UNEXPECTED {type(exc).__name__}"
-                bad.append({"i": i, "source": name, "error": f"{type(exc).__name__}: {exc}"[:400],
-                            "mutant": mutant[:4000]})
+                bad.append(
+                    {"i": i, "source": name, "error": f"{type(exc).__name__}: {exc}"[:400], "mutant": mutant[:4000]}
+                )
             outcomes[what] = outcomes.get(what, 0) + 1
     return {"n": n, "seed": seed, "outcomes": outcomes, "unexpected": bad}
 

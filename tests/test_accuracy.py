@@ -61,7 +61,9 @@ def test_reference_converges_by_doubling():
     assert ref.convergence <= 2e-2 and ref.pupil_samples >= 128
     assert 0.99 < ref.psf.sum() / ref.diagnostics["energy_in_window"] < 1.01
     with pytest.raises(RuntimeError, match="did not converge"):
-        converged_reference(lens.to_engine_json(), 0.0, 550.0, size=64, pixel_um=1.0, start=16, tol=1e-6, max_samples=32)
+        converged_reference(
+            lens.to_engine_json(), 0.0, 550.0, size=64, pixel_um=1.0, start=16, tol=1e-6, max_samples=32
+        )
 
 
 def test_bench_accuracy_quick_run(tmp_path):
@@ -89,7 +91,9 @@ def test_bench_accuracy_quick_run(tmp_path):
     # the coarsest Huygens sum aliases: refused by its energy check, or far off where it passes
     assert by.get("huygens N=16", 1.0) > 0.1
     sampling = list(csv.DictReader(open(tmp_path / "sampling.csv")))
-    spec = {(s["channel"], int(s["n_wavelengths"])): float(s["rel_l1"]) for s in sampling if s["experiment"] == "spectral"}
+    spec = {
+        (s["channel"], int(s["n_wavelengths"])): float(s["rel_l1"]) for s in sampling if s["experiment"] == "spectral"
+    }
     assert all(spec[(c, 9)] < spec[(c, 1)] for c in "RGB")
     fields = {int(s["k_fields"]): float(s["rel_l1"]) for s in sampling if s["experiment"] == "fields"}
     assert fields[13] < fields[2]

@@ -26,8 +26,11 @@ class Toy(nn.Module):
         self.c, self.d = nn.Parameter(torch.tensor(1.0)), nn.Parameter(torch.tensor(0.0))
 
     def blocks(self, steps=5, beta=0.0, lr=0.05):
-        return [Block("f1", [self.a], lr, steps, beta), Block("f2", [self.b], lr, steps, beta),
-                Block("f3", [self.c, self.d], lr, steps, beta)]
+        return [
+            Block("f1", [self.a], lr, steps, beta),
+            Block("f2", [self.b], lr, steps, beta),
+            Block("f3", [self.c, self.d], lr, steps, beta),
+        ]
 
     def loss(self):
         return ((self.c * (self.a * X + self.b) + self.d - TARGET) ** 2).mean()

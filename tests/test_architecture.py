@@ -14,9 +14,19 @@ PACKAGE = Path(__file__).resolve().parents[1] / "python" / "optix_e2e"
 #: what sits on a lower layer, never a sibling of its own layer nor anything above.
 LAYER = {
     "_engine": 0,
-    "engine": 1, "io": 1, "color": 1, "parallel": 1, "torchfile": 1, "plotting": 1, "__version__": 1,
-    "lens": 2, "sensor": 2, "scenes": 2, "metrics": 2,
-    "isp": 3, "design": 3,
+    "engine": 1,
+    "io": 1,
+    "color": 1,
+    "parallel": 1,
+    "torchfile": 1,
+    "plotting": 1,
+    "__version__": 1,
+    "lens": 2,
+    "sensor": 2,
+    "scenes": 2,
+    "metrics": 2,
+    "isp": 3,
+    "design": 3,
     "accuracy": 4,
     "dataset": 5,
     "surrogate": 6,
@@ -27,6 +37,8 @@ LAYER = {
     "cli": 11,
     "__main__": 12,
 }
+
+
 def _imports() -> list[tuple[str, str, int]]:
     """(importing module, imported optix_e2e module, line) for every import in the package."""
     found = []
@@ -44,14 +56,14 @@ def _imports() -> list[tuple[str, str, int]]:
                     base = package[: len(package) - (node.level - 1)]
                     target = ".".join(base + ([node.module] if node.module else []))
                 elif (node.module or "").startswith("optix_e2e"):
-                    target = node.module[len("optix_e2e"):].lstrip(".")
+                    target = node.module[len("optix_e2e") :].lstrip(".")
                 else:
                     continue
                 found.extend((module, f"{target}.{a.name}" if target else a.name, node.lineno) for a in node.names)
             elif isinstance(node, ast.Import):
                 for a in node.names:
                     if a.name.startswith("optix_e2e."):
-                        found.append((module, a.name[len("optix_e2e."):], node.lineno))
+                        found.append((module, a.name[len("optix_e2e.") :], node.lineno))
     return found
 
 
@@ -60,8 +72,11 @@ def _top(name: str) -> str:
 
 
 def test_every_subpackage_has_a_layer():
-    tops = {p.stem if p.is_file() else p.name for p in PACKAGE.iterdir()
-            if (p.suffix == ".py" or (p.is_dir() and (p / "__init__.py").exists())) and p.name != "__init__.py"}
+    tops = {
+        p.stem if p.is_file() else p.name
+        for p in PACKAGE.iterdir()
+        if (p.suffix == ".py" or (p.is_dir() and (p / "__init__.py").exists())) and p.name != "__init__.py"
+    }
     assert tops - {"_engine"} <= set(LAYER), f"no layer for {sorted(tops - set(LAYER))}: add it to docs/architecture.md"
 
 

@@ -48,8 +48,9 @@ def test_auto_records_its_choice():
     assert 0 < a["predicted_rel_l1"] <= 0.01 and a["probe"]["na"] > 0
     assert not any(w.startswith("auto:") for w in d["warnings"]) and psf.shape == (128, 128)
     # the same call with the chosen method gives the same PSF
-    same, _ = lens.psf(14.0, 550.0, a["method"], pixel_um=1.0, size=128, pupil_samples=a["pupil_samples"],
-                       fast=a["fast"])
+    same, _ = lens.psf(
+        14.0, 550.0, a["method"], pixel_um=1.0, size=128, pupil_samples=a["pupil_samples"], fast=a["fast"]
+    )
     assert np.array_equal(psf, same)
 
 
@@ -130,8 +131,9 @@ def test_dataset_records_every_auto_choice(tmp_path):
 
 
 def test_cli_psf_defaults_to_auto(tmp_path):
-    r = CliRunner().invoke(main, ["psf", "cooke-f50", "--field-deg", "14", "--size", "64",
-                                  "--out", str(tmp_path / "p.npy")])
+    r = CliRunner().invoke(
+        main, ["psf", "cooke-f50", "--field-deg", "14", "--size", "64", "--out", str(tmp_path / "p.npy")]
+    )
     assert r.exit_code == 0, r.output
     line = json.loads(r.output.strip().splitlines()[-1])
     assert line["requested_method"] == "auto" and "auto" in line and line["method"] != "auto"

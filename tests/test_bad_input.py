@@ -29,15 +29,18 @@ def test_every_numeric_design_setting_has_a_range():
         assert lo <= default <= hi, name  # the defaults pass their own check
 
 
-@pytest.mark.parametrize("line, words", [
-    ("threads = 50000", ["threads", "1024"]),
-    ("batch = 9223372036854775807", ["batch", "256"]),
-    ("lr_optics = inf", ["lr_optics", "finite"]),
-    ("beta_isp = nan", ["beta_isp", "finite"]),
-    ("eval_procedural = 100000000", ["eval_procedural"]),
-    ("lr_isp_net = 0.0", ["lr_isp_net", "> 0"]),
-    ("bootstrap = 10", ["bootstrap", ">= 100"]),
-])
+@pytest.mark.parametrize(
+    "line, words",
+    [
+        ("threads = 50000", ["threads", "1024"]),
+        ("batch = 9223372036854775807", ["batch", "256"]),
+        ("lr_optics = inf", ["lr_optics", "finite"]),
+        ("beta_isp = nan", ["beta_isp", "finite"]),
+        ("eval_procedural = 100000000", ["eval_procedural"]),
+        ("lr_isp_net = 0.0", ["lr_isp_net", "> 0"]),
+        ("bootstrap = 10", ["bootstrap", ">= 100"]),
+    ],
+)
 def test_a_setting_out_of_range_names_the_file_and_the_setting(tmp_path, line, words):
     cfg = tmp_path / "bad.toml"
     cfg.write_text(line + "\n")
@@ -95,11 +98,14 @@ def test_thread_counts_are_bounded():
     set_threads(0)  # torch's default, unchanged
 
 
-@pytest.mark.parametrize("args", [
-    ["design", "iq-software", "--budget", "smoke", "--threads", "50000"],
-    ["detect", "train", ".", "--threads", "50000"],
-    ["surrogate", "train", ".", "--threads", "50000"],
-])
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["design", "iq-software", "--budget", "smoke", "--threads", "50000"],
+        ["detect", "train", ".", "--threads", "50000"],
+        ["surrogate", "train", ".", "--threads", "50000"],
+    ],
+)
 def test_cli_refuses_huge_thread_counts_before_claiming_a_folder(tmp_path, args):
     out = tmp_path / "run"
     res = CliRunner().invoke(main, [*args, "--out", str(out)])
@@ -118,8 +124,9 @@ def test_a_diverging_surrogate_training_stops_and_keeps_the_good_state(tmp_path)
 
     data = tmp_path / "data"
     generate("paper-triplet-v1", 12, 3, data, DatasetSettings(shard_size=12), progress=False)
-    tiny = dict(hidden=16, depth=1, base_channels=8, n_up=2, batch=8, val_designs=4, val_every=5, warmup=1,
-                device="cpu")
+    tiny = dict(
+        hidden=16, depth=1, base_channels=8, n_up=2, batch=8, val_designs=4, val_every=5, warmup=1, device="cpu"
+    )
     with pytest.raises(TrainingDiverged, match=r"training diverged at step \d+: the (loss|weights)"):
         train(data, tmp_path / "wild", TrainConfig(steps=40, lr=1e30, **tiny), progress=False)
     state = tmp_path / "wild" / "state.pt"
@@ -137,9 +144,12 @@ def test_a_diverging_surrogate_training_stops_and_keeps_the_good_state(tmp_path)
         train(data, tmp_path / "ok", TrainConfig(steps=10, **tiny), progress=False)
     good = torch.load(tmp_path / "ok" / "state.pt", weights_only=True)
     good["model"][first] = torch.zeros_like(good["model"][first])
-    for change, words in ((lambda st: st.pop("step"), "KeyError"), (lambda st: st.update(step=10 ** 9), "step"),
-                          (lambda st: st.update(seconds=float("nan")), "seconds nan"),
-                          (lambda st: st.pop("data"), "no data record")):
+    for change, words in (
+        (lambda st: st.pop("step"), "KeyError"),
+        (lambda st: st.update(step=10**9), "step"),
+        (lambda st: st.update(seconds=float("nan")), "seconds nan"),
+        (lambda st: st.pop("data"), "no data record"),
+    ):
         st = dict(good)
         change(st)
         torch.save(st, tmp_path / "ok" / "state.pt")
@@ -163,11 +173,23 @@ def test_a_diverging_detector_training_stops_and_another_run_folder_is_refused(t
 
     write_street_coco(tmp_path / "data", 4, (64, 96), seed=0)
     with pytest.raises(TrainingDiverged, match=r"training diverged at step \d+"):
-        train_detector(tmp_path / "data", tmp_path / "wild", steps=30, batch=2, lr=1e30, checkpoint_every=1,
-                       progress=False, log=lambda m: None)
+        train_detector(
+            tmp_path / "data",
+            tmp_path / "wild",
+            steps=30,
+            batch=2,
+            lr=1e30,
+            checkpoint_every=1,
+            progress=False,
+            log=lambda m: None,
+        )
     if not (tmp_path / "wild" / "detector.pt").exists():  # stopped before a checkpoint: it starts again there
-        assert train_detector(tmp_path / "data", tmp_path / "wild", steps=2, batch=2, progress=False,
-                              log=lambda m: None)["steps"] == 2
+        assert (
+            train_detector(tmp_path / "data", tmp_path / "wild", steps=2, batch=2, progress=False, log=lambda m: None)[
+                "steps"
+            ]
+            == 2
+        )
     if (tmp_path / "wild" / "detector.pt").exists():  # a checkpoint from before the divergence: finite
         from optix_e2e.tasks.detector_train import load_detector
 
@@ -192,8 +214,9 @@ def _png_header_only(path, width: int, height: int) -> None:
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
 
     ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
-    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 64))
-                     + chunk(b"IEND", b""))
+    path.write_bytes(
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b"")
+    )
 
 
 def test_metrics_reads_16_bit_files_at_their_depth_and_refuses_what_it_cannot_read(tmp_path):
@@ -209,8 +232,11 @@ def test_metrics_reads_16_bit_files_at_their_depth_and_refuses_what_it_cannot_re
     Image.fromarray(np.zeros((40, 48), np.float32)).save(tmp_path / "f.tif")
     _png_header_only(tmp_path / "bomb.png", 100_000, 100_000)  # PIL's own bomb limit
     _png_header_only(tmp_path / "big.png", 9000, 8000)  # under PIL's, over ours (64 Mpixel)
-    for bad, words in (("f.tif", "floating-point images are not read"), ("bomb.png", "too large to decode safely"),
-                       ("big.png", "9000x8000 pixels is more than")):
+    for bad, words in (
+        ("f.tif", "floating-point images are not read"),
+        ("bomb.png", "too large to decode safely"),
+        ("big.png", "9000x8000 pixels is more than"),
+    ):
         res = CliRunner().invoke(main, ["metrics", str(tmp_path / bad), str(tmp_path / "g8.png")])
         assert res.exit_code == 1 and words in res.output and "Traceback" not in res.output, res.output
 
@@ -250,8 +276,9 @@ def test_street_scenes_refuse_a_folder_that_holds_a_set_and_take_small_frames(tm
     assert len(json.loads((first / "annotations.json").read_text())["images"]) == 3
     # every size the help allows works (32 rows: objects once drew from an empty range)
     for size in ("32x48", "48x32", "32x32"):
-        res = CliRunner().invoke(main, ["scenes", "street", "--out", str(tmp_path / size), "-n", "6", "--size", size,
-                                        "--quiet"])
+        res = CliRunner().invoke(
+            main, ["scenes", "street", "--out", str(tmp_path / size), "-n", "6", "--size", size, "--quiet"]
+        )
         assert res.exit_code == 0, res.output
     for size in ("100000x100000", "31x64", "64", "axb"):
         res = CliRunner().invoke(main, ["scenes", "street", "--out", str(tmp_path / "x"), "-n", "1", "--size", size])
@@ -298,8 +325,7 @@ def test_coco_file_names_cannot_leave_the_image_folder(tmp_path):
 
     folder, data = _street_set(tmp_path)
     (tmp_path / "secret.png").write_bytes((folder / "images" / data["images"][0]["file_name"]).read_bytes())
-    for name in ("../../secret.png", str(tmp_path / "secret.png"), "../secret.png", "a/../../secret.png",
-                 "x\x00.png"):
+    for name in ("../../secret.png", str(tmp_path / "secret.png"), "../secret.png", "a/../../secret.png", "x\x00.png"):
         bad = json.loads(json.dumps(data))
         bad["images"][0]["file_name"] = name
         (folder / "annotations.json").write_text(json.dumps(bad))
@@ -313,10 +339,13 @@ def test_coco_file_names_cannot_leave_the_image_folder(tmp_path):
     assert CocoDetection(folder / "images", folder / "annotations.json")[0][0].shape[0] == 3
 
 
-@pytest.mark.parametrize("change, words", [
-    (lambda d: d["annotations"][0].__setitem__("illumination", float("nan")), "illumination must be a finite"),
-    (lambda d: d["annotations"][0].__setitem__("illumination", -1), "illumination must be a finite"),
-])
+@pytest.mark.parametrize(
+    "change, words",
+    [
+        (lambda d: d["annotations"][0].__setitem__("illumination", float("nan")), "illumination must be a finite"),
+        (lambda d: d["annotations"][0].__setitem__("illumination", -1), "illumination must be a finite"),
+    ],
+)
 def test_coco_extras_must_be_finite(tmp_path, change, words):
     from optix_e2e.scenes.coco import CocoDetection, CocoFormatError
 
@@ -391,8 +420,11 @@ def test_a_design_state_with_a_step_beyond_its_run_is_damaged(tmp_path):
     _save_state(path, w, opt, 1.0, [])
     assert _load_state(path, w, Vanilla([Block("isp", list(w.parameters()), 1e-3)], 1e-3, 6)) == (1.0, [])
     st = torch.load(path, weights_only=True)
-    for key, value, words in (("t", 10 ** 6, "step 1000000 outside this run's 0..6"), ("t", -1, "step -1"),
-                              ("t", float("inf"), "OverflowError")):
+    for key, value, words in (
+        ("t", 10**6, "step 1000000 outside this run's 0..6"),
+        ("t", -1, "step -1"),
+        ("t", float("inf"), "OverflowError"),
+    ):
         bad = {**st, "optimizer": {**st["optimizer"], key: value}}
         torch.save(bad, path)
         with pytest.raises(ValueError, match="damaged design checkpoint") as err:
@@ -413,9 +445,12 @@ def test_damaged_detector_checkpoints_are_named_not_tracebacks(tmp_path):
     run = tmp_path / "run"
     train_detector(tmp_path / "data", run, steps=1, batch=1, progress=False, log=lambda m: None)
     good = torch.load(run / "detector.pt", weights_only=True)
-    for change, words in ((lambda c: c.pop("step"), "step missing"), (lambda c: c.update(step=10 ** 12), "step"),
-                          (lambda c: c.update(wall_s=float("inf")), "wall_s inf"),
-                          (lambda c: c.update(optimizer={"state": 3}), "optimizer")):
+    for change, words in (
+        (lambda c: c.pop("step"), "step missing"),
+        (lambda c: c.update(step=10**12), "step"),
+        (lambda c: c.update(wall_s=float("inf")), "wall_s inf"),
+        (lambda c: c.update(optimizer={"state": 3}), "optimizer"),
+    ):
         ck = dict(good)
         change(ck)
         torch.save(ck, run / "detector.pt")
@@ -428,11 +463,23 @@ def test_a_damaged_evaluation_cache_is_evaluated_again_not_a_traceback(tmp_path)
     from optix_e2e.optimize.run import _read_eval_cache
 
     path = tmp_path / "eval_nominal_exact.json"
-    row = {"image": "photo:a", "position": "frame", "radius": 0.3, "psnr_db": 25.0, "ssim": 0.8, "lpips": 0.1,
-           "haarpsi": 0.7}
+    row = {
+        "image": "photo:a",
+        "position": "frame",
+        "radius": 0.3,
+        "psnr_db": 25.0,
+        "ssim": 0.8,
+        "lpips": 0.1,
+        "haarpsi": 0.7,
+    }
     path.write_text(json.dumps({"key": "k", "rows": [row]}))
     assert _read_eval_cache(path, "k")["rows"] == [row]
-    for rows in ([{**row, "psnr_db": "x"}], [{k: v for k, v in row.items() if k != "ssim"}], [3], [{**row, "image": 1}]):
+    for rows in (
+        [{**row, "psnr_db": "x"}],
+        [{k: v for k, v in row.items() if k != "ssim"}],
+        [3],
+        [{**row, "image": 1}],
+    ):
         path.write_text(json.dumps({"key": "k", "rows": rows}))
         assert _read_eval_cache(path, "k") is None
     path.write_bytes(b"\xff\xfe garbage")
@@ -448,8 +495,11 @@ def test_stop_if_diverged_names_the_step_and_what_left_the_finite_numbers(tmp_pa
     stop_if_diverged(3, None, loss=0.5, net=net)  # all finite: nothing happens
     kept = tmp_path / "state.pt"
     kept.write_bytes(b"x")
-    with pytest.raises(TrainingDiverged, match=r"^training diverged at step 7: the loss is nan; the last good "
-                                               r"checkpoint \(.*state.pt\) is kept; lower the rate$"):
+    with pytest.raises(
+        TrainingDiverged,
+        match=r"^training diverged at step 7: the loss is nan; the last good "
+        r"checkpoint \(.*state.pt\) is kept; lower the rate$",
+    ):
         stop_if_diverged(7, kept, "lower the rate", loss=torch.tensor(float("nan")))
     with torch.no_grad():
         net.bias[1] = float("inf")
@@ -457,12 +507,15 @@ def test_stop_if_diverged_names_the_step_and_what_left_the_finite_numbers(tmp_pa
         stop_if_diverged(8, tmp_path / "absent.pt", loss=1.0, net=net)
 
 
-@pytest.mark.parametrize("change", [
-    lambda st: st.update(param_std=[0.0] * len(st["param_std"])),
-    lambda st: st.update(param_min=st["param_max"], param_max=st["param_min"]),
-    lambda st: st.update(param_mean=[v + 1e6 for v in st["param_mean"]]),
-    lambda st: st.update(pitch_um=-5.86),
-])
+@pytest.mark.parametrize(
+    "change",
+    [
+        lambda st: st.update(param_std=[0.0] * len(st["param_std"])),
+        lambda st: st.update(param_min=st["param_max"], param_max=st["param_min"]),
+        lambda st: st.update(param_mean=[v + 1e6 for v in st["param_mean"]]),
+        lambda st: st.update(pitch_um=-5.86),
+    ],
+)
 def test_a_surrogate_with_a_normalization_out_of_reason_is_refused(change):
     import torch
 
@@ -483,8 +536,12 @@ def test_a_surrogate_whose_manifest_lost_its_space_is_named():
     from optix_e2e.surrogate.checkpoint import SurrogateFileError, resolve
 
     st = torch.load(resolve("paper-triplet-v1"), weights_only=True)
-    for change in (lambda m: m.pop("space"), lambda m: m.update(space={"parameters": [3]}),
-                   lambda m: m.update(space={"parameters": [{"nme": "x"}]}), lambda m: m.pop("base_lens")):
+    for change in (
+        lambda m: m.pop("space"),
+        lambda m: m.update(space={"parameters": [3]}),
+        lambda m: m.update(space={"parameters": [{"nme": "x"}]}),
+        lambda m: m.pop("base_lens"),
+    ):
         man = json.loads(json.dumps(st["manifest"]))
         change(man)
         with pytest.raises(SurrogateFileError, match="bad.pt: damaged surrogate checkpoint: .*manifest"):
@@ -500,7 +557,9 @@ def test_json_nested_too_deeply_is_one_error_naming_the_file(tmp_path):
     with pytest.raises(CocoFormatError, match="annotations.json: invalid JSON: nested too deeply"):
         CocoDetection(tmp_path / "images", tmp_path / "annotations.json")
     (tmp_path / "space.json").write_text(deep)
-    res = CliRunner().invoke(main, ["sample", str(tmp_path / "space.json"), "-n", "1", "--out", str(tmp_path / "s.csv")])
+    res = CliRunner().invoke(
+        main, ["sample", str(tmp_path / "space.json"), "-n", "1", "--out", str(tmp_path / "s.csv")]
+    )
     assert res.exit_code == 1 and "space.json: invalid JSON: nested too deeply" in res.output, res.output
     assert not (tmp_path / "s.csv").exists()
 
@@ -517,29 +576,36 @@ def test_claim_out_dir_accepts_only_an_empty_folder_its_own_run_or_its_own_files
     run = tmp_path / "run"
     run.mkdir()
     (run / "a.json").write_text("{}")
-    assert claim_out_dir(run, "x run", {"a.json"}) is False               # its own files
+    assert claim_out_dir(run, "x run", {"a.json"}) is False  # its own files
     with pytest.raises(ValueError, match="holds no x run but a.json"):  # its names, not its content
         claim_out_dir(run, "x run", {"a.json"}, own=lambda p: False)
     (run / "state.pt").write_bytes(b"")
-    assert claim_out_dir(run, "x run", marker="state.pt") is True         # its own run: resume
+    assert claim_out_dir(run, "x run", marker="state.pt") is True  # its own run: resume
     other = tmp_path / "other"
     other.mkdir()
     for name in ("history.csv", "detector.pt", "notes.md", "z.txt"):
         (other / name).write_text("x")
-    with pytest.raises(ValueError, match=r"other is not empty and holds no x run \(state\.pt\) but detector\.pt, "
-                                         r"history\.csv, notes\.md, \.\.\.; choose another --out"):
+    with pytest.raises(
+        ValueError,
+        match=r"other is not empty and holds no x run \(state\.pt\) but detector\.pt, "
+        r"history\.csv, notes\.md, \.\.\.; choose another --out",
+    ):
         claim_out_dir(other, "x run", marker="state.pt")
     (tmp_path / "file").write_text("x")
     with pytest.raises(ValueError, match="is not a folder"):
         claim_out_dir(tmp_path / "file", "x run")
 
 
-@pytest.mark.parametrize("args", [
-    ["tolerance", "cooke-f50", "--space", "cooke-f50", "--mc", "0"],
-    ["bench", "accuracy", "--quick"],
-    ["lens", "report", "cooke-f50"],
-    ["sensor", "ptc", "--levels", "10", "--patch", "32"],
-])
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["tolerance", "cooke-f50", "--space", "cooke-f50", "--mc", "0"],
+        ["bench", "accuracy", "--quick"],
+        ["lens", "report", "cooke-f50"],
+        ["sensor", "ptc", "--levels", "10", "--patch", "32"],
+        ["demo", "--n-fields", "2", "--size", "16", "--pupil-samples", "16"],
+    ],
+)
 def test_report_commands_refuse_a_folder_of_another_run(tmp_path, args):
     from click.testing import CliRunner
 

@@ -44,15 +44,19 @@ def _load_software(p):
 
 def _resume_training(p):
     from optix_e2e.surrogate.train import TrainConfig, train
+
     train(p.parent / "no-dataset", p.parent, TrainConfig(steps=1), progress=False)
 
 
-@pytest.mark.parametrize("load, name, fmt", [
-    (_load_surrogate, "surrogate.pt", FORMAT),
-    (_load_proxy, "proxy.pt", "optix-isp-proxy/1"),
-    (_load_software, "software_isp.pt", "optix-software-isp/1"),
-    (_resume_training, "state.pt", None),
-])
+@pytest.mark.parametrize(
+    "load, name, fmt",
+    [
+        (_load_surrogate, "surrogate.pt", FORMAT),
+        (_load_proxy, "proxy.pt", "optix-isp-proxy/1"),
+        (_load_software, "software_isp.pt", "optix-software-isp/1"),
+        (_resume_training, "state.pt", None),
+    ],
+)
 def test_malicious_checkpoint_runs_nothing(tmp_path, load, name, fmt):
     marker = tmp_path / "pwned"
     path = _malicious(tmp_path / name, marker, fmt)
@@ -80,6 +84,7 @@ def test_shipped_checkpoints_load_as_plain_data():
 
 
 # -- item 8: damaged checkpoints and out-of-range options give one Error line ---------------
+
 
 def _one_error(res, *needles, code=1):
     """The command failed cleanly: exit status ``code``, no traceback, one ``Error:`` line
@@ -118,65 +123,93 @@ def _drop_weight(st):
     st["state_dict"].pop(next(iter(st["state_dict"])))
 
 
-@pytest.mark.parametrize("change, needle", [
-    (_set("config", {"pattern": "XYZ", "base": 32}), "config"),
-    (_set("config", {"base": 64}), "weights do not match"),       # valid config, other shapes
-    (_set("config", "RGGB"), "no config"),
-    (_drop("state_dict"), "no state_dict"),
-    (_drop_weight, "missing"),
-    (_nan_first_weight, "non-finite"),
-    (_set("space", 3), "hyperparameter space"),
-])
+@pytest.mark.parametrize(
+    "change, needle",
+    [
+        (_set("config", {"pattern": "XYZ", "base": 32}), "config"),
+        (_set("config", {"base": 64}), "weights do not match"),  # valid config, other shapes
+        (_set("config", "RGGB"), "no config"),
+        (_drop("state_dict"), "no state_dict"),
+        (_drop_weight, "missing"),
+        (_nan_first_weight, "non-finite"),
+        (_set("space", 3), "hyperparameter space"),
+    ],
+)
 def test_isp_eval_damaged_proxy(tmp_path, change, needle):
     from optix_e2e.isp.proxy import BUNDLED
+
     path = _damaged(BUNDLED, tmp_path / "proxy.pt", change)
-    res = CliRunner().invoke(main, ["isp", "eval", str(path), "--size", "32", "--param-sets", "0",
-                                    "--photo", "astronaut"])
+    res = CliRunner().invoke(
+        main, ["isp", "eval", str(path), "--size", "32", "--param-sets", "0", "--photo", "astronaut"]
+    )
     _one_error(res, str(path), needle)
 
 
-@pytest.mark.parametrize("change, needle", [
-    (_nan_first_weight, "non-finite"),
-    (_set("config", {"n_params": 19, "channels": 3, "psf_size": 21, "hidden": 128, "depth": 4,
-                     "base_channels": 64, "n_up": 2}), "weights do not match"),
-    (_set("config", {"n_params": 19, "nonsense": 1}), "config"),
-    (_set("param_mean", [float("nan")] * 19), "param_mean"),
-    (_set("param_min", [0.0] * 3), "param_min"),
-    (_set("manifest", "text"), "manifest"),
-])
+@pytest.mark.parametrize(
+    "change, needle",
+    [
+        (_nan_first_weight, "non-finite"),
+        (
+            _set(
+                "config",
+                {
+                    "n_params": 19,
+                    "channels": 3,
+                    "psf_size": 21,
+                    "hidden": 128,
+                    "depth": 4,
+                    "base_channels": 64,
+                    "n_up": 2,
+                },
+            ),
+            "weights do not match",
+        ),
+        (_set("config", {"n_params": 19, "nonsense": 1}), "config"),
+        (_set("param_mean", [float("nan")] * 19), "param_mean"),
+        (_set("param_min", [0.0] * 3), "param_min"),
+        (_set("manifest", "text"), "manifest"),
+    ],
+)
 def test_surrogate_eval_damaged_checkpoint(tmp_path, change, needle):
     from optix_e2e.surrogate.checkpoint import bundled_path
+
     path = _damaged(bundled_path("paper-triplet-v1"), tmp_path / "surrogate.pt", change)
     res = CliRunner().invoke(main, ["surrogate", "eval", str(path), str(tmp_path)])
     _one_error(res, str(path), needle)
 
 
-@pytest.mark.parametrize("args, needle", [
-    (["--temperature", "1e6"], "temperature_c"),        # 2 ** (1e6 / 7) overflows
-    (["--temperature", "1000"], "dark frames saturate"),
-    (["--exposure-s", "1e6"], "dark frames saturate"),
-    (["--exposure-s", "1e-300"], "beyond float32"),
-    (["--gain", "1e-9"], "spans"),
-    (["--gain", "1e9"], "saturate"),
-    (["--low-light", "1e300"], "saturate"),
-])
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["--temperature", "1e6"], "temperature_c"),  # 2 ** (1e6 / 7) overflows
+        (["--temperature", "1000"], "dark frames saturate"),
+        (["--exposure-s", "1e6"], "dark frames saturate"),
+        (["--exposure-s", "1e-300"], "beyond float32"),
+        (["--gain", "1e-9"], "spans"),
+        (["--gain", "1e9"], "saturate"),
+        (["--low-light", "1e300"], "saturate"),
+    ],
+)
 def test_sensor_ptc_unmeasurable_settings(args, needle):
     res = CliRunner().invoke(main, ["sensor", "ptc", "--patch", "16", "--levels", "10", *args])
     _one_error(res, needle)
 
 
-@pytest.mark.parametrize("cmd", [
-    ["sensor", "ptc", "--temperature", "-300"],
-    ["sensor", "ptc", "--gain", "nan"],
-    ["sensor", "ptc", "--exposure-s", "inf"],
-    ["sensor", "ptc", "--seed", "99999999999999999999999"],
-    ["sensor", "ptc", "--patch", "100000"],
-    ["isp", "eval", "--size", "100000"],
-    ["isp", "tune", "--perceptual-weight", "nan"],
-    ["isp", "train-proxy", "--out", "x", "--lr", "inf"],
-    ["surrogate", "train", ".", "--out", "x", "--hidden", "1000000000"],
-    ["surrogate", "train", ".", "--out", "x", "--lr", "nan"],
-])
+@pytest.mark.parametrize(
+    "cmd",
+    [
+        ["sensor", "ptc", "--temperature", "-300"],
+        ["sensor", "ptc", "--gain", "nan"],
+        ["sensor", "ptc", "--exposure-s", "inf"],
+        ["sensor", "ptc", "--seed", "99999999999999999999999"],
+        ["sensor", "ptc", "--patch", "100000"],
+        ["isp", "eval", "--size", "100000"],
+        ["isp", "tune", "--perceptual-weight", "nan"],
+        ["isp", "train-proxy", "--out", "x", "--lr", "inf"],
+        ["surrogate", "train", ".", "--out", "x", "--hidden", "1000000000"],
+        ["surrogate", "train", ".", "--out", "x", "--lr", "nan"],
+    ],
+)
 def test_numeric_options_range_checked(cmd):
     """Options that would overflow, allocate without bound or feed NaN are refused by click
     before anything runs (click's usage error: exit 2, one Error line naming the option)."""
@@ -187,6 +220,7 @@ def test_numeric_options_range_checked(cmd):
 def test_sensor_preset_temperature_checked():
     from optix_e2e.sensor import get_preset
     from optix_e2e.sensor.emva import dark_current_mean
+
     p = get_preset("imx249")
     with pytest.raises(ValueError, match="overflows"):
         p.with_(temperature_c=1e6)
@@ -194,4 +228,5 @@ def test_sensor_preset_temperature_checked():
         dark_current_mean(p, temperature_c=-274)
     # Eq. 4 still holds where it is defined: one doubling per doubling_c
     assert dark_current_mean(p, temperature_c=p.t_ref_c + p.doubling_c) == pytest.approx(
-        2 * dark_current_mean(p, temperature_c=p.t_ref_c), rel=1e-12)
+        2 * dark_current_mean(p, temperature_c=p.t_ref_c), rel=1e-12
+    )

@@ -42,8 +42,24 @@ def test_lens_info_table():
 
 def test_psf_writes_npy_and_one_json_line(tmp_path):
     out, png = tmp_path / "psf.npy", tmp_path / "psf.png"
-    r = run("psf", "cooke-f50", "--field-deg", 14, "--wavelength-nm", 550, "--method", "fft",
-            "--pixel-um", 1.0, "--size", 32, "--out", out, "--png", png)
+    r = run(
+        "psf",
+        "cooke-f50",
+        "--field-deg",
+        14,
+        "--wavelength-nm",
+        550,
+        "--method",
+        "fft",
+        "--pixel-um",
+        1.0,
+        "--size",
+        32,
+        "--out",
+        out,
+        "--png",
+        png,
+    )
     assert r.exit_code == 0, r.output
     lines = r.stdout.strip().splitlines()
     assert len(lines) == 1
@@ -66,8 +82,19 @@ def test_psf_other_methods(tmp_path, method):
 def test_huygens_refuses_to_integrate_over_pixels(tmp_path):
     """Huygens samples pixel centres; asked to integrate it says so rather than returning
     point samples labelled as integrated."""
-    r = run("psf", "cooke-f50", "--method", "huygens", "--integrate", "--size", 16, "--pupil-samples", 32,
-            "--out", tmp_path / "p.npy")
+    r = run(
+        "psf",
+        "cooke-f50",
+        "--method",
+        "huygens",
+        "--integrate",
+        "--size",
+        16,
+        "--pupil-samples",
+        32,
+        "--out",
+        tmp_path / "p.npy",
+    )
     assert r.exit_code != 0 and "integrate: the Huygens PSF samples pixel centres" in r.output
     assert "Traceback" not in r.output and not (tmp_path / "p.npy").exists()
 
@@ -102,8 +129,9 @@ def test_engine_error_is_one_line(tmp_path):
 
 
 def test_subprocess_entry_point(tmp_path):
-    r = subprocess.run([sys.executable, "-m", "optix_e2e", "lens", "info", str(tmp_path / "no.json")],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "optix_e2e", "lens", "info", str(tmp_path / "no.json")], capture_output=True, text=True
+    )
     assert r.returncode != 0
     assert "Error:" in r.stderr and "no such lens file" in r.stderr and "Traceback" not in r.stderr
 

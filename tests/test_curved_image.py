@@ -4,7 +4,6 @@ sagittal surface, and the wave-optics analyses of a field use the plane through 
 chief ray's point on the sphere (crates/psf-engine/src/image.rs)."""
 
 import copy
-import math
 
 import numpy as np
 import pytest
@@ -19,10 +18,16 @@ N_GLASS, R_LENS, EPD = 1.5, 100.0, 10.0
 def thin_lens(image_radius=None, stop_to_image=None) -> Lens:
     """An equiconvex singlet (n 1.5, f ~ 100 mm, f/10) with its stop on the lens, the image
     at the paraxial focus, optionally curved."""
-    data = {"name": "singlet", "aperture": {"type": "epd", "value": EPD}, "fields_deg": [0.0, 10.0],
-            "wavelengths_nm": [587.6],
-            "surfaces": [{"radius": R_LENS, "thickness": 1.0, "material": {"n": N_GLASS}, "stop": True},
-                         {"radius": -R_LENS, "thickness": 100.0, "material": "air"}]}
+    data = {
+        "name": "singlet",
+        "aperture": {"type": "epd", "value": EPD},
+        "fields_deg": [0.0, 10.0],
+        "wavelengths_nm": [587.6],
+        "surfaces": [
+            {"radius": R_LENS, "thickness": 1.0, "material": {"n": N_GLASS}, "stop": True},
+            {"radius": -R_LENS, "thickness": 100.0, "material": "air"},
+        ],
+    }
     lens = Lens(data)
     data["surfaces"][-1]["thickness"] = float(lens.paraxial()["bfl_mm"])
     if image_radius is not None:
@@ -45,8 +50,8 @@ def test_rays_end_on_the_sphere_where_their_straight_line_meets_it():
         p, d = a["position"], a["direction"]
         # |p + t d - centre|^2 = R^2, the root nearest the plane (the vertex sheet)
         q = p - centre
-        bq, cq = np.sum(q * d, axis=1), np.sum(q * q, axis=1) - radius ** 2
-        t = -bq - np.sign(radius) * np.sqrt(bq ** 2 - cq)
+        bq, cq = np.sum(q * d, axis=1), np.sum(q * q, axis=1) - radius**2
+        t = -bq - np.sign(radius) * np.sqrt(bq**2 - cq)
         want = p + t[:, None] * d
         np.testing.assert_allclose(b["position"], want, atol=1e-9)
         np.testing.assert_allclose(b["direction"], d, atol=1e-12)
@@ -91,11 +96,14 @@ def test_psf_and_wavefront_of_a_field_use_the_plane_through_the_chief_rays_point
     assert np.abs(a - flat).sum() > 0.1
 
 
-@pytest.mark.parametrize("image, msg", [
-    ({"radius": 0}, r"image\.radius: must not be 0"),
-    ({"radius": "flat"}, r"image\.radius: must be a number"),
-    ({"radius": 5.0, "semi_diameter": 6.0}, r"semi_diameter.* exceeds the curved image surface"),
-])
+@pytest.mark.parametrize(
+    "image, msg",
+    [
+        ({"radius": 0}, r"image\.radius: must not be 0"),
+        ({"radius": "flat"}, r"image\.radius: must be a number"),
+        ({"radius": 5.0, "semi_diameter": 6.0}, r"semi_diameter.* exceeds the curved image surface"),
+    ],
+)
 def test_bad_image_radius_is_one_clear_error(image, msg):
     data = copy.deepcopy(thin_lens().data)
     data["image"] = image

@@ -31,8 +31,12 @@ SMALL_SETTINGS = DatasetSettings(n_fields=3, window_um=32.0, pupil_samples=32, s
 
 def _cli(*args, env=None):
     """Run ``optix dataset ...`` in a subprocess (so it can be killed)."""
-    return subprocess.Popen([sys.executable, "-m", "optix_e2e", "dataset", *map(str, args)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    return subprocess.Popen(
+        [sys.executable, "-m", "optix_e2e", "dataset", *map(str, args)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=env,
+    )
 
 
 def sensor_binning(size: int, pitch_um: float, s_size: int, s_pitch_um: float) -> np.ndarray:
@@ -41,8 +45,9 @@ def sensor_binning(size: int, pitch_um: float, s_size: int, s_pitch_um: float) -
     fine pixel; both grids centred on pixel size // 2."""
     x = (np.arange(size) - size // 2) * pitch_um
     c = (np.arange(s_size) - s_size // 2) * s_pitch_um
-    ov = (np.minimum(x[None, :] + pitch_um / 2, c[:, None] + s_pitch_um / 2)
-          - np.maximum(x[None, :] - pitch_um / 2, c[:, None] - s_pitch_um / 2))
+    ov = np.minimum(x[None, :] + pitch_um / 2, c[:, None] + s_pitch_um / 2) - np.maximum(
+        x[None, :] - pitch_um / 2, c[:, None] - s_pitch_um / 2
+    )
     return np.clip(ov, 0.0, None) / pitch_um
 
 
@@ -75,13 +80,14 @@ def test_layout_shapes_and_physics(reference):
     sens = np.load(reference / "shards" / "00000" / "psf_sensor.npy")
     ri = np.load(reference / "shards" / "00000" / "relative_illumination.npy")
     np.testing.assert_allclose(psf.sum(axis=(-1, -2)), 1.0, atol=1e-5)  # unit sum per channel
-    assert np.all(ri[:, 0] == 1.0) and np.all(ri > 0)                   # relative to the axis
+    assert np.all(ri[:, 0] == 1.0) and np.all(ri > 0)  # relative to the axis
     # the sensor version integrates the fine PSF over 5.86 um pixels: its energy is the fine
     # PSF's energy inside the 5 x 5 pixel block (29.3 um of the 32 um window)
     w = sensor_binning(32, 1.0, 5, 5.86)
     np.testing.assert_allclose(w.sum(axis=0)[2:30], 1.0, atol=1e-12)
-    np.testing.assert_allclose(sens.sum(axis=(-1, -2)), np.einsum("mkcyx,x,y->mkc", psf.astype(float),
-                               w.sum(axis=0), w.sum(axis=0)), rtol=1e-5)
+    np.testing.assert_allclose(
+        sens.sum(axis=(-1, -2)), np.einsum("mkcyx,x,y->mkc", psf.astype(float), w.sum(axis=0), w.sum(axis=0)), rtol=1e-5
+    )
     # pixel by pixel: the engine bins the double-precision PSF; the float32 one binned here
     # agrees to float32 rounding
     np.testing.assert_allclose(sens, np.einsum("iy,mkcyx,jx->mkcij", w, psf.astype(float), w), rtol=2e-6, atol=1e-9)
@@ -96,8 +102,9 @@ def test_designs_match_the_sampler_and_psfs_match_the_engine(reference):
     x = np.load(reference / "shards" / "00000" / "params.npy")[0]
     d = space.apply(engine_base(base, "auto"), x)
     d["surfaces"][-1]["thickness"] = float(np.load(reference / "shards" / "00000" / "image_distance.npy")[0])
-    psf, ri, diags = _engine.psf_rgb(json.dumps(d), 14.9, [[(650.0, 1.0)], [(550.0, 1.0)], [(470.0, 1.0)]],
-                                     "auto", 1.0, 32, 32)  # the dataset default
+    psf, ri, diags = _engine.psf_rgb(
+        json.dumps(d), 14.9, [[(650.0, 1.0)], [(550.0, 1.0)], [(470.0, 1.0)]], "auto", 1.0, 32, 32
+    )  # the dataset default
     stored = np.load(reference / "shards" / "00000" / "psf.npy")[0, 2]
     np.testing.assert_allclose(stored, psf, rtol=0, atol=1e-6)
     np.testing.assert_allclose(np.load(reference / "shards" / "00000" / "relative_illumination.npy")[0, 2], ri)
@@ -136,7 +143,7 @@ def test_killed_and_resumed_equals_uninterrupted(tmp_path):
     assert rep["shards_skipped"] == [int(d) for d in done]
     assert rep["shards_written"] == [k for k in range(n // 3) if f"{k:05d}" not in done]
     assert not stale.exists()
-    assert _arrays(root) == _arrays(whole)            # byte-identical arrays
+    assert _arrays(root) == _arrays(whole)  # byte-identical arrays
     assert verify(root)["digest"] == verify(whole)["digest"]
     # a finished dataset: the same command does nothing
     rep2 = generate("paper-triplet", n, 11, root, settings, progress=False)
@@ -171,7 +178,9 @@ def test_same_arrays_whatever_the_thread_count(reference, tmp_path):
 def test_other_arguments_refuse_the_directory(reference, tmp_path):
     root = tmp_path / "ds"
     shutil.copytree(reference, root)
-    with pytest.raises(DatasetError, match=r"manifest.json: this directory holds a different dataset \(differs in: seed\)"):
+    with pytest.raises(
+        DatasetError, match=r"manifest.json: this directory holds a different dataset \(differs in: seed\)"
+    ):
         generate("paper-triplet", 8, 12, root, SMALL_SETTINGS, progress=False)
 
 
@@ -209,17 +218,23 @@ def test_engine_failures_are_recorded_not_written(tmp_path):
 
     (tmp_path / "lens.json").write_text(json.dumps(Lens.load("cooke-f50").data))
     space_file = tmp_path / "space.toml"
-    space_file.write_text('lens = "lens.json"\n'
-                          '[[parameter]]\nname = "s_2_thickness"\nkind = "air_gap"\nsurface = 2\nmin = 0.01\nmax = 8.0\n'
-                          '[[parameter]]\nname = "s_5_radius"\nkind = "radius"\nsurface = 5\nmin = 5.0\nmax = 100.0\n'
-                          '[[parameter]]\nname = "s_6_radius"\nkind = "radius"\nsurface = 6\nmin = -30.0\nmax = -4.0\n')
+    space_file.write_text(
+        'lens = "lens.json"\n'
+        '[[parameter]]\nname = "s_2_thickness"\nkind = "air_gap"\nsurface = 2\nmin = 0.01\nmax = 8.0\n'
+        '[[parameter]]\nname = "s_5_radius"\nkind = "radius"\nsurface = 5\nmin = 5.0\nmax = 100.0\n'
+        '[[parameter]]\nname = "s_6_radius"\nkind = "radius"\nsurface = 6\nmin = -30.0\nmax = -4.0\n'
+    )
     space, base = load_space(space_file)
     s = DatasetSettings(n_fields=2, window_um=24, pupil_samples=16, shard_size=3)
     root = tmp_path / "ds"
     man, _ = prepare(root, space, base, 3, 0, s)
-    designs = np.array([[6.00755, 79.6836, -18.39533],   # the nominal
-                        [0.05, 79.6836, -18.39533],      # lens 1 and lens 2 cross
-                        [6.00755, 6.0, -18.39533]])      # R5 = 6 mm inside a 6.9 mm aperture
+    designs = np.array(
+        [
+            [6.00755, 79.6836, -18.39533],  # the nominal
+            [0.05, 79.6836, -18.39533],  # lens 1 and lens 2 cross
+            [6.00755, 6.0, -18.39533],
+        ]
+    )  # R5 = 6 mm inside a 6.9 mm aperture
     arrays, meta = compute_shard(0, man, designs, space, base)
     assert write_shard(root, 0, arrays, meta)
     reasons = {f["design"]: f["reason"] for f in meta["failures"]}
@@ -231,6 +246,7 @@ def test_engine_failures_are_recorded_not_written(tmp_path):
     from optix_e2e.dataset.layout import sha256_file
     from optix_e2e.io import write_json_atomic
     from optix_e2e.design.sampling import write_designs_csv
+
     write_designs_csv(root / "designs.csv", space.names, designs)
     write_json_atomic(root / "manifest.json", {**man, "designs_csv_sha256": sha256_file(root / "designs.csv")})
     rep = verify(root)
@@ -245,7 +261,8 @@ def test_engine_failures_are_recorded_not_written(tmp_path):
     man, _ = prepare(tmp_path / "ds2", space, base, 3, 0, s)
     _, meta = compute_shard(0, man, designs[[0, 0, 0]], space, base)
     assert [f["reason"] for f in meta["failures"]] == [
-        "field 20 deg: trace: chief ray at 20 deg, 650.0 nm: Clipped at surface 1"] * 3
+        "field 20 deg: trace: chief ray at 20 deg, 650.0 nm: Clipped at surface 1"
+    ] * 3
 
 
 def test_disjoint_shard_ranges_merge_to_the_same_data(reference, tmp_path):
@@ -288,8 +305,9 @@ def test_torch_dataset(reference):
     # a held-out subset by design index, and the sensor-pitch PSFs
     held = PsfDataset(reference, psf="psf_sensor", designs=[int(item["design"])])
     assert len(held) == 3 and held[1]["psf"].shape == (3, 5, 5) and held[1]["design"] == item["design"]
-    loader = torch.utils.data.DataLoader(ds, batch_size=5, num_workers=2, shuffle=True,
-                                         generator=torch.Generator().manual_seed(0))
+    loader = torch.utils.data.DataLoader(
+        ds, batch_size=5, num_workers=2, shuffle=True, generator=torch.Generator().manual_seed(0)
+    )
     batch = next(iter(loader))
     assert batch["psf"].shape == (5, 3, 32, 32) and batch["params"].shape == (5, 19)
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import shutil
 
-import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -39,10 +38,17 @@ def _verify_cli(root):
     return CliRunner().invoke(main, ["dataset", "verify", str(root)])
 
 
-@pytest.mark.parametrize("damage", [
-    "shard.json", "psf.npy", "energy_in_window.npy",
-    "truncate psf.npy", "flip a byte of psf_sensor.npy", "empty shard.json",
-])
+@pytest.mark.parametrize(
+    "damage",
+    [
+        "shard.json",
+        "psf.npy",
+        "energy_in_window.npy",
+        "truncate psf.npy",
+        "flip a byte of psf_sensor.npy",
+        "empty shard.json",
+    ],
+)
 def test_rerun_redoes_a_damaged_shard(data, pristine, damage):
     shard = data / "shards" / "00001"
     if damage.startswith("truncate"):
@@ -68,10 +74,19 @@ def test_rerun_redoes_a_damaged_shard(data, pristine, damage):
     assert any(p.name.startswith(".00001.damaged") for p in (data / "shards").iterdir())
 
 
-@pytest.mark.parametrize("key, value", [
-    ("n_shards", None), ("fields_deg", "x"), ("settings", {"shard_size": "3"}), ("param_mean", [1.0]),
-    ("channels", 7), ("psf_size", -1), ("space", {"parameters": [{"min": 0}]}), ("n_designs", 1e400),
-])
+@pytest.mark.parametrize(
+    "key, value",
+    [
+        ("n_shards", None),
+        ("fields_deg", "x"),
+        ("settings", {"shard_size": "3"}),
+        ("param_mean", [1.0]),
+        ("channels", 7),
+        ("psf_size", -1),
+        ("space", {"parameters": [{"min": 0}]}),
+        ("n_designs", 1e400),
+    ],
+)
 def test_damaged_manifest_key_is_one_clear_error(data, key, value):
     mpath = data / "manifest.json"
     man = json.loads(mpath.read_text())

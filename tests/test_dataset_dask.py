@@ -25,13 +25,31 @@ distributed = pytest.importorskip("distributed")
 # enough to kill a worker while it computes one
 N, SEED = 96, 5
 SETTINGS = DatasetSettings(n_fields=3, window_um=32.0, pupil_samples=32, shard_size=24, psf_method="huygens")
-CLI_ARGS = ["paper-triplet", "-n", str(N), "--seed", str(SEED), "--fields", "3", "--window-um", "32",
-            "--pupil-samples", "32", "--shard-size", "24", "--psf-method", "huygens"]
+CLI_ARGS = [
+    "paper-triplet",
+    "-n",
+    str(N),
+    "--seed",
+    str(SEED),
+    "--fields",
+    "3",
+    "--window-um",
+    "32",
+    "--pupil-samples",
+    "32",
+    "--shard-size",
+    "24",
+    "--psf-method",
+    "huygens",
+]
 
 
 def _arrays(root: Path) -> dict:
-    return {f"{d.name}/{f.name}": f.read_bytes()
-            for d in sorted((root / "shards").iterdir()) for f in sorted(d.glob("*.npy"))}
+    return {
+        f"{d.name}/{f.name}": f.read_bytes()
+        for d in sorted((root / "shards").iterdir())
+        for f in sorted(d.glob("*.npy"))
+    }
 
 
 @pytest.fixture(scope="module")
@@ -45,8 +63,9 @@ def single(tmp_path_factory) -> Path:
 
 @pytest.fixture
 def cluster():
-    c = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
-                                 env={v: "1" for v in WORKER_ENV})
+    c = distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None, env={v: "1" for v in WORKER_ENV}
+    )
     yield c
     c.close()
 
@@ -71,14 +90,15 @@ def test_a_worker_killed_mid_shard_loses_nothing(single, tmp_path, cluster):
 
     def run():
         try:
-            box["rep"] = generate("paper-triplet", N, SEED, root, SETTINGS, progress=False,
-                                  dask=cluster.scheduler_address)
+            box["rep"] = generate(
+                "paper-triplet", N, SEED, root, SETTINGS, progress=False, dask=cluster.scheduler_address
+            )
         except BaseException as exc:  # reported below
             box["error"] = exc
 
     t = threading.Thread(target=run)
     t.start()
-    killed: list[int] = []   # the unfinished shards the killed worker held (one of them running)
+    killed: list[int] = []  # the unfinished shards the killed worker held (one of them running)
     with distributed.Client(cluster.scheduler_address) as client:
         deadline = time.time() + 120
         while not killed and time.time() < deadline and t.is_alive():
@@ -106,7 +126,7 @@ def test_task_failures_are_collected_and_a_second_run_redoes_them(single, tmp_pa
     root = tmp_path / "ds"
     generate("paper-triplet", N, SEED, root, SETTINGS, progress=False, shards="0")
     shutil.rmtree(root / "shards")
-    (root / "shards").write_text("not a directory")   # no worker can write a shard
+    (root / "shards").write_text("not a directory")  # no worker can write a shard
     rep = generate("paper-triplet", N, SEED, root, SETTINGS, progress=False, dask=cluster.scheduler_address)
     assert [e["shard"] for e in rep.shard_errors] == [0, 1, 2, 3]
     assert all("FileExistsError" in e["error"] or "NotADirectoryError" in e["error"] for e in rep.shard_errors)
@@ -134,11 +154,17 @@ def test_addresses():
     assert parse_address("tcp://10.0.0.1:8786") == ("address", "tcp://10.0.0.1:8786")
     assert parse_address("localhost:8786") == ("address", "tcp://localhost:8786")
     assert parse_address("tcp://proj_scheduler_1:8786") == ("address", "tcp://proj_scheduler_1:8786")  # compose
-    for bad, msg in [("local:0", "1 <= N <= 256"), ("local:x", "1 <= N"), ("local:50000", "1 <= N <= 256"),
-                     ("/nowhere/scheduler.json", "no such scheduler file"),
-                     # checked before any connection is tried (these waited 30 s or raised inside dask)
-                     ("tcp://256.1.1.1:1", "'256.1.1.1' is not an IP address"), ("udp://10.0.0.1:1", "'udp' is not one of dask's"),
-                     ("tcp://10.0.0.1:0", "port from 1 to 65535"), ("tcp://10.0.0.1", "HOST:PORT")]:
+    for bad, msg in [
+        ("local:0", "1 <= N <= 256"),
+        ("local:x", "1 <= N"),
+        ("local:50000", "1 <= N <= 256"),
+        ("/nowhere/scheduler.json", "no such scheduler file"),
+        # checked before any connection is tried (these waited 30 s or raised inside dask)
+        ("tcp://256.1.1.1:1", "'256.1.1.1' is not an IP address"),
+        ("udp://10.0.0.1:1", "'udp' is not one of dask's"),
+        ("tcp://10.0.0.1:0", "port from 1 to 65535"),
+        ("tcp://10.0.0.1", "HOST:PORT"),
+    ]:
         with pytest.raises(ClusterError, match=msg):
             parse_address(bad)
 
@@ -147,8 +173,12 @@ def test_a_scheduler_file_is_read_and_checked_before_connecting(tmp_path):
     sched = tmp_path / "scheduler.json"
     sched.write_text(json.dumps({"type": "Scheduler", "address": "tcp://10.0.0.5:8786"}))
     assert parse_address(str(sched)) == ("address", "tcp://10.0.0.5:8786")
-    for text, msg in (("", "not a scheduler file"), ("garbage{", "not a scheduler file"), ("[]", "no \"address\""),
-                      ('{"address": "tcp://999.0.0.1:1"}', "its address: '999.0.0.1'")):
+    for text, msg in (
+        ("", "not a scheduler file"),
+        ("garbage{", "not a scheduler file"),
+        ("[]", 'no "address"'),
+        ('{"address": "tcp://999.0.0.1:1"}', "its address: '999.0.0.1'"),
+    ):
         sched.write_text(text)
         with pytest.raises(ClusterError, match=msg):
             parse_address(str(sched))

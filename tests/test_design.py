@@ -28,9 +28,13 @@ def test_the_task_loss_gradient_reaches_the_lens_through_sensor_and_isp():
     frame = SensorFrame()
     sur = load_surrogate("paper-triplet-v1").double()
     optics = DifferentiableOptics(sur, patch=32, full_field_px=frame.full_field_px).double()
-    camera = Camera(optics, SensorStage(calibrated_preset("imx249", 4.4), noise=False),
-                    SoftwareISPStage(SoftwareISP(base=8, depth=2))).double()
+    camera = Camera(
+        optics,
+        SensorStage(calibrated_preset("imx249", 4.4), noise=False),
+        SoftwareISPStage(SoftwareISP(base=8, depth=2)),
+    ).double()
     from optix_e2e.metrics.lpips import LPIPS
+
     lp = LPIPS().double()
     m = camera.margin
     b = training_batch(0, 0, 1, 32, m, (0.5, 0.5), frame)
@@ -55,8 +59,9 @@ def test_the_task_loss_gradient_reaches_the_lens_through_sensor_and_isp():
 
 def test_every_optimizer_and_the_nominal_baseline_start_from_the_same_camera(tmp_path):
     cfg_a = make_config("smoke", surrogate="paper-triplet-v1", task="iq-hardware", optics_init="uniform", seed=3)
-    cfg_v = make_config("smoke", surrogate="paper-triplet-v1", task="iq-hardware", optics_init="uniform", seed=3,
-                        optimizer="vanilla")
+    cfg_v = make_config(
+        "smoke", surrogate="paper-triplet-v1", task="iq-hardware", optics_init="uniform", seed=3, optimizer="vanilla"
+    )
     sur = load_surrogate("paper-triplet-v1")
     a, v = build_camera(cfg_a, sur), build_camera(cfg_v, sur)
     sa, sv = a.state_dict(), v.state_dict()
@@ -65,22 +70,28 @@ def test_every_optimizer_and_the_nominal_baseline_start_from_the_same_camera(tmp
     vals = a.optics.values()
     assert bool(((vals > a.optics.lo) & (vals < a.optics.hi)).all())
     assert not torch.allclose(vals, a.optics.base_values())
-    other = build_camera(make_config("smoke", surrogate="paper-triplet-v1", task="iq-hardware", optics_init="uniform",
-                                     seed=4), sur)
+    other = build_camera(
+        make_config("smoke", surrogate="paper-triplet-v1", task="iq-hardware", optics_init="uniform", seed=4), sur
+    )
     assert not torch.equal(other.optics.u, a.optics.u)
     # the blocks each optimizer sees
     assert list(a.blocks()) == ["optics", "isp"]
-    assert make_optimizer(cfg_a, a, "alg1").total_steps == make_optimizer(cfg_v, v, "vanilla").total_steps \
+    assert (
+        make_optimizer(cfg_a, a, "alg1").total_steps
+        == make_optimizer(cfg_v, v, "vanilla").total_steps
         == cfg_a.total_steps
+    )
 
 
 def test_low_light_is_the_same_mean_signal_from_a_hundred_times_fewer_photons():
     base = calibrated_preset("imx249", 4.4)
     low = calibrated_preset("imx249", 4.4, get_task("low-light").exposure_factor, get_task("low-light").gain_factor)
     assert low.exposure_s == pytest.approx(base.exposure_s / 100) and low.gain_dn_per_e == pytest.approx(
-        base.gain_dn_per_e * 100)
+        base.gain_dn_per_e * 100
+    )
     # calibration: a white scene through an f/4.4 lens fills 85 % of full well in green
     from optix_e2e.sensor import expected_electrons
+
     e = expected_electrons(torch.ones(3, 1, 1, dtype=torch.float64), base)[1, 0, 0].item()
     assert e == pytest.approx(0.85 * base.full_well_e, rel=1e-9)
 
@@ -123,10 +134,10 @@ def test_frame_positions_cover_the_frame_as_training_crops_do():
 
 def test_config_files_and_run_directories_are_checked(tmp_path):
     f = tmp_path / "c.toml"
-    f.write_text('crop = 48\nlr_optics = 0.02\n')
+    f.write_text("crop = 48\nlr_optics = 0.02\n")
     cfg = make_config("quick", f)
     assert cfg.crop == 48 and cfg.lr_optics == 0.02
-    f.write_text('crops = 48\n')
+    f.write_text("crops = 48\n")
     with pytest.raises(ValueError, match="unknown setting.*crops"):
         make_config("quick", f)
     f.write_text('crop = "big"\n')
@@ -148,6 +159,7 @@ def test_config_files_and_run_directories_are_checked(tmp_path):
     from optix_e2e.optimize.config import check_run_dir
     from optix_e2e.optimize.run import _load_state, build_camera, make_optimizer
     from optix_e2e.io import save_atomic
+
     run = tmp_path / "run"
     run.mkdir()
     (run / "config.json").write_bytes(b"\xff\xfe{")
@@ -156,8 +168,16 @@ def test_config_files_and_run_directories_are_checked(tmp_path):
     cfg = make_config("smoke", surrogate="paper-triplet-v1", optimizer="vanilla")
     cam = build_camera(cfg, load_surrogate("paper-triplet-v1"))
     opt = make_optimizer(cfg, cam, "vanilla")
-    save_atomic({"format": "optix-design-state/1", "camera": cam.state_dict(), "optimizer": [1, 2],
-                 "wall_s": 0.0, "history": []}, run / "s.pt")
+    save_atomic(
+        {
+            "format": "optix-design-state/1",
+            "camera": cam.state_dict(),
+            "optimizer": [1, 2],
+            "wall_s": 0.0,
+            "history": [],
+        },
+        run / "s.pt",
+    )
     with pytest.raises(ValueError, match="damaged design checkpoint"):
         _load_state(run / "s.pt", cam, opt)
 
@@ -176,13 +196,18 @@ def test_evaluation_noise_is_common_to_both_cameras_and_has_the_sensor_statistic
     from optix_e2e.sensor import expected_electrons
     from optix_e2e.sensor.cfa import mosaic
     from optix_e2e.sensor.emva import dark_current_mean
+
     mu = mosaic(expected_electrons(flat, p), p.cfa) + dark_current_mean(p)
     g = mu[0, 0, 0::2, 1::2]  # one green phase: a constant mean
-    y = torch.cat([sensor(flat, torch.Generator().manual_seed(s), common_noise=True)[0, 0, 0::2, 1::2].flatten()
-                   for s in range(8)])
+    y = torch.cat(
+        [
+            sensor(flat, torch.Generator().manual_seed(s), common_noise=True)[0, 0, 0::2, 1::2].flatten()
+            for s in range(8)
+        ]
+    )
     m = g[0, 0].item()
     want_mean = p.black_level_dn + p.gain_dn_per_e * m
-    want_var = p.gain_dn_per_e ** 2 * (m + p.dark_noise_e ** 2) + 1 / 12
+    want_var = p.gain_dn_per_e**2 * (m + p.dark_noise_e**2) + 1 / 12
     n = y.numel()
     assert abs(y.mean().item() - want_mean) < 5 * (want_var / n) ** 0.5
     assert abs(y.var().item() / want_var - 1) < 5 * (2 / n) ** 0.5
@@ -190,20 +215,28 @@ def test_evaluation_noise_is_common_to_both_cameras_and_has_the_sensor_statistic
 
 def test_paired_differences_and_their_bootstrap_interval():
     from optix_e2e.optimize.evaluate import paired, summarize
+
     rows_a, rows_b = [], []
     for i in range(20):
         for pos in ("centre", "corner"):
             base = {"image": f"img{i}", "position": pos, "psnr_db": 30.0 + i, "ssim": 0.9, "lpips": 0.2, "haarpsi": 0.8}
             rows_a.append(base)
-            rows_b.append({**base, "psnr_db": base["psnr_db"] + 1.0 + (0.5 if i % 2 else -0.5),
-                           "lpips": 0.1 + (0.02 if pos == "corner" else 0.0)})
+            rows_b.append(
+                {
+                    **base,
+                    "psnr_db": base["psnr_db"] + 1.0 + (0.5 if i % 2 else -0.5),
+                    "lpips": 0.1 + (0.02 if pos == "corner" else 0.0),
+                }
+            )
     p = paired(rows_a, rows_b, n_boot=2000, seed=0)
     assert p["psnr_db"]["mean"] == pytest.approx(1.0) and p["psnr_db"]["n_images"] == 20
     lo, hi = p["psnr_db"]["ci95"]
     assert 0.7 < lo < 0.9 and 1.1 < hi < 1.3  # +-0.5 spread over 20 images: half-width ~ 1.96 * 0.5 / sqrt(20)
     assert p["ssim"]["ci95"] == [0.0, 0.0] and p["lpips"]["mean"] == pytest.approx(-0.09)
     s = summarize(rows_b)
-    assert s["one_minus_lpips"] == pytest.approx(1 - 0.11) and s["by_position"]["corner"]["lpips"] == pytest.approx(0.12)
+    assert s["one_minus_lpips"] == pytest.approx(1 - 0.11) and s["by_position"]["corner"]["lpips"] == pytest.approx(
+        0.12
+    )
     with pytest.raises(ValueError, match="same held-out images"):
         paired(rows_a, rows_b[:-2])
 
@@ -221,25 +254,43 @@ def test_the_shipped_software_isp_is_pretrained():
     from optix_e2e.optimize.run import SOFTWARE_ISP, nominal_field_heights
     from optix_e2e.sensor import simulate_raw
     from optix_e2e.tasks.scenes import HELDOUT_SEED0, SensorFrame, heldout_set
+
     sur = load_surrogate("paper-triplet-e2e")
     psf, vig = sur.psfs(DifferentiableOptics(sur).base_values(), check=False)
     m, full = psf.shape[-1] // 2, SensorFrame().full_field_px
     held = heldout_set(96, m, 2, photos=["coffee", "rocket"], positions=("frame",))
-    assert {s.name for s in held} == {"photo:coffee", "photo:rocket", f"procedural:{HELDOUT_SEED0}",
-                                      f"procedural:{HELDOUT_SEED0 + 1}"}
+    assert {s.name for s in held} == {
+        "photo:coffee",
+        "photo:rocket",
+        f"procedural:{HELDOUT_SEED0}",
+        f"procedural:{HELDOUT_SEED0 + 1}",
+    }
     target = torch.stack([s.target for s in held])
     shipped = SoftwareISP.load(SOFTWARE_ISP)
     assert shipped.meta["steps"] >= 5000 and shipped.config()["position"]
     got = {}
-    for case, (ef, gf, lens) in {"normal": (1.0, 1.0, "perfect"), "nominal": (1.0, 1.0, "nominal"),
-                                 "low": (0.01, 100.0, "perfect")}.items():
+    for case, (ef, gf, lens) in {
+        "normal": (1.0, 1.0, "perfect"),
+        "nominal": (1.0, 1.0, "nominal"),
+        "low": (0.01, 100.0, "perfect"),
+    }.items():
         preset = calibrated_preset("imx249", 4.4, ef, gf)
         shipped.calibrate(preset)
         with torch.no_grad():
-            img = torch.cat([render(s.scene[None], psf, nominal_field_heights(sur), vig, full_field_px=full,
-                                    offset_px=s.offset_px) if lens == "nominal" else s.scene[None] for s in held])
-            raw = simulate_raw(img[..., m:-m, m:-m], preset, quantize="uniform", generator=torch.Generator().manual_seed(3))
-            out = torch.cat([shipped(raw[i:i + 1], s.offset_px, full) for i, s in enumerate(held)])
+            img = torch.cat(
+                [
+                    render(
+                        s.scene[None], psf, nominal_field_heights(sur), vig, full_field_px=full, offset_px=s.offset_px
+                    )
+                    if lens == "nominal"
+                    else s.scene[None]
+                    for s in held
+                ]
+            )
+            raw = simulate_raw(
+                img[..., m:-m, m:-m], preset, quantize="uniform", generator=torch.Generator().manual_seed(3)
+            )
+            out = torch.cat([shipped(raw[i : i + 1], s.offset_px, full) for i, s in enumerate(held)])
             base = ClassicalISP(preset)(raw)
         got[case] = (psnr(out.clamp(0, 1), target).mean().item(), psnr(base.clamp(0, 1), target).mean().item())
     # measured 2026-11-26 (shipped / classical): nominal 25.60 / 23.29, low light 22.43 / 18.37, perfect
@@ -252,6 +303,7 @@ def test_the_shipped_software_isp_is_pretrained():
 
 def test_a_step_that_breaks_a_manufacturing_limit_is_cut_back_to_the_boundary():
     from optix_e2e.optimize.run import Manufacturable, keep_manufacturable
+
     sur = load_surrogate("paper-triplet-v1")
     optics = DifferentiableOptics(sur)
     guard = Manufacturable(sur.manifest)
@@ -269,7 +321,7 @@ def test_a_step_that_breaks_a_manufacturing_limit_is_cut_back_to_the_boundary():
             frac = ((optics.u.detach() - start) @ step / (step @ step)).item()
             assert 0.0 <= frac < 1.0
             with torch.no_grad():  # a little further along the step is not manufacturable
-                optics.u.copy_(start + min(1.0, frac + 2.0 ** -10) * step)
+                optics.u.copy_(start + min(1.0, frac + 2.0**-10) * step)
             assert guard.problems(optics.values().detach().numpy())
         else:
             assert guard.problems(optics.values().detach().numpy()) == []
@@ -281,6 +333,7 @@ def test_fields_are_rendered_where_their_chief_rays_land():
     # the paper-triplet nominal (+ distortion) puts its half field well inside half the height
     from optix_e2e.camera.stages import image_height_fractions
     import math
+
     cooke = Lens.load("cooke-f50")
     fields = [0.0, 5.0, 10.0, 15.0, 20.0]
     got = image_height_fractions(cooke.data, fields)
@@ -299,6 +352,7 @@ def test_a_step_across_an_active_limit_slides_along_it():
     # from a point on the edge-thickness limit, a step leaning across it keeps its tangential
     # part (projection), where cutting back along the step would stop almost at once
     from optix_e2e.optimize.run import Manufacturable, keep_manufacturable
+
     sur = load_surrogate("paper-triplet-v1")
     optics = DifferentiableOptics(sur)
     guard = Manufacturable(sur.manifest)
@@ -359,6 +413,7 @@ def test_the_final_design_check_finds_a_lens_out_of_focus():
     # for (almost) no shift; 10 um off the refocused plane it asks for 10 um back
     from optix_e2e.optimize.outputs import check_final_design
     from optix_e2e.surrogate.exact import exact_optics
+
     sur = load_surrogate("paper-triplet-e2e")
     base = DifferentiableOptics(sur).base_values().double().numpy()
     z = float(exact_optics(sur, base[None])["image_distance"][0])

@@ -17,8 +17,21 @@ from optix_e2e.lens import Lens
 
 
 def _design(out, *extra, env=None):
-    return [sys.executable, "-m", "optix_e2e", "design", "iq-software", "--out", str(out), "--budget", "smoke",
-            "--threads", "1", "--quiet", *extra]
+    return [
+        sys.executable,
+        "-m",
+        "optix_e2e",
+        "design",
+        "iq-software",
+        "--out",
+        str(out),
+        "--budget",
+        "smoke",
+        "--threads",
+        "1",
+        "--quiet",
+        *extra,
+    ]
 
 
 def test_a_smoke_design_run_writes_every_output_and_resumes_after_kill_9(tmp_path):
@@ -36,6 +49,7 @@ def test_a_smoke_design_run_writes_every_output_and_resumes_after_kill_9(tmp_pat
     p.wait()
     assert not (out / "results.json").exists()
     from optix_e2e.torchfile import load_plain
+
     before = load_plain(state, "design checkpoint")
     t_kill = int(before["optimizer"]["t"])
     assert 1 <= t_kill < 14 and len(before["history"]) == t_kill
@@ -58,8 +72,16 @@ def test_a_smoke_design_run_writes_every_output_and_resumes_after_kill_9(tmp_pat
     for m in ("psnr_db", "ssim", "lpips", "haarpsi"):
         lo, hi = res["paired"][m]["ci95"]
         assert lo <= res["paired"][m]["mean"] <= hi
-    for f in ("panels.png", "psf_nominal.png", "psf_end_to_end.png", "history.csv", "metrics.csv",
-              "report/end_to_end/layout.png", "report/end_to_end/mtf.png", "report/nominal/spots.png"):
+    for f in (
+        "panels.png",
+        "psf_nominal.png",
+        "psf_end_to_end.png",
+        "history.csv",
+        "metrics.csv",
+        "report/end_to_end/layout.png",
+        "report/end_to_end/mtf.png",
+        "report/nominal/spots.png",
+    ):
         assert (out / f).is_file(), f
     assert any((out / "tb").iterdir())
     # the steps ran once each, in order, across the kill

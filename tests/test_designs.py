@@ -23,7 +23,7 @@ SPACES = BUNDLED_DIR / "spaces"
 # paper-triplet: requirements (issue 3) and the bound on the per-field RMS spot radius;
 # measured figures are in docs/designs.md
 TRIPLET_EFL_MM = 25.0
-TRIPLET_EFL_TOL = 1e-3          # the relative tolerance the optimizer was run with
+TRIPLET_EFL_TOL = 1e-3  # the relative tolerance the optimizer was run with
 TRIPLET_FNO = 4.4
 TRIPLET_MIN_AIR_GAP = 1.0
 TRIPLET_MIN_EDGE = 2.0
@@ -35,7 +35,7 @@ SENSOR_HALF_DIAGONAL_MM = 0.5 * math.hypot(1920, 1200) * 5.86e-3
 # the spot merit with field weights 1,1,3,4,5 (scripts/design_paper_triplet.sh); what limits
 # it is the Petzval curvature of PMMA positives (docs/designs.md)
 TRIPLET_MAX_RMS_UM = {0.0: 11.6, 5.0: 12.1, 10.0: 13.0, 12.7: 13.3, 14.9: 13.65}
-TRIPLET_MAX_MERIT_UM = 12.7     # field-averaged (quadratic mean) RMS spot; measured 12.48
+TRIPLET_MAX_MERIT_UM = 12.7  # field-averaged (quadratic mean) RMS spot; measured 12.48
 
 
 def _sag(s: dict, r: float) -> float:
@@ -132,9 +132,11 @@ def test_triplet_rms_spot(triplet):
 
 def test_triplet_space_is_table1_and_contains_nominal(triplet_raw, triplet):
     sp = ParameterSpace.load(SPACES / "paper-triplet.toml", triplet.data)
-    table1 = (["s_1_radius", "s_1_conic", "s_2_radius", "l_12", "l_2STO", "l_STO3", "s_6_radius",
-               "s_6_conic", "s_7_radius"] + [f"s_1_{o}" for o in ("2nd", "4th", "6th", "8th", "10th")]
-              + [f"s_6_{o}" for o in ("2nd", "4th", "6th", "8th", "10th")])
+    table1 = (
+        ["s_1_radius", "s_1_conic", "s_2_radius", "l_12", "l_2STO", "l_STO3", "s_6_radius", "s_6_conic", "s_7_radius"]
+        + [f"s_1_{o}" for o in ("2nd", "4th", "6th", "8th", "10th")]
+        + [f"s_6_{o}" for o in ("2nd", "4th", "6th", "8th", "10th")]
+    )
     assert sp.names == table1
     assert sp.check_bounds(triplet_raw) == []
     kinds = {p.name: (p.kind, p.surface) for p in sp.params}
@@ -152,9 +154,14 @@ def test_triplet_matches_optiland(triplet):
     o = optic_mod.Optic()
     o.surfaces.add(index=0, radius=np.inf, thickness=np.inf)
     for i, s in enumerate(triplet.surfaces, 1):
-        kw = dict(index=i, radius=np.inf if s["radius"] == "inf" else s["radius"], thickness=s["thickness"],
-                  material="air" if n[i] == 1.0 else IdealMaterial(float(n[i])),
-                  is_stop=bool(s.get("stop")), conic=s.get("conic", 0.0))
+        kw = dict(
+            index=i,
+            radius=np.inf if s["radius"] == "inf" else s["radius"],
+            thickness=s["thickness"],
+            material="air" if n[i] == 1.0 else IdealMaterial(float(n[i])),
+            is_stop=bool(s.get("stop")),
+            conic=s.get("conic", 0.0),
+        )
         if "aspheric" in s:
             a = s["aspheric"]
             kw.update(surface_type="even_asphere", coefficients=[0.0, a["a4"], a["a6"], a["a8"], a["a10"]])
@@ -222,8 +229,7 @@ def test_double_gauss_spot_matches_optiland(dgauss, optiland_dg):
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        r = {n: SpotDiagram(optiland_dg, num_rings=n, distribution="hexapolar").rms_spot_radius()
-             for n in (32, 64)}
+        r = {n: SpotDiagram(optiland_dg, num_rings=n, distribution="hexapolar").rms_spot_radius() for n in (32, 64)}
     ip = dgauss.wavelengths_nm.index(dgauss.primary_wavelength_nm)
     for i, f in enumerate(dgauss.fields_deg):
         ref_um = 1e3 * (2 * r[64][i][ip] - r[32][i][ip])
@@ -258,8 +264,11 @@ def test_recentred_space_rules_reproduce_v1_and_contain_the_nominal(tmp_path):
     root = Path(__file__).resolve().parent.parent
     script = root / "scripts" / "recentre_space.py"
     out = tmp_path / "v1.toml"
-    subprocess.run([sys.executable, str(script), str(SPACES / "paper-triplet-v1.toml"), "paper-triplet-v1", str(out)],
-                   check=True, capture_output=True)
+    subprocess.run(
+        [sys.executable, str(script), str(SPACES / "paper-triplet-v1.toml"), "paper-triplet-v1", str(out)],
+        check=True,
+        capture_output=True,
+    )
     v1 = Lens.load("paper-triplet-v1")
     again = ParameterSpace.load(out, v1.data)
     given = ParameterSpace.load(SPACES / "paper-triplet-v1.toml", v1.data)
@@ -276,11 +285,23 @@ def test_recentred_space_rules_reproduce_v1_and_contain_the_nominal(tmp_path):
 
 # apo-gauss-8e: JP 2025-108279 A, Example 1 (issue 21). The patent's table: radius, thickness,
 # nd, vd per surface (None: air; the stop is its own flat surface), f = 49.10, Fno 3.56
-APO_PATENT = [(25.402, 1.10, 1.48749, 70.44), (16.246, 2.67, None, None), (27.070, 2.81, 1.88300, 40.81),
-              (51.591, 0.46, None, None), (16.622, 5.07, 1.72916, 54.67), (-49.139, 1.13, 1.60342, 38.01),
-              (11.798, 4.41, None, None), (math.inf, 3.49, None, None), (-34.603, 1.50, 1.56732, 42.84),
-              (48.429, 3.56, 1.49700, 81.61), (-98.252, 2.30, None, None), (344.130, 5.03, 1.71300, 53.94),
-              (-21.462, 1.46, None, None), (-21.458, 1.60, 1.68893, 31.16), (-29.225, 33.14, None, None)]
+APO_PATENT = [
+    (25.402, 1.10, 1.48749, 70.44),
+    (16.246, 2.67, None, None),
+    (27.070, 2.81, 1.88300, 40.81),
+    (51.591, 0.46, None, None),
+    (16.622, 5.07, 1.72916, 54.67),
+    (-49.139, 1.13, 1.60342, 38.01),
+    (11.798, 4.41, None, None),
+    (math.inf, 3.49, None, None),
+    (-34.603, 1.50, 1.56732, 42.84),
+    (48.429, 3.56, 1.49700, 81.61),
+    (-98.252, 2.30, None, None),
+    (344.130, 5.03, 1.71300, 53.94),
+    (-21.462, 1.46, None, None),
+    (-21.458, 1.60, 1.68893, 31.16),
+    (-29.225, 33.14, None, None),
+]
 
 
 def test_eight_element_lens_is_the_patents_example():
@@ -293,6 +314,7 @@ def test_eight_element_lens_is_the_patents_example():
     assert len(surfs) == len(APO_PATENT)
     wl = {"F": 0.4861327, "d": 0.5875618, "C": 0.6562725}
     from optix_e2e.lens.glass import resolve
+
     elements = 0
     for i, (s, (r, t, nd, vd)) in enumerate(zip(surfs, APO_PATENT), start=1):
         radius = math.inf if s["radius"] == "inf" else s["radius"]
@@ -309,4 +331,4 @@ def test_eight_element_lens_is_the_patents_example():
     par = lens.paraxial()
     assert par["efl_mm"] == pytest.approx(49.10, abs=0.005)
     assert par["f_number"] == pytest.approx(3.56, abs=1e-6)
-    assert par["bfl_mm"] == pytest.approx(33.14, abs=0.005)   # the patent's back focus: the image at paraxial focus
+    assert par["bfl_mm"] == pytest.approx(33.14, abs=0.005)  # the patent's back focus: the image at paraxial focus

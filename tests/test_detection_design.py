@@ -53,8 +53,11 @@ def test_fixed_optics_f_number_reaches_the_sensor():
     x = torch.full((1, 3, 12, 12), 0.2)
     outs = {}
     for n in (None, 4.4, 3.2):
-        cam = Camera(FixedOptics(psf, vig, fields, f_number=n, full_field_px=100.0), SensorStage(preset, noise=False),
-                     torch.nn.Identity())
+        cam = Camera(
+            FixedOptics(psf, vig, fields, f_number=n, full_field_px=100.0),
+            SensorStage(preset, noise=False),
+            torch.nn.Identity(),
+        )
         outs[n] = cam(x)[1] - preset.black_level_dn
     assert torch.allclose(outs[None], outs[4.4])
     assert (outs[3.2] / outs[4.4]).mean().item() == pytest.approx(78.44 / 41.96, rel=1e-4)
@@ -69,8 +72,16 @@ def test_widened_surrogate_starts_from_its_source_exactly(tmp_path):
 
     def make(n, mean, std):
         cfg = SurrogateConfig(n_params=n, psf_size=9, hidden=16, depth=2, base_channels=16, n_up=1)
-        return OpticsSurrogate(cfg, param_names=["a", "b", "f_number"][:n], param_mean=mean, param_std=std,
-                               param_min=[-10] * n, param_max=[10] * n, fields_deg=[0, 5, 10], pitch_um=5.86)
+        return OpticsSurrogate(
+            cfg,
+            param_names=["a", "b", "f_number"][:n],
+            param_mean=mean,
+            param_std=std,
+            param_min=[-10] * n,
+            param_max=[10] * n,
+            fields_deg=[0, 5, 10],
+            pitch_um=5.86,
+        )
 
     torch.manual_seed(0)
     src = make(2, [1.0, -2.0], [0.5, 3.0])
@@ -128,15 +139,29 @@ def test_paired_map_interval():
     for i in range(6):
         n = 3
         # apart, so no detection of one object matches another
-        xy = torch.tensor([[0.0, 0.0], [20.0, 0.0], [40.0, 0.0]]) + torch.tensor(rng.uniform(0, 5, (n, 2)),
-                                                                                  dtype=torch.float32)
+        xy = torch.tensor([[0.0, 0.0], [20.0, 0.0], [40.0, 0.0]]) + torch.tensor(
+            rng.uniform(0, 5, (n, 2)), dtype=torch.float32
+        )
         boxes = torch.cat([xy, xy + 10], 1)
         labels = torch.tensor(rng.integers(1, 5, n))
         light = torch.tensor([0.05, 0.5, 0.02])
-        samples.append(DetectionSample(f"s{i}", torch.zeros(3, 8, 8), {"boxes": boxes, "labels": labels}, light,
-                                       (0.0, 0.0), (64, 64), 0.0, 0.2, i))
+        samples.append(
+            DetectionSample(
+                f"s{i}",
+                torch.zeros(3, 8, 8),
+                {"boxes": boxes, "labels": labels},
+                light,
+                (0.0, 0.0),
+                (64, 64),
+                0.0,
+                0.2,
+                i,
+            )
+        )
         oracle.append({"boxes": boxes, "scores": torch.ones(n), "labels": labels})
-        blind.append({"boxes": torch.zeros(0, 4), "scores": torch.zeros(0), "labels": torch.zeros(0, dtype=torch.int64)})
+        blind.append(
+            {"boxes": torch.zeros(0, 4), "scores": torch.zeros(0), "labels": torch.zeros(0, dtype=torch.int64)}
+        )
     same = paired_map(oracle, oracle, samples, 100, 0, 0.1)
     assert same["map_50"]["mean"] == 0 and same["map_50"]["ci95"] == [0.0, 0.0]
     win = paired_map(blind, oracle, samples, 100, 0, 0.1)
@@ -154,7 +179,7 @@ def test_match_table_equals_torchmetrics_map():
 
     rng = np.random.default_rng(3)
     preds, targets = [], []
-    for i in range(12):
+    for _ in range(12):
         n = int(rng.integers(0, 7))
         xy = torch.tensor(rng.uniform(0, 200, (n, 2)), dtype=torch.float32)
         wh = torch.tensor(rng.uniform(6, 60, (n, 2)), dtype=torch.float32)
@@ -166,7 +191,7 @@ def test_match_table_equals_torchmetrics_map():
         dl = labels[keep].clone()
         k = int(rng.integers(0, 4))  # false alarms, some of class 4 which has no ground truth
         fa = torch.tensor(rng.uniform(0, 200, (k, 2)), dtype=torch.float32)
-        det = torch.cat([det, torch.cat([fa, fa + 20], 1), det[:1] + 2])   # and a duplicate
+        det = torch.cat([det, torch.cat([fa, fa + 20], 1), det[:1] + 2])  # and a duplicate
         dl = torch.cat([dl, torch.tensor(rng.integers(1, 5, k), dtype=torch.int64), dl[:1]])
         preds.append({"boxes": det, "scores": torch.tensor(rng.random(len(det)), dtype=torch.float32), "labels": dl})
         targets.append({"boxes": gt, "labels": labels})
@@ -177,8 +202,16 @@ def test_match_table_equals_torchmetrics_map():
     dts = []
     for i, (p, t) in enumerate(zip(preds, targets)):
         for (x0, y0, x1, y1), lab in zip(t["boxes"].tolist(), t["labels"].tolist()):
-            gt["annotations"].append({"id": len(gt["annotations"]) + 1, "image_id": i, "category_id": lab,
-                                      "bbox": [x0, y0, x1 - x0, y1 - y0], "area": (x1 - x0) * (y1 - y0), "iscrowd": 0})
+            gt["annotations"].append(
+                {
+                    "id": len(gt["annotations"]) + 1,
+                    "image_id": i,
+                    "category_id": lab,
+                    "bbox": [x0, y0, x1 - x0, y1 - y0],
+                    "area": (x1 - x0) * (y1 - y0),
+                    "iscrowd": 0,
+                }
+            )
         for (x0, y0, x1, y1), lab, sc in zip(p["boxes"].tolist(), p["labels"].tolist(), p["scores"].tolist()):
             dts.append({"image_id": i, "category_id": lab, "bbox": [x0, y0, x1 - x0, y1 - y0], "score": sc})
     coco = COCO(gt)
@@ -194,4 +227,6 @@ def test_match_table_equals_torchmetrics_map():
     sel = [0, 1, 2, 2, 3, 4, 6, 7, 8, 9, 10, 11]
     ref_w = mean_average_precision([preds[i] for i in sel], [targets[i] for i in sel])
     got_w = MatchTable(preds, targets).scores(w)
-    assert got_w["map_50"] == pytest.approx(ref_w["map_50"], abs=0.01) and got_w["map"] == pytest.approx(ref_w["map"], abs=0.01)
+    assert got_w["map_50"] == pytest.approx(ref_w["map_50"], abs=0.01) and got_w["map"] == pytest.approx(
+        ref_w["map"], abs=0.01
+    )

@@ -15,8 +15,21 @@ from optix_e2e.lens import Lens
 
 
 def _design(out, *extra):
-    return [sys.executable, "-m", "optix_e2e", "design", "detection", "--out", str(out), "--budget", "smoke",
-            "--threads", "1", "--quiet", *extra]
+    return [
+        sys.executable,
+        "-m",
+        "optix_e2e",
+        "design",
+        "detection",
+        "--out",
+        str(out),
+        "--budget",
+        "smoke",
+        "--threads",
+        "1",
+        "--quiet",
+        *extra,
+    ]
 
 
 def test_smoke_detection_design_writes_every_output(tmp_path):
@@ -42,8 +55,16 @@ def test_smoke_detection_design_writes_every_output(tmp_path):
         assert "ci95" in res["paired"]["dark"][k]
     assert res["held_out"]["n_images"] == 4 and res["held_out"]["n_objects"] > 0
     assert set(res["isp_hyperparameters"]["end_to_end"]) == set(res["isp_hyperparameters"]["nominal"])
-    for f in ("panels.png", "psf_nominal.png", "psf_end_to_end.png", "history.csv", "metrics.csv",
-              "detections_end_to_end_exact.json", "report/end_to_end/layout.png", "report/nominal/spots.png"):
+    for f in (
+        "panels.png",
+        "psf_nominal.png",
+        "psf_end_to_end.png",
+        "history.csv",
+        "metrics.csv",
+        "detections_end_to_end_exact.json",
+        "report/end_to_end/layout.png",
+        "report/nominal/spots.png",
+    ):
         assert (out / f).is_file(), f
     assert any((out / "tb").iterdir())
     rows = list(csv.DictReader(open(out / "history.csv")))

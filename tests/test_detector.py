@@ -20,8 +20,13 @@ def test_map_of_hand_made_detections():
     exact = [{"boxes": t[0]["boxes"].clone(), "scores": torch.tensor([0.9, 0.8]), "labels": torch.tensor([1, 2])}]
     assert mean_average_precision(exact, t)["map"] == pytest.approx(1.0)
     # the class-2 box at IoU 2/3 (20 x 20 against 20 x 30): counts at 0.5, not from 0.7 on
-    loose = [{"boxes": torch.tensor([[10.0, 10, 50, 50], [60, 60, 80, 90]]), "scores": torch.tensor([0.9, 0.8]),
-              "labels": torch.tensor([1, 2])}]
+    loose = [
+        {
+            "boxes": torch.tensor([[10.0, 10, 50, 50], [60, 60, 80, 90]]),
+            "scores": torch.tensor([0.9, 0.8]),
+            "labels": torch.tensor([1, 2]),
+        }
+    ]
     r = mean_average_precision(loose, t)
     assert r["map_50"] == pytest.approx(1.0) and r["map_75"] == pytest.approx(0.5)
     assert r["map"] == pytest.approx((1.0 + 0.4) / 2, abs=1e-6)  # class 2: 4 of 10 IoU thresholds
@@ -54,6 +59,7 @@ def test_the_detector_learns_a_tiny_set(overfit):
 
 def test_map_falls_as_blur_and_noise_grow(overfit):
     from torchvision.transforms.functional import gaussian_blur
+
     model, images, targets = overfit
     g = torch.Generator().manual_seed(1)
     noise = torch.randn(images.shape, generator=g)
@@ -71,6 +77,7 @@ def test_detector_training_runs_resume_and_evaluate(tmp_path):
     from optix_e2e.cli import main
     from optix_e2e.scenes.coco import write_street_coco
     from optix_e2e.tasks.detector_train import evaluate_detector, load_detector, train_detector
+
     write_street_coco(tmp_path / "data", 6, (64, 96), seed=0)
     a = train_detector(tmp_path / "data", tmp_path / "run", steps=3, batch=2, progress=False, log=lambda m: None)
     with open(tmp_path / "run" / "history.csv", "a") as f:  # a row past the checkpoint, as a kill can leave
@@ -98,6 +105,7 @@ def test_map_in_the_dark_counts_the_dark_objects_only(tmp_path):
 
     from optix_e2e.scenes.coco import write_street_coco
     from optix_e2e.tasks.detector_train import evaluate_detector, load_coco_folder
+
     ann = write_street_coco(tmp_path, 6, (96, 144), seed=2)
     _, targets, ds = load_coco_folder(tmp_path)
     n_dark = sum(a["illumination"] < 0.1 for a in json.loads(ann.read_text())["annotations"])
@@ -113,7 +121,9 @@ def test_map_in_the_dark_counts_the_dark_objects_only(tmp_path):
             for _ in images:
                 t, light = targets[self.k], torch.tensor(ds.images[self.k]["illumination"]).reshape(-1)
                 keep = light >= 0.1 if self.hide_dark else torch.ones(len(light), dtype=torch.bool)
-                out.append({"boxes": t["boxes"][keep], "labels": t["labels"][keep], "scores": torch.ones(int(keep.sum()))})
+                out.append(
+                    {"boxes": t["boxes"][keep], "labels": t["labels"][keep], "scores": torch.ones(int(keep.sum()))}
+                )
                 self.k += 1
             return out
 

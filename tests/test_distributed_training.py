@@ -21,8 +21,21 @@ from optix_e2e.dataset import DatasetSettings, generate
 from optix_e2e.surrogate import OpticsSurrogate
 
 HERE = Path(__file__).resolve().parent
-TINY = ["--hidden", "32", "--depth", "2", "--base-channels", "16", "--batch", "32", "--val-designs", "8",
-        "--val-every", "20", "--json"]
+TINY = [
+    "--hidden",
+    "32",
+    "--depth",
+    "2",
+    "--base-channels",
+    "16",
+    "--batch",
+    "32",
+    "--val-designs",
+    "8",
+    "--val-every",
+    "20",
+    "--json",
+]
 # float32 gradients summed in another order (per rank, then across ranks): after 40 Adam
 # steps the losses agree to about 1e-7 relative; 1e-4 leaves room and still catches a rank
 # that computes the wrong samples (then they differ from the first step, by percents)
@@ -34,8 +47,17 @@ def _torchrun(nproc: int, *args, spy: Path | None = None, out: Path | None = Non
     if spy is not None:
         spy.mkdir(parents=True, exist_ok=True)
         env.update(OPTIX_SPY_DIR=str(spy), OPTIX_SPY_OUT=str(out))
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", str(nproc),
-           str(HERE / "ddp_spy.py") if spy is not None else "-m", *([] if spy is not None else ["optix_e2e"]), *args]
+    cmd = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--standalone",
+        "--nproc_per_node",
+        str(nproc),
+        str(HERE / "ddp_spy.py") if spy is not None else "-m",
+        *([] if spy is not None else ["optix_e2e"]),
+        *args,
+    ]
     res = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=600)
     assert res.returncode == 0, res.stderr[-3000:]
     return res
@@ -43,8 +65,9 @@ def _torchrun(nproc: int, *args, spy: Path | None = None, out: Path | None = Non
 
 def _single(*args) -> subprocess.CompletedProcess:
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    res = subprocess.run([sys.executable, "-m", "optix_e2e", *args], capture_output=True, text=True, env=env,
-                         timeout=600)
+    res = subprocess.run(
+        [sys.executable, "-m", "optix_e2e", *args], capture_output=True, text=True, env=env, timeout=600
+    )
     assert res.returncode == 0, res.stderr[-3000:]
     return res
 
@@ -70,7 +93,7 @@ def _history(run: Path) -> list[dict]:
 def test_two_processes_follow_the_single_process_and_rank_0_alone_writes(data, one_process, tmp_path):
     out, spy = tmp_path / "two", tmp_path / "spy"
     res = _torchrun(2, "surrogate", "train", str(data), "--out", str(out), "--steps", "40", *TINY, spy=spy, out=out)
-    summary = json.loads(res.stdout.strip().splitlines()[-1])   # rank 0 alone prints it
+    summary = json.loads(res.stdout.strip().splitlines()[-1])  # rank 0 alone prints it
     assert summary["processes"] == 2 and summary["steps_done"] == 40
     one, two = _history(one_process), _history(out)
     assert [h["step"] for h in two] == [h["step"] for h in one] == [20, 40]
@@ -181,13 +204,15 @@ def _toy(kind: str):
 
     def loss(part: slice):
         r = torch.tanh(x[part] @ a) + b - y[part]
-        return (r ** 2).mean(), {"l1": float(r.detach().abs().mean())}
+        return (r**2).mean(), {"l1": float(r.detach().abs().mean())}
+
     return [a, b, unused], opt, loss
 
 
 def _toy_worker(rank: int, world: int, port: int, out: str, kind: str) -> None:
-    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world),
-                      LOCAL_RANK=str(rank))
+    os.environ.update(
+        MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world), LOCAL_RANK=str(rank)
+    )
     ranks = parallel.setup("cpu")
     params, opt, loss = _toy(kind)
     opt.reduce = lambda ps, task, info: parallel.average_step(ranks, ps, task, info)
@@ -226,8 +251,8 @@ def test_a_design_run_under_torchrun_writes_from_rank_0_and_resumes(tmp_path):
     out, spy = tmp_path / "run", tmp_path / "spy"
     args = ["design", "iq-hardware", "--budget", "smoke", "--config", str(cfg), "--out", str(out), "--quiet"]
     res = _torchrun(2, *args, spy=spy, out=out)
-    assert res.stdout.count('"results"') == 1                     # rank 0 alone reports
-    assert json.loads((spy / "rank1.json").read_text()) == []     # and writes
+    assert res.stdout.count('"results"') == 1  # rank 0 alone reports
+    assert json.loads((spy / "rank1.json").read_text()) == []  # and writes
     results = json.loads((out / "results.json").read_text())
     assert results["training"]["end_to_end"]["steps"] == 6 and np.isfinite(results["paired"]["psnr_db"]["mean"])
     hist = (out / "history.csv").read_text()
@@ -237,8 +262,27 @@ def test_a_design_run_under_torchrun_writes_from_rank_0_and_resumes(tmp_path):
     bad = tmp_path / "b3.toml"
     bad.write_text("batch = 3\n")
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    res3 = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
-                           "-m", "optix_e2e", *args[:4], "--config", str(bad), "--out", str(tmp_path / "bad"), "--quiet"],
-                          capture_output=True, text=True, env=env, timeout=600)
+    res3 = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "torch.distributed.run",
+            "--standalone",
+            "--nproc_per_node",
+            "2",
+            "-m",
+            "optix_e2e",
+            *args[:4],
+            "--config",
+            str(bad),
+            "--out",
+            str(tmp_path / "bad"),
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
     assert res3.returncode != 0 and "the batch of 3 does not split evenly over 2 processes" in res3.stderr
     assert not (tmp_path / "bad").exists()

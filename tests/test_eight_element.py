@@ -21,7 +21,7 @@ from optix_e2e.design.space import load_space
 from optix_e2e.lens import Lens
 from optix_e2e.lens.scale import scale_lens
 
-HALF_DIAGONAL_MM = 0.5 * math.hypot(1920, 1200) * 5.86e-3   # the IMX249's corner
+HALF_DIAGONAL_MM = 0.5 * math.hypot(1920, 1200) * 5.86e-3  # the IMX249's corner
 
 
 def _chief_height(lens: Lens, field: float, wl: float) -> float:
@@ -57,18 +57,31 @@ def test_scaling_covers_every_length_of_the_format():
     """Every length the lens format has: a curvature given as such, odd and even aspheric
     terms (a_k r^k keeps its value at s r when a_k scales by s^(1-k)), an EPD, a finite
     object distance, the image's clear size; conics and the material untouched."""
-    lens = {"aperture": {"type": "epd", "value": 4.0}, "object_distance": 500.0, "fields_deg": [0.0, 5.0],
-            "wavelengths_nm": [550.0], "image": {"semi_diameter": 6.0},
-            "surfaces": [{"curvature": 0.02, "thickness": 3.0, "material": "N-BK7", "conic": -0.5,
-                          "aspheric": {"a3": 1e-4, "a4": -2e-5}, "semi_diameter": 5.0},
-                         {"radius": "inf", "thickness": 40.0, "material": "air", "stop": True}]}
+    lens = {
+        "aperture": {"type": "epd", "value": 4.0},
+        "object_distance": 500.0,
+        "fields_deg": [0.0, 5.0],
+        "wavelengths_nm": [550.0],
+        "image": {"semi_diameter": 6.0},
+        "surfaces": [
+            {
+                "curvature": 0.02,
+                "thickness": 3.0,
+                "material": "N-BK7",
+                "conic": -0.5,
+                "aspheric": {"a3": 1e-4, "a4": -2e-5},
+                "semi_diameter": 5.0,
+            },
+            {"radius": "inf", "thickness": 40.0, "material": "air", "stop": True},
+        ],
+    }
     s = 2.5
     out = scale_lens(lens, s)
     a, b = lens["surfaces"][0], out["surfaces"][0]
     assert b["curvature"] == pytest.approx(a["curvature"] / s) and b["conic"] == a["conic"]
     for k in (3, 4):
         r = 3.0
-        assert b["aspheric"][f"a{k}"] * (s * r) ** k == pytest.approx(s * a["aspheric"][f"a{k}"] * r ** k)
+        assert b["aspheric"][f"a{k}"] * (s * r) ** k == pytest.approx(s * a["aspheric"][f"a{k}"] * r**k)
     assert [x["thickness"] for x in out["surfaces"]] == [7.5, 100.0]
     assert b["semi_diameter"] == 12.5 and out["surfaces"][1]["radius"] == "inf"
     assert out["aperture"] == {"type": "epd", "value": 10.0} and out["object_distance"] == 1250.0
@@ -144,8 +157,25 @@ def test_tolerance_command_with_fixed_apertures(tmp_path):
     """optix tolerance --apertures fixed: recorded in its outputs, the proposal is a readable
     space, and the nominal it reports is the vignetted one."""
     out = tmp_path / "tol"
-    r = CliRunner().invoke(main, ["tolerance", "apo-gauss-8e-mv", "--space", "apo-gauss-8e-mv", "--apertures",
-                                  "fixed", "--mc", "8", "--rings", "3", "--arms", "6", "--out", str(out)])
+    r = CliRunner().invoke(
+        main,
+        [
+            "tolerance",
+            "apo-gauss-8e-mv",
+            "--space",
+            "apo-gauss-8e-mv",
+            "--apertures",
+            "fixed",
+            "--mc",
+            "8",
+            "--rings",
+            "3",
+            "--arms",
+            "6",
+            "--out",
+            str(out),
+        ],
+    )
     assert r.exit_code == 0, r.output
     summary = json.loads(r.stdout.strip().splitlines()[-1])
     doc = json.loads((out / "tolerance.json").read_text())
@@ -160,14 +190,27 @@ def test_tolerance_command_with_fixed_apertures(tmp_path):
     row = doc["parameters"][0]
     x = x0.copy()
     x[0] = row["proposed"]["max"]
-    assert row["traced_ends_um"][1] == pytest.approx(T.evaluate_fields(merit, given.apply(lens.data, x), "fixed").max(),
-                                                     rel=1e-12)
+    assert row["traced_ends_um"][1] == pytest.approx(
+        T.evaluate_fields(merit, given.apply(lens.data, x), "fixed").max(), rel=1e-12
+    )
     mc = doc["monte_carlo"]
     assert mc["worst_rms_um"][0] == pytest.approx(
-        T.evaluate_fields(merit, given.apply(lens.data, np.array(mc["values"][0])), "fixed").max(), rel=1e-12)
+        T.evaluate_fields(merit, given.apply(lens.data, np.array(mc["values"][0])), "fixed").max(), rel=1e-12
+    )
     load_space(out / "proposed.toml")
-    bad = CliRunner().invoke(main, ["tolerance", "apo-gauss-8e-mv", "--space", "apo-gauss-8e-mv", "--apertures",
-                                    "clear", "--out", str(tmp_path / "x")])
+    bad = CliRunner().invoke(
+        main,
+        [
+            "tolerance",
+            "apo-gauss-8e-mv",
+            "--space",
+            "apo-gauss-8e-mv",
+            "--apertures",
+            "clear",
+            "--out",
+            str(tmp_path / "x"),
+        ],
+    )
     assert bad.exit_code == 2 and "clear" in bad.output
 
 
@@ -178,25 +221,34 @@ def test_export_keeps_the_clear_apertures_of_a_fixed_aperture_dataset(tmp_path):
     footprint; the file loads back as the same lens."""
     from optix_e2e.optimize.outputs import export_lens
 
-    rep = generate("apo-gauss-8e-mv", 2, 0, tmp_path / "d", DatasetSettings(shard_size=2, n_fields=3,
-                   window_um=32, apertures="fixed"), progress=False)
+    rep = generate(
+        "apo-gauss-8e-mv",
+        2,
+        0,
+        tmp_path / "d",
+        DatasetSettings(shard_size=2, n_fields=3, window_um=32, apertures="fixed"),
+        progress=False,
+    )
     assert rep.n_ok == 2
     manifest = json.loads((tmp_path / "d" / "manifest.json").read_text())
     space, base = load_space("apo-gauss-8e-mv")
-    paths = export_lens(manifest, space.values(base.data), float(base.data["surfaces"][-1]["thickness"]),
-                        tmp_path / "lens", "x", "test")
+    paths = export_lens(
+        manifest, space.values(base.data), float(base.data["surfaces"][-1]["thickness"]), tmp_path / "lens", "x", "test"
+    )
     back = Lens.load(paths["json"])
     from optix_e2e.design.sampling import apertures
 
-    footprint = apertures(Lens(dict(back.raw, surfaces=[dict(x, semi_diameter=None) if x.get("stop") else x
-                                                        for x in back.raw["surfaces"]])))
+    footprint = apertures(
+        Lens(
+            dict(back.raw, surfaces=[dict(x, semi_diameter=None) if x.get("stop") else x for x in back.raw["surfaces"]])
+        )
+    )
     for i, (a, b) in enumerate(zip(base.raw["surfaces"], back.raw["surfaces"])):
         if a.get("stop"):  # sized by the beam, rounded up: no rim ray clipped
             assert footprint[i] <= b["semi_diameter"] <= footprint[i] + 1e-4
         else:
             assert b["semi_diameter"] == pytest.approx(a["semi_diameter"], abs=1e-4)
     assert Lens.load(paths["zmx"]).paraxial()["efl_mm"] == pytest.approx(base.paraxial()["efl_mm"], rel=1e-6)
-
 
 
 # ----- the shipped surrogate ------------------------------------------------------------------

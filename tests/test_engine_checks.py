@@ -10,14 +10,18 @@ from optix_e2e.lens import Lens
 
 
 def singlet(r1, r2, d, n, epd=2.0):
-    return Lens({
-        "name": "singlet", "aperture": {"type": "epd", "value": epd}, "fields_deg": [0.0],
-        "wavelengths_nm": [550.0],
-        "surfaces": [
-            {"radius": r1, "thickness": d, "material": {"n": n}, "stop": True},
-            {"radius": r2, "thickness": 100.0, "material": "air"},
-        ],
-    })
+    return Lens(
+        {
+            "name": "singlet",
+            "aperture": {"type": "epd", "value": epd},
+            "fields_deg": [0.0],
+            "wavelengths_nm": [550.0],
+            "surfaces": [
+                {"radius": r1, "thickness": d, "material": {"n": n}, "stop": True},
+                {"radius": r2, "thickness": 100.0, "material": "air"},
+            ],
+        }
+    )
 
 
 @pytest.mark.parametrize("r1, r2, d, n", [(50.0, -50.0, 5.0, 1.5), (30.0, "inf", 3.0, 1.7), (40.0, 120.0, 8.0, 1.6)])
@@ -79,8 +83,9 @@ def test_psf_rgb_contract(cooke):
 def test_psf_batch_contract(cooke):
     bad = json.loads(cooke.to_engine_json())
     bad["surfaces"][2]["material"] = {"n": -1.0}  # invalid design
-    out = _engine.psf_batch([cooke.to_engine_json(), json.dumps(bad)], [0.0, 20.0],
-                            cooke.rgb_channels("lens"), size=16, pupil_samples=32)
+    out = _engine.psf_batch(
+        [cooke.to_engine_json(), json.dumps(bad)], [0.0, 20.0], cooke.rgb_channels("lens"), size=16, pupil_samples=32
+    )
     assert out["psf"].shape == (2, 2, 3, 16, 16) and out["psf"].dtype == np.float32
     assert out["relative_illumination"].shape == (2, 2, 3)
     assert list(out["ok"]) == [True, False]
@@ -128,7 +133,9 @@ def test_psf_batch_sensor_pixels():
     assert sens.shape == (2, 2, 3, 7, 7) and sens.dtype == np.float32 and not sens[1].any()
     x, c = np.arange(48) - 24.0, (np.arange(7) - 3) * 5.86
     w = np.clip(np.minimum(x + 0.5, c[:, None] + 2.93) - np.maximum(x - 0.5, c[:, None] - 2.93), 0, None)
-    np.testing.assert_allclose(sens[0], np.einsum("iy,kcyx,jx->kcij", w, r["psf"][0].astype(float), w), rtol=2e-6, atol=1e-9)
+    np.testing.assert_allclose(
+        sens[0], np.einsum("iy,kcyx,jx->kcij", w, r["psf"][0].astype(float), w), rtol=2e-6, atol=1e-9
+    )
     # the 7 x 7 block (41 um) holds less than the 48 um window, most of an on-axis PSF
     assert np.all(sens[0].sum(axis=(-1, -2)) < r["psf"][0].sum(axis=(-1, -2)))
     assert np.all(sens[0, 0].sum(axis=(-1, -2)) > 0.9)
@@ -136,7 +143,9 @@ def test_psf_batch_sensor_pixels():
     r2 = _engine.psf_batch([js, "not json"], [0.0, 14.9], ch, "fft", 1.0, 48, 48, sensor=(5.86, 7), sensor_out=buf)
     assert r2["psf_sensor"] is buf and np.array_equal(buf, sens)
     with pytest.raises(ValueError, match=r"sensor_out: need a C-contiguous float32 array of shape \[2, 2, 3, 7, 7\]"):
-        _engine.psf_batch([js, "not json"], [0.0, 14.9], ch, "fft", 1.0, 48, 48, sensor=(5.86, 7), sensor_out=buf[:, :, :, :5])
+        _engine.psf_batch(
+            [js, "not json"], [0.0, 14.9], ch, "fft", 1.0, 48, 48, sensor=(5.86, 7), sensor_out=buf[:, :, :, :5]
+        )
     with pytest.raises(ValueError, match="sensor_out without sensor"):
         _engine.psf_batch([js], [0.0], ch, "fft", 1.0, 48, 48, sensor_out=buf[:1, :1])
     with pytest.raises(ValueError, match="positive pitches"):

@@ -42,7 +42,9 @@ def test_exact_jacobian_matches_a_fourth_order_reference_on_every_parameter(nomi
     assert all(x is not None for x in psf2)
     errs = []
     for i in range(p):
-        d2 = np.concatenate([((psf2[i] - psf2[p + i]) / (4 * h[i])).ravel(), ((vig2[i] - vig2[p + i]) / (4 * h[i])).ravel()])
+        d2 = np.concatenate(
+            [((psf2[i] - psf2[p + i]) / (4 * h[i])).ravel(), ((vig2[i] - vig2[p + i]) / (4 * h[i])).ravel()]
+        )
         d1 = np.concatenate([jp[i].ravel(), jv[i].ravel()])
         ref = (4 * d1 - d2) / 3
         errs.append(np.abs(d1 - ref).sum() / np.abs(ref).sum())
@@ -109,8 +111,9 @@ def test_exact_lens_gradient_agrees_with_the_surrogate_in_sign(sur):
     assert np.isfinite(e).all() and np.abs(e).max() > 0
     dominant = np.abs(e) >= 0.05 * np.abs(e).max()
     assert dominant.sum() >= 5
-    assert np.all(np.sign(e[dominant]) == np.sign(s[dominant])), \
-        [(n, a, b) for n, a, b, d in zip(sur.param_names, e, s, dominant) if d]
+    assert np.all(np.sign(e[dominant]) == np.sign(s[dominant])), [
+        (n, a, b) for n, a, b, d in zip(sur.param_names, e, s, dominant) if d
+    ]
     assert float(e @ s / np.linalg.norm(e) / np.linalg.norm(s)) > 0.9
 
 
@@ -119,7 +122,7 @@ def test_a_design_the_engine_rejects_is_a_named_error_not_nan(sur):
     v = DifferentiableOptics(sur).base_values().double().numpy()
     i = eng.names.index("s_1_radius")
     bad = v.copy()
-    bad[i] = 0.5   # a 0.5 mm radius on a 12 mm aperture: rays miss the surface
+    bad[i] = 0.5  # a 0.5 mm radius on a 12 mm aperture: rays miss the surface
     with pytest.raises(EngineRejectedDesign, match="s_1_radius=0.5"):
         eng.psfs(bad)
     eng.steps = np.full(len(v), 1e-3)
@@ -148,14 +151,14 @@ def test_one_rejected_side_gives_the_one_sided_difference_and_both_a_named_error
     monkeypatch.setattr(eng, "_run", run)
     i = eng.names.index("l_12")
     _, _, jp_ref, _ = eng.jacobian(v)
-    drop[1 + i] = "rays miss surface 3"        # the + side of l_12
+    drop[1 + i] = "rays miss surface 3"  # the + side of l_12
     psf0, vig0, jp, jv = eng.jacobian(v)
     assert eng.last["one_sided"] == ["l_12"]
     minus = real_run((v - np.eye(p)[i] * eng.steps[i])[None])[0][0]
     np.testing.assert_allclose(jp[i], (psf0 - minus) / eng.steps[i], rtol=1e-12, atol=1e-12)
     # the one-sided column is close to the central one (first order in h)
     assert np.abs(jp[i] - jp_ref[i]).sum() < 0.1 * np.abs(jp_ref[i]).sum()
-    drop[1 + p + i] = "rays miss surface 3"    # and the - side
+    drop[1 + p + i] = "rays miss surface 3"  # and the - side
     with pytest.raises(EngineRejectedDesign, match="no derivative in l_12.*rays miss surface 3"):
         eng.jacobian(v)
 
@@ -182,8 +185,13 @@ def test_a_step_choice_with_rejected_rungs_is_json_safe():
 
     from optix_e2e.optics.exact import StepChoice
 
-    sc = StepChoice(["a", "b"], np.array([1e-3, 2e-3]), [1e-2, 1e-3, 1e-4], np.array([1e-4, np.inf]),
-                    np.array([[1e-3, 1e-4], [np.inf, np.inf]]))
+    sc = StepChoice(
+        ["a", "b"],
+        np.array([1e-3, 2e-3]),
+        [1e-2, 1e-3, 1e-4],
+        np.array([1e-4, np.inf]),
+        np.array([[1e-3, 1e-4], [np.inf, np.inf]]),
+    )
     d = json.loads(json.dumps(sc.to_json(), allow_nan=False))
     assert d["rel_error"] == [1e-4, None] and d["curves"][1] == [None, None]
     back = StepChoice.from_json(d)
@@ -196,7 +204,7 @@ def test_sides_beyond_a_range_bound_are_not_computed(sur):
     v = DifferentiableOptics(sur).base_values().double().numpy()
     i = eng.names.index("l_12")
     eng.steps = 1e-3 * (eng.hi - eng.lo)
-    v[i] = eng.hi[i] - 0.5 * eng.steps[i]            # the + side would leave the range
+    v[i] = eng.hi[i] - 0.5 * eng.steps[i]  # the + side would leave the range
     _, _, jp, _ = eng.jacobian(v)
     assert eng.last["one_sided"] == ["l_12"] and eng.last["designs"] == 2 * len(v)
     assert np.isfinite(jp).all()

@@ -118,15 +118,17 @@ def test_axicon_imports_with_its_cone():
 
 def test_bad_object_input_is_one_clear_error():
     base = Lens.load("cooke-f50").data
-    for patch, msg in [({"object_distance": -3}, "object_distance: must be >= 0"),
-                       ({"object_distance": "far"}, "object_distance: must be a number"),
-                       ({"aperture": {"type": "object_na", "value": 0.1}}, "needs a finite \"object_distance\""),
-                       ({"aperture": {"type": "object_na", "value": 1.2}, "object_distance": 10}, "below 1"),
-                       ({"surfaces": [dict(base["surfaces"][0], aspheric={"a9": 1e-9})] + base["surfaces"][1:]},
-                        "unknown key")]:
+    for patch, msg in [
+        ({"object_distance": -3}, "object_distance: must be >= 0"),
+        ({"object_distance": "far"}, "object_distance: must be a number"),
+        ({"aperture": {"type": "object_na", "value": 0.1}}, 'needs a finite "object_distance"'),
+        ({"aperture": {"type": "object_na", "value": 1.2}, "object_distance": 10}, "below 1"),
+        ({"surfaces": [dict(base["surfaces"][0], aspheric={"a9": 1e-9})] + base["surfaces"][1:]}, "unknown key"),
+    ]:
         with pytest.raises(PrescriptionError, match=msg):
             Lens(dict(base, **patch))
     text = (BROKEN / "finite_object.zmx").read_text().replace("DISZ 1.0E+3", "DISZ -5", 1)
     with pytest.raises(ZemaxError, match="virtual object"):
         from optix_e2e.lens.zemax import parse_zmx
+
         parse_zmx(text, "t.zmx")

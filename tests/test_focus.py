@@ -35,7 +35,7 @@ def test_best_focus_is_the_minimum_of_the_engine_spot(name, defocus):
     assert abs(scan[int(np.argmin(ms))] - dz) <= 0.01 + 1e-12
     assert _mean_ms(lens, fields, wls, dz) <= _mean_ms(lens, fields, wls, 0.0) + 1e-9
     if defocus:
-        assert dz == pytest.approx(-defocus, abs=0.15)   # undoes most of the added defocus
+        assert dz == pytest.approx(-defocus, abs=0.15)  # undoes most of the added defocus
 
 
 def test_refocus_modes():

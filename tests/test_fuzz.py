@@ -2,6 +2,7 @@
 .zmx (tests/fuzz_lens_inputs.py) give results without NaN or the project's own errors, and
 the process that runs them ends normally (an abort would show as a signal exit). The count
 bounds the run; 600 mutants take a few seconds here. Deeper runs: the script with --n."""
+
 import json
 import subprocess
 import sys
@@ -11,8 +12,12 @@ from pathlib import Path
 def test_mutated_lens_files_give_our_errors_or_clean_results(tmp_path):
     out = tmp_path / "fuzz.json"
     script = Path(__file__).with_name("fuzz_lens_inputs.py")
-    r = subprocess.run([sys.executable, str(script), "--n", "600", "--seed", "0", "--out", str(out)],
-                       capture_output=True, text=True, timeout=900)
+    r = subprocess.run(
+        [sys.executable, str(script), "--n", "600", "--seed", "0", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
     assert r.returncode == 0, f"the fuzzing process ended with {r.returncode}: {r.stderr[-2000:]}"
     rep = json.loads(out.read_text())
     assert rep["n"] == 600 and sum(rep["outcomes"].values()) == 600

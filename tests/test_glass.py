@@ -88,25 +88,29 @@ def test_tabulated_page_parses():
 
 # Catalog glasses across vendors, by the names Zemax files use (GLAS lines).
 # nd reference values: the vendors' datasheets (4-5 decimals), checked at 587.56 nm.
-@pytest.mark.parametrize("name, catalog, nd", [
-    ("N-BK7", "schott", 1.51680),
-    ("S-BSL7", "ohara", 1.51633),
-    ("S-LAH66", "ohara", 1.77250),
-    ("H-K9L", "cdgm", 1.51680),
-    ("H-ZF52", "cdgm", 1.84666),
-    ("E-FD1", "hoya", 1.71736),
-    ("TAF1", "hoya", 1.77250),
-    ("J-LASF016", "hikari", 1.77250),
-    ("K-VC89", "sumita", 1.81000),
-])
+@pytest.mark.parametrize(
+    "name, catalog, nd",
+    [
+        ("N-BK7", "schott", 1.51680),
+        ("S-BSL7", "ohara", 1.51633),
+        ("S-LAH66", "ohara", 1.77250),
+        ("H-K9L", "cdgm", 1.51680),
+        ("H-ZF52", "cdgm", 1.84666),
+        ("E-FD1", "hoya", 1.71736),
+        ("TAF1", "hoya", 1.77250),
+        ("J-LASF016", "hikari", 1.77250),
+        ("K-VC89", "sumita", 1.81000),
+    ],
+)
 def test_vendor_glasses_resolve_with_catalog_nd(name, catalog, nd):
     g = glass.resolve(name)
     assert g.catalog == catalog and g.name == name
     assert g.n(0.5875618) == pytest.approx(nd, abs=2e-4)
 
 
-@pytest.mark.parametrize("zemax_name, ours", [("POLYCARB", "polycarbonate"), ("POLYSTYR", "polystyrene"),
-                                              ("PMMA", "PMMA")])
+@pytest.mark.parametrize(
+    "zemax_name, ours", [("POLYCARB", "polycarbonate"), ("POLYSTYR", "polystyrene"), ("PMMA", "PMMA")]
+)
 def test_zemax_misc_plastic_names(zemax_name, ours):
     g = glass.resolve(zemax_name)
     assert g.catalog == "organic" and g.name == ours

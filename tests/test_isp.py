@@ -21,12 +21,14 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 def raw_scene():
     """A dead-leaves chart captured by the default sensor: RAW [1, 1, 64, 64] in DN."""
     scene = scenes.dead_leaves(64, 3, colors="uniform")[None]
-    raw, ideal = data.capture_raw(scene, np.random.default_rng(0), data.Capture(level_min=0.6, level_max=0.6),
-                                  torch.Generator().manual_seed(0))
+    raw, ideal = data.capture_raw(
+        scene, np.random.default_rng(0), data.Capture(level_min=0.6, level_max=0.6), torch.Generator().manual_seed(0)
+    )
     return raw, ideal
 
 
 # --- hyperparameters ---------------------------------------------------------------------
+
 
 def test_space_has_at_least_eight_hyperparameters_in_physical_ranges():
     assert len(hp.SPACE) >= 8
@@ -36,8 +38,15 @@ def test_space_has_at_least_eight_hyperparameters_in_physical_ranges():
     assert np.allclose(list(hp.from_unit(u).values()), list(hp.defaults().values()))
 
 
-@pytest.mark.parametrize("bad, match", [({"gamma": 9.0}, "gamma=9.0 outside"), ({"sharpness": 1}, "unknown"),
-                                        ({"demosaick": "ahd"}, "demosaick"), ({"wb_red": float("nan")}, "wb_red")])
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        ({"gamma": 9.0}, "gamma=9.0 outside"),
+        ({"sharpness": 1}, "unknown"),
+        ({"demosaick": "ahd"}, "demosaick"),
+        ({"wb_red": float("nan")}, "wb_red"),
+    ],
+)
 def test_bad_hyperparameters_are_named(bad, match):
     with pytest.raises(ValueError, match=match):
         hp.check(bad)
@@ -51,6 +60,7 @@ def test_reference_isp_rejects_bad_raw():
 
 
 # --- demosaicking --------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("pattern", PATTERNS)
 def test_torch_and_numpy_bilinear_demosaick_agree_and_keep_flat_colour(pattern):
@@ -82,10 +92,12 @@ def test_bilinear_demosaick_gradcheck():
 
 # --- the reference ISP -----------------------------------------------------------------------
 
+
 def test_colour_matrix_maps_the_chart_close_to_its_true_colours():
     m = ccm.sensor_ccm()
     assert np.allclose(m.sum(axis=1), 1.0)
     from optix_e2e import color
+
     target = color.colorchecker_srgb(linear=True).double().numpy()
     cam = ccm.camera_rgb(target * 0.8)
     white = int(np.argmax(target.sum(1)))
@@ -126,11 +138,12 @@ def test_default_isp_with_white_balance_renders_a_grey_card_neutral():
     out = reference.run(raw, wb)[4:-4, 4:-4].reshape(-1, 3).mean(0)
     assert np.ptp(out) < 0.01, out
     # green signal above black, over the ISP's white level, through the 2.2 tone curve
-    expected = (resp[1] / (2 ** preset.adc_bits - 1 - preset.black_level_dn)) ** (1 / 2.2)
+    expected = (resp[1] / (2**preset.adc_bits - 1 - preset.black_level_dn)) ** (1 / 2.2)
     assert abs(out.mean() - expected) < 0.01, (out.mean(), expected)
 
 
 # --- proxy and software ISP -------------------------------------------------------------------
+
 
 def test_proxy_gradients_reach_raw_and_hyperparameters():
     torch.manual_seed(0)
@@ -168,8 +181,21 @@ def test_software_isp_pretraining_learns_and_resumes(tmp_path):
     # tiny shapes: the mechanism (pools through lenses of the space, the loss falls, the
     # validation curve, state.pt continues the same run, the float16 export loads)
     from optix_e2e.optimize.isp_pretraining import PretrainConfig, pretrain
-    cfg = PretrainConfig(steps=16, batch=2, crop=32, pool=8, pool_steps=8, width=8, depth=2, val_size=4,
-                         val_every=8, checkpoint_every=4, lr=2e-3, threads=1)
+
+    cfg = PretrainConfig(
+        steps=16,
+        batch=2,
+        crop=32,
+        pool=8,
+        pool_steps=8,
+        width=8,
+        depth=2,
+        val_size=4,
+        val_every=8,
+        checkpoint_every=4,
+        lr=2e-3,
+        threads=1,
+    )
     first = pretrain(dataclasses.replace(cfg, steps=8), tmp_path, progress=False, log=lambda m: None)
     assert first["steps"] == 8 and (tmp_path / "state.pt").is_file()
     said = []
@@ -183,8 +209,13 @@ def test_software_isp_pretraining_learns_and_resumes(tmp_path):
         pretrain(dataclasses.replace(cfg, width=16), tmp_path, progress=False)
     # a new run from those weights (--init): the record of the first run is kept
     said = []
-    again = pretrain(dataclasses.replace(cfg, steps=2, seed=1), tmp_path / "next", init=tmp_path / "software_isp.pt",
-                     progress=False, log=said.append)
+    again = pretrain(
+        dataclasses.replace(cfg, steps=2, seed=1),
+        tmp_path / "next",
+        init=tmp_path / "software_isp.pt",
+        progress=False,
+        log=said.append,
+    )
     assert "starting from the weights of" in said[0] and again["earlier_training"][0]["steps"] == 16
     (tmp_path / "design").mkdir()  # a folder with another run's files is refused, left as it was
     (tmp_path / "design" / "train.json").write_text("{}")
@@ -193,13 +224,15 @@ def test_software_isp_pretraining_learns_and_resumes(tmp_path):
     assert [p.name for p in (tmp_path / "design").iterdir()] == ["train.json"]
     assert (tmp_path / "design" / "train.json").read_text() == "{}"
     with pytest.raises(ValueError, match="not the"):
-        pretrain(dataclasses.replace(cfg, width=16), tmp_path / "other", init=tmp_path / "software_isp.pt",
-                 progress=False)
+        pretrain(
+            dataclasses.replace(cfg, width=16), tmp_path / "other", init=tmp_path / "software_isp.pt", progress=False
+        )
 
 
 @pytest.mark.parametrize("pattern", PATTERNS)
 def test_torch_malvar_matches_the_reference_isp(pattern):
     from optix_e2e.isp.classical import malvar_demosaick
+
     cfa = torch.rand(1, 1, 24, 30, dtype=torch.float64)
     ref = reference.demosaick_malvar(cfa[0, 0].numpy(), pattern)
     assert np.allclose(malvar_demosaick(cfa, pattern)[0].permute(1, 2, 0).numpy(), ref, atol=1e-12)
@@ -212,10 +245,13 @@ def test_classical_pipeline_recovers_greys_and_colours():
     from optix_e2e import color
     from optix_e2e.camera import calibrated_preset
     from optix_e2e.isp.classical import ClassicalISP
+
     p = calibrated_preset("imx249", 4.4)
     isp = ClassicalISP(p)
-    for patches, worst, mean in ((torch.tensor([[0.05] * 3, [0.2] * 3, [0.6] * 3]), 1e-3, 1e-3),
-                                 (color.colorchecker_srgb(linear=True) * 0.8, 0.06, 3e-3)):
+    for patches, worst, mean in (
+        (torch.tensor([[0.05] * 3, [0.2] * 3, [0.6] * 3]), 1e-3, 1e-3),
+        (color.colorchecker_srgb(linear=True) * 0.8, 0.06, 3e-3),
+    ):
         scene = patches[:, :, None, None].expand(-1, -1, 8, 8).contiguous()
         raw = simulate_raw(scene, p, noise=False, quantize="none")
         err = (isp(raw)[:, :, 4, 4] - color.linear_to_srgb(patches)).abs()
@@ -224,6 +260,7 @@ def test_classical_pipeline_recovers_greys_and_colours():
 
 def test_software_isp_starts_as_the_classical_pipeline_and_sees_the_position():
     from optix_e2e.isp.classical import ClassicalISP
+
     raw = 64 + 3000 * torch.rand(2, 1, 32, 48)
     isp = SoftwareISP(base=8, depth=2)
     with torch.no_grad():
@@ -239,8 +276,10 @@ def test_software_isp_starts_as_the_classical_pipeline_and_sees_the_position():
 
 # --- the shipped proxy -------------------------------------------------------------------------
 
+
 def test_shipped_proxy_imitates_the_reference_isp_on_held_out_photos():
     from optix_e2e.isp.evaluate import evaluate_proxy
+
     res = evaluate_proxy(ISPProxy.load(), size=128, n_param_sets=2, photos=["coffee", "rocket"], progress=False)
     assert res["n_param_sets"] == 3 and len(res["per_case"]) == 6
     assert res["proxy_psnr_db"] > 30.0 and res["proxy_ssim"] > 0.9, res
@@ -248,6 +287,7 @@ def test_shipped_proxy_imitates_the_reference_isp_on_held_out_photos():
 
 def test_tuning_through_the_proxy_improves_the_true_isp():
     from optix_e2e.isp.tune import true_isp_quality, tune_params
+
     tuned, history = tune_params(ISPProxy.load(), steps=60, n_scenes=16, size=64, progress=False)
     assert np.mean(history[-10:]) < np.mean(history[:10])
     photos = ["astronaut", "chelsea"]
@@ -262,8 +302,8 @@ def test_cli_isp_eval_json_and_errors(tmp_path):
     from click.testing import CliRunner
 
     from optix_e2e.cli import main
-    r = CliRunner().invoke(main, ["isp", "eval", "--json", "--photo", "coffee", "--size", "64",
-                                  "--param-sets", "1"])
+
+    r = CliRunner().invoke(main, ["isp", "eval", "--json", "--photo", "coffee", "--size", "64", "--param-sets", "1"])
     assert r.exit_code == 0, r.output
     res = json.loads(r.stdout)
     assert {"proxy_psnr_db", "proxy_ssim", "proxy_haarpsi", "per_case"} <= set(res)

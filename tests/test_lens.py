@@ -97,38 +97,52 @@ def test_unknown_glass_names_surface_and_close_matches(tmp_path):
     with pytest.raises(PrescriptionError) as err:
         Lens.load(p)
     msg = str(err.value)
-    assert msg.startswith(f"{p}: surface 1 (surfaces[0]) material: unknown glass 'N-SF111'") and "N-SF11 (schott)" in msg
+    assert (
+        msg.startswith(f"{p}: surface 1 (surfaces[0]) material: unknown glass 'N-SF111'") and "N-SF11 (schott)" in msg
+    )
 
 
-@pytest.mark.parametrize("change, pattern", [
-    ({"thickness": math.nan}, r"surface 1 \(surfaces\[0\]\) thickness: must be finite"),
-    ({"thickness": "5"}, r"surface 1 \(surfaces\[0\]\) thickness: must be a number"),
-    ({"radius": 0}, r"surface 1 \(surfaces\[0\]\) radius: must not be 0"),
-    ({"radius": "flat"}, r"surface 1 \(surfaces\[0\]\) radius: must be a number"),
-    ({"curvature": 0.02}, r"surface 1 \(surfaces\[0\]\): give \"radius\" or \"curvature\", not both"),
-    ({"thicknes": 1.0}, r"surface 1 \(surfaces\[0\]\): unknown key\(s\) 'thicknes'"),
-    ({"stop": False}, r"exactly one surface must have \"stop\": true, found 0"),
-    ({"semi_diameter": -1.0}, r"surface 1 \(surfaces\[0\]\) semi_diameter: must be > 0"),
-    ({"aspheric": {"a9": 1e-5}}, r"surface 1 \(surfaces\[0\]\) aspheric: unknown key\(s\) 'a9'"),  # odd terms stop at a7
-    ({"material": {"formula": 12, "coefficients": [1], "range_um": [0.4, 0.7]}}, r"formula: must be an integer 1-9"),
-    ({"material": {"nd": 1.5}}, r"material\.vd: must be a number"),
-    ({"material": 42}, r"surface 1 \(surfaces\[0\]\) material: must be \"air\""),
-])
+@pytest.mark.parametrize(
+    "change, pattern",
+    [
+        ({"thickness": math.nan}, r"surface 1 \(surfaces\[0\]\) thickness: must be finite"),
+        ({"thickness": "5"}, r"surface 1 \(surfaces\[0\]\) thickness: must be a number"),
+        ({"radius": 0}, r"surface 1 \(surfaces\[0\]\) radius: must not be 0"),
+        ({"radius": "flat"}, r"surface 1 \(surfaces\[0\]\) radius: must be a number"),
+        ({"curvature": 0.02}, r"surface 1 \(surfaces\[0\]\): give \"radius\" or \"curvature\", not both"),
+        ({"thicknes": 1.0}, r"surface 1 \(surfaces\[0\]\): unknown key\(s\) 'thicknes'"),
+        ({"stop": False}, r"exactly one surface must have \"stop\": true, found 0"),
+        ({"semi_diameter": -1.0}, r"surface 1 \(surfaces\[0\]\) semi_diameter: must be > 0"),
+        (
+            {"aspheric": {"a9": 1e-5}},
+            r"surface 1 \(surfaces\[0\]\) aspheric: unknown key\(s\) 'a9'",
+        ),  # odd terms stop at a7
+        (
+            {"material": {"formula": 12, "coefficients": [1], "range_um": [0.4, 0.7]}},
+            r"formula: must be an integer 1-9",
+        ),
+        ({"material": {"nd": 1.5}}, r"material\.vd: must be a number"),
+        ({"material": 42}, r"surface 1 \(surfaces\[0\]\) material: must be \"air\""),
+    ],
+)
 def test_surface_validation_errors(change, pattern):
     with pytest.raises(PrescriptionError, match=pattern):
         Lens(singlet(**change))
 
 
-@pytest.mark.parametrize("change, pattern", [
-    ({"aperture": {"type": "na", "value": 0.1}}, r"aperture\.type"),
-    ({"aperture": {"type": "epd", "value": -1}}, r"aperture\.value: must be > 0"),
-    ({"fields_deg": []}, r"fields_deg: must be a non-empty list"),
-    ({"fields_deg": [0, 95]}, r"fields_deg\[1\]: must be < 90"),
-    ({"wavelengths_nm": [550, -1]}, r"wavelengths_nm\[1\]: must be > 0"),
-    ({"wavelength_weights": [1, 1]}, r"wavelength_weights: has 2 entries for 3"),
-    ({"units": "inch"}, r"units"),
-    ({"focal": 50}, r"top level: unknown key\(s\) 'focal'"),
-])
+@pytest.mark.parametrize(
+    "change, pattern",
+    [
+        ({"aperture": {"type": "na", "value": 0.1}}, r"aperture\.type"),
+        ({"aperture": {"type": "epd", "value": -1}}, r"aperture\.value: must be > 0"),
+        ({"fields_deg": []}, r"fields_deg: must be a non-empty list"),
+        ({"fields_deg": [0, 95]}, r"fields_deg\[1\]: must be < 90"),
+        ({"wavelengths_nm": [550, -1]}, r"wavelengths_nm\[1\]: must be > 0"),
+        ({"wavelength_weights": [1, 1]}, r"wavelength_weights: has 2 entries for 3"),
+        ({"units": "inch"}, r"units"),
+        ({"focal": 50}, r"top level: unknown key\(s\) 'focal'"),
+    ],
+)
 def test_top_level_validation_errors(change, pattern):
     data = singlet()
     data.update(change)
@@ -144,10 +158,17 @@ def test_two_stops_rejected():
 
 
 def test_material_forms_pass_through():
-    for m in ({"n": 1.6}, {"nd": 1.5168, "vd": 64.17},
-              {"tabulated": [[0.4, 1.53], [0.7, 1.51]], "name": "t"},
-              {"formula": 1, "coefficients": [0, 1.03961212, 0.07746, 0.23179, 0.1414, 1.01046945, 10.3317],
-               "range_um": [0.3, 2.5], "name": "bk7ish"}):
+    for m in (
+        {"n": 1.6},
+        {"nd": 1.5168, "vd": 64.17},
+        {"tabulated": [[0.4, 1.53], [0.7, 1.51]], "name": "t"},
+        {
+            "formula": 1,
+            "coefficients": [0, 1.03961212, 0.07746, 0.23179, 0.1414, 1.01046945, 10.3317],
+            "range_um": [0.3, 2.5],
+            "name": "bk7ish",
+        },
+    ):
         assert Lens(singlet(material=m)).surfaces[0]["material"] == m
 
 

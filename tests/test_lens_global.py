@@ -42,10 +42,10 @@ def test_global_search_finds_the_global_basin_the_local_one_misses():
     p = Ripples()
     u_local, _, _ = polish(p, p.u0, max_nfev=200)
     local_cost = float(np.sum(p.evaluate(u_local)[0] ** 2))
-    assert local_cost > 0.01                      # stuck in the start's basin
+    assert local_cost > 0.01  # stuck in the start's basin
     assert np.max(np.abs(u_local - p.u0)) < 0.2
     g = global_search(p, minutes=None, rounds=6, seed=3, workers=1, batch=4, polish_nfev=100)
-    assert g.best.merit < 1e-6                     # the global minimum
+    assert g.best.merit < 1e-6  # the global minimum
     assert np.allclose(g.best.u, p.c, atol=1e-6)
     assert len(g.basins) >= 3 and g.polishes == 24
     assert g.basins[0] is g.best and all(b.merit >= g.best.merit for b in g.basins)
@@ -84,10 +84,39 @@ def test_global_search_on_a_lens_is_no_worse_than_local(tmp_path):
 
 def test_cli_global_records_basins(tmp_path):
     out, summ = tmp_path / "g.json", tmp_path / "g.summary.json"
-    r = CliRunner().invoke(main, ["lens", "optimize", "cooke-f50", "--vars", "s_1_radius,s_6_radius",
-                                  "--efl", "50", "--rings", "3", "--arms", "6", "--global", "--rounds", "2",
-                                  "--workers", "1", "--batch", "2", "--max-iter", "15", "--seed", "2",
-                                  "--out", str(out), "--summary", str(summ), "--basins", str(tmp_path / "b.csv")])
+    r = CliRunner().invoke(
+        main,
+        [
+            "lens",
+            "optimize",
+            "cooke-f50",
+            "--vars",
+            "s_1_radius,s_6_radius",
+            "--efl",
+            "50",
+            "--rings",
+            "3",
+            "--arms",
+            "6",
+            "--global",
+            "--rounds",
+            "2",
+            "--workers",
+            "1",
+            "--batch",
+            "2",
+            "--max-iter",
+            "15",
+            "--seed",
+            "2",
+            "--out",
+            str(out),
+            "--summary",
+            str(summ),
+            "--basins",
+            str(tmp_path / "b.csv"),
+        ],
+    )
     assert r.exit_code == 0, r.output
     rows = (tmp_path / "b.csv").read_text().splitlines()
     assert rows[0].startswith("rank,merit,feasible") and rows[0].endswith("s_1_radius,s_6_radius")
@@ -96,17 +125,24 @@ def test_cli_global_records_basins(tmp_path):
     assert g["polishes"] == 4 and g["rounds"] == 2 and g["basins_found"] == len(g["basins"]) >= 1
     assert {"merit", "feasible", "min_slack", "active", "values", "found_by", "visits"} <= set(g["basins"][0])
     assert s["after"]["merit"] == pytest.approx(g["best"]["merit"], rel=1e-9)
-    assert len(rows) == 1 + g["basins_found"] and float(rows[1].split(",")[1]) == pytest.approx(g["best"]["merit"], rel=1e-5)
+    assert len(rows) == 1 + g["basins_found"] and float(rows[1].split(",")[1]) == pytest.approx(
+        g["best"]["merit"], rel=1e-5
+    )
     assert Lens.load(str(out)).paraxial()["efl_mm"] == pytest.approx(50.0, rel=1e-3)
-    bad = CliRunner().invoke(main, ["lens", "optimize", "cooke-f50", "--vars", "s_1_radius", "--minutes", "1",
-                                    "--out", str(tmp_path / "x.json")])
+    bad = CliRunner().invoke(
+        main,
+        ["lens", "optimize", "cooke-f50", "--vars", "s_1_radius", "--minutes", "1", "--out", str(tmp_path / "x.json")],
+    )
     assert bad.exit_code != 0 and "--global" in bad.output
     for extra in (["--seed", "3"], ["--workers", "2"], ["--batch", "2"]):
-        bad = CliRunner().invoke(main, ["lens", "optimize", "cooke-f50", "--vars", "s_1_radius", *extra,
-                                        "--out", str(tmp_path / "x.json")])
+        bad = CliRunner().invoke(
+            main, ["lens", "optimize", "cooke-f50", "--vars", "s_1_radius", *extra, "--out", str(tmp_path / "x.json")]
+        )
         assert bad.exit_code != 0 and "go with --global" in bad.output, extra
-    bad = CliRunner().invoke(main, ["lens", "optimize", "cooke-f50", "--vars", "s_1_radius", "--tilt", "field",
-                                    "--out", str(tmp_path / "x.json")])
+    bad = CliRunner().invoke(
+        main,
+        ["lens", "optimize", "cooke-f50", "--vars", "s_1_radius", "--tilt", "field", "--out", str(tmp_path / "x.json")],
+    )
     assert bad.exit_code != 0 and "--merit wavefront" in bad.output
 
 
@@ -114,11 +150,17 @@ def test_cli_global_records_basins(tmp_path):
 def _hyperbolic(f=100.0, epd=5.0, dz=0.0, n=1.5, fields=(0.0,)):
     """Plano-convex singlet, plane side first, rear hyperboloid k = -n^2: an axial plane
     wave focuses without aberration at f = -R / (n - 1)."""
-    return Lens({"aperture": {"type": "epd", "value": epd}, "wavelengths_nm": [550.0],
-                 "fields_deg": list(fields),
-                 "surfaces": [{"radius": "inf", "thickness": 5.0, "material": {"n": n}, "stop": True},
-                              {"radius": -(n - 1) * f, "conic": -n * n, "thickness": f + dz,
-                               "material": "air"}]})
+    return Lens(
+        {
+            "aperture": {"type": "epd", "value": epd},
+            "wavelengths_nm": [550.0],
+            "fields_deg": list(fields),
+            "surfaces": [
+                {"radius": "inf", "thickness": 5.0, "material": {"n": n}, "stop": True},
+                {"radius": -(n - 1) * f, "conic": -n * n, "thickness": f + dz, "material": "air"},
+            ],
+        }
+    )
 
 
 def test_wavefront_merit_of_a_perfect_lens_is_zero():
@@ -126,15 +168,15 @@ def test_wavefront_merit_of_a_perfect_lens_is_zero():
     for tilt in ("wavelength", "field"):
         rep = Merit(lens, kind="wavefront", tilt=tilt).evaluate(lens.data, full=True)
         assert rep["merit_unit"] == "waves" and rep["merit"] < 1e-7
-        assert rep["fields"][0]["rms_spot_um"] < 1e-6     # full=True adds the spot figure
+        assert rep["fields"][0]["rms_spot_um"] < 1e-6  # full=True adds the spot figure
 
 
 @pytest.mark.parametrize("dz", [-0.2, 0.1, 0.2])
 def test_wavefront_merit_of_defocus_matches_w20(dz):
-    f, epd = 100.0, 5.0                         # f/20: near the paraxial limit
+    f, epd = 100.0, 5.0  # f/20: near the paraxial limit
     lens = _hyperbolic(f, epd, dz)
     rep = Merit(lens, kind="wavefront", rings=6, arms=12).evaluate(lens.data)
-    w20 = abs(dz) / (8 * (f / epd) ** 2) / 550e-6   # waves
+    w20 = abs(dz) / (8 * (f / epd) ** 2) / 550e-6  # waves
     assert rep["merit"] == pytest.approx(w20 / (2 * math.sqrt(3)), rel=5e-3)
     assert rep["fields"][0]["rms_wavefront_waves"] == pytest.approx(rep["merit"], rel=1e-12)
     # the spot merit of the same defocus: geometric blur radius dz / (2N) at the rim, RMS / sqrt(2)
@@ -147,6 +189,7 @@ def test_wavefront_merit_optimizes_focus():
     raw = _hyperbolic(dz=0.3).data
     space = ParameterSpace.from_names("s_2_thickness", raw)
     from optix_e2e.design.optimizer import optimize
+
     res = optimize(raw, space, Merit(Lens(raw), kind="wavefront"), max_nfev=50)
     assert res.after["merit"] < 1e-4
     assert res.lens["surfaces"][-1]["thickness"] == pytest.approx(100.0, abs=1e-3)
@@ -161,9 +204,28 @@ def test_wavefront_merit_rejects_bad_options():
 
 
 def test_cli_wavefront_merit(tmp_path):
-    r = CliRunner().invoke(main, ["lens", "optimize", "cooke-f50", "--vars", "s_6_thickness", "--merit", "wavefront",
-                                  "--rings", "3", "--arms", "6", "--max-iter", "20",
-                                  "--out", str(tmp_path / "w.json"), "--summary", str(tmp_path / "w.summary.json")])
+    r = CliRunner().invoke(
+        main,
+        [
+            "lens",
+            "optimize",
+            "cooke-f50",
+            "--vars",
+            "s_6_thickness",
+            "--merit",
+            "wavefront",
+            "--rings",
+            "3",
+            "--arms",
+            "6",
+            "--max-iter",
+            "20",
+            "--out",
+            str(tmp_path / "w.json"),
+            "--summary",
+            str(tmp_path / "w.summary.json"),
+        ],
+    )
     assert r.exit_code == 0, r.output
     s = json.loads((tmp_path / "w.summary.json").read_text())
     assert s["merit"] == "wavefront" and s["after"]["merit_unit"] == "waves"
@@ -197,16 +259,31 @@ def test_petzval_sum_of_a_singlet_is_its_power_over_n():
     its thickness (Born & Wolf 5.5); an r^2 aspheric term adds 2 a2 to the curvature."""
     n = 1.6
     for t in (1.0, 8.0):
-        lens = Lens({"aperture": {"type": "epd", "value": 5.0}, "wavelengths_nm": [550.0], "fields_deg": [0.0],
-                     "surfaces": [{"radius": 40.0, "thickness": t, "material": {"n": n}, "stop": True},
-                                  {"radius": -60.0, "thickness": 50.0, "material": "air"}]})
+        lens = Lens(
+            {
+                "aperture": {"type": "epd", "value": 5.0},
+                "wavelengths_nm": [550.0],
+                "fields_deg": [0.0],
+                "surfaces": [
+                    {"radius": 40.0, "thickness": t, "material": {"n": n}, "stop": True},
+                    {"radius": -60.0, "thickness": 50.0, "material": "air"},
+                ],
+            }
+        )
         want = (n - 1) / n * (1 / 40.0 + 1 / 60.0)
         assert lens.petzval()["petzval_sum_per_mm"] == pytest.approx(want, rel=1e-12)
         assert lens.petzval()["petzval_radius_mm"] == pytest.approx(-1 / want, rel=1e-12)
-    flat = Lens({"aperture": {"type": "epd", "value": 5.0}, "wavelengths_nm": [550.0], "fields_deg": [0.0],
-                 "surfaces": [{"radius": "inf", "aspheric": {"a2": 1 / 80.0}, "thickness": 2.0,
-                               "material": {"n": n}, "stop": True},
-                              {"radius": "inf", "thickness": 50.0, "material": "air"}]})
+    flat = Lens(
+        {
+            "aperture": {"type": "epd", "value": 5.0},
+            "wavelengths_nm": [550.0],
+            "fields_deg": [0.0],
+            "surfaces": [
+                {"radius": "inf", "aspheric": {"a2": 1 / 80.0}, "thickness": 2.0, "material": {"n": n}, "stop": True},
+                {"radius": "inf", "thickness": 50.0, "material": "air"},
+            ],
+        }
+    )
     assert flat.petzval()["petzval_sum_per_mm"] == pytest.approx((n - 1) / n / 40.0, rel=1e-12)
 
 
@@ -246,11 +323,20 @@ def test_wavefront_matches_optiland_on_the_double_gauss():
 def test_spot_merit_report_survives_an_undefined_wavefront():
     """Image-space telecentric (stop at the front focal plane): no reference sphere, so the
     wavefront figure of a full report is None, and the spot merit still works."""
+
     def singlet(stop_gap):
-        return Lens({"aperture": {"type": "epd", "value": 4.0}, "wavelengths_nm": [550.0], "fields_deg": [0.0, 2.0],
-                     "surfaces": [{"radius": "inf", "thickness": stop_gap, "material": "air", "stop": True},
-                                  {"radius": 50.0, "thickness": 1.0, "material": {"n": 1.5}},
-                                  {"radius": -50.0, "thickness": 50.0, "material": "air"}]})
+        return Lens(
+            {
+                "aperture": {"type": "epd", "value": 4.0},
+                "wavelengths_nm": [550.0],
+                "fields_deg": [0.0, 2.0],
+                "surfaces": [
+                    {"radius": "inf", "thickness": stop_gap, "material": "air", "stop": True},
+                    {"radius": 50.0, "thickness": 1.0, "material": {"n": 1.5}},
+                    {"radius": -50.0, "thickness": 50.0, "material": "air"},
+                ],
+            }
+        )
 
     lens = singlet(-singlet(1e-9).paraxial()["ffl_mm"])  # the stop at the front focal point
     assert abs(lens.paraxial()["exit_pupil_z_mm"]) > 1e6

@@ -27,7 +27,7 @@ def _write(tmp_path, text: "str | bytes", name="lens.json"):
 def _huge_number(tmp_path):
     t = json.dumps(_cooke())
     i = t.index('"thickness": ') + len('"thickness": ')
-    return _write(tmp_path, t[:i] + "1" + "0" * 400 + t[t.index(",", i):])
+    return _write(tmp_path, t[:i] + "1" + "0" * 400 + t[t.index(",", i) :])
 
 
 def _catalog_number(tmp_path):
@@ -57,14 +57,17 @@ def _deep_description(tmp_path):
     return _write(tmp_path, json.dumps(d).replace('"description": 0', '"description": ' + "[" * 3000 + "]" * 3000))
 
 
-@pytest.mark.parametrize("make, needle", [
-    (_huge_number, "thickness: must be finite, got a 401-digit number"),
-    (_catalog_number, "material.catalog: must be a catalog name"),
-    (_glass_number, "material.glass: must be a glass name"),
-    (_latin1, ":2:11:"),         # line and column of the bad byte
-    (_deep_array, "nested too deeply"),
-    (_deep_description, "nested too deeply"),
-])
+@pytest.mark.parametrize(
+    "make, needle",
+    [
+        (_huge_number, "thickness: must be finite, got a 401-digit number"),
+        (_catalog_number, "material.catalog: must be a catalog name"),
+        (_glass_number, "material.glass: must be a glass name"),
+        (_latin1, ":2:11:"),  # line and column of the bad byte
+        (_deep_array, "nested too deeply"),
+        (_deep_description, "nested too deeply"),
+    ],
+)
 def test_bad_json_lens_is_one_error_naming_the_file(tmp_path, make, needle):
     path = make(tmp_path)
     with pytest.raises(PrescriptionError) as err:
@@ -80,7 +83,7 @@ def test_bad_json_lens_is_one_error_naming_the_file(tmp_path, make, needle):
 def test_zero_thickness_glass_without_semi_diameters_names_the_crossing_surfaces(tmp_path):
     d = _cooke()
     assert all(s.get("semi_diameter") is None for s in d["surfaces"])
-    d["surfaces"][0]["thickness"] = 0.0          # the first crown, biconvex, at zero centre thickness
+    d["surfaces"][0]["thickness"] = 0.0  # the first crown, biconvex, at zero centre thickness
     path = _write(tmp_path, json.dumps(d))
     with pytest.raises(PrescriptionError, match=r"surfaces 1 and 2 cross at height"):
         Lens.load(str(path))
@@ -92,5 +95,5 @@ def test_beam_check_passes_the_bundled_lenses_and_a_thin_real_gap():
     for name in ("cooke-f50", "paper-triplet", "double-gauss-f5"):
         Lens.load(name)
     d = _cooke()
-    d["surfaces"][1]["thickness"] = 2.0    # air gap 2-3 a third of nominal: the surfaces still part
+    d["surfaces"][1]["thickness"] = 2.0  # air gap 2-3 a third of nominal: the surfaces still part
     Lens(d)

@@ -36,13 +36,13 @@ def cooke(cooke_raw) -> Lens:
 # ----- merit --------------------------------------------------------------------------
 def test_quadrature_integrates_disk_moments():
     px, py, w = pupil_quadrature(4, 8)
-    r2 = px ** 2 + py ** 2
+    r2 = px**2 + py**2
     assert w.sum() == pytest.approx(1.0, abs=1e-14)
     # mean over the unit disk of rho^(2m) is 1/(m+1); of x^2 is 1/4; of x^2 y^2 is 1/24
     for m in (1, 2, 3, 4):
-        assert (w * r2 ** m).sum() == pytest.approx(1.0 / (m + 1), rel=1e-12)
-    assert (w * px ** 2).sum() == pytest.approx(0.25, rel=1e-12)
-    assert (w * px ** 2 * py ** 2).sum() == pytest.approx(1.0 / 24.0, rel=1e-12)
+        assert (w * r2**m).sum() == pytest.approx(1.0 / (m + 1), rel=1e-12)
+    assert (w * px**2).sum() == pytest.approx(0.25, rel=1e-12)
+    assert (w * px**2 * py**2).sum() == pytest.approx(1.0 / 24.0, rel=1e-12)
 
 
 def test_merit_matches_engine_spot(cooke):
@@ -79,19 +79,22 @@ def test_sag_closed_forms():
     sphere = R - np.sqrt(R * R - r * r)
     assert np.allclose(sag({"radius": R}, r), sphere, atol=1e-13)
     # paraboloid (k = -1): r^2 / 2R; plus an a4 term
-    assert np.allclose(sag({"radius": R, "conic": -1.0, "aspheric": {"a4": 1e-4}}, r),
-                       r * r / (2 * R) + 1e-4 * r ** 4, atol=1e-13)
+    assert np.allclose(
+        sag({"radius": R, "conic": -1.0, "aspheric": {"a4": 1e-4}}, r), r * r / (2 * R) + 1e-4 * r**4, atol=1e-13
+    )
     assert np.allclose(sag({"radius": "inf"}, r), 0.0)
 
 
 def test_element_geometry_biconvex_and_stop():
-    lens = {"surfaces": [
-        {"radius": 20.0, "thickness": 5.0, "material": {"n": 1.5}},
-        {"radius": -20.0, "thickness": 2.0, "material": "air"},
-        {"radius": "inf", "thickness": 3.0, "material": "air", "stop": True},
-        {"radius": -30.0, "thickness": 2.0, "material": {"n": 1.7}},
-        {"radius": 30.0, "thickness": 10.0, "material": "air"},
-    ]}
+    lens = {
+        "surfaces": [
+            {"radius": 20.0, "thickness": 5.0, "material": {"n": 1.5}},
+            {"radius": -20.0, "thickness": 2.0, "material": "air"},
+            {"radius": "inf", "thickness": 3.0, "material": "air", "stop": True},
+            {"radius": -30.0, "thickness": 2.0, "material": {"n": 1.7}},
+            {"radius": 30.0, "thickness": 10.0, "material": "air"},
+        ]
+    }
     h = 6.0
     s20 = 20.0 - math.sqrt(400.0 - 36.0)
     s30 = 30.0 - math.sqrt(900.0 - 36.0)
@@ -134,10 +137,15 @@ def test_space_names_and_apply(cooke):
     assert sp.values(new) == [25.0, -0.5, 1e-5, 6.5, 1.2]
 
 
-@pytest.mark.parametrize("name, msg", [
-    ("s_9_radius", "out of range"), ("s_1_5th", "asphere order"), ("radius_1", "expected s_N_radius"),
-    ("s_1_4nd", "asphere order"),
-])
+@pytest.mark.parametrize(
+    "name, msg",
+    [
+        ("s_9_radius", "out of range"),
+        ("s_1_5th", "asphere order"),
+        ("radius_1", "expected s_N_radius"),
+        ("s_1_4nd", "asphere order"),
+    ],
+)
 def test_bad_parameter_names(cooke, name, msg):
     with pytest.raises(SpaceError, match=msg):
         parameter_from_name(name, cooke.data)
@@ -146,12 +154,14 @@ def test_bad_parameter_names(cooke, name, msg):
 def test_space_file_errors_name_file_and_entry(tmp_path, cooke):
     bad = tmp_path / "bad.space.json"
     bad.write_text(json.dumps([{"name": "s_1_radius", "kind": "radius", "surface": 1, "min": -5, "max": 30}]))
-    with pytest.raises(SpaceError, match=r"bad\.space\.json: parameters\[0\] \(s_1_radius\): a radius range may not contain 0"):
+    with pytest.raises(
+        SpaceError, match=r"bad\.space\.json: parameters\[0\] \(s_1_radius\): a radius range may not contain 0"
+    ):
         ParameterSpace.load(bad, cooke.data)
     bad.write_text(json.dumps([{"name": "x", "kind": "curv", "surface": 1, "min": 0, "max": 1}]))
     with pytest.raises(SpaceError, match=r"parameters\[0\] \(x\): kind 'curv'"):
         ParameterSpace.load(bad, cooke.data)
-    bad.write_text("[{\"name\": 1,,]")
+    bad.write_text('[{"name": 1,,]')
     with pytest.raises(SpaceError, match=r"bad\.space\.json:1:\d+: invalid JSON"):
         ParameterSpace.load(bad)
 
@@ -182,9 +192,11 @@ def test_constraints_are_enforced(cooke_raw, cooke):
     """Ask for more than the published design gives: every air gap >= 5 mm (center and
     edge; its edge gaps are 4.6 and 3.8 mm) and glass edges >= 1.5 mm; the optimizer must
     meet them at the price of merit."""
-    sp = ParameterSpace.from_names([f"s_{i}_radius" for i in range(1, 7)]
-                                   + ["s_1_thickness", "s_2_thickness", "s_4_thickness", "s_5_thickness",
-                                      "s_6_thickness"], cooke.data)
+    sp = ParameterSpace.from_names(
+        [f"s_{i}_radius" for i in range(1, 7)]
+        + ["s_1_thickness", "s_2_thickness", "s_4_thickness", "s_5_thickness", "s_6_thickness"],
+        cooke.data,
+    )
     c = Constraints(efl=50.0, min_air_gap=5.0, min_edge=1.5, min_bfd=30.0)
     merit = Merit(cooke, c, rings=3, arms=6)
     before = merit.evaluate(cooke.data)
@@ -208,10 +220,29 @@ def test_start_outside_bounds_is_an_error(cooke_raw, cooke):
 def test_cli_optimize_writes_lens_and_summary(tmp_path):
     out = tmp_path / "opt.json"
     summ = tmp_path / "summary.json"
-    r = CliRunner().invoke(optimize_cmd, [
-        "cooke-f50", "--vars", "s_1_radius,s_6_radius,s_6_thickness", "--efl", "50",
-        "--min-air-gap", "1", "--max-iter", "15", "--rings", "3", "--arms", "6",
-        "--out", str(out), "--summary", str(summ), "--set-semi-diameters"])
+    r = CliRunner().invoke(
+        optimize_cmd,
+        [
+            "cooke-f50",
+            "--vars",
+            "s_1_radius,s_6_radius,s_6_thickness",
+            "--efl",
+            "50",
+            "--min-air-gap",
+            "1",
+            "--max-iter",
+            "15",
+            "--rings",
+            "3",
+            "--arms",
+            "6",
+            "--out",
+            str(out),
+            "--summary",
+            str(summ),
+            "--set-semi-diameters",
+        ],
+    )
     assert r.exit_code == 0, r.output
     summary = json.loads(summ.read_text())
     assert summary["after"]["merit_um"] <= summary["before"]["merit_um"]
@@ -222,11 +253,14 @@ def test_cli_optimize_writes_lens_and_summary(tmp_path):
     assert lens.paraxial()["efl_mm"] == pytest.approx(50.0, rel=1e-3)
 
 
-@pytest.mark.parametrize("args, msg", [
-    (["--vars", "s_1_radiuss"], "expected s_N_radius"),
-    ([], "give the variables"),
-    (["--vars", "s_12_radius"], "surface 12 out of range"),
-])
+@pytest.mark.parametrize(
+    "args, msg",
+    [
+        (["--vars", "s_1_radiuss"], "expected s_N_radius"),
+        ([], "give the variables"),
+        (["--vars", "s_12_radius"], "surface 12 out of range"),
+    ],
+)
 def test_cli_optimize_errors(tmp_path, args, msg):
     r = CliRunner().invoke(optimize_cmd, ["cooke-f50", "--out", str(tmp_path / "o.json"), *args])
     assert r.exit_code != 0
@@ -238,9 +272,28 @@ def test_cli_space_file_and_paraxial_focus(tmp_path):
     every parameter in range and its image sits at its own paraxial focus."""
     out, summ = tmp_path / "dg.json", tmp_path / "dg.summary.json"
     space = BUNDLED_DIR / "spaces" / "double-gauss-f5.toml"
-    r = CliRunner().invoke(optimize_cmd, [
-        "double-gauss-f5", "--space", str(space), "--focus", "paraxial", "--efl", "100",
-        "--max-iter", "4", "--rings", "3", "--arms", "6", "--out", str(out), "--summary", str(summ)])
+    r = CliRunner().invoke(
+        optimize_cmd,
+        [
+            "double-gauss-f5",
+            "--space",
+            str(space),
+            "--focus",
+            "paraxial",
+            "--efl",
+            "100",
+            "--max-iter",
+            "4",
+            "--rings",
+            "3",
+            "--arms",
+            "6",
+            "--out",
+            str(out),
+            "--summary",
+            str(summ),
+        ],
+    )
     assert r.exit_code == 0, r.output
     summary = json.loads(summ.read_text())
     assert summary["after"]["merit_um"] <= summary["before"]["merit_um"]

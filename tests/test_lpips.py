@@ -23,8 +23,9 @@ LPIPS_REF = REPO_ROOT.parent / "shared" / "lpips-reference"
 def _image(name: str) -> torch.Tensor:
     path = LPIPS_REF / name
     if not path.is_file():
-        pytest.fail(f"{path}: the LPIPS reference images are missing (clone with shared/ beside the repo)",
-                    pytrace=False)
+        pytest.fail(
+            f"{path}: the LPIPS reference images are missing (clone with shared/ beside the repo)", pytrace=False
+        )
     a = np.asarray(Image.open(path).convert("RGB"), dtype=np.float32) / 255.0
     return torch.from_numpy(a).permute(2, 0, 1)
 

@@ -27,7 +27,7 @@ def _noisy(img: torch.Tensor, sigma: float, seed: int = 0) -> torch.Tensor:
 
 def _blur(img: torch.Tensor, sigma: float) -> torch.Tensor:
     r = math.ceil(3 * sigma)
-    k = torch.exp(-torch.arange(-r, r + 1.0) ** 2 / (2 * sigma ** 2))
+    k = torch.exp(-(torch.arange(-r, r + 1.0) ** 2) / (2 * sigma**2))
     k = (k / k.sum()).view(1, 1, 1, -1).repeat(3, 1, 1, 1)
     x = F.pad(img[None], (r, r, r, r), mode="reflect")
     x = F.conv2d(F.conv2d(x, k, groups=3), k.transpose(2, 3), groups=3)
@@ -54,9 +54,15 @@ def test_ssim_identity_monotone_and_matches_skimage(photo):
     scores = [M.ssim(photo, _noisy(photo, s)).item() for s in (0.01, 0.03, 0.1, 0.3)]
     assert all(a > b for a, b in zip(scores, scores[1:])), scores
     y = _noisy(photo, 0.05)
-    ref = structural_similarity(photo.permute(1, 2, 0).numpy(), y.permute(1, 2, 0).numpy(),
-                                gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
-                                data_range=1.0, channel_axis=2)
+    ref = structural_similarity(
+        photo.permute(1, 2, 0).numpy(),
+        y.permute(1, 2, 0).numpy(),
+        gaussian_weights=True,
+        sigma=1.5,
+        use_sample_covariance=False,
+        data_range=1.0,
+        channel_axis=2,
+    )
     assert M.ssim(photo, y).item() == pytest.approx(ref, abs=1e-4)
     batch = M.ssim(torch.stack([photo, photo]), torch.stack([photo, y]))
     assert batch.shape == (2,) and batch[0] > batch[1]

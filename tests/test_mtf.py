@@ -34,11 +34,13 @@ def test_otf_of_a_gaussian_psf():
     c = np.arange(256) - 128
     x = c * pixel_um
     g = np.exp(-((x - shift_um) ** 2) / (2 * sigma_um**2))
-    psf = np.outer(np.exp(-x**2 / (2 * (2 * sigma_um) ** 2)), g)  # rows y (sigma 6), cols x (sigma 3)
+    psf = np.outer(np.exp(-(x**2) / (2 * (2 * sigma_um) ** 2)), g)  # rows y (sigma 6), cols x (sigma 3)
     f = np.linspace(0, 200, 41)
     s = otf_1d(psf, pixel_um, f, "x", offset_mm=0.01)
     t = otf_1d(psf, pixel_um, f, "y")
-    expect_s = np.exp(-2 * np.pi**2 * (sigma_um * 1e-3) ** 2 * f**2) * np.exp(-2j * np.pi * f * (0.01 + shift_um * 1e-3))
+    expect_s = np.exp(-2 * np.pi**2 * (sigma_um * 1e-3) ** 2 * f**2) * np.exp(
+        -2j * np.pi * f * (0.01 + shift_um * 1e-3)
+    )
     assert np.abs(s - expect_s).max() < 1e-9
     assert np.abs(t - np.exp(-2 * np.pi**2 * (2 * sigma_um * 1e-3) ** 2 * f**2)).max() < 1e-9
     with pytest.raises(ValueError, match="axis"):
@@ -76,7 +78,9 @@ def test_cooke_on_axis_matches_optiland_psf(cooke, ref_dir):
         ours, theirs = r[k], np.abs(otf_1d(ref, pixel, f, axis))
         assert np.abs(ours - theirs).max() < 0.005, np.abs(ours - theirs).max()
     # At the Nyquist frequency of a 5.86 um pixel both give ~0.155.
-    assert np.interp(NYQUIST_5P86_UM, f, r["tangential"]) == pytest.approx(np.interp(NYQUIST_5P86_UM, f, np.abs(otf_1d(ref, pixel, f, "y"))), abs=0.005)
+    assert np.interp(NYQUIST_5P86_UM, f, r["tangential"]) == pytest.approx(
+        np.interp(NYQUIST_5P86_UM, f, np.abs(otf_1d(ref, pixel, f, "y"))), abs=0.005
+    )
 
 
 def test_cooke_mtf_lies_below_the_diffraction_limit(cooke):
@@ -133,4 +137,8 @@ def test_a_refused_fft_psf_falls_back_to_huygens():
     assert any("FFT PSF refused" in w for w in m["warnings"])
     ref = field_mtf(lens, 14.9, wavelengths_nm=[470.0], method="huygens")
     np.testing.assert_allclose(m["per_wavelength"][0]["tangential"], ref["per_wavelength"][0]["tangential"], atol=1e-12)
-    assert np.all(np.isfinite(m["tangential"])) and 0.0 <= m["tangential"].min() and m["tangential"][0] == pytest.approx(1.0)
+    assert (
+        np.all(np.isfinite(m["tangential"]))
+        and 0.0 <= m["tangential"].min()
+        and m["tangential"][0] == pytest.approx(1.0)
+    )

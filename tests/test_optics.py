@@ -20,9 +20,16 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 def tiny_surrogate() -> OpticsSurrogate:
     torch.manual_seed(0)
-    return OpticsSurrogate(SurrogateConfig(n_params=3, psf_size=9, hidden=16, depth=2, base_channels=8, n_up=1),
-                           param_names=["a", "b", "c"], param_mean=[0, 10, -1], param_std=[1, 2, 0.5],
-                           param_min=[-1, 8, -2], param_max=[1, 12, 0], fields_deg=[0, 5, 10], pitch_um=5.86)
+    return OpticsSurrogate(
+        SurrogateConfig(n_params=3, psf_size=9, hidden=16, depth=2, base_channels=8, n_up=1),
+        param_names=["a", "b", "c"],
+        param_mean=[0, 10, -1],
+        param_std=[1, 2, 0.5],
+        param_min=[-1, 8, -2],
+        param_max=[1, 12, 0],
+        fields_deg=[0, 5, 10],
+        pitch_um=5.86,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +40,7 @@ def shipped():
 # ----- reparameterization and gradients ------------------------------------------------------
 def test_parameters_stay_inside_their_ranges_whatever_the_optimizer_does():
     optics = DifferentiableOptics(tiny_surrogate())
-    torch.testing.assert_close(optics.values(), torch.tensor([0.0, 10.0, -1.0]))   # no manifest: mid-range
+    torch.testing.assert_close(optics.values(), torch.tensor([0.0, 10.0, -1.0]))  # no manifest: mid-range
     with torch.no_grad():
         optics.u.copy_(torch.tensor([-1e4, 1e4, 0.0]))
     v = optics.values()
@@ -83,7 +90,7 @@ def test_descent_through_the_surrogate_lowers_the_exact_rms_spot(shipped):
     rng = np.random.default_rng(5)
     cands = (lo + (hi - lo) * torch.as_tensor(rng.uniform(0.1, 0.9, (6, len(lo))), dtype=torch.float32)).numpy()
     before_all = rms_spot_um(shipped.manifest, cands).mean(1)
-    start = cands[int(np.argmax(before_all))]        # the worst of six random designs
+    start = cands[int(np.argmax(before_all))]  # the worst of six random designs
     optics.set_values(start)
     opt = torch.optim.Adam(optics.parameters(), lr=0.05)
     sizes = []

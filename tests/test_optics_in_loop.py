@@ -38,14 +38,20 @@ def test_hybrid_refinement_lowers_the_error_where_it_was_above_the_threshold(sur
     round-off, measured 1e-4; network, a 20-step fine-tune on 24 engine designs: measured worst
     field 0.229 -> 0.181, mean over fields 0.060 -> 0.052)."""
     o = _optics(sur)
-    mon = OpticsMonitor(o, "hybrid", every=5, threshold=0.02, refine=refine,
-                        refine_settings=RefineSettings(designs=24, steps=20, batch=32, lr=1e-4))
+    mon = OpticsMonitor(
+        o,
+        "hybrid",
+        every=5,
+        threshold=0.02,
+        refine=refine,
+        refine_settings=RefineSettings(designs=24, steps=20, batch=32, lr=1e-4),
+    )
     rec = mon.check(0)
     assert max(rec["model_error_per_field"]) > 0.02
     ev = next(e for e in rec["events"] if e["event"] == "refine")
     assert max(ev["error_after"]) < max(ev["error_before"])
     if refine == "correction":
-        assert max(ev["error_after"]) < 1e-3     # float32 sums over 41 x 41 pixels: measured 1e-4
+        assert max(ev["error_after"]) < 1e-3  # float32 sums over 41 x 41 pixels: measured 1e-4
     else:
         assert ev["engine_designs"] == 25
         assert np.mean(ev["error_after"]) < np.mean(ev["error_before"])
@@ -57,11 +63,11 @@ def test_hybrid_refinement_lowers_the_error_where_it_was_above_the_threshold(sur
 def test_hybrid_falls_back_to_exact_gradients_and_back(sur):
     o = _optics(sur)
     mon = OpticsMonitor(o, "hybrid", every=3, threshold=0.02)
-    mon.check(0)                                   # 23 % -> refined (correction); still the surrogate
+    mon.check(0)  # 23 % -> refined (correction); still the surrogate
     assert o.backend == "surrogate" and o.correction is not None
     with torch.no_grad():  # a large move (in the optimizer's coordinates: inside the ranges)
         o.u.add_(0.4 * torch.linspace(-1, 1, len(o.u)).sign())
-    rec = mon.check(3)                             # the refined model drifted past 2 %: refine, fall back
+    rec = mon.check(3)  # the refined model drifted past 2 %: refine, fall back
     kinds = [e["event"] for e in rec["events"]]
     assert kinds == ["refine", "exact_on"], rec
     assert o.backend == "exact"
@@ -69,7 +75,7 @@ def test_hybrid_falls_back_to_exact_gradients_and_back(sur):
     img = torch.rand(1, 3, 48, 48, generator=torch.Generator().manual_seed(0))
     ((o(img) - img).abs().mean()).backward()
     assert torch.isfinite(o.u.grad).all() and o.u.grad.abs().max() > 0
-    rec = mon.check(6)                             # no move since the refinement: under again
+    rec = mon.check(6)  # no move since the refinement: under again
     assert [e["event"] for e in rec["events"]] == ["exact_off"] and o.backend == "surrogate"
     assert [e["event"] for e in mon.events] == ["refine", "refine", "exact_on", "exact_off"]
     # the monitor's state round-trips (resuming)
@@ -86,7 +92,7 @@ def test_surrogate_mode_only_measures(sur):
     rec = mon.check(0)
     assert rec["events"] == [] and o.correction is None and o.backend == "surrogate"
     assert rec["error_per_field"] == rec["network_error_per_field"]
-    assert len(rec["error_per_field"]) == 13 and max(rec["error_per_field"]) > 0.1   # the full field's 23 %
+    assert len(rec["error_per_field"]) == 13 and max(rec["error_per_field"]) > 0.1  # the full field's 23 %
 
 
 class _Killed(Exception):
@@ -110,8 +116,17 @@ def _train_exact(out, kill_at=None):
             raise _Killed
 
     try:
-        res = train(cfg, cam, make_optimizer(cfg, cam, cfg.optimizer), out, "end_to_end", progress=False,
-                    frame=frame, on_step=on_step, monitor=mon)
+        res = train(
+            cfg,
+            cam,
+            make_optimizer(cfg, cam, cfg.optimizer),
+            out,
+            "end_to_end",
+            progress=False,
+            frame=frame,
+            on_step=on_step,
+            monitor=mon,
+        )
     except _Killed:
         return None
     return cam, mon, res
@@ -126,8 +141,10 @@ def test_an_exact_optics_run_resumes_on_the_same_path(tmp_path):
     cam2, mon2, res2 = _train_exact(tmp_path / "killed")
     assert res2["steps"] == 6
     assert torch.equal(cam2.optics.u, cam.optics.u)
+
     def key(checks):
         return [(c["step"], c["backend"], c["network_error_per_field"]) for c in checks]
+
     assert [c["step"] for c in mon.checks] == [0, 2, 4, 6]
     assert key(mon2.checks) == key(mon.checks)
     s1, s2 = mon.summary(), mon2.summary()
@@ -138,8 +155,21 @@ def test_an_exact_optics_run_resumes_on_the_same_path(tmp_path):
 
 
 def _design(out, *extra):
-    return [sys.executable, "-m", "optix_e2e", "design", "iq-software", "--out", str(out), "--budget", "smoke",
-            "--threads", "1", "--quiet", *extra]
+    return [
+        sys.executable,
+        "-m",
+        "optix_e2e",
+        "design",
+        "iq-software",
+        "--out",
+        str(out),
+        "--budget",
+        "smoke",
+        "--threads",
+        "1",
+        "--quiet",
+        *extra,
+    ]
 
 
 def test_design_runs_with_exact_and_hybrid_optics(tmp_path):
@@ -151,20 +181,22 @@ def test_design_runs_with_exact_and_hybrid_optics(tmp_path):
         res[mode] = json.loads((out / "results.json").read_text())
         om = res[mode]["optics_model"]
         assert om["mode"] == mode and om["requested"] == mode
-        assert [c["step"] for c in om["checks"]] == [0, 3, 6]          # smoke: 6 steps, checks every 3
+        assert [c["step"] for c in om["checks"]] == [0, 3, 6]  # smoke: 6 steps, checks every 3
         for c in om["checks"]:
             assert len(c["network_error_per_field"]) == 13
             assert all(np.isfinite(c["network_error_per_field"]))
         rows = [row for row in csv.DictReader(open(out / "history.csv")) if row["run"] == "end_to_end"]
         if mode == "exact":
             assert {row["optics"] for row in rows} == {"exact"}
-            assert om["exact_gradient_steps"] == 4                     # 2 optics steps + 2 joint steps
+            assert om["exact_gradient_steps"] == 4  # 2 optics steps + 2 joint steps
             assert om["final_error_per_field"] == [0.0] * 13
             assert om["step_choice"] is not None and len(om["step_choice"]["steps"]) == 19
         else:
-            assert om["n_refinements"] >= 1                            # the nominal's 23 % is over 2 %
+            assert om["n_refinements"] >= 1  # the nominal's 23 % is over 2 %
             assert om["events"][0]["event"] == "refine" and om["events"][0]["step"] == 0
-        assert {row["optics"] for row in csv.DictReader(open(out / "history.csv")) if row["run"] == "nominal"} == {"fixed"}
+        assert {row["optics"] for row in csv.DictReader(open(out / "history.csv")) if row["run"] == "nominal"} == {
+            "fixed"
+        }
         # the same command again resumes a finished run: the checks come back from the checkpoint
         r = subprocess.run(_design(out, "--optics", mode), capture_output=True, text=True, timeout=900)
         assert r.returncode == 0, r.stdout + r.stderr
@@ -175,12 +207,24 @@ def test_design_runs_with_exact_and_hybrid_optics(tmp_path):
 
 def test_auto_picks_the_fastest_model_not_measurably_worse_than_the_best(tmp_path):
     path = tmp_path / "t.csv"
-    cols = ["task", "sweep", "point", "optics", "patch", "fields", "wall_s", "psnr_db", "psnr_vs_best_lo",
-            "psnr_vs_best_hi"]
-    rows = [["iq-software", "optics", "surrogate", "surrogate", 64, 13, 300, 27.00, -0.5, -0.1],   # worse
-            ["iq-software", "optics", "exact", "exact", 64, 13, 500, 27.30, 0.0, 0.0],            # the best
-            ["iq-software", "optics", "hybrid", "hybrid", 64, 13, 340, 27.25, -0.2, 0.1],         # as good
-            ["iq-software", "patch", "patch32", "surrogate", 32, 13, 200, 29.0, 0.0, 0.0]]   # another sweep: not an optics model
+    cols = [
+        "task",
+        "sweep",
+        "point",
+        "optics",
+        "patch",
+        "fields",
+        "wall_s",
+        "psnr_db",
+        "psnr_vs_best_lo",
+        "psnr_vs_best_hi",
+    ]
+    rows = [
+        ["iq-software", "optics", "surrogate", "surrogate", 64, 13, 300, 27.00, -0.5, -0.1],  # worse
+        ["iq-software", "optics", "exact", "exact", 64, 13, 500, 27.30, 0.0, 0.0],  # the best
+        ["iq-software", "optics", "hybrid", "hybrid", 64, 13, 340, 27.25, -0.2, 0.1],  # as good
+        ["iq-software", "patch", "patch32", "surrogate", 32, 13, 200, 29.0, 0.0, 0.0],
+    ]  # another sweep: not an optics model
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(cols)

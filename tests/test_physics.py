@@ -34,14 +34,18 @@ def plano_convex(epd, curved_first=True, image_shift=0.0):
     h_last, u_last = rows[-1][0], rows[-1][2]
     bfl = -h_last / u_last
     radius = lambda c: "inf" if c == 0 else 1.0 / c
-    lens = Lens({
-        "name": "plano-convex", "aperture": {"type": "epd", "value": epd}, "fields_deg": [0.0],
-        "wavelengths_nm": [WL_NM],
-        "surfaces": [
-            {"radius": radius(c_a), "thickness": D, "material": {"n": N_GLASS}, "stop": True},
-            {"radius": radius(c_b), "thickness": bfl + image_shift, "material": "air"},
-        ],
-    })
+    lens = Lens(
+        {
+            "name": "plano-convex",
+            "aperture": {"type": "epd", "value": epd},
+            "fields_deg": [0.0],
+            "wavelengths_nm": [WL_NM],
+            "surfaces": [
+                {"radius": radius(c_a), "thickness": D, "material": {"n": N_GLASS}, "stop": True},
+                {"radius": radius(c_b), "thickness": bfl + image_shift, "material": "air"},
+            ],
+        }
+    )
     return lens, bfl
 
 

@@ -71,6 +71,7 @@ def non_finite_in(path: Path) -> bool:
         a = np.load(path, allow_pickle=False)
         return a.dtype.kind == "f" and not np.isfinite(a).all()
     if path.suffix == ".json":
+
         def bad(v) -> bool:
             if isinstance(v, float):
                 return not math.isfinite(v)
@@ -196,8 +197,13 @@ def test_design_with_a_damaged_config_is_one_error_and_claims_no_folder(tmp_path
     cfg = tmp_path / "cfg.toml"
     cfg.write_text(text, encoding="utf-8", errors="surrogateescape")
     keep_file(tmp_path)
-    check(tmp_path, ["design", "iq-software", "--config", cfg, "--out", tmp_path / "out", "--budget", "smoke",
-                     "--quiet"], 1, rf"cfg\.toml.*({culprit})|({culprit}).*cfg\.toml", nothing_new=True)
+    check(
+        tmp_path,
+        ["design", "iq-software", "--config", cfg, "--out", tmp_path / "out", "--budget", "smoke", "--quiet"],
+        1,
+        rf"cfg\.toml.*({culprit})|({culprit}).*cfg\.toml",
+        nothing_new=True,
+    )
 
 
 OTHER_RUNS = {
@@ -240,16 +246,26 @@ def test_a_run_into_a_folder_of_another_kind_is_refused_and_leaves_it_as_it_was(
 
 # --------------------------------------------------------------- optix detect train / eval
 COCO_DAMAGE = [
-    (lambda d, r: d["annotations"][0].__setitem__("category_id", r.choice([-1, 0, 7, 10 ** 12])),
-     r"annotations\.json|category"),
-    (lambda d, r: d["annotations"][0].__setitem__("bbox", r.choice([[0, 0, -5, 3], [1, 2, 3], ["a", 0, 1, 1],
-                                                                       [float("nan"), 0, 1, 1]])),
-     r"annotations\.json|bbox"),
-    (lambda d, r: d["images"][0].__setitem__("file_name", r.choice(["../../etc/hostname", "/etc/hostname",
-                                                                       "a/../../x.png", "missing.png"])),
-     r"annotations\.json|images|file"),
-    (lambda d, r: d["annotations"][0].__setitem__("illumination", r.choice([float("nan"), float("inf"), -2])),
-     r"annotations\.json|illumination"),
+    (
+        lambda d, r: d["annotations"][0].__setitem__("category_id", r.choice([-1, 0, 7, 10**12])),
+        r"annotations\.json|category",
+    ),
+    (
+        lambda d, r: d["annotations"][0].__setitem__(
+            "bbox", r.choice([[0, 0, -5, 3], [1, 2, 3], ["a", 0, 1, 1], [float("nan"), 0, 1, 1]])
+        ),
+        r"annotations\.json|bbox",
+    ),
+    (
+        lambda d, r: d["images"][0].__setitem__(
+            "file_name", r.choice(["../../etc/hostname", "/etc/hostname", "a/../../x.png", "missing.png"])
+        ),
+        r"annotations\.json|images|file",
+    ),
+    (
+        lambda d, r: d["annotations"][0].__setitem__("illumination", r.choice([float("nan"), float("inf"), -2])),
+        r"annotations\.json|illumination",
+    ),
     (lambda d, r: d.pop(r.choice(["images", "annotations", "categories"])), r"annotations\.json"),
     (lambda d, r: d["images"][0].__setitem__("id", r.choice([None, "x", -1, 1.5])), r"annotations\.json|id"),
 ]
@@ -280,8 +296,12 @@ def test_detect_train_on_a_damaged_set_is_one_error_naming_it(tmp_path, street, 
     rng = random.Random(seed)
     culprit = _damaged_set(street, tmp_path / "set", rng)
     keep_file(tmp_path)
-    check(tmp_path, ["detect", "train", tmp_path / "set", "--out", tmp_path / "run", "--steps", "1",
-                     "--batch", "1", "--quiet"], 1, culprit)
+    check(
+        tmp_path,
+        ["detect", "train", tmp_path / "set", "--out", tmp_path / "run", "--steps", "1", "--batch", "1", "--quiet"],
+        1,
+        culprit,
+    )
 
 
 @pytest.mark.parametrize("seed", SEEDS)
@@ -362,16 +382,24 @@ def test_street_scenes_never_replace_a_set(tmp_path, street, seed):
     rng = random.Random(seed)
     copy_tree(street, tmp_path / "set")
     size = rng.choice(["32x48", "64x96"])
-    check(tmp_path, ["scenes", "street", "--out", tmp_path / "set", "-n", str(rng.randrange(1, 4)), "--size", size],
-          1, r"--out|not empty|holds")
+    check(
+        tmp_path,
+        ["scenes", "street", "--out", tmp_path / "set", "-n", str(rng.randrange(1, 4)), "--size", size],
+        1,
+        r"--out|not empty|holds",
+    )
 
 
 # ----------------------------------------------------- lens files: info, psf, tolerance
 def _flip_a_value(text: str, rng: random.Random) -> tuple[str, bool]:
     """Replace one number of a .zmx file by a hostile one; whether it must fail."""
     lines = text.splitlines()
-    idx = [i for i, ln in enumerate(lines) if re.search(r"\d", ln) and ln.split()[0] in
-           ("CURV", "DISZ", "ENPD", "WAVM", "YFLN", "DIAM", "CONI", "PARM", "GLAS", "FTYP", "SURF")]
+    idx = [
+        i
+        for i, ln in enumerate(lines)
+        if re.search(r"\d", ln)
+        and ln.split()[0] in ("CURV", "DISZ", "ENPD", "WAVM", "YFLN", "DIAM", "CONI", "PARM", "GLAS", "FTYP", "SURF")
+    ]
     i = rng.choice(idx)
     tok = lines[i].split()
     j = rng.randrange(1, len(tok))
@@ -388,9 +416,13 @@ def test_lens_commands_on_a_damaged_zmx_answer_or_name_file_and_line(tmp_path, s
     path = tmp_path / "lens.zmx"
     path.write_text(bad, encoding="utf-8")
     keep_file(tmp_path)
-    command = rng.choice([["lens", "info", path, "--json"],
-                          ["psf", path, "--size", "16", "--pupil-samples", "16", "--out", tmp_path / "psf.npy"],
-                          ["lens", "convert", path, tmp_path / "lens.json"]])
+    command = rng.choice(
+        [
+            ["lens", "info", path, "--json"],
+            ["psf", path, "--size", "16", "--pupil-samples", "16", "--out", tmp_path / "psf.npy"],
+            ["lens", "convert", path, tmp_path / "lens.json"],
+        ]
+    )
     before = snapshot(tmp_path)
     res = invoke(command)
     assert "Traceback" not in res.output and res.exit_code in (0, 1), res.output
@@ -417,21 +449,33 @@ def test_tolerance_on_a_damaged_lens_file_is_one_error_naming_it(tmp_path, seed)
     path = tmp_path / "lens.json"
     path.write_text(json.dumps(data))
     keep_file(tmp_path)
-    check(tmp_path, ["tolerance", path, "--space", "cooke-f50", "--mc", "2", "--out", tmp_path / "tol"], 1,
-          r"lens\.json|surface")
+    check(
+        tmp_path,
+        ["tolerance", path, "--space", "cooke-f50", "--mc", "2", "--out", tmp_path / "tol"],
+        1,
+        r"lens\.json|surface",
+    )
 
 
 # -------------------------------------------------------------- optix dataset --dask
-@pytest.mark.parametrize("address, culprit", [
-    ("tcp://256.1.1.1:1", r"256\.1\.1\.1|address|--dask"),
-    ("tcp://host:99999", r"99999|port|--dask"),
-    ("http://x:1", r"http|protocol|--dask"),
-    ("ucx://", r"ucx|address|--dask"),
-])
+@pytest.mark.parametrize(
+    "address, culprit",
+    [
+        ("tcp://256.1.1.1:1", r"256\.1\.1\.1|address|--dask"),
+        ("tcp://host:99999", r"99999|port|--dask"),
+        ("http://x:1", r"http|protocol|--dask"),
+        ("ucx://", r"ucx|address|--dask"),
+    ],
+)
 def test_dataset_with_a_dask_address_that_leads_nowhere_fails_at_once(tmp_path, address, culprit):
     keep_file(tmp_path)
-    check(tmp_path, ["dataset", "generate", "cooke-f50", "-n", "2", "--out", tmp_path / "d", "--dask", address],
-          1, culprit, nothing_new=True)
+    check(
+        tmp_path,
+        ["dataset", "generate", "cooke-f50", "-n", "2", "--out", tmp_path / "d", "--dask", address],
+        1,
+        culprit,
+        nothing_new=True,
+    )
 
 
 # ---------------------------------------------------------------- optix lens survey
@@ -500,8 +544,32 @@ def test_surrogate_train_on_a_damaged_dataset_is_one_error_naming_it(tmp_path, d
     data = copy_tree(dataset, tmp_path / "data")
     culprit = _damage_dataset(data, rng)
     keep_file(tmp_path)
-    check(tmp_path, ["surrogate", "train", data, "--out", tmp_path / "run", "--steps", "1", "--batch", "2",
-                     "--hidden", "8", "--depth", "1", "--base-channels", "4", "--n-up", "0", "--val-designs", "2"], 1, culprit)
+    check(
+        tmp_path,
+        [
+            "surrogate",
+            "train",
+            data,
+            "--out",
+            tmp_path / "run",
+            "--steps",
+            "1",
+            "--batch",
+            "2",
+            "--hidden",
+            "8",
+            "--depth",
+            "1",
+            "--base-channels",
+            "4",
+            "--n-up",
+            "0",
+            "--val-designs",
+            "2",
+        ],
+        1,
+        culprit,
+    )
 
 
 @pytest.mark.parametrize("seed", SEEDS)
@@ -523,5 +591,9 @@ def test_design_with_a_crafted_surrogate_is_one_error_naming_it(tmp_path, seed):
         raw = (BUNDLED_DIR / "surrogate_paper_triplet_e2e.pt").read_bytes()
         bad.write_bytes(raw[: rng.randrange(1, len(raw) - 1)])
     keep_file(tmp_path)
-    check(tmp_path, ["design", "iq-software", "--surrogate", bad, "--out", tmp_path / "out", "--budget", "smoke",
-                     "--quiet"], 1, r"optics\.pt")
+    check(
+        tmp_path,
+        ["design", "iq-software", "--surrogate", bad, "--out", tmp_path / "out", "--budget", "smoke", "--quiet"],
+        1,
+        r"optics\.pt",
+    )

@@ -13,17 +13,20 @@ def rel(a, b):
 
 
 # ---------------------------------------------------------------- first order
-@pytest.mark.parametrize("ours, theirs", [
-    ("efl_mm", "efl_mm"),
-    ("bfl_mm", "bfl_mm_last_vertex_to_paraxial_focus"),
-    ("epd_mm", "epd_mm"),
-    ("f_number", "fno_paraxial"),
-    ("total_track_mm", "total_track_first_vertex_to_image_mm"),
-    ("xpd_mm", "xpd_mm"),
-    ("entrance_pupil_z_mm", "entrance_pupil_pos_mm_rel_first_surface"),
-    ("exit_pupil_z_mm", "exit_pupil_pos_mm_rel_image_plane"),
-    ("paraxial_image_height_mm", "paraxial_image_height_f_tan_mm"),
-])
+@pytest.mark.parametrize(
+    "ours, theirs",
+    [
+        ("efl_mm", "efl_mm"),
+        ("bfl_mm", "bfl_mm_last_vertex_to_paraxial_focus"),
+        ("epd_mm", "epd_mm"),
+        ("f_number", "fno_paraxial"),
+        ("total_track_mm", "total_track_first_vertex_to_image_mm"),
+        ("xpd_mm", "xpd_mm"),
+        ("entrance_pupil_z_mm", "entrance_pupil_pos_mm_rel_first_surface"),
+        ("exit_pupil_z_mm", "exit_pupil_pos_mm_rel_image_plane"),
+        ("paraxial_image_height_mm", "paraxial_image_height_f_tan_mm"),
+    ],
+)
 def test_paraxial(cooke, ref_data, ours, theirs):
     par = cooke.paraxial(PRIMARY_NM)
     assert rel(par[ours], ref_data["first_order"][theirs]) < 1e-9, (par[ours], ref_data["first_order"][theirs])
@@ -146,8 +149,10 @@ def _on_reference_grid(psf, diag, x_mm, y_mm):
     return map_coordinates(psf, [rr, cc], order=3, mode="constant")
 
 
-@pytest.mark.parametrize("field_deg, stem", [(0.0, "cooke_onaxis_0p55_huygens_N128_img128"),
-                                             (20.0, "cooke_fullfield20deg_0p55_huygens_N128_img128")])
+@pytest.mark.parametrize(
+    "field_deg, stem",
+    [(0.0, "cooke_onaxis_0p55_huygens_N128_img128"), (20.0, "cooke_fullfield20deg_0p55_huygens_N128_img128")],
+)
 @pytest.mark.parametrize("method", ["fft", "huygens"])
 def test_psf_vs_reference_huygens(engine_psfs, ref_dir, field_deg, stem, method):
     ref = np.load(ref_dir / "psf" / f"{stem}.npy")

@@ -8,6 +8,7 @@ only in the paraxial image plane: 1 mm behind focus it was off by the square of 
 chief-ray magnification change (about 4% for the f = 50 mm thin lens below), and refocused
 or broken designs gave values such as 1.04 near the axis or -49.7.
 """
+
 import copy
 import shutil
 
@@ -21,11 +22,19 @@ from optix_e2e.lens import Lens
 def thin_lens(defocus_mm: float = 0.0) -> Lens:
     """A thin, slow (f/50) plano-convex lens, f = 50 mm, stop on the lens: the textbook
     'thin perfect lens' whose relative illumination is cos^4(theta) at any image plane."""
-    d = {"name": "thin", "units": "mm", "aperture": {"type": "epd", "value": 1.0}, "fields_deg": [0.0, 30.0],
-         "wavelengths_nm": [550.0], "primary_wavelength_nm": 550.0,
-         "surfaces": [{"radius": 25.0, "thickness": 0.02, "material": {"n": 1.5}, "stop": True},
-                      {"radius": "inf", "thickness": 50.0, "material": "air"}],
-         "image": {"semi_diameter": None}}
+    d = {
+        "name": "thin",
+        "units": "mm",
+        "aperture": {"type": "epd", "value": 1.0},
+        "fields_deg": [0.0, 30.0],
+        "wavelengths_nm": [550.0],
+        "primary_wavelength_nm": 550.0,
+        "surfaces": [
+            {"radius": 25.0, "thickness": 0.02, "material": {"n": 1.5}, "stop": True},
+            {"radius": "inf", "thickness": 50.0, "material": "air"},
+        ],
+        "image": {"semi_diameter": None},
+    }
     d["surfaces"][1]["thickness"] = Lens(d).paraxial()["bfl_mm"] + defocus_mm
     return Lens(d)
 
@@ -59,7 +68,7 @@ def test_vignetted_cooke_matches_brute_force_count(defocus_mm):
     0.6% tolerance is below the old formula's 2% error 1 mm from focus."""
     lens = vignetted_cooke(defocus_mm)
     for f in [14.0, 20.0]:
-        bf = relative_illumination_count(lens, f, 550.0, n_rays=2 ** 21)
+        bf = relative_illumination_count(lens, f, 550.0, n_rays=2**21)
         assert ri(lens, f) == pytest.approx(bf["relative_illumination"], abs=6e-3), (defocus_mm, f, bf)
 
 
@@ -69,7 +78,7 @@ def test_vignetted_cooke_matches_optiland_ray_count():
     pytest.importorskip("optiland.optic", reason="optiland is in the test extra")
     for defocus_mm in [0.0, 1.0]:
         lens = vignetted_cooke(defocus_mm)
-        bf = relative_illumination_count(lens, 20.0, 550.0, n_rays=2 ** 19, tracer="optiland")
+        bf = relative_illumination_count(lens, 20.0, 550.0, n_rays=2**19, tracer="optiland")
         assert ri(lens, 20.0) == pytest.approx(bf["relative_illumination"], abs=1e-2), (defocus_mm, bf)
 
 
@@ -102,8 +111,15 @@ def test_batch_values_are_in_range_or_the_design_fails():
         x = mid + half * rng.uniform(-1, 1, size=len(lo))
         designs.append(Lens(space.apply(base.data, x)))
     fields = [0.0, 7.45, 14.9]
-    r = _engine.psf_batch([d.to_engine_json() for d in designs], fields, base.rgb_channels(), method="fft",
-                          pixel_um=1.0, size=32, pupil_samples=32)
+    r = _engine.psf_batch(
+        [d.to_engine_json() for d in designs],
+        fields,
+        base.rgb_channels(),
+        method="fft",
+        pixel_um=1.0,
+        size=32,
+        pupil_samples=32,
+    )
     assert not r["ok"].all()  # the widened space does hold broken designs
     for i in np.flatnonzero(r["ok"]):
         v = r["relative_illumination"][i]
@@ -173,10 +189,19 @@ def test_afocal_system_has_no_relative_illumination(tmp_path):
     from optix_e2e import _engine
     from optix_e2e.cli import main
 
-    d = {"name": "window", "units": "mm", "aperture": {"type": "epd", "value": 10.0}, "fields_deg": [0.0, 5.0],
-         "wavelengths_nm": [550.0], "primary_wavelength_nm": 550.0,
-         "surfaces": [{"radius": "inf", "thickness": 4.0, "material": {"n": 1.5}, "stop": True},
-                      {"radius": "inf", "thickness": 20.0, "material": "air"}], "image": {"semi_diameter": None}}
+    d = {
+        "name": "window",
+        "units": "mm",
+        "aperture": {"type": "epd", "value": 10.0},
+        "fields_deg": [0.0, 5.0],
+        "wavelengths_nm": [550.0],
+        "primary_wavelength_nm": 550.0,
+        "surfaces": [
+            {"radius": "inf", "thickness": 4.0, "material": {"n": 1.5}, "stop": True},
+            {"radius": "inf", "thickness": 20.0, "material": "air"},
+        ],
+        "image": {"semi_diameter": None},
+    }
     path = tmp_path / "window.json"
     path.write_text(json.dumps(d))
     r = CliRunner().invoke(main, ["lens", "info", str(path), "--json"])

@@ -15,8 +15,9 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 def comatic_stack(k: int = 5, s: int = 9, c: int = 3) -> tuple[torch.Tensor, torch.Tensor]:
     """K PSFs [K, C, S, S] that grow and shift outward (+row) with the field: coma-like, asymmetric."""
     fields = torch.linspace(0, 1, k, dtype=torch.float64)
-    y, x = torch.meshgrid(torch.arange(s, dtype=torch.float64) - s // 2,
-                          torch.arange(s, dtype=torch.float64) - s // 2, indexing="ij")
+    y, x = torch.meshgrid(
+        torch.arange(s, dtype=torch.float64) - s // 2, torch.arange(s, dtype=torch.float64) - s // 2, indexing="ij"
+    )
     stack = []
     for f in fields:
         chans = []
@@ -68,13 +69,17 @@ def test_point_source_reproduces_the_interpolated_psf_at_its_position():
     full = 0.5 * math.hypot(h - 1, w - 1)
     for (py, px), tol in (((10, 50), 0.01), ((40, 12), 0.01), ((31, 33), 0.06)):
         dy, dx = py - (h - 1) / 2, px - (w - 1) / 2
-        want = psf_at(psfs, fields, torch.tensor([math.hypot(dy, dx) / full], dtype=torch.float64),
-                      torch.tensor([math.atan2(dx, dy)], dtype=torch.float64))[0]
+        want = psf_at(
+            psfs,
+            fields,
+            torch.tensor([math.hypot(dy, dx) / full], dtype=torch.float64),
+            torch.tensor([math.atan2(dx, dy)], dtype=torch.float64),
+        )[0]
         img = torch.zeros(1, 3, h, w, dtype=torch.float64)
         img[0, :, py, px] = 1.0
         errs = []
         for p in (16, 8, 4, 2):
-            out = render(img, psfs, fields, patch=p)[0, :, py - 4:py + 5, px - 4:px + 5]
+            out = render(img, psfs, fields, patch=p)[0, :, py - 4 : py + 5, px - 4 : px + 5]
             errs.append(((out - want).abs().sum() / want.sum()).item())
         assert errs == sorted(errs, reverse=True), ((py, px), errs)
         assert errs[1 if tol < 0.05 else 3] < tol, ((py, px), errs)  # 8 px patches off axis, 2 px near it
@@ -126,10 +131,10 @@ def test_a_crop_at_its_offset_renders_as_that_part_of_the_frame():
     frame = torch.rand(1, 3, h, w, dtype=torch.float64)
     whole = render_exact(frame, psfs, fields, vig)
     y0, x0, ch, cw = 4, 30, 24, 30
-    crop = frame[..., y0:y0 + ch, x0:x0 + cw]
+    crop = frame[..., y0 : y0 + ch, x0 : x0 + cw]
     offset = (y0 + (ch - 1) / 2 - (h - 1) / 2, x0 + (cw - 1) / 2 - (w - 1) / 2)
     m = psfs.shape[-1] // 2
-    want = whole[..., y0 + m:y0 + ch - m, x0 + m:x0 + cw - m]
+    want = whole[..., y0 + m : y0 + ch - m, x0 + m : x0 + cw - m]
     got = render_exact(crop, psfs, fields, vig, full_field_px=full, offset_px=offset)[..., m:-m, m:-m]
     assert torch.allclose(got, want, atol=1e-12)
     wrong = render_exact(crop, psfs, fields, vig, full_field_px=full)[..., m:-m, m:-m]
@@ -173,7 +178,9 @@ def test_bilinear_rotation_spreads_a_delta_so_a_perfect_lens_bypasses_the_render
     d = torch.zeros(1, 1, 9, 9, dtype=torch.float64)
     d[..., 4, 4] = 1.0
     assert float(rotate_psfs(d, torch.tensor([math.pi / 2], dtype=torch.float64))[0, 0, 4, 4]) == pytest.approx(1.0)
-    assert float(rotate_psfs(d, torch.tensor([math.pi / 4], dtype=torch.float64))[0, 0, 4, 4]) == pytest.approx(0.745, abs=2e-3)
+    assert float(rotate_psfs(d, torch.tensor([math.pi / 4], dtype=torch.float64))[0, 0, 4, 4]) == pytest.approx(
+        0.745, abs=2e-3
+    )
 
     optics = PerfectOptics(9, full_field_px=500.0)
     scene = torch.rand(2, 3, 24, 24)

@@ -20,10 +20,19 @@ from optix_e2e.lens.mtf import field_mtf
 from optix_e2e.design.report import footprint, hexapolar, sag, spot_diagram, surface_geometry
 
 ASPHERIC = {
-    "name": "asph-test", "aperture": {"type": "epd", "value": 8}, "fields_deg": [0, 10],
+    "name": "asph-test",
+    "aperture": {"type": "epd", "value": 8},
+    "fields_deg": [0, 10],
     "wavelengths_nm": [486.1, 587.6, 656.3],
     "surfaces": [
-        {"radius": 14, "conic": -0.6, "aspheric": {"a4": -2e-5, "a6": 1e-7}, "thickness": 5, "material": "N-BK7", "semi_diameter": 6},
+        {
+            "radius": 14,
+            "conic": -0.6,
+            "aspheric": {"a4": -2e-5, "a6": 1e-7},
+            "thickness": 5,
+            "material": "N-BK7",
+            "semi_diameter": 6,
+        },
         {"radius": "inf", "thickness": 2, "material": "air", "semi_diameter": 6},
         {"radius": 25, "conic": 0.5, "thickness": 3, "material": {"n": 1.6}, "stop": True, "semi_diameter": 4.5},
         {"radius": -40, "aspheric": {"a4": 3e-5}, "thickness": 18, "material": "air", "semi_diameter": 5},
@@ -50,7 +59,9 @@ def test_paths_lie_on_the_drawn_profiles(cooke, which):
     py = np.linspace(-1.4, 1.4, 15)  # beyond the pupil too: some rays fail
     for field in lens.fields_deg:
         for aiming in ("paraxial", "real"):
-            d = _engine.trace_field_path(lens.to_engine_json(), field, np.zeros_like(py), py, lens.primary_wavelength_nm, aiming)
+            d = _engine.trace_field_path(
+                lens.to_engine_json(), field, np.zeros_like(py), py, lens.primary_wavelength_nm, aiming
+            )
             plain = lens.trace_field(field, np.zeros_like(py), py, aiming=aiming)
             assert d["path"].shape == (py.size, k + 1, 3) and np.all(np.isfinite(d["path"]))
             np.testing.assert_array_equal(d["status"], plain["status"])
@@ -59,7 +70,7 @@ def test_paths_lie_on_the_drawn_profiles(cooke, which):
                 if plain["status"][j] == 0:
                     assert last == k
                     assert np.array_equal(d["path"][j, k], plain["position"][j])  # bit for bit
-                assert np.all(d["path"][j, last + 1:] == 0.0)
+                assert np.all(d["path"][j, last + 1 :] == 0.0)
                 for i in range(min(last + 1, k)):
                     x, y, z = d["path"][j, i]
                     assert z - z0[i] == pytest.approx(float(sag(lens.surfaces[i], np.hypot(x, y))), abs=1e-12)
@@ -107,8 +118,11 @@ def test_spot_diagram_is_centroid_referenced(cooke):
         # (the rim ring covers a half-width annulus), gives the engine's dense RMS
         # (64 rings) within 1.5% (measured 0.3-1.0%).
         rings = 12
-        area = [np.pi * (0.5 / rings) ** 2] + [np.pi * (min((k + 0.5) / rings, 1) ** 2 - ((k - 0.5) / rings) ** 2) / (6 * k)
-                                               for k in range(1, rings + 1) for _ in range(6 * k)]
+        area = [np.pi * (0.5 / rings) ** 2] + [
+            np.pi * (min((k + 0.5) / rings, 1) ** 2 - ((k - 0.5) / rings) ** 2) / (6 * k)
+            for k in range(1, rings + 1)
+            for _ in range(6 * k)
+        ]
         w = np.tile(area, len(s["points_um"]))
         assert np.sqrt((w * (pts**2).sum(axis=1)).sum() / w.sum()) == pytest.approx(s["rms_um"], rel=0.015)
         assert s["centroid_um"][1] * 1e-3 == pytest.approx(s["chief_y_mm"], abs=0.05)
@@ -161,12 +175,15 @@ def test_report_command_writes_figures_and_json(tmp_path, cooke):
     assert math.isfinite(rep["time_s"]) and rep["time_s"] > 0
 
 
-@pytest.mark.parametrize("args, code, message", [
-    (["no-such-lens"], 1, "neither a lens file nor a bundled lens"),
-    (["cooke-f50", "--fields", "0,95"], 2, "[0, 90)"),
-    (["cooke-f50", "--fields", "a"], 2, "comma-separated"),
-    (["cooke-f50", "--freqs", "10,5000"], 1, "MTF frequencies must lie in"),
-])
+@pytest.mark.parametrize(
+    "args, code, message",
+    [
+        (["no-such-lens"], 1, "neither a lens file nor a bundled lens"),
+        (["cooke-f50", "--fields", "0,95"], 2, "[0, 90)"),
+        (["cooke-f50", "--fields", "a"], 2, "comma-separated"),
+        (["cooke-f50", "--freqs", "10,5000"], 1, "MTF frequencies must lie in"),
+    ],
+)
 def test_report_command_rejects_bad_input(tmp_path, args, code, message):
     out = tmp_path / "bad"
     res = CliRunner().invoke(report, args + ["--out", str(out)])

@@ -95,7 +95,10 @@ def test_cli_writes_csv_and_summary(tmp_path):
     assert r.exit_code == 0, r.output
     summary = json.loads(r.stdout.strip().splitlines()[-1])
     assert summary["accepted"] == 12 and summary["drawn"] == 12 + summary["rejected"]
-    assert json.loads((tmp_path / "designs.summary.json").read_text())["rejected_by_reason"] == summary["rejected_by_reason"]
+    assert (
+        json.loads((tmp_path / "designs.summary.json").read_text())["rejected_by_reason"]
+        == summary["rejected_by_reason"]
+    )
     rows = list(csv.reader(out.open()))
     assert rows[0][0] == "design" and len(rows) == 13
     first = out.read_bytes()

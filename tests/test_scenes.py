@@ -12,10 +12,18 @@ import pytest
 import torch
 
 from optix_e2e import scenes
-from optix_e2e.color import (COLORCHECKER_NAMES, COLORCHECKER_SRGB8, colorchecker_srgb,
-                             linear_to_srgb, srgb_to_linear)
-from optix_e2e.scenes import (ImageFolder, bundled_photos, chart_patch_boxes, color_chart,
-                              dead_leaves, load_photo, mixed_scene, random_crops, slanted_edge)
+from optix_e2e.color import COLORCHECKER_NAMES, COLORCHECKER_SRGB8, colorchecker_srgb, linear_to_srgb, srgb_to_linear
+from optix_e2e.scenes import (
+    ImageFolder,
+    bundled_photos,
+    chart_patch_boxes,
+    color_chart,
+    dead_leaves,
+    load_photo,
+    mixed_scene,
+    random_crops,
+    slanted_edge,
+)
 from optix_e2e.scenes.procedural import _disk_radii, _power_law
 
 
@@ -29,8 +37,9 @@ def test_srgb_known_values():
     lin = srgb_to_linear(x)
     assert lin.tolist() == pytest.approx([0.0, 0.04045 / 12.92, 0.21404114, 1.0], abs=1e-7)
     # 18% grey encodes to ~0.4614 (118/255), the knee maps back to the knee
-    assert linear_to_srgb(torch.tensor([0.18, 0.0031308], dtype=torch.float64)).tolist() == \
-        pytest.approx([0.46135612, 0.04045], abs=1e-5)
+    assert linear_to_srgb(torch.tensor([0.18, 0.0031308], dtype=torch.float64)).tolist() == pytest.approx(
+        [0.46135612, 0.04045], abs=1e-5
+    )
 
 
 def test_srgb_round_trip_and_finite_gradients():
@@ -48,9 +57,34 @@ def test_colorchecker_constants_match_babelcolor_luminance():
     rgb = colorchecker_srgb()
     assert rgb.shape == (24, 3) and rgb.dtype == torch.float32
     # luminance factor Y of the BabelColor average (D50), patch by patch
-    y_ref = torch.tensor([0.1034, 0.3525, 0.1847, 0.1335, 0.2324, 0.4174, 0.3117, 0.1140, 0.1979,
-                          0.0644, 0.4435, 0.4358, 0.0579, 0.2307, 0.1268, 0.6081, 0.2007, 0.1903,
-                          0.9129, 0.5885, 0.3595, 0.1912, 0.0893, 0.0320])
+    y_ref = torch.tensor(
+        [
+            0.1034,
+            0.3525,
+            0.1847,
+            0.1335,
+            0.2324,
+            0.4174,
+            0.3117,
+            0.1140,
+            0.1979,
+            0.0644,
+            0.4435,
+            0.4358,
+            0.0579,
+            0.2307,
+            0.1268,
+            0.6081,
+            0.2007,
+            0.1903,
+            0.9129,
+            0.5885,
+            0.3595,
+            0.1912,
+            0.0893,
+            0.0320,
+        ]
+    )
     y = colorchecker_srgb(linear=True) @ torch.tensor([0.2126, 0.7152, 0.0722])
     assert torch.allclose(y[18:], y_ref[18:], rtol=0.02)  # neutrals
     assert torch.allclose(y, y_ref, rtol=0.10)  # chromatic patches: gamut clipping, adaptation
@@ -219,7 +253,7 @@ def test_mixed_scene_and_random_crops():
     assert crops.shape == (5, 3, 8, 10)
     for c in crops:  # each crop is a contiguous window of img
         y, x = divmod(int(c[0, 0, 0]), 30)
-        assert torch.equal(c, img[:, y:y + 8, x:x + 10])
+        assert torch.equal(c, img[:, y : y + 8, x : x + 10])
     with pytest.raises(ValueError, match="does not fit"):
         random_crops(img, 25, 1)
 
@@ -243,10 +277,14 @@ def test_image_folder_formats(tmp_path):
     (tmp_path / "notes.txt").write_text("not an image")
 
     ds = ImageFolder(tmp_path)
-    assert [p.name for p in ds.paths] == ["a_rgb8.png", "b_grey16.png", "c_rgb16.tif", "e_rgba8.png",
-                                          "d_grey8.PNG"]
-    expected = [rgb8 / 255.0, np.repeat(grey16[..., None] / 65535.0, 3, 2), rgb16 / 65535.0,
-                rgba8[..., :3] / 255.0, np.repeat(grey8[..., None] / 255.0, 3, 2)]
+    assert [p.name for p in ds.paths] == ["a_rgb8.png", "b_grey16.png", "c_rgb16.tif", "e_rgba8.png", "d_grey8.PNG"]
+    expected = [
+        rgb8 / 255.0,
+        np.repeat(grey16[..., None] / 65535.0, 3, 2),
+        rgb16 / 65535.0,
+        rgba8[..., :3] / 255.0,
+        np.repeat(grey8[..., None] / 255.0, 3, 2),
+    ]
     for i, want in enumerate(expected):
         got = ds[i]
         assert got.shape == (3, 10, 12) and got.dtype == torch.float32
@@ -275,8 +313,10 @@ def test_image_folder_errors(tmp_path):
 
 # --- the natural training mix and the held-out split -----------------------------------------
 
+
 def test_natural_training_scenes_are_images_and_repeat_with_their_seed():
     from optix_e2e.scenes import natural
+
     for kind in natural.NATURAL_MIX:
         a = natural.natural_scene((40, 56), np.random.default_rng(3), mix={kind: 1.0})
         b = natural.natural_scene((40, 56), np.random.default_rng(3), mix={kind: 1.0})

@@ -11,9 +11,21 @@ import torch
 from click.testing import CliRunner
 
 from optix_e2e.cli.sensor import sensor
-from optix_e2e.sensor import (PATTERNS, PRESETS, Sensor, SensorPreset, bayer_masks, dark_current_mean,
-                              expected_electrons, get_preset, photon_count_mean, photon_transfer, poisson_sample,
-                              rgb_to_spectrum, simulate_raw)
+from optix_e2e.sensor import (
+    PATTERNS,
+    PRESETS,
+    Sensor,
+    SensorPreset,
+    bayer_masks,
+    dark_current_mean,
+    expected_electrons,
+    get_preset,
+    photon_count_mean,
+    photon_transfer,
+    poisson_sample,
+    rgb_to_spectrum,
+    simulate_raw,
+)
 from optix_e2e.sensor.poisson import pathwise
 from optix_e2e.sensor.spectral import ANCHORS_NM, WAVELENGTHS_NM
 
@@ -25,6 +37,7 @@ def flat(value, b=2, size=64, dtype=torch.float32):
 
 
 # (a) photon transfer recovers the preset -------------------------------------------------------------
+
 
 @pytest.fixture(scope="module")
 def ptc_imx():
@@ -52,6 +65,7 @@ def test_ptc_flags_adc_limited_low_light():
 
 # (b) noise statistics of flat fields match Eq. 5 ------------------------------------------------------
 
+
 @pytest.mark.parametrize("quantize", ["uniform", "round"])
 def test_flat_field_mean_and_variance_match_model(quantize):
     p, gen = IMX, torch.Generator().manual_seed(1)
@@ -64,7 +78,7 @@ def test_flat_field_mean_and_variance_match_model(quantize):
             y = raw[:, 0][:, masks[c]]  # [2, n]
             mu_e = level * e_white[c].item() + mu_i
             mean_model = p.black_level_dn + p.gain_dn_per_e * mu_e
-            var_model = p.gain_dn_per_e ** 2 * (mu_e + p.dark_noise_e ** 2) + 1 / 12
+            var_model = p.gain_dn_per_e**2 * (mu_e + p.dark_noise_e**2) + 1 / 12
             n = y.numel()
             # mean within 5 standard errors; variance within 5 relative standard errors sqrt(2/n) (~4%)
             assert abs(y.mean().item() - mean_model) < 5 * math.sqrt(var_model / n), (level, c)
@@ -72,6 +86,7 @@ def test_flat_field_mean_and_variance_match_model(quantize):
 
 
 # (c) Poisson sampler and its gradient estimator -----------------------------------------------------
+
 
 def test_poisson_gradient_estimator_matches_analytic_derivatives():
     torch.manual_seed(0)
@@ -81,7 +96,7 @@ def test_poisson_gradient_estimator_matches_analytic_derivatives():
     k = poisson_sample(mu.expand(n, 4), generator=gen)
     assert torch.equal(k, k.round())  # the forward values are exact integer draws
     (g1,) = torch.autograd.grad(k.mean(0).sum(), mu, retain_graph=True)
-    (g2,) = torch.autograd.grad((k ** 2).mean(0).sum(), mu)
+    (g2,) = torch.autograd.grad((k**2).mean(0).sum(), mu)
     # d E[k]/d mu = 1 for every rate (standard error <= 0.003 here)
     assert torch.allclose(g1, torch.ones(4, dtype=torch.float64), atol=0.01), g1
     # d E[k^2]/d mu = 1 + 2 mu, exact for rates >= min_rate (= 1); relative standard error < 0.2%
@@ -90,7 +105,7 @@ def test_poisson_gradient_estimator_matches_analytic_derivatives():
     # the naive straight-through estimator misses the +1 (2 mu): 6 instead of 7 at mu = 3
     mu3 = torch.tensor(3.0, dtype=torch.float64, requires_grad=True)
     k3 = poisson_sample(mu3.expand(n), generator=gen, estimator="straight_through")
-    (g3,) = torch.autograd.grad((k3 ** 2).mean(), mu3)
+    (g3,) = torch.autograd.grad((k3**2).mean(), mu3)
     assert abs(g3.item() - 6.0) < 0.1
 
 
@@ -106,8 +121,9 @@ def test_poisson_pathwise_gradcheck_and_reproducibility():
 
 # (d) gradients flow from RAW back to the image ------------------------------------------------------
 
+
 def test_simulate_raw_gradcheck_noise_free():
-    x = (torch.rand(1, 3, 4, 4, generator=torch.Generator().manual_seed(3), dtype=torch.float64) * 0.4 + 0.1)
+    x = torch.rand(1, 3, 4, 4, generator=torch.Generator().manual_seed(3), dtype=torch.float64) * 0.4 + 0.1
     x.requires_grad_()
     assert torch.autograd.gradcheck(lambda t: simulate_raw(t, IMX, noise=False, quantize="none"), (x,))
 
@@ -135,6 +151,7 @@ def test_sensor_module_matches_function_and_exposure_attribute():
 
 
 # (e) Eq. 3 photon count against a hand calculation -------------------------------------------------
+
 
 def test_eq3_photon_count_one_band_by_hand():
     # band 25: 553 nm, 6 nm wide; L = 0.02 W m^-2 sr^-1 nm^-1, 5.86 um pixel, 5 ms, f/4:
@@ -167,6 +184,7 @@ def test_spectrum_interpolation_and_white_calibration():
 
 # (f) Eq. 4 dark current doubles every T_d ----------------------------------------------------------
 
+
 def test_eq4_dark_current_doubles_per_doubling_interval():
     p = IMX
     ref = dark_current_mean(p, temperature_c=p.t_ref_c)
@@ -181,10 +199,16 @@ def test_eq4_dark_current_doubles_per_doubling_interval():
 
 # (g) CFA phases put the right colour at the right pixel --------------------------------------------
 
+
 @pytest.mark.parametrize("pattern", PATTERNS)
 def test_cfa_phase_puts_each_channel_at_its_pixel(pattern):
-    resp = torch.stack([simulate_raw(torch.eye(3)[c][:, None, None].expand(3, 4, 4) * 0.5, IMX, cfa=pattern,
-                                     noise=False)[0] - IMX.black_level_dn for c in range(3)])  # [3 inputs, 4, 4]
+    resp = torch.stack(
+        [
+            simulate_raw(torch.eye(3)[c][:, None, None].expand(3, 4, 4) * 0.5, IMX, cfa=pattern, noise=False)[0]
+            - IMX.black_level_dn
+            for c in range(3)
+        ]
+    )  # [3 inputs, 4, 4]
     expected = torch.tensor([["RGB".index(pattern[2 * (y % 2) + x % 2]) for x in range(4)] for y in range(4)])
     assert torch.equal(resp.argmax(0), expected)  # each pixel responds most to its own colour
     for c in range(3):  # and each colour lights its own pixels most
@@ -193,6 +217,7 @@ def test_cfa_phase_puts_each_channel_at_its_pixel(pattern):
 
 
 # (h) low light: 100x less exposure, 100x gain, same mean DN ---------------------------------------
+
 
 def test_low_light_same_mean_less_exposure_more_noise():
     low = IMX.low_light(100)
@@ -210,21 +235,25 @@ def test_low_light_same_mean_less_exposure_more_noise():
 
 # (i) bad input raises ValueError naming the parameter ---------------------------------------------
 
-@pytest.mark.parametrize("call, match", [
-    (lambda: simulate_raw(flat(0.2), IMX, exposure_s=-1e-3), "exposure_s"),
-    (lambda: simulate_raw(flat(0.2), IMX, gain=0), "gain"),
-    (lambda: simulate_raw(flat(0.2), IMX, f_number=float("nan")), "f_number"),
-    (lambda: simulate_raw(torch.full((1, 3, 4, 4), float("nan")), IMX), "linear_rgb"),
-    (lambda: simulate_raw(torch.zeros(1, 4, 4, 4), IMX), "linear_rgb"),
-    (lambda: simulate_raw(flat(0.2), "imx999"), "unknown sensor preset 'imx999'.*imx249"),
-    (lambda: simulate_raw(flat(0.2), IMX, cfa="RGBW"), "cfa"),
-    (lambda: simulate_raw(flat(0.2), IMX, quantize="floor"), "quantize"),
-    (lambda: SensorPreset(full_well_e=-5), "full_well_e"),
-    (lambda: SensorPreset(cfa="XYZW"), "cfa"),
-    (lambda: IMX.with_(dark_noise_e=float("inf")), "dark_noise_e"),
-    (lambda: IMX.low_light(0), "factor"),
-    (lambda: poisson_sample(torch.ones(3), estimator="reinforce"), "estimator"),
-])
+
+@pytest.mark.parametrize(
+    "call, match",
+    [
+        (lambda: simulate_raw(flat(0.2), IMX, exposure_s=-1e-3), "exposure_s"),
+        (lambda: simulate_raw(flat(0.2), IMX, gain=0), "gain"),
+        (lambda: simulate_raw(flat(0.2), IMX, f_number=float("nan")), "f_number"),
+        (lambda: simulate_raw(torch.full((1, 3, 4, 4), float("nan")), IMX), "linear_rgb"),
+        (lambda: simulate_raw(torch.zeros(1, 4, 4, 4), IMX), "linear_rgb"),
+        (lambda: simulate_raw(flat(0.2), "imx999"), "unknown sensor preset 'imx999'.*imx249"),
+        (lambda: simulate_raw(flat(0.2), IMX, cfa="RGBW"), "cfa"),
+        (lambda: simulate_raw(flat(0.2), IMX, quantize="floor"), "quantize"),
+        (lambda: SensorPreset(full_well_e=-5), "full_well_e"),
+        (lambda: SensorPreset(cfa="XYZW"), "cfa"),
+        (lambda: IMX.with_(dark_noise_e=float("inf")), "dark_noise_e"),
+        (lambda: IMX.low_light(0), "factor"),
+        (lambda: poisson_sample(torch.ones(3), estimator="reinforce"), "estimator"),
+    ],
+)
 def test_bad_input_raises_value_error_naming_parameter(call, match):
     with pytest.raises(ValueError, match=match):
         call()
@@ -232,12 +261,22 @@ def test_bad_input_raises_value_error_naming_parameter(call, match):
 
 # (j) CLI --------------------------------------------------------------------------------------------
 
+
 def test_cli_sensor_ptc_json_and_files(tmp_path):
     res = CliRunner().invoke(sensor, ["ptc", "--json", "--levels", "20", "--patch", "64", "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output
     data = json.loads(res.stdout)
-    for key in ("gain_rel_err", "dark_noise_rel_err", "saturation_rel_err", "measured_gain_dn_per_e",
-                "measured_dark_noise_e", "measured_saturation_e", "linearity_error_pct", "n_levels", "curves"):
+    for key in (
+        "gain_rel_err",
+        "dark_noise_rel_err",
+        "saturation_rel_err",
+        "measured_gain_dn_per_e",
+        "measured_dark_noise_e",
+        "measured_saturation_e",
+        "linearity_error_pct",
+        "n_levels",
+        "curves",
+    ):
         assert key in data
     assert data["n_levels"] == 20 and abs(data["gain_rel_err"]) < 0.1
     assert (tmp_path / "ptc.png").stat().st_size > 0

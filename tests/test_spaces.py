@@ -33,27 +33,42 @@ def test_toml_round_trip(tmp_path):
 
 def test_relative_base_lens_path(tmp_path):
     (tmp_path / "my.json").write_text(Lens.load("cooke-f50").to_engine_json())
-    (tmp_path / "s.toml").write_text('lens = "my.json"\n[[parameter]]\nname = "s_1_radius"\n'
-                                     'kind = "radius"\nsurface = 1\nmin = 21.0\nmax = 23.0\nunit = "mm"\n')
+    (tmp_path / "s.toml").write_text(
+        'lens = "my.json"\n[[parameter]]\nname = "s_1_radius"\n'
+        'kind = "radius"\nsurface = 1\nmin = 21.0\nmax = 23.0\nunit = "mm"\n'
+    )
     space, lens = load_space(tmp_path / "s.toml")
     assert lens.surfaces[0]["radius"] == pytest.approx(22.01359)
 
 
-@pytest.mark.parametrize("body, msg", [
-    ('lens = "cooke-f50"\n[[parameter]]\nname = "a"\nkind = "radius"\nsurface = 1\nmin = 30\nmax = 20\n',
-     r"\[\[parameter\]\] #1 \(a\): min 30 must be < max 20"),
-    ('lens = "cooke-f50"\n[[parameter]]\nname = "a"\nkind = "radius"\nsurface = 1\nmin = 20\nmax = 30\nunit = "um"\n',
-     r"#1 \(a\): unit 'um' for kind radius; expected 'mm'"),
-    ('lens = "cooke-f50"\n[[parameter]]\nname = "a"\nkind = "thickness"\nsurface = 1\nmin = 0\nmax = 3\n',
-     r"thickness must stay positive"),
-    ('lens = "cooke-f50"\n[[parameter]]\nname = "a"\nkind = "f_number"\nsurface = 2\nmin = 4\nmax = 6\n',
-     r"aperture parameter \(f_number\) has surface = 0"),
-    ('lens = "cooke-f50"\n[[parameter]]\nname = "a"\nkind = "radius"\nsurface = 1\nmin = 20\n',
-     r"#1: missing 'max'"),
-    ('lens = "cooke-f50"\nranges = 3\n', r"unknown top-level key\(s\) ranges"),
-    ('lens = "cooke-f50"\n', r"no parameters"),
-    ('lens = "cooke-f50"\n[[parameter]\n', r"s\.toml: invalid TOML: .*line 2"),
-])
+@pytest.mark.parametrize(
+    "body, msg",
+    [
+        (
+            'lens = "cooke-f50"\n[[parameter]]\nname = "a"\nkind = "radius"\nsurface = 1\nmin = 30\nmax = 20\n',
+            r"\[\[parameter\]\] #1 \(a\): min 30 must be < max 20",
+        ),
+        (
+            'lens = "cooke-f50"\n[[parameter]]\nname = "a"\nkind = "radius"\nsurface = 1\nmin = 20\nmax = 30\nunit = "um"\n',
+            r"#1 \(a\): unit 'um' for kind radius; expected 'mm'",
+        ),
+        (
+            'lens = "cooke-f50"\n[[parameter]]\nname = "a"\nkind = "thickness"\nsurface = 1\nmin = 0\nmax = 3\n',
+            r"thickness must stay positive",
+        ),
+        (
+            'lens = "cooke-f50"\n[[parameter]]\nname = "a"\nkind = "f_number"\nsurface = 2\nmin = 4\nmax = 6\n',
+            r"aperture parameter \(f_number\) has surface = 0",
+        ),
+        (
+            'lens = "cooke-f50"\n[[parameter]]\nname = "a"\nkind = "radius"\nsurface = 1\nmin = 20\n',
+            r"#1: missing 'max'",
+        ),
+        ('lens = "cooke-f50"\nranges = 3\n', r"unknown top-level key\(s\) ranges"),
+        ('lens = "cooke-f50"\n', r"no parameters"),
+        ('lens = "cooke-f50"\n[[parameter]\n', r"s\.toml: invalid TOML: .*line 2"),
+    ],
+)
 def test_toml_errors_name_file_and_entry(tmp_path, body, msg):
     f = tmp_path / "s.toml"
     f.write_text(body)

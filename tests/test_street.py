@@ -62,6 +62,7 @@ def test_coco_round_trip(tmp_path):
     ds = CocoDetection(tmp_path / "images", ann)
     assert len(ds) == 4 and ds.categories == {c["id"]: c["name"] for c in CATEGORIES}
     from optix_e2e.color import linear_to_srgb
+
     for i in range(4):
         img, t = ds[i]
         s = street_scene(SIZE, np.random.default_rng([3, i]))
@@ -115,8 +116,10 @@ def test_the_scenes_command_writes_a_coco_set_and_refuses_bad_sizes(tmp_path):
     from click.testing import CliRunner
 
     from optix_e2e.cli import main
-    r = CliRunner().invoke(main, ["scenes", "street", "--out", str(tmp_path / "s"), "-n", "3", "--size", "64x96",
-                                  "--quiet"])
+
+    r = CliRunner().invoke(
+        main, ["scenes", "street", "--out", str(tmp_path / "s"), "-n", "3", "--size", "64x96", "--quiet"]
+    )
     assert r.exit_code == 0, r.output
     line = json.loads(r.output.strip().splitlines()[-1])
     assert line["images"] == 3 and line["objects"] == sum(line["per_class"].values())

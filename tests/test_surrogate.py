@@ -11,8 +11,15 @@ import pytest
 import torch
 
 from optix_e2e.dataset import DatasetSettings, generate
-from optix_e2e.surrogate import (LossWeights, OpticsSurrogate, SurrogateConfig, SurrogateNet, SurrogateRangeError,
-                                 optics_loss, optics_loss_terms)
+from optix_e2e.surrogate import (
+    LossWeights,
+    OpticsSurrogate,
+    SurrogateConfig,
+    SurrogateNet,
+    SurrogateRangeError,
+    optics_loss,
+    optics_loss_terms,
+)
 from optix_e2e.surrogate.evaluate import SurrogateDataMismatch, evaluate, sample_metrics
 from optix_e2e.surrogate.exact import exact_arrays
 from optix_e2e.surrogate.train import TrainConfig, train
@@ -46,8 +53,9 @@ def test_network_psf_is_energy_preserving_with_the_configured_shape():
     assert torch.all(psf > 0)
     torch.testing.assert_close(psf.sum((-2, -1)), torch.ones(7, 3))
     for size, n_up in ((64, 4), (9, 0), (33, 3)):
-        out, _ = SurrogateNet(SurrogateConfig(n_params=2, psf_size=size, hidden=8, depth=1, base_channels=8,
-                                              n_up=n_up))(torch.zeros(1, 2), torch.zeros(1))
+        out, _ = SurrogateNet(
+            SurrogateConfig(n_params=2, psf_size=size, hidden=8, depth=1, base_channels=8, n_up=n_up)
+        )(torch.zeros(1, 2), torch.zeros(1))
         assert out.shape[-2:] == (size, size)
     with pytest.raises(ValueError, match=r"params must be \[B, 5\]"):
         net(torch.randn(2, 4), torch.rand(2))
@@ -78,31 +86,33 @@ def test_loss_is_eq8_and_zero_only_at_the_target():
     total = sum(t.values()).item()
     assert optics_loss(a, va, b, vb).item() == pytest.approx(total)
     assert optics_loss(a, va, b, vb, LossWeights(fourier=0, gradient=0)).item() == pytest.approx(
-        (t["pixel"] + t["vignetting"]).item())
+        (t["pixel"] + t["vignetting"]).item()
+    )
 
 
 def test_metrics_of_known_errors():
     exact = torch.zeros(1, 1, 1, 9, 9)
     exact[..., 4, 4] = 1.0
     guess = torch.zeros(1, 1, 1, 9, 9)
-    guess[..., 4, 4], guess[..., 4, 6] = 0.8, 0.2   # 20% of the energy 2 px off
+    guess[..., 4, 4], guess[..., 4, 6] = 0.8, 0.2  # 20% of the energy 2 px off
     m = sample_metrics(guess, torch.full((1, 1, 1), 0.9), exact, torch.ones(1, 1, 1))
     assert m["psf_rel_l1"].item() == pytest.approx(0.4)
     assert m["strehl_rel_err"].item() == pytest.approx(0.2)
-    assert m["ee_abs_err"].item() == pytest.approx(0.2)      # EE(1 px): 0.8 vs 1
+    assert m["ee_abs_err"].item() == pytest.approx(0.2)  # EE(1 px): 0.8 vs 1
     assert m["vignetting_abs_err"].item() == pytest.approx(0.1)
     assert m["psf_rel_l2"].item() == pytest.approx(float(np.hypot(0.2, 0.2)))
 
 
 # ----- training, checkpoints, evaluation ----------------------------------------------------
 def _cfg(**kw) -> TrainConfig:
-    return TrainConfig(**{**TINY, "steps": 30, "batch": 16, "val_designs": 4, "val_every": 10, "warmup": 5,
-                          "device": "cpu", **kw})
+    return TrainConfig(
+        **{**TINY, "steps": 30, "batch": 16, "val_designs": 4, "val_every": 10, "warmup": 5, "device": "cpu", **kw}
+    )
 
 
 def test_train_writes_checkpoints_and_resumes(tiny_data, tmp_path):
     out = tmp_path / "run"
-    s1 = train(tiny_data, out, _cfg(), progress=False, stop_after=20)   # interrupted at step 20
+    s1 = train(tiny_data, out, _cfg(), progress=False, stop_after=20)  # interrupted at step 20
     assert s1["steps_done"] == 20 and (out / "surrogate.pt").is_file() and (out / "state.pt").is_file()
     assert list((out / "tb").glob("events.*"))
     assert s1["data"]["n_train_designs"] == 20 and s1["data"]["n_val_designs"] == 4
@@ -120,14 +130,16 @@ def test_train_writes_checkpoints_and_resumes(tiny_data, tmp_path):
 def test_checkpoint_round_trip_and_range_checks(tiny_data, tmp_path):
     train(tiny_data, tmp_path / "run", _cfg(steps=10), progress=False)
     m = OpticsSurrogate.load(tmp_path / "run")
-    assert m.manifest["designs_csv_sha256"] == json.loads((tiny_data / "manifest.json").read_text())["designs_csv_sha256"]
+    assert (
+        m.manifest["designs_csv_sha256"] == json.loads((tiny_data / "manifest.json").read_text())["designs_csv_sha256"]
+    )
     mid = (m.param_min + m.param_max).float() / 2
     psf, vig = m.psfs(mid)
     assert psf.shape == (13, 3, 21, 21) and vig.shape == (13, 3)
     m.save(tmp_path / "half.pt", half=True)
     h = OpticsSurrogate.load(tmp_path / "half.pt")
     psf_h, _ = h.psfs(mid)
-    assert (psf_h - psf).abs().sum((-2, -1)).max() < 0.02          # fp16 weights: < 2% L1
+    assert (psf_h - psf).abs().sum((-2, -1)).max() < 0.02  # fp16 weights: < 2% L1
     bad = mid.clone()
     bad[2] = float(m.param_max[2]) + 0.5
     with pytest.raises(SurrogateRangeError, match=m.param_names[2]):
@@ -179,8 +191,30 @@ def test_cli_train_and_eval(tiny_data, tmp_path):
     def run(*args):
         return CliRunner().invoke(main, [str(a) for a in args])
 
-    r = run("surrogate", "train", tiny_data, "--out", tmp_path / "run", "--steps", 6, "--batch", 8, "--hidden", 16,
-            "--depth", 1, "--base-channels", 8, "--val-designs", 4, "--val-every", 3, "--device", "cpu", "--json")
+    r = run(
+        "surrogate",
+        "train",
+        tiny_data,
+        "--out",
+        tmp_path / "run",
+        "--steps",
+        6,
+        "--batch",
+        8,
+        "--hidden",
+        16,
+        "--depth",
+        1,
+        "--base-channels",
+        8,
+        "--val-designs",
+        4,
+        "--val-every",
+        3,
+        "--device",
+        "cpu",
+        "--json",
+    )
     assert r.exit_code == 0, r.output
     assert json.loads(r.stdout)["steps_done"] == 6
     # the shipped model on designs it never saw (this dataset's seed is not its training seed)

@@ -76,8 +76,9 @@ def test_ranking_strong_vs_null_parameter(triplet):
     (0.006 um per step)."""
     space, base, merit, sens = triplet
     null = Parameter("s_5_20th", "asphere_20th", 5, -1e-20, 1e-20, "mm^-19")
-    sp = ParameterSpace([*[p for p in space.params if p.name in ("s_1_radius", "s_6_conic", "l_12")], null],
-                        source="test")
+    sp = ParameterSpace(
+        [*[p for p in space.params if p.name in ("s_1_radius", "s_6_conic", "l_12")], null], source="test"
+    )
     s2 = T.sensitivity(sp, base, merit)
     order = [r.param.name for r in s2.ranking()]
     assert order[-1] == "s_5_20th"
@@ -187,14 +188,38 @@ def _invoke(args):
 
 def test_cli_writes_every_file_and_summary(tmp_path):
     out = tmp_path / "tol"
-    r = _invoke(["paper-triplet", "--space", "paper-triplet", "--mc", "30", "--seed", "1",
-                 "--rings", str(RINGS), "--arms", str(ARMS), "--out", str(out)])
+    r = _invoke(
+        [
+            "paper-triplet",
+            "--space",
+            "paper-triplet",
+            "--mc",
+            "30",
+            "--seed",
+            "1",
+            "--rings",
+            str(RINGS),
+            "--arms",
+            str(ARMS),
+            "--out",
+            str(out),
+        ]
+    )
     assert r.exit_code == 0, r.output
     line = [x for x in r.stdout.splitlines() if x.startswith("{")]
     assert len(line) == 1
     summary = json.loads(line[0])
-    for key in ("nominal_rms_um", "budget_um", "spec_um", "yield", "yield_stderr", "n_mc", "n_failed",
-                "most_sensitive", "rss_predicted_growth_um"):
+    for key in (
+        "nominal_rms_um",
+        "budget_um",
+        "spec_um",
+        "yield",
+        "yield_stderr",
+        "n_mc",
+        "n_failed",
+        "most_sensitive",
+        "rss_predicted_growth_um",
+    ):
         assert key in summary
     assert summary["n_mc"] == 30 and 0.0 <= summary["yield"] <= 1.0
     assert summary["budget_um"] == pytest.approx(0.2 * summary["nominal_rms_um"])
@@ -212,27 +237,48 @@ def test_cli_writes_every_file_and_summary(tmp_path):
     # units and constraints, the nominal inside, each range inside the given one
     prop, lens2 = load_space(out / "proposed.toml")
     assert lens2.name == base.name
-    assert [(p.name, p.kind, p.surface, p.unit) for p in prop.params] == \
-        [(p.name, p.kind, p.surface, p.unit) for p in given.params]
+    assert [(p.name, p.kind, p.surface, p.unit) for p in prop.params] == [
+        (p.name, p.kind, p.surface, p.unit) for p in given.params
+    ]
     assert prop.constraints == given.constraints
     for p, g, row in zip(prop.params, given.params, rows):
         assert g.min <= p.min < p.max <= g.max
         assert float(row["proposed_min"]) == p.min and float(row["proposed_max"]) == p.max
     # a given budget and --mc-space given
-    r = _invoke(["paper-triplet", "--space", "paper-triplet", "--mc", "10", "--budget-um", "1.5",
-                 "--mc-space", "given", "--rings", str(RINGS), "--arms", str(ARMS), "--out", str(out)])
+    r = _invoke(
+        [
+            "paper-triplet",
+            "--space",
+            "paper-triplet",
+            "--mc",
+            "10",
+            "--budget-um",
+            "1.5",
+            "--mc-space",
+            "given",
+            "--rings",
+            str(RINGS),
+            "--arms",
+            str(ARMS),
+            "--out",
+            str(out),
+        ]
+    )
     assert r.exit_code == 0, r.output
     s2 = json.loads([x for x in r.stdout.splitlines() if x.startswith("{")][0])
     assert s2["budget_um"] == 1.5 and s2["mc_space"] == "given"
     assert s2["spec_um"] == pytest.approx(s2["nominal_rms_um"] + 1.5)
 
 
-@pytest.mark.parametrize("args, message", [
-    (["paper-triplet", "--space", "no-such-space"], "neither a space file nor a bundled lens"),
-    (["paper-triplet", "--space", "paper-triplet", "--budget-um", "-1"], "--budget-um must be a positive"),
-    (["paper-triplet", "--space", "paper-triplet", "--spec-um", "5"], "not above the nominal"),
-    (["cooke-f50", "--space", "paper-triplet"], "out of range"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["paper-triplet", "--space", "no-such-space"], "neither a space file nor a bundled lens"),
+        (["paper-triplet", "--space", "paper-triplet", "--budget-um", "-1"], "--budget-um must be a positive"),
+        (["paper-triplet", "--space", "paper-triplet", "--spec-um", "5"], "not above the nominal"),
+        (["cooke-f50", "--space", "paper-triplet"], "out of range"),
+    ],
+)
 def test_cli_bad_input_one_line_error(tmp_path, args, message):
     r = _invoke([*args, "--mc", "0", "--rings", "2", "--arms", "4", "--out", str(tmp_path / "x")])
     assert r.exit_code == 1

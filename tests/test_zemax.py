@@ -30,6 +30,7 @@ def cooke_as_the_files_name_it() -> Lens:
             s["material"] = {"glass": "SK16", "catalog": "schott"}
     return Lens(data)
 
+
 # A lens using every supported field: even aspheres up to a16, conics, model glass
 # (dispersive and constant), plastics by their Zemax names, clear apertures, names,
 # an f-number aperture, non-uniform weights and a primary wavelength that is not the middle.
@@ -41,13 +42,25 @@ FULL = {
     "wavelength_weights": [1.0, 2.0, 0.5],
     "primary_wavelength_nm": 656.2725,
     "surfaces": [
-        {"radius": 20.0, "thickness": 4.0, "material": {"nd": 1.5168, "vd": 64.17}, "conic": -0.5,
-         "aspheric": {"a4": -2.5e-5, "a6": 1.25e-7, "a8": -3e-10}, "semi_diameter": 6.0, "name": "front asphere"},
+        {
+            "radius": 20.0,
+            "thickness": 4.0,
+            "material": {"nd": 1.5168, "vd": 64.17},
+            "conic": -0.5,
+            "aspheric": {"a4": -2.5e-5, "a6": 1.25e-7, "a8": -3e-10},
+            "semi_diameter": 6.0,
+            "name": "front asphere",
+        },
         {"radius": -60.0, "thickness": 2.0, "material": "air", "semi_diameter": 6.0},
         {"radius": "inf", "thickness": 2.0, "material": "air", "stop": True, "semi_diameter": 3.5},
         {"radius": -25.0, "thickness": 2.0, "material": "POLYCARB", "semi_diameter": 5.0},
-        {"radius": -40.0, "thickness": 1.0, "material": "air",
-         "aspheric": {"a4": 1e-6, "a10": 2e-13, "a16": 1e-20}, "semi_diameter": 6.0},
+        {
+            "radius": -40.0,
+            "thickness": 1.0,
+            "material": "air",
+            "aspheric": {"a4": 1e-6, "a10": 2e-13, "a16": 1e-20},
+            "semi_diameter": 6.0,
+        },
         {"radius": 300.0, "thickness": 2.0, "material": "PMMA", "conic": 3.0, "semi_diameter": 6.0},
         {"radius": -300.0, "thickness": 1.5, "material": {"n": 1.6}, "semi_diameter": 6.0},
         {"radius": 1e3 / 3, "thickness": 25.0, "material": "air", "semi_diameter": 6.0},
@@ -160,7 +173,8 @@ def test_handmade_cooke_matches_bundled():
     for f in zmx.fields_deg:
         assert zmx.spot(f, rings=16)["vignetting"] == ref.spot(f, rings=16)["vignetting"] == 1.0
         assert zmx.spot(f, rings=16)["relative_illumination"] == pytest.approx(
-            ref.spot(f, rings=16)["relative_illumination"], rel=1e-4)
+            ref.spot(f, rings=16)["relative_illumination"], rel=1e-4
+        )
     ignored = {k for _, k, _ in zmx.zemax_import.ignored}
     assert {"HIDE", "MIRR", "SLAB", "POPS", "RAIM", "FWGN", "WAVM"} <= ignored
     assert "inactive wavelength slot (FTYP declares 3)" in zmx.zemax_import.ignored_summary()
@@ -177,20 +191,33 @@ def test_bundled_lenses_roundtrip_exactly(tmp_path):
 def test_vendor_glass_names_in_zmx(tmp_path):
     """Zemax-style names from several vendors' catalogs, found through GCAT."""
     names = ["S-BSL7", "H-K9L", "E-FD1", "PMMA", "POLYCARB", "N-BK7", "S-LAH66"]
-    surfs = "".join(f"SURF {i}\n  CURV 0\n  DISZ 1\n  GLAS {g} 0 0 0 0\nSURF {i + 1}\n  CURV 0\n  DISZ 1\n"
-                    for i, g in zip(range(1, 2 * len(names), 2), names))
-    text = ("MODE SEQ\nENPD 5\nGCAT OHARA CDGM HOYA MISC SCHOTT\nFTYP 0 0 1 1 0 0 0\nYFLN 0\n"
-            "WAVM 1 0.55 1\nSURF 0\n  DISZ INFINITY\n" + surfs.replace("SURF 1\n", "SURF 1\n  STOP\n", 1)
-            + f"SURF {2 * len(names) + 1}\n  DISZ 0\n")
+    surfs = "".join(
+        f"SURF {i}\n  CURV 0\n  DISZ 1\n  GLAS {g} 0 0 0 0\nSURF {i + 1}\n  CURV 0\n  DISZ 1\n"
+        for i, g in zip(range(1, 2 * len(names), 2), names)
+    )
+    text = (
+        "MODE SEQ\nENPD 5\nGCAT OHARA CDGM HOYA MISC SCHOTT\nFTYP 0 0 1 1 0 0 0\nYFLN 0\n"
+        "WAVM 1 0.55 1\nSURF 0\n  DISZ INFINITY\n"
+        + surfs.replace("SURF 1\n", "SURF 1\n  STOP\n", 1)
+        + f"SURF {2 * len(names) + 1}\n  DISZ 0\n"
+    )
     imp = parse_zmx(text, source="<t>")
     got = [s["material"] for s in imp.data["surfaces"] if s["material"] != "air"]
-    assert got == [{"glass": "S-BSL7", "catalog": "ohara"}, {"glass": "H-K9L", "catalog": "cdgm"},
-                   {"glass": "E-FD1", "catalog": "hoya"}, {"glass": "PMMA", "catalog": "organic"},
-                   {"glass": "polycarbonate", "catalog": "organic"}, {"glass": "N-BK7", "catalog": "schott"},
-                   {"glass": "S-LAH66", "catalog": "ohara"}]
+    assert got == [
+        {"glass": "S-BSL7", "catalog": "ohara"},
+        {"glass": "H-K9L", "catalog": "cdgm"},
+        {"glass": "E-FD1", "catalog": "hoya"},
+        {"glass": "PMMA", "catalog": "organic"},
+        {"glass": "polycarbonate", "catalog": "organic"},
+        {"glass": "N-BK7", "catalog": "schott"},
+        {"glass": "S-LAH66", "catalog": "ohara"},
+    ]
     # a glass outside the file's catalogs is not substituted: the error says where it is
-    with pytest.raises(ZemaxError, match=r"SURF 1: unknown glass 'S-BSL7' in the file's catalogs "
-                       r"\(GCAT SCHOTT MISC\); not substituted: S-BSL7 exists in catalog ohara"):
+    with pytest.raises(
+        ZemaxError,
+        match=r"SURF 1: unknown glass 'S-BSL7' in the file's catalogs "
+        r"\(GCAT SCHOTT MISC\); not substituted: S-BSL7 exists in catalog ohara",
+    ):
         parse_zmx(text.replace("GCAT OHARA CDGM HOYA MISC SCHOTT", "GCAT SCHOTT MISC"), source="<t>")
     lens = Lens(imp.data)
     _same_optics(lens, _roundtrip(lens, tmp_path))
@@ -238,15 +265,15 @@ def test_writer_rejects_what_zemax_cannot_hold():
 # ----------------------------------------------------------------------------- broken files
 BROKEN_CASES = {
     "truncated.zmx": r"truncated\.zmx:113: GLAS: SURF 5 is the last surface, taken as the image plane, "
-                     r"but has glass after it: the file looks truncated",
+    r"but has glass after it: the file looks truncated",
     "truncated_utf16.zmx": r"truncated_utf16\.zmx: cannot decode as utf-16 .*truncated file\?",
     "unknown_surface_type.zmx": r":107: TYPE: SURF 5: toroidal/cylindrical surface \(TOROIDAL\) is not "
-                                r"supported; supported: STANDARD, EVENASPH, ODDASPHE",
+    r"supported; supported: STANDARD, EVENASPH, ODDASPHE",
     "unknown_glass.zmx": r":93: GLAS: SURF 3: unknown glass 'N-SF111' in the file's catalogs \(GCAT SCHOTT "
-                         r"HIKARI\); close matches: N-SF11 \(schott\)",
+    r"HIKARI\); close matches: N-SF11 \(schott\)",
     "missing_stop.zmx": r": STOP: no surface is marked STOP",
     "coordinate_break.zmx": r":107: TYPE: SURF 5: coordinate break \(tilt/decenter\) \(COORDBRK\) is not "
-                            r"supported",
+    r"supported",
     "decentered_aperture.zmx": r":116: OBDC: SURF 5: decentered aperture is not supported",
     "non_sequential.zmx": r":2: MODE: only sequential files are supported \(MODE SEQ\), got 'NSC'",
     "height_fields.zmx": r":14: FTYP: field type 1 \(object height\); only angle fields",
@@ -278,14 +305,10 @@ def test_lenient_lists_unknown_keyword():
 def test_small_broken_texts():
     head = "MODE SEQ\nENPD 10\nFTYP 0 0 1 1 0 0 0\nYFLN 0\nWAVM 1 0.55 1\n"
     cases = {
-        "SURF 0\n  DISZ INFINITY\nSURF 1\n  STOP\n  GLAS ___BLANK 1 0 1.5 50 0.01\nSURF 2\nSURF 3\n":
-            r"<t>:10: GLAS: SURF 1: model glass dPgF = 0\.01 is not supported",
-        "SURF 0\n  DISZ INFINITY\nSURF 1\n  TYPE STANDARD\n  PARM 2 0.001\n  STOP\nSURF 2\n":
-            r"<t>:10: PARM: SURF 1: PARM 2 = 0\.001 has no meaning on a STANDARD surface",
-        "SURF 0\n  DISZ INFINITY\nSURF 1\n  STOP\nSURF 2\n  CURV 0.01\n  CONI -1\n  DISZ 0\n":
-            r"<t>:12: CONI: SURF 2 \(image\): a conic image surface is not supported",
-        "SURF 0\n  DISZ INFINITY\nSURF 1\n  STOP\n  CLAP 1 3\nSURF 2\n":
-            r"<t>:10: CLAP: SURF 1: annular aperture",
+        "SURF 0\n  DISZ INFINITY\nSURF 1\n  STOP\n  GLAS ___BLANK 1 0 1.5 50 0.01\nSURF 2\nSURF 3\n": r"<t>:10: GLAS: SURF 1: model glass dPgF = 0\.01 is not supported",
+        "SURF 0\n  DISZ INFINITY\nSURF 1\n  TYPE STANDARD\n  PARM 2 0.001\n  STOP\nSURF 2\n": r"<t>:10: PARM: SURF 1: PARM 2 = 0\.001 has no meaning on a STANDARD surface",
+        "SURF 0\n  DISZ INFINITY\nSURF 1\n  STOP\nSURF 2\n  CURV 0.01\n  CONI -1\n  DISZ 0\n": r"<t>:12: CONI: SURF 2 \(image\): a conic image surface is not supported",
+        "SURF 0\n  DISZ INFINITY\nSURF 1\n  STOP\n  CLAP 1 3\nSURF 2\n": r"<t>:10: CLAP: SURF 1: annular aperture",
         "UNIT FT\nSURF 0\n": r"<t>:6: UNIT: unknown lens unit 'FT'",
         "ENVD 25 1 0\nSURF 0\n": r"<t>:6: ENVD: environment 25 C, 1 atm",
         "PWAV 3\nSURF 0\n  DISZ INFINITY\nSURF 1\n  STOP\nSURF 2\n": r"<t>:6: PWAV: primary wavelength 3 outside 1\.\.1",
@@ -334,9 +357,12 @@ def test_optiland_reads_our_file(tmp_path, which):
     and surface data (radius, thickness, conic, a2..a16, stop). apo-gauss-8e: the eight-element
     lens (HOYA glasses by name; optiland finds them in its own copy of the catalog), and the same
     scaled to the sensor with the camera's wavelengths (apo-gauss-8e-mv, issue 21)."""
-    lens = {"cooke": lambda: Lens.load("cooke-f50"), "full": lambda: Lens(_full_for_optiland()),
-            "apo-gauss-8e": lambda: Lens.load("apo-gauss-8e"),
-            "apo-gauss-8e-mv": lambda: Lens.load("apo-gauss-8e-mv")}[which]()
+    lens = {
+        "cooke": lambda: Lens.load("cooke-f50"),
+        "full": lambda: Lens(_full_for_optiland()),
+        "apo-gauss-8e": lambda: Lens.load("apo-gauss-8e"),
+        "apo-gauss-8e-mv": lambda: Lens.load("apo-gauss-8e-mv"),
+    }[which]()
     path = lens.save(tmp_path / f"{which}.zmx")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # optiland's fuzzy-match notice for POLYCARB
@@ -371,7 +397,11 @@ def test_we_read_optilands_file(tmp_path):
 
 
 def _epd(optic) -> float:
-    return float(optic.paraxial.EPD().ravel()[0]) if hasattr(optic.paraxial.EPD(), "ravel") else float(optic.paraxial.EPD())
+    return (
+        float(optic.paraxial.EPD().ravel()[0])
+        if hasattr(optic.paraxial.EPD(), "ravel")
+        else float(optic.paraxial.EPD())
+    )
 
 
 def test_floa_epd_matches_optiland(tmp_path):
@@ -435,8 +465,9 @@ def test_cli_commands_take_zmx(tmp_path):
     outs = []
     for spec in (DATA / "cooke_legacy_wavl.zmx", tmp_path / "ref.json"):
         out = tmp_path / f"{len(outs)}.npy"
-        r = _cli("psf", spec, "--field-deg", 14, "--wavelength-nm", 550, "--size", 16,
-                 "--pupil-samples", 32, "--out", out)
+        r = _cli(
+            "psf", spec, "--field-deg", 14, "--wavelength-nm", 550, "--size", 16, "--pupil-samples", 32, "--out", out
+        )
         assert r.exit_code == 0, r.output
         outs.append(np.load(out))
     # radii typed as 16-digit curvatures differ in the last bit; the FFT stage is f32

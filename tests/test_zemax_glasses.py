@@ -50,26 +50,37 @@ def test_engine_evaluates_the_builtin_formula_as_numpy_does(catalog, name, nd, v
     """The engine gets the formula as is (formula 3 with 11 coefficients, or formula 2)."""
     g = glass.resolve(name, catalog)
     assert g.to_engine()["formula"] in (2, 3)
-    lens = Lens({"name": "singlet", "units": "mm", "aperture": {"type": "epd", "value": 2.0},
-                 "fields_deg": [0.0], "wavelengths_nm": [486.1327, 587.5618, 656.2725],
-                 "primary_wavelength_nm": 587.5618,
-                 "surfaces": [{"radius": 50.0, "thickness": 3.0, "material": {"glass": name, "catalog": catalog},
-                               "stop": True},
-                              {"radius": -50.0, "thickness": 45.0, "material": "air"}]})
+    lens = Lens(
+        {
+            "name": "singlet",
+            "units": "mm",
+            "aperture": {"type": "epd", "value": 2.0},
+            "fields_deg": [0.0],
+            "wavelengths_nm": [486.1327, 587.5618, 656.2725],
+            "primary_wavelength_nm": 587.5618,
+            "surfaces": [
+                {"radius": 50.0, "thickness": 3.0, "material": {"glass": name, "catalog": catalog}, "stop": True},
+                {"radius": -50.0, "thickness": 45.0, "material": "air"},
+            ],
+        }
+    )
     for w in (F, D, C):
         assert lens.refractive_indices(w * 1000)[1] == pytest.approx(float(g.n(w)), abs=1e-12)
     assert lens.refractive_indices(D * 1000)[1] == pytest.approx(nd, abs=1e-5)
 
 
-@pytest.mark.parametrize("name, catalog, also_in", [
-    ("ECO550", "lightpath", set()),
-    ("ECO550M", "lightpath", set()),
-    ("ECO550_E", "lightpath", set()),
-    ("D-ZK3M", "lightpath", set()),
-    ("H-LAK54_MOLD", "rpo", set()),
-    ("BAFN11", "schott", set()),
-    ("K3", "schott", {"hikari"}),  # Hikari's K3 is its own glass
-])
+@pytest.mark.parametrize(
+    "name, catalog, also_in",
+    [
+        ("ECO550", "lightpath", set()),
+        ("ECO550M", "lightpath", set()),
+        ("ECO550_E", "lightpath", set()),
+        ("D-ZK3M", "lightpath", set()),
+        ("H-LAK54_MOLD", "rpo", set()),
+        ("BAFN11", "schott", set()),
+        ("K3", "schott", {"hikari"}),  # Hikari's K3 is its own glass
+    ],
+)
 def test_zemax_names_resolve_only_under_their_catalog(name, catalog, also_in):
     assert glass.resolve(name, catalog).catalog == catalog
     for other in set(glass.catalogs()) - {catalog} - also_in:
@@ -88,31 +99,40 @@ def test_acrylic_is_zemax_data_under_misc_and_pmma_otherwise():
 
 def test_molded_glasses_have_the_molders_index_below_the_annealed_cdgm_glass():
     """Molding lowers the index a few 1e-3: the molder's data, not CDGM's annealed data."""
-    for molded, catalog, annealed in [("D-ZK3M", "lightpath", "D-ZK3"), ("D-ZLAF52LAM", "lightpath", "D-ZLAF52LA"),
-                                      ("D-ZLAF52LA_M", "lightpath", "D-ZLAF52LA"),
-                                      ("D-LAK6_MOLD", "rpo", "D-LAK6"), ("H-LAK54_MOLD", "rpo", "H-LAK54")]:
+    for molded, catalog, annealed in [
+        ("D-ZK3M", "lightpath", "D-ZK3"),
+        ("D-ZLAF52LAM", "lightpath", "D-ZLAF52LA"),
+        ("D-ZLAF52LA_M", "lightpath", "D-ZLAF52LA"),
+        ("D-LAK6_MOLD", "rpo", "D-LAK6"),
+        ("H-LAK54_MOLD", "rpo", "H-LAK54"),
+    ]:
         drop = glass.resolve(annealed, "cdgm").n(D) - glass.resolve(molded, catalog).n(D)
         assert 2e-3 < drop < 6e-3, molded
 
 
 # ----------------------------------------------------------------------- through a .zmx file
-HEAD = ("VERS 181119\nMODE SEQ\nNAME t\nUNIT MM X W X CM MR CPMM\nENPD 2\nGCAT {gcat}\n"
-        "FTYP 0 0 1 1 0 0 0 1\nXFLN 0\nYFLN 0\nFWGN 1\nWAVM 1 0.5875618 1\nPWAV 1\n"
-        "SURF 0\n  CURV 0.0\n  DISZ INFINITY\nSURF 1\n  STOP\n  CURV 0.02\n  DISZ 3\n  GLAS {glass}\n"
-        "SURF 2\n  CURV -0.02\n  DISZ 45\nSURF 3\n  CURV 0.0\n  DISZ 0\n")
+HEAD = (
+    "VERS 181119\nMODE SEQ\nNAME t\nUNIT MM X W X CM MR CPMM\nENPD 2\nGCAT {gcat}\n"
+    "FTYP 0 0 1 1 0 0 0 1\nXFLN 0\nYFLN 0\nFWGN 1\nWAVM 1 0.5875618 1\nPWAV 1\n"
+    "SURF 0\n  CURV 0.0\n  DISZ INFINITY\nSURF 1\n  STOP\n  CURV 0.02\n  DISZ 3\n  GLAS {glass}\n"
+    "SURF 2\n  CURV -0.02\n  DISZ 45\nSURF 3\n  CURV 0.0\n  DISZ 0\n"
+)
 
 
-@pytest.mark.parametrize("glas, gcat, want", [
-    ("ECO550", "SCHOTT LIGHTPATH", ("ECO550", "lightpath")),
-    ("ECO550M", "SCHOTT LIGHTPATH", ("ECO550M", "lightpath")),
-    ("ECO550_E", "LIGHTPATH SCHOTT", ("ECO550_E", "lightpath")),
-    ("K3", "SCHOTT LIGHTPATH", ("K3", "schott")),
-    ("BAFN11", "SCHOTT INFRARED MISC", ("BAFN11", "schott")),
-    ("D-ZK3M", "SCHOTT LIGHTPATH", ("D-ZK3M", "lightpath")),
-    ("ACRYLIC", "SCHOTT MISC", ("ACRYLIC", "misc")),
-    ("PMMA", "SCHOTT MISC", ("PMMA", "organic")),
-    ("POLYCARB", "MISC", ("polycarbonate", "organic")),
-])
+@pytest.mark.parametrize(
+    "glas, gcat, want",
+    [
+        ("ECO550", "SCHOTT LIGHTPATH", ("ECO550", "lightpath")),
+        ("ECO550M", "SCHOTT LIGHTPATH", ("ECO550M", "lightpath")),
+        ("ECO550_E", "LIGHTPATH SCHOTT", ("ECO550_E", "lightpath")),
+        ("K3", "SCHOTT LIGHTPATH", ("K3", "schott")),
+        ("BAFN11", "SCHOTT INFRARED MISC", ("BAFN11", "schott")),
+        ("D-ZK3M", "SCHOTT LIGHTPATH", ("D-ZK3M", "lightpath")),
+        ("ACRYLIC", "SCHOTT MISC", ("ACRYLIC", "misc")),
+        ("PMMA", "SCHOTT MISC", ("PMMA", "organic")),
+        ("POLYCARB", "MISC", ("polycarbonate", "organic")),
+    ],
+)
 def test_glas_lines_resolve_in_the_files_catalogs(glas, gcat, want):
     imp = parse_zmx(HEAD.format(gcat=gcat, glass=glas), source="<t>")
     m = imp.data["surfaces"][0]["material"]
@@ -121,17 +141,23 @@ def test_glas_lines_resolve_in_the_files_catalogs(glas, gcat, want):
 
 
 def test_glas_line_outside_the_catalog_that_has_the_glass_is_an_error():
-    with pytest.raises(ZemaxError, match=r"unknown glass 'ECO550' in the file's catalogs \(GCAT SCHOTT\); "
-                                         r"not substituted: ECO550 exists in catalog lightpath"):
+    with pytest.raises(
+        ZemaxError,
+        match=r"unknown glass 'ECO550' in the file's catalogs \(GCAT SCHOTT\); "
+        r"not substituted: ECO550 exists in catalog lightpath",
+    ):
         parse_zmx(HEAD.format(gcat="SCHOTT", glass="ECO550"), source="<t>")
     with pytest.raises(ZemaxError, match=r"unknown glass 'K3' in the file's catalogs \(GCAT LIGHTPATH\)"):
         parse_zmx(HEAD.format(gcat="LIGHTPATH", glass="K3"), source="<t>")
 
 
-@pytest.mark.parametrize("glas, gcat, want", [
-    ("E-LAK7R", "HIKARI", ("J-LAK7R", "hikari")),   # Hikari's E- series became J-
-    ("E-FD1R", "HOYA", ("E-FD1", "hoya")),          # a variant mark on a Hoya name
-])
+@pytest.mark.parametrize(
+    "glas, gcat, want",
+    [
+        ("E-LAK7R", "HIKARI", ("J-LAK7R", "hikari")),  # Hikari's E- series became J-
+        ("E-FD1R", "HOYA", ("E-FD1", "hoya")),  # a variant mark on a Hoya name
+    ],
+)
 def test_an_older_catalog_name_without_nd_vd_imports_as_its_successor_with_a_note(glas, gcat, want):
     """A glass that neither the database nor the vendors' AGF catalogs have, on a GLAS line
     without usable nd/vd (OpticStudio's placeholder 1.5, 40), imports as the same vendor's
@@ -143,10 +169,17 @@ def test_an_older_catalog_name_without_nd_vd_imports_as_its_successor_with_a_not
     assert f"glass {glas} (line" in note and f"imported as {want[0]} ({want[1]}, nd 1." in note
 
 
-@pytest.mark.parametrize("glas, gcat, nd", [
-    ("LAKN7", "SCHOTT", 1.6516), ("SSKN5", "SCHOTT OHARA", 1.65844), ("F1", "SCHOTT", 1.625882),
-    ("SK16", "SCHOTT", 1.62041), ("KZFSN2", "SCHOTT", 1.558361), ("FD1", "HOYA", 1.71736),
-])
+@pytest.mark.parametrize(
+    "glas, gcat, nd",
+    [
+        ("LAKN7", "SCHOTT", 1.6516),
+        ("SSKN5", "SCHOTT OHARA", 1.65844),
+        ("F1", "SCHOTT", 1.625882),
+        ("SK16", "SCHOTT", 1.62041),
+        ("KZFSN2", "SCHOTT", 1.558361),
+        ("FD1", "HOYA", 1.71736),
+    ],
+)
 def test_withdrawn_vendor_glasses_import_with_the_vendors_own_data(glas, gcat, nd):
     """Schott's and Hoya's withdrawn glasses (LaKN7, SSKN5, F1, SK16 ...) resolve under their
     catalog to the vendor's AGF data (bundled/glass/agf_glasses.json), no substitution, and the
@@ -175,10 +208,17 @@ def test_every_agf_glass_gives_its_catalogs_nd_and_vd():
 def test_successor_names_stay_inside_the_vendors_renaming():
     from optix_e2e.lens.zemax.glass_names import successor_names
 
-    assert successor_names("LAKN77", "schott") == [("LAKN77", "hikari"), ("N-LAKN77", "schott"),
-                                                   ("N-LAK77", "schott"), ("LAK77", "schott")]
-    assert successor_names("E-LAK7R", "hikari")[:3] == [("J-LAK7R", "hikari"), ("LAK7R", "hikari"),
-                                                        ("J-LAK7", "hikari")]
+    assert successor_names("LAKN77", "schott") == [
+        ("LAKN77", "hikari"),
+        ("N-LAKN77", "schott"),
+        ("N-LAK77", "schott"),
+        ("LAK77", "schott"),
+    ]
+    assert successor_names("E-LAK7R", "hikari")[:3] == [
+        ("J-LAK7R", "hikari"),
+        ("LAK7R", "hikari"),
+        ("J-LAK7", "hikari"),
+    ]
     assert successor_names("K3", "lightpath") == []  # no known renaming: no guess
     # a name the catalog has under no successor stays an error that says why
     with pytest.raises(ZemaxError, match=r"unknown glass 'QQ99'.*records no nd/vd|unknown glass 'QQ99'.*placeholder"):

@@ -13,8 +13,7 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["srgb_to_linear", "linear_to_srgb", "COLORCHECKER_NAMES", "COLORCHECKER_SRGB8",
-           "colorchecker_srgb"]
+__all__ = ["srgb_to_linear", "linear_to_srgb", "COLORCHECKER_NAMES", "COLORCHECKER_SRGB8", "colorchecker_srgb"]
 
 _A = 0.055
 _ENC_KNEE = 0.04045  # encoded value where the curve changes from linear to power
@@ -36,10 +35,30 @@ def linear_to_srgb(x: torch.Tensor) -> torch.Tensor:
 # X-Rite (formerly GretagMacbeth) ColorChecker Classic, row by row from the top-left patch
 # (dark skin) as the chart is normally viewed: 4 rows x 6 columns.
 COLORCHECKER_NAMES: tuple[str, ...] = (
-    "dark skin", "light skin", "blue sky", "foliage", "blue flower", "bluish green",
-    "orange", "purplish blue", "moderate red", "purple", "yellow green", "orange yellow",
-    "blue", "green", "red", "yellow", "magenta", "cyan",
-    "white 9.5", "neutral 8", "neutral 6.5", "neutral 5", "neutral 3.5", "black 2",
+    "dark skin",
+    "light skin",
+    "blue sky",
+    "foliage",
+    "blue flower",
+    "bluish green",
+    "orange",
+    "purplish blue",
+    "moderate red",
+    "purple",
+    "yellow green",
+    "orange yellow",
+    "blue",
+    "green",
+    "red",
+    "yellow",
+    "magenta",
+    "cyan",
+    "white 9.5",
+    "neutral 8",
+    "neutral 6.5",
+    "neutral 5",
+    "neutral 3.5",
+    "black 2",
 )
 
 # 8-bit sRGB (D65) values of the BabelColor Average: the mean of 30 measured charts, from
@@ -51,10 +70,30 @@ COLORCHECKER_NAMES: tuple[str, ...] = (
 # with srgb: all channels agree within 5/255 (the xyY data are rounded to 4 decimals).
 # Cyan's red channel is out of the sRGB gamut and clipped to 0.
 COLORCHECKER_SRGB8: tuple[tuple[int, int, int], ...] = (
-    (115, 81, 67), (196, 149, 129), (93, 123, 157), (90, 108, 65), (130, 129, 176), (99, 191, 171),
-    (220, 123, 45), (72, 92, 168), (195, 84, 98), (91, 59, 105), (160, 189, 62), (229, 161, 41),
-    (43, 62, 147), (71, 149, 72), (176, 48, 56), (238, 200, 22), (188, 84, 150), (0, 136, 166),
-    (245, 245, 240), (200, 201, 201), (160, 161, 161), (120, 121, 121), (83, 84, 85), (50, 50, 50),
+    (115, 81, 67),
+    (196, 149, 129),
+    (93, 123, 157),
+    (90, 108, 65),
+    (130, 129, 176),
+    (99, 191, 171),
+    (220, 123, 45),
+    (72, 92, 168),
+    (195, 84, 98),
+    (91, 59, 105),
+    (160, 189, 62),
+    (229, 161, 41),
+    (43, 62, 147),
+    (71, 149, 72),
+    (176, 48, 56),
+    (238, 200, 22),
+    (188, 84, 150),
+    (0, 136, 166),
+    (245, 245, 240),
+    (200, 201, 201),
+    (160, 161, 161),
+    (120, 121, 121),
+    (83, 84, 85),
+    (50, 50, 50),
 )
 
 

@@ -19,10 +19,28 @@ from . import _engine as _ext
 from ._engine import EngineError, LensError, MaterialError, PsfError, TraceError
 
 __all__ = [
-    "EngineError", "LensError", "MaterialError", "PsfError", "TraceError",
-    "auto_candidates", "available_memory", "best_focus_batch", "crc32", "paraxial", "predicted_psf_seconds",
-    "extension_file", "psf", "psf_batch", "psf_rgb", "refractive_indices", "spot", "trace", "trace_field",
-    "trace_field_path", "validate_lens", "wavefront",
+    "EngineError",
+    "LensError",
+    "MaterialError",
+    "PsfError",
+    "TraceError",
+    "auto_candidates",
+    "available_memory",
+    "best_focus_batch",
+    "crc32",
+    "paraxial",
+    "predicted_psf_seconds",
+    "extension_file",
+    "psf",
+    "psf_batch",
+    "psf_rgb",
+    "refractive_indices",
+    "spot",
+    "trace",
+    "trace_field",
+    "trace_field_path",
+    "validate_lens",
+    "wavefront",
 ]
 
 Channels = Sequence[Sequence[tuple[float, float]]]
@@ -48,76 +66,201 @@ def trace(lens_json: str, *, origins, directions, wavelength_nm: float) -> dict[
     return _ext.trace(lens_json, _f64(origins), _f64(directions), float(wavelength_nm))
 
 
-def trace_field(lens_json: str, *, field_deg: float, px, py, wavelength_nm: float,
-                aiming: str = "paraxial") -> dict[str, np.ndarray]:
+def trace_field(
+    lens_json: str, *, field_deg: float, px, py, wavelength_nm: float, aiming: str = "paraxial"
+) -> dict[str, np.ndarray]:
     return _ext.trace_field(lens_json, float(field_deg), _f64(px), _f64(py), float(wavelength_nm), aiming)
 
 
-def trace_field_path(lens_json: str, *, field_deg: float, px, py, wavelength_nm: float,
-                     aiming: str = "paraxial") -> dict[str, np.ndarray]:
+def trace_field_path(
+    lens_json: str, *, field_deg: float, px, py, wavelength_nm: float, aiming: str = "paraxial"
+) -> dict[str, np.ndarray]:
     return _ext.trace_field_path(lens_json, float(field_deg), _f64(px), _f64(py), float(wavelength_nm), aiming)
 
 
-def wavefront(lens_json: str, *, field_deg: float, px, py, weights, wavelengths_nm: Sequence[float],
-              wavelength_weights: Sequence[float] | None = None, aiming: str = "paraxial",
-              tilt: str = "wavelength") -> dict[str, Any]:
-    return _ext.wavefront(lens_json, float(field_deg), _f64(px), _f64(py), _f64(weights),
-                          [float(w) for w in wavelengths_nm],
-                          None if wavelength_weights is None else [float(w) for w in wavelength_weights], aiming, tilt)
+def wavefront(
+    lens_json: str,
+    *,
+    field_deg: float,
+    px,
+    py,
+    weights,
+    wavelengths_nm: Sequence[float],
+    wavelength_weights: Sequence[float] | None = None,
+    aiming: str = "paraxial",
+    tilt: str = "wavelength",
+) -> dict[str, Any]:
+    return _ext.wavefront(
+        lens_json,
+        float(field_deg),
+        _f64(px),
+        _f64(py),
+        _f64(weights),
+        [float(w) for w in wavelengths_nm],
+        None if wavelength_weights is None else [float(w) for w in wavelength_weights],
+        aiming,
+        tilt,
+    )
 
 
-def spot(lens_json: str, *, field_deg: float, wavelengths_nm: Sequence[float], weights: Sequence[float] | None = None,
-         rings: int = 64, aiming: str = "paraxial") -> dict[str, Any]:
-    return _ext.spot(lens_json, float(field_deg), [float(w) for w in wavelengths_nm],
-                     None if weights is None else [float(w) for w in weights], int(rings), aiming)
+def spot(
+    lens_json: str,
+    *,
+    field_deg: float,
+    wavelengths_nm: Sequence[float],
+    weights: Sequence[float] | None = None,
+    rings: int = 64,
+    aiming: str = "paraxial",
+) -> dict[str, Any]:
+    return _ext.spot(
+        lens_json,
+        float(field_deg),
+        [float(w) for w in wavelengths_nm],
+        None if weights is None else [float(w) for w in weights],
+        int(rings),
+        aiming,
+    )
 
 
-def psf(lens_json: str, *, field_deg: float, wavelength_nm: float, method: str = "fft", pixel_um: float = 1.0,
-        size: int = 64, pupil_samples: int = 64, fft_grid: int | None = None, aiming: str = "paraxial",
-        integrate: bool = False, exact: bool = False, fast: bool = False, accuracy: float = 0.02,
-        progress=None) -> tuple[np.ndarray, dict[str, Any]]:
-    return _ext.psf(lens_json, float(field_deg), float(wavelength_nm), method, float(pixel_um), int(size),
-                    int(pupil_samples), fft_grid, aiming, bool(integrate), bool(exact), bool(fast), float(accuracy),
-                    progress)
+def psf(
+    lens_json: str,
+    *,
+    field_deg: float,
+    wavelength_nm: float,
+    method: str = "fft",
+    pixel_um: float = 1.0,
+    size: int = 64,
+    pupil_samples: int = 64,
+    fft_grid: int | None = None,
+    aiming: str = "paraxial",
+    integrate: bool = False,
+    exact: bool = False,
+    fast: bool = False,
+    accuracy: float = 0.02,
+    progress=None,
+) -> tuple[np.ndarray, dict[str, Any]]:
+    return _ext.psf(
+        lens_json,
+        float(field_deg),
+        float(wavelength_nm),
+        method,
+        float(pixel_um),
+        int(size),
+        int(pupil_samples),
+        fft_grid,
+        aiming,
+        bool(integrate),
+        bool(exact),
+        bool(fast),
+        float(accuracy),
+        progress,
+    )
 
 
-def psf_rgb(lens_json: str, *, field_deg: float, channels: Channels, method: str = "fft", pixel_um: float = 1.0,
-            size: int = 64, pupil_samples: int = 64, aiming: str = "paraxial", integrate: bool = False,
-            fast: bool = True, accuracy: float = 0.02) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
-    return _ext.psf_rgb(lens_json, float(field_deg), channels, method, float(pixel_um), int(size),
-                        int(pupil_samples), aiming, bool(integrate), bool(fast), float(accuracy))
+def psf_rgb(
+    lens_json: str,
+    *,
+    field_deg: float,
+    channels: Channels,
+    method: str = "fft",
+    pixel_um: float = 1.0,
+    size: int = 64,
+    pupil_samples: int = 64,
+    aiming: str = "paraxial",
+    integrate: bool = False,
+    fast: bool = True,
+    accuracy: float = 0.02,
+) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    return _ext.psf_rgb(
+        lens_json,
+        float(field_deg),
+        channels,
+        method,
+        float(pixel_um),
+        int(size),
+        int(pupil_samples),
+        aiming,
+        bool(integrate),
+        bool(fast),
+        float(accuracy),
+    )
 
 
-def psf_batch(lens_jsons: Sequence[str], *, fields_deg: Sequence[float], channels: Channels, method: str = "fft",
-              pixel_um: float = 1.0, size: int = 64, pupil_samples: int = 64, aiming: str = "paraxial",
-              integrate: bool = False, fast: bool = True, out: np.ndarray | None = None, sensor=None,
-              sensor_out: np.ndarray | None = None, accuracy: float = 0.02) -> dict[str, Any]:
-    return _ext.psf_batch(list(lens_jsons), [float(f) for f in fields_deg], channels, method, float(pixel_um),
-                          int(size), int(pupil_samples), aiming, bool(integrate), bool(fast), out, sensor, sensor_out,
-                          float(accuracy))
+def psf_batch(
+    lens_jsons: Sequence[str],
+    *,
+    fields_deg: Sequence[float],
+    channels: Channels,
+    method: str = "fft",
+    pixel_um: float = 1.0,
+    size: int = 64,
+    pupil_samples: int = 64,
+    aiming: str = "paraxial",
+    integrate: bool = False,
+    fast: bool = True,
+    out: np.ndarray | None = None,
+    sensor=None,
+    sensor_out: np.ndarray | None = None,
+    accuracy: float = 0.02,
+) -> dict[str, Any]:
+    return _ext.psf_batch(
+        list(lens_jsons),
+        [float(f) for f in fields_deg],
+        channels,
+        method,
+        float(pixel_um),
+        int(size),
+        int(pupil_samples),
+        aiming,
+        bool(integrate),
+        bool(fast),
+        out,
+        sensor,
+        sensor_out,
+        float(accuracy),
+    )
 
 
-def auto_candidates(lens_json: str, *, field_deg: float, wavelength_nm: float, pixel_um: float = 1.0,
-                    size: int = 64, aiming: str = "paraxial", integrate: bool = False) -> dict[str, Any]:
-    return _ext.auto_candidates(lens_json, float(field_deg), float(wavelength_nm), float(pixel_um), int(size),
-                                aiming, bool(integrate))
+def auto_candidates(
+    lens_json: str,
+    *,
+    field_deg: float,
+    wavelength_nm: float,
+    pixel_um: float = 1.0,
+    size: int = 64,
+    aiming: str = "paraxial",
+    integrate: bool = False,
+) -> dict[str, Any]:
+    return _ext.auto_candidates(
+        lens_json, float(field_deg), float(wavelength_nm), float(pixel_um), int(size), aiming, bool(integrate)
+    )
 
 
-def best_focus_batch(lens_jsons: Sequence[str], *, fields_deg: Sequence[float],
-                     wavelengths: Sequence[tuple[float, float]], rings: int = 8,
-                     aiming: str = "paraxial") -> dict[str, Any]:
-    return _ext.best_focus_batch(list(lens_jsons), [float(f) for f in fields_deg],
-                                 [(float(w), float(k)) for w, k in wavelengths], int(rings), aiming)
+def best_focus_batch(
+    lens_jsons: Sequence[str],
+    *,
+    fields_deg: Sequence[float],
+    wavelengths: Sequence[tuple[float, float]],
+    rings: int = 8,
+    aiming: str = "paraxial",
+) -> dict[str, Any]:
+    return _ext.best_focus_batch(
+        list(lens_jsons),
+        [float(f) for f in fields_deg],
+        [(float(w), float(k)) for w, k in wavelengths],
+        int(rings),
+        aiming,
+    )
 
 
 def crc32(data: np.ndarray, *, crc: int = 0) -> int:
     return _ext.crc32(data, int(crc))
 
 
-def predicted_psf_seconds(*, method: str, pixel_um: float, size: int, pupil_samples: int,
-                          fft_grid: int | None = None, n_surfaces: int = 10) -> float | None:
-    return _ext.predicted_psf_seconds(method, float(pixel_um), int(size), int(pupil_samples), fft_grid,
-                                      int(n_surfaces))
+def predicted_psf_seconds(
+    *, method: str, pixel_um: float, size: int, pupil_samples: int, fft_grid: int | None = None, n_surfaces: int = 10
+) -> float | None:
+    return _ext.predicted_psf_seconds(method, float(pixel_um), int(size), int(pupil_samples), fft_grid, int(n_surfaces))
 
 
 def available_memory() -> float:

@@ -48,8 +48,9 @@ def read_small_text(path: "str | Path", max_bytes: int = 1 << 20, what: str = "f
         raise ValueError(f"{path}: the {what} is not UTF-8 text ({err.reason} at byte {err.start})") from None
 
 
-def claim_out_dir(out: "str | Path", kind: str, writes: "set[str] | frozenset[str]" = frozenset(),
-                  marker: str | None = None, own=None) -> bool:
+def claim_out_dir(
+    out: "str | Path", kind: str, writes: "set[str] | frozenset[str]" = frozenset(), marker: str | None = None, own=None
+) -> bool:
     """Check an ``--out`` folder before a command writes into it; True when it holds this
     kind of run already (its ``marker`` file: the command resumes or rewrites its own).
 

@@ -37,15 +37,17 @@ class TrainingDiverged(ValueError):
     """A training loss or the weights left the finite numbers; the last good checkpoint is kept."""
 
 
-def stop_if_diverged(step: int, kept: "os.PathLike | str | None", hint: str = "lower the learning rate",
-                     **values) -> None:
+def stop_if_diverged(
+    step: int, kept: "os.PathLike | str | None", hint: str = "lower the learning rate", **values
+) -> None:
     """Raise :class:`TrainingDiverged` naming ``step`` and the first non-finite entry of
     ``values`` (floats, tensors or modules: a module counts by its weights). Call it before a
     checkpoint is written, so a diverged run never overwrites the last good one (``kept``)."""
     for name, v in values.items():
         if isinstance(v, torch.nn.Module):
-            bad = next((n for n, p in v.state_dict().items() if p.is_floating_point() and not torch.isfinite(p).all()),
-                       None)
+            bad = next(
+                (n for n, p in v.state_dict().items() if p.is_floating_point() and not torch.isfinite(p).all()), None
+            )
             if bad is None:
                 continue
             what = f"the weights ({bad}) are not finite"
@@ -69,6 +71,7 @@ def check_finite_weights(state: dict, path: "os.PathLike | str") -> None:
 @dataclass(frozen=True)
 class Ranks:
     """This process's place in the group: rank, world size, local rank, its torch device."""
+
     rank: int = 0
     world: int = 1
     local_rank: int = 0
@@ -110,8 +113,10 @@ def setup(device: str = "auto") -> Ranks:
     world = _env_int("WORLD_SIZE", 1)
     rank, local = _env_int("RANK", 0), _env_int("LOCAL_RANK", 0)
     if world > 1 and torch.device(device if device != "auto" else "cpu").index is not None:
-        raise ValueError(f"--device {device}: under torchrun each process takes its own GPU (cuda:LOCAL_RANK); "
-                         f"give --device cuda or auto")
+        raise ValueError(
+            f"--device {device}: under torchrun each process takes its own GPU (cuda:LOCAL_RANK); "
+            f"give --device cuda or auto"
+        )
     dev = pick_device(device, local)
     if world <= 1:
         return Ranks(device=dev)
@@ -179,12 +184,12 @@ def average_gradients(params, ranks: Ranks, extra: torch.Tensor | None = None) -
     dtype = torch.float64 if any(p.dtype == torch.float64 for p in params) else torch.float32
     buf = torch.cat([t.to(ranks.device, dtype) for t in parts])
     dist.all_reduce(buf, op=dist.ReduceOp.SUM)
-    has = (buf[:len(params)] > 0).tolist()
+    has = (buf[: len(params)] > 0).tolist()
     buf /= ranks.world
     i = len(params)
     for p, h in zip(params, has):
         if h:
-            g = buf[i:i + p.numel()].view_as(p).to(p.device, p.dtype)
+            g = buf[i : i + p.numel()].view_as(p).to(p.device, p.dtype)
             if p.grad is None:
                 p.grad = g.clone()
             else:
@@ -207,7 +212,9 @@ def average_step(ranks: Ranks, params, task: torch.Tensor, info: dict) -> tuple[
 def batch_slice(batch: int, ranks: Ranks) -> slice:
     """This rank's contiguous part of a global batch of ``batch`` samples (equal parts)."""
     if batch % ranks.world:
-        raise ValueError(f"the batch of {batch} does not split evenly over {ranks.world} processes "
-                         f"(torchrun --nproc_per_node); use a multiple of {ranks.world}")
+        raise ValueError(
+            f"the batch of {batch} does not split evenly over {ranks.world} processes "
+            f"(torchrun --nproc_per_node); use a multiple of {ranks.world}"
+        )
     n = batch // ranks.world
     return slice(ranks.rank * n, (ranks.rank + 1) * n)

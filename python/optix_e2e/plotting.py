@@ -25,8 +25,9 @@ def _show(ax, image, pixel_um, log, cmap="inferno"):
     peak = float(np.max(image)) if image.size else 0.0
     norm = LogNorm(vmin=max(peak, 1e-30) * LOG_FLOOR, vmax=max(peak, 1e-30)) if log else None
     data = np.clip(image, max(peak, 1e-30) * LOG_FLOOR, None) if log else image
-    return ax.imshow(data, origin="lower", extent=_extent(image.shape, pixel_um), cmap=cmap, norm=norm,
-                     interpolation="nearest")
+    return ax.imshow(
+        data, origin="lower", extent=_extent(image.shape, pixel_um), cmap=cmap, norm=norm, interpolation="nearest"
+    )
 
 
 def save_psf_png(path: str | Path, image: np.ndarray, pixel_um: float, title: str = "", log: bool = False):
@@ -52,9 +53,16 @@ def rgb_composite(channels: np.ndarray, log: bool = False) -> np.ndarray:
     return np.moveaxis(x, 0, -1)
 
 
-def save_psf_grid(path: str | Path, psfs: np.ndarray, fields_deg: Sequence[float], pixel_um: float,
-                  channel_labels: Sequence[str], title: str = "", log: bool = False,
-                  row_notes: Sequence[str] | None = None):
+def save_psf_grid(
+    path: str | Path,
+    psfs: np.ndarray,
+    fields_deg: Sequence[float],
+    pixel_um: float,
+    channel_labels: Sequence[str],
+    title: str = "",
+    log: bool = False,
+    row_notes: Sequence[str] | None = None,
+):
     """Grid of PSFs: one row per field, one column per channel plus an RGB composite.
 
     ``psfs`` is (F, C, H, W); the composite uses the first three channels as R, G, B;
@@ -74,8 +82,12 @@ def save_psf_grid(path: str | Path, psfs: np.ndarray, fields_deg: Sequence[float
             ax.set_title(f"{f:g} deg, {channel_labels[c]}", fontsize=8)
         if composite:
             ax = axes[i, n_c]
-            ax.imshow(rgb_composite(psfs[i, :3], log), origin="lower", extent=_extent(psfs.shape[2:], pixel_um),
-                      interpolation="nearest")
+            ax.imshow(
+                rgb_composite(psfs[i, :3], log),
+                origin="lower",
+                extent=_extent(psfs.shape[2:], pixel_um),
+                interpolation="nearest",
+            )
             note = f" ({row_notes[i]})" if row_notes else ""
             ax.set_title(f"{f:g} deg, RGB{note}", fontsize=8)
         for ax in axes[i]:

@@ -43,8 +43,10 @@ def load_plain(path: "str | Path", what: str, error: type[Exception] = ValueErro
     except IsADirectoryError:
         raise error(f"{path}: is a directory, not a {what}") from None
     except pickle.UnpicklingError as exc:
-        raise error(f"{path}: refused as a {what}: not plain data ({_reason(exc)}; only tensors, dicts, "
-                    f"lists, strings and numbers are loaded, so a file cannot run code)") from None
+        raise error(
+            f"{path}: refused as a {what}: not plain data ({_reason(exc)}; only tensors, dicts, "
+            f"lists, strings and numbers are loaded, so a file cannot run code)"
+        ) from None
     except Exception as exc:  # torch raises many kinds for a damaged file
         raise error(f"{path}: unreadable {what} ({type(exc).__name__}: {_reason(exc)})") from None
 
@@ -70,14 +72,19 @@ def build_module(factory, config, state_dict, path, what: str, error: type[Excep
         with torch.device("meta"):
             expected = {k: tuple(v.shape) for k, v in factory(**config).state_dict().items()}
     except Exception as exc:  # whatever the constructor says about a bad config
-        raise error(f"{path}: damaged {what}: config {config} is not valid "
-                    f"({type(exc).__name__}: {' '.join(str(exc).split())[:160]})") from None
+        raise error(
+            f"{path}: damaged {what}: config {config} is not valid "
+            f"({type(exc).__name__}: {' '.join(str(exc).split())[:160]})"
+        ) from None
     missing = [k for k in expected if k not in state_dict]
     extra = [k for k in state_dict if k not in expected]
     shape = [k for k in expected if k in state_dict and tuple(state_dict[k].shape) != expected[k]]
     if missing or extra or shape:
-        parts = [f"{label} {', '.join(keys[:3])}" + (f" (+{len(keys) - 3})" if len(keys) > 3 else "")
-                 for label, keys in (("missing", missing), ("unexpected", extra), ("wrong shape", shape)) if keys]
+        parts = [
+            f"{label} {', '.join(keys[:3])}" + (f" (+{len(keys) - 3})" if len(keys) > 3 else "")
+            for label, keys in (("missing", missing), ("unexpected", extra), ("wrong shape", shape))
+            if keys
+        ]
         raise error(f"{path}: damaged {what}: weights do not match its config ({'; '.join(parts)})")
     model = factory(**config)
     model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in state_dict.items()})

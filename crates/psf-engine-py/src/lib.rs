@@ -8,10 +8,30 @@ use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-pyo3::create_exception!(_engine, EngineError, PyException, "Base class of every error raised by the engine.");
-pyo3::create_exception!(_engine, LensError, EngineError, "Invalid prescription; names the surface and parameter.");
-pyo3::create_exception!(_engine, MaterialError, LensError, "Unusable material (bad coefficients, wavelength out of range).");
-pyo3::create_exception!(_engine, TraceError, EngineError, "A trace that cannot produce a result.");
+pyo3::create_exception!(
+    _engine,
+    EngineError,
+    PyException,
+    "Base class of every error raised by the engine."
+);
+pyo3::create_exception!(
+    _engine,
+    LensError,
+    EngineError,
+    "Invalid prescription; names the surface and parameter."
+);
+pyo3::create_exception!(
+    _engine,
+    MaterialError,
+    LensError,
+    "Unusable material (bad coefficients, wavelength out of range)."
+);
+pyo3::create_exception!(
+    _engine,
+    TraceError,
+    EngineError,
+    "A trace that cannot produce a result."
+);
 pyo3::create_exception!(_engine, PsfError, EngineError, "A PSF that cannot be computed.");
 
 fn to_py(e: CoreError) -> PyErr {
@@ -27,7 +47,12 @@ fn to_py(e: CoreError) -> PyErr {
 
 /// Run `f` on a thread of its own while this one calls `callback(done, total)` every
 /// 0.2 s and checks for Ctrl-C; an interrupt asks the computation to stop and is re-raised.
-fn watched<T: Send + 'static>(py: Python<'_>, o: &mut PsfOptions, callback: &Bound<'_, PyAny>, f: impl FnOnce(&PsfOptions) -> psf_engine::Result<T> + Send + 'static) -> PyResult<T> {
+fn watched<T: Send + 'static>(
+    py: Python<'_>,
+    o: &mut PsfOptions,
+    callback: &Bound<'_, PyAny>,
+    f: impl FnOnce(&PsfOptions) -> psf_engine::Result<T> + Send + 'static,
+) -> PyResult<T> {
     use std::sync::atomic::Ordering::Relaxed;
     let prog = std::sync::Arc::new(psf_engine::psf::Progress::default());
     o.progress = Some(prog.clone());
@@ -38,17 +63,27 @@ fn watched<T: Send + 'static>(py: Python<'_>, o: &mut PsfOptions, callback: &Bou
         let _ = tx.send(f(&job));
     });
     loop {
-        match py.detach(|| rx.lock().expect("receiver").recv_timeout(std::time::Duration::from_millis(200))) {
+        match py.detach(|| {
+            rx.lock()
+                .expect("receiver")
+                .recv_timeout(std::time::Duration::from_millis(200))
+        }) {
             Ok(r) => return r.map_err(to_py),
             Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
-                let step = callback.call1((prog.done.load(Relaxed), prog.total.load(Relaxed))).and_then(|_| py.check_signals());
+                let step = callback
+                    .call1((prog.done.load(Relaxed), prog.total.load(Relaxed)))
+                    .and_then(|_| py.check_signals());
                 if let Err(e) = step {
                     prog.cancel.store(true, Relaxed);
                     let _ = py.detach(|| rx.lock().expect("receiver").recv());
                     return Err(e);
                 }
             }
-            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => return Err(pyo3::exceptions::PyRuntimeError::new_err("psf: the computation thread ended without a result")),
+            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
+                return Err(pyo3::exceptions::PyRuntimeError::new_err(
+                    "psf: the computation thread ended without a result",
+                ))
+            }
         }
     }
 }
@@ -67,7 +102,18 @@ fn parse_lens(text: &str) -> psf_engine::Result<Lens> {
 }
 
 #[allow(clippy::too_many_arguments)]
-fn options(method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_grid: Option<usize>, aiming: &str, integrate: bool, exact: bool, fast: bool, accuracy: f64) -> PyResult<PsfOptions> {
+fn options(
+    method: &str,
+    pixel_um: f64,
+    size: usize,
+    pupil_samples: usize,
+    fft_grid: Option<usize>,
+    aiming: &str,
+    integrate: bool,
+    exact: bool,
+    fast: bool,
+    accuracy: f64,
+) -> PyResult<PsfOptions> {
     Ok(PsfOptions {
         method: method.parse::<Method>().map_err(to_py)?,
         pixel_mm: pixel_um * 1e-3,
@@ -89,7 +135,11 @@ fn validate_lens(py: Python<'_>, lens_json: &str) -> PyResult<()> {
 }
 
 #[pyfunction]
-fn refractive_indices<'py>(py: Python<'py>, lens_json: &str, wavelength_nm: f64) -> PyResult<Bound<'py, PyArray1<f64>>> {
+fn refractive_indices<'py>(
+    py: Python<'py>,
+    lens_json: &str,
+    wavelength_nm: f64,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
     let n = run(py, || parse_lens(lens_json)?.indices(wavelength_nm))?;
     Ok(n.into_pyarray(py))
 }
@@ -147,7 +197,10 @@ fn contiguous<'a>(a: &'a PyReadonlyArray1<'_, f64>) -> std::borrow::Cow<'a, [f64
 
 fn vec3s(a: &PyReadonlyArray2<f64>, name: &str) -> PyResult<Vec<f64>> {
     if a.shape().len() != 2 || a.shape()[1] != 3 {
-        return Err(pyo3::exceptions::PyValueError::new_err(format!("{name} must have shape (n, 3), got {:?}", a.shape())));
+        return Err(pyo3::exceptions::PyValueError::new_err(format!(
+            "{name} must have shape (n, 3), got {:?}",
+            a.shape()
+        )));
     }
     Ok(match a.as_slice() {
         Ok(s) => s.to_vec(),
@@ -158,8 +211,26 @@ fn vec3s(a: &PyReadonlyArray2<f64>, name: &str) -> PyResult<Vec<f64>> {
 /// Single-thread seconds the engine's cost model predicts for one PSF (None for auto).
 #[pyfunction]
 #[pyo3(signature = (method, pixel_um, size, pupil_samples, fft_grid=None, n_surfaces=10))]
-fn predicted_psf_seconds(method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_grid: Option<usize>, n_surfaces: usize) -> PyResult<Option<f64>> {
-    let o = options(method, pixel_um, size, pupil_samples, fft_grid, "paraxial", false, false, false, 0.02)?;
+fn predicted_psf_seconds(
+    method: &str,
+    pixel_um: f64,
+    size: usize,
+    pupil_samples: usize,
+    fft_grid: Option<usize>,
+    n_surfaces: usize,
+) -> PyResult<Option<f64>> {
+    let o = options(
+        method,
+        pixel_um,
+        size,
+        pupil_samples,
+        fft_grid,
+        "paraxial",
+        false,
+        false,
+        false,
+        0.02,
+    )?;
     Ok(psf_engine::psf::auto::predicted_seconds(&o, n_surfaces))
 }
 
@@ -170,11 +241,21 @@ fn available_memory() -> f64 {
 }
 
 #[pyfunction]
-fn trace<'py>(py: Python<'py>, lens_json: &str, origins: PyReadonlyArray2<f64>, directions: PyReadonlyArray2<f64>, wavelength_nm: f64) -> PyResult<Bound<'py, PyDict>> {
+fn trace<'py>(
+    py: Python<'py>,
+    lens_json: &str,
+    origins: PyReadonlyArray2<f64>,
+    directions: PyReadonlyArray2<f64>,
+    wavelength_nm: f64,
+) -> PyResult<Bound<'py, PyDict>> {
     let o = vec3s(&origins, "origins")?;
     let d = vec3s(&directions, "directions")?;
     if o.len() != d.len() {
-        return Err(pyo3::exceptions::PyValueError::new_err(format!("origins ({}) and directions ({}) differ in length", o.len() / 3, d.len() / 3)));
+        return Err(pyo3::exceptions::PyValueError::new_err(format!(
+            "origins ({}) and directions ({}) differ in length",
+            o.len() / 3,
+            d.len() / 3
+        )));
     }
     let t = run(py, || {
         let lens = parse_lens(lens_json)?;
@@ -219,21 +300,46 @@ fn with_beam<T: Send>(
 ) -> PyResult<(T, [f64; 3], Option<[f64; 3]>)> {
     let (pxs, pys) = (contiguous(px), contiguous(py_));
     if pxs.len() != pys.len() {
-        return Err(pyo3::exceptions::PyValueError::new_err(format!("px ({}) and py ({}) differ in length", pxs.len(), pys.len())));
+        return Err(pyo3::exceptions::PyValueError::new_err(format!(
+            "px ({}) and py ({}) differ in length",
+            pxs.len(),
+            pys.len()
+        )));
     }
     let aiming: Aiming = aiming.parse().map_err(to_py)?;
     run(py, || {
         let lens = parse_lens(lens_json)?;
         let sys = psf_engine::System::new(&lens, wavelength_nm)?;
         let beam = psf_engine::Beam::new(&sys, field_deg, aiming)?;
-        Ok((f(&beam, &pxs, &pys)?, beam.dir.to_array(), beam.object.map(|o| o.to_array())))
+        Ok((
+            f(&beam, &pxs, &pys)?,
+            beam.dir.to_array(),
+            beam.object.map(|o| o.to_array()),
+        ))
     })
 }
 
 #[pyfunction]
 #[pyo3(signature = (lens_json, field_deg, px, py_, wavelength_nm, aiming="paraxial"))]
-fn trace_field<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: PyReadonlyArray1<'py, f64>, py_: PyReadonlyArray1<'py, f64>, wavelength_nm: f64, aiming: &str) -> PyResult<Bound<'py, PyDict>> {
-    let (t, dir, object) = with_beam(py, lens_json, field_deg, &px, &py_, wavelength_nm, aiming, |beam, x, y| Ok(beam.trace_pupil_soa(x, y)))?;
+fn trace_field<'py>(
+    py: Python<'py>,
+    lens_json: &str,
+    field_deg: f64,
+    px: PyReadonlyArray1<'py, f64>,
+    py_: PyReadonlyArray1<'py, f64>,
+    wavelength_nm: f64,
+    aiming: &str,
+) -> PyResult<Bound<'py, PyDict>> {
+    let (t, dir, object) = with_beam(
+        py,
+        lens_json,
+        field_deg,
+        &px,
+        &py_,
+        wavelength_nm,
+        aiming,
+        |beam, x, y| Ok(beam.trace_pupil_soa(x, y)),
+    )?;
     let n = t.opl.len();
     // A finite object's rays leave its object point: each towards it from its launch point.
     let per_ray = object.map(|o| launch_directions(&t.origin, o));
@@ -252,8 +358,25 @@ fn trace_field<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: PyRead
 
 #[pyfunction]
 #[pyo3(signature = (lens_json, field_deg, px, py_, wavelength_nm, aiming="paraxial"))]
-fn trace_field_path<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: PyReadonlyArray1<'py, f64>, py_: PyReadonlyArray1<'py, f64>, wavelength_nm: f64, aiming: &str) -> PyResult<Bound<'py, PyDict>> {
-    let (p, dir, object) = with_beam(py, lens_json, field_deg, &px, &py_, wavelength_nm, aiming, |beam, x, y| beam.trace_path(x, y))?;
+fn trace_field_path<'py>(
+    py: Python<'py>,
+    lens_json: &str,
+    field_deg: f64,
+    px: PyReadonlyArray1<'py, f64>,
+    py_: PyReadonlyArray1<'py, f64>,
+    wavelength_nm: f64,
+    aiming: &str,
+) -> PyResult<Bound<'py, PyDict>> {
+    let (p, dir, object) = with_beam(
+        py,
+        lens_json,
+        field_deg,
+        &px,
+        &py_,
+        wavelength_nm,
+        aiming,
+        |beam, x, y| beam.trace_path(x, y),
+    )?;
     let (n, m) = (p.last.len(), p.points);
     let per_ray = object.map(|o| launch_directions(&p.image.origin, o));
     let dict = traced_dict(py, p.image)?;
@@ -271,13 +394,36 @@ fn trace_field_path<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: P
 #[pyfunction]
 #[pyo3(signature = (lens_json, field_deg, px, py_, weights, wavelengths_nm, wavelength_weights=None, aiming="paraxial", tilt="wavelength"))]
 #[allow(clippy::too_many_arguments)]
-fn wavefront<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: PyReadonlyArray1<'py, f64>, py_: PyReadonlyArray1<'py, f64>, weights: PyReadonlyArray1<'py, f64>, wavelengths_nm: Vec<f64>, wavelength_weights: Option<Vec<f64>>, aiming: &str, tilt: &str) -> PyResult<Bound<'py, PyDict>> {
+fn wavefront<'py>(
+    py: Python<'py>,
+    lens_json: &str,
+    field_deg: f64,
+    px: PyReadonlyArray1<'py, f64>,
+    py_: PyReadonlyArray1<'py, f64>,
+    weights: PyReadonlyArray1<'py, f64>,
+    wavelengths_nm: Vec<f64>,
+    wavelength_weights: Option<Vec<f64>>,
+    aiming: &str,
+    tilt: &str,
+) -> PyResult<Bound<'py, PyDict>> {
     let aiming: Aiming = aiming.parse().map_err(to_py)?;
     let tilt: psf_engine::wavefront::Tilt = tilt.parse().map_err(to_py)?;
     let ww = wavelength_weights.unwrap_or_else(|| vec![1.0; wavelengths_nm.len()]);
     let (xs, ys, ws) = (contiguous(&px), contiguous(&py_), contiguous(&weights));
     let nw = wavelengths_nm.len();
-    let wf = run(py, || psf_engine::wavefront::field_wavefront(&parse_lens(lens_json)?, field_deg, &wavelengths_nm, &ww, &xs, &ys, &ws, aiming, tilt))?;
+    let wf = run(py, || {
+        psf_engine::wavefront::field_wavefront(
+            &parse_lens(lens_json)?,
+            field_deg,
+            &wavelengths_nm,
+            &ww,
+            &xs,
+            &ys,
+            &ws,
+            aiming,
+            tilt,
+        )
+    })?;
     let n = wf.n_rays;
     let d = PyDict::new(py);
     d.set_item("opd_waves", wf.opd_waves.into_pyarray(py).reshape([nw, n])?)?;
@@ -292,26 +438,76 @@ fn wavefront<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, px: PyReadon
 
 #[pyfunction]
 #[pyo3(signature = (lens_json, field_deg, wavelengths_nm, weights=None, rings=64, aiming="paraxial"))]
-fn spot<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavelengths_nm: Vec<f64>, weights: Option<Vec<f64>>, rings: usize, aiming: &str) -> PyResult<Bound<'py, PyDict>> {
+fn spot<'py>(
+    py: Python<'py>,
+    lens_json: &str,
+    field_deg: f64,
+    wavelengths_nm: Vec<f64>,
+    weights: Option<Vec<f64>>,
+    rings: usize,
+    aiming: &str,
+) -> PyResult<Bound<'py, PyDict>> {
     let aiming: Aiming = aiming.parse().map_err(to_py)?;
     let weights = weights.unwrap_or_else(|| vec![1.0; wavelengths_nm.len()]);
     if weights.len() != wavelengths_nm.len() || wavelengths_nm.is_empty() || rings == 0 {
-        return Err(pyo3::exceptions::PyValueError::new_err("need >= 1 wavelength, one weight per wavelength and rings >= 1"));
+        return Err(pyo3::exceptions::PyValueError::new_err(
+            "need >= 1 wavelength, one weight per wavelength and rings >= 1",
+        ));
     }
-    let r = run(py, move || psf_engine::spot::spot_summary(&parse_lens(lens_json)?, field_deg, &wavelengths_nm, &weights, rings, aiming))?;
+    let r = run(py, move || {
+        psf_engine::spot::spot_summary(
+            &parse_lens(lens_json)?,
+            field_deg,
+            &wavelengths_nm,
+            &weights,
+            rings,
+            aiming,
+        )
+    })?;
     json_to_py(py, &r).map(|o| o.cast_into::<PyDict>().unwrap())
 }
 
 #[pyfunction]
 #[pyo3(signature = (lens_json, field_deg, wavelength_nm, method="fft", pixel_um=1.0, size=64, pupil_samples=64, fft_grid=None, aiming="paraxial", integrate=false, exact=false, fast=false, accuracy=0.02, progress=None))]
 #[allow(clippy::too_many_arguments)]
-fn psf<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavelength_nm: f64, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, fft_grid: Option<usize>, aiming: &str, integrate: bool, exact: bool, fast: bool, accuracy: f64, progress: Option<Bound<'py, PyAny>>) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-    let mut o = options(method, pixel_um, size, pupil_samples, fft_grid, aiming, integrate, exact, fast, accuracy)?;
+fn psf<'py>(
+    py: Python<'py>,
+    lens_json: &str,
+    field_deg: f64,
+    wavelength_nm: f64,
+    method: &str,
+    pixel_um: f64,
+    size: usize,
+    pupil_samples: usize,
+    fft_grid: Option<usize>,
+    aiming: &str,
+    integrate: bool,
+    exact: bool,
+    fast: bool,
+    accuracy: f64,
+    progress: Option<Bound<'py, PyAny>>,
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let mut o = options(
+        method,
+        pixel_um,
+        size,
+        pupil_samples,
+        fft_grid,
+        aiming,
+        integrate,
+        exact,
+        fast,
+        accuracy,
+    )?;
     let p = match progress {
-        None => run(py, || psf_engine::psf::psf(&parse_lens(lens_json)?, field_deg, wavelength_nm, &o))?,
+        None => run(py, || {
+            psf_engine::psf::psf(&parse_lens(lens_json)?, field_deg, wavelength_nm, &o)
+        })?,
         Some(callback) => {
             let lens = parse_lens(lens_json).map_err(to_py)?;
-            watched(py, &mut o, &callback, move |o| psf_engine::psf::psf(&lens, field_deg, wavelength_nm, o))?
+            watched(py, &mut o, &callback, move |o| {
+                psf_engine::psf::psf(&lens, field_deg, wavelength_nm, o)
+            })?
         }
     };
     let arr = p.data.into_pyarray(py).reshape([size, size])?.into_any();
@@ -321,10 +517,36 @@ fn psf<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavelength_nm: f64
 #[pyfunction]
 #[pyo3(signature = (lens_json, field_deg, channels, method="fft", pixel_um=1.0, size=64, pupil_samples=64, aiming="paraxial", integrate=false, fast=true, accuracy=0.02))]
 #[allow(clippy::too_many_arguments)]
-fn psf_rgb<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, channels: Vec<Vec<(f64, f64)>>, method: &str, pixel_um: f64, size: usize, pupil_samples: usize, aiming: &str, integrate: bool, fast: bool, accuracy: f64) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-    let o = options(method, pixel_um, size, pupil_samples, None, aiming, integrate, false, fast, accuracy)?;
+fn psf_rgb<'py>(
+    py: Python<'py>,
+    lens_json: &str,
+    field_deg: f64,
+    channels: Vec<Vec<(f64, f64)>>,
+    method: &str,
+    pixel_um: f64,
+    size: usize,
+    pupil_samples: usize,
+    aiming: &str,
+    integrate: bool,
+    fast: bool,
+    accuracy: f64,
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let o = options(
+        method,
+        pixel_um,
+        size,
+        pupil_samples,
+        None,
+        aiming,
+        integrate,
+        false,
+        fast,
+        accuracy,
+    )?;
     let nc = channels.len();
-    let r = run(py, || psf_engine::rgb::psf_rgb(&parse_lens(lens_json)?, field_deg, &channels, &o))?;
+    let r = run(py, || {
+        psf_engine::rgb::psf_rgb(&parse_lens(lens_json)?, field_deg, &channels, &o)
+    })?;
     let arr = r.data.into_pyarray(py).reshape([nc, size, size])?.into_any();
     let ri = r.relative_illumination.into_pyarray(py).into_any();
     let diags = serde_json::Value::Array(r.diagnostics.iter().map(|d| d.to_json()).collect());
@@ -345,15 +567,24 @@ fn check_out(name: &str, a: Option<&numpy::PyReadwriteArrayDyn<'_, f32>>, shape:
     Ok(())
 }
 
-fn out_slice<'a>(name: &str, a: Option<&'a mut numpy::PyReadwriteArrayDyn<'_, f32>>) -> PyResult<Option<&'a mut [f32]>> {
-    a.map(|a| a.as_slice_mut().map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("{name}: {e}")))).transpose()
+fn out_slice<'a>(
+    name: &str,
+    a: Option<&'a mut numpy::PyReadwriteArrayDyn<'_, f32>>,
+) -> PyResult<Option<&'a mut [f32]>> {
+    a.map(|a| {
+        a.as_slice_mut()
+            .map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("{name}: {e}")))
+    })
+    .transpose()
 }
 
 /// CRC-32 (IEEE, as zlib's) of a byte array, continuing from `crc`; GIL released.
 #[pyfunction]
 #[pyo3(signature = (data, crc=0))]
 fn crc32(py: Python<'_>, data: numpy::PyReadonlyArrayDyn<'_, u8>, crc: u32) -> PyResult<u32> {
-    let bytes = data.as_slice().map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("crc32: {e}")))?;
+    let bytes = data
+        .as_slice()
+        .map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("crc32: {e}")))?;
     Ok(py.detach(|| {
         let mut h = crc32fast::Hasher::new_with_initial(crc);
         h.update(bytes);
@@ -381,12 +612,29 @@ fn psf_batch<'py>(
     sensor_out: Option<numpy::PyReadwriteArrayDyn<'py, f32>>,
     accuracy: f64,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let o = options(method, pixel_um, size, pupil_samples, None, aiming, integrate, false, fast, accuracy)?;
+    let o = options(
+        method,
+        pixel_um,
+        size,
+        pupil_samples,
+        None,
+        aiming,
+        integrate,
+        false,
+        fast,
+        accuracy,
+    )?;
     let (nd, nf, nc) = (lens_jsons.len(), fields_deg.len(), channels.len());
     let shape = [nd, nf, nc, size, size];
     let binning = match sensor {
-        Some((pitch_um, m)) => Some(psf_engine::rgb::SensorBinning::new(size, pixel_um * 1e-3, m, pitch_um * 1e-3).map_err(to_py)?),
-        None if sensor_out.is_some() => return Err(pyo3::exceptions::PyValueError::new_err("sensor_out without sensor=(pitch_um, size)")),
+        Some((pitch_um, m)) => {
+            Some(psf_engine::rgb::SensorBinning::new(size, pixel_um * 1e-3, m, pitch_um * 1e-3).map_err(to_py)?)
+        }
+        None if sensor_out.is_some() => {
+            return Err(pyo3::exceptions::PyValueError::new_err(
+                "sensor_out without sensor=(pitch_um, size)",
+            ))
+        }
         None => None,
     };
     let sshape = binning.as_ref().map(|b| [nd, nf, nc, b.size(), b.size()]);
@@ -398,7 +646,9 @@ fn psf_batch<'py>(
     }
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
     let own_sensor = binning.as_ref().filter(|_| sensor_out.is_none()).map(|b| b.size());
-    psf_engine::rgb::batch_memory(nd, nf, nc, &o, threads, out.is_none(), own_sensor).check("psf_batch").map_err(to_py)?;
+    psf_engine::rgb::batch_memory(nd, nf, nc, &o, threads, out.is_none(), own_sensor)
+        .check("psf_batch")
+        .map_err(to_py)?;
     let out_array: Option<Bound<'py, PyAny>> = out.as_ref().map(|a| a.as_any().clone());
     let sensor_array: Option<Bound<'py, PyAny>> = sensor_out.as_ref().map(|a| a.as_any().clone());
     let slice = out_slice("out", out.as_mut())?;
@@ -408,7 +658,10 @@ fn psf_batch<'py>(
         let parsed: Vec<psf_engine::Result<Lens>> = lens_jsons.iter().map(|t| parse_lens(t)).collect();
         let placeholder = parsed.iter().find_map(|r| r.as_ref().ok().cloned());
         let lenses: Vec<Lens> = match &placeholder {
-            Some(p) => parsed.iter().map(|r| r.as_ref().ok().cloned().unwrap_or_else(|| p.clone())).collect(),
+            Some(p) => parsed
+                .iter()
+                .map(|r| r.as_ref().ok().cloned().unwrap_or_else(|| p.clone()))
+                .collect(),
             None => vec![],
         };
         let errs: Vec<Option<String>> = parsed.iter().map(|r| r.as_ref().err().map(|e| e.to_string())).collect();
@@ -426,9 +679,23 @@ fn psf_batch<'py>(
             _ => None,
         };
         let b = if lenses.is_empty() {
-            psf_engine::rgb::Batch { psf: vec![], relative_illumination: vec![0.0; nd * nf * nc], energy_in_window: vec![0.0; nd * nf * nc], warnings: vec![vec![]; nd], errors: vec![None; nd], methods: vec![String::new(); nd * nf * channels.iter().map(|c| c.len()).sum::<usize>()] }
+            psf_engine::rgb::Batch {
+                psf: vec![],
+                relative_illumination: vec![0.0; nd * nf * nc],
+                energy_in_window: vec![0.0; nd * nf * nc],
+                warnings: vec![vec![]; nd],
+                errors: vec![None; nd],
+                methods: vec![String::new(); nd * nf * channels.iter().map(|c| c.len()).sum::<usize>()],
+            }
         } else {
-            psf_engine::rgb::psf_batch_into(&lenses, &fields_deg, &channels, &o, buf, sensor.as_mut().map(|(b, s)| (*b, &mut **s)))?
+            psf_engine::rgb::psf_batch_into(
+                &lenses,
+                &fields_deg,
+                &channels,
+                &o,
+                buf,
+                sensor.as_mut().map(|(b, s)| (*b, &mut **s)),
+            )?
         };
         // A design that does not parse was traced as a placeholder (or not at all): zeros.
         psf_engine::rgb::zero_failed(buf, &errs);
@@ -466,7 +733,10 @@ fn psf_batch<'py>(
     d.set_item("energy_in_window", energy.into_pyarray(py).reshape([nd, nf, nc])?)?;
     d.set_item("warnings", warnings)?;
     d.set_item("methods", batch.methods)?;
-    d.set_item("ok", errors.iter().map(|e| e.is_none()).collect::<Vec<_>>().into_pyarray(py))?;
+    d.set_item(
+        "ok",
+        errors.iter().map(|e| e.is_none()).collect::<Vec<_>>().into_pyarray(py),
+    )?;
     d.set_item("errors", errors)?;
     Ok(d)
 }
@@ -476,7 +746,16 @@ fn psf_batch<'py>(
 #[pyfunction]
 #[pyo3(signature = (lens_json, field_deg, wavelength_nm, pixel_um=1.0, size=64, aiming="paraxial", integrate=false))]
 #[allow(clippy::too_many_arguments)]
-fn auto_candidates<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavelength_nm: f64, pixel_um: f64, size: usize, aiming: &str, integrate: bool) -> PyResult<Bound<'py, PyAny>> {
+fn auto_candidates<'py>(
+    py: Python<'py>,
+    lens_json: &str,
+    field_deg: f64,
+    wavelength_nm: f64,
+    pixel_um: f64,
+    size: usize,
+    aiming: &str,
+    integrate: bool,
+) -> PyResult<Bound<'py, PyAny>> {
     let o = options("auto", pixel_um, size, 64, None, aiming, integrate, false, false, 0.02)?;
     let v = run(py, || {
         let lens = parse_lens(lens_json)?;
@@ -492,17 +771,28 @@ fn auto_candidates<'py>(py: Python<'py>, lens_json: &str, field_deg: f64, wavele
 
 #[pyfunction]
 #[pyo3(signature = (lens_jsons, fields_deg, wavelengths, rings=8, aiming="paraxial"))]
-fn best_focus_batch<'py>(py: Python<'py>, lens_jsons: Vec<String>, fields_deg: Vec<f64>, wavelengths: Vec<(f64, f64)>, rings: usize, aiming: &str) -> PyResult<Bound<'py, PyDict>> {
+fn best_focus_batch<'py>(
+    py: Python<'py>,
+    lens_jsons: Vec<String>,
+    fields_deg: Vec<f64>,
+    wavelengths: Vec<(f64, f64)>,
+    rings: usize,
+    aiming: &str,
+) -> PyResult<Bound<'py, PyDict>> {
     let aiming: Aiming = aiming.parse().map_err(to_py)?;
     let results: Vec<Result<f64, String>> = run(py, || {
         // a design that does not parse is that design's failure, not the call's
         let parsed: Vec<psf_engine::Result<Lens>> = lens_jsons.iter().map(|t| parse_lens(t)).collect();
         let good: Vec<Lens> = parsed.iter().filter_map(|r| r.as_ref().ok().cloned()).collect();
-        let mut shifts = psf_engine::focus::best_focus_each(&good, &fields_deg, &wavelengths, rings, aiming).into_iter();
+        let mut shifts =
+            psf_engine::focus::best_focus_each(&good, &fields_deg, &wavelengths, rings, aiming).into_iter();
         Ok(parsed
             .into_iter()
             .map(|r| match r {
-                Ok(_) => shifts.next().expect("one result per parsed design").map_err(|e| e.to_string()),
+                Ok(_) => shifts
+                    .next()
+                    .expect("one result per parsed design")
+                    .map_err(|e| e.to_string()),
                 Err(e) => Err(e.to_string()),
             })
             .collect())
@@ -511,7 +801,10 @@ fn best_focus_batch<'py>(py: Python<'py>, lens_jsons: Vec<String>, fields_deg: V
     let errors: Vec<Option<String>> = results.into_iter().map(|r| r.err()).collect();
     let d = PyDict::new(py);
     d.set_item("shift_mm", shift.into_pyarray(py))?;
-    d.set_item("ok", errors.iter().map(|e| e.is_none()).collect::<Vec<_>>().into_pyarray(py))?;
+    d.set_item(
+        "ok",
+        errors.iter().map(|e| e.is_none()).collect::<Vec<_>>().into_pyarray(py),
+    )?;
     d.set_item("errors", errors)?;
     Ok(d)
 }

@@ -11,8 +11,8 @@
 //! specified diameter and off-axis beams fill the same physical stop.
 
 use crate::error::{arg, EngineError, Result};
-use crate::paraxial::{paraxial, Paraxial};
 use crate::kernel::Block;
+use crate::paraxial::{paraxial, Paraxial};
 use crate::trace::{End, RayState, Status, System, Traced};
 use glam::{DVec2, DVec3};
 
@@ -77,12 +77,31 @@ impl<'s, 'l> Beam<'s, 'l> {
         // Launch plane well before the first surface and the entrance pupil.
         let s1 = &lens.surfaces[0];
         let reach = s1.semi_diameter.unwrap_or(par.epd);
-        let dip = crate::surface::sag(s1, reach * reach).map(|z| (-z).max(0.0)).unwrap_or(reach);
-        let object = lens.finite_object().then(|| DVec3::new(0.0, -par.object_to_pupil * t.tan(), -lens.object_distance));
-        let z_obj = if lens.finite_object() { -lens.object_distance } else { 0.0 };
+        let dip = crate::surface::sag(s1, reach * reach)
+            .map(|z| (-z).max(0.0))
+            .unwrap_or(reach);
+        let object = lens
+            .finite_object()
+            .then(|| DVec3::new(0.0, -par.object_to_pupil * t.tan(), -lens.object_distance));
+        let z_obj = if lens.finite_object() {
+            -lens.object_distance
+        } else {
+            0.0
+        };
         // (for a finite object any point of a ray's line serves: before or after the object)
         let z_launch = par.entrance_pupil_z.min(0.0) - 10.0 - dip;
-        let mut b = Beam { sys, par, field_deg, dir, object, aiming, z_launch, chief_entry: DVec2::ZERO, chief_jac: [[1.0, 0.0], [0.0, 1.0]], stop_radius: par.stop_semi_diameter };
+        let mut b = Beam {
+            sys,
+            par,
+            field_deg,
+            dir,
+            object,
+            aiming,
+            z_launch,
+            chief_entry: DVec2::ZERO,
+            chief_jac: [[1.0, 0.0], [0.0, 1.0]],
+            stop_radius: par.stop_semi_diameter,
+        };
         if aiming == Aiming::Real {
             // The stop's real size: the height at which the on-axis marginal ray of the
             // specified EPD crosses it, so the on-axis entrance pupil keeps its diameter.
@@ -91,11 +110,17 @@ impl<'s, 'l> Beam<'s, 'l> {
             let (o, d) = b.ray_from(axial, DVec3::Z, DVec2::new(0.0, h));
             let r = sys.trace_unclipped(o, d, End::Surface(lens.stop));
             if !r.ok() {
-                return Err(EngineError::Trace(format!("real ray aiming: the on-axis marginal ray does not reach the stop ({:?} at surface {})", r.status, r.surface + 1)));
+                return Err(EngineError::Trace(format!(
+                    "real ray aiming: the on-axis marginal ray does not reach the stop ({:?} at surface {})",
+                    r.status,
+                    r.surface + 1
+                )));
             }
             b.stop_radius = r.p.y.abs();
             let (e, j) = b.aim_at(DVec2::ZERO, DVec2::ZERO, None).ok_or_else(|| {
-                EngineError::Trace(format!("real ray aiming: the chief ray at {field_deg} deg cannot be aimed at the stop centre"))
+                EngineError::Trace(format!(
+                    "real ray aiming: the chief ray at {field_deg} deg cannot be aimed at the stop centre"
+                ))
             })?;
             b.chief_entry = e;
             b.chief_jac = j;
@@ -142,14 +167,20 @@ impl<'s, 'l> Beam<'s, 'l> {
             if it == 0 || !fresh || r.length() > 1e-3 {
                 let sx = self.stop_hit(e + DVec2::new(FD_STEP, 0.0))?;
                 let sy = self.stop_hit(e + DVec2::new(0.0, FD_STEP))?;
-                jac = [[(sx.x - s.x) / FD_STEP, (sy.x - s.x) / FD_STEP], [(sx.y - s.y) / FD_STEP, (sy.y - s.y) / FD_STEP]];
+                jac = [
+                    [(sx.x - s.x) / FD_STEP, (sy.x - s.x) / FD_STEP],
+                    [(sx.y - s.y) / FD_STEP, (sy.y - s.y) / FD_STEP],
+                ];
                 fresh = true;
             }
             let det = jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0];
             if det.abs() < 1e-14 {
                 return None;
             }
-            let step = DVec2::new((jac[1][1] * r.x - jac[0][1] * r.y) / det, (-jac[1][0] * r.x + jac[0][0] * r.y) / det);
+            let step = DVec2::new(
+                (jac[1][1] * r.x - jac[0][1] * r.y) / det,
+                (-jac[1][0] * r.x + jac[0][0] * r.y) / det,
+            );
             // Damped step: halve until the ray still reaches the stop.
             let mut lam = 1.0;
             loop {
@@ -177,7 +208,12 @@ impl<'s, 'l> Beam<'s, 'l> {
             Aiming::Paraxial => {
                 let h = 0.5 * self.par.epd;
                 let (origin, dir) = self.ray(DVec2::new(px * h, py * h));
-                Launch { origin, dir, area: h * h, ok: true }
+                Launch {
+                    origin,
+                    dir,
+                    area: h * h,
+                    ok: true,
+                }
             }
             Aiming::Real => {
                 let rs = self.stop_radius;
@@ -185,16 +221,30 @@ impl<'s, 'l> Beam<'s, 'l> {
                 // Linear predictor from the chief ray's Jacobian.
                 let j = self.chief_jac;
                 let det = j[0][0] * j[1][1] - j[0][1] * j[1][0];
-                let guess = self.chief_entry + DVec2::new((j[1][1] * target.x - j[0][1] * target.y) / det, (-j[1][0] * target.x + j[0][0] * target.y) / det);
+                let guess = self.chief_entry
+                    + DVec2::new(
+                        (j[1][1] * target.x - j[0][1] * target.y) / det,
+                        (-j[1][0] * target.x + j[0][0] * target.y) / det,
+                    );
                 match self.aim_at(target, guess, Some(j)) {
                     Some((e, jac)) => {
                         let d = (jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0]).abs();
                         let (origin, dir) = self.ray(e);
-                        Launch { origin, dir, area: rs * rs / d, ok: true }
+                        Launch {
+                            origin,
+                            dir,
+                            area: rs * rs / d,
+                            ok: true,
+                        }
                     }
                     None => {
                         let (origin, dir) = self.ray(guess);
-                        Launch { origin, dir, area: 0.0, ok: false }
+                        Launch {
+                            origin,
+                            dir,
+                            area: 0.0,
+                            ok: false,
+                        }
                     }
                 }
             }
@@ -250,7 +300,11 @@ impl<'s, 'l> Beam<'s, 'l> {
     /// Launch rays at pupil points (in parallel; paraxial launches are closed-form).
     pub fn launches(&self, px: &[f64], py: &[f64]) -> Vec<Launch> {
         use rayon::prelude::*;
-        px.par_iter().zip(py.par_iter()).with_min_len(256).map(|(&x, &y)| self.launch(x, y)).collect()
+        px.par_iter()
+            .zip(py.par_iter())
+            .with_min_len(256)
+            .map(|(&x, &y)| self.launch(x, y))
+            .collect()
     }
 
     /// Fill a kernel block with launched rays `start..start + b.len`; unaimable rays are
@@ -269,7 +323,9 @@ impl<'s, 'l> Beam<'s, 'l> {
     /// Launch and trace rays at pupil points; unaimable rays come back Missed at surface 0.
     pub fn trace_pupil(&self, px: &[f64], py: &[f64]) -> (Vec<Launch>, Vec<RayState>) {
         let launches = self.launches(px, py);
-        let rays = self.sys.trace_launched(launches.len(), |start, b| self.load(&launches, start, b));
+        let rays = self
+            .sys
+            .trace_launched(launches.len(), |start, b| self.load(&launches, start, b));
         (launches, rays)
     }
 
@@ -339,9 +395,15 @@ impl<'s, 'l> Beam<'s, 'l> {
         let mut last = vec![-1i32; n];
         for i in 0..=k {
             let end = if i == k { End::Image } else { End::Surface(i) };
-            let here = if i == k { None } else { Some(self.trace_with(self.sys, launches, px, py, end)) };
+            let here = if i == k {
+                None
+            } else {
+                Some(self.trace_with(self.sys, launches, px, py, end))
+            };
             let t = here.as_ref().unwrap_or(&image);
-            let unclipped = (0..n).any(|j| clipped_at(j) == Some(i as i32)).then(|| self.trace_with(&open, launches, px, py, end));
+            let unclipped = (0..n)
+                .any(|j| clipped_at(j) == Some(i as i32))
+                .then(|| self.trace_with(&open, launches, px, py, end));
             for j in 0..n {
                 let src = if t.status[j] == Status::Ok as u8 {
                     &t.position
@@ -355,7 +417,12 @@ impl<'s, 'l> Beam<'s, 'l> {
                 last[j] = i as i32;
             }
         }
-        Ok(RayPath { points: k + 1, position, last, image })
+        Ok(RayPath {
+            points: k + 1,
+            position,
+            last,
+            image,
+        })
     }
 }
 

@@ -13,7 +13,10 @@ pub fn available_bytes() -> f64 {
     std::fs::read_to_string("/proc/meminfo")
         .ok()
         .and_then(|t| {
-            t.lines().find(|l| l.starts_with("MemAvailable:")).and_then(|l| l.split_whitespace().nth(1)).and_then(|kb| kb.parse::<f64>().ok())
+            t.lines()
+                .find(|l| l.starts_with("MemAvailable:"))
+                .and_then(|l| l.split_whitespace().nth(1))
+                .and_then(|kb| kb.parse::<f64>().ok())
         })
         .map_or(8.0 * GIB, |kb| kb * 1024.0)
 }
@@ -40,8 +43,17 @@ impl Need {
         }
         let mut parts: Vec<&(String, f64)> = self.0.iter().filter(|p| p.1 > 0.0).collect();
         parts.sort_by(|a, b| b.1.total_cmp(&a.1));
-        let list: Vec<String> = parts.iter().take(3).map(|(n, b)| format!("{n}: {}", human(*b))).collect();
-        arg(format!("{what} would need about {} ({}), more than the {} of memory available", human(total), list.join(", "), human(avail)))
+        let list: Vec<String> = parts
+            .iter()
+            .take(3)
+            .map(|(n, b)| format!("{n}: {}", human(*b)))
+            .collect();
+        arg(format!(
+            "{what} would need about {} ({}), more than the {} of memory available",
+            human(total),
+            list.join(", "),
+            human(avail)
+        ))
     }
 }
 

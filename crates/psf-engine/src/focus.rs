@@ -14,7 +14,13 @@ use crate::trace::System;
 /// Image-plane shift (mm, positive = away from the lens) minimizing the mean over `fields`
 /// of the RMS spot squared; `wavelengths` are (nm, weight) pairs.  Rays that fail are left
 /// out; a field with no ray through adds nothing (0 if none passes anywhere).
-pub fn best_focus_shift(lens: &Lens, fields: &[f64], wavelengths: &[(f64, f64)], rings: usize, aiming: Aiming) -> Result<f64> {
+pub fn best_focus_shift(
+    lens: &Lens,
+    fields: &[f64],
+    wavelengths: &[(f64, f64)],
+    rings: usize,
+    aiming: Aiming,
+) -> Result<f64> {
     if wavelengths.is_empty() || rings == 0 || wavelengths.iter().any(|p| !(p.1 >= 0.0)) {
         return arg("best focus: need >= 1 wavelength with weights >= 0 and rings >= 1");
     }
@@ -23,7 +29,10 @@ pub fn best_focus_shift(lens: &Lens, fields: &[f64], wavelengths: &[(f64, f64)],
         return arg("best focus: the wavelength weights sum to 0");
     }
     let (px, py) = polar_grid(rings);
-    let systems = wavelengths.iter().map(|p| System::new(lens, p.0)).collect::<Result<Vec<_>>>()?;
+    let systems = wavelengths
+        .iter()
+        .map(|p| System::new(lens, p.0))
+        .collect::<Result<Vec<_>>>()?;
     let (mut b, mut c) = (0.0, 0.0);
     let mut pts: Vec<[f64; 5]> = Vec::with_capacity(px.len() * wavelengths.len());
     for &f in fields {
@@ -33,7 +42,13 @@ pub fn best_focus_shift(lens: &Lens, fields: &[f64], wavelengths: &[(f64, f64)],
             let (launches, rays) = beam.trace_pupil(&px, &py);
             for (l, r) in launches.iter().zip(&rays) {
                 if r.ok() && r.d.z.abs() > 1e-12 {
-                    pts.push([r.p.x, r.p.y, r.d.x / r.d.z, r.d.y / r.d.z, wt / wsum * beam.flux_weight(l)]);
+                    pts.push([
+                        r.p.x,
+                        r.p.y,
+                        r.d.x / r.d.z,
+                        r.d.y / r.d.z,
+                        wt / wsum * beam.flux_weight(l),
+                    ]);
                 }
             }
         }
@@ -54,7 +69,16 @@ pub fn best_focus_shift(lens: &Lens, fields: &[f64], wavelengths: &[(f64, f64)],
 }
 
 /// [`best_focus_shift`] for many designs in parallel (one result per design, in order).
-pub fn best_focus_each(lenses: &[Lens], fields: &[f64], wavelengths: &[(f64, f64)], rings: usize, aiming: Aiming) -> Vec<Result<f64>> {
+pub fn best_focus_each(
+    lenses: &[Lens],
+    fields: &[f64],
+    wavelengths: &[(f64, f64)],
+    rings: usize,
+    aiming: Aiming,
+) -> Vec<Result<f64>> {
     use rayon::prelude::*;
-    lenses.par_iter().map(|l| best_focus_shift(l, fields, wavelengths, rings, aiming)).collect()
+    lenses
+        .par_iter()
+        .map(|l| best_focus_shift(l, fields, wavelengths, rings, aiming))
+        .collect()
 }

@@ -80,10 +80,23 @@ pub(crate) struct ImageConst {
 }
 
 pub(crate) fn constants(lens: &Lens, n: &[f64]) -> (Vec<SurfConst>, ImageConst) {
-    let s = lens.surfaces.iter().enumerate().map(|(i, s)| SurfConst::new(s, n[i], n[i + 1])).collect();
+    let s = lens
+        .surfaces
+        .iter()
+        .enumerate()
+        .map(|(i, s)| SurfConst::new(s, n[i], n[i + 1]))
+        .collect();
     let k = lens.surfaces.len();
     let sd2 = lens.image_semi_diameter.map_or(f64::INFINITY, |d| d * d);
-    (s, ImageConst { z: lens.image_z, n: n[k], sd2, c: lens.image_curvature })
+    (
+        s,
+        ImageConst {
+            z: lens.image_z,
+            n: n[k],
+            sd2,
+            c: lens.image_curvature,
+        },
+    )
 }
 
 /// A ray's state in plain numbers.
@@ -167,13 +180,23 @@ fn verdict(hit: bool, inside: bool, no_tir: bool) -> u8 {
 /// trace stops at this surface or the index does not change).
 #[inline(always)]
 pub(crate) fn step(sc: &SurfConst, s: &Surface, kind: Kind, r: &mut Ray, clip: bool, refract_here: bool) -> u8 {
-    let hit = if kind == Kind::Asphere { asphere_hit(sc, s, r) } else { hit_conic(sc, kind, r) };
+    let hit = if kind == Kind::Asphere {
+        asphere_hit(sc, s, r)
+    } else {
+        hit_conic(sc, kind, r)
+    };
     step_with(sc, hit, r, clip, refract_here)
 }
 
 /// [`step`] given the intersection (t, normal, hit).
 #[inline(always)]
-fn step_with(sc: &SurfConst, (t, nx, ny, nz, hit): (f64, f64, f64, f64, bool), r: &mut Ray, clip: bool, refract_here: bool) -> u8 {
+fn step_with(
+    sc: &SurfConst,
+    (t, nx, ny, nz, hit): (f64, f64, f64, f64, bool),
+    r: &mut Ray,
+    clip: bool,
+    refract_here: bool,
+) -> u8 {
     // A surface met behind the ray (it would have had to cross it already) is a miss.
     let hit = hit & (t >= -BEHIND_TOL_MM);
     r.x += t * r.dx;
@@ -222,7 +245,17 @@ pub(crate) fn step_image(im: &ImageConst, r: &mut Ray, clip: bool) -> u8 {
         ((im.z - r.z) / r.dz, r.dz > 0.0)
     } else {
         // A curved sensor: the sphere's sheet through the vertex, met going forward.
-        let sc = SurfConst { kind: Kind::Sphere, z: im.z, c: im.c, kk: 1.0, sd2: im.sd2, n1: im.n, mu: 1.0, same: true, nterms: 0 };
+        let sc = SurfConst {
+            kind: Kind::Sphere,
+            z: im.z,
+            c: im.c,
+            kk: 1.0,
+            sd2: im.sd2,
+            n1: im.n,
+            mu: 1.0,
+            same: true,
+            nterms: 0,
+        };
         let (t, _, _, _, hit) = hit_conic(&sc, Kind::Sphere, r);
         (t, hit & (r.dz > 0.0) & (t >= -BEHIND_TOL_MM))
     };
@@ -285,7 +318,15 @@ impl Block {
 
     #[inline(always)]
     pub(crate) fn get(&self, j: usize) -> Ray {
-        Ray { x: self.x[j], y: self.y[j], z: self.z[j], dx: self.dx[j], dy: self.dy[j], dz: self.dz[j], opl: self.opl[j] }
+        Ray {
+            x: self.x[j],
+            y: self.y[j],
+            z: self.z[j],
+            dx: self.dx[j],
+            dy: self.dy[j],
+            dz: self.dz[j],
+            opl: self.opl[j],
+        }
     }
     #[inline(always)]
     pub(crate) fn put(&mut self, j: usize, r: &Ray) {
@@ -310,7 +351,15 @@ impl Block {
     /// Ok or Invalid.
     #[inline(always)]
     pub fn set(&mut self, j: usize, p: [f64; 3], d: [f64; 3]) {
-        let r = Ray { x: p[0], y: p[1], z: p[2], dx: d[0], dy: d[1], dz: d[2], opl: 0.0 };
+        let r = Ray {
+            x: p[0],
+            y: p[1],
+            z: p[2],
+            dx: d[0],
+            dy: d[1],
+            dz: d[2],
+            opl: 0.0,
+        };
         let ok = valid_input(&r);
         self.put(j, &r);
         self.status[j] = if ok { Status::Ok as u8 } else { Status::Invalid as u8 };
@@ -480,16 +529,32 @@ mod tests {
         .unwrap();
         let n = lens.indices(550.0).unwrap();
         let (consts, image) = constants(&lens, &n);
-        let plan = Plan { consts: &consts, surfaces: &lens.surfaces, image: &image, stop_at: None, clip: true };
-        let mut base = Block::default();
-        base.len = LANES;
+        let plan = Plan {
+            consts: &consts,
+            surfaces: &lens.surfaces,
+            image: &image,
+            stop_at: None,
+            clip: true,
+        };
+        let mut base = Block {
+            len: LANES,
+            ..Block::default()
+        };
         for j in 0..LANES {
             let a = (j as f64 / LANES as f64 - 0.5) * 1.6;
-            base.set(j, [0.3 * j as f64 % 9.0 - 4.5, (j as f64 * 0.77) % 11.0 - 5.5, -3.0], [0.1 * a.sin(), a.sin(), (1.0 - 0.01 * a.sin().powi(2) - a.sin().powi(2)).sqrt()]);
+            base.set(
+                j,
+                [0.3 * j as f64 % 9.0 - 4.5, (j as f64 * 0.77) % 11.0 - 5.5, -3.0],
+                [
+                    0.1 * a.sin(),
+                    a.sin(),
+                    (1.0 - 0.01 * a.sin().powi(2) - a.sin().powi(2)).sqrt(),
+                ],
+            );
         }
         let mut expect = base.clone();
         run_inline(&plan, &mut expect);
-        assert!(expect.status.iter().any(|&s| s == 0) && expect.status.iter().any(|&s| s != 0));
+        assert!(expect.status.contains(&0) && expect.status.iter().any(|&s| s != 0));
         let mut variants: Vec<(&str, Block)> = vec![];
         #[cfg(target_arch = "x86_64")]
         {
@@ -506,10 +571,18 @@ mod tests {
         }
         for (name, b) in variants {
             for j in 0..LANES {
-                assert_eq!((b.status[j], b.surface[j]), (expect.status[j], expect.surface[j]), "{name} lane {j}");
+                assert_eq!(
+                    (b.status[j], b.surface[j]),
+                    (expect.status[j], expect.surface[j]),
+                    "{name} lane {j}"
+                );
                 if b.status[j] == 0 {
                     let (r, e) = (b.get(j), expect.get(j));
-                    assert_eq!([r.x, r.y, r.z, r.dx, r.dy, r.dz, r.opl], [e.x, e.y, e.z, e.dx, e.dy, e.dz, e.opl], "{name} lane {j}");
+                    assert_eq!(
+                        [r.x, r.y, r.z, r.dx, r.dy, r.dz, r.opl],
+                        [e.x, e.y, e.z, e.dx, e.dy, e.dz, e.opl],
+                        "{name} lane {j}"
+                    );
                 }
             }
         }

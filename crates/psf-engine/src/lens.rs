@@ -111,7 +111,9 @@ fn get_f64(obj: &Map<String, Value>, key: &str, ctx: &str) -> Result<Option<f64>
                 lens_err(format!("{ctx}: \"{key}\" is not a finite number"))
             }
         }
-        Some(Value::String(s)) if matches!(s.to_ascii_lowercase().as_str(), "inf" | "infinity") => Ok(Some(f64::INFINITY)),
+        Some(Value::String(s)) if matches!(s.to_ascii_lowercase().as_str(), "inf" | "infinity") => {
+            Ok(Some(f64::INFINITY))
+        }
         Some(v) => lens_err(format!("{ctx}: \"{key}\" must be a number, got {v}")),
     }
 }
@@ -196,39 +198,54 @@ impl Lens {
     pub fn from_json(text: &str) -> Result<Lens> {
         let v: Value = serde_json::from_str(text)
             .map_err(|e| EngineError::Lens(format!("invalid JSON at line {} column {}: {e}", e.line(), e.column())))?;
-        let root = v.as_object().ok_or_else(|| EngineError::Lens("prescription must be a JSON object".into()))?;
+        let root = v
+            .as_object()
+            .ok_or_else(|| EngineError::Lens("prescription must be a JSON object".into()))?;
         if let Some(u) = root.get("units").and_then(Value::as_str) {
             if u != "mm" {
                 return lens_err(format!("units \"{u}\" not supported: only \"mm\""));
             }
         }
         let name = root.get("name").and_then(Value::as_str).unwrap_or("lens").to_string();
-        let ap = root
-            .get("aperture")
-            .and_then(Value::as_object)
-            .ok_or_else(|| EngineError::Lens("missing \"aperture\": {\"type\": \"epd\"|\"fno\", \"value\": ...}".into()))?;
-        let ap_value = get_f64(ap, "value", "aperture")?.ok_or_else(|| EngineError::Lens("aperture: missing \"value\"".into()))?;
+        let ap = root.get("aperture").and_then(Value::as_object).ok_or_else(|| {
+            EngineError::Lens("missing \"aperture\": {\"type\": \"epd\"|\"fno\", \"value\": ...}".into())
+        })?;
+        let ap_value =
+            get_f64(ap, "value", "aperture")?.ok_or_else(|| EngineError::Lens("aperture: missing \"value\"".into()))?;
         if !(ap_value.is_finite() && ap_value > 0.0) {
             return lens_err(format!("aperture: \"value\" must be positive, got {ap_value}"));
         }
         check_length(ap_value, "aperture", "value")?;
-        let aperture = match ap.get("type").and_then(Value::as_str).map(str::to_ascii_lowercase).as_deref() {
+        let aperture = match ap
+            .get("type")
+            .and_then(Value::as_str)
+            .map(str::to_ascii_lowercase)
+            .as_deref()
+        {
             Some("epd") => Aperture::Epd(ap_value),
             Some("fno") | Some("f_number") => Aperture::FNumber(ap_value),
             Some("object_na") => Aperture::ObjectNA(ap_value),
-            other => return lens_err(format!("aperture: \"type\" must be \"epd\", \"fno\" or \"object_na\", got {other:?}")),
+            other => {
+                return lens_err(format!(
+                    "aperture: \"type\" must be \"epd\", \"fno\" or \"object_na\", got {other:?}"
+                ))
+            }
         };
         let object_distance = get_f64(root, "object_distance", "lens")?.unwrap_or(f64::INFINITY);
         check_length(object_distance, "lens", "object_distance")?;
         if !(object_distance >= 0.0) {
-            return lens_err(format!("object_distance = {object_distance} must be >= 0 mm (object plane to the first surface) or \"inf\""));
+            return lens_err(format!(
+                "object_distance = {object_distance} must be >= 0 mm (object plane to the first surface) or \"inf\""
+            ));
         }
         if let Aperture::ObjectNA(na) = aperture {
             if object_distance.is_infinite() {
                 return lens_err("aperture: \"object_na\" needs a finite \"object_distance\" (an object at infinity has no object-space NA)".into());
             }
             if na >= 1.0 {
-                return lens_err(format!("aperture: object-space NA {na} must be below 1 (the object is in air)"));
+                return lens_err(format!(
+                    "aperture: object-space NA {na} must be below 1 (the object is in air)"
+                ));
             }
         }
         let fields_deg = get_f64_list(root, "fields_deg", "lens")?.unwrap_or_else(|| vec![0.0]);
@@ -241,11 +258,16 @@ impl Lens {
         if wavelengths_nm.is_empty() || wavelengths_nm.iter().any(|w| !(*w > 0.0)) {
             return lens_err("wavelengths_nm must be a non-empty list of positive numbers".into());
         }
-        let weights = get_f64_list(root, "wavelength_weights", "lens")?.unwrap_or_else(|| vec![1.0; wavelengths_nm.len()]);
-        if weights.len() != wavelengths_nm.len() || weights.iter().any(|w| *w < 0.0) || weights.iter().sum::<f64>() <= 0.0 {
+        let weights =
+            get_f64_list(root, "wavelength_weights", "lens")?.unwrap_or_else(|| vec![1.0; wavelengths_nm.len()]);
+        if weights.len() != wavelengths_nm.len()
+            || weights.iter().any(|w| *w < 0.0)
+            || weights.iter().sum::<f64>() <= 0.0
+        {
             return lens_err("wavelength_weights must match wavelengths_nm in length, be >= 0 and not all zero".into());
         }
-        let primary_nm = get_f64(root, "primary_wavelength_nm", "lens")?.unwrap_or(wavelengths_nm[wavelengths_nm.len() / 2]);
+        let primary_nm =
+            get_f64(root, "primary_wavelength_nm", "lens")?.unwrap_or(wavelengths_nm[wavelengths_nm.len() / 2]);
         if !(primary_nm > 0.0 && primary_nm.is_finite()) {
             return lens_err(format!("primary_wavelength_nm = {primary_nm} must be positive"));
         }
@@ -263,7 +285,9 @@ impl Lens {
         let mut z = 0.0;
         for (i, sv) in list.iter().enumerate() {
             let ctx = format!("surface {}", i + 1);
-            let s = sv.as_object().ok_or_else(|| EngineError::Lens(format!("{ctx}: must be an object")))?;
+            let s = sv
+                .as_object()
+                .ok_or_else(|| EngineError::Lens(format!("{ctx}: must be an object")))?;
             let radius = get_f64(s, "radius", &ctx)?;
             if let Some(r) = radius {
                 check_length(r, &ctx, "radius")?;
@@ -272,16 +296,23 @@ impl Lens {
             let curvature = match (radius, curv) {
                 (Some(_), Some(_)) => return lens_err(format!("{ctx}: give \"radius\" or \"curvature\", not both")),
                 (Some(r), None) if r.is_infinite() => 0.0,
-                (Some(r), None) if r == 0.0 => return lens_err(format!("{ctx}: \"radius\" 0 is not a surface (use \"inf\" for a plane)")),
+                (Some(0.0), None) => {
+                    return lens_err(format!(
+                        "{ctx}: \"radius\" 0 is not a surface (use \"inf\" for a plane)"
+                    ))
+                }
                 (Some(r), None) => 1.0 / r,
                 (None, Some(c)) if c.is_finite() => c,
                 (None, Some(_)) => return lens_err(format!("{ctx}: \"curvature\" must be finite")),
                 (None, None) => 0.0,
             };
-            let thickness = get_f64(s, "thickness", &ctx)?.ok_or_else(|| EngineError::Lens(format!("{ctx}: missing \"thickness\"")))?;
+            let thickness = get_f64(s, "thickness", &ctx)?
+                .ok_or_else(|| EngineError::Lens(format!("{ctx}: missing \"thickness\"")))?;
             check_length(thickness, &ctx, "thickness")?;
             if !thickness.is_finite() {
-                return lens_err(format!("{ctx}: \"thickness\" must be finite (the object distance is \"object_distance\")"));
+                return lens_err(format!(
+                    "{ctx}: \"thickness\" must be finite (the object distance is \"object_distance\")"
+                ));
             }
             let conic = get_f64(s, "conic", &ctx)?.unwrap_or(0.0);
             if !conic.is_finite() {
@@ -295,17 +326,26 @@ impl Lens {
                     for (k, v) in a {
                         let order: Option<usize> = k.strip_prefix('a').and_then(|o| o.parse().ok());
                         let slot = match order {
-                            Some(o) if o >= 2 && o <= 2 * MAX_ASPHERE_TERMS && o % 2 == 0 => &mut aspheric[o / 2 - 1],
+                            Some(o) if (2..=2 * MAX_ASPHERE_TERMS).contains(&o) && o % 2 == 0 => {
+                                &mut aspheric[o / 2 - 1]
+                            }
                             Some(o) if o % 2 == 1 && o < 2 * ODD_TERMS => &mut odd[o / 2],
-                            _ => return lens_err(format!("{ctx}: aspheric term \"{k}\" unknown (use a1, a2, ..., a7, a8, a10, ..., a20)")),
+                            _ => {
+                                return lens_err(format!(
+                                    "{ctx}: aspheric term \"{k}\" unknown (use a1, a2, ..., a7, a8, a10, ..., a20)"
+                                ))
+                            }
                         };
-                        *slot = v
-                            .as_f64()
-                            .filter(|x| x.is_finite())
-                            .ok_or_else(|| EngineError::Lens(format!("{ctx}: aspheric \"{k}\" must be a finite number")))?;
+                        *slot = v.as_f64().filter(|x| x.is_finite()).ok_or_else(|| {
+                            EngineError::Lens(format!("{ctx}: aspheric \"{k}\" must be a finite number"))
+                        })?;
                     }
                 }
-                Some(v) => return lens_err(format!("{ctx}: \"aspheric\" must be an object like {{\"a4\": 1e-5}}, got {v}")),
+                Some(v) => {
+                    return lens_err(format!(
+                        "{ctx}: \"aspheric\" must be an object like {{\"a4\": 1e-5}}, got {v}"
+                    ))
+                }
             }
             let semi_diameter = get_f64(s, "semi_diameter", &ctx)?;
             if let Some(sd) = semi_diameter {
@@ -318,7 +358,9 @@ impl Lens {
                 // A clear aperture beyond where the conic surface exists cannot be made.
                 let arg = 1.0 - (1.0 + conic) * curvature * curvature * sd * sd;
                 if arg < -crate::surface::RIM_TOLERANCE {
-                    return lens_err(format!("{ctx}: \"semi_diameter\" {sd} exceeds the surface's extent (the conic sag is undefined there)"));
+                    return lens_err(format!(
+                        "{ctx}: \"semi_diameter\" {sd} exceeds the surface's extent (the conic sag is undefined there)"
+                    ));
                 }
             }
             if s.get("stop").and_then(Value::as_bool).unwrap_or(false) {
@@ -329,13 +371,31 @@ impl Lens {
             }
             media.push(parse_material(s.get("material"), &ctx)?);
             let name = s.get("name").and_then(Value::as_str).unwrap_or("").to_string();
-            surfaces.push(Surface { curvature, conic, aspheric, odd, thickness, z, semi_diameter, name });
+            surfaces.push(Surface {
+                curvature,
+                conic,
+                aspheric,
+                odd,
+                thickness,
+                z,
+                semi_diameter,
+                name,
+            });
             z += thickness;
         }
         let stop = stop.ok_or_else(|| EngineError::Lens("no surface has \"stop\": true".into()))?;
         let image = root.get("image").and_then(Value::as_object);
-        let image_semi_diameter = image.map(|o| get_f64(o, "semi_diameter", "image")).transpose()?.flatten();
-        for (key, v) in [("semi_diameter", image_semi_diameter), ("radius", image.map(|o| get_f64(o, "radius", "image")).transpose()?.flatten())] {
+        let image_semi_diameter = image
+            .map(|o| get_f64(o, "semi_diameter", "image"))
+            .transpose()?
+            .flatten();
+        for (key, v) in [
+            ("semi_diameter", image_semi_diameter),
+            (
+                "radius",
+                image.map(|o| get_f64(o, "radius", "image")).transpose()?.flatten(),
+            ),
+        ] {
             if let Some(v) = v {
                 check_length(v, "image", key)?;
             }
@@ -348,15 +408,32 @@ impl Lens {
         let image_curvature = match image.map(|o| get_f64(o, "radius", "image")).transpose()?.flatten() {
             None => 0.0,
             Some(r) if r.is_infinite() => 0.0,
-            Some(r) if r == 0.0 => return lens_err("image: \"radius\" 0 is not a surface (use \"inf\" for a flat image)".into()),
+            Some(0.0) => return lens_err("image: \"radius\" 0 is not a surface (use \"inf\" for a flat image)".into()),
             Some(r) => 1.0 / r,
         };
         if let Some(sd) = image_semi_diameter {
             if image_curvature * image_curvature * sd * sd >= 1.0 {
-                return lens_err(format!("image: \"semi_diameter\" {sd} exceeds the curved image surface (radius {})", 1.0 / image_curvature));
+                return lens_err(format!(
+                    "image: \"semi_diameter\" {sd} exceeds the curved image surface (radius {})",
+                    1.0 / image_curvature
+                ));
             }
         }
-        let lens = Lens { name, surfaces, media, stop, aperture, fields_deg, wavelengths_nm, weights, primary_nm, image_z: z, image_semi_diameter, image_curvature, object_distance };
+        let lens = Lens {
+            name,
+            surfaces,
+            media,
+            stop,
+            aperture,
+            fields_deg,
+            wavelengths_nm,
+            weights,
+            primary_nm,
+            image_z: z,
+            image_semi_diameter,
+            image_curvature,
+            object_distance,
+        };
         lens.check_geometry()?;
         Ok(lens)
     }
@@ -372,7 +449,9 @@ impl Lens {
                 radii.extend([0.5 * r, r]);
             }
             for r in radii {
-                let (Some(sa), Some(sb)) = (crate::surface::sag(a, r * r), crate::surface::sag(b, r * r)) else { continue };
+                let (Some(sa), Some(sb)) = (crate::surface::sag(a, r * r), crate::surface::sag(b, r * r)) else {
+                    continue;
+                };
                 let gap = a.thickness + sb - sa;
                 if gap < -1e-9 {
                     return lens_err(format!(
@@ -394,7 +473,9 @@ impl Lens {
             .enumerate()
             .map(|(i, m)| {
                 m.index(wl_nm * 1e-3).map_err(|e| match e {
-                    EngineError::Material(msg) if i > 0 => EngineError::Material(format!("surface {} (medium after it): {msg}", i)),
+                    EngineError::Material(msg) if i > 0 => {
+                        EngineError::Material(format!("surface {} (medium after it): {msg}", i))
+                    }
                     other => other,
                 })
             })

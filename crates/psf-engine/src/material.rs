@@ -14,11 +14,23 @@ pub enum Material {
     Air,
     Constant(f64),
     /// Model glass: two-term Cauchy n = A + B / lambda^2 through nd with nF - nC = (nd-1)/Vd.
-    Model { nd: f64, vd: f64 },
+    Model {
+        nd: f64,
+        vd: f64,
+    },
     /// refractiveindex.info formula `kind` (1-9) with its coefficient list.
-    Formula { kind: u8, coefficients: Vec<f64>, range_um: Option<(f64, f64)>, name: String },
+    Formula {
+        kind: u8,
+        coefficients: Vec<f64>,
+        range_um: Option<(f64, f64)>,
+        name: String,
+    },
     /// Tabulated n, linearly interpolated (wavelengths ascending, micrometres).
-    Tabulated { wavelength_um: Vec<f64>, n: Vec<f64>, name: String },
+    Tabulated {
+        wavelength_um: Vec<f64>,
+        n: Vec<f64>,
+        name: String,
+    },
 }
 
 impl Material {
@@ -51,9 +63,16 @@ impl Material {
                     Ok(())
                 }
             }
-            Material::Formula { kind, coefficients, range_um, .. } => {
+            Material::Formula {
+                kind,
+                coefficients,
+                range_um,
+                ..
+            } => {
                 if !(1..=9).contains(kind) {
-                    return Err(format!("dispersion formula {kind} is not one of refractiveindex.info's 1-9"));
+                    return Err(format!(
+                        "dispersion formula {kind} is not one of refractiveindex.info's 1-9"
+                    ));
                 }
                 if coefficients.is_empty() || coefficients.iter().any(|c| !c.is_finite()) {
                     return Err("dispersion coefficients must be a non-empty list of finite numbers".into());
@@ -94,7 +113,12 @@ impl Material {
                 let a = nd - b / (LAMBDA_D * LAMBDA_D);
                 a + b / (wl_um * wl_um)
             }
-            Material::Formula { kind, coefficients, range_um, .. } => {
+            Material::Formula {
+                kind,
+                coefficients,
+                range_um,
+                ..
+            } => {
                 if let Some((lo, hi)) = range_um {
                     if let Some(m) = out_of_range(wl_um, *lo, *hi, "the formula's valid range") {
                         return bad(m);
@@ -108,7 +132,9 @@ impl Material {
                     return bad(m);
                 }
                 // Inside the table: linear interpolation; just past an end: the end segment extended.
-                let i = wavelength_um.partition_point(|&w| w < wl_um).clamp(1, wavelength_um.len() - 1);
+                let i = wavelength_um
+                    .partition_point(|&w| w < wl_um)
+                    .clamp(1, wavelength_um.len() - 1);
                 let t = (wl_um - wavelength_um[i - 1]) / (wavelength_um[i] - wavelength_um[i - 1]);
                 n[i - 1] + t * (n[i] - n[i - 1])
             }
@@ -145,7 +171,11 @@ fn c(cs: &[f64], i: usize) -> f64 {
 
 /// sum of C_i l^C_{i+1} over coefficient pairs starting at index `from`.
 fn power_terms(cs: &[f64], from: usize, l: f64) -> f64 {
-    cs.get(from..).unwrap_or(&[]).chunks(2).map(|p| p[0] * l.powf(p.get(1).copied().unwrap_or(0.0))).sum()
+    cs.get(from..)
+        .unwrap_or(&[])
+        .chunks(2)
+        .map(|p| p[0] * l.powf(p.get(1).copied().unwrap_or(0.0)))
+        .sum()
 }
 
 /// The refractiveindex.info dispersion formulas (database documentation, "formula 1".."9").
@@ -209,7 +239,8 @@ fn formula(kind: u8, cs: &[f64], l: f64) -> f64 {
         }
         // 9: exotic, n^2 = C1 + C2/(l^2-C3) + C4 (l-C5)/((l-C5)^2 + C6)
         9 => {
-            let s = c(cs, 0) + c(cs, 1) / (l2 - c(cs, 2)) + c(cs, 3) * (l - c(cs, 4)) / ((l - c(cs, 4)).powi(2) + c(cs, 5));
+            let s =
+                c(cs, 0) + c(cs, 1) / (l2 - c(cs, 2)) + c(cs, 3) * (l - c(cs, 4)) / ((l - c(cs, 4)).powi(2) + c(cs, 5));
             s.sqrt()
         }
         _ => f64::NAN,
@@ -232,7 +263,12 @@ mod tests {
 
     #[test]
     fn out_of_range_wavelength_is_an_error_naming_the_glass() {
-        let m = Material::Formula { kind: 2, coefficients: vec![0.0, 1.0, 0.01], range_um: Some((0.4, 0.7)), name: "X1".into() };
+        let m = Material::Formula {
+            kind: 2,
+            coefficients: vec![0.0, 1.0, 0.01],
+            range_um: Some((0.4, 0.7)),
+            name: "X1".into(),
+        };
         let e = m.index(0.9).unwrap_err().to_string();
         assert!(e.contains("X1") && e.contains("900.0 nm"), "{e}");
     }
@@ -240,19 +276,32 @@ mod tests {
     #[test]
     fn data_is_extrapolated_up_to_a_tenth_of_its_span_past_either_end() {
         // Table 3-14 um (span 11): 2.5 um is 0.5 past the end, inside the 1.1 allowed.
-        let t = Material::Tabulated { wavelength_um: vec![3.0, 4.0, 14.0], n: vec![2.5, 2.4, 2.3], name: "t".into() };
+        let t = Material::Tabulated {
+            wavelength_um: vec![3.0, 4.0, 14.0],
+            n: vec![2.5, 2.4, 2.3],
+            name: "t".into(),
+        };
         assert!((t.index(2.5).unwrap() - 2.55).abs() < 1e-12); // first segment extended
         assert!((t.index(15.0).unwrap() - 2.29).abs() < 1e-12); // last segment extended
         assert!(t.index(1.85).unwrap_err().to_string().contains("1900.0-15100.0 nm"));
         // Formula valid 0.4-0.7 um (span 0.3): evaluated to 0.37 and 0.73, an error beyond.
-        let f = Material::Formula { kind: 5, coefficients: vec![1.5, 0.01, -2.0], range_um: Some((0.4, 0.7)), name: "F".into() };
+        let f = Material::Formula {
+            kind: 5,
+            coefficients: vec![1.5, 0.01, -2.0],
+            range_um: Some((0.4, 0.7)),
+            name: "F".into(),
+        };
         assert!((f.index(0.372).unwrap() - (1.5 + 0.01 / (0.372 * 0.372))).abs() < 1e-12);
         assert!(f.index(0.728).is_ok() && f.index(0.365).is_err() && f.index(0.735).is_err());
     }
 
     #[test]
     fn tabulated_interpolates_linearly() {
-        let m = Material::Tabulated { wavelength_um: vec![0.5, 0.6], n: vec![1.5, 1.4], name: "t".into() };
+        let m = Material::Tabulated {
+            wavelength_um: vec![0.5, 0.6],
+            n: vec![1.5, 1.4],
+            name: "t".into(),
+        };
         assert!((m.index(0.55).unwrap() - 1.45).abs() < 1e-15);
     }
 }

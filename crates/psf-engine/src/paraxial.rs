@@ -64,7 +64,9 @@ pub fn paraxial(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
     // f-number and image height are infinite; the pupils and the real trace are as usual.
     let afocal = nua.abs() < 1e-15;
     if afocal && matches!(lens.aperture, Aperture::FNumber(_)) {
-        return Err(EngineError::Lens("afocal system (EFL infinite): an F-number aperture gives no pupil; give the EPD".into()));
+        return Err(EngineError::Lens(
+            "afocal system (EFL infinite): an F-number aperture gives no pupil; give the EPD".into(),
+        ));
     }
     let efl = if afocal { f64::INFINITY } else { -1.0 / nua };
     let ua = nua / nk;
@@ -82,7 +84,9 @@ pub fn paraxial(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
     let d_obj = lens.object_distance;
     let object_to_pupil = entrance_pupil_z + d_obj;
     if d_obj.is_finite() && object_to_pupil.abs() < 1e-9 {
-        return Err(EngineError::Lens("the entrance pupil lies in the object plane: no beam can be defined from an object point".into()));
+        return Err(EngineError::Lens(
+            "the entrance pupil lies in the object plane: no beam can be defined from an object point".into(),
+        ));
     }
     let epd = match lens.aperture {
         Aperture::Epd(d) => d,
@@ -118,7 +122,14 @@ pub fn paraxial(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
             (t, if lens.max_field_deg() == 0.0 { 0.0 } else { h })
         }
     } else {
-        (bfl, if lens.max_field_deg() == 0.0 { 0.0 } else { efl * lens.max_field_deg().to_radians().tan() })
+        (
+            bfl,
+            if lens.max_field_deg() == 0.0 {
+                0.0
+            } else {
+                efl * lens.max_field_deg().to_radians().tan()
+            },
+        )
     };
     Ok(Paraxial {
         wavelength_nm,
@@ -135,7 +146,11 @@ pub fn paraxial(lens: &Lens, wavelength_nm: f64) -> Result<Paraxial> {
         image_z,
         image_height,
         back_focus_shift: last_z + image_dist - image_z,
-        object_to_pupil: if d_obj.is_finite() { object_to_pupil } else { f64::INFINITY },
+        object_to_pupil: if d_obj.is_finite() {
+            object_to_pupil
+        } else {
+            f64::INFINITY
+        },
     })
 }
 
@@ -170,9 +185,15 @@ mod tests {
         let a2 = (a.sin() / 1.5).asin();
         let shift = 5.0 * a.sin() * (1.0 - a.cos() / (1.5 * a2.cos()));
         let straight = l.origin + ((25.0 - l.origin.z) / beam.dir.z) * beam.dir;
-        assert!(((straight.y - r.p.y) * a.cos() - shift).abs() < 1e-12, "{} vs {shift}", (straight.y - r.p.y) * a.cos());
+        assert!(
+            ((straight.y - r.p.y) * a.cos() - shift).abs() < 1e-12,
+            "{} vs {shift}",
+            (straight.y - r.p.y) * a.cos()
+        );
         // An F-number cannot size the pupil of an afocal system: one clear error.
-        let e = paraxial(&window(r#"{"type": "fno", "value": 4}"#), 587.5618).unwrap_err().to_string();
+        let e = paraxial(&window(r#"{"type": "fno", "value": 4}"#), 587.5618)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("afocal") && e.contains("EPD"), "{e}");
     }
 }

@@ -23,8 +23,15 @@ pub fn check_channels(ch: &Channels) -> Result<()> {
         return arg("channels: need at least one channel");
     }
     for (c, list) in ch.iter().enumerate() {
-        if list.is_empty() || list.iter().any(|(wl, w)| !(*wl > 0.0 && wl.is_finite() && *w >= 0.0 && w.is_finite())) || list.iter().map(|p| p.1).sum::<f64>() <= 0.0 {
-            return arg(format!("channel {c}: needs (wavelength_nm > 0, weight >= 0) pairs with a positive total weight"));
+        if list.is_empty()
+            || list
+                .iter()
+                .any(|(wl, w)| !(*wl > 0.0 && wl.is_finite() && *w >= 0.0 && w.is_finite()))
+            || list.iter().map(|p| p.1).sum::<f64>() <= 0.0
+        {
+            return arg(format!(
+                "channel {c}: needs (wavelength_nm > 0, weight >= 0) pairs with a positive total weight"
+            ));
         }
     }
     Ok(())
@@ -36,8 +43,27 @@ pub fn psf_rgb(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions)
     let mut data = vec![0.0; channels.len() * s * s];
     let mut ri = vec![0.0; channels.len()];
     let mut diags = vec![];
-    rgb_core(lens, field_deg, channels, o, None, &mut ri, |c, v, k| data[c * s * s..(c + 1) * s * s].iter_mut().zip(v).for_each(|(o, v)| *o = v * k), |d| diags.push(d))?;
-    Ok(RgbPsf { size: s, data, relative_illumination: ri, diagnostics: diags })
+    rgb_core(
+        lens,
+        field_deg,
+        channels,
+        o,
+        None,
+        &mut ri,
+        |c, v, k| {
+            data[c * s * s..(c + 1) * s * s]
+                .iter_mut()
+                .zip(v)
+                .for_each(|(o, v)| *o = v * k)
+        },
+        |d| diags.push(d),
+    )?;
+    Ok(RgbPsf {
+        size: s,
+        data,
+        relative_illumination: ri,
+        diagnostics: diags,
+    })
 }
 
 /// The channels of one field: `sink(c, psf, k)` receives channel c's PSF as `psf` times
@@ -46,7 +72,16 @@ pub fn psf_rgb(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions)
 /// flattened), where the caller has it. A relative illumination outside [0, RI_MAX] is an
 /// error: the design's field mapping folds or the design is broken.
 #[allow(clippy::too_many_arguments)]
-fn rgb_core(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions, axis: Option<&[Option<f64>]>, ri: &mut [f64], mut sink: impl FnMut(usize, &[f64], f64), mut diag: impl FnMut(Diagnostics)) -> Result<()> {
+fn rgb_core(
+    lens: &Lens,
+    field_deg: f64,
+    channels: &Channels,
+    o: &PsfOptions,
+    axis: Option<&[Option<f64>]>,
+    ri: &mut [f64],
+    mut sink: impl FnMut(usize, &[f64], f64),
+    mut diag: impl FnMut(Diagnostics),
+) -> Result<()> {
     let s = o.size;
     let mut acc = vec![];
     let mut k = 0;
@@ -62,7 +97,9 @@ fn rgb_core(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions, ax
             // Every channel sums to 1: a wavelength whose PSF holds no energy cannot be
             // normalized (nor silently left out of its channel's weights).
             if !(tot > 0.0) {
-                return Err(crate::error::EngineError::Psf(format!("no energy reaches the PSF window at {field_deg} deg, {wl} nm (channel {c})")));
+                return Err(crate::error::EngineError::Psf(format!(
+                    "no energy reaches the PSF window at {field_deg} deg, {wl} nm (channel {c})"
+                )));
             }
             if list.len() == 1 {
                 // A single wavelength: the PSF times 1 / its sum.
@@ -102,9 +139,14 @@ pub struct SensorBinning {
 impl SensorBinning {
     pub fn new(fine: usize, pitch_mm: f64, size: usize, sensor_pitch_mm: f64) -> Result<SensorBinning> {
         if !(1..=8192).contains(&size) {
-            return arg(format!("sensor binning: {size} sensor pixels across must be within 1..8192"));
+            return arg(format!(
+                "sensor binning: {size} sensor pixels across must be within 1..8192"
+            ));
         }
-        if !(pitch_mm > 0.0 && sensor_pitch_mm > 0.0 && pitch_mm.is_finite() && sensor_pitch_mm.is_finite()) || fine == 0 || size == 0 {
+        if !(pitch_mm > 0.0 && sensor_pitch_mm > 0.0 && pitch_mm.is_finite() && sensor_pitch_mm.is_finite())
+            || fine == 0
+            || size == 0
+        {
             return arg(format!("sensor binning: need positive pitches and sizes (fine {fine} x {pitch_mm} mm, sensor {size} x {sensor_pitch_mm} mm)"));
         }
         let taps = (0..size)
@@ -187,14 +229,33 @@ pub fn psf_batch(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &PsfOp
 /// What a batch allocates: the per-thread PSF work (`PsfOptions::memory` on each of
 /// `threads`), the outputs the engine allocates itself (`own_out`: the PSFs; `sensor`: the
 /// sensor PSFs' size, where the engine allocates them) and the per-PSF records.
-pub fn batch_memory(nd: usize, nf: usize, nc: usize, o: &PsfOptions, threads: usize, own_out: bool, sensor: Option<usize>) -> crate::budget::Need {
+pub fn batch_memory(
+    nd: usize,
+    nf: usize,
+    nc: usize,
+    o: &PsfOptions,
+    threads: usize,
+    own_out: bool,
+    sensor: Option<usize>,
+) -> crate::budget::Need {
     let rows = (nd * nf * nc) as f64;
-    let mut parts: Vec<(String, f64)> = o.memory().0.into_iter().map(|(n, b)| (format!("{n} x {threads} threads"), b * threads as f64)).collect();
+    let mut parts: Vec<(String, f64)> = o
+        .memory()
+        .0
+        .into_iter()
+        .map(|(n, b)| (format!("{n} x {threads} threads"), b * threads as f64))
+        .collect();
     if own_out {
-        parts.push((format!("PSFs {nd}x{nf}x{nc}x{s}x{s} float32", s = o.size), rows * (o.size * o.size) as f64 * 4.0));
+        parts.push((
+            format!("PSFs {nd}x{nf}x{nc}x{s}x{s} float32", s = o.size),
+            rows * (o.size * o.size) as f64 * 4.0,
+        ));
     }
     if let Some(m) = sensor {
-        parts.push((format!("sensor PSFs {nd}x{nf}x{nc}x{m}x{m} float32"), rows * (m * m) as f64 * 4.0));
+        parts.push((
+            format!("sensor PSFs {nd}x{nf}x{nc}x{m}x{m} float32"),
+            rows * (m * m) as f64 * 4.0,
+        ));
     }
     parts.push(("records".into(), rows * 64.0));
     crate::budget::Need(parts)
@@ -220,23 +281,40 @@ pub fn output_buffer(len: usize) -> Vec<f32> {
 /// no fresh memory to fault in and zero. The returned `Batch` has an empty `psf`.
 /// `sensor`: also the sensor-pixel version of every PSF (designs x fields x channels x
 /// m x m, m = the binning's size), binned from the double-precision PSF.
-pub fn psf_batch_into(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &PsfOptions, out: &mut [f32], sensor: Option<(&SensorBinning, &mut [f32])>) -> Result<Batch> {
+pub fn psf_batch_into(
+    lenses: &[Lens],
+    fields: &[f64],
+    channels: &Channels,
+    o: &PsfOptions,
+    out: &mut [f32],
+    sensor: Option<(&SensorBinning, &mut [f32])>,
+) -> Result<Batch> {
     check_channels(channels)?;
     o.check()?;
     let (nd, nf, nc, s) = (lenses.len(), fields.len(), channels.len(), o.size);
     let per = nc * s * s;
     if out.len() != nd * nf * per {
-        return arg(format!("psf_batch: output holds {} values, expected {nd} x {nf} x {nc} x {s} x {s}", out.len()));
+        return arg(format!(
+            "psf_batch: output holds {} values, expected {nd} x {nf} x {nc} x {s} x {s}",
+            out.len()
+        ));
     }
     let mut no_sensor = vec![0.0f32; nd * nf];
     let (bin, sensor_buf, sper) = match sensor {
         Some((b, buf)) => {
             if b.fine != s {
-                return arg(format!("psf_batch: sensor binning made for {}x{} PSFs, not {s}x{s}", b.fine, b.fine));
+                return arg(format!(
+                    "psf_batch: sensor binning made for {}x{} PSFs, not {s}x{s}",
+                    b.fine, b.fine
+                ));
             }
             let sper = nc * b.size * b.size;
             if buf.len() != nd * nf * sper {
-                return arg(format!("psf_batch: sensor output holds {} values, expected {nd} x {nf} x {nc} x {m} x {m}", buf.len(), m = b.size));
+                return arg(format!(
+                    "psf_batch: sensor output holds {} values, expected {nd} x {nf} x {nc} x {m} x {m}",
+                    buf.len(),
+                    m = b.size
+                ));
             }
             (Some(b), buf, sper)
         }
@@ -246,7 +324,14 @@ pub fn psf_batch_into(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &
     // Each design's on-axis irradiance per wavelength, shared by its fields (an error here
     // is left for the field's own computation to report).
     let wls: Vec<f64> = channels.iter().flatten().map(|p| p.0).collect();
-    let axis: Vec<Vec<Option<f64>>> = lenses.par_iter().map(|l| wls.iter().map(|&wl| irradiance_adaptive(l, 0.0, wl, o.aiming).ok().filter(|e| *e > 0.0)).collect()).collect();
+    let axis: Vec<Vec<Option<f64>>> = lenses
+        .par_iter()
+        .map(|l| {
+            wls.iter()
+                .map(|&wl| irradiance_adaptive(l, 0.0, wl, o.aiming).ok().filter(|e| *e > 0.0))
+                .collect()
+        })
+        .collect();
     let mut ri = vec![0.0; nd * nf * nc];
     let mut energy = vec![0.0; nd * nf * nc];
     // channel and weight of each wavelength, in the order rgb_core visits them
@@ -273,7 +358,10 @@ pub fn psf_batch_into(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &
             let mut warnings = vec![];
             let mut k = 0;
             let sink = |c: usize, v: &[f64], k: f64| {
-                out[c * s * s..(c + 1) * s * s].iter_mut().zip(v).for_each(|(o, v)| *o = (v * k) as f32);
+                out[c * s * s..(c + 1) * s * s]
+                    .iter_mut()
+                    .zip(v)
+                    .for_each(|(o, v)| *o = (v * k) as f32);
                 if let Some(b) = bin {
                     let ss = b.size * b.size;
                     b.apply(v, k, &mut sout[c * ss..(c + 1) * ss]);
@@ -283,7 +371,11 @@ pub fn psf_batch_into(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &
                 let (c, wl, w) = visits[k];
                 used[k] = method_used(&dg);
                 k += 1;
-                en[c] += w * dg.values.get("energy_in_window").and_then(|v| v.as_f64()).unwrap_or(0.0);
+                en[c] += w * dg
+                    .values
+                    .get("energy_in_window")
+                    .and_then(|v| v.as_f64())
+                    .unwrap_or(0.0);
                 warnings.extend(dg.warnings.iter().map(|m| format!("field {f} deg, {wl} nm: {m}")));
             })
             .err()
@@ -303,5 +395,12 @@ pub fn psf_batch_into(lenses: &[Lens], fields: &[f64], channels: &Channels, o: &
     zero_failed(sensor_buf, &errors);
     zero_failed(&mut ri, &errors);
     zero_failed(&mut energy, &errors);
-    Ok(Batch { psf: vec![], relative_illumination: ri, energy_in_window: energy, warnings, errors, methods })
+    Ok(Batch {
+        psf: vec![],
+        relative_illumination: ri,
+        energy_in_window: energy,
+        warnings,
+        errors,
+        methods,
+    })
 }

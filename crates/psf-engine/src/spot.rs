@@ -41,7 +41,10 @@ pub struct Spot {
 /// its traced state and its kept image point (about 160 bytes); 6 rings^2 rays each.
 pub fn spot_memory(rings: usize, n_wavelengths: usize) -> crate::budget::Need {
     let rays = 6.0 * (rings as f64).powi(2);
-    crate::budget::Need(vec![(format!("{rays:.3e} rays x {n_wavelengths} wavelengths"), rays * n_wavelengths as f64 * 160.0)])
+    crate::budget::Need(vec![(
+        format!("{rays:.3e} rays x {n_wavelengths} wavelengths"),
+        rays * n_wavelengths as f64 * 160.0,
+    )])
 }
 
 pub fn trace_spot(lens: &Lens, field_deg: f64, wavelength_nm: f64, rings: usize, aiming: Aiming) -> Result<Spot> {
@@ -52,7 +55,12 @@ pub fn trace_spot(lens: &Lens, field_deg: f64, wavelength_nm: f64, rings: usize,
     let chief = sys.trace(c.origin, c.dir, End::Image);
     let (px, py) = polar_grid(rings);
     let (launches, rays) = beam.trace_pupil(&px, &py);
-    let mut s = Spot { chief_x: chief.p.x, chief_y: chief.p.y, launched: px.len(), ..Default::default() };
+    let mut s = Spot {
+        chief_x: chief.p.x,
+        chief_y: chief.p.y,
+        launched: px.len(),
+        ..Default::default()
+    };
     let cell = std::f64::consts::PI / px.len() as f64;
     for (l, r) in launches.iter().zip(&rays) {
         if r.ok() {
@@ -64,7 +72,9 @@ pub fn trace_spot(lens: &Lens, field_deg: f64, wavelength_nm: f64, rings: usize,
         }
     }
     if !chief.ok() && s.w.is_empty() {
-        return Err(EngineError::Trace(format!("no ray reaches the image at {field_deg} deg, {wavelength_nm} nm")));
+        return Err(EngineError::Trace(format!(
+            "no ray reaches the image at {field_deg} deg, {wavelength_nm} nm"
+        )));
     }
     Ok(s)
 }
@@ -110,8 +120,18 @@ const RI_STEP: f64 = 1e-5;
 /// lies along +y in a rotationally symmetric lens, so the integrand is even in x: only the
 /// x > 0 half is kept, at twice the weight (the 12 angles pair up as a and pi - a).
 pub fn gauss_pupil() -> (Vec<f64>, Vec<f64>, Vec<f64>) {
-    const X: [f64; 4] = [-0.861_136_311_594_052_6, -0.339_981_043_584_856_3, 0.339_981_043_584_856_3, 0.861_136_311_594_052_6];
-    const W: [f64; 4] = [0.347_854_845_137_453_9, 0.652_145_154_862_546_1, 0.652_145_154_862_546_1, 0.347_854_845_137_453_9];
+    const X: [f64; 4] = [
+        -0.861_136_311_594_052_6,
+        -0.339_981_043_584_856_3,
+        0.339_981_043_584_856_3,
+        0.861_136_311_594_052_6,
+    ];
+    const W: [f64; 4] = [
+        0.347_854_845_137_453_9,
+        0.652_145_154_862_546_1,
+        0.652_145_154_862_546_1,
+        0.347_854_845_137_453_9,
+    ];
     const N_ANGLES: usize = 12;
     let (mut px, mut py, mut pw) = (vec![], vec![], vec![]);
     for (x, w) in X.iter().zip(W) {
@@ -151,7 +171,13 @@ pub enum PupilGrid {
 /// one that lands on P (it differs by the blur over the focal length, so defocus and the
 /// vignetting edge seen from P are taken into account), and that ray decides whether q
 /// transmits. Valid at any image-plane position: no paraxial quantity enters.
-pub fn irradiance(lens: &Lens, field_deg: f64, wavelength_nm: f64, grid: PupilGrid, aiming: Aiming) -> Result<(f64, bool)> {
+pub fn irradiance(
+    lens: &Lens,
+    field_deg: f64,
+    wavelength_nm: f64,
+    grid: PupilGrid,
+    aiming: Aiming,
+) -> Result<(f64, bool)> {
     let flat = crate::image::flat_at_field(lens, field_deg, aiming)?;
     let lens: &Lens = &flat;
     let sys = System::new(lens, wavelength_nm)?;
@@ -165,14 +191,26 @@ pub fn irradiance(lens: &Lens, field_deg: f64, wavelength_nm: f64, grid: PupilGr
             // the weight, the points on x = 0 once
             let (x, y) = polar_grid(r);
             let cell = std::f64::consts::PI / x.len() as f64;
-            let keep: Vec<(f64, f64, f64)> = x.iter().zip(&y).filter(|(x, _)| **x > -1e-12).map(|(&x, &y)| (x, y, if x > 1e-12 { 2.0 * cell } else { cell })).collect();
-            (keep.iter().map(|p| p.0).collect(), keep.iter().map(|p| p.1).collect(), keep.iter().map(|p| p.2).collect())
+            let keep: Vec<(f64, f64, f64)> = x
+                .iter()
+                .zip(&y)
+                .filter(|(x, _)| **x > -1e-12)
+                .map(|(&x, &y)| (x, y, if x > 1e-12 { 2.0 * cell } else { cell }))
+                .collect();
+            (
+                keep.iter().map(|p| p.0).collect(),
+                keep.iter().map(|p| p.1).collect(),
+                keep.iter().map(|p| p.2).collect(),
+            )
         }
     };
     let mut all_pass = true;
     if let PupilGrid::Clear = grid {
         // the rim's x >= 0 half (the other is its mirror image): 19 rays, 10 deg apart
-        let rim: (Vec<f64>, Vec<f64>) = (0..=18).map(|q| (std::f64::consts::PI * (q as f64 / 18.0 - 0.5)).sin_cos()).map(|(s, c)| (c, s)).unzip();
+        let rim: (Vec<f64>, Vec<f64>) = (0..=18)
+            .map(|q| (std::f64::consts::PI * (q as f64 / 18.0 - 0.5)).sin_cos())
+            .map(|(s, c)| (c, s))
+            .unzip();
         let (rl, rr) = beam.trace_pupil(&rim.0, &rim.1);
         all_pass = rl.iter().zip(&rr).all(|(l, r)| l.ok && r.ok());
     }
@@ -182,8 +220,20 @@ pub fn irradiance(lens: &Lens, field_deg: f64, wavelength_nm: f64, grid: PupilGr
     // directions about each launch's own (one direction from infinity; from a finite
     // object a uniform Lambertian object plane sends the same radiance along every ray,
     // so the same etendue sum holds)
-    let dir = |d0: DVec3, dl: f64, dm: f64| DVec3::new(d0.x + dl, d0.y + dm, (1.0 - (d0.x + dl).powi(2) - (d0.y + dm).powi(2)).max(0.0).sqrt());
-    let steps = [(0.0, 0.0), (RI_STEP, 0.0), (-RI_STEP, 0.0), (0.0, RI_STEP), (0.0, -RI_STEP)];
+    let dir = |d0: DVec3, dl: f64, dm: f64| {
+        DVec3::new(
+            d0.x + dl,
+            d0.y + dm,
+            (1.0 - (d0.x + dl).powi(2) - (d0.y + dm).powi(2)).max(0.0).sqrt(),
+        )
+    };
+    let steps = [
+        (0.0, 0.0),
+        (RI_STEP, 0.0),
+        (-RI_STEP, 0.0),
+        (0.0, RI_STEP),
+        (0.0, -RI_STEP),
+    ];
     let (mut origins, mut dirs) = (Vec::with_capacity(5 * px.len()), Vec::with_capacity(5 * px.len()));
     for l in &launches {
         for &(a, b) in &steps {
@@ -203,8 +253,14 @@ pub fn irradiance(lens: &Lens, field_deg: f64, wavelength_nm: f64, grid: PupilGr
             continue;
         }
         let j = [
-            [(g[1].p.x - g[2].p.x) / (2.0 * RI_STEP), (g[3].p.x - g[4].p.x) / (2.0 * RI_STEP)],
-            [(g[1].p.y - g[2].p.y) / (2.0 * RI_STEP), (g[3].p.y - g[4].p.y) / (2.0 * RI_STEP)],
+            [
+                (g[1].p.x - g[2].p.x) / (2.0 * RI_STEP),
+                (g[3].p.x - g[4].p.x) / (2.0 * RI_STEP),
+            ],
+            [
+                (g[1].p.y - g[2].p.y) / (2.0 * RI_STEP),
+                (g[3].p.y - g[4].p.y) / (2.0 * RI_STEP),
+            ],
         ];
         let det = j[0][0] * j[1][1] - j[0][1] * j[1][0];
         if !(det.abs() > 1e-300) {
@@ -214,7 +270,10 @@ pub fn irradiance(lens: &Lens, field_deg: f64, wavelength_nm: f64, grid: PupilGr
         let (dl, dm) = match target {
             Some(t) => {
                 let r = DVec2::new(t.x - g[0].p.x, t.y - g[0].p.y);
-                ((j[1][1] * r.x - j[0][1] * r.y) / det, (-j[1][0] * r.x + j[0][0] * r.y) / det)
+                (
+                    (j[1][1] * r.x - j[0][1] * r.y) / det,
+                    (-j[1][0] * r.x + j[0][0] * r.y) / det,
+                )
             }
             None => (0.0, 0.0),
         };
@@ -249,16 +308,27 @@ pub fn irradiance_adaptive(lens: &Lens, field_deg: f64, wavelength_nm: f64, aimi
 /// point over the same on the axis): the flux through the real pupil per unit image area,
 /// so the cos^4 law, distortion, pupil aberration, vignetting and defocus all come out of
 /// the trace. `axis`: the on-axis irradiance where the caller has it.
-pub fn relative_illumination_from(lens: &Lens, field_deg: f64, wavelength_nm: f64, aiming: Aiming, axis: Option<f64>) -> Result<f64> {
+pub fn relative_illumination_from(
+    lens: &Lens,
+    field_deg: f64,
+    wavelength_nm: f64,
+    aiming: Aiming,
+    axis: Option<f64>,
+) -> Result<f64> {
     if afocal(lens)? {
-        return Err(EngineError::Trace("relative illumination is not defined for an afocal system: it forms no image of an object at infinity".into()));
+        return Err(EngineError::Trace(
+            "relative illumination is not defined for an afocal system: it forms no image of an object at infinity"
+                .into(),
+        ));
     }
     let e0 = match axis {
         Some(e) => e,
         None => irradiance_adaptive(lens, 0.0, wavelength_nm, aiming)?,
     };
     if !(e0 > 0.0) {
-        return Err(EngineError::Trace(format!("no on-axis ray reaches the image at {wavelength_nm} nm")));
+        return Err(EngineError::Trace(format!(
+            "no on-axis ray reaches the image at {wavelength_nm} nm"
+        )));
     }
     if field_deg == 0.0 {
         return Ok(1.0);
@@ -273,25 +343,50 @@ pub fn afocal(lens: &Lens) -> Result<bool> {
 
 /// Relative illumination at one field and wavelength (see `relative_illumination_from`);
 /// `rings` sets the pupil grid (the adaptive choice where 0).
-pub fn relative_illumination(lens: &Lens, field_deg: f64, wavelength_nm: f64, rings: usize, aiming: Aiming) -> Result<f64> {
+pub fn relative_illumination(
+    lens: &Lens,
+    field_deg: f64,
+    wavelength_nm: f64,
+    rings: usize,
+    aiming: Aiming,
+) -> Result<f64> {
     if rings == 0 {
         return relative_illumination_from(lens, field_deg, wavelength_nm, aiming, None);
     }
     let e0 = irradiance(lens, 0.0, wavelength_nm, PupilGrid::Rings(rings), aiming)?.0;
     if !(e0 > 0.0) {
-        return Err(EngineError::Trace(format!("no on-axis ray reaches the image at {wavelength_nm} nm")));
+        return Err(EngineError::Trace(format!(
+            "no on-axis ray reaches the image at {wavelength_nm} nm"
+        )));
     }
     Ok(irradiance(lens, field_deg, wavelength_nm, PupilGrid::Rings(rings), aiming)?.0 / e0)
 }
 
 /// Polychromatic spot summary for one field: RMS radius about the common centroid,
 /// per-wavelength RMS, vignetting and relative illumination (wavelength-weighted).
-pub fn spot_summary(lens: &Lens, field_deg: f64, wavelengths_nm: &[f64], weights: &[f64], rings: usize, aiming: Aiming) -> Result<serde_json::Value> {
-    spot_memory(rings, wavelengths_nm.len()).check(&format!("a {rings}-ring spot at {} wavelengths", wavelengths_nm.len()))?;
-    let spots = wavelengths_nm.iter().map(|&wl| trace_spot(lens, field_deg, wl, rings, aiming)).collect::<Result<Vec<_>>>()?;
-    let pairs: Vec<(&Spot, f64)> = spots.iter().zip(weights.iter().copied()).filter(|(s, _)| s.flux > 0.0).collect();
+pub fn spot_summary(
+    lens: &Lens,
+    field_deg: f64,
+    wavelengths_nm: &[f64],
+    weights: &[f64],
+    rings: usize,
+    aiming: Aiming,
+) -> Result<serde_json::Value> {
+    spot_memory(rings, wavelengths_nm.len())
+        .check(&format!("a {rings}-ring spot at {} wavelengths", wavelengths_nm.len()))?;
+    let spots = wavelengths_nm
+        .iter()
+        .map(|&wl| trace_spot(lens, field_deg, wl, rings, aiming))
+        .collect::<Result<Vec<_>>>()?;
+    let pairs: Vec<(&Spot, f64)> = spots
+        .iter()
+        .zip(weights.iter().copied())
+        .filter(|(s, _)| s.flux > 0.0)
+        .collect();
     if pairs.is_empty() {
-        return Err(EngineError::Trace(format!("no ray reaches the image at {field_deg} deg")));
+        return Err(EngineError::Trace(format!(
+            "no ray reaches the image at {field_deg} deg"
+        )));
     }
     let wsum: f64 = weights.iter().sum();
     let mut vig = 0.0;
@@ -300,15 +395,30 @@ pub fn spot_summary(lens: &Lens, field_deg: f64, wavelengths_nm: &[f64], weights
     let no_image = afocal(lens)?;
     let mut per = vec![];
     for ((s, &w), &wl) in spots.iter().zip(weights).zip(wavelengths_nm) {
-        per.push(if s.flux > 0.0 { rms_radius(&[(s, 1.0)]) * 1e3 } else { f64::NAN });
+        per.push(if s.flux > 0.0 {
+            rms_radius(&[(s, 1.0)]) * 1e3
+        } else {
+            f64::NAN
+        });
         vig += w / wsum * s.x.len() as f64 / s.launched as f64;
         if !no_image {
             ri += w / wsum * relative_illumination(lens, field_deg, wl, 0, aiming)?;
         }
     }
-    let (n_ok, n_rays): (usize, usize) = (spots.iter().map(|s| s.x.len()).sum(), spots.iter().map(|s| s.launched).sum());
-    let cx: f64 = pairs.iter().map(|(s, w)| w * s.x.iter().zip(&s.w).map(|(x, q)| x * q).sum::<f64>() / s.flux).sum::<f64>() / pairs.iter().map(|p| p.1).sum::<f64>();
-    let cy: f64 = pairs.iter().map(|(s, w)| w * s.y.iter().zip(&s.w).map(|(y, q)| y * q).sum::<f64>() / s.flux).sum::<f64>() / pairs.iter().map(|p| p.1).sum::<f64>();
+    let (n_ok, n_rays): (usize, usize) = (
+        spots.iter().map(|s| s.x.len()).sum(),
+        spots.iter().map(|s| s.launched).sum(),
+    );
+    let cx: f64 = pairs
+        .iter()
+        .map(|(s, w)| w * s.x.iter().zip(&s.w).map(|(x, q)| x * q).sum::<f64>() / s.flux)
+        .sum::<f64>()
+        / pairs.iter().map(|p| p.1).sum::<f64>();
+    let cy: f64 = pairs
+        .iter()
+        .map(|(s, w)| w * s.y.iter().zip(&s.w).map(|(y, q)| y * q).sum::<f64>() / s.flux)
+        .sum::<f64>()
+        / pairs.iter().map(|p| p.1).sum::<f64>();
     let primary = spots.get(wavelengths_nm.len() / 2).unwrap_or(&spots[0]);
     Ok(serde_json::json!({
         "field_deg": field_deg,

@@ -63,7 +63,15 @@ pub fn intersect(s: &Surface, p: DVec3, d: DVec3) -> Option<(f64, DVec3)> {
     }
     // Newton on F(t) = z(t) - sag(rho(t)) from the conic's root (the lane code, one lane).
     let mut h = AsphereHits::<1>::default();
-    asphere_lanes(s, s.asphere_terms(), &[[p.x], [p.y], [p.z]], &[[d.x], [d.y], [d.z]], &[t0], &[true], &mut h);
+    asphere_lanes(
+        s,
+        s.asphere_terms(),
+        &[[p.x], [p.y], [p.z]],
+        &[[d.x], [d.y], [d.z]],
+        &[t0],
+        &[true],
+        &mut h,
+    );
     h.hit[0].then(|| (h.t[0], DVec3::new(h.nx[0], h.ny[0], h.nz[0])))
 }
 
@@ -149,7 +157,13 @@ pub(crate) struct AsphereHits<const N: usize> {
 
 impl<const N: usize> Default for AsphereHits<N> {
     fn default() -> Self {
-        AsphereHits { t: [0.0; N], nx: [0.0; N], ny: [0.0; N], nz: [1.0; N], hit: [false; N] }
+        AsphereHits {
+            t: [0.0; N],
+            nx: [0.0; N],
+            ny: [0.0; N],
+            nz: [1.0; N],
+            hit: [false; N],
+        }
     }
 }
 
@@ -161,7 +175,15 @@ impl<const N: usize> Default for AsphereHits<N> {
 /// already, padding) are skipped. `nterms`: aspheric terms up to the last nonzero one.
 #[inline(always)]
 #[allow(clippy::needless_range_loop)]
-pub(crate) fn asphere_lanes<const N: usize>(s: &Surface, nterms: usize, p: &[[f64; N]; 3], d: &[[f64; N]; 3], t0: &[f64; N], active: &[bool; N], out: &mut AsphereHits<N>) {
+pub(crate) fn asphere_lanes<const N: usize>(
+    s: &Surface,
+    nterms: usize,
+    p: &[[f64; N]; 3],
+    d: &[[f64; N]; 3],
+    t0: &[f64; N],
+    active: &[bool; N],
+    out: &mut AsphereHits<N>,
+) {
     let (c, kk, a) = (s.curvature, 1.0 + s.conic, &s.aspheric[..nterms]);
     let (odd, has_odd) = (&s.odd, s.has_odd());
     // sag and slope, with the odd terms where the surface has any
@@ -243,12 +265,26 @@ mod tests {
     fn surf(c: f64, k: f64, a4: f64) -> Surface {
         let mut aspheric = [0.0; crate::lens::MAX_ASPHERE_TERMS];
         aspheric[1] = a4;
-        Surface { curvature: c, conic: k, aspheric, odd: [0.0; crate::lens::ODD_TERMS], thickness: 1.0, z: 0.0, semi_diameter: None, name: String::new() }
+        Surface {
+            curvature: c,
+            conic: k,
+            aspheric,
+            odd: [0.0; crate::lens::ODD_TERMS],
+            thickness: 1.0,
+            z: 0.0,
+            semi_diameter: None,
+            name: String::new(),
+        }
     }
 
     #[test]
     fn hit_lies_on_the_surface() {
-        for s in [surf(0.05, 0.0, 0.0), surf(-0.03, -0.7, 0.0), surf(0.04, 0.3, 2e-5), surf(0.0, 0.0, 1e-4)] {
+        for s in [
+            surf(0.05, 0.0, 0.0),
+            surf(-0.03, -0.7, 0.0),
+            surf(0.04, 0.3, 2e-5),
+            surf(0.0, 0.0, 1e-4),
+        ] {
             let p = DVec3::new(1.0, -2.0, -5.0);
             let d = DVec3::new(0.05, 0.2, 1.0).normalize();
             let (t, n) = intersect(&s, p, d).unwrap();
@@ -257,7 +293,9 @@ mod tests {
             assert!((h.z - z).abs() < 1e-12, "{} vs {}", h.z, z);
             // Normal is perpendicular to the surface: compare with a finite-difference tangent.
             let e = 1e-6;
-            let zx = (sag(&s, (h.x + e).powi(2) + h.y * h.y).unwrap() - sag(&s, (h.x - e).powi(2) + h.y * h.y).unwrap()) / (2.0 * e);
+            let zx = (sag(&s, (h.x + e).powi(2) + h.y * h.y).unwrap()
+                - sag(&s, (h.x - e).powi(2) + h.y * h.y).unwrap())
+                / (2.0 * e);
             assert!((n.dot(DVec3::new(1.0, 0.0, zx).normalize())).abs() < 1e-8);
         }
     }

@@ -3,8 +3,8 @@
 //! totally internally reflected; failed rays keep the index of the surface at fault.
 
 use crate::error::Result;
-use crate::lens::Lens;
 use crate::kernel::{self, Block, ImageConst, Plan, Ray, SurfConst, LANES};
+use crate::lens::Lens;
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -49,10 +49,22 @@ impl RayState {
         self.status == Status::Ok
     }
     fn arrived(r: &Ray) -> RayState {
-        RayState { p: DVec3::new(r.x, r.y, r.z), d: DVec3::new(r.dx, r.dy, r.dz), opl: r.opl, status: Status::Ok, surface: -1 }
+        RayState {
+            p: DVec3::new(r.x, r.y, r.z),
+            d: DVec3::new(r.dx, r.dy, r.dz),
+            opl: r.opl,
+            status: Status::Ok,
+            surface: -1,
+        }
     }
     fn fail(status: Status, surface: usize) -> RayState {
-        RayState { p: DVec3::ZERO, d: DVec3::ZERO, opl: 0.0, status, surface: surface as i32 }
+        RayState {
+            p: DVec3::ZERO,
+            d: DVec3::ZERO,
+            opl: 0.0,
+            status,
+            surface: surface as i32,
+        }
     }
 }
 
@@ -83,7 +95,14 @@ impl<'a> System<'a> {
     pub fn new(lens: &'a Lens, wavelength_nm: f64) -> Result<Self> {
         let n = lens.indices(wavelength_nm)?;
         let (consts, image) = kernel::constants(lens, &n);
-        Ok(System { lens, wavelength_nm, n, clip: true, consts, image })
+        Ok(System {
+            lens,
+            wavelength_nm,
+            n,
+            clip: true,
+            consts,
+            image,
+        })
     }
 
     pub fn image_index(&self) -> f64 {
@@ -95,7 +114,13 @@ impl<'a> System<'a> {
             End::Image => None,
             End::Surface(i) => Some(i.min(self.consts.len() - 1)),
         };
-        Plan { consts: &self.consts, surfaces: &self.lens.surfaces, image: &self.image, stop_at, clip }
+        Plan {
+            consts: &self.consts,
+            surfaces: &self.lens.surfaces,
+            image: &self.image,
+            stop_at,
+            clip,
+        }
     }
 
     /// Trace one ray from `p` (global) along unit `d` in object space.
@@ -105,7 +130,15 @@ impl<'a> System<'a> {
     }
 
     fn trace_opts(&self, p: DVec3, d: DVec3, end: End, clip: bool) -> RayState {
-        let mut r = Ray { x: p.x, y: p.y, z: p.z, dx: d.x, dy: d.y, dz: d.z, opl: 0.0 };
+        let mut r = Ray {
+            x: p.x,
+            y: p.y,
+            z: p.z,
+            dx: d.x,
+            dy: d.y,
+            dz: d.z,
+            opl: 0.0,
+        };
         if !kernel::valid_input(&r) {
             return RayState::fail(Status::Invalid, 0);
         }
@@ -143,12 +176,15 @@ impl<'a> System<'a> {
     {
         let mut out = vec![RayState::fail(Status::Invalid, 0); n];
         let plan = self.plan(End::Image, self.clip);
-        out.par_chunks_mut(LANES).enumerate().with_min_len(MIN_BLOCKS_PER_TASK).for_each_init(Block::default, |b, (bi, chunk)| {
-            b.reset(chunk.len());
-            load(bi * LANES, b);
-            kernel::run(&plan, b);
-            b.write_states(chunk);
-        });
+        out.par_chunks_mut(LANES)
+            .enumerate()
+            .with_min_len(MIN_BLOCKS_PER_TASK)
+            .for_each_init(Block::default, |b, (bi, chunk)| {
+                b.reset(chunk.len());
+                load(bi * LANES, b);
+                kernel::run(&plan, b);
+                b.write_states(chunk);
+            });
         out
     }
 }
@@ -195,24 +231,27 @@ impl<'a> System<'a> {
             .zip(t.surface.par_chunks_mut(LANES))
             .enumerate()
             .with_min_len(MIN_BLOCKS_PER_TASK)
-            .for_each_init(Block::default, |b, (bi, (((((org, pos), dir), opl), status), surface))| {
-                b.reset(opl.len());
-                load(bi * LANES, b);
-                for j in 0..b.len {
-                    org[3 * j..3 * j + 3].copy_from_slice(&[b.x[j], b.y[j], b.z[j]]);
-                }
-                kernel::run(&plan, b);
-                for j in 0..b.len {
-                    let ok = b.status[j] == 0;
-                    status[j] = b.status[j];
-                    surface[j] = if ok { -1 } else { b.surface[j] };
-                    if ok {
-                        pos[3 * j..3 * j + 3].copy_from_slice(&[b.x[j], b.y[j], b.z[j]]);
-                        dir[3 * j..3 * j + 3].copy_from_slice(&[b.dx[j], b.dy[j], b.dz[j]]);
-                        opl[j] = b.opl[j];
+            .for_each_init(
+                Block::default,
+                |b, (bi, (((((org, pos), dir), opl), status), surface))| {
+                    b.reset(opl.len());
+                    load(bi * LANES, b);
+                    for j in 0..b.len {
+                        org[3 * j..3 * j + 3].copy_from_slice(&[b.x[j], b.y[j], b.z[j]]);
                     }
-                }
-            });
+                    kernel::run(&plan, b);
+                    for j in 0..b.len {
+                        let ok = b.status[j] == 0;
+                        status[j] = b.status[j];
+                        surface[j] = if ok { -1 } else { b.surface[j] };
+                        if ok {
+                            pos[3 * j..3 * j + 3].copy_from_slice(&[b.x[j], b.y[j], b.z[j]]);
+                            dir[3 * j..3 * j + 3].copy_from_slice(&[b.dx[j], b.dy[j], b.dz[j]]);
+                            opl[j] = b.opl[j];
+                        }
+                    }
+                },
+            );
         t
     }
 }

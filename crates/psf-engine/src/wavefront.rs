@@ -35,7 +35,9 @@ impl std::str::FromStr for Tilt {
         match s {
             "wavelength" => Ok(Tilt::PerWavelength),
             "field" => Ok(Tilt::Shared),
-            _ => Err(EngineError::Argument(format!("tilt must be \"wavelength\" or \"field\", got \"{s}\""))),
+            _ => Err(EngineError::Argument(format!(
+                "tilt must be \"wavelength\" or \"field\", got \"{s}\""
+            ))),
         }
     }
 }
@@ -62,16 +64,40 @@ pub struct FieldWavefront {
 /// weights) of one field at `wavelengths_nm`; `wavelength_weights` weigh the wavelengths
 /// in a shared tilt fit.
 #[allow(clippy::too_many_arguments)]
-pub fn field_wavefront(lens: &Lens, field_deg: f64, wavelengths_nm: &[f64], wavelength_weights: &[f64], px: &[f64], py: &[f64], weights: &[f64], aiming: Aiming, tilt: Tilt) -> Result<FieldWavefront> {
+pub fn field_wavefront(
+    lens: &Lens,
+    field_deg: f64,
+    wavelengths_nm: &[f64],
+    wavelength_weights: &[f64],
+    px: &[f64],
+    py: &[f64],
+    weights: &[f64],
+    aiming: Aiming,
+    tilt: Tilt,
+) -> Result<FieldWavefront> {
     let n = px.len();
     if py.len() != n || weights.len() != n {
-        return Err(EngineError::Argument(format!("wavefront: px ({n}), py ({}) and weights ({}) differ in length", py.len(), weights.len())));
+        return Err(EngineError::Argument(format!(
+            "wavefront: px ({n}), py ({}) and weights ({}) differ in length",
+            py.len(),
+            weights.len()
+        )));
     }
     if wavelengths_nm.is_empty() || wavelength_weights.len() != wavelengths_nm.len() {
-        return Err(EngineError::Argument(format!("wavefront: need >= 1 wavelength and one weight each, got {} and {}", wavelengths_nm.len(), wavelength_weights.len())));
+        return Err(EngineError::Argument(format!(
+            "wavefront: need >= 1 wavelength and one weight each, got {} and {}",
+            wavelengths_nm.len(),
+            wavelength_weights.len()
+        )));
     }
-    if let Some(w) = weights.iter().chain(wavelength_weights).find(|w| !(w.is_finite() && **w >= 0.0)) {
-        return Err(EngineError::Argument(format!("wavefront: weight {w} is not finite and >= 0")));
+    if let Some(w) = weights
+        .iter()
+        .chain(wavelength_weights)
+        .find(|w| !(w.is_finite() && **w >= 0.0))
+    {
+        return Err(EngineError::Argument(format!(
+            "wavefront: weight {w} is not finite and >= 0"
+        )));
     }
     let flat = crate::image::flat_at_field(lens, field_deg, aiming)?;
     let lens: &Lens = &flat;
@@ -172,17 +198,25 @@ pub fn field_wavefront(lens: &Lens, field_deg: f64, wavelengths_nm: &[f64], wave
     for w in 0..nw {
         let [a, b] = tilt_mm[w];
         let (mut s, mut ws) = (0.0, 0.0);
-        for k in 0..n {
+        for (k, &wk) in weights.iter().enumerate().take(n) {
             let j = w * n + k;
             if status[j] != Status::Ok as u8 {
                 continue;
             }
             let r = (opl[j] - mean[w][0] - a * (lm[j][0] - mean[w][1]) - b * (lm[j][1] - mean[w][2])) / lambda[w];
             opd_waves[j] = r;
-            s += weights[k] * r * r;
-            ws += weights[k];
+            s += wk * r * r;
+            ws += wk;
         }
         rms_waves[w] = if ws > 0.0 { (s / ws).sqrt() } else { 0.0 };
     }
-    Ok(FieldWavefront { n_rays: n, opd_waves, status, rms_waves, tilt_mm, chief_image: centre, radius })
+    Ok(FieldWavefront {
+        n_rays: n,
+        opd_waves,
+        status,
+        rms_waves,
+        tilt_mm,
+        chief_image: centre,
+        radius,
+    })
 }

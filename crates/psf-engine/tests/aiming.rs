@@ -18,7 +18,10 @@ fn real_aiming_hits_the_stop_where_aimed() {
             let err = (DVec2::new(hit.x, hit.y) - DVec2::new(px * rs, py * rs)).length();
             let lp = par.launch(px, py);
             let hp = sys.trace(lp.origin, lp.dir, End::Surface(lens.stop)).p;
-            eprintln!("field {field} ({px},{py}): real hit ({:.5},{:.5}) paraxial hit ({:.5},{:.5}) stop r {rs:.5}", hit.x, hit.y, hp.x, hp.y);
+            eprintln!(
+                "field {field} ({px},{py}): real hit ({:.5},{:.5}) paraxial hit ({:.5},{:.5}) stop r {rs:.5}",
+                hit.x, hit.y, hp.x, hp.y
+            );
             assert!(err < 1e-8, "field {field} pupil ({px},{py}): {err:e} mm from target");
         }
     }

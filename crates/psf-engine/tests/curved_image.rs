@@ -12,16 +12,25 @@ fn rays_end_on_the_sphere_and_a_fields_plane_goes_through_its_chief_ray() {
     let mut curved = flat.clone();
     curved.image_curvature = 1.0 / radius;
     let centre_z = curved.image_z + radius;
-    let (px, py): (Vec<f64>, Vec<f64>) = (0..25).map(|i| (0.15 * (i % 5) as f64 - 0.3, 0.15 * (i / 5) as f64 - 0.3)).unzip();
+    let (px, py): (Vec<f64>, Vec<f64>) = (0..25)
+        .map(|i| (0.15 * (i % 5) as f64 - 0.3, 0.15 * (i / 5) as f64 - 0.3))
+        .unzip();
     for field in [0.0, 5.0, 10.0] {
         let (sf, sc) = (System::new(&flat, 550.0).unwrap(), System::new(&curved, 550.0).unwrap());
-        let (bf, bc) = (Beam::new(&sf, field, Aiming::Paraxial).unwrap(), Beam::new(&sc, field, Aiming::Paraxial).unwrap());
+        let (bf, bc) = (
+            Beam::new(&sf, field, Aiming::Paraxial).unwrap(),
+            Beam::new(&sc, field, Aiming::Paraxial).unwrap(),
+        );
         let (_, on_plane) = bf.trace_pupil(&px, &py);
         let (launches, on_sphere) = bc.trace_pupil(&px, &py);
         for ((a, b), l) in on_plane.iter().zip(&on_sphere).zip(&launches) {
             assert!(a.ok() && b.ok());
             let r = (b.p - glam::DVec3::new(0.0, 0.0, centre_z)).length();
-            assert!((r - radius.abs()).abs() < 1e-9, "off the sphere by {}", r - radius.abs());
+            assert!(
+                (r - radius.abs()).abs() < 1e-9,
+                "off the sphere by {}",
+                r - radius.abs()
+            );
             // the same straight line: b = a + t d, with the optical path grown by t (air)
             let t = b.opl - a.opl;
             assert!((a.p + t * a.d - b.p).length() < 1e-9);
@@ -35,5 +44,8 @@ fn rays_end_on_the_sphere_and_a_fields_plane_goes_through_its_chief_ray() {
         assert!((plane.image_z - chief.p.z).abs() < 1e-12);
     }
     // a flat image is returned as it is
-    assert!(matches!(flat_at_field(&flat, 5.0, Aiming::Paraxial).unwrap(), std::borrow::Cow::Borrowed(_)));
+    assert!(matches!(
+        flat_at_field(&flat, 5.0, Aiming::Paraxial).unwrap(),
+        std::borrow::Cow::Borrowed(_)
+    ));
 }

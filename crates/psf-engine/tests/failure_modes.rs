@@ -29,7 +29,11 @@ fn lens(v: &Value) -> Lens {
 }
 
 fn value(p: &Psf, key: &str) -> f64 {
-    p.diagnostics.values.get(key).and_then(Value::as_f64).unwrap_or_else(|| panic!("no numeric diagnostic {key}: {:?}", p.diagnostics.values))
+    p.diagnostics
+        .values
+        .get(key)
+        .and_then(Value::as_f64)
+        .unwrap_or_else(|| panic!("no numeric diagnostic {key}: {:?}", p.diagnostics.values))
 }
 
 fn warned(p: &Psf, needle: &str) -> bool {
@@ -37,26 +41,45 @@ fn warned(p: &Psf, needle: &str) -> bool {
 }
 
 fn fft(pixel_um: f64, size: usize, pupil_samples: usize) -> PsfOptions {
-    PsfOptions { method: Method::Fft, pixel_mm: pixel_um * 1e-3, size, pupil_samples, ..Default::default() }
+    PsfOptions {
+        method: Method::Fft,
+        pixel_mm: pixel_um * 1e-3,
+        size,
+        pupil_samples,
+        ..Default::default()
+    }
 }
 
 fn fast(o: &PsfOptions) -> PsfOptions {
-    PsfOptions { fast: true, ..o.clone() }
+    PsfOptions {
+        fast: true,
+        ..o.clone()
+    }
 }
 
 fn mode(p: &Psf) -> &str {
-    p.diagnostics.values.get("fft_mode").and_then(Value::as_str).unwrap_or("none")
+    p.diagnostics
+        .values
+        .get("fft_mode")
+        .and_then(Value::as_str)
+        .unwrap_or("none")
 }
 
 fn fallback(p: &Psf) -> &str {
-    p.diagnostics.values.get("fast_fallback").and_then(Value::as_str).unwrap_or("")
+    p.diagnostics
+        .values
+        .get("fast_fallback")
+        .and_then(Value::as_str)
+        .unwrap_or("")
 }
 
 /// Every `k`-th pixel of `p` (centred: pixel size/2 is the chief-ray point in both), as a
 /// `size` x `size` PSF sampled at k times the pitch.
 fn subsample(p: &Psf, k: usize, size: usize) -> Vec<f64> {
     assert_eq!(p.size, k * size);
-    (0..size * size).map(|i| p.data[k * (i / size) * p.size + k * (i % size)]).collect()
+    (0..size * size)
+        .map(|i| p.data[k * (i / size) * p.size + k * (i % size)])
+        .collect()
 }
 
 /// The bundled paper-triplet with the image plane moved `dz` mm back.
@@ -80,12 +103,19 @@ fn defocused_triplet(dz: f64) -> Lens {
 fn undersampled_pupil_aliases_and_is_reported() {
     let lens = defocused_triplet(0.5);
     let reference = psf(&lens, 0.0, 550.0, &fft(1.0, 128, 256)).unwrap();
-    assert!(!warned(&reference, "undersampled"), "{:?}", reference.diagnostics.warnings);
+    assert!(
+        !warned(&reference, "undersampled"),
+        "{:?}",
+        reference.diagnostics.warnings
+    );
 
     let bad = psf(&lens, 0.0, 550.0, &fft(1.0, 128, 24)).unwrap();
     let e = rel_l1(&bad.data, &reference.data);
     let step = value(&bad, "max_phase_step_waves");
-    println!("24 samples: step {step:.2} waves, rel L1 {e:.3}; {:?}", bad.diagnostics.warnings);
+    println!(
+        "24 samples: step {step:.2} waves, rel L1 {e:.3}; {:?}",
+        bad.diagnostics.warnings
+    );
     assert!(e > 0.3, "the undersampled PSF should be clearly wrong: rel L1 {e:.3}");
     assert!(step > 0.5, "step {step}");
     assert!(warned(&bad, "pupil undersampled"), "{:?}", bad.diagnostics.warnings);
@@ -94,8 +124,15 @@ fn undersampled_pupil_aliases_and_is_reported() {
     let good = psf(&lens, 0.0, 550.0, &fft(1.0, 128, 128)).unwrap();
     let e = rel_l1(&good.data, &reference.data);
     let step = value(&good, "max_phase_step_waves");
-    println!("128 samples: step {step:.2} waves, rel L1 {e:.4}; {:?}", good.diagnostics.warnings);
-    assert!(step <= 0.5 && !warned(&good, "undersampled"), "{:?}", good.diagnostics.warnings);
+    println!(
+        "128 samples: step {step:.2} waves, rel L1 {e:.4}; {:?}",
+        good.diagnostics.warnings
+    );
+    assert!(
+        step <= 0.5 && !warned(&good, "undersampled"),
+        "{:?}",
+        good.diagnostics.warnings
+    );
     assert!(e < 0.03, "adequately sampled: rel L1 {e:.4}");
 }
 
@@ -112,14 +149,29 @@ fn fast_path_sizes_its_grid_from_the_spot_or_falls_back_and_warns() {
     let reference = psf(&lens, 0.0, 550.0, &fft(1.0, 128, 256)).unwrap();
     let p = psf(&lens, 0.0, 550.0, &fast(&fft(1.0, 128, 24))).unwrap();
     let e = rel_l1(&p.data, &reference.data);
-    println!("fast, 24 cells asked: grid {}, {:.0} cells across, step {:.3}, rel L1 {e:.4}", value(&p, "fft_grid"), value(&p, "pupil_samples_across"), value(&p, "max_phase_step_waves"));
+    println!(
+        "fast, 24 cells asked: grid {}, {:.0} cells across, step {:.3}, rel L1 {e:.4}",
+        value(&p, "fft_grid"),
+        value(&p, "pupil_samples_across"),
+        value(&p, "max_phase_step_waves")
+    );
     assert_eq!(mode(&p), "direction_grid");
-    assert!(value(&p, "max_phase_step_waves") <= 0.5 && !warned(&p, "undersampled"), "{:?}", p.diagnostics.warnings);
+    assert!(
+        value(&p, "max_phase_step_waves") <= 0.5 && !warned(&p, "undersampled"),
+        "{:?}",
+        p.diagnostics.warnings
+    );
     assert!(e < 0.02, "fast path vs dense general FFT: rel L1 {e:.4}");
 
     let far = defocused_triplet(10.0);
     let p = psf(&far, 0.0, 550.0, &fast(&fft(0.25, 64, 64))).unwrap();
-    println!("fast, 10 mm defocus: {} ({}); step {:.1}; {:?}", mode(&p), fallback(&p), value(&p, "max_phase_step_waves"), p.diagnostics.warnings);
+    println!(
+        "fast, 10 mm defocus: {} ({}); step {:.1}; {:?}",
+        mode(&p),
+        fallback(&p),
+        value(&p, "max_phase_step_waves"),
+        p.diagnostics.warnings
+    );
     assert_eq!(mode(&p), "general");
     assert!(fallback(&p).contains("8192"), "{}", fallback(&p));
     assert!(warned(&p, "pupil undersampled"), "{:?}", p.diagnostics.warnings);
@@ -136,9 +188,16 @@ fn psf_larger_than_the_window_is_reported() {
     let lens = common::paper_triplet();
     let field = 14.9;
     for fast_path in [false, true] {
-        let o = PsfOptions { fast: fast_path, ..fft(1.0, 256, 64) };
+        let o = PsfOptions {
+            fast: fast_path,
+            ..fft(1.0, 256, 64)
+        };
         let big = psf(&lens, field, 550.0, &o).unwrap();
-        assert!(!warned(&big, "falls outside"), "fast {fast_path}: {:?}", big.diagnostics.warnings);
+        assert!(
+            !warned(&big, "falls outside"),
+            "fast {fast_path}: {:?}",
+            big.diagnostics.warnings
+        );
         assert!(value(&big, "energy_in_window") >= 0.99);
         let small = psf(&lens, field, 550.0, &PsfOptions { size: 16, ..o.clone() }).unwrap();
         // The small window's PSF (unit sum) against the big one (unit sum), on the big grid.
@@ -150,10 +209,18 @@ fn psf_larger_than_the_window_is_reported() {
         }
         let e = rel_l1(&cut, &big.data);
         let kept = value(&small, "energy_in_window");
-        println!("fast {fast_path}: 16 um window keeps {kept:.3}, rel L1 {e:.3} ({}); {:?}", mode(&small), small.diagnostics.warnings);
+        println!(
+            "fast {fast_path}: 16 um window keeps {kept:.3}, rel L1 {e:.3} ({}); {:?}",
+            mode(&small),
+            small.diagnostics.warnings
+        );
         assert!(e > 0.5, "fast {fast_path}: rel L1 {e:.3}");
         assert!(kept < 0.9, "fast {fast_path}: energy_in_window {kept}");
-        assert!(warned(&small, "falls outside the 16x16 window"), "fast {fast_path}: {:?}", small.diagnostics.warnings);
+        assert!(
+            warned(&small, "falls outside the 16x16 window"),
+            "fast {fast_path}: {:?}",
+            small.diagnostics.warnings
+        );
         assert_eq!(mode(&small), if fast_path { "direction_grid" } else { "none" });
     }
 }
@@ -172,20 +239,37 @@ fn window_larger_than_the_fft_field_is_reported() {
     let reference = psf(&lens, 0.0, 550.0, &fft(1.0, 128, 128)).unwrap();
     let bad = psf(&lens, 0.0, 550.0, &fft(1.0, 128, 16)).unwrap();
     let e = rel_l1(&bad.data, &reference.data);
-    println!("16 samples: FFT field {:.1} um, window energy {:.2}, rel L1 {e:.3}; {:?}", value(&bad, "fft_field_x_um"), value(&bad, "energy_in_window"), bad.diagnostics.warnings);
+    println!(
+        "16 samples: FFT field {:.1} um, window energy {:.2}, rel L1 {e:.3}; {:?}",
+        value(&bad, "fft_field_x_um"),
+        value(&bad, "energy_in_window"),
+        bad.diagnostics.warnings
+    );
     assert!(e > 0.2, "wrapped and truncated PSF: rel L1 {e:.3}");
     assert!(value(&bad, "fft_field_x_um") < 128.0);
     assert!(warned(&bad, "exceeds the FFT field"), "{:?}", bad.diagnostics.warnings);
 
     let good = psf(&lens, 0.0, 550.0, &fft(1.0, 128, 64)).unwrap();
     let e = rel_l1(&good.data, &reference.data);
-    println!("64 samples: FFT field {:.1} um, rel L1 {e:.4}; {:?}", value(&good, "fft_field_x_um"), good.diagnostics.warnings);
-    assert!(!warned(&good, "exceeds the FFT field"), "{:?}", good.diagnostics.warnings);
+    println!(
+        "64 samples: FFT field {:.1} um, rel L1 {e:.4}; {:?}",
+        value(&good, "fft_field_x_um"),
+        good.diagnostics.warnings
+    );
+    assert!(
+        !warned(&good, "exceeds the FFT field"),
+        "{:?}",
+        good.diagnostics.warnings
+    );
     assert!(e < 0.03, "rel L1 {e:.4}");
 
     let p = psf(&lens, 0.0, 550.0, &fast(&fft(1.0, 128, 16))).unwrap();
     let e = rel_l1(&p.data, &reference.data);
-    println!("fast, 16 cells asked: grid {}, FFT field {:.0} um, rel L1 {e:.4}", value(&p, "fft_grid"), value(&p, "fft_field_x_um"));
+    println!(
+        "fast, 16 cells asked: grid {}, FFT field {:.0} um, rel L1 {e:.4}",
+        value(&p, "fft_grid"),
+        value(&p, "fft_field_x_um")
+    );
     assert_eq!(mode(&p), "direction_grid");
     assert!(value(&p, "fft_field_x_um") >= 2.0 * 128.0);
     assert!(p.diagnostics.warnings.is_empty(), "{:?}", p.diagnostics.warnings);
@@ -212,14 +296,40 @@ fn distorted_exit_pupil_at_a_wide_field_is_reported() {
     let o = fft(5.0, 96, 160);
     // The garbage PSF holds more energy than was transmitted: it never leaves the engine;
     // the error gives the measured excess and the diagnosis.
-    let bad = psf(&lens, field, 550.0, &o).err().expect("the distorted FFT PSF is refused").to_string();
+    let bad = psf(&lens, field, 550.0, &o)
+        .err()
+        .expect("the distorted FFT PSF is refused")
+        .to_string();
     println!("FFT at 5 um: {bad}");
-    assert!(bad.contains("times the transmitted energy") && bad.contains("exit pupil too distorted"), "{bad}");
+    assert!(
+        bad.contains("times the transmitted energy") && bad.contains("exit pupil too distorted"),
+        "{bad}"
+    );
     // Huygens point samples at 5 um are refused too (they do not resolve the PSF's detail:
     // their sum is not the energy); at 2 um over the same 480 um window they do.
-    let coarse = psf(&lens, field, 550.0, &PsfOptions { method: Method::Huygens, ..o.clone() }).err().expect("5 um point samples refused").to_string();
+    let coarse = psf(
+        &lens,
+        field,
+        550.0,
+        &PsfOptions {
+            method: Method::Huygens,
+            ..o.clone()
+        },
+    )
+    .err()
+    .expect("5 um point samples refused")
+    .to_string();
     assert!(coarse.contains("times the transmitted energy"), "{coarse}");
-    let huygens = psf(&lens, field, 550.0, &PsfOptions { method: Method::Huygens, ..fft(2.0, 240, 160) }).unwrap();
+    let huygens = psf(
+        &lens,
+        field,
+        550.0,
+        &PsfOptions {
+            method: Method::Huygens,
+            ..fft(2.0, 240, 160)
+        },
+    )
+    .unwrap();
     assert!(!warned(&huygens, "distorted"), "{:?}", huygens.diagnostics.warnings);
 
     // The direction-grid FFT over the same window is right: the failure is the series.
@@ -230,15 +340,31 @@ fn distorted_exit_pupil_at_a_wide_field_is_reported() {
     assert!(e < 0.15, "fast vs Huygens rel L1 {e:.4}");
     // At 5 um the fast path does not apply (pixel too coarse) and the general FFT it falls
     // back to is refused the same way.
-    let p = psf(&lens, field, 550.0, &fast(&o)).err().expect("the fallback FFT PSF is refused").to_string();
+    let p = psf(&lens, field, 550.0, &fast(&o))
+        .err()
+        .expect("the fallback FFT PSF is refused")
+        .to_string();
     println!("fast path at 5 um: {p}");
     assert!(p.contains("exit pupil too distorted"), "{p}");
 
     let c = fft(1.0, 64, 160);
     let good = psf(&lens, field, 550.0, &c).unwrap();
-    let huygens = psf(&lens, field, 550.0, &PsfOptions { method: Method::Huygens, ..c.clone() }).unwrap();
+    let huygens = psf(
+        &lens,
+        field,
+        550.0,
+        &PsfOptions {
+            method: Method::Huygens,
+            ..c.clone()
+        },
+    )
+    .unwrap();
     let e = rel_l1(&good.data, &huygens.data);
-    println!("FFT at 1 um x 64: distortion {:.2} rad, order {}, rel L1 vs Huygens {e:.4}", value(&good, "pupil_distortion_rad"), value(&good, "distortion_order"));
+    println!(
+        "FFT at 1 um x 64: distortion {:.2} rad, order {}, rel L1 vs Huygens {e:.4}",
+        value(&good, "pupil_distortion_rad"),
+        value(&good, "distortion_order")
+    );
     assert!(!warned(&good, "distorted"), "{:?}", good.diagnostics.warnings);
     assert!(e < 0.05, "rel L1 vs Huygens {e:.4}");
 }
@@ -273,10 +399,22 @@ fn cats_eye() -> Lens {
 fn vignetting_cliff_sliver_is_reported() {
     let lens = cats_eye();
     let o = fft(2.0, 128, 64);
-    let reference = psf(&lens, 12.2, 550.0, &PsfOptions { pupil_samples: 512, ..o.clone() }).unwrap();
+    let reference = psf(
+        &lens,
+        12.2,
+        550.0,
+        &PsfOptions {
+            pupil_samples: 512,
+            ..o.clone()
+        },
+    )
+    .unwrap();
     let bad = psf(&lens, 12.2, 550.0, &o).unwrap();
     let e = rel_l1(&bad.data, &reference.data);
-    let (tf, tf_ref) = (value(&bad, "transmitted_fraction"), value(&reference, "transmitted_fraction"));
+    let (tf, tf_ref) = (
+        value(&bad, "transmitted_fraction"),
+        value(&reference, "transmitted_fraction"),
+    );
     println!(
         "12.2 deg, 64 samples: {} across, transmitted {tf:.4} (512: {tf_ref:.4}, {} across), rel L1 {e:.3}; {:?}",
         value(&bad, "pupil_samples_across"),
@@ -287,7 +425,11 @@ fn vignetting_cliff_sliver_is_reported() {
     assert!(e > 0.08, "rel L1 {e:.3}");
     assert!(value(&bad, "pupil_samples_across") < 8.0);
     assert!(warned(&bad, "pupil sliver"), "{:?}", bad.diagnostics.warnings);
-    assert!(!warned(&reference, "pupil sliver"), "{:?}", reference.diagnostics.warnings);
+    assert!(
+        !warned(&reference, "pupil sliver"),
+        "{:?}",
+        reference.diagnostics.warnings
+    );
 
     let p = psf(&lens, 12.2, 550.0, &fast(&o)).unwrap();
     assert_eq!(mode(&p), "general");
@@ -300,10 +442,26 @@ fn vignetting_cliff_sliver_is_reported() {
 
     // Control: a wider band (vignetted to 16%, 16 samples across).
     let wide = psf(&lens, 10.0, 550.0, &o).unwrap();
-    let reference = psf(&lens, 10.0, 550.0, &PsfOptions { pupil_samples: 512, ..o.clone() }).unwrap();
+    let reference = psf(
+        &lens,
+        10.0,
+        550.0,
+        &PsfOptions {
+            pupil_samples: 512,
+            ..o.clone()
+        },
+    )
+    .unwrap();
     let e = rel_l1(&wide.data, &reference.data);
-    println!("10 deg, 64 samples: {} across, transmitted {:.3}, rel L1 {e:.4}", value(&wide, "pupil_samples_across"), value(&wide, "transmitted_fraction"));
-    assert!(value(&wide, "transmitted_fraction") < 0.5, "vignetted, not at the cliff");
+    println!(
+        "10 deg, 64 samples: {} across, transmitted {:.3}, rel L1 {e:.4}",
+        value(&wide, "pupil_samples_across"),
+        value(&wide, "transmitted_fraction")
+    );
+    assert!(
+        value(&wide, "transmitted_fraction") < 0.5,
+        "vignetted, not at the cliff"
+    );
     assert!(!warned(&wide, "pupil sliver"), "{:?}", wide.diagnostics.warnings);
     assert!(e < 0.05, "rel L1 {e:.4}");
 }
@@ -335,7 +493,16 @@ fn tir_meniscus() -> Lens {
 fn total_internal_reflection_is_reported() {
     let lens = tir_meniscus();
     let o = fft(1.0, 128, 64);
-    let reference = psf(&lens, 47.0, 550.0, &PsfOptions { pupil_samples: 512, ..o.clone() }).unwrap();
+    let reference = psf(
+        &lens,
+        47.0,
+        550.0,
+        &PsfOptions {
+            pupil_samples: 512,
+            ..o.clone()
+        },
+    )
+    .unwrap();
     let bad = psf(&lens, 47.0, 550.0, &o).unwrap();
     let e = rel_l1(&bad.data, &reference.data);
     println!(
@@ -347,16 +514,33 @@ fn total_internal_reflection_is_reported() {
     );
     assert!(e > 0.2, "rel L1 {e:.3}");
     assert!(value(&bad, "rays_tir") > 0.0 && value(&bad, "transmitted_fraction") < 0.99);
-    assert!(warned(&bad, "totally internally reflected"), "{:?}", bad.diagnostics.warnings);
+    assert!(
+        warned(&bad, "totally internally reflected"),
+        "{:?}",
+        bad.diagnostics.warnings
+    );
     assert!(warned(&bad, "partial pupil"), "{:?}", bad.diagnostics.warnings);
-    assert!(warned(&reference, "pupil undersampled"), "no pupil grid resolves the TIR edge: {:?}", reference.diagnostics.warnings);
+    assert!(
+        warned(&reference, "pupil undersampled"),
+        "no pupil grid resolves the TIR edge: {:?}",
+        reference.diagnostics.warnings
+    );
     let p = psf(&lens, 47.0, 550.0, &fast(&o)).unwrap();
     assert_eq!(mode(&p), "general");
     assert!(fallback(&p).contains("TIR"), "{}", fallback(&p));
     assert!(warned(&p, "partial pupil"), "{:?}", p.diagnostics.warnings);
 
     let good = psf(&lens, 45.0, 550.0, &o).unwrap();
-    let reference = psf(&lens, 45.0, 550.0, &PsfOptions { pupil_samples: 512, ..o.clone() }).unwrap();
+    let reference = psf(
+        &lens,
+        45.0,
+        550.0,
+        &PsfOptions {
+            pupil_samples: 512,
+            ..o.clone()
+        },
+    )
+    .unwrap();
     let e = rel_l1(&good.data, &reference.data);
     println!("45 deg: rel L1 64 vs 512 {e:.4}; {:?}", good.diagnostics.warnings);
     assert_eq!(value(&good, "rays_tir"), 0.0);
@@ -392,18 +576,39 @@ fn rays_missing_a_surface_are_reported() {
     let (with, without) = (singlet_with_dummy(true), singlet_with_dummy(false));
     let o = fft(1.0, 128, 64);
     let bad = psf(&with, 4.0, 550.0, &o).unwrap();
-    let truth = psf(&without, 4.0, 550.0, &PsfOptions { pupil_samples: 256, ..o.clone() }).unwrap();
+    let truth = psf(
+        &without,
+        4.0,
+        550.0,
+        &PsfOptions {
+            pupil_samples: 256,
+            ..o.clone()
+        },
+    )
+    .unwrap();
     let e = rel_l1(&bad.data, &truth.data);
-    println!("4 deg: {} rays missed, transmitted {:.3}, rel L1 vs the singlet alone {e:.3}; {:?}", value(&bad, "rays_missed"), value(&bad, "transmitted_fraction"), bad.diagnostics.warnings);
+    println!(
+        "4 deg: {} rays missed, transmitted {:.3}, rel L1 vs the singlet alone {e:.3}; {:?}",
+        value(&bad, "rays_missed"),
+        value(&bad, "transmitted_fraction"),
+        bad.diagnostics.warnings
+    );
     assert!(e > 0.3, "rel L1 {e:.3}");
     assert!(value(&bad, "rays_missed") > 0.0 && value(&bad, "transmitted_fraction") < 0.95);
-    assert!(warned(&bad, "partial pupil") && warned(&bad, "missed a surface"), "{:?}", bad.diagnostics.warnings);
+    assert!(
+        warned(&bad, "partial pupil") && warned(&bad, "missed a surface"),
+        "{:?}",
+        bad.diagnostics.warnings
+    );
     let p = psf(&with, 4.0, 550.0, &fast(&o)).unwrap();
     assert_eq!(mode(&p), "general");
     assert!(fallback(&p).contains("miss"), "{}", fallback(&p));
 
     for fast_path in [false, true] {
-        let o = PsfOptions { fast: fast_path, ..o.clone() };
+        let o = PsfOptions {
+            fast: fast_path,
+            ..o.clone()
+        };
         let good = psf(&with, 1.0, 550.0, &o).unwrap();
         let truth = psf(&without, 1.0, 550.0, &o).unwrap();
         let e = rel_l1(&good.data, &truth.data);
@@ -437,24 +642,58 @@ fn slow_singlet(dz: f64) -> Lens {
 /// even the right size.)
 #[test]
 fn geometric_psf_near_the_diffraction_limit_is_reported() {
-    let o = PsfOptions { method: Method::Geometric, pixel_mm: 1e-3, size: 64, pupil_samples: 256, ..Default::default() };
+    let o = PsfOptions {
+        method: Method::Geometric,
+        pixel_mm: 1e-3,
+        size: 64,
+        pupil_samples: 256,
+        ..Default::default()
+    };
     let lens = slow_singlet(0.0);
     let geo = psf(&lens, 0.0, 550.0, &o).unwrap();
-    let huygens = psf(&lens, 0.0, 550.0, &PsfOptions { method: Method::Huygens, pupil_samples: 128, ..o.clone() }).unwrap();
+    let huygens = psf(
+        &lens,
+        0.0,
+        550.0,
+        &PsfOptions {
+            method: Method::Huygens,
+            pupil_samples: 128,
+            ..o.clone()
+        },
+    )
+    .unwrap();
     let e = rel_l1(&geo.data, &huygens.data);
     let (rms, airy) = (value(&geo, "rms_spot_um"), value(&geo, "airy_radius_um"));
-    println!("in focus: RMS spot {rms:.2} um, Airy radius {airy:.2} um, rel L1 vs Huygens {e:.3}; {:?}", geo.diagnostics.warnings);
+    println!(
+        "in focus: RMS spot {rms:.2} um, Airy radius {airy:.2} um, rel L1 vs Huygens {e:.3}; {:?}",
+        geo.diagnostics.warnings
+    );
     assert!(e > 1.0, "rel L1 {e:.3}");
     assert!(rms < airy);
-    assert!(warned(&geo, "near the diffraction limit"), "{:?}", geo.diagnostics.warnings);
+    assert!(
+        warned(&geo, "near the diffraction limit"),
+        "{:?}",
+        geo.diagnostics.warnings
+    );
 
-    let geo = psf(&slow_singlet(2.0), 0.0, 550.0, &PsfOptions { pixel_mm: 2e-3, ..o.clone() }).unwrap();
+    let geo = psf(
+        &slow_singlet(2.0),
+        0.0,
+        550.0,
+        &PsfOptions {
+            pixel_mm: 2e-3,
+            ..o.clone()
+        },
+    )
+    .unwrap();
     let (rms, airy) = (value(&geo, "rms_spot_um"), value(&geo, "airy_radius_um"));
-    println!("2 mm out of focus: RMS spot {rms:.2} um, Airy radius {airy:.2} um; {:?}", geo.diagnostics.warnings);
+    println!(
+        "2 mm out of focus: RMS spot {rms:.2} um, Airy radius {airy:.2} um; {:?}",
+        geo.diagnostics.warnings
+    );
     assert!(rms > 2.0 * airy);
     assert!(!warned(&geo, "diffraction limit"), "{:?}", geo.diagnostics.warnings);
 }
-
 
 /// Not a failure of a PSF method but of the trace under it, found while building case 4c:
 /// a spherical surface with its centre of curvature on the incoming side (radius < 0)
@@ -469,15 +708,30 @@ fn geometric_psf_near_the_diffraction_limit_is_reported() {
 #[test]
 fn rays_from_beyond_the_centre_of_curvature_meet_the_surface() {
     for gap in [9.9, 10.0, 15.0] {
-        let l = lens(&json!({"aperture": {"type": "epd", "value": 4.0}, "wavelengths_nm": [550.0], "surfaces": [
-            {"radius": "inf", "thickness": gap, "material": "air", "stop": true},
-            {"radius": -10.0, "thickness": 3.0, "material": {"n": 1.5}},
-            {"radius": -8.0, "thickness": 40.0, "material": "air"}
-        ]}));
+        let l = lens(
+            &json!({"aperture": {"type": "epd", "value": 4.0}, "wavelengths_nm": [550.0], "surfaces": [
+                {"radius": "inf", "thickness": gap, "material": "air", "stop": true},
+                {"radius": -10.0, "thickness": 3.0, "material": {"n": 1.5}},
+                {"radius": -8.0, "thickness": 40.0, "material": "air"}
+            ]}),
+        );
         for field in [0.0, 5.0] {
-            let p = psf(&l, field, 550.0, &PsfOptions { method: Method::Geometric, ..fft(1.0, 64, 64) });
+            let p = psf(
+                &l,
+                field,
+                550.0,
+                &PsfOptions {
+                    method: Method::Geometric,
+                    ..fft(1.0, 64, 64)
+                },
+            );
             let p = p.unwrap_or_else(|e| panic!("stop {gap} mm before a -10 mm surface, {field} deg: {e}"));
-            assert_eq!(value(&p, "rays_missed"), 0.0, "stop {gap} mm before a -10 mm surface, {field} deg: {:?}", p.diagnostics.warnings);
+            assert_eq!(
+                value(&p, "rays_missed"),
+                0.0,
+                "stop {gap} mm before a -10 mm surface, {field} deg: {:?}",
+                p.diagnostics.warnings
+            );
         }
     }
 }

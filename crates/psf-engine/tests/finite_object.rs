@@ -21,17 +21,28 @@ fn conjugates_and_magnification_follow_newton() {
     for d in [150.0, 400.0, 2000.0] {
         let lens = with_object(base.clone(), d);
         let p = paraxial(&lens, 550.0).unwrap();
-        assert_eq!((p.efl, p.bfl, p.ffl, p.entrance_pupil_z), (f, bfl, ffl, inf.entrance_pupil_z));
+        assert_eq!(
+            (p.efl, p.bfl, p.ffl, p.entrance_pupil_z),
+            (f, bfl, ffl, inf.entrance_pupil_z)
+        );
         // x x' = -f^2: the object lies d + ffl before the front focal point
         let x_img = f * f / (d + ffl);
         let last = lens.surfaces.last().unwrap().z;
         let want = last + bfl + x_img - lens.image_z;
-        assert!((p.back_focus_shift - want).abs() < 1e-9 * want.abs().max(1.0), "d {d}: {} vs {want}", p.back_focus_shift);
+        assert!(
+            (p.back_focus_shift - want).abs() < 1e-9 * want.abs().max(1.0),
+            "d {d}: {} vs {want}",
+            p.back_focus_shift
+        );
         // m = -f / x: the object point of the largest field sits at -L tan(field)
         let l = d + inf.entrance_pupil_z;
         assert!((p.object_to_pupil - l).abs() < 1e-12);
         let h = f * l * lens.max_field_deg().to_radians().tan() / (d + ffl);
-        assert!((p.image_height / h - 1.0).abs() < 1e-10, "d {d}: {} vs {h}", p.image_height);
+        assert!(
+            (p.image_height / h - 1.0).abs() < 1e-10,
+            "d {d}: {} vs {h}",
+            p.image_height
+        );
     }
 }
 
@@ -55,10 +66,23 @@ fn real_chief_ray_meets_the_paraxial_image_of_a_near_point() {
     assert!((c.dir.y - 0.01f64.to_radians().sin()).abs() < 1e-15);
     let r = sys.trace(c.origin, c.dir, End::Image);
     assert!(r.ok());
-    assert!((r.p.y / p.image_height - 1.0).abs() < 1e-5, "{} vs {}", r.p.y, p.image_height);
+    assert!(
+        (r.p.y / p.image_height - 1.0).abs() < 1e-5,
+        "{} vs {}",
+        r.p.y,
+        p.image_height
+    );
     // a small pupil focuses there: the spot shrinks with the aperture (spherical aberration)
     let spot = trace_spot(&lens, 0.0, 550.0, 8, Aiming::Paraxial).unwrap();
-    let rms = (spot.x.iter().zip(&spot.y).zip(&spot.w).map(|((x, y), w)| w * (x * x + y * y)).sum::<f64>() / spot.flux).sqrt();
+    let rms = (spot
+        .x
+        .iter()
+        .zip(&spot.y)
+        .zip(&spot.w)
+        .map(|((x, y), w)| w * (x * x + y * y))
+        .sum::<f64>()
+        / spot.flux)
+        .sqrt();
     assert!(rms < 0.05, "on-axis RMS spot {rms} mm");
 }
 
@@ -72,7 +96,12 @@ fn a_far_object_is_the_object_at_infinity() {
             let a = trace_spot(&inf, f, wl, 12, aiming).unwrap();
             let b = trace_spot(&far, f, wl, 12, aiming).unwrap();
             assert_eq!(a.x.len(), b.x.len());
-            let dx = a.x.iter().zip(&b.x).chain(a.y.iter().zip(&b.y)).map(|(p, q)| (p - q).abs()).fold(0.0, f64::max);
+            let dx =
+                a.x.iter()
+                    .zip(&b.x)
+                    .chain(a.y.iter().zip(&b.y))
+                    .map(|(p, q)| (p - q).abs())
+                    .fold(0.0, f64::max);
             assert!(dx < 1e-6, "{f} deg {aiming:?}: image points differ by {dx} mm");
             assert!((a.flux / a.w.len() as f64 - b.flux / b.w.len() as f64).abs() < 1e-6 * a.flux / a.w.len() as f64);
         }
@@ -105,8 +134,13 @@ fn object_na_is_the_sine_of_the_marginal_ray() {
         let e = Lens::from_json(&v.to_string()).unwrap_err().to_string();
         assert!(e.contains("object_na") && e.contains("object_distance"), "{e}");
     }
-    let e = Lens::from_json(&json!({"aperture": {"type": "epd", "value": 1}, "object_distance": -5,
-        "surfaces": [{"radius": 20, "thickness": 30, "material": "air", "stop": true}]}).to_string()).unwrap_err().to_string();
+    let e = Lens::from_json(
+        &json!({"aperture": {"type": "epd", "value": 1}, "object_distance": -5,
+        "surfaces": [{"radius": 20, "thickness": 30, "material": "air", "stop": true}]})
+        .to_string(),
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("object_distance") && e.contains(">= 0"), "{e}");
 }
 

@@ -15,7 +15,12 @@ fn gauss_pupil_integrates_the_unit_disc_and_its_polynomials() {
     // integrals over the disc of r^2 (pi / 2), r^4 (pi / 3), y^2 (pi / 4), x^2 y^2 (pi / 24)
     let m = |f: &dyn Fn(f64, f64) -> f64| x.iter().zip(&y).zip(&w).map(|((&a, &b), &c)| c * f(a, b)).sum::<f64>();
     let pi = std::f64::consts::PI;
-    for (got, want) in [(m(&|a, b| a * a + b * b), pi / 2.0), (m(&|a, b| (a * a + b * b).powi(2)), pi / 3.0), (m(&|_, b| b * b), pi / 4.0), (m(&|a, b| a * a * b * b), pi / 24.0)] {
+    for (got, want) in [
+        (m(&|a, b| a * a + b * b), pi / 2.0),
+        (m(&|a, b| (a * a + b * b).powi(2)), pi / 3.0),
+        (m(&|_, b| b * b), pi / 4.0),
+        (m(&|a, b| a * a * b * b), pi / 24.0),
+    ] {
         assert!((got - want).abs() < 1e-12, "{got} vs {want}");
     }
 }

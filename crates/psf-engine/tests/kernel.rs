@@ -70,7 +70,10 @@ fn block_kernel_matches_single_ray_trace_bit_for_bit() {
     assert!(counts[0] > 1000, "{counts:?}");
     let counts = check(&mixed_lens(), 60.0, 10.0);
     // Every outcome occurs, so every code path of the kernel was compared.
-    for (st, c) in [Status::Ok, Status::Missed, Status::Clipped, Status::Tir].iter().zip(counts) {
+    for (st, c) in [Status::Ok, Status::Missed, Status::Clipped, Status::Tir]
+        .iter()
+        .zip(counts)
+    {
         assert!(c > 0, "no {st:?} rays: {counts:?}");
     }
 }
@@ -79,10 +82,17 @@ fn block_kernel_matches_single_ray_trace_bit_for_bit() {
 fn invalid_input_is_flagged_not_traced() {
     let lens = common::cooke();
     let sys = System::new(&lens, 550.0).unwrap();
-    let o = vec![DVec3::new(0.0, 0.0, -5.0), DVec3::new(f64::NAN, 0.0, -5.0), DVec3::new(0.0, 1.0, -5.0)];
+    let o = vec![
+        DVec3::new(0.0, 0.0, -5.0),
+        DVec3::new(f64::NAN, 0.0, -5.0),
+        DVec3::new(0.0, 1.0, -5.0),
+    ];
     let d = vec![DVec3::Z, DVec3::Z, DVec3::new(0.0, 0.0, 2.0)];
     let r = sys.trace_many(&o, &d);
-    assert_eq!([r[0].status, r[1].status, r[2].status], [Status::Ok, Status::Invalid, Status::Invalid]);
+    assert_eq!(
+        [r[0].status, r[1].status, r[2].status],
+        [Status::Ok, Status::Invalid, Status::Invalid]
+    );
 }
 
 #[test]
@@ -90,7 +100,9 @@ fn flat_pupil_trace_matches_ray_states() {
     use psf_engine::{Aiming, Beam};
     let lens = common::cooke();
     let sys = System::new(&lens, 486.1).unwrap();
-    let (px, py): (Vec<f64>, Vec<f64>) = (0..300).map(|i| ((i as f64 * 0.37).sin() * 1.1, (i as f64 * 0.53).cos() * 1.1)).unzip();
+    let (px, py): (Vec<f64>, Vec<f64>) = (0..300)
+        .map(|i| ((i as f64 * 0.37).sin() * 1.1, (i as f64 * 0.53).cos() * 1.1))
+        .unzip();
     for aiming in [Aiming::Paraxial, Aiming::Real] {
         let beam = Beam::new(&sys, 20.0, aiming).unwrap();
         let (launches, states) = beam.trace_pupil(&px, &py);

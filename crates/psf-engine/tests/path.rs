@@ -12,7 +12,14 @@ fn pupil_points() -> (Vec<f64>, Vec<f64>) {
         px.push(0.0);
         py.push(-1.0 + 0.2 * i as f64);
     }
-    for (x, y) in [(0.7, 0.3), (-0.5, -0.6), (1.0, 0.0), (0.0, 1.6), (0.0, -2.5), (1.3, 1.3)] {
+    for (x, y) in [
+        (0.7, 0.3),
+        (-0.5, -0.6),
+        (1.0, 0.0),
+        (0.0, 1.6),
+        (0.0, -2.5),
+        (1.3, 1.3),
+    ] {
         px.push(x);
         py.push(y);
     }
@@ -38,10 +45,17 @@ fn check(lens: &Lens, fields: &[f64]) -> (usize, usize) {
                 let last = path.last[j];
                 if plain.status[j] == Status::Ok as u8 {
                     n_ok += 1;
-                    assert_eq!(last, k as i32, "field {field} ray {j}: reached the image, last point {last}");
+                    assert_eq!(
+                        last, k as i32,
+                        "field {field} ray {j}: reached the image, last point {last}"
+                    );
                     // Bit for bit, not just close.
                     for c in 0..3 {
-                        assert_eq!(pt(k)[c].to_bits(), plain.position[3 * j + c].to_bits(), "field {field} {aiming:?} ray {j} coord {c}");
+                        assert_eq!(
+                            pt(k)[c].to_bits(),
+                            plain.position[3 * j + c].to_bits(),
+                            "field {field} {aiming:?} ray {j} coord {c}"
+                        );
                     }
                 } else {
                     n_fail += 1;
@@ -50,18 +64,37 @@ fn check(lens: &Lens, fields: &[f64]) -> (usize, usize) {
                         Status::Clipped | Status::Tir => s,
                         _ => s - 1,
                     };
-                    assert_eq!(last, expect, "field {field} ray {j}: status {} at surface {s}", plain.status[j]);
+                    assert_eq!(
+                        last, expect,
+                        "field {field} ray {j}: status {} at surface {s}",
+                        plain.status[j]
+                    );
                 }
                 for i in 0..=k {
                     let p = pt(i);
                     if i as i32 > last {
-                        assert!(p.iter().all(|&v| v == 0.0), "ray {j}: point {i} after the last is not zero");
+                        assert!(
+                            p.iter().all(|&v| v == 0.0),
+                            "ray {j}: point {i} after the last is not zero"
+                        );
                         continue;
                     }
                     assert!(p.iter().all(|v| v.is_finite()));
-                    let (z0, rho) = (if i < k { lens.surfaces[i].z } else { lens.image_z }, p[0] * p[0] + p[1] * p[1]);
-                    let want = if i < k { z0 + sag(&lens.surfaces[i], rho).unwrap() } else { z0 };
-                    assert!((p[2] - want).abs() < 1e-12, "field {field} ray {j} surface {i}: z {} vs sag {want} ({:e})", p[2], p[2] - want);
+                    let (z0, rho) = (
+                        if i < k { lens.surfaces[i].z } else { lens.image_z },
+                        p[0] * p[0] + p[1] * p[1],
+                    );
+                    let want = if i < k {
+                        z0 + sag(&lens.surfaces[i], rho).unwrap()
+                    } else {
+                        z0
+                    };
+                    assert!(
+                        (p[2] - want).abs() < 1e-12,
+                        "field {field} ray {j} surface {i}: z {} vs sag {want} ({:e})",
+                        p[2],
+                        p[2] - want
+                    );
                 }
             }
         }
@@ -92,15 +125,27 @@ fn aspheric_lens_with_apertures_clips_where_it_should() {
     .unwrap();
     let (px, py) = pupil_points();
     let sys = System::new(&lens, 550.0).unwrap();
-    let path = Beam::new(&sys, 10.0, Aiming::Paraxial).unwrap().trace_path(&px, &py).unwrap();
-    let clipped = (0..px.len()).filter(|&j| path.image.status[j] == Status::Clipped as u8).count();
-    assert!(clipped >= 2, "expected clipped rays, got statuses {:?}", path.image.status);
+    let path = Beam::new(&sys, 10.0, Aiming::Paraxial)
+        .unwrap()
+        .trace_path(&px, &py)
+        .unwrap();
+    let clipped = (0..px.len())
+        .filter(|&j| path.image.status[j] == Status::Clipped as u8)
+        .count();
+    assert!(
+        clipped >= 2,
+        "expected clipped rays, got statuses {:?}",
+        path.image.status
+    );
     for j in 0..px.len() {
         if path.image.status[j] == Status::Clipped as u8 {
             let i = path.last[j] as usize;
             let p = &path.position[(j * 5 + i) * 3..(j * 5 + i) * 3 + 3];
             let sd = lens.surfaces[i].semi_diameter.unwrap();
-            assert!(p[0].hypot(p[1]) > sd, "clipped ray {j} at surface {i} lies inside the aperture");
+            assert!(
+                p[0].hypot(p[1]) > sd,
+                "clipped ray {j} at surface {i} lies inside the aperture"
+            );
         }
     }
     check(&lens, &[0.0, 10.0]);

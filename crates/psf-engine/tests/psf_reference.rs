@@ -11,7 +11,13 @@ fn rel_l2(a: &[f64], b: &[f64]) -> f64 {
 }
 
 fn opts(method: Method, n: usize) -> PsfOptions {
-    PsfOptions { method, pixel_mm: 0.25e-3, size: 128, pupil_samples: n, ..Default::default() }
+    PsfOptions {
+        method,
+        pixel_mm: 0.25e-3,
+        size: 128,
+        pupil_samples: n,
+        ..Default::default()
+    }
 }
 
 #[test]
@@ -21,7 +27,12 @@ fn fft_matches_huygens_on_axis_and_at_the_field_edge() {
         let f = psf(&lens, field, 550.0, &opts(Method::Fft, 128)).unwrap();
         let h = psf(&lens, field, 550.0, &opts(Method::Huygens, 128)).unwrap();
         let e = rel_l2(&f.data, &h.data);
-        eprintln!("field {field}: rel L2 {e:.4}, strehl fft {:?} huygens {:?}; fft {:?}", f.strehl, h.strehl, f.diagnostics.to_json());
+        eprintln!(
+            "field {field}: rel L2 {e:.4}, strehl fft {:?} huygens {:?}; fft {:?}",
+            f.strehl,
+            h.strehl,
+            f.diagnostics.to_json()
+        );
         assert!(e < 0.03, "field {field}: FFT vs Huygens relative L2 {e}");
     }
 }
@@ -41,8 +52,14 @@ fn strehl_matches_reference_within_2_percent() {
         }
         let want = pf["strehl_0p55_fft_pupil128_grid256"].as_f64().unwrap();
         for m in [Method::Fft, Method::Huygens] {
-            let got = psf(&lens, field, 550.0, &opts(m, 128)).unwrap().strehl.expect("a Strehl ratio");
-            eprintln!("field {field} {m:?}: strehl {got:.5} vs reference {want:.5} ({:+.2}%)", 100.0 * (got / want - 1.0));
+            let got = psf(&lens, field, 550.0, &opts(m, 128))
+                .unwrap()
+                .strehl
+                .expect("a Strehl ratio");
+            eprintln!(
+                "field {field} {m:?}: strehl {got:.5} vs reference {want:.5} ({:+.2}%)",
+                100.0 * (got / want - 1.0)
+            );
             assert!((got / want - 1.0).abs() < 0.02, "field {field} {m:?}: {got} vs {want}");
         }
     }

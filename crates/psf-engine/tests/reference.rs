@@ -11,9 +11,19 @@ fn glass_indices_match_reference() {
     let lens = common::cooke();
     for wl in ["0.4800", "0.5500", "0.6500"] {
         let n = lens.indices(wl.parse::<f64>().unwrap() * 1e3).unwrap();
-        for (i, s) in r["surfaces"].as_array().unwrap().iter().enumerate().filter(|(_, s)| s["role"] == "refracting") {
+        for (i, s) in r["surfaces"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| s["role"] == "refracting")
+        {
             let want = s["material_after"]["n"][wl].as_f64().unwrap();
-            assert!((n[i] - want).abs() < 1e-12, "surface {i} at {wl} um: {} vs {want}", n[i]);
+            assert!(
+                (n[i] - want).abs() < 1e-12,
+                "surface {i} at {wl} um: {} vs {want}",
+                n[i]
+            );
         }
     }
 }
@@ -56,7 +66,13 @@ fn golden_rays_intercepts_and_opl_within_1e9_mm() {
         let dp = (out.p - want).length();
         let dopl = (out.opl - r["opl_from_start_mm"].as_f64().unwrap()).abs();
         let dd = (out.d - DVec3::new(v("image_LMN", 0), v("image_LMN", 1), v("image_LMN", 2))).length();
-        assert!(dp < 1e-9 && dopl < 1e-9 && dd < 1e-9, "ray Hy={} Px={} Py={} wl={wl}: dp={dp:e} dopl={dopl:e} dd={dd:e}", r["Hy"], r["Px"], r["Py"]);
+        assert!(
+            dp < 1e-9 && dopl < 1e-9 && dd < 1e-9,
+            "ray Hy={} Px={} Py={} wl={wl}: dp={dp:e} dopl={dopl:e} dd={dd:e}",
+            r["Hy"],
+            r["Px"],
+            r["Py"]
+        );
         worst = (worst.0.max(dp), worst.1.max(dopl));
         // Our paraxial aiming must launch the same ray: compare image intercepts.
         let field = r["Hy"].as_f64().unwrap() * 20.0;
@@ -64,7 +80,16 @@ fn golden_rays_intercepts_and_opl_within_1e9_mm() {
         let l = beam.launch(r["Px"].as_f64().unwrap(), r["Py"].as_f64().unwrap());
         let ours = sys.trace(l.origin, l.dir, End::Image);
         let da = (ours.p - want).length();
-        assert!(da < 1e-9, "aimed ray Hy={} Px={} Py={}: {da:e} mm off", r["Hy"], r["Px"], r["Py"]);
+        assert!(
+            da < 1e-9,
+            "aimed ray Hy={} Px={} Py={}: {da:e} mm off",
+            r["Hy"],
+            r["Px"],
+            r["Py"]
+        );
     }
-    eprintln!("worst intercept error {:e} mm, worst OPL error {:e} mm", worst.0, worst.1);
+    eprintln!(
+        "worst intercept error {:e} mm, worst OPL error {:e} mm",
+        worst.0, worst.1
+    );
 }

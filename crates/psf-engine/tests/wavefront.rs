@@ -73,7 +73,18 @@ fn perfect_lens_has_no_wavefront_error() {
         assert!(wf.opd_waves.iter().all(|o| o.abs() < 1e-6));
     }
     // the same lens 0.5 mm out of focus is not perfect (the test can fail)
-    let wf = field_wavefront(&hyperbolic(100.0, 20.0, 0.5), 0.0, &[550.0], &[1.0], &px, &py, &w, Aiming::Paraxial, Tilt::PerWavelength).unwrap();
+    let wf = field_wavefront(
+        &hyperbolic(100.0, 20.0, 0.5),
+        0.0,
+        &[550.0],
+        &[1.0],
+        &px,
+        &py,
+        &w,
+        Aiming::Paraxial,
+        Tilt::PerWavelength,
+    )
+    .unwrap();
     assert!(wf.rms_waves[0] > 0.5);
 }
 
@@ -87,17 +98,36 @@ fn defocus_matches_w20_closed_form() {
     let (px, py, w) = quadrature(8, 16);
     let lambda = 550e-6;
     for dz in [-0.2, 0.1, 0.2] {
-        let wf = field_wavefront(&hyperbolic(f, epd, dz), 0.0, &[550.0], &[1.0], &px, &py, &w, Aiming::Paraxial, Tilt::PerWavelength).unwrap();
+        let wf = field_wavefront(
+            &hyperbolic(f, epd, dz),
+            0.0,
+            &[550.0],
+            &[1.0],
+            &px,
+            &py,
+            &w,
+            Aiming::Paraxial,
+            Tilt::PerWavelength,
+        )
+        .unwrap();
         let w20 = dz / (8.0 * n_f * n_f) / lambda; // waves
         let rms = w20.abs() / (2.0 * 3f64.sqrt());
         let rel = (wf.rms_waves[0] - rms).abs() / rms;
-        assert!(rel < 5e-3, "dz {dz}: RMS {} waves, closed form {rms} ({rel:.2e})", wf.rms_waves[0]);
+        assert!(
+            rel < 5e-3,
+            "dz {dz}: RMS {} waves, closed form {rms} ({rel:.2e})",
+            wf.rms_waves[0]
+        );
         // the per-ray OPD is W20 (rho^2 - 1/2), piston removed; sign: a ray at the rim
         // travels further to the reference sphere when the image lies beyond the focus
         for k in 0..px.len() {
             let rho2 = px[k] * px[k] + py[k] * py[k];
             let want = -w20 * (rho2 - 0.5);
-            assert!((wf.opd_waves[k] - want).abs() < 2e-2 * w20.abs(), "dz {dz}, ray {k}: {} vs {want}", wf.opd_waves[k]);
+            assert!(
+                (wf.opd_waves[k] - want).abs() < 2e-2 * w20.abs(),
+                "dz {dz}, ray {k}: {} vs {want}",
+                wf.opd_waves[k]
+            );
         }
         // no tilt on axis
         assert!(wf.tilt_mm[0][0].abs() < 1e-12 && wf.tilt_mm[0][1].abs() < 1e-12);
@@ -111,12 +141,27 @@ fn rms_matches_the_fft_pupils_wavefront() {
     let lens = common::cooke();
     let (px, py, w) = quadrature(12, 24);
     for field in [0.0, 14.0, 20.0] {
-        let wf = field_wavefront(&lens, field, &[550.0], &[1.0], &px, &py, &w, Aiming::Paraxial, Tilt::PerWavelength).unwrap();
+        let wf = field_wavefront(
+            &lens,
+            field,
+            &[550.0],
+            &[1.0],
+            &px,
+            &py,
+            &w,
+            Aiming::Paraxial,
+            Tilt::PerWavelength,
+        )
+        .unwrap();
         let sys = System::new(&lens, 550.0).unwrap();
         let p = sample_pupil(&sys, field, Aiming::Paraxial, 512).unwrap();
         let fft = p.rms_wavefront();
         let rel = (wf.rms_waves[0] - fft).abs() / fft;
-        assert!(rel < 1e-2, "field {field}: quadrature {} vs FFT pupil {fft} waves ({rel:.2e})", wf.rms_waves[0]);
+        assert!(
+            rel < 1e-2,
+            "field {field}: quadrature {} vs FFT pupil {fft} waves ({rel:.2e})",
+            wf.rms_waves[0]
+        );
     }
 }
 
@@ -127,15 +172,48 @@ fn shared_tilt_keeps_lateral_colour() {
     let lens = common::paper_triplet();
     let (px, py, w) = quadrature(6, 12);
     let wl = [470.0, 550.0, 650.0];
-    let per = field_wavefront(&lens, 14.86, &wl, &[1.0; 3], &px, &py, &w, Aiming::Paraxial, Tilt::PerWavelength).unwrap();
-    let shared = field_wavefront(&lens, 14.86, &wl, &[1.0; 3], &px, &py, &w, Aiming::Paraxial, Tilt::Shared).unwrap();
+    let per = field_wavefront(
+        &lens,
+        14.86,
+        &wl,
+        &[1.0; 3],
+        &px,
+        &py,
+        &w,
+        Aiming::Paraxial,
+        Tilt::PerWavelength,
+    )
+    .unwrap();
+    let shared = field_wavefront(
+        &lens,
+        14.86,
+        &wl,
+        &[1.0; 3],
+        &px,
+        &py,
+        &w,
+        Aiming::Paraxial,
+        Tilt::Shared,
+    )
+    .unwrap();
     let ms = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>();
     assert!(ms(&shared.rms_waves) > ms(&per.rms_waves));
     // per-wavelength tilts differ along y (the field direction), the shared ones do not
     assert!((per.tilt_mm[0][1] - per.tilt_mm[2][1]).abs() > 1e-4);
     assert_eq!(shared.tilt_mm[0], shared.tilt_mm[2]);
     // on axis the two agree (no lateral colour by symmetry)
-    let a = field_wavefront(&lens, 0.0, &wl, &[1.0; 3], &px, &py, &w, Aiming::Paraxial, Tilt::PerWavelength).unwrap();
+    let a = field_wavefront(
+        &lens,
+        0.0,
+        &wl,
+        &[1.0; 3],
+        &px,
+        &py,
+        &w,
+        Aiming::Paraxial,
+        Tilt::PerWavelength,
+    )
+    .unwrap();
     let b = field_wavefront(&lens, 0.0, &wl, &[1.0; 3], &px, &py, &w, Aiming::Paraxial, Tilt::Shared).unwrap();
     for (x, y) in a.rms_waves.iter().zip(&b.rms_waves) {
         assert!((x - y).abs() < 1e-9 * x.max(1e-9));
@@ -145,9 +223,29 @@ fn shared_tilt_keeps_lateral_colour() {
 #[test]
 fn bad_weights_are_refused() {
     let lens = hyperbolic(100.0, 10.0, 0.0);
-    let e = field_wavefront(&lens, 0.0, &[550.0], &[1.0], &[0.0], &[0.0], &[f64::NAN], Aiming::Paraxial, Tilt::Shared);
+    let e = field_wavefront(
+        &lens,
+        0.0,
+        &[550.0],
+        &[1.0],
+        &[0.0],
+        &[0.0],
+        &[f64::NAN],
+        Aiming::Paraxial,
+        Tilt::Shared,
+    );
     assert!(e.is_err());
-    let e = field_wavefront(&lens, 0.0, &[550.0], &[], &[0.0], &[0.0], &[1.0], Aiming::Paraxial, Tilt::Shared);
+    let e = field_wavefront(
+        &lens,
+        0.0,
+        &[550.0],
+        &[],
+        &[0.0],
+        &[0.0],
+        &[1.0],
+        Aiming::Paraxial,
+        Tilt::Shared,
+    );
     assert!(e.is_err());
 }
 
@@ -172,8 +270,33 @@ fn image_space_telecentric_lens_is_refused() {
     let ffl = psf_engine::paraxial(&singlet(1e-9), 550.0).unwrap().ffl;
     let lens = singlet(-ffl);
     let (px, py, w) = quadrature(4, 8);
-    let e = field_wavefront(&lens, 0.0, &[550.0], &[1.0], &px, &py, &w, Aiming::Paraxial, Tilt::PerWavelength);
-    assert!(matches!(&e, Err(err) if err.to_string().contains("telecentric")), "{:?}", e.err());
+    let e = field_wavefront(
+        &lens,
+        0.0,
+        &[550.0],
+        &[1.0],
+        &px,
+        &py,
+        &w,
+        Aiming::Paraxial,
+        Tilt::PerWavelength,
+    );
+    assert!(
+        matches!(&e, Err(err) if err.to_string().contains("telecentric")),
+        "{:?}",
+        e.err()
+    );
     // a stop 10 mm off the focal point is fine
-    assert!(field_wavefront(&singlet(-ffl - 10.0), 0.0, &[550.0], &[1.0], &px, &py, &w, Aiming::Paraxial, Tilt::PerWavelength).is_ok());
+    assert!(field_wavefront(
+        &singlet(-ffl - 10.0),
+        0.0,
+        &[550.0],
+        &[1.0],
+        &px,
+        &py,
+        &w,
+        Aiming::Paraxial,
+        Tilt::PerWavelength
+    )
+    .is_ok());
 }

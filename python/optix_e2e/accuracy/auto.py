@@ -34,13 +34,24 @@ DENSE_FIELDS = 33
 def _batch(lens_jsons, fields, channels, size, pixel_um):
     from .. import engine
 
-    r = engine.psf_batch(lens_jsons, fields_deg=fields, channels=channels, method="fft", pixel_um=pixel_um,
-                         size=size, pupil_samples=64, aiming="paraxial", integrate=False, fast=True)
+    r = engine.psf_batch(
+        lens_jsons,
+        fields_deg=fields,
+        channels=channels,
+        method="fft",
+        pixel_um=pixel_um,
+        size=size,
+        pupil_samples=64,
+        aiming="paraxial",
+        integrate=False,
+        fast=True,
+    )
     return r["psf"].astype(np.float64), r["ok"]
 
 
-def choose_wavelengths(lens_jsons, max_field_deg: float, target: float, *, size: int = 128,
-                       pixel_um: float = 1.0) -> dict:
+def choose_wavelengths(
+    lens_jsons, max_field_deg: float, target: float, *, size: int = 128, pixel_um: float = 1.0
+) -> dict:
     """Per channel of ``CHANNEL_RESPONSE``: the fewest midpoint wavelengths whose channel
     PSF is estimated within ``target`` (relative L1) at the axis, 0.7 and full field of
     every pilot lens.  Returns {channel: {"k", "estimated_rel_l1" {k: worst estimate},
@@ -50,7 +61,7 @@ def choose_wavelengths(lens_jsons, max_field_deg: float, target: float, *, size:
     for name in CHANNEL_RESPONSE:
         nodes = channel_wavelengths(name, 9)
         psf, ok = _batch(lens_jsons, fields, [[p] for p in nodes], size, pixel_um)
-        psf = psf[ok]                                        # (D, F, 9, S, S), unit sums
+        psf = psf[ok]  # (D, F, 9, S, S), unit sums
         w9 = np.array([w for _, w in nodes])
         p9 = np.einsum("dfkij,k->dfij", psf, w9)
         w3 = np.array([w for _, w in channel_wavelengths(name, 3)])
@@ -61,20 +72,24 @@ def choose_wavelengths(lens_jsons, max_field_deg: float, target: float, *, size:
         # (against the 9-node PSF, whose own error is ~e3 / 9: add it back to be safe)
         est = {1: e1 + e3 / 9, 3: e3 * 10 / 9, 5: e3 * 9 / 25 + e3 / 9, 9: e3 / 9}
         k = next((k for k in K_WAVELENGTHS if est[k] <= target), 9)
-        out[name] = {"k": k, "estimated_rel_l1": {str(q): float(v) for q, v in est.items()},
-                     "wavelengths": channel_wavelengths(name, k)}
+        out[name] = {
+            "k": k,
+            "estimated_rel_l1": {str(q): float(v) for q, v in est.items()},
+            "wavelengths": channel_wavelengths(name, k),
+        }
     return out
 
 
-def choose_fields(lens_jsons, max_field_deg: float, wavelength_nm: float, target: float, *,
-                  size: int = 128, pixel_um: float = 1.0) -> dict:
+def choose_fields(
+    lens_jsons, max_field_deg: float, wavelength_nm: float, target: float, *, size: int = 128, pixel_um: float = 1.0
+) -> dict:
     """The fewest field samples K (of ``K_FIELDS``, uniform from the axis to the full field)
     whose linear interpolation reproduces the PSFs at ``DENSE_FIELDS`` fields within
     ``target`` mean relative L1, for every pilot lens; where none does, K = DENSE_FIELDS
     and "met" False.  Returns {"K", "mean_rel_l1" {K: worst pilot's mean}, "met"}."""
     dense = np.linspace(0.0, max_field_deg, DENSE_FIELDS)
     psf, ok = _batch(lens_jsons, dense, [[(float(wavelength_nm), 1.0)]], size, pixel_um)
-    psf = psf[ok][:, :, 0]                                   # (D, F, S, S)
+    psf = psf[ok][:, :, 0]  # (D, F, S, S)
     errs = {}
     for k in K_FIELDS:
         idx = np.round(np.linspace(0, DENSE_FIELDS - 1, k)).astype(int)

@@ -16,14 +16,13 @@ from .sweep import timed
 
 @dataclass(frozen=True)
 class Case:
-    label: str          # lens or design name
+    label: str  # lens or design name
     lens_json: str
     field_deg: float
     wavelength_nm: float
 
 
-def check_case(case: Case, *, target: float, size: int = 128, pixel_um: float = 1.0,
-               repeats: int = 3) -> dict:
+def check_case(case: Case, *, target: float, size: int = 128, pixel_um: float = 1.0, repeats: int = 3) -> dict:
     """One case: the reference, every candidate's measured error and time, auto's choice
     and its error and time, and the cheapest candidate meeting ``target`` in hindsight."""
     from .. import engine
@@ -34,14 +33,35 @@ def check_case(case: Case, *, target: float, size: int = 128, pixel_um: float = 
     cands = []
     for c in info["candidates"]:
         reps = repeats if (c["predicted_cost_s"] or 0) < 0.05 else 1
-        (psf, diag), t = timed(lambda: engine.psf(js, field_deg=f, wavelength_nm=wl, method=c["method"],
-                                                   pixel_um=pixel_um, size=size, pupil_samples=c["pupil_samples"],
-                                                   fast=c["fast"]), reps)
-        cands.append({**c, "rel_l1": rel_l1(psf, ref.psf), "time_s": t,
-                      "ran_as": diag.get("fft_mode") or diag["method"]})
-    (psf, diag), t_auto = timed(lambda: engine.psf(js, field_deg=f, wavelength_nm=wl, method="auto",
-                                                     pixel_um=pixel_um, size=size, pupil_samples=64, accuracy=target),
-                                repeats)
+        (psf, diag), t = timed(
+            lambda: engine.psf(
+                js,
+                field_deg=f,
+                wavelength_nm=wl,
+                method=c["method"],
+                pixel_um=pixel_um,
+                size=size,
+                pupil_samples=c["pupil_samples"],
+                fast=c["fast"],
+            ),
+            reps,
+        )
+        cands.append(
+            {**c, "rel_l1": rel_l1(psf, ref.psf), "time_s": t, "ran_as": diag.get("fft_mode") or diag["method"]}
+        )
+    (psf, diag), t_auto = timed(
+        lambda: engine.psf(
+            js,
+            field_deg=f,
+            wavelength_nm=wl,
+            method="auto",
+            pixel_um=pixel_um,
+            size=size,
+            pupil_samples=64,
+            accuracy=target,
+        ),
+        repeats,
+    )
     auto = diag["auto"]
     meeting = [c for c in cands if c["rel_l1"] <= target]
     best = min(meeting, key=lambda c: c["time_s"]) if meeting else None
@@ -50,11 +70,18 @@ def check_case(case: Case, *, target: float, size: int = 128, pixel_um: float = 
     chosen = next(c for c in cands if c["name"] == auto["choice"])
     best_modelled = min(meeting, key=lambda c: c["predicted_cost_s"]) if meeting else None
     return {
-        "case": case.label, "field_deg": f, "wavelength_nm": wl, "target": target,
-        "reference_samples": ref.pupil_samples, "reference_convergence": ref.convergence,
-        "probe": info["probe"], "candidates": cands,
-        "auto_choice": auto["choice"], "auto_predicted_rel_l1": auto["predicted_rel_l1"],
-        "auto_rel_l1": rel_l1(psf, ref.psf), "auto_time_s": t_auto,
+        "case": case.label,
+        "field_deg": f,
+        "wavelength_nm": wl,
+        "target": target,
+        "reference_samples": ref.pupil_samples,
+        "reference_convergence": ref.convergence,
+        "probe": info["probe"],
+        "candidates": cands,
+        "auto_choice": auto["choice"],
+        "auto_predicted_rel_l1": auto["predicted_rel_l1"],
+        "auto_rel_l1": rel_l1(psf, ref.psf),
+        "auto_time_s": t_auto,
         "auto_met": rel_l1(psf, ref.psf) <= target,
         "hindsight_choice": best["name"] if best else None,
         "hindsight_time_s": best["time_s"] if best else None,
@@ -74,16 +101,23 @@ def summarize(rows: list[dict]) -> dict:
     modelled = [r["auto_modelled_cost_s"] / r["hindsight_modelled_cost_s"] for r in ok]
     return {
         "modelled_cost_ratio_of_means": (
-            float(np.mean([r["auto_modelled_cost_s"] for r in ok]) / np.mean([r["hindsight_modelled_cost_s"] for r in ok]))
-            if ok else float("nan")),
+            float(
+                np.mean([r["auto_modelled_cost_s"] for r in ok]) / np.mean([r["hindsight_modelled_cost_s"] for r in ok])
+            )
+            if ok
+            else float("nan")
+        ),
         "modelled_cost_ratio_max": float(np.max(modelled)) if modelled else float("nan"),
         "n_cases": len(rows),
         "n_feasible": len(ok),
         "met_fraction": float(np.mean([r["auto_met"] for r in rows])) if rows else float("nan"),
         "mean_time_auto_s": float(np.mean([r["auto_time_s"] for r in ok])) if ok else float("nan"),
         "mean_time_hindsight_s": float(np.mean([r["hindsight_time_s"] for r in ok])) if ok else float("nan"),
-        "cost_ratio_of_means": (float(np.mean([r["auto_time_s"] for r in ok]) / np.mean([r["hindsight_time_s"] for r in ok]))
-                                if ok else float("nan")),
+        "cost_ratio_of_means": (
+            float(np.mean([r["auto_time_s"] for r in ok]) / np.mean([r["hindsight_time_s"] for r in ok]))
+            if ok
+            else float("nan")
+        ),
         "cost_ratio_median": float(np.median(ratios)) if ratios else float("nan"),
         "cost_ratio_max": float(np.max(ratios)) if ratios else float("nan"),
         "choices": {k: sum(1 for r in rows if r["auto_choice"] == k) for k in sorted({r["auto_choice"] for r in rows})},
@@ -126,11 +160,23 @@ def held_out_cases(spaces, n_designs: int, seed: int) -> list[Case]:
         vals = sample_designs(space, base, n_designs, seed=seed, method="uniform").values
         traced = engine_base(base, "auto")
         designs = [space.apply(traced, x) for x in vals]
-        errs = refocus_many(designs, "best", [0.0, 0.7 * base.max_field_deg, base.max_field_deg],
-                            base.wavelengths_nm, primary_nm=base.primary_wavelength_nm, rings=4)
+        errs = refocus_many(
+            designs,
+            "best",
+            [0.0, 0.7 * base.max_field_deg, base.max_field_deg],
+            base.wavelengths_nm,
+            primary_nm=base.primary_wavelength_nm,
+            rings=4,
+        )
         for i, (d, e) in enumerate(zip(designs, errs)):
             if e:
                 continue
-            out.append(Case(f"{name}#{i}", json.dumps(d), round(float(rng.uniform(0, base.max_field_deg)), 3),
-                            round(float(rng.uniform(450.0, 650.0)), 1)))
+            out.append(
+                Case(
+                    f"{name}#{i}",
+                    json.dumps(d),
+                    round(float(rng.uniform(0, base.max_field_deg)), 3),
+                    round(float(rng.uniform(450.0, 650.0)), 1),
+                )
+            )
     return out

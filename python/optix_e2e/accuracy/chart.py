@@ -23,8 +23,12 @@ def summarize(rows: list[dict], experiment: str = "method") -> list[dict]:
             groups[(r["method"], r["setting"])].append(r)
     out = []
     for (method, setting), rs in groups.items():
-        s = {"method": method, "setting": setting, "n_cases": len(rs),
-             "time_s": float(np.median([r["time_s"] for r in rs]))}
+        s = {
+            "method": method,
+            "setting": setting,
+            "n_cases": len(rs),
+            "time_s": float(np.median([r["time_s"] for r in rs])),
+        }
         for m in METRICS:
             vals = [r[m] for r in rs if m in r and not (isinstance(r[m], float) and math.isnan(r[m]))]
             s[m] = float(np.median(vals)) if vals else float("nan")
@@ -58,8 +62,10 @@ def plot_methods(summary: list[dict], path: Path, title: str) -> None:
 
     fig, axes = plt.subplots(1, 2, figsize=(13, 5.2))
     colors = {"geometric": "tab:orange", "fft": "tab:blue", "fft-fast": "tab:green", "huygens": "tab:red"}
-    for ax, metric, label in ((axes[0], "rel_l1", "PSF relative L1 error (median over cases)"),
-                              (axes[1], "image_rel_l2", "rendered test image relative L2 error (median)")):
+    for ax, metric, label in (
+        (axes[0], "rel_l1", "PSF relative L1 error (median over cases)"),
+        (axes[1], "image_rel_l2", "rendered test image relative L2 error (median)"),
+    ):
         pts = [dict(p) for p in summary if np.isfinite(p[metric])]
         mark_pareto(pts, "time_s", metric)
         for method in METHOD_ORDER:
@@ -72,18 +78,36 @@ def plot_methods(summary: list[dict], path: Path, title: str) -> None:
                     by_pad[p.get("pad") or "auto"].append(p)
                 for pad, ps in sorted(by_pad.items(), key=lambda kv: str(kv[0])):
                     ps.sort(key=lambda p: p["pupil_samples"])
-                    ax.plot([p["time_s"] for p in ps], [p[metric] for p in ps], "o-", color=colors[method],
-                            alpha=0.45 if pad != "auto" else 1.0, label=f"fft grid {'auto' if pad == 'auto' else f'{pad}N'}")
+                    ax.plot(
+                        [p["time_s"] for p in ps],
+                        [p[metric] for p in ps],
+                        "o-",
+                        color=colors[method],
+                        alpha=0.45 if pad != "auto" else 1.0,
+                        label=f"fft grid {'auto' if pad == 'auto' else f'{pad}N'}",
+                    )
             else:
                 ms.sort(key=lambda p: p["pupil_samples"])
                 ax.plot([p["time_s"] for p in ms], [p[metric] for p in ms], "o-", color=colors[method], label=method)
             for p in ms:
-                ax.annotate(str(p["pupil_samples"]), (p["time_s"], p[metric]), fontsize=6, xytext=(3, 3),
-                            textcoords="offset points")
+                ax.annotate(
+                    str(p["pupil_samples"]),
+                    (p["time_s"], p[metric]),
+                    fontsize=6,
+                    xytext=(3, 3),
+                    textcoords="offset points",
+                )
         front = sorted((p for p in pts if p["pareto"]), key=lambda p: p["time_s"])
         ax.step([p["time_s"] for p in front], [p[metric] for p in front], where="post", color="k", lw=1, ls="--")
-        ax.scatter([p["time_s"] for p in front], [p[metric] for p in front], s=120, facecolors="none",
-                   edgecolors="k", label="Pareto front", zorder=5)
+        ax.scatter(
+            [p["time_s"] for p in front],
+            [p[metric] for p in front],
+            s=120,
+            facecolors="none",
+            edgecolors="k",
+            label="Pareto front",
+            zorder=5,
+        )
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("time per PSF (s, median)")
@@ -109,8 +133,14 @@ def plot_sampling(spectral: list[dict], fields: list[dict], path: Path) -> None:
         by[(r["lens"], r["channel"])].append(r)
     for (lens, ch), rs in sorted(by.items()):
         rs.sort(key=lambda r: r["n_wavelengths"])
-        axes[0].plot([r["n_wavelengths"] for r in rs], [r["rel_l1"] for r in rs], "o-",
-                     color={"R": "tab:red", "G": "tab:green", "B": "tab:blue"}[ch], alpha=0.7, label=f"{lens} {ch}")
+        axes[0].plot(
+            [r["n_wavelengths"] for r in rs],
+            [r["rel_l1"] for r in rs],
+            "o-",
+            color={"R": "tab:red", "G": "tab:green", "B": "tab:blue"}[ch],
+            alpha=0.7,
+            label=f"{lens} {ch}",
+        )
     axes[0].set_xlabel("wavelengths per channel")
     axes[0].set_ylabel("channel PSF relative L1 vs 33 wavelengths")
     by = defaultdict(list)
@@ -119,7 +149,9 @@ def plot_sampling(spectral: list[dict], fields: list[dict], path: Path) -> None:
     for lens, rs in sorted(by.items()):
         rs.sort(key=lambda r: r["k_fields"])
         axes[1].plot([r["k_fields"] for r in rs], [r["rel_l1"] for r in rs], "o-", label=f"{lens} mean")
-        axes[1].plot([r["k_fields"] for r in rs], [r["rel_l1_max"] for r in rs], "x:", alpha=0.6, label=f"{lens} worst field")
+        axes[1].plot(
+            [r["k_fields"] for r in rs], [r["rel_l1_max"] for r in rs], "x:", alpha=0.6, label=f"{lens} worst field"
+        )
     axes[1].set_xlabel("field samples K (linear interpolation between them)")
     axes[1].set_ylabel("PSF relative L1 vs the PSF at each field")
     for ax in axes:

@@ -18,8 +18,9 @@ def rel_l2(a: np.ndarray, ref: np.ndarray) -> float:
     return float(np.linalg.norm(a - ref) / np.linalg.norm(ref))
 
 
-def ee_radius(psf: np.ndarray, pixel_um: float, fraction: float = 0.8,
-              centre: tuple[float, float] | None = None) -> float:
+def ee_radius(
+    psf: np.ndarray, pixel_um: float, fraction: float = 0.8, centre: tuple[float, float] | None = None
+) -> float:
     """Radius (um) of the circle around ``centre`` (pixels (row, col); default the PSF's
     centroid) holding ``fraction`` of the PSF's energy in the window: the encircled-energy
     curve over pixel-centre distances, interpolated linearly."""
@@ -53,7 +54,7 @@ def scene_chart(size: int = 192, seed: int = 0) -> np.ndarray:
     rmin, rmax = 1.0, size / 6
     for _ in range(12 * size):
         u = rng.random()
-        r = (rmin ** -2 + u * (rmax ** -2 - rmin ** -2)) ** -0.5
+        r = (rmin**-2 + u * (rmax**-2 - rmin**-2)) ** -0.5
         cy, cx = rng.random(2) * size
         img[(y - cy) ** 2 + (x - cx) ** 2 <= r * r] = rng.random()
     # Siemens star (36 spokes) in the top-left quadrant
@@ -76,7 +77,7 @@ def render(img: np.ndarray, psf: np.ndarray) -> np.ndarray:
     f = np.fft.rfft2(img, (n, n)) * np.fft.rfft2(psf, (n, n))
     out = np.fft.irfft2(f, (n, n))
     c = psf.shape[0] // 2
-    return out[c:c + img.shape[0], c:c + img.shape[1]]
+    return out[c : c + img.shape[0], c : c + img.shape[1]]
 
 
 def render_error(a: np.ndarray, ref: np.ndarray, img: np.ndarray) -> float:

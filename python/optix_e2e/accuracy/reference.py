@@ -23,9 +23,17 @@ class Reference:
     diagnostics: dict
 
 
-def converged_reference(lens_json: str, field_deg: float, wavelength_nm: float, *, size: int,
-                        pixel_um: float, start: int = 128, tol: float = 5e-3,
-                        max_samples: int = 1024) -> Reference:
+def converged_reference(
+    lens_json: str,
+    field_deg: float,
+    wavelength_nm: float,
+    *,
+    size: int,
+    pixel_um: float,
+    start: int = 128,
+    tol: float = 5e-3,
+    max_samples: int = 1024,
+) -> Reference:
     """Huygens PSFs at ``start``, 2 ``start``, ... pupil samples until the relative L1
     between two successive ones is within ``tol``; returns the last.  Raises RuntimeError
     if ``max_samples`` is reached first."""
@@ -35,8 +43,15 @@ def converged_reference(lens_json: str, field_deg: float, wavelength_nm: float, 
     prev, n, change = None, start, float("inf")
     while n <= max_samples:
         try:
-            psf, diag = engine.psf(lens_json, field_deg=field_deg, wavelength_nm=wavelength_nm, method="huygens",
-                                   pixel_um=pixel_um, size=size, pupil_samples=n)
+            psf, diag = engine.psf(
+                lens_json,
+                field_deg=field_deg,
+                wavelength_nm=wavelength_nm,
+                method="huygens",
+                pixel_um=pixel_um,
+                size=size,
+                pupil_samples=n,
+            )
         except engine.PsfError:  # refused by its own checks (aliased at this sampling): not yet
             prev, n = None, 2 * n
             continue
@@ -45,5 +60,7 @@ def converged_reference(lens_json: str, field_deg: float, wavelength_nm: float, 
             if change <= tol:
                 return Reference(psf, diag.get("strehl"), n, change, time.perf_counter() - t0, diag)
         prev, n = psf, 2 * n
-    raise RuntimeError(f"Huygens reference at {field_deg} deg, {wavelength_nm} nm did not converge to "
-                       f"{tol:.1%} by {max_samples} pupil samples (last change {change:.2%})")
+    raise RuntimeError(
+        f"Huygens reference at {field_deg} deg, {wavelength_nm} nm did not converge to "
+        f"{tol:.1%} by {max_samples} pupil samples (last change {change:.2%})"
+    )

@@ -28,8 +28,13 @@ def write_csv(path: Path, rows: list[dict]) -> None:
         w.writerows(rows)
 
 
-def run(out: "str | Path", lenses=DEFAULT_LENSES, quick: bool = False, progress: bool = True,
-        log: Callable[[str], None] = print) -> dict:
+def run(
+    out: "str | Path",
+    lenses=DEFAULT_LENSES,
+    quick: bool = False,
+    progress: bool = True,
+    log: Callable[[str], None] = print,
+) -> dict:
     """The whole bench into ``out``: rows.csv (every measurement), summary.csv (per method
     and setting over the cases, with the Pareto front), sampling.csv (wavelengths per channel
     and field samples), accuracy.json, speed_accuracy.png, sampling.png."""
@@ -41,8 +46,12 @@ def run(out: "str | Path", lenses=DEFAULT_LENSES, quick: bool = False, progress:
     settings = method_settings(quick)
     loaded = [Lens.load(name) for name in lenses]
     fracs = {"axis": 0.0, "edge": 1.0} if quick else FIELD_FRACTIONS
-    cases = [(lens, frac * lens.max_field_deg, wl) for lens in loaded for frac in fracs.values()
-             for wl in ([lens.primary_wavelength_nm] if quick else lens.wavelengths_nm)]
+    cases = [
+        (lens, frac * lens.max_field_deg, wl)
+        for lens in loaded
+        for frac in fracs.values()
+        for wl in ([lens.primary_wavelength_nm] if quick else lens.wavelengths_nm)
+    ]
     bar = None
     if progress:
         from tqdm import tqdm
@@ -67,19 +76,37 @@ def run(out: "str | Path", lenses=DEFAULT_LENSES, quick: bool = False, progress:
     write_csv(out / "rows.csv", rows)
     write_csv(out / "summary.csv", summary)
     write_csv(out / "sampling.csv", sampling)
-    title = (f"{', '.join(lenses)}: {len(cases)} cases (fields {', '.join(fracs)}; "
-             f"{'primary wavelength' if quick else 'each lens wavelength'}), {cfg.size}x{cfg.size} at {cfg.pixel_um} um, "
-             f"vs Huygens converged by doubling")
+    title = (
+        f"{', '.join(lenses)}: {len(cases)} cases (fields {', '.join(fracs)}; "
+        f"{'primary wavelength' if quick else 'each lens wavelength'}), {cfg.size}x{cfg.size} at {cfg.pixel_um} um, "
+        f"vs Huygens converged by doubling"
+    )
     plot_methods(summary, out / "speed_accuracy.png", title)
-    plot_sampling([r for r in sampling if r["experiment"] == "spectral"],
-                  [r for r in sampling if r["experiment"] == "fields"], out / "sampling.png")
-    report = {"lenses": list(lenses), "n_cases": len(cases), "quick": quick, "seconds": time.perf_counter() - t0,
-              "size": cfg.size, "pixel_um": cfg.pixel_um,
-              "reference": {"method": "huygens", "start": cfg.ref_start, "tol": cfg.ref_tol,
-                            "samples": sorted({r["reference_samples"] for r in rows})},
-              "pareto_front": [{k: s[k] for k in ("method", "setting", "time_s", "rel_l1", "image_rel_l2")}
-                               for s in sorted(summary, key=lambda s: s["time_s"]) if s["pareto"]],
-              "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine()},
-              "files": ["rows.csv", "summary.csv", "sampling.csv", "speed_accuracy.png", "sampling.png"]}
+    plot_sampling(
+        [r for r in sampling if r["experiment"] == "spectral"],
+        [r for r in sampling if r["experiment"] == "fields"],
+        out / "sampling.png",
+    )
+    report = {
+        "lenses": list(lenses),
+        "n_cases": len(cases),
+        "quick": quick,
+        "seconds": time.perf_counter() - t0,
+        "size": cfg.size,
+        "pixel_um": cfg.pixel_um,
+        "reference": {
+            "method": "huygens",
+            "start": cfg.ref_start,
+            "tol": cfg.ref_tol,
+            "samples": sorted({r["reference_samples"] for r in rows}),
+        },
+        "pareto_front": [
+            {k: s[k] for k in ("method", "setting", "time_s", "rel_l1", "image_rel_l2")}
+            for s in sorted(summary, key=lambda s: s["time_s"])
+            if s["pareto"]
+        ],
+        "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine()},
+        "files": ["rows.csv", "summary.csv", "sampling.csv", "speed_accuracy.png", "sampling.png"],
+    }
     (out / "accuracy.json").write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
     return report

@@ -22,7 +22,7 @@ from .reference import converged_reference
 
 @dataclass(frozen=True)
 class Setting:
-    method: str            # geometric | fft | fft-fast | huygens
+    method: str  # geometric | fft | fft-fast | huygens
     pupil_samples: int
     pad: int | None = None  # FFT grid = pad x pupil_samples (None: the engine's default)
 
@@ -47,8 +47,8 @@ def method_settings(quick: bool = False) -> list[Setting]:
 class Config:
     size: int = 128
     pixel_um: float = 1.0
-    repeats: int = 3              # timed calls per setting (median), after one warm-up
-    max_repeat_s: float = 0.5     # fewer repeats where one call takes longer
+    repeats: int = 3  # timed calls per setting (median), after one warm-up
+    max_repeat_s: float = 0.5  # fewer repeats where one call takes longer
     ref_start: int = 128
     ref_tol: float = 5e-3
     ref_max: int = 1024
@@ -79,8 +79,17 @@ def _engine_psf(js: str, f: float, wl: float, s: Setting, cfg: Config):
 
     method = "fft" if s.method == "fft-fast" else s.method
     grid = s.pad * s.pupil_samples if s.pad else None
-    return engine.psf(js, field_deg=f, wavelength_nm=wl, method=method, pixel_um=cfg.pixel_um, size=cfg.size,
-                      pupil_samples=s.pupil_samples, fft_grid=grid, fast=s.method == "fft-fast")
+    return engine.psf(
+        js,
+        field_deg=f,
+        wavelength_nm=wl,
+        method=method,
+        pixel_um=cfg.pixel_um,
+        size=cfg.size,
+        pupil_samples=s.pupil_samples,
+        fft_grid=grid,
+        fast=s.method == "fft-fast",
+    )
 
 
 def _costs(s: Setting, diag: dict, n_surfaces: int, size: int) -> dict:
@@ -89,22 +98,31 @@ def _costs(s: Setting, diag: dict, n_surfaces: int, size: int) -> dict:
     if s.method == "fft-fast":
         rays = int(diag.get("rays_traced", 0))
     else:
-        rays = int(round(math.pi / 4 * s.pupil_samples ** 2))
+        rays = int(round(math.pi / 4 * s.pupil_samples**2))
     g = diag.get("fft_grid")
-    return {"rays": rays, "intersections": rays * (n_surfaces + 1),
-            "fft_points": int(g) ** 2 if g and s.method in ("fft", "fft-fast") else 0,
-            "wavelet_terms": rays * size * size if s.method == "huygens" else 0}
+    return {
+        "rays": rays,
+        "intersections": rays * (n_surfaces + 1),
+        "fft_points": int(g) ** 2 if g and s.method in ("fft", "fft-fast") else 0,
+        "wavelet_terms": rays * size * size if s.method == "huygens" else 0,
+    }
 
 
 def _errors(psf: np.ndarray, ref: np.ndarray, cfg: Config, strehl=None, strehl_ref=None) -> dict:
     centre = _centroid(ref)
     ee, ee_ref = ee_radius(psf, cfg.pixel_um, 0.8, centre), ee_radius(ref, cfg.pixel_um, 0.8, centre)
     s_err = abs(strehl - strehl_ref) if strehl is not None and strehl_ref is not None else float("nan")
-    return {"rel_l1": rel_l1(psf, ref), "rel_l2": rel_l2(psf, ref),
-            "strehl": strehl if strehl is not None else float("nan"),
-            "strehl_ref": strehl_ref if strehl_ref is not None else float("nan"), "strehl_err": s_err,
-            "ee80_um": ee, "ee80_ref_um": ee_ref, "ee80_err_um": abs(ee - ee_ref),
-            "image_rel_l2": render_error(psf, ref, cfg.chart)}
+    return {
+        "rel_l1": rel_l1(psf, ref),
+        "rel_l2": rel_l2(psf, ref),
+        "strehl": strehl if strehl is not None else float("nan"),
+        "strehl_ref": strehl_ref if strehl_ref is not None else float("nan"),
+        "strehl_err": s_err,
+        "ee80_um": ee,
+        "ee80_ref_um": ee_ref,
+        "ee80_err_um": abs(ee - ee_ref),
+        "image_rel_l2": render_error(psf, ref, cfg.chart),
+    }
 
 
 def _centroid(p: np.ndarray) -> tuple[float, float]:
@@ -116,22 +134,43 @@ def _centroid(p: np.ndarray) -> tuple[float, float]:
 def method_rows(lens: Lens, field_deg: float, wavelength_nm: float, settings: list[Setting], cfg: Config) -> list[dict]:
     """Every setting at one lens, field and wavelength, against the converged reference."""
     js = lens.to_engine_json()
-    ref = converged_reference(js, field_deg, wavelength_nm, size=cfg.size, pixel_um=cfg.pixel_um,
-                              start=cfg.ref_start, tol=cfg.ref_tol, max_samples=cfg.ref_max)
-    base = {"experiment": "method", "lens": lens.name, "field_deg": field_deg, "wavelength_nm": wavelength_nm,
-            "reference_samples": ref.pupil_samples, "reference_convergence": ref.convergence,
-            "reference_energy_in_window": float(ref.psf.sum())}
+    ref = converged_reference(
+        js,
+        field_deg,
+        wavelength_nm,
+        size=cfg.size,
+        pixel_um=cfg.pixel_um,
+        start=cfg.ref_start,
+        tol=cfg.ref_tol,
+        max_samples=cfg.ref_max,
+    )
+    base = {
+        "experiment": "method",
+        "lens": lens.name,
+        "field_deg": field_deg,
+        "wavelength_nm": wavelength_nm,
+        "reference_samples": ref.pupil_samples,
+        "reference_convergence": ref.convergence,
+        "reference_energy_in_window": float(ref.psf.sum()),
+    }
     rows = []
     for s in settings:
         row = {**base, "method": s.method, "setting": s.name, "pupil_samples": s.pupil_samples, "pad": s.pad or ""}
         try:
-            (psf, diag), dt = timed(lambda: _engine_psf(js, field_deg, wavelength_nm, s, cfg), cfg.repeats, cfg.max_repeat_s)
+            (psf, diag), dt = timed(
+                lambda: _engine_psf(js, field_deg, wavelength_nm, s, cfg), cfg.repeats, cfg.max_repeat_s
+            )
         except Exception as exc:  # an engine refusal is a result too
             rows.append({**row, "error": f"{type(exc).__name__}: {exc}"})
             continue
-        row.update(time_s=dt, **_costs(s, diag, len(lens.surfaces), cfg.size), **_errors(psf, ref.psf, cfg, diag.get("strehl"), ref.strehl),
-                   n_warnings=len(diag.get("warnings", [])), warnings=" | ".join(diag.get("warnings", [])),
-                   fft_mode=diag.get("fft_mode", ""))
+        row.update(
+            time_s=dt,
+            **_costs(s, diag, len(lens.surfaces), cfg.size),
+            **_errors(psf, ref.psf, cfg, diag.get("strehl"), ref.strehl),
+            n_warnings=len(diag.get("warnings", [])),
+            warnings=" | ".join(diag.get("warnings", [])),
+            fft_mode=diag.get("fft_mode", ""),
+        )
         rows.append(row)
     return rows
 
@@ -164,8 +203,16 @@ def spectral_rows(lens: Lens, field_deg: float, cfg: Config) -> list[dict]:
     rows = []
 
     def run(ch):
-        p, ri, _ = engine.psf_rgb(js, field_deg=field_deg, channels=[ch], method="fft", pixel_um=cfg.pixel_um,
-                                  size=cfg.size, pupil_samples=64, fast=True)
+        p, ri, _ = engine.psf_rgb(
+            js,
+            field_deg=field_deg,
+            channels=[ch],
+            method="fft",
+            pixel_um=cfg.pixel_um,
+            size=cfg.size,
+            pupil_samples=64,
+            fast=True,
+        )
         return p[0]
 
     for name in CHANNEL_RESPONSE:
@@ -173,9 +220,20 @@ def spectral_rows(lens: Lens, field_deg: float, cfg: Config) -> list[dict]:
         for k in cfg.wavelengths_per_channel:
             psf, dt = timed(lambda: run(channel_wavelengths(name, k)), cfg.repeats, cfg.max_repeat_s)
             err = _errors(psf, ref, cfg)
-            rows.append({"experiment": "spectral", "lens": lens.name, "field_deg": field_deg, "channel": name,
-                         "method": "fft-fast", "setting": f"{k} wavelengths", "n_wavelengths": k, "time_s": dt,
-                         "reference_wavelengths": cfg.spectral_reference, **err})
+            rows.append(
+                {
+                    "experiment": "spectral",
+                    "lens": lens.name,
+                    "field_deg": field_deg,
+                    "channel": name,
+                    "method": "fft-fast",
+                    "setting": f"{k} wavelengths",
+                    "n_wavelengths": k,
+                    "time_s": dt,
+                    "reference_wavelengths": cfg.spectral_reference,
+                    **err,
+                }
+            )
     return rows
 
 
@@ -190,8 +248,16 @@ def field_rows(lens: Lens, wavelength_nm: float, cfg: Config) -> list[dict]:
     dense = np.linspace(0.0, fmax, cfg.dense_fields)
 
     def one(f):
-        return engine.psf(js, field_deg=f, wavelength_nm=wavelength_nm, method="fft", pixel_um=cfg.pixel_um,
-                          size=cfg.size, pupil_samples=64, fast=True)[0]
+        return engine.psf(
+            js,
+            field_deg=f,
+            wavelength_nm=wavelength_nm,
+            method="fft",
+            pixel_um=cfg.pixel_um,
+            size=cfg.size,
+            pupil_samples=64,
+            fast=True,
+        )[0]
 
     exact = [one(f) for f in dense]
     rows = []
@@ -204,9 +270,20 @@ def field_rows(lens: Lens, wavelength_nm: float, cfg: Config) -> list[dict]:
             a = (f - samples[i]) / (samples[i + 1] - samples[i])
             errs.append(_errors((1 - a) * psfs[i] + a * psfs[i + 1], ref, cfg))
         mean = {key: _nanmean([e[key] for e in errs]) for key in errs[0]}
-        rows.append({"experiment": "fields", "lens": lens.name, "wavelength_nm": wavelength_nm, "method": "fft-fast",
-                     "setting": f"K={k}", "k_fields": k, "time_s": dt, "dense_fields": cfg.dense_fields,
-                     **mean, "rel_l1_max": float(max(e["rel_l1"] for e in errs))})
+        rows.append(
+            {
+                "experiment": "fields",
+                "lens": lens.name,
+                "wavelength_nm": wavelength_nm,
+                "method": "fft-fast",
+                "setting": f"K={k}",
+                "k_fields": k,
+                "time_s": dt,
+                "dense_fields": cfg.dense_fields,
+                **mean,
+                "rel_l1_max": float(max(e["rel_l1"] for e in errs)),
+            }
+        )
     return rows
 
 

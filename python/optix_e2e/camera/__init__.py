@@ -4,4 +4,12 @@ ISP, each stage with its parameter block for the end-to-end optimizer (optimize/
 from .pipeline import Camera
 from .stages import FixedOptics, HardwareISPStage, PerfectOptics, SensorStage, SoftwareISPStage, calibrated_preset
 
-__all__ = ["Camera", "FixedOptics", "SensorStage", "SoftwareISPStage", "HardwareISPStage", "PerfectOptics", "calibrated_preset"]
+__all__ = [
+    "Camera",
+    "FixedOptics",
+    "SensorStage",
+    "SoftwareISPStage",
+    "HardwareISPStage",
+    "PerfectOptics",
+    "calibrated_preset",
+]

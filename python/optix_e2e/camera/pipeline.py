@@ -45,8 +45,14 @@ class Camera(nn.Module):
                 out[b[0]] = b[1]
         return out
 
-    def forward(self, radiance: torch.Tensor, offset_px=(0.0, 0.0), generator: torch.Generator | None = None,
-                *, final: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(
+        self,
+        radiance: torch.Tensor,
+        offset_px=(0.0, 0.0),
+        generator: torch.Generator | None = None,
+        *,
+        final: bool = False,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """``final``: the camera's real output (evaluation): the reference ISP for a hardware
         ISP, and the sensor's common-random-number noise (the same draws for any camera given
         the same generator state)."""
@@ -59,7 +65,10 @@ class Camera(nn.Module):
         raw = self.sensor(image, generator, common_noise=final, f_number=f_number)
         # the ISP is told where the crop lies in the frame (a software ISP that sees the field
         # position undoes a blur and a shading that vary over it)
-        where = (offset_px, getattr(self.optics, "full_field_px", None)) if getattr(self.isp, "takes_position",
-                                                                                   False) else ()
+        where = (
+            (offset_px, getattr(self.optics, "full_field_px", None))
+            if getattr(self.isp, "takes_position", False)
+            else ()
+        )
         out = self.isp.final(raw, *where) if final else self.isp(raw, *where)
         return out, raw

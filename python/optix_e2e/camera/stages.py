@@ -49,8 +49,16 @@ class FixedOptics(nn.Module):
     the same ``forward(image, offset_px)`` as DifferentiableOptics, nothing to learn.
     ``f_number``: the lens's, for a sensor whose photon count follows it (Eq. 3)."""
 
-    def __init__(self, psf: torch.Tensor, vignetting: torch.Tensor, fields: torch.Tensor, *, patch: int = 64,
-                 full_field_px: float | None = None, f_number: float | None = None):
+    def __init__(
+        self,
+        psf: torch.Tensor,
+        vignetting: torch.Tensor,
+        fields: torch.Tensor,
+        *,
+        patch: int = 64,
+        full_field_px: float | None = None,
+        f_number: float | None = None,
+    ):
         super().__init__()
         self._f_number = None if f_number is None else float(f_number)
         self.register_buffer("psf", torch.as_tensor(psf, dtype=torch.float32))
@@ -77,8 +85,15 @@ class FixedOptics(nn.Module):
         return None
 
     def forward(self, image: torch.Tensor, offset_px=(0.0, 0.0)) -> torch.Tensor:
-        return render(image, self.psf, self.fields, self.vignetting, patch=self.patch,
-                      full_field_px=self.full_field_px, offset_px=offset_px)
+        return render(
+            image,
+            self.psf,
+            self.fields,
+            self.vignetting,
+            patch=self.patch,
+            full_field_px=self.full_field_px,
+            offset_px=offset_px,
+        )
 
 
 class PerfectOptics(nn.Module):
@@ -104,8 +119,9 @@ class PerfectOptics(nn.Module):
         return image
 
 
-def calibrated_preset(preset="imx249", f_number: float | None = None, exposure_factor: float = 1.0,
-                      gain_factor: float = 1.0):
+def calibrated_preset(
+    preset="imx249", f_number: float | None = None, exposure_factor: float = 1.0, gain_factor: float = 1.0
+):
     """The sensor preset for a lens of ``f_number``: its radiance scale set so that a white scene
     (linear 1.0) through that lens on the axis gives 85 % of full well in green at the preset's
     own exposure (the IMX249 at 5 ms, as the paper calibrates it); then exposure / gain scaled
@@ -115,8 +131,11 @@ def calibrated_preset(preset="imx249", f_number: float | None = None, exposure_f
         p = p.with_(f_number=float(f_number))
         p = p.with_(radiance_scale=calibrate_radiance_scale(p))
     if exposure_factor != 1.0 or gain_factor != 1.0:
-        p = p.with_(name=f"{p.name}-x{exposure_factor:g}-g{gain_factor:g}", exposure_s=p.exposure_s * exposure_factor,
-                    gain_dn_per_e=p.gain_dn_per_e * gain_factor)
+        p = p.with_(
+            name=f"{p.name}-x{exposure_factor:g}-g{gain_factor:g}",
+            exposure_s=p.exposure_s * exposure_factor,
+            gain_dn_per_e=p.gain_dn_per_e * gain_factor,
+        )
     return p
 
 
@@ -134,16 +153,27 @@ class SensorStage(nn.Module):
     def block(self):
         return None
 
-    def forward(self, radiance: torch.Tensor, generator: torch.Generator | None = None, *,
-                common_noise: bool = False, f_number: "torch.Tensor | float | None" = None) -> torch.Tensor:
+    def forward(
+        self,
+        radiance: torch.Tensor,
+        generator: torch.Generator | None = None,
+        *,
+        common_noise: bool = False,
+        f_number: "torch.Tensor | float | None" = None,
+    ) -> torch.Tensor:
         """``f_number``: the lens's (a tensor where the optics learn it): the photon count
         follows it by Eq. 3's 1 / (1 + (2N)^2) relative to the preset's f-number, which the
         preset's radiance scale was calibrated at (None: the preset's)."""
         if f_number is not None:
-            radiance = radiance * aperture_gain(torch.as_tensor(f_number, dtype=radiance.dtype),
-                                                self.preset.f_number)
-        return simulate_raw(radiance, self.preset, noise=self.noise, quantize="uniform" if self.noise else "none",
-                            generator=generator, common_noise=common_noise)
+            radiance = radiance * aperture_gain(torch.as_tensor(f_number, dtype=radiance.dtype), self.preset.f_number)
+        return simulate_raw(
+            radiance,
+            self.preset,
+            noise=self.noise,
+            quantize="uniform" if self.noise else "none",
+            generator=generator,
+            common_noise=common_noise,
+        )
 
 
 class SoftwareISPStage(nn.Module):
@@ -177,8 +207,9 @@ class HardwareISPStage(nn.Module):
     kind = "hardware"
     takes_position = True
 
-    def __init__(self, proxy: ISPProxy, init_unit: torch.Tensor, pattern: str = "RGGB", adc_bits: int = 12,
-                 eps: float = 1e-3):
+    def __init__(
+        self, proxy: ISPProxy, init_unit: torch.Tensor, pattern: str = "RGGB", adc_bits: int = 12, eps: float = 1e-3
+    ):
         super().__init__()
         self.proxy = proxy.eval()
         self.proxy.requires_grad_(False)

@@ -29,7 +29,7 @@ class FiniteFloatRange(click.FloatRange):
 
 
 FINITE = FiniteFloatRange()
-SEED = click.IntRange(0, 2 ** 63 - 1)  # what numpy and torch generators accept
+SEED = click.IntRange(0, 2**63 - 1)  # what numpy and torch generators accept
 THREADS = click.IntRange(0, 1024)  # parallel.MAX_THREADS: torch aborts when asked for tens of thousands
 
 

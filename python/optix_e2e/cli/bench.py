@@ -13,8 +13,13 @@ def bench():
 
 
 @bench.command("accuracy")
-@click.option("--lens", "lenses", multiple=True, metavar="LENS",
-              help="Lens (repeatable; default: the bundled cooke-f50, paper-triplet, double-gauss-f5).")
+@click.option(
+    "--lens",
+    "lenses",
+    multiple=True,
+    metavar="LENS",
+    help="Lens (repeatable; default: the bundled cooke-f50, paper-triplet, double-gauss-f5).",
+)
 @click.option("--quick", is_flag=True, help="Fewer settings, fields and wavelengths, a looser reference (a smoke run).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True, help="Output directory.")
 @friendly_errors
@@ -28,7 +33,10 @@ def accuracy(lenses, quick, out_dir):
     from ..accuracy.run import DEFAULT_LENSES, run
     from ..io import claim_out_dir
 
-    claim_out_dir(out_dir, "accuracy bench", {"rows.csv", "summary.csv", "sampling.csv", "speed_accuracy.png",
-                                              "sampling.png", "accuracy.json"})
+    claim_out_dir(
+        out_dir,
+        "accuracy bench",
+        {"rows.csv", "summary.csv", "sampling.csv", "speed_accuracy.png", "sampling.png", "accuracy.json"},
+    )
     rep = run(out_dir, lenses or DEFAULT_LENSES, quick=quick)
     click.echo(dumps(rep))

@@ -31,54 +31,144 @@ def dataset():
 @click.option("-n", "n", type=click.IntRange(1, 10_000_000), required=True, help="Designs to sample.")
 @click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True)
-@click.option("--fields", "n_fields", type=click.IntRange(0, 1000), default=13, show_default=True,
-              help="K field positions, uniform along +y from the axis to the lens's full field; 0: auto, the "
-                   "fewest whose linear interpolation meets --accuracy on the base design (manifest 'auto').")
-@click.option("--window-um", type=FiniteFloatRange(min=0, min_open=True), default=128.0, show_default=True, help="Super-resolved PSF window.")
-@click.option("--pixel-um", type=FiniteFloatRange(min=0, min_open=True), default=1.0, show_default=True, help="Super-resolved PSF pitch.")
-@click.option("--sensor-pixel-um", type=FiniteFloatRange(min=0, min_open=True), default=5.86, show_default=True, help="Pitch of the sensor-pitch PSFs.")
+@click.option(
+    "--fields",
+    "n_fields",
+    type=click.IntRange(0, 1000),
+    default=13,
+    show_default=True,
+    help="K field positions, uniform along +y from the axis to the lens's full field; 0: auto, the "
+    "fewest whose linear interpolation meets --accuracy on the base design (manifest 'auto').",
+)
+@click.option(
+    "--window-um",
+    type=FiniteFloatRange(min=0, min_open=True),
+    default=128.0,
+    show_default=True,
+    help="Super-resolved PSF window.",
+)
+@click.option(
+    "--pixel-um",
+    type=FiniteFloatRange(min=0, min_open=True),
+    default=1.0,
+    show_default=True,
+    help="Super-resolved PSF pitch.",
+)
+@click.option(
+    "--sensor-pixel-um",
+    type=FiniteFloatRange(min=0, min_open=True),
+    default=5.86,
+    show_default=True,
+    help="Pitch of the sensor-pitch PSFs.",
+)
 @click.option("--pupil-samples", type=click.IntRange(4, 4096), default=64, show_default=True)
-@click.option("--psf-method", type=click.Choice(["auto", "fft", "huygens", "geometric"]), default="auto", show_default=True,
-              help="auto: per PSF, the cheapest method and sampling predicted to meet --accuracy; each "
-                   "choice is recorded in the shard's meta.json (psf_methods) and counted by verify.")
-@click.option("--accuracy", type=FiniteFloatRange(min=0, min_open=True), default=0.02, show_default=True,
-              help="method auto: target relative L1 error of each monochromatic PSF.")
+@click.option(
+    "--psf-method",
+    type=click.Choice(["auto", "fft", "huygens", "geometric"]),
+    default="auto",
+    show_default=True,
+    help="auto: per PSF, the cheapest method and sampling predicted to meet --accuracy; each "
+    "choice is recorded in the shard's meta.json (psf_methods) and counted by verify.",
+)
+@click.option(
+    "--accuracy",
+    type=FiniteFloatRange(min=0, min_open=True),
+    default=0.02,
+    show_default=True,
+    help="method auto: target relative L1 error of each monochromatic PSF.",
+)
 @click.option("--aiming", type=click.Choice(["paraxial", "real"]), default="paraxial", show_default=True)
-@click.option("--channels", type=click.Choice(["lens", "rgb", "auto"]), default="lens", show_default=True,
-              help="lens: the lens's three wavelengths as R, G, B; rgb: three wavelengths per channel; auto: "
-                   "per channel the fewest band wavelengths meeting --accuracy on the base design (manifest 'auto').")
-@click.option("--apertures", type=click.Choice(["auto", "fixed"]), default="auto", show_default=True,
-              help="auto: no clear apertures (every surface passes the beam); fixed: the base lens's "
-                   "(mechanical vignetting), the stop's excepted. The aperture is the lens's f-number/EPD.")
-@click.option("--focus", type=click.Choice(["best", "paraxial", "fixed"]), default="best", show_default=True,
-              help="Image plane of each design: best (least RMS spot over the fields), paraxial, or fixed (the base lens's).")
+@click.option(
+    "--channels",
+    type=click.Choice(["lens", "rgb", "auto"]),
+    default="lens",
+    show_default=True,
+    help="lens: the lens's three wavelengths as R, G, B; rgb: three wavelengths per channel; auto: "
+    "per channel the fewest band wavelengths meeting --accuracy on the base design (manifest 'auto').",
+)
+@click.option(
+    "--apertures",
+    type=click.Choice(["auto", "fixed"]),
+    default="auto",
+    show_default=True,
+    help="auto: no clear apertures (every surface passes the beam); fixed: the base lens's "
+    "(mechanical vignetting), the stop's excepted. The aperture is the lens's f-number/EPD.",
+)
+@click.option(
+    "--focus",
+    type=click.Choice(["best", "paraxial", "fixed"]),
+    default="best",
+    show_default=True,
+    help="Image plane of each design: best (least RMS spot over the fields), paraxial, or fixed (the base lens's).",
+)
 @click.option("--shard-size", type=click.IntRange(1, 100_000), default=64, show_default=True)
 @click.option("--sampling", type=click.Choice(["sobol", "uniform", "lhs"]), default="sobol", show_default=True)
-@click.option("--shards", "shard_range", default=None,
-              help="Only these shards: A:B (B exclusive) or K; for several processes on one dataset.")
-@click.option("--dask", "dask_address", metavar="ADDRESS", default=None,
-              help="Run the missing shards as tasks on a Dask cluster: a scheduler address (tcp://host:8786), "
-                   "a scheduler file (*.json), or local:N to start N local worker processes of 1 thread. DIR "
-                   "must be on storage every worker sees at the same path.")
+@click.option(
+    "--shards",
+    "shard_range",
+    default=None,
+    help="Only these shards: A:B (B exclusive) or K; for several processes on one dataset.",
+)
+@click.option(
+    "--dask",
+    "dask_address",
+    metavar="ADDRESS",
+    default=None,
+    help="Run the missing shards as tasks on a Dask cluster: a scheduler address (tcp://host:8786), "
+    "a scheduler file (*.json), or local:N to start N local worker processes of 1 thread. DIR "
+    "must be on storage every worker sees at the same path.",
+)
 @friendly_errors
-def generate_cmd(space_spec, n, seed, out_dir, n_fields, window_um, pixel_um, sensor_pixel_um, pupil_samples,
-                 psf_method, accuracy, aiming, channels, apertures, focus, shard_size, sampling, shard_range,
-                 dask_address):
+def generate_cmd(
+    space_spec,
+    n,
+    seed,
+    out_dir,
+    n_fields,
+    window_um,
+    pixel_um,
+    sensor_pixel_um,
+    pupil_samples,
+    psf_method,
+    accuracy,
+    aiming,
+    channels,
+    apertures,
+    focus,
+    shard_size,
+    sampling,
+    shard_range,
+    dask_address,
+):
     """Sample N designs from SPACE (a TOML space or a bundled lens's name) and write their
     RGB PSFs at K fields, shard by shard, into DIR.  Running the same command again resumes."""
     from ..dataset import DatasetSettings, generate
 
-    s = DatasetSettings(n_fields=n_fields, window_um=window_um, pixel_um=pixel_um,
-                        sensor_pixel_um=sensor_pixel_um, pupil_samples=pupil_samples, psf_method=psf_method, accuracy=accuracy,
-                        aiming=aiming, channels=channels, apertures=apertures, focus=focus, shard_size=shard_size,
-                        sampling=sampling)
-    rep = generate(space_spec, n, seed, out_dir, s, shards=shard_range,
-                   log=lambda m: click.echo(m, err=True), dask=dask_address)
+    s = DatasetSettings(
+        n_fields=n_fields,
+        window_um=window_um,
+        pixel_um=pixel_um,
+        sensor_pixel_um=sensor_pixel_um,
+        pupil_samples=pupil_samples,
+        psf_method=psf_method,
+        accuracy=accuracy,
+        aiming=aiming,
+        channels=channels,
+        apertures=apertures,
+        focus=focus,
+        shard_size=shard_size,
+        sampling=sampling,
+    )
+    rep = generate(
+        space_spec, n, seed, out_dir, s, shards=shard_range, log=lambda m: click.echo(m, err=True), dask=dask_address
+    )
     click.echo(dumps(rep.to_json()))
     if rep.shard_errors:
         ks = ", ".join(str(e["shard"]) for e in rep.shard_errors)
-        raise click.ClickException(f"{len(rep.shard_errors)} shard(s) failed on the cluster ({ks}; errors in the "
-                                   f"JSON above); the same command again redoes them")
+        raise click.ClickException(
+            f"{len(rep.shard_errors)} shard(s) failed on the cluster ({ks}; errors in the "
+            f"JSON above); the same command again redoes them"
+        )
 
 
 @dataset.command("verify")

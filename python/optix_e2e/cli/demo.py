@@ -33,20 +33,47 @@ def _collect_warnings(field_deg, rgb_diag, mono_diag) -> list[str]:
 
 
 @click.command()
-@click.option("--lens", "lens_spec", default="cooke-f50", show_default=True, metavar="LENS",
-              help="JSON prescription path or bundled lens name.")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("results"),
-              show_default=True, help="Output folder (created).")
-@click.option("--n-fields", type=click.IntRange(1, 1000), default=5, show_default=True,
-              help="Fields evenly spaced from the axis to the full field.")
-@click.option("--channels", type=click.Choice(["rgb", "lens"]), default="rgb", show_default=True,
-              help="rgb: 3 wavelengths per channel with weights; lens: the lens's 3 wavelengths as R, G, B.")
+@click.option(
+    "--lens",
+    "lens_spec",
+    default="cooke-f50",
+    show_default=True,
+    metavar="LENS",
+    help="JSON prescription path or bundled lens name.",
+)
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("results/psf-demo"),
+    show_default=True,
+    help="Output folder (created; empty or a previous demo's).",
+)
+@click.option(
+    "--n-fields",
+    type=click.IntRange(1, 1000),
+    default=5,
+    show_default=True,
+    help="Fields evenly spaced from the axis to the full field.",
+)
+@click.option(
+    "--channels",
+    type=click.Choice(["rgb", "lens"]),
+    default="rgb",
+    show_default=True,
+    help="rgb: 3 wavelengths per channel with weights; lens: the lens's 3 wavelengths as R, G, B.",
+)
 @click.option("--method", type=click.Choice(["geometric", "fft", "huygens"]), default="fft", show_default=True)
 @click.option("--pixel-um", type=FiniteFloatRange(min=0, min_open=True), default=1.0, show_default=True)
 @click.option("--size", type=click.IntRange(8, 4096), default=128, show_default=True)
 @click.option("--pupil-samples", type=click.IntRange(8, 4096), default=64, show_default=True)
-@click.option("--rings", type=click.IntRange(1, 100_000), default=128, show_default=True,
-              help="Hexapolar rings per wavelength for the RMS spot.")
+@click.option(
+    "--rings",
+    type=click.IntRange(1, 100_000),
+    default=128,
+    show_default=True,
+    help="Hexapolar rings per wavelength for the RMS spot.",
+)
 @click.option("--aiming", type=AIMING, default="paraxial", show_default=True)
 @click.option("--log/--linear", "log", default=True, show_default=True, help="PNG intensity scale.")
 @friendly_errors
@@ -58,6 +85,9 @@ def demo(lens_spec, out_dir, n_fields, channels, method, pixel_um, size, pupil_s
     spot, Strehl, relative illumination, warnings, timings).
     """
     t_start = time.perf_counter()
+    from ..io import claim_out_dir
+
+    claim_out_dir(out_dir, "PSF demo", {"psfs.npy", "psf_grid.png", "summary.json"})
     lens_ = load_lens(lens_spec)
     chans = lens_.rgb_channels(channels)
     names = ["R", "G", "B"] if len(chans) == 3 else [f"C{i}" for i in range(len(chans))]
@@ -83,41 +113,63 @@ def demo(lens_spec, out_dir, n_fields, channels, method, pixel_um, size, pupil_s
         warnings = _collect_warnings(f, diag, mono)
         all_warnings += warnings
         stacks.append(np.asarray(psfs, dtype=np.float64))
-        rows.append({
-            "field_deg": f,
-            "rms_spot_um": spot["rms_um"],
-            "relative_illumination": spot["relative_illumination"],
-            "relative_illumination_per_channel": dict(zip(names, np.asarray(rel_illum).tolist())),
-            "strehl_primary": mono.get("strehl"),
-            "warnings": warnings,
-            "time_s": {"psf_rgb": t1 - t0, "spot": t2 - t1, "strehl": t3 - t2},
-            "psf_rgb_diagnostics": diag,
-        })
+        rows.append(
+            {
+                "field_deg": f,
+                "rms_spot_um": spot["rms_um"],
+                "relative_illumination": spot["relative_illumination"],
+                "relative_illumination_per_channel": dict(zip(names, np.asarray(rel_illum).tolist())),
+                "strehl_primary": mono.get("strehl"),
+                "warnings": warnings,
+                "time_s": {"psf_rgb": t1 - t0, "spot": t2 - t1, "strehl": t3 - t2},
+                "psf_rgb_diagnostics": diag,
+            }
+        )
 
     t0 = time.perf_counter()
     grid = np.stack(stacks)
     np.save(out_dir / "psfs.npy", grid)
     from ..plotting import save_psf_grid
 
-    save_psf_grid(out_dir / "psf_grid.png", grid, fields, pixel_um, labels,
-                  title=f"{lens_.name}: {method} PSFs", log=log,
-                  row_notes=[f"RMS {r['rms_spot_um']:.1f} um, RI {r['relative_illumination']:.2f}" for r in rows])
+    save_psf_grid(
+        out_dir / "psf_grid.png",
+        grid,
+        fields,
+        pixel_um,
+        labels,
+        title=f"{lens_.name}: {method} PSFs",
+        log=log,
+        row_notes=[f"RMS {r['rms_spot_um']:.1f} um, RI {r['relative_illumination']:.2f}" for r in rows],
+    )
     timings["plot_s"] = time.perf_counter() - t0
     timings["total_s"] = time.perf_counter() - t_start
 
     summary = {
-        "lens": lens_.name, "source": lens_.source,
-        "settings": {**psf_kw, "rings": rings, "channels": [[list(p) for p in c] for c in chans],
-                     "channel_labels": labels, "log_png": log},
-        "paraxial": paraxial, "fields": rows, "warnings": all_warnings, "timings": timings,
+        "lens": lens_.name,
+        "source": lens_.source,
+        "settings": {
+            **psf_kw,
+            "rings": rings,
+            "channels": [[list(p) for p in c] for c in chans],
+            "channel_labels": labels,
+            "log_png": log,
+        },
+        "paraxial": paraxial,
+        "fields": rows,
+        "warnings": all_warnings,
+        "timings": timings,
         "files": {"psf_grid_png": "psf_grid.png", "psfs_npy": "psfs.npy"},
     }
     (out_dir / "summary.json").write_text(dumps(summary, indent=1) + "\n")
-    click.echo(f"wrote {out_dir / 'psf_grid.png'}, {out_dir / 'psfs.npy'}, {out_dir / 'summary.json'} "
-               f"({len(fields)} fields x {len(chans)} channels, {timings['total_s']:.2f} s, "
-               f"{len(all_warnings)} warning(s))")
+    click.echo(
+        f"wrote {out_dir / 'psf_grid.png'}, {out_dir / 'psfs.npy'}, {out_dir / 'summary.json'} "
+        f"({len(fields)} fields x {len(chans)} channels, {timings['total_s']:.2f} s, "
+        f"{len(all_warnings)} warning(s))"
+    )
     for w in all_warnings[:MAX_PRINTED_WARNINGS]:
         click.echo(f"warning: {w}", err=True)
     if len(all_warnings) > MAX_PRINTED_WARNINGS:
-        click.echo(f"... and {len(all_warnings) - MAX_PRINTED_WARNINGS} more warning(s) in {out_dir / 'summary.json'}",
-                   err=True)
+        click.echo(
+            f"... and {len(all_warnings) - MAX_PRINTED_WARNINGS} more warning(s) in {out_dir / 'summary.json'}",
+            err=True,
+        )

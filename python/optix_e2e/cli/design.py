@@ -11,24 +11,53 @@ from ._common import SEED, THREADS, dumps, friendly_errors
 
 @click.command("design")
 @click.argument("task", type=click.Choice(["iq-software", "iq-hardware", "low-light", "detection"]))
-@click.option("--out", type=click.Path(file_okay=False), required=True,
-              help="Run directory: config.json, checkpoints (resume), tb/ (TensorBoard), results.json, "
-                   "panels.png, psf_*.png, lens/, report/.")
-@click.option("--config", "config_file", type=click.Path(dir_okay=False),
-              help="TOML file overriding any setting of the budget by name (optix_e2e.optimize.config).")
-@click.option("--optimizer", type=click.Choice(["alg1", "vanilla"]), default=None,
-              help="Alg. 1 (alternating, proximal; default) or one Adam over everything (the paper's vanilla).")
-@click.option("--budget", type=click.Choice(["smoke", "quick", "full"]), default="quick", show_default=True,
-              help="smoke: seconds (tests); quick: the main job; full: the figures we report.")
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False),
+    required=True,
+    help="Run directory: config.json, checkpoints (resume), tb/ (TensorBoard), results.json, "
+    "panels.png, psf_*.png, lens/, report/.",
+)
+@click.option(
+    "--config",
+    "config_file",
+    type=click.Path(dir_okay=False),
+    help="TOML file overriding any setting of the budget by name (optix_e2e.optimize.config).",
+)
+@click.option(
+    "--optimizer",
+    type=click.Choice(["alg1", "vanilla"]),
+    default=None,
+    help="Alg. 1 (alternating, proximal; default) or one Adam over everything (the paper's vanilla).",
+)
+@click.option(
+    "--budget",
+    type=click.Choice(["smoke", "quick", "full"]),
+    default="quick",
+    show_default=True,
+    help="smoke: seconds (tests); quick: the main job; full: the figures we report.",
+)
 @click.option("--seed", type=SEED, default=None, help="Initialization, batches and noise (default 0).")
-@click.option("--surrogate", default=None, help="Optics surrogate: bundled name, checkpoint or run dir "
-                                                "(default: paper-triplet-e2e; detection: paper-triplet-detect).")
-@click.option("--images", type=click.Path(exists=True, file_okay=False), default=None,
-              help="A folder of your images, mixed into the training scenes.")
-@click.option("--optics", type=click.Choice(["surrogate", "exact", "hybrid", "auto"]), default=None,
-              help="The optics model in the loop: the surrogate (default), the exact engine with central-difference "
-                   "gradients, the surrogate checked and refined along the way, or auto (from the measured "
-                   "speed/accuracy trade-off; docs/optics-in-the-loop.md).")
+@click.option(
+    "--surrogate",
+    default=None,
+    help="Optics surrogate: bundled name, checkpoint or run dir "
+    "(default: paper-triplet-e2e; detection: paper-triplet-detect).",
+)
+@click.option(
+    "--images",
+    type=click.Path(exists=True, file_okay=False),
+    default=None,
+    help="A folder of your images, mixed into the training scenes.",
+)
+@click.option(
+    "--optics",
+    type=click.Choice(["surrogate", "exact", "hybrid", "auto"]),
+    default=None,
+    help="The optics model in the loop: the surrogate (default), the exact engine with central-difference "
+    "gradients, the surrogate checked and refined along the way, or auto (from the measured "
+    "speed/accuracy trade-off; docs/optics-in-the-loop.md).",
+)
 @click.option("--threads", type=THREADS, default=None, help="torch CPU threads (0: default).")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @friendly_errors
@@ -44,8 +73,17 @@ def design(task, out, config_file, optimizer, budget, seed, surrogate, images, o
     from ..optimize.config import make_config
     from ..optimize.run import run_design
 
-    cfg = make_config(budget, config_file, task=task, optimizer=optimizer, seed=seed, surrogate=surrogate,
-                      images=images, threads=threads, optics=optics)
+    cfg = make_config(
+        budget,
+        config_file,
+        task=task,
+        optimizer=optimizer,
+        seed=seed,
+        surrogate=surrogate,
+        images=images,
+        threads=threads,
+        optics=optics,
+    )
     if cfg.task == "detection":
         if images:
             raise click.UsageError("--images is for the image-quality tasks; detection trains on street scenes")
@@ -60,15 +98,20 @@ def design(task, out, config_file, optimizer, budget, seed, surrogate, images, o
         if res is None:  # not rank 0 of a torchrun run: rank 0 reports
             return
         n, e, p = res["nominal"], res["end_to_end"], res["paired"]
-        click.echo(f"held-out ({res['held_out']['n_images']} street scenes, {res['held_out']['n_objects']} objects, "
-                   f"{res['held_out']['n_objects_dark']} in the dark), exact optics, reference ISP:")
+        click.echo(
+            f"held-out ({res['held_out']['n_images']} street scenes, {res['held_out']['n_objects']} objects, "
+            f"{res['held_out']['n_objects_dark']} in the dark), exact optics, reference ISP:"
+        )
         click.echo(f"  f-number  nominal f/{n['f_number']:.2f}   end-to-end f/{e['f_number']:.2f}")
         for k, label in (("map_50", "mAP@0.5"), ("map", "mAP")):
             lo, hi = p[k]["ci95"]
-            click.echo(f"  {label:8s} nominal {n[k]:.4f}   end-to-end {e[k]:.4f}   diff {p[k]['mean']:+.4f} "
-                       f"[{lo:+.4f}, {hi:+.4f}]")
-        click.echo(f"results: {Path(out) / 'results.json'}  (lens: {Path(out) / res['lens_zmx']}, "
-                   f"wall {res['wall_s']:.0f} s)")
+            click.echo(
+                f"  {label:8s} nominal {n[k]:.4f}   end-to-end {e[k]:.4f}   diff {p[k]['mean']:+.4f} "
+                f"[{lo:+.4f}, {hi:+.4f}]"
+            )
+        click.echo(
+            f"results: {Path(out) / 'results.json'}  (lens: {Path(out) / res['lens_zmx']}, wall {res['wall_s']:.0f} s)"
+        )
         click.echo(dumps({"results": str(Path(out) / "results.json"), "wall_s": res["wall_s"]}))
         return
     try:
@@ -78,17 +121,24 @@ def design(task, out, config_file, optimizer, budget, seed, surrogate, images, o
     if res is None:
         return
     n, e, p = res["nominal"], res["end_to_end"], res["paired"]
-    click.echo(f"held-out ({res['held_out']['n_images']} images x {res['held_out']['per_image']} positions), "
-               f"exact optics:")
+    click.echo(
+        f"held-out ({res['held_out']['n_images']} images x {res['held_out']['per_image']} positions), exact optics:"
+    )
     for m, label in (("psnr_db", "PSNR dB"), ("ssim", "SSIM"), ("lpips", "LPIPS"), ("haarpsi", "HaarPSI")):
         lo, hi = p[m]["ci95"]
-        click.echo(f"  {label:8s} nominal {n[m]:.4f}   end-to-end {e[m]:.4f}   diff {p[m]['mean']:+.4f} "
-                   f"[{lo:+.4f}, {hi:+.4f}]   perfect lens {res['perfect_lens'][m]:.4f}")
+        click.echo(
+            f"  {label:8s} nominal {n[m]:.4f}   end-to-end {e[m]:.4f}   diff {p[m]['mean']:+.4f} "
+            f"[{lo:+.4f}, {hi:+.4f}]   perfect lens {res['perfect_lens'][m]:.4f}"
+        )
     click.echo("  (perfect lens: the nominal camera's processing, the scene unblurred and unshaded)")
     om = res["optics_model"]
-    click.echo(f"optics model {om['mode']} ({om['choice']['why']}); PSF rel. L1 at the final design, worst field: "
-               f"the model the last steps used {max(om['final_error_per_field']):.4f}, the network "
-               f"{max(om['final_network_error_per_field']):.4f}; {om['n_refinements']} refinements, "
-               f"{om['exact_gradient_steps']} lens steps on exact gradients")
-    click.echo(f"results: {Path(out) / 'results.json'}  (lens: {Path(out) / res['lens_zmx']}, wall {res['wall_s']:.0f} s)")
+    click.echo(
+        f"optics model {om['mode']} ({om['choice']['why']}); PSF rel. L1 at the final design, worst field: "
+        f"the model the last steps used {max(om['final_error_per_field']):.4f}, the network "
+        f"{max(om['final_network_error_per_field']):.4f}; {om['n_refinements']} refinements, "
+        f"{om['exact_gradient_steps']} lens steps on exact gradients"
+    )
+    click.echo(
+        f"results: {Path(out) / 'results.json'}  (lens: {Path(out) / res['lens_zmx']}, wall {res['wall_s']:.0f} s)"
+    )
     click.echo(dumps({"results": str(Path(out) / "results.json"), "wall_s": res["wall_s"]}))

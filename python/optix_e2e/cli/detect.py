@@ -14,17 +14,30 @@ def detect():
 
 @detect.command("train")
 @click.argument("data", type=click.Path(exists=True, file_okay=False))
-@click.option("--out", type=click.Path(file_okay=False), required=True,
-              help="Run directory: detector.pt (resumable), history.csv, tb/.")
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False),
+    required=True,
+    help="Run directory: detector.pt (resumable), history.csv, tb/.",
+)
 @click.option("--steps", type=click.IntRange(1, 10_000_000), default=4000, show_default=True)
-@click.option("--minutes", type=FiniteFloatRange(min=0, min_open=True), default=None,
-              help="Stop after this much training time (the learning rate anneals over it).")
+@click.option(
+    "--minutes",
+    type=FiniteFloatRange(min=0, min_open=True),
+    default=None,
+    help="Stop after this much training time (the learning rate anneals over it).",
+)
 @click.option("--batch", type=click.IntRange(1, 256), default=8, show_default=True)
 @click.option("--lr", type=FiniteFloatRange(min=0, min_open=True), default=2e-3, show_default=True)
 @click.option("--seed", type=SEED, default=0, show_default=True)
-@click.option("--dim", type=FiniteFloatRange(min=0, max=1, min_open=True), default=1.0, show_default=True,
-              help="Darken each training image by a log-uniform factor in [DIM, 1] in linear light (dusk "
-                   "exposures; 1: as stored).")
+@click.option(
+    "--dim",
+    type=FiniteFloatRange(min=0, max=1, min_open=True),
+    default=1.0,
+    show_default=True,
+    help="Darken each training image by a log-uniform factor in [DIM, 1] in linear light (dusk "
+    "exposures; 1: as stored).",
+)
 @click.option("--threads", type=THREADS, default=0, help="torch CPU threads (0: default).")
 @click.option("--quiet", is_flag=True)
 @friendly_errors
@@ -34,8 +47,22 @@ def train(data, out, steps, minutes, batch, lr, seed, dim, threads, quiet):
     from ..tasks.detector_train import train_detector
 
     set_threads(threads)
-    click.echo(dumps(train_detector(data, out, steps=steps, minutes=minutes, batch=batch, lr=lr, seed=seed,
-                                    dim=dim, progress=not quiet, log=click.echo)))
+    click.echo(
+        dumps(
+            train_detector(
+                data,
+                out,
+                steps=steps,
+                minutes=minutes,
+                batch=batch,
+                lr=lr,
+                seed=seed,
+                dim=dim,
+                progress=not quiet,
+                log=click.echo,
+            )
+        )
+    )
 
 
 @detect.command("eval")

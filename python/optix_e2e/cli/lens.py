@@ -20,14 +20,26 @@ def lens():
 
 @lens.command("info")
 @click.argument("lens_spec", metavar="LENS")
-@click.option("--aiming", type=AIMING, default="paraxial", show_default=True,
-              help="Ray aiming for the spot and wavefront figures.")
-@click.option("--rings", type=click.IntRange(1, 2048), default=128, show_default=True,
-              help="Hexapolar rings per wavelength for the RMS spot.")
+@click.option(
+    "--aiming",
+    type=AIMING,
+    default="paraxial",
+    show_default=True,
+    help="Ray aiming for the spot and wavefront figures.",
+)
+@click.option(
+    "--rings",
+    type=click.IntRange(1, 2048),
+    default=128,
+    show_default=True,
+    help="Hexapolar rings per wavelength for the RMS spot.",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
-@click.option("--lenient", is_flag=True,
-              help="Reading .zmx: list unknown keywords as ignored instead of failing "
-                   "(known-unsupported features still fail).")
+@click.option(
+    "--lenient",
+    is_flag=True,
+    help="Reading .zmx: list unknown keywords as ignored instead of failing (known-unsupported features still fail).",
+)
 @friendly_errors
 def info(lens_spec, aiming, rings, as_json, lenient):
     """First-order data, Petzval sum, and per-field polychromatic RMS spot, RMS wavefront
@@ -40,38 +52,56 @@ def info(lens_spec, aiming, rings, as_json, lenient):
     fields = []
     for f in lens_.fields_deg:
         s = lens_.spot(f, rings=rings, aiming=aiming)
-        fields.append({
-            "field_deg": f,
-            "rms_spot_um": s["rms_um"],
-            "relative_illumination": s["relative_illumination"],
-            "vignetting": s.get("vignetting"),
-            "chief_y_mm": s.get("chief_y_mm"),
-            "n_rays": s.get("n_rays"),
-            # polychromatic RMS wavefront error, piston and tilt removed per wavelength
-            "rms_wavefront_waves": (_rms_wavefront(lens_, f, aiming)
-                                    if s["relative_illumination"] is not None else None),  # None: afocal
-        })
+        fields.append(
+            {
+                "field_deg": f,
+                "rms_spot_um": s["rms_um"],
+                "relative_illumination": s["relative_illumination"],
+                "vignetting": s.get("vignetting"),
+                "chief_y_mm": s.get("chief_y_mm"),
+                "n_rays": s.get("n_rays"),
+                # polychromatic RMS wavefront error, piston and tilt removed per wavelength
+                "rms_wavefront_waves": (
+                    _rms_wavefront(lens_, f, aiming) if s["relative_illumination"] is not None else None
+                ),  # None: afocal
+            }
+        )
     # the engine's range for a sane design (crates/psf-engine spot::RI_MAX)
-    warnings = [f"relative illumination {r['relative_illumination']:.4g} at {r['field_deg']:g} deg lies outside "
-                f"[0, 1.05]: the image of the field folds back or the design is broken (a dataset would record "
-                f"it as failed)" for r in fields
-                if r["relative_illumination"] is not None and not 0.0 <= r["relative_illumination"] <= 1.05]
-    out = {"lens": lens_.name, "source": lens_.source, "aiming": aiming, "warnings": warnings,
-           "wavelengths_nm": lens_.wavelengths_nm,
-           "wavelength_weights": lens_.wavelength_weights,
-           "primary_wavelength_nm": lens_.primary_wavelength_nm,
-           # null: the object at infinity
-           "object_distance_mm": lens_.object_distance if math.isfinite(lens_.object_distance) else None,
-           **{k: par[k] for k in PARAXIAL_KEYS}, "paraxial": par, **lens_.petzval(), "fields": fields}
+    warnings = [
+        f"relative illumination {r['relative_illumination']:.4g} at {r['field_deg']:g} deg lies outside "
+        f"[0, 1.05]: the image of the field folds back or the design is broken (a dataset would record "
+        f"it as failed)"
+        for r in fields
+        if r["relative_illumination"] is not None and not 0.0 <= r["relative_illumination"] <= 1.05
+    ]
+    out = {
+        "lens": lens_.name,
+        "source": lens_.source,
+        "aiming": aiming,
+        "warnings": warnings,
+        "wavelengths_nm": lens_.wavelengths_nm,
+        "wavelength_weights": lens_.wavelength_weights,
+        "primary_wavelength_nm": lens_.primary_wavelength_nm,
+        # null: the object at infinity
+        "object_distance_mm": lens_.object_distance if math.isfinite(lens_.object_distance) else None,
+        **{k: par[k] for k in PARAXIAL_KEYS},
+        "paraxial": par,
+        **lens_.petzval(),
+        "fields": fields,
+    }
     if as_json:
         click.echo(dumps(out))
         return
     click.echo(f"{lens_.name}  ({lens_.source})")
-    click.echo(f"  EFL {par['efl_mm']:.4f} mm   BFL {par['bfl_mm']:.4f} mm   f/{par['f_number']:.3f}"
-               f"   EPD {par['epd_mm']:.4f} mm   total track {par['total_track_mm']:.4f} mm")
+    click.echo(
+        f"  EFL {par['efl_mm']:.4f} mm   BFL {par['bfl_mm']:.4f} mm   f/{par['f_number']:.3f}"
+        f"   EPD {par['epd_mm']:.4f} mm   total track {par['total_track_mm']:.4f} mm"
+    )
     if math.isfinite(lens_.object_distance):
-        click.echo(f"  object {lens_.object_distance:.4f} mm before surface 1; image plane "
-                   f"{-par['back_focus_shift_mm']:+.4f} mm from the object's paraxial image")
+        click.echo(
+            f"  object {lens_.object_distance:.4f} mm before surface 1; image plane "
+            f"{-par['back_focus_shift_mm']:+.4f} mm from the object's paraxial image"
+        )
     wl = ", ".join(f"{w:g}" for w in lens_.wavelengths_nm)
     click.echo(f"  wavelengths {wl} nm (primary {lens_.primary_wavelength_nm:g}), aiming {aiming}")
     click.echo(f"  Petzval sum {out['petzval_sum_per_mm']:.5f} 1/mm (Petzval radius {out['petzval_radius_mm']:.2f} mm)")
@@ -93,23 +123,31 @@ def bundled_summary(name: str) -> dict:
     lens_ = Lens.load(name)
     par = lens_.paraxial()
     # an element is a slab of one glass: each surface followed by a non-air medium starts one
-    n_elements = sum(1 for s in lens_.data["surfaces"]
-                     if not (isinstance(s["material"], str) and s["material"].lower() == "air"))
+    n_elements = sum(
+        1 for s in lens_.data["surfaces"] if not (isinstance(s["material"], str) and s["material"].lower() == "air")
+    )
     space = BUNDLED_DIR / "spaces" / f"{name}.toml"
     sur = BUNDLED_SURROGATES.get(name)
     e2e = BUNDLED_SURROGATES.get(f"{name}-e2e")  # the end-to-end design space around this lens
     det = BUNDLED_SURROGATES.get(f"{name}-detect")  # ... and with the f-number, for detection
-    return {"name": name, "elements": n_elements, "efl_mm": par["efl_mm"], "f_number": par["f_number"],
-            "full_field_deg": 2.0 * max(abs(f) for f in lens_.fields_deg),
-            "wavelengths_nm": lens_.wavelengths_nm,
-            "source": lens_.data.get("source"), "description": lens_.data.get("description"),
-            "parameter_space": f"spaces/{space.name}" if space.is_file() else None,
-            "surrogate": sur if sur and (BUNDLED_DIR / sur).is_file() else None,
-            "e2e_space": f"spaces/{name}-e2e.toml" if (BUNDLED_DIR / "spaces" / f"{name}-e2e.toml").is_file() else None,
-            "e2e_surrogate": e2e if e2e and (BUNDLED_DIR / e2e).is_file() else None,
-            "detect_space": f"spaces/{name}-detect.toml" if (BUNDLED_DIR / "spaces" / f"{name}-detect.toml").is_file()
-            else None,
-            "detect_surrogate": det if det and (BUNDLED_DIR / det).is_file() else None}
+    return {
+        "name": name,
+        "elements": n_elements,
+        "efl_mm": par["efl_mm"],
+        "f_number": par["f_number"],
+        "full_field_deg": 2.0 * max(abs(f) for f in lens_.fields_deg),
+        "wavelengths_nm": lens_.wavelengths_nm,
+        "source": lens_.data.get("source"),
+        "description": lens_.data.get("description"),
+        "parameter_space": f"spaces/{space.name}" if space.is_file() else None,
+        "surrogate": sur if sur and (BUNDLED_DIR / sur).is_file() else None,
+        "e2e_space": f"spaces/{name}-e2e.toml" if (BUNDLED_DIR / "spaces" / f"{name}-e2e.toml").is_file() else None,
+        "e2e_surrogate": e2e if e2e and (BUNDLED_DIR / e2e).is_file() else None,
+        "detect_space": f"spaces/{name}-detect.toml"
+        if (BUNDLED_DIR / "spaces" / f"{name}-detect.toml").is_file()
+        else None,
+        "detect_surrogate": det if det and (BUNDLED_DIR / det).is_file() else None,
+    }
 
 
 @lens.command("list")
@@ -126,9 +164,11 @@ def list_cmd(as_json):
         return
     click.echo(f"{'name':<18} {'elements':>8} {'EFL (mm)':>9} {'f/#':>6} {'field':>7}  space  surrogate  source")
     for r in rows:
-        click.echo(f"{r['name']:<18} {r['elements']:>8} {r['efl_mm']:>9.3f} {r['f_number']:>6.2f} "
-                   f"{r['full_field_deg']:>6.2f}d  {'yes' if r['parameter_space'] else 'no':<5}  "
-                   f"{'yes' if r['surrogate'] else ('e2e' if r['e2e_surrogate'] else 'no'):<9}  {r['source'] or '-'}")
+        click.echo(
+            f"{r['name']:<18} {r['elements']:>8} {r['efl_mm']:>9.3f} {r['f_number']:>6.2f} "
+            f"{r['full_field_deg']:>6.2f}d  {'yes' if r['parameter_space'] else 'no':<5}  "
+            f"{'yes' if r['surrogate'] else ('e2e' if r['e2e_surrogate'] else 'no'):<9}  {r['source'] or '-'}"
+        )
 
 
 def _rms_wavefront(lens_, field_deg, aiming):
@@ -151,9 +191,11 @@ FORMATS = (".json", ".zmx")
 @click.argument("src", metavar="IN")
 @click.argument("dst", metavar="OUT", type=click.Path(dir_okay=False))
 @click.option("--utf16", is_flag=True, help="Write .zmx as UTF-16 (OpticStudio's own encoding) instead of UTF-8.")
-@click.option("--lenient", is_flag=True,
-              help="Reading .zmx: list unknown keywords as ignored instead of failing "
-                   "(known-unsupported features still fail).")
+@click.option(
+    "--lenient",
+    is_flag=True,
+    help="Reading .zmx: list unknown keywords as ignored instead of failing (known-unsupported features still fail).",
+)
 @friendly_errors
 def convert(src, dst, utf16, lenient):
     """Convert IN to OUT; formats by extension (.json, .zmx). IN may be a bundled name.
@@ -179,14 +221,20 @@ def convert(src, dst, utf16, lenient):
     lens_.save(out, encoding="utf-16" if utf16 else "utf-8")
     back = Lens.from_file(out, strict=True)
     a, b = lens_.paraxial(), back.paraxial()
-    click.echo(f"wrote {out} ({len(back.surfaces)} surfaces)   EFL {a['efl_mm']:.9g} -> {b['efl_mm']:.9g} mm"
-               f"   BFL {a['bfl_mm']:.9g} -> {b['bfl_mm']:.9g} mm")
+    click.echo(
+        f"wrote {out} ({len(back.surfaces)} surfaces)   EFL {a['efl_mm']:.9g} -> {b['efl_mm']:.9g} mm"
+        f"   BFL {a['bfl_mm']:.9g} -> {b['bfl_mm']:.9g} mm"
+    )
 
 
 @lens.command("survey")
 @click.argument("folder", type=click.Path(exists=True, file_okay=False))
-@click.option("--out", type=click.Path(file_okay=False), default=None,
-              help="Also write survey.json (summary) and survey.csv (one row per file) here.")
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="Also write survey.json (summary) and survey.csv (one row per file) here.",
+)
 @friendly_errors
 def survey_cmd(folder, out):
     """Import rate of every .zmx under FOLDER (read leniently): how many import, trace

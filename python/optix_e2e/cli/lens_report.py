@@ -34,19 +34,35 @@ def _fields(text: str | None) -> list[float] | None:
     return vals
 
 
-FIELDS = click.option("--fields", default=None, metavar="F1,F2,...",
-                      help="Field angles in degrees (default: the lens's fields).")
+FIELDS = click.option(
+    "--fields", default=None, metavar="F1,F2,...", help="Field angles in degrees (default: the lens's fields)."
+)
 
 
 @click.command("plot")
 @click.argument("lens_spec", metavar="LENS")
-@click.option("--out", "out", type=click.Path(dir_okay=False, path_type=Path), required=True,
-              help="Output figure (.png, .pdf or .svg).")
+@click.option(
+    "--out",
+    "out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="Output figure (.png, .pdf or .svg).",
+)
 @FIELDS
-@click.option("--rays", type=click.IntRange(1, 101), default=9, show_default=True,
-              help="Rays per field across the pupil (meridional fan).")
+@click.option(
+    "--rays",
+    type=click.IntRange(1, 101),
+    default=9,
+    show_default=True,
+    help="Rays per field across the pupil (meridional fan).",
+)
 @click.option("--aiming", type=AIMING, default="paraxial", show_default=True)
-@click.option("--wavelength-nm", type=FiniteFloatRange(min=0, min_open=True), default=None, help="Default: the lens's primary wavelength.")
+@click.option(
+    "--wavelength-nm",
+    type=FiniteFloatRange(min=0, min_open=True),
+    default=None,
+    help="Default: the lens's primary wavelength.",
+)
 @friendly_errors
 def plot(lens_spec, out, fields, rays, aiming, wavelength_nm):
     """Draw the y-z cross-section of LENS with ray fans for several fields."""
@@ -63,19 +79,37 @@ def plot(lens_spec, out, fields, rays, aiming, wavelength_nm):
 
 @click.command("report")
 @click.argument("lens_spec", metavar="LENS")
-@click.option("--out", "out", type=click.Path(file_okay=False, path_type=Path), required=True,
-              help="Output directory (created if needed).")
+@click.option(
+    "--out",
+    "out",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="Output directory (created if needed).",
+)
 @FIELDS
 @click.option("--aiming", type=AIMING, default="paraxial", show_default=True)
 @click.option("--rays", type=click.IntRange(1, 101), default=9, show_default=True, help="Rays per field in the layout.")
-@click.option("--freqs", default=None, metavar="F1,F2,...",
-              help="Frequencies (cycles/mm) whose MTF goes into report.json "
-                   "[default: 10,20,40,85.32 (5.86 um pixel Nyquist),100].")
-@click.option("--max-freq", type=FiniteFloatRange(min=0, min_open=True), default=None,
-              help="Highest MTF frequency (cycles/mm) [default: the diffraction cutoff].")
+@click.option(
+    "--freqs",
+    default=None,
+    metavar="F1,F2,...",
+    help="Frequencies (cycles/mm) whose MTF goes into report.json "
+    "[default: 10,20,40,85.32 (5.86 um pixel Nyquist),100].",
+)
+@click.option(
+    "--max-freq",
+    type=FiniteFloatRange(min=0, min_open=True),
+    default=None,
+    help="Highest MTF frequency (cycles/mm) [default: the diffraction cutoff].",
+)
 @click.option("--per-wavelength", is_flag=True, help="Also draw each wavelength's MTF.")
-@click.option("--psf-method", type=click.Choice(["fft", "huygens"]), default="fft", show_default=True,
-              help="PSFs the MTF is computed from (huygens: slower, the reference at large fields).")
+@click.option(
+    "--psf-method",
+    type=click.Choice(["fft", "huygens"]),
+    default="fft",
+    show_default=True,
+    help="PSFs the MTF is computed from (huygens: slower, the reference at large fields).",
+)
 @friendly_errors
 def report(lens_spec, out, fields, aiming, rays, freqs, max_freq, per_wavelength, psf_method):
     """Write OUT/layout.png, spots.png, mtf.png and report.json for LENS.
@@ -97,15 +131,31 @@ def report(lens_spec, out, fields, aiming, rays, freqs, max_freq, per_wavelength
     def progress(msg: str) -> None:
         click.echo(f"[{time.perf_counter() - t0:6.2f} s] {msg}", err=True)
 
-    rep = write_report(lens_, out, fields=_fields(fields), aiming=aiming, rays=rays, freqs=freq_list,
-                       max_freq=max_freq, per_wavelength=per_wavelength, psf_method=psf_method, progress=progress)
+    rep = write_report(
+        lens_,
+        out,
+        fields=_fields(fields),
+        aiming=aiming,
+        rays=rays,
+        freqs=freq_list,
+        max_freq=max_freq,
+        per_wavelength=per_wavelength,
+        psf_method=psf_method,
+        progress=progress,
+    )
     progress(f"wrote {', '.join(str(out / f) for f in rep['files'])}")
     par = rep["paraxial"]
     click.echo(f"{lens_.name}: EFL {par['efl_mm']:.4f} mm, f/{par['f_number']:.3f}, aiming {aiming}")
-    click.echo(f"  {'field':>7}  {'RMS spot':>9}  {'rel.ill.':>8}  MTF T/S at " + ", ".join(f"{q:g}" for q in freq_list) + " c/mm")
+    click.echo(
+        f"  {'field':>7}  {'RMS spot':>9}  {'rel.ill.':>8}  MTF T/S at "
+        + ", ".join(f"{q:g}" for q in freq_list)
+        + " c/mm"
+    )
     for row in rep["fields"]:
         mtf = "  ".join(f"{v['tangential']:.3f}/{v['sagittal']:.3f}" for v in row["mtf"].values())
-        click.echo(f"  {row['field_deg']:>5g} d  {row['rms_spot_um']:>6.2f} um  {_ri(row['relative_illumination'])}  {mtf}")
+        click.echo(
+            f"  {row['field_deg']:>5g} d  {row['rms_spot_um']:>6.2f} um  {_ri(row['relative_illumination'])}  {mtf}"
+        )
         for w in row["warnings"]:
             click.echo(f"  warning: {w}", err=True)
 

@@ -29,18 +29,22 @@ def _read(path: str):
             with Image.open(path) as im:
                 w, h = im.size
                 if w * h > MAX_PIXELS:
-                    raise click.ClickException(f"{path}: {w}x{h} pixels is more than this command reads "
-                                               f"({MAX_PIXELS} pixels)")
+                    raise click.ClickException(
+                        f"{path}: {w}x{h} pixels is more than this command reads ({MAX_PIXELS} pixels)"
+                    )
                 if im.mode.startswith("I;16") or im.mode == "I":
                     # 16-bit greyscale (Pillow opens some 16-bit files, PGM among them, as "I")
                     a = np.asarray(im, dtype=np.int64)
                     if a.min() < 0 or a.max() > 65535:
-                        raise click.ClickException(f"{path}: 32-bit integer values beyond 16 bits are not read; "
-                                                   f"save it with 8 or 16 bits per channel")
+                        raise click.ClickException(
+                            f"{path}: 32-bit integer values beyond 16 bits are not read; "
+                            f"save it with 8 or 16 bits per channel"
+                        )
                     a = np.repeat((a.astype(np.float32) / 65535.0)[:, :, None], 3, axis=2)
                 elif im.mode == "F":
-                    raise click.ClickException(f"{path}: floating-point images are not read; save it with 8 or 16 "
-                                               f"bits per channel")
+                    raise click.ClickException(
+                        f"{path}: floating-point images are not read; save it with 8 or 16 bits per channel"
+                    )
                 else:
                     a = np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
     except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
@@ -53,8 +57,13 @@ def _read(path: str):
 @click.command("metrics")
 @click.argument("image", type=click.Path(exists=True, dir_okay=False))
 @click.argument("reference", type=click.Path(exists=True, dir_okay=False))
-@click.option("--crop", type=click.IntRange(0, 100_000), default=0, show_default=True,
-              help="Pixels dropped from every border before scoring.")
+@click.option(
+    "--crop",
+    type=click.IntRange(0, 100_000),
+    default=0,
+    show_default=True,
+    help="Pixels dropped from every border before scoring.",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 @friendly_errors
 def metrics(image, reference, crop, as_json):
@@ -65,19 +74,33 @@ def metrics(image, reference, crop, as_json):
 
     x, y = _read(image), _read(reference)
     if x.shape != y.shape:
-        raise click.ClickException(f"{image} is {x.shape[2]}x{x.shape[1]} but {reference} is "
-                                   f"{y.shape[2]}x{y.shape[1]}: the images must have one size")
+        raise click.ClickException(
+            f"{image} is {x.shape[2]}x{x.shape[1]} but {reference} is "
+            f"{y.shape[2]}x{y.shape[1]}: the images must have one size"
+        )
     if min(x.shape[1:]) - 2 * crop < 16:
-        raise click.ClickException(f"images of {x.shape[2]}x{x.shape[1]} with --crop {crop} leave less than "
-                                   f"16x16 pixels (HaarPSI's minimum)")
+        raise click.ClickException(
+            f"images of {x.shape[2]}x{x.shape[1]} with --crop {crop} leave less than 16x16 pixels (HaarPSI's minimum)"
+        )
     out = summarize(x[None], y[None], crop=crop)
-    xc, yc = (x[:, crop:x.shape[1] - crop, crop:x.shape[2] - crop], y[:, crop:y.shape[1] - crop, crop:y.shape[2] - crop])
+    xc, yc = (
+        x[:, crop : x.shape[1] - crop, crop : x.shape[2] - crop],
+        y[:, crop : y.shape[1] - crop, crop : y.shape[2] - crop],
+    )
     out["lpips"] = float(lpips(xc[None], yc[None])[0])
-    out = {"image": str(Path(image)), "reference": str(Path(reference)), "psnr_db": out["psnr_db"],
-           "ssim": out["ssim"], "lpips": out["lpips"], "haarpsi": out["haarpsi"]}
+    out = {
+        "image": str(Path(image)),
+        "reference": str(Path(reference)),
+        "psnr_db": out["psnr_db"],
+        "ssim": out["ssim"],
+        "lpips": out["lpips"],
+        "haarpsi": out["haarpsi"],
+    }
     if as_json:
         click.echo(dumps(out))
         return
     psnr = "inf (identical)" if math.isinf(out["psnr_db"]) else f"{out['psnr_db']:.3f} dB"
-    click.echo(f"PSNR {psnr}   SSIM {out['ssim']:.4f}   LPIPS {out['lpips']:.4f} (1 - LPIPS {1 - out['lpips']:.4f})"
-               f"   HaarPSI {out['haarpsi']:.4f}")
+    click.echo(
+        f"PSNR {psnr}   SSIM {out['ssim']:.4f}   LPIPS {out['lpips']:.4f} (1 - LPIPS {1 - out['lpips']:.4f})"
+        f"   HaarPSI {out['haarpsi']:.4f}"
+    )

@@ -14,10 +14,15 @@ from ._common import FINITE, SEED, dumps, friendly_errors
 
 def limit_options(fn):
     """--min-air-gap / --min-center / --min-edge / --min-bfd, overriding the space's own."""
-    for name, what in (("min-bfd", "back focal distance"), ("min-edge", "glass edge thickness"),
-                       ("min-center", "glass center thickness"), ("min-air-gap", "air gap (center and rim)")):
-        fn = click.option(f"--{name}", type=FINITE, default=None,
-                          help=f"Minimum {what} (mm); default: the space's [constraints].")(fn)
+    for name, what in (
+        ("min-bfd", "back focal distance"),
+        ("min-edge", "glass edge thickness"),
+        ("min-center", "glass center thickness"),
+        ("min-air-gap", "air gap (center and rim)"),
+    ):
+        fn = click.option(
+            f"--{name}", type=FINITE, default=None, help=f"Minimum {what} (mm); default: the space's [constraints]."
+        )(fn)
     return fn
 
 
@@ -25,8 +30,13 @@ def limit_options(fn):
 @click.argument("space_spec", metavar="SPACE")
 @click.option("-n", "n", type=click.IntRange(1, 10_000_000), required=True, help="Designs to accept.")
 @click.option("--seed", type=SEED, default=0, show_default=True)
-@click.option("--method", type=click.Choice(METHODS), default="sobol", show_default=True,
-              help="uniform (PCG64), scrambled Sobol' or Latin hypercube (scipy.stats.qmc).")
+@click.option(
+    "--method",
+    type=click.Choice(METHODS),
+    default="sobol",
+    show_default=True,
+    help="uniform (PCG64), scrambled Sobol' or Latin hypercube (scipy.stats.qmc).",
+)
 @click.option("--out", "out_path", type=click.Path(dir_okay=False), required=True, help="designs.csv")
 @limit_options
 @friendly_errors
@@ -40,7 +50,8 @@ def sample(space_spec, n, seed, method, out_path, min_air_gap, min_center, min_e
 
     space, base = load_space(space_spec)
     limits = Limits.from_dict(space.constraints, f"{space.source}: [constraints]").merged(
-        min_air_gap=min_air_gap, min_center=min_center, min_edge=min_edge, min_bfd=min_bfd)
+        min_air_gap=min_air_gap, min_center=min_center, min_edge=min_edge, min_bfd=min_bfd
+    )
     bar = tqdm(total=n, unit="design", desc="sample", file=sys.stderr, dynamic_ncols=True)
 
     def progress(drawn, accepted):

@@ -28,8 +28,12 @@ def _size(ctx, param, value: str) -> tuple[int, int]:
 
 
 @scenes.command("street")
-@click.option("--out", type=click.Path(file_okay=False), required=True,
-              help="Folder: images/ (8-bit sRGB PNG) and annotations.json (COCO).")
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False),
+    required=True,
+    help="Folder: images/ (8-bit sRGB PNG) and annotations.json (COCO).",
+)
 @click.option("-n", "n", type=click.IntRange(1, 1_000_000), required=True, help="Number of scenes.")
 @click.option("--size", default="256x384", show_default=True, callback=_size, help="HxW pixels.")
 @click.option("--seed", type=SEED, default=0, show_default=True)
@@ -48,5 +52,15 @@ def street(out, n, size, seed, quiet):
     wall = time.perf_counter() - t0
     data = json.loads(Path(ann).read_text())
     per_class = {c["name"]: sum(a["category_id"] == c["id"] for a in data["annotations"]) for c in data["categories"]}
-    click.echo(dumps({"annotations": str(ann), "images": n, "objects": len(data["annotations"]),
-                      "per_class": per_class, "wall_s": round(wall, 2), "scenes_per_s": round(n / wall, 2)}))
+    click.echo(
+        dumps(
+            {
+                "annotations": str(ann),
+                "images": n,
+                "objects": len(data["annotations"]),
+                "per_class": per_class,
+                "wall_s": round(wall, 2),
+                "scenes_per_s": round(n / wall, 2),
+            }
+        )
+    )

@@ -17,17 +17,45 @@ def sensor():
 
 @sensor.command("ptc")
 @click.option("--preset", default="imx249", show_default=True, help="Sensor preset (imx249, phone-1um).")
-@click.option("--exposure-s", type=FiniteFloatRange(min=0, min_open=True), default=None, help="Exposure time override (s).")
-@click.option("--gain", type=FiniteFloatRange(min=0, min_open=True), default=None, help="System gain K override (DN/e-).")
-@click.option("--low-light", "low_light", type=FiniteFloatRange(min=0, min_open=True), default=None,
-              help="Paper's low-light setting: exposure / FACTOR and gain x FACTOR (before other overrides).")
-@click.option("--temperature", "temperature_c", type=FiniteFloatRange(min=-273.15), default=None, help="Sensor temperature override (C).")
-@click.option("--levels", "n_levels", type=click.IntRange(10, 1000), default=50, show_default=True,
-              help="Irradiance levels from dark to beyond saturation.")
-@click.option("--patch", type=click.IntRange(8, 4096), default=256, show_default=True, help="Flat-field patch size (px).")
+@click.option(
+    "--exposure-s", type=FiniteFloatRange(min=0, min_open=True), default=None, help="Exposure time override (s)."
+)
+@click.option(
+    "--gain", type=FiniteFloatRange(min=0, min_open=True), default=None, help="System gain K override (DN/e-)."
+)
+@click.option(
+    "--low-light",
+    "low_light",
+    type=FiniteFloatRange(min=0, min_open=True),
+    default=None,
+    help="Paper's low-light setting: exposure / FACTOR and gain x FACTOR (before other overrides).",
+)
+@click.option(
+    "--temperature",
+    "temperature_c",
+    type=FiniteFloatRange(min=-273.15),
+    default=None,
+    help="Sensor temperature override (C).",
+)
+@click.option(
+    "--levels",
+    "n_levels",
+    type=click.IntRange(10, 1000),
+    default=50,
+    show_default=True,
+    help="Irradiance levels from dark to beyond saturation.",
+)
+@click.option(
+    "--patch", type=click.IntRange(8, 4096), default=256, show_default=True, help="Flat-field patch size (px)."
+)
 @click.option("--seed", type=SEED, default=0, show_default=True)
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Directory for ptc.json and ptc.png.")
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Directory for ptc.json and ptc.png.",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the full result as JSON on stdout.")
 @friendly_errors
 def ptc(preset, exposure_s, gain, low_light, temperature_c, n_levels, patch, seed, out_dir, as_json):
@@ -49,8 +77,16 @@ def ptc(preset, exposure_s, gain, low_light, temperature_c, n_levels, patch, see
         bar.update(done - bar.n)
 
     try:
-        res = photon_transfer(p, exposure_s=exposure_s, gain=gain, temperature_c=temperature_c, n_levels=n_levels,
-                              patch=patch, seed=seed, progress=progress)
+        res = photon_transfer(
+            p,
+            exposure_s=exposure_s,
+            gain=gain,
+            temperature_c=temperature_c,
+            n_levels=n_levels,
+            patch=patch,
+            seed=seed,
+            progress=progress,
+        )
     finally:
         bar.close()
     if out_dir is not None:
@@ -60,11 +96,10 @@ def ptc(preset, exposure_s, gain, low_light, temperature_c, n_levels, patch, see
         return
     click.echo(f"{res['preset']}: {res['n_levels']} levels, {res['pixels_per_frame']} {res['channel']} pixels/frame")
     for what, meas, ref, unit, err in (
-            ("gain K", res["measured_gain_dn_per_e"], res["preset_gain_dn_per_e"], "DN/e-", res["gain_rel_err"]),
-            ("dark noise", res["measured_dark_noise_e"], res["reference_dark_noise_e"], "e-",
-             res["dark_noise_rel_err"]),
-            ("saturation", res["measured_saturation_e"], res["reference_saturation_e"], "e-",
-             res["saturation_rel_err"])):
+        ("gain K", res["measured_gain_dn_per_e"], res["preset_gain_dn_per_e"], "DN/e-", res["gain_rel_err"]),
+        ("dark noise", res["measured_dark_noise_e"], res["reference_dark_noise_e"], "e-", res["dark_noise_rel_err"]),
+        ("saturation", res["measured_saturation_e"], res["reference_saturation_e"], "e-", res["saturation_rel_err"]),
+    ):
         click.echo(f"  {what:<11} {meas:10.4g} {unit:<6} (preset {ref:.4g}, {100 * err:+.2f}%)")
     click.echo(f"  linearity error {res['linearity_error_pct']:.3f}%")
     for w in res["warnings"]:

@@ -18,34 +18,80 @@ def surrogate():
 
 @surrogate.command("train")
 @click.argument("data", type=DATA)
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
-              help="Run directory: surrogate.pt, state.pt (resume), train.json, tb/ (TensorBoard).")
-@click.option("--psf", type=click.Choice(["psf_sensor", "psf"]), default="psf_sensor", show_default=True,
-              help="Train on the sensor-pitch PSFs or the super-resolved ones.")
-@click.option("--bin", "bin_", type=click.IntRange(1, 64), default=1, show_default=True,
-              help="Sum bin x bin pixel blocks of the PSFs first (a coarser pitch, same window).")
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="Run directory: surrogate.pt, state.pt (resume), train.json, tb/ (TensorBoard).",
+)
+@click.option(
+    "--psf",
+    type=click.Choice(["psf_sensor", "psf"]),
+    default="psf_sensor",
+    show_default=True,
+    help="Train on the sensor-pitch PSFs or the super-resolved ones.",
+)
+@click.option(
+    "--bin",
+    "bin_",
+    type=click.IntRange(1, 64),
+    default=1,
+    show_default=True,
+    help="Sum bin x bin pixel blocks of the PSFs first (a coarser pitch, same window).",
+)
 @click.option("--hidden", type=click.IntRange(1, 16384), default=256, show_default=True, help="MLP width.")
 @click.option("--depth", type=click.IntRange(1, 64), default=4, show_default=True, help="MLP layers.")
-@click.option("--base-channels", type=click.IntRange(1, 4096), default=64, show_default=True,
-              help="Decoder channels at its coarsest level (halved at each upsampling).")
+@click.option(
+    "--base-channels",
+    type=click.IntRange(1, 4096),
+    default=64,
+    show_default=True,
+    help="Decoder channels at its coarsest level (halved at each upsampling).",
+)
 @click.option("--n-up", type=click.IntRange(0, 6), default=2, show_default=True, help="Decoder x2 upsamplings.")
 @click.option("--steps", type=click.IntRange(1, 10_000_000), default=20000, show_default=True)
-@click.option("--minutes", type=FiniteFloatRange(min=0), default=0.0, show_default=True,
-              help="Training-time budget over all resumed runs; the learning rate anneals over it (0: none).")
-@click.option("--batch", type=click.IntRange(1, 65536), default=256, show_default=True,
-              help="(design, field) samples per step.")
+@click.option(
+    "--minutes",
+    type=FiniteFloatRange(min=0),
+    default=0.0,
+    show_default=True,
+    help="Training-time budget over all resumed runs; the learning rate anneals over it (0: none).",
+)
+@click.option(
+    "--batch", type=click.IntRange(1, 65536), default=256, show_default=True, help="(design, field) samples per step."
+)
 @click.option("--lr", type=FiniteFloatRange(min=0, min_open=True), default=2e-3, show_default=True)
-@click.option("--val-designs", type=click.IntRange(0, 10_000_000), default=256, show_default=True,
-              help="Designs held out of training for validation (and for `eval` on this dataset).")
-@click.option("--max-designs", type=click.IntRange(0, 100_000_000), default=0, show_default=True,
-              help="Use only the first N designs of DATA (0: all).")
-@click.option("--val-every", type=click.IntRange(1, 10_000_000), default=500, show_default=True,
-              help="Validate and write the checkpoints every N steps.")
+@click.option(
+    "--val-designs",
+    type=click.IntRange(0, 10_000_000),
+    default=256,
+    show_default=True,
+    help="Designs held out of training for validation (and for `eval` on this dataset).",
+)
+@click.option(
+    "--max-designs",
+    type=click.IntRange(0, 100_000_000),
+    default=0,
+    show_default=True,
+    help="Use only the first N designs of DATA (0: all).",
+)
+@click.option(
+    "--val-every",
+    type=click.IntRange(1, 10_000_000),
+    default=500,
+    show_default=True,
+    help="Validate and write the checkpoints every N steps.",
+)
 @click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--threads", type=THREADS, default=0, help="torch CPU threads (0: default).")
 @click.option("--device", default="auto", show_default=True, help="auto (CUDA when present), cpu, cuda, cuda:1 ...")
-@click.option("--init", default="", help="Start from this surrogate's weights (a checkpoint, a run directory or "
-              "`paper-triplet-v1`): a fine-tune, e.g. after the dataset was regenerated. Same architecture.")
+@click.option(
+    "--init",
+    default="",
+    help="Start from this surrogate's weights (a checkpoint, a run directory or "
+    "`paper-triplet-v1`): a fine-tune, e.g. after the dataset was regenerated. Same architecture.",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @friendly_errors
 def train_cmd(data, out_dir, bin_, as_json, **kw):
@@ -67,21 +113,37 @@ def train_cmd(data, out_dir, bin_, as_json, **kw):
         click.echo(dumps({k: v for k, v in summary.items() if k != "history"}))
         return
     v = summary["final_val"] or {}
-    click.echo(f"{summary['steps_done']} steps in {summary['seconds']:.0f} s on {summary['device']}; validation "
-               f"PSF rel L1 median {v.get('psf_rel_l1_median', float('nan')):.2%}, vignetting error median "
-               f"{v.get('vignetting_abs_err_median', float('nan')):.4f}")
+    click.echo(
+        f"{summary['steps_done']} steps in {summary['seconds']:.0f} s on {summary['device']}; validation "
+        f"PSF rel L1 median {v.get('psf_rel_l1_median', float('nan')):.2%}, vignetting error median "
+        f"{v.get('vignetting_abs_err_median', float('nan')):.4f}"
+    )
     click.echo(f"wrote {out_dir / 'surrogate.pt'}, {out_dir / 'train.json'}, TensorBoard logs in {out_dir / 'tb'}")
 
 
 @surrogate.command("eval")
 @click.argument("model")
 @click.argument("data", type=DATA)
-@click.option("--max-designs", type=click.IntRange(0, 100_000_000), default=0, show_default=True,
-              help="Score at most N held-out designs (0: all).")
-@click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="PNG grid of predicted vs exact PSFs (default: OUT/grid.png with --out).")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Write eval.json and grid.png here.")
+@click.option(
+    "--max-designs",
+    type=click.IntRange(0, 100_000_000),
+    default=0,
+    show_default=True,
+    help="Score at most N held-out designs (0: all).",
+)
+@click.option(
+    "--png",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="PNG grid of predicted vs exact PSFs (default: OUT/grid.png with --out).",
+)
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Write eval.json and grid.png here.",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 @friendly_errors
 def eval_cmd(model, data, max_designs, png, out_dir, as_json):
@@ -102,10 +164,14 @@ def eval_cmd(model, data, max_designs, png, out_dir, as_json):
     if as_json:
         click.echo(dumps(res))
         return
-    click.echo(f"{res['model']} on {res['n_designs']} held-out designs ({res['n_psfs']} PSFs): "
-               f"PSF rel L1 median {res['psf_rel_l1_median']:.2%}, rel L2 {res['psf_rel_l2_median']:.2%}, "
-               f"Strehl {res['strehl_rel_err_median']:.2%}, EE {res['ee_abs_err_median']:.4f}, "
-               f"vignetting {res['vignetting_abs_err_median']:.4f}")
+    click.echo(
+        f"{res['model']} on {res['n_designs']} held-out designs ({res['n_psfs']} PSFs): "
+        f"PSF rel L1 median {res['psf_rel_l1_median']:.2%}, rel L2 {res['psf_rel_l2_median']:.2%}, "
+        f"Strehl {res['strehl_rel_err_median']:.2%}, EE {res['ee_abs_err_median']:.4f}, "
+        f"vignetting {res['vignetting_abs_err_median']:.4f}"
+    )
     for row in res["per_field"]:
-        click.echo(f"  {row['field_deg']:6.2f} deg: L1 {row['psf_rel_l1']['median']:.2%}  "
-                   f"vignetting {row['vignetting_abs_err']['median']:.4f}")
+        click.echo(
+            f"  {row['field_deg']:6.2f} deg: L1 {row['psf_rel_l1']['median']:.2%}  "
+            f"vignetting {row['vignetting_abs_err']['median']:.4f}"
+        )

@@ -50,8 +50,10 @@ def _check_address(spec: str, address: str, where: str) -> str:
     if not sep:
         scheme, rest = "tcp", address
     if scheme not in PROTOCOLS:
-        raise ClusterError(f"--dask {spec!r}: {where}: protocol {scheme!r} is not one of dask's "
-                           f"({', '.join(p + '://' for p in PROTOCOLS)})")
+        raise ClusterError(
+            f"--dask {spec!r}: {where}: protocol {scheme!r} is not one of dask's "
+            f"({', '.join(p + '://' for p in PROTOCOLS)})"
+        )
     host, colon, port = rest.rpartition(":")
     host = host[1:-1] if host.startswith("[") and host.endswith("]") else host  # [IPv6]
     if not colon or not port.isdigit() or not 1 <= int(port) <= 65535:
@@ -89,7 +91,7 @@ def parse_address(spec: str) -> tuple[str, "str | int"]:
         except (OSError, ValueError, RecursionError) as exc:
             raise ClusterError(f"--dask {spec!r}: not a scheduler file ({' '.join(str(exc).split())})") from None
         if not isinstance(info, dict) or not isinstance(info.get("address"), str):
-            raise ClusterError(f"--dask {spec!r}: not a scheduler file (no \"address\" string)")
+            raise ClusterError(f'--dask {spec!r}: not a scheduler file (no "address" string)')
         return "address", _check_address(spec, info["address"], "its address")
     if not spec:
         raise ClusterError("--dask: empty address")
@@ -109,8 +111,13 @@ def connect(spec: str, log: Callable[[str], None] = lambda m: None, timeout_s: f
     try:
         if kind == "local":
             log(f"starting a local Dask cluster: {value} worker process(es), 1 thread each")
-            cluster = LocalCluster(n_workers=value, threads_per_worker=1, processes=True, dashboard_address=None,
-                                   env={v: "1" for v in WORKER_ENV})
+            cluster = LocalCluster(
+                n_workers=value,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                env={v: "1" for v in WORKER_ENV},
+            )
             client = Client(cluster, timeout=timeout_s)
         else:
             client = Client(value, timeout=timeout_s)
@@ -133,18 +140,26 @@ def _identity(out: str) -> dict:
     from .layout import sha256_file
 
     p = Path(out) / "manifest.json"
-    return {"host": socket.gethostname(), "manifest": sha256_file(p) if p.is_file() else None,
-            "optix_e2e": __version__, "engine": _engine_file_sha()}
+    return {
+        "host": socket.gethostname(),
+        "manifest": sha256_file(p) if p.is_file() else None,
+        "optix_e2e": __version__,
+        "engine": _engine_file_sha(),
+    }
 
 
 def _mismatch(mine: dict, expect: dict, out: str) -> str | None:
     """Why a worker of identity ``mine`` cannot write the client's dataset, or None."""
     if mine["manifest"] != expect["manifest"]:
-        return (f"it does not see {Path(out) / 'manifest.json'} as the client wrote it: the output directory "
-                f"must be on storage shared by the client and every worker, at the same path")
+        return (
+            f"it does not see {Path(out) / 'manifest.json'} as the client wrote it: the output directory "
+            f"must be on storage shared by the client and every worker, at the same path"
+        )
     if (mine["optix_e2e"], mine["engine"]) != (expect["optix_e2e"], expect["engine"]):
-        return (f"it runs another optix-e2e build (version {mine['optix_e2e']}, engine {mine['engine']}) than "
-                f"the client ({expect['optix_e2e']}, {expect['engine']}); the data would not be the same")
+        return (
+            f"it runs another optix-e2e build (version {mine['optix_e2e']}, engine {mine['engine']}) than "
+            f"the client ({expect['optix_e2e']}, {expect['engine']}); the data would not be the same"
+        )
     return None
 
 
@@ -161,8 +176,13 @@ def _thread_buffers(man: dict) -> tuple:
     from .generate import shard_buffers
 
     key = threading.get_ident()
-    shape = (man["settings"]["shard_size"], len(man["fields_deg"]), len(man["channels"]), man["psf_size"],
-             man["sensor_size"])
+    shape = (
+        man["settings"]["shard_size"],
+        len(man["fields_deg"]),
+        len(man["channels"]),
+        man["psf_size"],
+        man["sensor_size"],
+    )
     with _buffers_lock:
         got = _buffers.get(key)
         if got is None or got[0] != shape:
@@ -202,14 +222,23 @@ def run_shard(out: str, k: int, expect: dict) -> dict:
     if sdir.exists():
         _clean_stale(sdir, k)
     psf_buf, sensor_buf = _thread_buffers(man)
-    arrays, meta = compute_shard(k, man, designs, space, base, checked=True, psf_buffer=psf_buf,
-                                 sensor_buffer=sensor_buf)
+    arrays, meta = compute_shard(
+        k, man, designs, space, base, checked=True, psf_buffer=psf_buf, sensor_buffer=sensor_buf
+    )
     written = write_shard(root, k, arrays, meta)
     return {"shard": k, "written": written, "n_ok": meta["n_ok"], "n_failed": meta["n_failed"], "notes": notes}
 
 
-def run_shards(spec: str, out: Path, man: dict, pending: list[int], rep, bar=None,
-               log: Callable[[str], None] = lambda m: None, wait_s: float = 120.0) -> None:
+def run_shards(
+    spec: str,
+    out: Path,
+    man: dict,
+    pending: list[int],
+    rep,
+    bar=None,
+    log: Callable[[str], None] = lambda m: None,
+    wait_s: float = 120.0,
+) -> None:
     """Run shards ``pending`` of the dataset in ``out`` as Dask tasks on ``spec``'s cluster,
     filling ``rep`` (a GenerateReport): shards written, designs ok and failed, and in
     ``rep.shard_errors`` the shards whose task failed (their error; run again to redo).
@@ -230,13 +259,18 @@ def run_shards(spec: str, out: Path, man: dict, pending: list[int], rep, bar=Non
         bad = {w: why for w, why in bad.items() if why}
         if bad:
             w, why = sorted(bad.items())[0]
-            raise ClusterError(f"Dask worker {w}" + (f" (and {len(bad) - 1} more)" if len(bad) > 1 else "")
-                               + f": {why}")
-        log(f"Dask: {len(views)} worker(s) on {len({v['host'] for v in views.values()})} host(s), "
-            f"{len(pending)} shard(s) to compute")
+            raise ClusterError(
+                f"Dask worker {w}" + (f" (and {len(bad) - 1} more)" if len(bad) > 1 else "") + f": {why}"
+            )
+        log(
+            f"Dask: {len(views)} worker(s) on {len({v['host'] for v in views.values()})} host(s), "
+            f"{len(pending)} shard(s) to compute"
+        )
         tag = hashlib.sha256(str(out).encode() + man["designs_csv_sha256"].encode()).hexdigest()[:10]
-        futures = {client.submit(run_shard, str(out), k, expect, key=f"optix-shard-{tag}-{k:05d}", retries=1): k
-                   for k in pending}
+        futures = {
+            client.submit(run_shard, str(out), k, expect, key=f"optix-shard-{tag}-{k:05d}", retries=1): k
+            for k in pending
+        }
         try:
             for fut in as_completed(futures):
                 k = futures[fut]

@@ -43,8 +43,8 @@ class GenerateReport:
     n_shards: int
     shards_written: list = field(default_factory=list)
     shards_skipped: list = field(default_factory=list)
-    n_ok: int = 0                 # designs written by this run
-    n_failed: int = 0             # designs that failed in the engine in this run
+    n_ok: int = 0  # designs written by this run
+    n_failed: int = 0  # designs that failed in the engine in this run
     shard_errors: list = field(default_factory=list)  # --dask: shards whose task failed, with the error
     seconds: float = 0.0
 
@@ -124,10 +124,18 @@ def _complete(root: Path, k: int, man: dict, log: Callable[[str], None]) -> bool
         return False
 
 
-def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace, base: Lens,
-                  batch: int = 16, on_batch: Callable[[int, int], None] | None = None,
-                  psf_buffer: np.ndarray | None = None, sensor_buffer: np.ndarray | None = None,
-                  checked: bool = False) -> tuple[dict, dict]:
+def compute_shard(
+    k: int,
+    man: dict,
+    designs: np.ndarray,
+    space: ParameterSpace,
+    base: Lens,
+    batch: int = 16,
+    on_batch: Callable[[int, int], None] | None = None,
+    psf_buffer: np.ndarray | None = None,
+    sensor_buffer: np.ndarray | None = None,
+    checked: bool = False,
+) -> tuple[dict, dict]:
     """Arrays and metadata of shard ``k`` (nothing written).  ``psf_buffer``,
     ``sensor_buffer``: float32 arrays of at least shard_size x K x C x S x S (s x s) to hold
     the PSFs and their sensor-pixel versions (saves the page faults of fresh arrays per
@@ -165,7 +173,7 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
 
     for lo in range(a, b, batch):
         hi = min(b, lo + batch)
-        cand = []                     # (design index, lens dict) past the geometry check
+        cand = []  # (design index, lens dict) past the geometry check
         for i in range(lo, hi):
             d = space.apply(traced, designs[i])
             bad = None if checked else geometry_problem(d, sd)  # the engine would trace these
@@ -173,26 +181,51 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
                 fail(i, f"{bad[0]}: {bad[1]}")
             else:
                 cand.append((i, d))
-        focus_errors = refocus_many([d for _, d in cand], s.focus, focus_fields, wavelengths,
-                                    primary_nm=base.primary_wavelength_nm, rings=4, aiming=s.aiming)
+        focus_errors = refocus_many(
+            [d for _, d in cand],
+            s.focus,
+            focus_fields,
+            wavelengths,
+            primary_nm=base.primary_wavelength_nm,
+            rings=4,
+            aiming=s.aiming,
+        )
         todo, jsons = [], []
         for (i, d), err in zip(cand, focus_errors):
             if err:
                 fail(i, f"focus: {err}")
                 continue
             if not float(d["surfaces"][-1]["thickness"]) > 0.0:
-                fail(i, f"focus: the {s.focus} focus lies {-d['surfaces'][-1]['thickness']:.4g} mm inside "
-                        f"the last surface")
+                fail(
+                    i,
+                    f"focus: the {s.focus} focus lies {-d['surfaces'][-1]['thickness']:.4g} mm inside the last surface",
+                )
                 continue
             todo.append((i, float(d["surfaces"][-1]["thickness"])))
             jsons.append(json.dumps(d))
         # the engine writes straight into the shard's rows from row0 on; a failed design's
         # rows are zeros and the later ones move up over them
         row0 = len(ok_idx)
-        r = engine.psf_batch(jsons, fields_deg=fields, channels=channels, method=s.psf_method, pixel_um=s.pixel_um,
-                             size=S, pupil_samples=s.pupil_samples, aiming=s.aiming, integrate=False, fast=True,
-                             out=psf_arr[row0:row0 + len(jsons)], sensor=(s.sensor_pixel_um, s.sensor_size),
-                             sensor_out=sensor_arr[row0:row0 + len(jsons)], accuracy=s.accuracy) if jsons else {"ok": []}
+        r = (
+            engine.psf_batch(
+                jsons,
+                fields_deg=fields,
+                channels=channels,
+                method=s.psf_method,
+                pixel_um=s.pixel_um,
+                size=S,
+                pupil_samples=s.pupil_samples,
+                aiming=s.aiming,
+                integrate=False,
+                fast=True,
+                out=psf_arr[row0 : row0 + len(jsons)],
+                sensor=(s.sensor_pixel_um, s.sensor_size),
+                sensor_out=sensor_arr[row0 : row0 + len(jsons)],
+                accuracy=s.accuracy,
+            )
+            if jsons
+            else {"ok": []}
+        )
         n_wl = sum(len(c) for c in channels)
         for j, (i, image_mm) in enumerate(todo):
             if r["ok"][j]:
@@ -206,7 +239,7 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
                 if r["warnings"][j]:
                     warnings[str(i)] = r["warnings"][j]
                 # method and sampling of each PSF (fields x wavelengths), as codes into a legend
-                per = r["methods"][j * K * n_wl:(j + 1) * K * n_wl]
+                per = r["methods"][j * K * n_wl : (j + 1) * K * n_wl]
                 methods[str(i)] = [legend.setdefault(m, len(legend)) for m in per]
             else:
                 fail(i, r["errors"][j] or "engine error")
@@ -214,15 +247,26 @@ def compute_shard(k: int, man: dict, designs: np.ndarray, space: ParameterSpace,
         if on_batch:
             on_batch(hi - lo, sum(1 for f in failures if lo <= f["design"] < hi))
     m = len(ok_idx)
-    arrays = {"design": np.array(ok_idx, np.int64), "params": designs[ok_idx].astype(np.float64).reshape(m, designs.shape[1]),
-              "psf": psf_arr[:m], "psf_sensor": sensor_arr[:m],
-              "relative_illumination": (np.stack(ri).astype(np.float64) if m else np.zeros((0, K, C))),
-              "image_distance": np.array(image, np.float64),
-              "energy_in_window": (np.stack(energy).astype(np.float32) if m else np.zeros((0, K, C), np.float32))}
-    meta = {"format": FORMAT, "shard": k, "designs": [a, b], "n_ok": m, "n_failed": len(failures),
-            "failures": failures, "warnings": warnings, "seconds": time.perf_counter() - t0,
-            "psf_methods": {"legend": list(legend), "order": "fields x wavelengths (channels flattened)",
-                            "codes": methods}}
+    arrays = {
+        "design": np.array(ok_idx, np.int64),
+        "params": designs[ok_idx].astype(np.float64).reshape(m, designs.shape[1]),
+        "psf": psf_arr[:m],
+        "psf_sensor": sensor_arr[:m],
+        "relative_illumination": (np.stack(ri).astype(np.float64) if m else np.zeros((0, K, C))),
+        "image_distance": np.array(image, np.float64),
+        "energy_in_window": (np.stack(energy).astype(np.float32) if m else np.zeros((0, K, C), np.float32)),
+    }
+    meta = {
+        "format": FORMAT,
+        "shard": k,
+        "designs": [a, b],
+        "n_ok": m,
+        "n_failed": len(failures),
+        "failures": failures,
+        "warnings": warnings,
+        "seconds": time.perf_counter() - t0,
+        "psf_methods": {"legend": list(legend), "order": "fields x wavelengths (channels flattened)", "codes": methods},
+    }
     return arrays, meta
 
 
@@ -230,8 +274,10 @@ def shard_buffers(man: dict) -> tuple[np.ndarray, np.ndarray]:
     """Aligned float32 arrays for one shard's PSFs and sensor-pitch PSFs (compute_shard's
     ``psf_buffer`` and ``sensor_buffer``), reused from shard to shard by their owner."""
     lead = (man["settings"]["shard_size"], len(man["fields_deg"]), len(man["channels"]))
-    return (aligned_empty(lead + (man["psf_size"],) * 2, np.float32),
-            aligned_empty(lead + (man["sensor_size"],) * 2, np.float32))
+    return (
+        aligned_empty(lead + (man["psf_size"],) * 2, np.float32),
+        aligned_empty(lead + (man["sensor_size"],) * 2, np.float32),
+    )
 
 
 def write_shard(root: Path, k: int, arrays: dict, meta: dict) -> bool:
@@ -246,8 +292,7 @@ def write_shard(root: Path, k: int, arrays: dict, meta: dict) -> bool:
         for name in ARRAYS:
             p = tmp / f"{name}.npy"
             crc = save_npy(p, arrays[name])
-            files[name] = {"crc32": crc, "shape": list(arrays[name].shape),
-                           "dtype": str(arrays[name].dtype)}
+            files[name] = {"crc32": crc, "shape": list(arrays[name].shape), "dtype": str(arrays[name].dtype)}
         write_json_atomic(tmp / "shard.json", {**meta, "files": files})
         fsync_dir(tmp)
         os.rename(tmp, final)
@@ -277,10 +322,17 @@ def parse_shard_range(spec: str | None, n_shards: int) -> range:
     return r
 
 
-def generate(space_spec: "str | Path", n: int, seed: int, out: "str | Path",
-             settings: DatasetSettings | None = None, shards: str | None = None,
-             progress: bool = True, log: Callable[[str], None] = lambda m: None,
-             dask: str | None = None) -> GenerateReport:
+def generate(
+    space_spec: "str | Path",
+    n: int,
+    seed: int,
+    out: "str | Path",
+    settings: DatasetSettings | None = None,
+    shards: str | None = None,
+    progress: bool = True,
+    log: Callable[[str], None] = lambda m: None,
+    dask: str | None = None,
+) -> GenerateReport:
     """Create or finish the dataset in ``out`` (see the module docstring).  ``dask``: run
     the missing shards as tasks on a Dask cluster instead (``local:N``, a scheduler address
     or a scheduler file; :mod:`.cluster`); ``out`` must then be on storage every worker sees."""
@@ -296,7 +348,10 @@ def generate(space_spec: "str | Path", n: int, seed: int, out: "str | Path",
     space, base = load_space(space_spec)
     # before anything is written: auto fields take at most the largest K they try
     from ..accuracy.auto import K_FIELDS
-    s.check_memory(n, s.n_fields or max(K_FIELDS), len(base.rgb_channels("rgb" if s.channels == "auto" else s.channels)))
+
+    s.check_memory(
+        n, s.n_fields or max(K_FIELDS), len(base.rgb_channels("rgb" if s.channels == "auto" else s.channels))
+    )
     man, designs = prepare(out, space, base, n, seed, s, log)
     n_shards = man["n_shards"]
     todo = parse_shard_range(shards, n_shards)
@@ -326,8 +381,16 @@ def generate(space_spec: "str | Path", n: int, seed: int, out: "str | Path",
     return rep
 
 
-def _run_here(out: Path, man: dict, designs: np.ndarray, space: ParameterSpace, base: Lens, pending: list,
-              rep: GenerateReport, bar) -> None:
+def _run_here(
+    out: Path,
+    man: dict,
+    designs: np.ndarray,
+    space: ParameterSpace,
+    base: Lens,
+    pending: list,
+    rep: GenerateReport,
+    bar,
+) -> None:
     """Compute and write shards ``pending`` in this process, filling ``rep``."""
     sdir = shards_dir(out)
     failed = {"n": 0}
@@ -356,8 +419,17 @@ def _run_here(out: Path, man: dict, designs: np.ndarray, space: ParameterSpace, 
             if buffers[n_done % 2] is None and len(pending) > 1:
                 buffers[n_done % 2] = shard_buffers(man)
             psf_buf, sensor_buf = buffers[n_done % 2] or (None, None)
-            arrays, meta = compute_shard(k, man, designs, space, base, on_batch=on_batch, psf_buffer=psf_buf,
-                                         sensor_buffer=sensor_buf, checked=True)
+            arrays, meta = compute_shard(
+                k,
+                man,
+                designs,
+                space,
+                base,
+                on_batch=on_batch,
+                psf_buffer=psf_buf,
+                sensor_buffer=sensor_buf,
+                checked=True,
+            )
             if writing is not None:
                 finish(writing)
             writing = (k, meta, pool.submit(write_shard, out, k, arrays, meta))

@@ -33,8 +33,7 @@ from pathlib import Path
 import numpy as np
 
 FORMAT = "optix-psf-dataset/1"
-ARRAYS = ("design", "params", "psf", "psf_sensor", "relative_illumination", "image_distance",
-          "energy_in_window")
+ARRAYS = ("design", "params", "psf", "psf_sensor", "relative_illumination", "image_distance", "energy_in_window")
 VALUES = ARRAYS[1:]  # the per-design data, after the design index
 
 # (fsync_dir, the atomic writes, read_small_text and claim_out_dir live in optix_e2e.io)
@@ -98,7 +97,7 @@ def aligned_empty(shape, dtype) -> np.ndarray:
     n = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
     raw = np.empty(n + ALIGN, np.uint8)
     off = (-raw.ctypes.data) % ALIGN
-    return raw[off:off + n].view(dtype).reshape(shape)
+    return raw[off : off + n].view(dtype).reshape(shape)
 
 
 def npy_header(arr: np.ndarray, pad_to: int = 64) -> bytes:
@@ -115,7 +114,7 @@ def npy_header(arr: np.ndarray, pad_to: int = 64) -> bytes:
 
 def _write_all(fd: int, mv: memoryview) -> None:
     while len(mv):
-        mv = mv[os.write(fd, mv):]
+        mv = mv[os.write(fd, mv) :]
 
 
 def save_npy(path: Path, arr: np.ndarray) -> str:
@@ -130,8 +129,7 @@ def save_npy(path: Path, arr: np.ndarray) -> str:
     through the page cache; the file's bytes are the same either way for a given header."""
     arr = np.ascontiguousarray(arr)
     data = memoryview(arr.reshape(-1).view(np.uint8)) if arr.size else memoryview(b"")
-    direct = (getattr(os, "O_DIRECT", 0) and arr.nbytes >= DIRECT_MIN_BYTES
-              and arr.ctypes.data % ALIGN == 0)
+    direct = getattr(os, "O_DIRECT", 0) and arr.nbytes >= DIRECT_MIN_BYTES and arr.ctypes.data % ALIGN == 0
     header = npy_header(arr, ALIGN if direct else 64)
     crc = crc32(data, crc32(header))
     if direct:
@@ -193,6 +191,7 @@ def _is_number(x) -> bool:
 def check_manifest(man: dict, path) -> None:
     """DatasetError naming the first key of ``man`` that readers need and that is missing
     or malformed (counts, sizes, fields, channels, parameters and their statistics)."""
+
     def bad(key, what):
         raise DatasetError(f"{path}: damaged manifest: {key} {what}")
 
@@ -216,18 +215,33 @@ def check_manifest(man: dict, path) -> None:
     count("sensor_size", man.get("sensor_size"))
     numbers("fields_deg", man.get("fields_deg"))
     channels = man.get("channels")
-    if not (isinstance(channels, list) and channels and all(
-            isinstance(c, list) and c and all(isinstance(w, list) and len(w) == 2 and all(map(_is_number, w))
-                                              for w in c) for c in channels)):
+    if not (
+        isinstance(channels, list)
+        and channels
+        and all(
+            isinstance(c, list)
+            and c
+            and all(isinstance(w, list) and len(w) == 2 and all(map(_is_number, w)) for w in c)
+            for c in channels
+        )
+    ):
         bad("channels", f"must be a list of channels of [wavelength, weight] pairs, got {str(channels)[:60]}")
     names = man.get("channel_names")
     if not (isinstance(names, list) and len(names) == len(channels) and all(isinstance(x, str) for x in names)):
         bad("channel_names", f"must name the {len(channels)} channels, got {str(names)[:60]}")
     space = man.get("space")
     params = space.get("parameters") if isinstance(space, dict) else None
-    if not (isinstance(params, list) and params and all(
-            isinstance(q, dict) and isinstance(q.get("name"), str) and _is_number(q.get("min"))
-            and _is_number(q.get("max")) for q in params)):
+    if not (
+        isinstance(params, list)
+        and params
+        and all(
+            isinstance(q, dict)
+            and isinstance(q.get("name"), str)
+            and _is_number(q.get("min"))
+            and _is_number(q.get("max"))
+            for q in params
+        )
+    ):
         bad("space.parameters", "must be a list of parameters with a name, min and max")
     numbers("param_mean", man.get("param_mean"), len(params))
     numbers("param_std", man.get("param_std"), len(params))

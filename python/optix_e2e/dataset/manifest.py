@@ -21,22 +21,34 @@ from ..lens.apertures import engine_base
 from .settings import DatasetSettings, field_positions
 
 
-def _request(space: ParameterSpace, base: Lens, n: int, seed: int, s: DatasetSettings,
-             fields: list[float], channels) -> dict:
+def _request(
+    space: ParameterSpace, base: Lens, n: int, seed: int, s: DatasetSettings, fields: list[float], channels
+) -> dict:
     """The part of the manifest that defines the data (must match on resume)."""
     return {
-        "format": FORMAT, "n_designs": n, "seed": seed, "settings": asdict(s),
-        "fields_deg": fields, "channels": [[list(p) for p in c] for c in channels],
+        "format": FORMAT,
+        "n_designs": n,
+        "seed": seed,
+        "settings": asdict(s),
+        "fields_deg": fields,
+        "channels": [[list(p) for p in c] for c in channels],
         "channel_names": ["R", "G", "B"] if len(channels) == 3 else [f"C{i}" for i in range(len(channels))],
-        "psf_size": s.size, "sensor_size": s.sensor_size, "n_shards": math.ceil(n / s.shard_size),
-        "space": {"source": space.source, "lens": space.lens_ref, "constraints": space.constraints,
-                  "parameters": space.to_json()},
+        "psf_size": s.size,
+        "sensor_size": s.sensor_size,
+        "n_shards": math.ceil(n / s.shard_size),
+        "space": {
+            "source": space.source,
+            "lens": space.lens_ref,
+            "constraints": space.constraints,
+            "parameters": space.to_json(),
+        },
         "base_lens": base.data,
     }
 
 
-def resolve_fields_and_channels(base: Lens, s: DatasetSettings,
-                                log: Callable[[str], None] = lambda m: None) -> tuple[list[float], list, dict]:
+def resolve_fields_and_channels(
+    base: Lens, s: DatasetSettings, log: Callable[[str], None] = lambda m: None
+) -> tuple[list[float], list, dict]:
     """The K field positions and the channels' (wavelength, weight) lists.  ``n_fields`` 0
     and ``channels`` "auto" are chosen for ``s.accuracy`` on the base design (optix_e2e.accuracy.auto;
     deterministic, so a resumed run recomputes and checks them); the choice and its
@@ -53,13 +65,16 @@ def resolve_fields_and_channels(base: Lens, s: DatasetSettings,
         channels = base.rgb_channels(s.channels)
     k = s.n_fields
     if k == 0:
-        fk = _auto.choose_fields(js, base.max_field_deg, base.primary_wavelength_nm, s.accuracy,
-                                 size=s.size, pixel_um=s.pixel_um)
+        fk = _auto.choose_fields(
+            js, base.max_field_deg, base.primary_wavelength_nm, s.accuracy, size=s.size, pixel_um=s.pixel_um
+        )
         k = fk["K"]
         info["fields"] = fk
         if not fk["met"]:
-            log(f"fields auto: no K up to {max(_auto.K_FIELDS)} interpolates within {s.accuracy:.1%} "
-                f"(K={max(_auto.K_FIELDS)}: {fk['mean_rel_l1'][str(max(_auto.K_FIELDS))]:.1%}); using {k} fields")
+            log(
+                f"fields auto: no K up to {max(_auto.K_FIELDS)} interpolates within {s.accuracy:.1%} "
+                f"(K={max(_auto.K_FIELDS)}: {fk['mean_rel_l1'][str(max(_auto.K_FIELDS))]:.1%}); using {k} fields"
+            )
     if info:
         info["target_rel_l1"] = s.accuracy
     return field_positions(base, k), channels, info
@@ -78,8 +93,15 @@ def _versions() -> dict:
     return out
 
 
-def prepare(out: Path, space: ParameterSpace, base: Lens, n: int, seed: int, s: DatasetSettings,
-            log: Callable[[str], None] = lambda m: None) -> tuple[dict, np.ndarray]:
+def prepare(
+    out: Path,
+    space: ParameterSpace,
+    base: Lens,
+    n: int,
+    seed: int,
+    s: DatasetSettings,
+    log: Callable[[str], None] = lambda m: None,
+) -> tuple[dict, np.ndarray]:
     """Create or check ``out``'s manifest and designs; returns (manifest, designs (n, P))."""
     fields, channels, auto = resolve_fields_and_channels(base, s, log)
     req = _request(space, base, n, seed, s, fields, channels)
@@ -90,8 +112,10 @@ def prepare(out: Path, space: ParameterSpace, base: Lens, n: int, seed: int, s: 
         man = read_json(mpath, "manifest")
         diff = differing_keys(man, req, req)
         if diff:
-            raise DatasetError(f"{mpath}: this directory holds a different dataset (differs in: "
-                               f"{', '.join(diff)}); use another --out or the same arguments")
+            raise DatasetError(
+                f"{mpath}: this directory holds a different dataset (differs in: "
+                f"{', '.join(diff)}); use another --out or the same arguments"
+            )
         dpath = out / "designs.csv"
         want = man.get("designs_csv_sha256")
         if not dpath.exists() or (want is not None and sha256_file(dpath) != want):
@@ -105,8 +129,10 @@ def prepare(out: Path, space: ParameterSpace, base: Lens, n: int, seed: int, s: 
             limits = Limits.from_dict(space.constraints, f"{space.source}: [constraints]")
             again = sample_designs(space, base, n, seed=seed, method=s.sampling, limits=limits).values
             if designs.shape != again.shape or not np.array_equal(designs, again):
-                raise DatasetError(f"{dpath}: not the designs of seed {seed} (and the manifest has no "
-                                   f"designs_csv_sha256 to check it by)")
+                raise DatasetError(
+                    f"{dpath}: not the designs of seed {seed} (and the manifest has no "
+                    f"designs_csv_sha256 to check it by)"
+                )
         return man, designs
     # a new dataset: only into an empty folder or one a start that stopped early left
     claim_out_dir(out, "dataset", {"designs.csv", "shards"}, marker="manifest.json")
@@ -115,28 +141,33 @@ def prepare(out: Path, space: ParameterSpace, base: Lens, n: int, seed: int, s: 
     res = sample_designs(space, base, n, seed=seed, method=s.sampling, limits=limits)
     out.mkdir(parents=True, exist_ok=True)
     write_designs_csv(out / "designs.csv", space.names, res.values)
-    man = {**req,
-           "sampling_summary": res.summary(),
-           # the paper normalizes parameters by their mean and standard deviation over the designs
-           "param_mean": res.values.mean(axis=0).tolist(),
-           "param_std": res.values.std(axis=0).tolist(),
-           "designs_csv_sha256": sha256_file(out / "designs.csv"),
-           "versions": _versions(),
-           "created_unix": time.time()}
+    man = {
+        **req,
+        "sampling_summary": res.summary(),
+        # the paper normalizes parameters by their mean and standard deviation over the designs
+        "param_mean": res.values.mean(axis=0).tolist(),
+        "param_std": res.values.std(axis=0).tolist(),
+        "designs_csv_sha256": sha256_file(out / "designs.csv"),
+        "versions": _versions(),
+        "created_unix": time.time(),
+    }
     write_json_atomic(mpath, man)
     return man, res.values
-
-
 
 
 def space_and_base(manifest: dict) -> tuple[ParameterSpace, Lens]:
     """The parameter space and base lens a manifest records (no files needed); a manifest
     without them (a damaged or hand-made checkpoint's) is one ValueError naming the key."""
     sp = manifest.get("space") if isinstance(manifest, dict) else None
-    if not isinstance(sp, dict) or not isinstance(sp.get("parameters"), list) \
-            or not all(isinstance(p, dict) for p in sp["parameters"]):
-        raise ValueError("the manifest has no parameter space ('space' with a list of 'parameters'); "
-                         "it is damaged or not a dataset's")
+    if (
+        not isinstance(sp, dict)
+        or not isinstance(sp.get("parameters"), list)
+        or not all(isinstance(p, dict) for p in sp["parameters"])
+    ):
+        raise ValueError(
+            "the manifest has no parameter space ('space' with a list of 'parameters'); "
+            "it is damaged or not a dataset's"
+        )
     if not isinstance(manifest.get("base_lens"), dict):
         raise ValueError("the manifest has no base lens ('base_lens'); it is damaged or not a dataset's")
     try:

@@ -29,7 +29,9 @@ def merge(out: "str | Path", parts: Sequence["str | Path"]) -> dict:
     for p, m in zip(parts[1:], mans[1:]):
         diff = differing_keys(ref, m, (set(ref) | set(m)) - _LOCAL)
         if diff:
-            raise DatasetError(f"{p / 'manifest.json'}: a different dataset from {parts[0]} (differs in: {', '.join(diff)})")
+            raise DatasetError(
+                f"{p / 'manifest.json'}: a different dataset from {parts[0]} (differs in: {', '.join(diff)})"
+            )
     out.mkdir(parents=True, exist_ok=True)
     if (out / "manifest.json").exists():
         m = read_manifest(out)

@@ -16,28 +16,28 @@ MAX_SIZE = 8192
 
 def human(b: float) -> str:
     """Bytes as a short figure (GiB or TiB)."""
-    return f"{b / 2 ** 40:.1f} TiB" if b >= 2 ** 40 else f"{b / 2 ** 30:.1f} GiB"
+    return f"{b / 2**40:.1f} TiB" if b >= 2**40 else f"{b / 2**30:.1f} GiB"
 
 
 @dataclass(frozen=True)
 class DatasetSettings:
     """What each design's record holds and how it is computed."""
 
-    n_fields: int = 13              # K field positions, uniform along +y from 0 to the full field; 0: auto
-    window_um: float = 128.0        # super-resolved PSF window (side)
-    pixel_um: float = 1.0           # ... and its pitch
-    sensor_pixel_um: float = 5.86   # the sensor-pitch version (IMX249 pixels)
+    n_fields: int = 13  # K field positions, uniform along +y from 0 to the full field; 0: auto
+    window_um: float = 128.0  # super-resolved PSF window (side)
+    pixel_um: float = 1.0  # ... and its pitch
+    sensor_pixel_um: float = 5.86  # the sensor-pitch version (IMX249 pixels)
     pupil_samples: int = 64
-    psf_method: str = "auto"        # per PSF: the cheapest method and sampling predicted to meet `accuracy`
-    accuracy: float = 0.02          # method auto: target relative L1 error of each monochromatic PSF
+    psf_method: str = "auto"  # per PSF: the cheapest method and sampling predicted to meet `accuracy`
+    accuracy: float = 0.02  # method auto: target relative L1 error of each monochromatic PSF
     aiming: str = "paraxial"
-    channels: str = "lens"          # "lens": the lens's three wavelengths -> R, G, B; "rgb": 3 per channel
+    channels: str = "lens"  # "lens": the lens's three wavelengths -> R, G, B; "rgb": 3 per channel
     shard_size: int = 64
     sampling: str = "sobol"
-    apertures: str = "auto"         # "auto": no clear apertures (Zemax's automatic semi-diameters,
-                                    # every surface passes the beam); "fixed": the base lens's, stop excepted
-    focus: str = "best"             # image plane per design: "best" (least RMS spot over the K fields
-                                    # and the channels' wavelengths), "paraxial", or "fixed" (the base's)
+    apertures: str = "auto"  # "auto": no clear apertures (Zemax's automatic semi-diameters,
+    # every surface passes the beam); "fixed": the base lens's, stop excepted
+    focus: str = "best"  # image plane per design: "best" (least RMS spot over the K fields
+    # and the channels' wavelengths), "paraxial", or "fixed" (the base's)
 
     def check(self) -> None:
         if self.n_fields < 0:
@@ -47,8 +47,10 @@ class DatasetSettings:
         if self.size < 8:
             raise ValueError(f"window {self.window_um} um at {self.pixel_um} um/pixel is only {self.size} pixels")
         if self.size > MAX_SIZE:
-            raise ValueError(f"window {self.window_um} um at {self.pixel_um} um/pixel is {self.size} pixels across; "
-                             f"the engine computes at most {MAX_SIZE} (a smaller window_um or a larger pixel_um)")
+            raise ValueError(
+                f"window {self.window_um} um at {self.pixel_um} um/pixel is {self.size} pixels across; "
+                f"the engine computes at most {MAX_SIZE} (a smaller window_um or a larger pixel_um)"
+            )
         if self.sensor_size < 1:
             raise ValueError(f"window {self.window_um} um holds no {self.sensor_pixel_um} um sensor pixel")
         if self.shard_size < 1:
@@ -73,14 +75,16 @@ class DatasetSettings:
         from .. import engine
 
         rows = min(self.shard_size, n_designs) * n_fields * n_channels
-        buffers = rows * (self.size ** 2 + self.sensor_size ** 2) * 4.0
-        work = (os.cpu_count() or 1) * (self.size ** 2 * 24.0 + (4 * self.pupil_samples) ** 2 * 32.0)
+        buffers = rows * (self.size**2 + self.sensor_size**2) * 4.0
+        work = (os.cpu_count() or 1) * (self.size**2 * 24.0 + (4 * self.pupil_samples) ** 2 * 32.0)
         avail = engine.available_memory()
         if buffers + work > avail:
-            raise ValueError(f"a shard of {min(self.shard_size, n_designs)} designs x {n_fields} fields x {n_channels} "
-                             f"channels at {self.size}x{self.size} pixels would need about {human(buffers + work)} "
-                             f"(shard buffers {human(buffers)}), more than the {human(avail)} of memory available: "
-                             f"lower --window-um or --shard-size, or raise --pixel-um")
+            raise ValueError(
+                f"a shard of {min(self.shard_size, n_designs)} designs x {n_fields} fields x {n_channels} "
+                f"channels at {self.size}x{self.size} pixels would need about {human(buffers + work)} "
+                f"(shard buffers {human(buffers)}), more than the {human(avail)} of memory available: "
+                f"lower --window-um or --shard-size, or raise --pixel-um"
+            )
 
     @property
     def size(self) -> int:

@@ -35,8 +35,14 @@ class PsfDataset(Dataset):
     ``vignetting`` (C,) float32 relative illumination, ``design`` int, ``field_deg`` float.
     """
 
-    def __init__(self, root: "str | Path", psf: str = "psf", designs: Sequence[int] | None = None,
-                 verify: bool = True, allow_missing: bool = False):
+    def __init__(
+        self,
+        root: "str | Path",
+        psf: str = "psf",
+        designs: Sequence[int] | None = None,
+        verify: bool = True,
+        allow_missing: bool = False,
+    ):
         self.root = Path(root)
         self.manifest = man = read_manifest(self.root)
         if psf not in ("psf", "psf_sensor"):
@@ -52,7 +58,7 @@ class PsfDataset(Dataset):
         self.param_names = [p["name"] for p in man["space"]["parameters"]]
         keep = None if designs is None else set(int(i) for i in designs)
         self._shards: list[int] = []
-        self._rows: list[np.ndarray] = []   # per shard: rows (positions in the shard) kept
+        self._rows: list[np.ndarray] = []  # per shard: rows (positions in the shard) kept
         for k in range(man["n_shards"]):
             d = shards_dir(self.root) / shard_name(k)
             if not d.is_dir():

@@ -10,18 +10,32 @@ import numpy as np
 
 from ..design.sampling import read_designs_csv
 from ..design.space import SpaceError
-from .layout import (FORMAT, VALUES, DatasetError, crc32_file, read_json, read_manifest, sha256_file, shard_name,
-                     shards_dir)
+from .layout import (
+    FORMAT,
+    VALUES,
+    DatasetError,
+    crc32_file,
+    read_json,
+    read_manifest,
+    sha256_file,
+    shard_name,
+    shards_dir,
+)
 
 
 def expected_shapes(man: dict, m: int) -> dict:
     K, C = len(man["fields_deg"]), len(man["channels"])
     S, s = man["psf_size"], man["sensor_size"]
     P = len(man["space"]["parameters"])
-    return {"design": ((m,), "int64"), "params": ((m, P), "float64"),
-            "psf": ((m, K, C, S, S), "float32"), "psf_sensor": ((m, K, C, s, s), "float32"),
-            "relative_illumination": ((m, K, C), "float64"), "image_distance": ((m,), "float64"),
-            "energy_in_window": ((m, K, C), "float32")}
+    return {
+        "design": ((m,), "int64"),
+        "params": ((m, P), "float64"),
+        "psf": ((m, K, C, S, S), "float32"),
+        "psf_sensor": ((m, K, C, s, s), "float32"),
+        "relative_illumination": ((m, K, C), "float64"),
+        "image_distance": ((m,), "float64"),
+        "energy_in_window": ((m, K, C), "float32"),
+    }
 
 
 def read_shard_meta(root: Path, k: int, man: dict) -> dict:
@@ -36,9 +50,13 @@ def read_shard_meta(root: Path, k: int, man: dict) -> dict:
     if meta.get("designs") != [a, b]:
         raise DatasetError(f"{path}: covers designs {meta.get('designs')}, expected [{a}, {b}]")
     m, n_failed, failures = meta.get("n_ok"), meta.get("n_failed"), meta.get("failures")
-    if not (isinstance(m, int) and isinstance(n_failed, int) and isinstance(failures, list)
-            and all(isinstance(f, dict) and isinstance(f.get("design"), int) for f in failures)
-            and isinstance(meta.get("files"), dict)):
+    if not (
+        isinstance(m, int)
+        and isinstance(n_failed, int)
+        and isinstance(failures, list)
+        and all(isinstance(f, dict) and isinstance(f.get("design"), int) for f in failures)
+        and isinstance(meta.get("files"), dict)
+    ):
         raise DatasetError(f"{path}: damaged (n_ok, n_failed, failures or files missing or malformed)")
     if m < 0 or n_failed < 0 or m + n_failed != b - a or len(failures) != n_failed:
         raise DatasetError(f"{path}: {m} ok + {n_failed} failed designs != {b - a}")
@@ -76,8 +94,9 @@ def open_shard(root: Path, k: int, man: dict, check_hashes: "bool | Collection[s
     idx = np.asarray(arrays["design"])
     failed = {f["design"] for f in meta["failures"]}
     if np.any(np.diff(idx) <= 0) or (m and (idx[0] < a or idx[-1] >= b)) or failed & set(idx.tolist()):
-        raise DatasetError(f"{d / 'design.npy'}: design indices not ascending inside [{a}, {b}) "
-                           f"or overlapping the failures")
+        raise DatasetError(
+            f"{d / 'design.npy'}: design indices not ascending inside [{a}, {b}) or overlapping the failures"
+        )
     return arrays, meta
 
 
@@ -91,8 +110,10 @@ SUM_TOL = 1e-3
 
 def _out_of_range(path: Path, what: str, bad: np.ndarray, values: np.ndarray, design: np.ndarray) -> DatasetError:
     first = tuple(int(i) for i in np.argwhere(bad)[0])
-    return DatasetError(f"{path}: {int(bad.sum())} {what} (first: design {int(design[first[0]])}, index {first[1:]}, "
-                        f"value {float(values[first]):.6g})")
+    return DatasetError(
+        f"{path}: {int(bad.sum())} {what} (first: design {int(design[first[0]])}, index {first[1:]}, "
+        f"value {float(values[first]):.6g})"
+    )
 
 
 def check_shard(root: Path, k: int, man: dict, check_hashes: bool = True) -> tuple[dict, dict]:
@@ -121,8 +142,13 @@ def check_shard(root: Path, k: int, man: dict, check_hashes: bool = True) -> tup
             raise _out_of_range(d / f"{name}.npy", "channels with negative values", low < 0, low, design)
         bad = np.abs(sums - 1) > SUM_TOL if exact else sums > 1 + SUM_TOL
         if bad.any():
-            raise _out_of_range(d / f"{name}.npy", "channels whose sum is not 1" if exact else "channels summing above 1",
-                                bad, sums, design)
+            raise _out_of_range(
+                d / f"{name}.npy",
+                "channels whose sum is not 1" if exact else "channels summing above 1",
+                bad,
+                sums,
+                design,
+            )
     return arrays, meta
 
 
@@ -135,11 +161,15 @@ def _designs_csv(root: Path, man: dict, problems: list, notes: list) -> "np.ndar
         return None
     want = man.get("designs_csv_sha256")
     if want is None:
-        notes.append(f"{root / 'manifest.json'}: no designs_csv_sha256 (an older manifest): designs.csv is "
-                     f"checked against the shards' parameters only")
+        notes.append(
+            f"{root / 'manifest.json'}: no designs_csv_sha256 (an older manifest): designs.csv is "
+            f"checked against the shards' parameters only"
+        )
     elif sha256_file(path) != want:
-        problems.append(f"{path}: changed since the manifest was written (its sha256 differs from the "
-                        f"manifest's designs_csv_sha256)")
+        problems.append(
+            f"{path}: changed since the manifest was written (its sha256 differs from the "
+            f"manifest's designs_csv_sha256)"
+        )
     try:
         designs = read_designs_csv(path, [q["name"] for q in man["space"]["parameters"]])
     except (SpaceError, ValueError, UnicodeDecodeError) as exc:
@@ -181,8 +211,10 @@ def verify(root: "str | Path", check_hashes: bool = True) -> dict:
         if designs is not None and len(idx):
             differ = idx[np.any(np.asarray(arrays["params"]) != designs[idx], axis=1)]
             if len(differ):
-                problems.append(f"{shards_dir(root) / shard_name(k) / 'params.npy'}: the parameters of design "
-                                f"{differ[0]} ({len(differ)} in all) differ from designs.csv")
+                problems.append(
+                    f"{shards_dir(root) / shard_name(k) / 'params.npy'}: the parameters of design "
+                    f"{differ[0]} ({len(differ)} in all) differ from designs.csv"
+                )
         for j, i in enumerate(idx):
             h.update(np.int64(i).tobytes())
             for name in VALUES:
@@ -200,7 +232,16 @@ def verify(root: "str | Path", check_hashes: bool = True) -> dict:
                     methods[pm["legend"][c]] = methods.get(pm["legend"][c], 0) + 1
     for i in sorted(failed_idx):
         h.update(b"failed" + np.int64(i).tobytes())
-    return {"ok": not problems and not missing, "notes": notes, "n_designs": n_ok, "n_failed": n_failed,
-            "n_with_warnings": n_warn, "min_energy_in_window": min_energy,
-            "n_shards": man["n_shards"], "missing_shards": missing, "problems": problems,
-            "psf_methods": dict(sorted(methods.items())), "digest": h.hexdigest()}
+    return {
+        "ok": not problems and not missing,
+        "notes": notes,
+        "n_designs": n_ok,
+        "n_failed": n_failed,
+        "n_with_warnings": n_warn,
+        "min_energy_in_window": min_energy,
+        "n_shards": man["n_shards"],
+        "missing_shards": missing,
+        "problems": problems,
+        "psf_methods": dict(sorted(methods.items())),
+        "digest": h.hexdigest(),
+    }

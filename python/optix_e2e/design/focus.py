@@ -18,24 +18,38 @@ def _pairs(wavelengths_nm: Sequence[float], weights: Sequence[float] | None) -> 
     return [(float(w), float(x)) for w, x in zip(wavelengths_nm, ww)]
 
 
-def best_focus_shift(lens_json: str, fields_deg: Sequence[float], wavelengths_nm: Sequence[float],
-                     weights: Sequence[float] | None = None, rings: int = 8, aiming: str = "paraxial") -> float:
+def best_focus_shift(
+    lens_json: str,
+    fields_deg: Sequence[float],
+    wavelengths_nm: Sequence[float],
+    weights: Sequence[float] | None = None,
+    rings: int = 8,
+    aiming: str = "paraxial",
+) -> float:
     """Image-plane shift (mm; positive = away from the lens) minimizing the mean over
     ``fields_deg`` of the polychromatic centroid RMS spot squared (the engine's
     ``best_focus_batch``: polar pupil grid of ``rings`` rings; failed rays left out).
     Raises the engine's error if the lens cannot be traced."""
     from .. import engine
 
-    r = engine.best_focus_batch([lens_json], fields_deg=fields_deg, wavelengths=_pairs(wavelengths_nm, weights),
-                                rings=rings, aiming=aiming)
+    r = engine.best_focus_batch(
+        [lens_json], fields_deg=fields_deg, wavelengths=_pairs(wavelengths_nm, weights), rings=rings, aiming=aiming
+    )
     if not r["ok"][0]:
         raise engine.EngineError(r["errors"][0])
     return float(r["shift_mm"][0])
 
 
-def refocus_many(lenses: Sequence[dict], mode: str, fields_deg: Sequence[float], wavelengths_nm: Sequence[float],
-                 weights: Sequence[float] | None = None, primary_nm: float | None = None, rings: int = 8,
-                 aiming: str = "paraxial") -> list[str | None]:
+def refocus_many(
+    lenses: Sequence[dict],
+    mode: str,
+    fields_deg: Sequence[float],
+    wavelengths_nm: Sequence[float],
+    weights: Sequence[float] | None = None,
+    primary_nm: float | None = None,
+    rings: int = 8,
+    aiming: str = "paraxial",
+) -> list[str | None]:
     """Set each resolved lens dict's image distance by ``mode`` (in place): "best"
     (:func:`best_focus_shift`, one parallel engine call for all), "paraxial" (the paraxial
     focus at ``primary_nm``) or "fixed" (unchanged).  Returns, per lens, the engine's
@@ -53,8 +67,13 @@ def refocus_many(lenses: Sequence[dict], mode: str, fields_deg: Sequence[float],
             except engine.EngineError as exc:
                 errors[k] = str(exc)
     elif mode == "best" and lenses:
-        r = engine.best_focus_batch([json.dumps(d) for d in lenses], fields_deg=fields_deg,
-                                    wavelengths=_pairs(wavelengths_nm, weights), rings=rings, aiming=aiming)
+        r = engine.best_focus_batch(
+            [json.dumps(d) for d in lenses],
+            fields_deg=fields_deg,
+            wavelengths=_pairs(wavelengths_nm, weights),
+            rings=rings,
+            aiming=aiming,
+        )
         for k, (lens, dz, err) in enumerate(zip(lenses, r["shift_mm"], r["errors"])):
             if err:
                 errors[k] = err
@@ -63,8 +82,14 @@ def refocus_many(lenses: Sequence[dict], mode: str, fields_deg: Sequence[float],
     return errors
 
 
-def refocus(lens: dict, mode: str, fields_deg: Sequence[float], wavelengths_nm: Sequence[float],
-            weights: Sequence[float] | None = None, primary_nm: float | None = None) -> dict:
+def refocus(
+    lens: dict,
+    mode: str,
+    fields_deg: Sequence[float],
+    wavelengths_nm: Sequence[float],
+    weights: Sequence[float] | None = None,
+    primary_nm: float | None = None,
+) -> dict:
     """``lens`` (a resolved lens dict, changed in place and returned) with its image
     distance set by ``mode`` (see :func:`refocus_many`); raises the engine's error."""
     from .. import engine

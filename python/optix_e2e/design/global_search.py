@@ -35,7 +35,7 @@ from .optimizer import polish
 
 __all__ = ["Basin", "GlobalResult", "basins_csv", "global_search"]
 
-ACTIVE_MM = 0.01   # an inequality constraint this close to its limit is "active" (binding)
+ACTIVE_MM = 0.01  # an inequality constraint this close to its limit is "active" (binding)
 
 
 @dataclass
@@ -43,14 +43,14 @@ class Basin:
     """One local minimum: where it is (unit coordinates), its merit, its constraints."""
 
     u: list
-    cost: float                     # sum of squared residuals (merit and constraint terms)
-    merit: float                    # the merit alone (um of RMS spot, waves of RMS OPD)
-    feasible: bool                  # every constraint met
-    min_slack: float | None         # smallest (value - limit) of the inequality constraints
-    tightest: str | None            # ... which constraint
-    active: list                    # inequality constraints within ACTIVE_MM of their limit
-    efl_error: float | None         # relative EFL error
-    found_by: str                   # "start", "explore <k>", "hammer <basin> (step s)"
+    cost: float  # sum of squared residuals (merit and constraint terms)
+    merit: float  # the merit alone (um of RMS spot, waves of RMS OPD)
+    feasible: bool  # every constraint met
+    min_slack: float | None  # smallest (value - limit) of the inequality constraints
+    tightest: str | None  # ... which constraint
+    active: list  # inequality constraints within ACTIVE_MM of their limit
+    efl_error: float | None  # relative EFL error
+    found_by: str  # "start", "explore <k>", "hammer <basin> (step s)"
     round: int
     visits: int = 1
     nfev: int = 0
@@ -63,37 +63,61 @@ class Basin:
 @dataclass
 class GlobalResult:
     best: Basin
-    basins: list                     # every distinct basin, best first
+    basins: list  # every distinct basin, best first
     rounds: int
     polishes: int
     nfev: int
     wall_s: float
-    stopped: str                     # "rounds" or "time budget"
+    stopped: str  # "rounds" or "time budget"
     history: list = field(default_factory=list)  # (wall_s, best merit) when the best changed
 
     def summary(self) -> dict:
-        return {"rounds": self.rounds, "polishes": self.polishes, "basins_found": len(self.basins),
-                "nfev": self.nfev, "wall_s": self.wall_s, "stopped_by": self.stopped,
-                "best": asdict(self.best), "basins": [asdict(b) for b in self.basins],
-                "best_history": self.history}
+        return {
+            "rounds": self.rounds,
+            "polishes": self.polishes,
+            "basins_found": len(self.basins),
+            "nfev": self.nfev,
+            "wall_s": self.wall_s,
+            "stopped_by": self.stopped,
+            "best": asdict(self.best),
+            "basins": [asdict(b) for b in self.basins],
+            "best_history": self.history,
+        }
 
 
 def _basin(problem, u, nfev, found_by, rnd) -> Basin:
     r, rep = problem.evaluate(u)
     cost = float(r @ r)
     if rep is None:
-        return Basin(u=list(map(float, u)), cost=cost, merit=math.inf, feasible=False,
-                     min_slack=None, tightest=None, active=[], efl_error=None, found_by=found_by,
-                     round=rnd, nfev=nfev)
+        return Basin(
+            u=list(map(float, u)),
+            cost=cost,
+            merit=math.inf,
+            feasible=False,
+            min_slack=None,
+            tightest=None,
+            active=[],
+            efl_error=None,
+            found_by=found_by,
+            round=rnd,
+            nfev=nfev,
+        )
     slack = [(c["value"] - c["limit"], c["name"]) for c in rep["constraints"] if "limit" in c]
     efl = [c for c in rep["constraints"] if c["name"] == "efl"]
     low = min(slack) if slack else (None, None)
-    return Basin(u=list(map(float, u)), cost=cost, merit=float(rep["merit"]),
-                 feasible=all(c["ok"] for c in rep["constraints"]),
-                 min_slack=None if low[0] is None else float(low[0]), tightest=low[1],
-                 active=[name for v, name in slack if v <= ACTIVE_MM],
-                 efl_error=float((efl[0]["value"] - efl[0]["target"]) / efl[0]["target"]) if efl else None,
-                 found_by=found_by, round=rnd, nfev=nfev)
+    return Basin(
+        u=list(map(float, u)),
+        cost=cost,
+        merit=float(rep["merit"]),
+        feasible=all(c["ok"] for c in rep["constraints"]),
+        min_slack=None if low[0] is None else float(low[0]),
+        tightest=low[1],
+        active=[name for v, name in slack if v <= ACTIVE_MM],
+        efl_error=float((efl[0]["value"] - efl[0]["target"]) / efl[0]["target"]) if efl else None,
+        found_by=found_by,
+        round=rnd,
+        nfev=nfev,
+    )
 
 
 # ----- worker side -----------------------------------------------------------------------
@@ -116,11 +140,21 @@ def _polish_task(u0, max_nfev, deadline_wall, found_by, rnd, problem=None) -> Ba
 
 
 # ----- the search ------------------------------------------------------------------------
-def global_search(problem, *, minutes: float | None = 10.0, rounds: int | None = None,
-                  seed: int = 0, workers: int = 2, batch: int = 4, screen: int = 16,
-                  polish_nfev: int = 300, step: float = 0.1, same_basin: float = 0.02,
-                  include_start: bool = True,
-                  progress: Callable[[Basin, "GlobalResult"], None] | None = None) -> GlobalResult:
+def global_search(
+    problem,
+    *,
+    minutes: float | None = 10.0,
+    rounds: int | None = None,
+    seed: int = 0,
+    workers: int = 2,
+    batch: int = 4,
+    screen: int = 16,
+    polish_nfev: int = 300,
+    step: float = 0.1,
+    same_basin: float = 0.02,
+    include_start: bool = True,
+    progress: Callable[[Basin, "GlobalResult"], None] | None = None,
+) -> GlobalResult:
     """Search ``problem`` for its best basin.
 
     Each round polishes ``batch`` starts (half explore, half hammer once a basin is known;
@@ -141,8 +175,7 @@ def global_search(problem, *, minutes: float | None = 10.0, rounds: int | None =
     rng = np.random.default_rng(seed)
     sobol = qmc.Sobol(problem.n, scramble=True, seed=rng)
     basins: list[Basin] = []
-    state = GlobalResult(best=None, basins=basins, rounds=0, polishes=0, nfev=0, wall_s=0.0,
-                         stopped="rounds")
+    state = GlobalResult(best=None, basins=basins, rounds=0, polishes=0, nfev=0, wall_s=0.0, stopped="rounds")
     n_explore = 0
 
     def add(b: Basin) -> None:
@@ -196,8 +229,9 @@ def global_search(problem, *, minutes: float | None = 10.0, rounds: int | None =
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
 
-        pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                                   initializer=_init_worker, initargs=(problem,))
+        pool = ProcessPoolExecutor(
+            max_workers=workers, mp_context=mp.get_context("spawn"), initializer=_init_worker, initargs=(problem,)
+        )
     try:
         rnd = 0
         while rounds is None or rnd < rounds:
@@ -206,12 +240,10 @@ def global_search(problem, *, minutes: float | None = 10.0, rounds: int | None =
                 break
             jobs = starts(rnd)
             if pool is not None:
-                futures = [pool.submit(_polish_task, u, polish_nfev, deadline, tag, rnd)
-                           for u, tag in jobs]
+                futures = [pool.submit(_polish_task, u, polish_nfev, deadline, tag, rnd) for u, tag in jobs]
                 results = [f.result() for f in futures]
             else:
-                results = [_polish_task(u, polish_nfev, deadline, tag, rnd, problem=problem)
-                           for u, tag in jobs]
+                results = [_polish_task(u, polish_nfev, deadline, tag, rnd, problem=problem) for u, tag in jobs]
             known = [np.asarray(b.u) for b in basins]
             best_before = basins[0].key() if basins else None
             for b in results:
@@ -219,8 +251,7 @@ def global_search(problem, *, minutes: float | None = 10.0, rounds: int | None =
             # adapt the hammer's step: jumps that fall back home -> longer; into worse -> shorter
             hammers = [b for b in results if b.found_by.startswith("hammer")]
             if hammers:
-                back = sum(any(np.max(np.abs(np.asarray(b.u) - k)) <= same_basin for k in known)
-                           for b in hammers)
+                back = sum(any(np.max(np.abs(np.asarray(b.u) - k)) <= same_basin for k in known) for b in hammers)
                 better = best_before is not None and basins[0].key() < best_before
                 if back > len(hammers) // 2:
                     step = min(0.5, 1.5 * step)
@@ -247,13 +278,38 @@ def basins_csv(summary: dict) -> str:
     names = list(basins[0].get("values", {})) if basins else []
     out = io.StringIO()
     w = csv.writer(out)
-    w.writerow(["rank", "merit", "feasible", "min_slack_mm", "tightest", "n_active", "efl_error",
-                "found_by", "round", "visits", "nfev", *names])
+    w.writerow(
+        [
+            "rank",
+            "merit",
+            "feasible",
+            "min_slack_mm",
+            "tightest",
+            "n_active",
+            "efl_error",
+            "found_by",
+            "round",
+            "visits",
+            "nfev",
+            *names,
+        ]
+    )
     for k, b in enumerate(basins, 1):
         merit = b["merit"] if b["merit"] is not None else math.inf
-        w.writerow([k, f"{merit:.6g}", b["feasible"],
-                    "" if b["min_slack"] is None else f"{b['min_slack']:.6g}", b["tightest"] or "",
-                    len(b["active"]) if "active" in b else "", "" if b["efl_error"] is None else f"{b['efl_error']:.3e}",
-                    b["found_by"], b["round"], b["visits"], b["nfev"],
-                    *(f"{b['values'][n]:.10g}" for n in names)])
+        w.writerow(
+            [
+                k,
+                f"{merit:.6g}",
+                b["feasible"],
+                "" if b["min_slack"] is None else f"{b['min_slack']:.6g}",
+                b["tightest"] or "",
+                len(b["active"]) if "active" in b else "",
+                "" if b["efl_error"] is None else f"{b['efl_error']:.3e}",
+                b["found_by"],
+                b["round"],
+                b["visits"],
+                b["nfev"],
+                *(f"{b['values'][n]:.10g}" for n in names),
+            ]
+        )
     return out.getvalue()

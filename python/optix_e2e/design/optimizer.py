@@ -50,20 +50,19 @@ from ..lens import Lens
 from .space import ParameterSpace
 from ..lens.surface import sag as _surface_sag
 
-__all__ = ["Constraints", "LensProblem", "Merit", "OptimizeResult", "optimize", "polish", "sag",
-           "element_geometry"]
+__all__ = ["Constraints", "LensProblem", "Merit", "OptimizeResult", "optimize", "polish", "sag", "element_geometry"]
 
-RAY_CLIPPED = 2         # the engine's status code of a ray stopped by a clear aperture (_engine.pyi)
-FAILED_RAY_MM = 1.0     # residual given to each failed ray's x and y (mm)
+RAY_CLIPPED = 2  # the engine's status code of a ray stopped by a clear aperture (_engine.pyi)
+FAILED_RAY_MM = 1.0  # residual given to each failed ray's x and y (mm)
 FAILED_RAY_WAVES = 100.0  # ... and to its OPD in the wavefront merit (waves): above the OPD
-                          # of any design worth keeping, so that losing a ray never pays
+# of any design worth keeping, so that losing a ray never pays
 KINDS = ("spot", "wavefront")
 UNITS = {"spot": "um", "wavefront": "waves"}
-REJECTED = 10.0         # residual value for every entry when the engine rejects a design
-W_EFL = 100.0           # weight of the relative EFL error
-W_GEOM = 100.0          # weight of a geometric violation (per mm)
-MARGIN_MM = 1e-3        # the penalty aims this far inside each geometric limit, so that the
-                        # small residual violation a penalty leaves still meets the limit
+REJECTED = 10.0  # residual value for every entry when the engine rejects a design
+W_EFL = 100.0  # weight of the relative EFL error
+W_GEOM = 100.0  # weight of a geometric violation (per mm)
+MARGIN_MM = 1e-3  # the penalty aims this far inside each geometric limit, so that the
+# small residual violation a penalty leaves still meets the limit
 
 
 # ----- geometry --------------------------------------------------------------------------
@@ -107,12 +106,22 @@ def element_geometry(lens: dict, semi_diameters: Sequence[float]) -> dict:
         after = [i for i in optical if i > k]
         if before:
             a = before[-1]
-            clear.append({"surfaces": (a + 1, k + 1), "height_mm": float(semi_diameters[a]),
-                          "edge_mm": z[k] - (z[a] + float(sag(surfs[a], semi_diameters[a])))})
+            clear.append(
+                {
+                    "surfaces": (a + 1, k + 1),
+                    "height_mm": float(semi_diameters[a]),
+                    "edge_mm": z[k] - (z[a] + float(sag(surfs[a], semi_diameters[a]))),
+                }
+            )
         if after:
             b = after[0]
-            clear.append({"surfaces": (k + 1, b + 1), "height_mm": float(semi_diameters[b]),
-                          "edge_mm": (z[b] + float(sag(surfs[b], semi_diameters[b]))) - z[k]})
+            clear.append(
+                {
+                    "surfaces": (k + 1, b + 1),
+                    "height_mm": float(semi_diameters[b]),
+                    "edge_mm": (z[b] + float(sag(surfs[b], semi_diameters[b]))) - z[k],
+                }
+            )
     return {"glass": glass, "air": air, "stop_clearance": clear}
 
 
@@ -124,14 +133,13 @@ class Constraints:
 
     efl: float | None = None
     efl_tol: float = 1e-3
-    min_center: float | None = None     # glass center thickness (mm)
-    min_edge: float | None = None       # glass edge thickness at the clear semi-diameter (mm)
-    min_air_gap: float | None = None    # air gap between optical surfaces, center and edge (mm)
-    min_bfd: float | None = None        # last vertex to image plane (mm)
+    min_center: float | None = None  # glass center thickness (mm)
+    min_edge: float | None = None  # glass edge thickness at the clear semi-diameter (mm)
+    min_air_gap: float | None = None  # air gap between optical surfaces, center and edge (mm)
+    min_bfd: float | None = None  # last vertex to image plane (mm)
     min_image_height: float | None = None  # real chief-ray image height at the largest field (mm)
 
-    def evaluate(self, lens: dict, paraxial: dict, semi_diameters,
-                 chief_height: float | None = None) -> list[dict]:
+    def evaluate(self, lens: dict, paraxial: dict, semi_diameters, chief_height: float | None = None) -> list[dict]:
         """One row per constraint instance: name, value, limit, violation (>= 0), ok.
         ``chief_height``: the real chief ray's image height at the largest field (needed
         for ``min_image_height``: the image must reach the sensor's corner, whatever the
@@ -139,16 +147,30 @@ class Constraints:
         rows = []
         if self.efl is not None:
             err = (paraxial["efl_mm"] - self.efl) / self.efl
-            rows.append({"name": "efl", "value": paraxial["efl_mm"], "target": self.efl,
-                         "residual": W_EFL * err, "violation": abs(err),
-                         "ok": abs(err) <= self.efl_tol})
+            rows.append(
+                {
+                    "name": "efl",
+                    "value": paraxial["efl_mm"],
+                    "target": self.efl,
+                    "residual": W_EFL * err,
+                    "violation": abs(err),
+                    "ok": abs(err) <= self.efl_tol,
+                }
+            )
         geo = element_geometry(lens, semi_diameters)
 
         def ineq(name, value, limit):
             v = max(0.0, limit - value)
-            rows.append({"name": name, "value": float(value), "limit": limit,
-                         "residual": W_GEOM * max(0.0, limit + MARGIN_MM - value),
-                         "violation": v, "ok": value >= limit - 1e-9})
+            rows.append(
+                {
+                    "name": name,
+                    "value": float(value),
+                    "limit": limit,
+                    "residual": W_GEOM * max(0.0, limit + MARGIN_MM - value),
+                    "violation": v,
+                    "ok": value >= limit - 1e-9,
+                }
+            )
 
         for g in geo["glass"]:
             tag = f"s{g['surfaces'][0]}-s{g['surfaces'][1]}"
@@ -178,11 +200,19 @@ class Merit:
     """Spot merit and constraint residuals of lens dicts (resolved materials) sharing the
     fields, wavelengths and sampling of ``base``."""
 
-    def __init__(self, base: "Lens | dict", constraints: Constraints | None = None,
-                 fields_deg: Sequence[float] | None = None,
-                 field_weights: Sequence[float] | None = None,
-                 rings: int = 6, arms: int = 12, aiming: str = "paraxial",
-                 focus: str = "fixed", kind: str = "spot", tilt: str = "wavelength"):
+    def __init__(
+        self,
+        base: "Lens | dict",
+        constraints: Constraints | None = None,
+        fields_deg: Sequence[float] | None = None,
+        field_weights: Sequence[float] | None = None,
+        rings: int = 6,
+        arms: int = 12,
+        aiming: str = "paraxial",
+        focus: str = "fixed",
+        kind: str = "spot",
+        tilt: str = "wavelength",
+    ):
         base = Lens.load(base)
         if kind not in KINDS:
             raise ValueError(f"merit must be one of {', '.join(KINDS)}, got {kind!r}")
@@ -192,8 +222,10 @@ class Merit:
         self.fields = list(fields_deg) if fields_deg is not None else base.fields_deg
         fw = np.ones(len(self.fields)) if field_weights is None else np.asarray(field_weights, float)
         if len(fw) != len(self.fields) or np.any(fw < 0) or fw.sum() <= 0:
-            raise ValueError(f"field weights {list(fw)} do not match the {len(self.fields)} fields "
-                             f"or are not >= 0 with a positive sum")
+            raise ValueError(
+                f"field weights {list(fw)} do not match the {len(self.fields)} fields "
+                f"or are not >= 0 with a positive sum"
+            )
         self.field_weights = fw / fw.sum()
         self.wavelengths = base.wavelengths_nm
         ww = np.asarray(base.wavelength_weights, float)
@@ -223,8 +255,9 @@ class Merit:
     def footprint(self, lens: dict, js: str) -> np.ndarray:
         """Clear semi-diameter of each surface: the largest rim-ray height over all fields
         and wavelengths (the engine's ray paths on the real surfaces)."""
-        return ray_footprint(js, len(lens["surfaces"]), self.fields, self.wavelengths,
-                             self.rim_px, self.rim_py, self.aiming)
+        return ray_footprint(
+            js, len(lens["surfaces"]), self.fields, self.wavelengths, self.rim_px, self.rim_py, self.aiming
+        )
 
     def _spot_terms(self, js: str) -> tuple[list, list, int]:
         """Spot residuals (mm x sqrt(weight)) and per-field RMS spot radii."""
@@ -250,8 +283,14 @@ class Merit:
             n_failed += int((~ok).sum())
             # per-field RMS over transmitted rays (the reported figure)
             ms = ((w * ((x - cx) ** 2 + (y - cy) ** 2)).sum() / wsum) if wsum > 0 else math.inf
-            per_field.append({"field_deg": f, "rms_spot_um": 1e3 * math.sqrt(ms),
-                              "failed_rays": int((~ok).sum()), "clipped_rays": int((status == RAY_CLIPPED).sum())})
+            per_field.append(
+                {
+                    "field_deg": f,
+                    "rms_spot_um": 1e3 * math.sqrt(ms),
+                    "failed_rays": int((~ok).sum()),
+                    "clipped_rays": int((status == RAY_CLIPPED).sum()),
+                }
+            )
             s = np.sqrt(fw * wt)
             res.append((s * dx).ravel())
             res.append((s * dy).ravel())
@@ -261,19 +300,31 @@ class Merit:
         """OPD residuals (waves x sqrt(weight)) and per-field RMS wavefront errors."""
         res, per_field, n_failed = [], [], 0
         for f, fw in zip(self.fields, self.field_weights):
-            wf = engine.wavefront(js, field_deg=f, px=self.px, py=self.py, weights=self.pw,
-                                  wavelengths_nm=self.wavelengths, wavelength_weights=self.wl_weights,
-                                  aiming=self.aiming, tilt=self.tilt)
+            wf = engine.wavefront(
+                js,
+                field_deg=f,
+                px=self.px,
+                py=self.py,
+                weights=self.pw,
+                wavelengths_nm=self.wavelengths,
+                wavelength_weights=self.wl_weights,
+                aiming=self.aiming,
+                tilt=self.tilt,
+            )
             ok = wf["status"] == 0
             opd = np.where(ok, wf["opd_waves"], FAILED_RAY_WAVES)
             n_failed += int((~ok).sum())
             wt = self.wl_weights[:, None] * self.pw[None, :]
             res.append((np.sqrt(fw * wt) * opd).ravel())
             rms = np.asarray(wf["rms_waves"])
-            per_field.append({"field_deg": f,
-                              "rms_wavefront_waves": float(np.sqrt(np.sum(self.wl_weights * rms ** 2))),
-                              "rms_wavefront_waves_per_wavelength": rms.tolist(),
-                              "failed_rays": int((~ok).sum())})
+            per_field.append(
+                {
+                    "field_deg": f,
+                    "rms_wavefront_waves": float(np.sqrt(np.sum(self.wl_weights * rms**2))),
+                    "rms_wavefront_waves_per_wavelength": rms.tolist(),
+                    "failed_rays": int((~ok).sum()),
+                }
+            )
         return res, per_field, n_failed
 
     def evaluate(self, lens: dict, footprint: bool | None = None, full: bool = False) -> dict:
@@ -295,8 +346,7 @@ class Merit:
             except Exception as exc:  # e.g. no reference sphere (telecentric image space)
                 if not _is_design_error(exc):
                     raise
-                extras = [{"rms_wavefront_waves" if self.kind == "spot" else "rms_spot_um": None}
-                          for _ in per_field]
+                extras = [{"rms_wavefront_waves" if self.kind == "spot" else "rms_spot_um": None} for _ in per_field]
             for row, extra in zip(per_field, extras):
                 row.update({k: v for k, v in extra.items() if k != "failed_rays"})
         merit_res = np.concatenate(res)
@@ -304,19 +354,27 @@ class Merit:
         chief = None
         if self.constraints.min_image_height is not None:
             f = max(self.fields, key=abs)
-            tr = engine.trace_field(js, field_deg=f, px=np.zeros(1), py=np.zeros(1), wavelength_nm=self.primary,
-                                    aiming=self.aiming)
+            tr = engine.trace_field(
+                js, field_deg=f, px=np.zeros(1), py=np.zeros(1), wavelength_nm=self.primary, aiming=self.aiming
+            )
             # a failed chief ray: no image height (the constraint then counts fully violated)
             chief = abs(float(tr["position"][0, 1])) if tr["status"][0] == 0 else 0.0
         rows = self.constraints.evaluate(lens, par, sd, chief)
         con_res = np.array([r["residual"] for r in rows], float)
-        value = float(np.sqrt(np.sum(merit_res ** 2)))
+        value = float(np.sqrt(np.sum(merit_res**2)))
         if self.kind == "spot":
             value *= 1e3
-        out = {"residuals": np.concatenate([merit_res, con_res]), "merit": value,
-               "merit_kind": self.kind, "merit_unit": self.unit,
-               "fields": per_field, "constraints": rows, "paraxial": par,
-               "semi_diameters_mm": sd.tolist(), "failed_rays": n_failed}
+        out = {
+            "residuals": np.concatenate([merit_res, con_res]),
+            "merit": value,
+            "merit_kind": self.kind,
+            "merit_unit": self.unit,
+            "fields": per_field,
+            "constraints": rows,
+            "paraxial": par,
+            "semi_diameters_mm": sd.tolist(),
+            "failed_rays": n_failed,
+        }
         if self.kind == "spot":
             out["merit_um"] = value
         return out
@@ -328,10 +386,10 @@ class Merit:
 # ----- optimizer -------------------------------------------------------------------------
 @dataclass
 class OptimizeResult:
-    lens: dict                      # optimized prescription (same material forms as input)
-    values: dict                    # parameter name -> optimized value
-    before: dict                    # Merit.evaluate report of the start (without residuals)
-    after: dict                     # ... of the result
+    lens: dict  # optimized prescription (same material forms as input)
+    values: dict  # parameter name -> optimized value
+    before: dict  # Merit.evaluate report of the start (without residuals)
+    after: dict  # ... of the result
     nfev: int
     status: str
     history: list = field(default_factory=list)  # merit after each feasible improvement
@@ -340,9 +398,14 @@ class OptimizeResult:
         def strip(rep):
             return {k: v for k, v in rep.items() if k != "residuals"}
 
-        return {"values": self.values, "before": strip(self.before), "after": strip(self.after),
-                "nfev": self.nfev, "status": self.status,
-                "constraints_satisfied": all(r["ok"] for r in self.after["constraints"])}
+        return {
+            "values": self.values,
+            "before": strip(self.before),
+            "after": strip(self.after),
+            "nfev": self.nfev,
+            "status": self.status,
+            "constraints_satisfied": all(r["ok"] for r in self.after["constraints"]),
+        }
 
 
 class LensProblem:
@@ -354,8 +417,7 @@ class LensProblem:
 
     def __init__(self, lens: "Lens | dict", space: ParameterSpace, merit: Merit):
         self.raw = copy.deepcopy(lens.data if isinstance(lens, Lens) else lens)
-        self.resolved = (Lens.load(self.raw).data if not isinstance(lens, Lens)
-                         else copy.deepcopy(lens.data))
+        self.resolved = Lens.load(self.raw).data if not isinstance(lens, Lens) else copy.deepcopy(lens.data)
         for s in self.resolved["surfaces"]:
             s["semi_diameter"] = None
         self.space, self.merit = space, merit
@@ -397,8 +459,15 @@ class LensProblem:
 
     def result(self, u, before: dict, nfev: int, status: str, history: list) -> "OptimizeResult":
         """The optimizer's result for the design at u (``before``: the start's report)."""
-        return OptimizeResult(lens=self.lens_at(u), values=dict(zip(self.space.names, map(float, self.x(u)))),
-                              before=before, after=self.report(u), nfev=nfev, status=status, history=history)
+        return OptimizeResult(
+            lens=self.lens_at(u),
+            values=dict(zip(self.space.names, map(float, self.x(u)))),
+            before=before,
+            after=self.report(u),
+            nfev=nfev,
+            status=status,
+            history=history,
+        )
 
     def lens_at(self, u) -> dict:
         """The raw prescription (catalog names kept) with the variables (and a solved focus)."""
@@ -412,9 +481,16 @@ class _OutOfTime(Exception):
     pass
 
 
-def polish(problem, u0, max_nfev: int = 400, deadline: float | None = None,
-           on_eval: Callable[[np.ndarray, np.ndarray, dict | None], None] | None = None,
-           ftol: float = 1e-8, xtol: float = 1e-8, x_scale="jac") -> tuple[np.ndarray, int, str]:
+def polish(
+    problem,
+    u0,
+    max_nfev: int = 400,
+    deadline: float | None = None,
+    on_eval: Callable[[np.ndarray, np.ndarray, dict | None], None] | None = None,
+    ftol: float = 1e-8,
+    xtol: float = 1e-8,
+    x_scale="jac",
+) -> tuple[np.ndarray, int, str]:
     """Damped least squares (trust-region reflective) from ``u0`` on ``problem``
     (``evaluate(u) -> (residuals, report)``, ``n``).  Stops at ``deadline``
     (time.monotonic()) with the best point evaluated so far.  Returns (u, nfev, status)."""
@@ -437,16 +513,33 @@ def polish(problem, u0, max_nfev: int = 400, deadline: float | None = None,
         return r
 
     try:
-        sol = least_squares(fun, best["u"], bounds=(0.0, 1.0), method="trf", x_scale=x_scale,
-                            diff_step=1e-5, ftol=ftol, xtol=xtol, gtol=1e-12, max_nfev=max_nfev)
+        sol = least_squares(
+            fun,
+            best["u"],
+            bounds=(0.0, 1.0),
+            method="trf",
+            x_scale=x_scale,
+            diff_step=1e-5,
+            ftol=ftol,
+            xtol=xtol,
+            gtol=1e-12,
+            max_nfev=max_nfev,
+        )
     except _OutOfTime:
         return best["u"], best["n"], "stopped at the time budget"
     return np.clip(sol.x, 0.0, 1.0), best["n"], sol.message
 
 
-def optimize(lens: "Lens | dict", space: ParameterSpace, merit: Merit, max_nfev: int = 400,
-             progress: Callable[[int, float, float, bool], None] | None = None,
-             ftol: float = 1e-8, xtol: float = 1e-8, x_scale="jac") -> OptimizeResult:
+def optimize(
+    lens: "Lens | dict",
+    space: ParameterSpace,
+    merit: Merit,
+    max_nfev: int = 400,
+    progress: Callable[[int, float, float, bool], None] | None = None,
+    ftol: float = 1e-8,
+    xtol: float = 1e-8,
+    x_scale="jac",
+) -> OptimizeResult:
     """Minimize ``merit`` over ``space`` starting from ``lens`` (local: the minimum of the
     start's basin; see :mod:`optix_e2e.design.global_search` for the global search).
 
@@ -473,8 +566,7 @@ def optimize(lens: "Lens | dict", space: ParameterSpace, merit: Merit, max_nfev:
             worst = max((c["violation"] for c in rep["constraints"]), default=0.0)
             progress(count["n"], rep["merit"], worst, feasible)
 
-    u, nfev, status = polish(problem, problem.u0, max_nfev, on_eval=on_eval,
-                             ftol=ftol, xtol=xtol, x_scale=x_scale)
+    u, nfev, status = polish(problem, problem.u0, max_nfev, on_eval=on_eval, ftol=ftol, xtol=xtol, x_scale=x_scale)
     return problem.result(u, before, nfev, status, history)
 
 
@@ -482,12 +574,11 @@ def _is_design_error(exc: Exception) -> bool:
     return isinstance(exc, (engine.EngineError, ValueError, ArithmeticError))
 
 
-def set_semi_diameters(lens: dict, semi_diameters: Sequence[float], margin: float = 0.0,
-                       decimals: int = 4) -> dict:
+def set_semi_diameters(lens: dict, semi_diameters: Sequence[float], margin: float = 0.0, decimals: int = 4) -> dict:
     """A copy of ``lens`` with each surface's clear semi-diameter set to the footprint
     (plus ``margin`` mm), rounded up to ``decimals``."""
     out = copy.deepcopy(lens)
-    q = 10.0 ** decimals
+    q = 10.0**decimals
     for s, h in zip(out["surfaces"], semi_diameters):
         s["semi_diameter"] = math.ceil((float(h) + margin) * q) / q
     return out

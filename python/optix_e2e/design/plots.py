@@ -15,9 +15,14 @@ def wavelength_rgb(nm: float) -> tuple[float, float, float]:
     """Approximate display colour of a wavelength (380-780 nm; grey outside)."""
     if nm < 380 or nm > 780:
         return (0.5, 0.5, 0.5)
-    bands = [(380, 440, lambda t: (-(t - 440) / 60, 0.0, 1.0)), (440, 490, lambda t: (0.0, (t - 440) / 50, 1.0)),
-             (490, 510, lambda t: (0.0, 1.0, -(t - 510) / 20)), (510, 580, lambda t: ((t - 510) / 70, 1.0, 0.0)),
-             (580, 645, lambda t: (1.0, -(t - 645) / 65, 0.0)), (645, 781, lambda t: (1.0, 0.0, 0.0))]
+    bands = [
+        (380, 440, lambda t: (-(t - 440) / 60, 0.0, 1.0)),
+        (440, 490, lambda t: (0.0, (t - 440) / 50, 1.0)),
+        (490, 510, lambda t: (0.0, 1.0, -(t - 510) / 20)),
+        (510, 580, lambda t: ((t - 510) / 70, 1.0, 0.0)),
+        (580, 645, lambda t: (1.0, -(t - 645) / 65, 0.0)),
+        (645, 781, lambda t: (1.0, 0.0, 0.0)),
+    ]
     rgb = next(f(nm) for lo, hi, f in bands if lo <= nm < hi)
     return tuple(0.85 * c for c in rgb)  # a little darker: readable on white
 
@@ -41,8 +46,14 @@ def _element_outline(front: dict, back: dict, sag, n: int = 81) -> np.ndarray:
     return np.array(pts + [pts[0]])
 
 
-def save_layout_png(path: str | Path, lens, fields: Sequence[float] | None = None, rays: int = 9,
-                    aiming: str = "paraxial", wavelength_nm: float | None = None) -> dict:
+def save_layout_png(
+    path: str | Path,
+    lens,
+    fields: Sequence[float] | None = None,
+    rays: int = 9,
+    aiming: str = "paraxial",
+    wavelength_nm: float | None = None,
+) -> dict:
     """Meridional cross-section: surfaces as their real profiles, elements as closed
     shapes, stop and image plane marked, ray fans per field from a start plane before
     surface 1 to the image (or to where they are clipped). Returns the traced fans."""
@@ -57,8 +68,10 @@ def save_layout_png(path: str | Path, lens, fields: Sequence[float] | None = Non
     geo = surface_geometry(lens, footprint(lens, set(fields) | set(lens.fields_deg), aiming))
     fans = ray_fans(lens, fields, rays, aiming, wl)
     z_img = par["image_z_mm"]
-    z_first = min(g["z"] + float(np.nanmin(sag(g["surface"], np.linspace(-g["semi_diameter"], g["semi_diameter"], 41))))
-                  for g in geo[:1])
+    z_first = min(
+        g["z"] + float(np.nanmin(sag(g["surface"], np.linspace(-g["semi_diameter"], g["semi_diameter"], 41))))
+        for g in geo[:1]
+    )
     z_start = min(z_first, 0.0) - 0.15 * (z_img - min(z_first, 0.0))
 
     fig = Figure(dpi=130)
@@ -67,8 +80,16 @@ def save_layout_png(path: str | Path, lens, fields: Sequence[float] | None = Non
     # Elements (glass between surface i and i+1), then every surface profile.
     for a, b in zip(geo, geo[1:]):
         if a["glass_after"]:
-            ax.add_patch(Polygon(_element_outline(a, b, sag), closed=True, facecolor=(0.66, 0.83, 0.94, 0.6),
-                                 edgecolor="black", linewidth=0.9, zorder=1))
+            ax.add_patch(
+                Polygon(
+                    _element_outline(a, b, sag),
+                    closed=True,
+                    facecolor=(0.66, 0.83, 0.94, 0.6),
+                    edgecolor="black",
+                    linewidth=0.9,
+                    zorder=1,
+                )
+            )
     for g in geo:
         r = np.linspace(-g["semi_diameter"], g["semi_diameter"], 121)
         ax.plot(g["z"] + sag(g["surface"], r), r, color="black", linewidth=0.9, zorder=2)
@@ -78,8 +99,14 @@ def save_layout_png(path: str | Path, lens, fields: Sequence[float] | None = Non
     z_stop = st["z"] + float(sag(st["surface"], r_stop))
     blade = max(0.35 * r_stop, 1.0)
     for sgn in (1, -1):
-        ax.plot([z_stop, z_stop], [sgn * r_stop, sgn * (r_stop + blade)], color="black", linewidth=3, zorder=4,
-                solid_capstyle="butt")
+        ax.plot(
+            [z_stop, z_stop],
+            [sgn * r_stop, sgn * (r_stop + blade)],
+            color="black",
+            linewidth=3,
+            zorder=4,
+            solid_capstyle="butt",
+        )
     ax.annotate("stop", (z_stop, r_stop + blade), textcoords="offset points", xytext=(0, 4), ha="center", fontsize=7)
     # Rays.
     y_max = max(g["semi_diameter"] for g in geo)
@@ -89,9 +116,19 @@ def save_layout_png(path: str | Path, lens, fields: Sequence[float] | None = Non
             p0 = pts[0]
             t = (p0[0] - z_start) / d[2]
             zs, ys = np.r_[p0[0] - t * d[2], pts[:, 0]], np.r_[p0[1] - t * d[1], pts[:, 1]]
-            note = "" if fan["n_image"] == len(fan["status"]) else f" ({fan['n_image']}/{len(fan['status'])} reach the image)"
-            ax.plot(zs, ys, color=colour, linewidth=0.7, zorder=3,
-                    label=f"{fan['field_deg']:g} deg{note}" if k == 0 else None)
+            note = (
+                ""
+                if fan["n_image"] == len(fan["status"])
+                else f" ({fan['n_image']}/{len(fan['status'])} reach the image)"
+            )
+            ax.plot(
+                zs,
+                ys,
+                color=colour,
+                linewidth=0.7,
+                zorder=3,
+                label=f"{fan['field_deg']:g} deg{note}" if k == 0 else None,
+            )
             if not fan["ok"][k]:  # failed ray: mark where it stopped
                 ax.plot(zs[-1], ys[-1], marker="x", markersize=4, color=colour, zorder=5)
             y_max = max(y_max, float(np.max(np.abs(ys))))
@@ -113,12 +150,21 @@ def save_layout_png(path: str | Path, lens, fields: Sequence[float] | None = Non
     ax.set_ylabel("y (mm)")
     ax.legend(fontsize=7, loc="upper left", title="field", title_fontsize=7)
     flds = ", ".join(f"{f:g}" for f in fields)
-    ax.set_title(f"{lens.name}: EFL {par['efl_mm']:.3f} mm, f/{par['f_number']:.2f}, fields {flds} deg "
-                 f"({wl:g} nm, {aiming} aiming, {rays} rays per field)", fontsize=9)
+    ax.set_title(
+        f"{lens.name}: EFL {par['efl_mm']:.3f} mm, f/{par['f_number']:.2f}, fields {flds} deg "
+        f"({wl:g} nm, {aiming} aiming, {rays} rays per field)",
+        fontsize=9,
+    )
     fig.tight_layout()
     fig.savefig(path)
-    return {"fans": fans, "geometry": geo, "z_start": z_start, "xlim": ax.get_xlim(), "ylim": ax.get_ylim(),
-            "size_px": tuple(int(v) for v in fig.canvas.get_width_height())}
+    return {
+        "fans": fans,
+        "geometry": geo,
+        "z_start": z_start,
+        "xlim": ax.get_xlim(),
+        "ylim": ax.get_ylim(),
+        "size_px": tuple(int(v) for v in fig.canvas.get_width_height()),
+    }
 
 
 def _no_neg_zero(v: float, digits: int) -> str:
@@ -157,19 +203,31 @@ def save_spots_png(path: str | Path, lens, spots: Sequence[dict]) -> None:
         ax.set_xlabel("x (um)", fontsize=8)
         ax.set_ylabel("y (um)", fontsize=8)
         ci = f", RI {s['relative_illumination']:.3f}" if s.get("relative_illumination") is not None else ""
-        ax.set_title(f"{s['field_deg']:g} deg: RMS {s['rms_um']:.2f} um{ci}\n"
-                     f"centroid y {_no_neg_zero(s['centroid_um'][1] * 1e-3, 4)} mm", fontsize=8)
+        ax.set_title(
+            f"{s['field_deg']:g} deg: RMS {s['rms_um']:.2f} um{ci}\n"
+            f"centroid y {_no_neg_zero(s['centroid_um'][1] * 1e-3, 4)} mm",
+            fontsize=8,
+        )
     for ax in axes[n:]:
         ax.set_visible(False)
     axes[0].legend(fontsize=6, loc="upper right", markerscale=4)
-    fig.suptitle(f"{lens.name}: spot diagrams (centroid-referenced; dashed: Airy disk, radius {airy:.2f} um "
-                 f"at {lens.primary_wavelength_nm:g} nm, f/{n_f:.2f})", fontsize=9)
+    fig.suptitle(
+        f"{lens.name}: spot diagrams (centroid-referenced; dashed: Airy disk, radius {airy:.2f} um "
+        f"at {lens.primary_wavelength_nm:g} nm, f/{n_f:.2f})",
+        fontsize=9,
+    )
     fig.tight_layout()
     fig.savefig(path)
 
 
-def save_mtf_png(path: str | Path, lens, mtfs: Sequence[dict], per_wavelength: bool = False,
-                 mark_freq: float | None = None, max_freq: float | None = None) -> None:
+def save_mtf_png(
+    path: str | Path,
+    lens,
+    mtfs: Sequence[dict],
+    per_wavelength: bool = False,
+    mark_freq: float | None = None,
+    max_freq: float | None = None,
+) -> None:
     """Tangential (solid) and sagittal (dashed) MTF per field, polychromatic, with the
     diffraction limit; per-wavelength curves as thin lines when asked."""
     n = len(mtfs)
@@ -186,7 +244,9 @@ def save_mtf_png(path: str | Path, lens, mtfs: Sequence[dict], per_wavelength: b
                 ax.plot(f, p["tangential"], color=c, linewidth=0.6, label=f"T {p['wavelength_nm']:g} nm")
                 ax.plot(f, p["sagittal"], color=c, linewidth=0.6, linestyle="--")
         if mark_freq is not None and mark_freq <= top:
-            ax.axvline(mark_freq, color="0.5", linewidth=0.7, linestyle=":", label=f"{mark_freq:.1f} c/mm (5.86 um Nyquist)")
+            ax.axvline(
+                mark_freq, color="0.5", linewidth=0.7, linestyle=":", label=f"{mark_freq:.1f} c/mm (5.86 um Nyquist)"
+            )
         ax.set_xlim(0, top)
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
@@ -200,7 +260,9 @@ def save_mtf_png(path: str | Path, lens, mtfs: Sequence[dict], per_wavelength: b
     wls = ", ".join(f"{w:g}" for w in lens.wavelengths_nm)
     wts = ", ".join(f"{w:g}" for w in lens.wavelength_weights)
     method = mtfs[0].get("method", "fft").upper() if mtfs else "FFT"
-    fig.suptitle(f"{lens.name}: polychromatic MTF from {method} PSFs ({wls} nm, weights {wts}); "
-                 f"T: tangential, S: sagittal", fontsize=9)
+    fig.suptitle(
+        f"{lens.name}: polychromatic MTF from {method} PSFs ({wls} nm, weights {wts}); T: tangential, S: sagittal",
+        fontsize=9,
+    )
     fig.tight_layout()
     fig.savefig(path)

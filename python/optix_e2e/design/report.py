@@ -17,8 +17,7 @@ from ..lens import Lens
 from ..lens.mtf import NYQUIST_5P86_UM, default_frequencies, field_mtf, mtf_at, psf_sampling
 from ..lens.surface import curvature, sag
 
-__all__ = ["sag", "surface_geometry", "ray_fans", "spot_diagram", "hexapolar", "write_report",
-           "DEFAULT_MTF_FREQS"]
+__all__ = ["sag", "surface_geometry", "ray_fans", "spot_diagram", "hexapolar", "write_report", "DEFAULT_MTF_FREQS"]
 
 #: Frequencies (cycles/mm) whose MTF goes into report.json: round numbers and the
 #: Nyquist frequency of a 5.86 um pixel.
@@ -43,9 +42,17 @@ def surface_geometry(lens: Lens, footprint: Sequence[float]) -> list[dict[str, A
         c, k = curvature(s), float(s.get("conic", 0.0) or 0.0)
         if (1.0 + k) * c * c > 0:
             h = min(h, 0.999 / math.sqrt((1.0 + k) * c * c))
-        out.append({"index": i, "z": z, "semi_diameter": h, "clear_aperture": bool(sd),
-                    "glass_after": not _is_air(s["material"], float(n[i + 1])),
-                    "stop": bool(s.get("stop")), "surface": s})
+        out.append(
+            {
+                "index": i,
+                "z": z,
+                "semi_diameter": h,
+                "clear_aperture": bool(sd),
+                "glass_after": not _is_air(s["material"], float(n[i + 1])),
+                "stop": bool(s.get("stop")),
+                "surface": s,
+            }
+        )
         z += float(s["thickness"])
     return out
 
@@ -53,8 +60,9 @@ def surface_geometry(lens: Lens, footprint: Sequence[float]) -> list[dict[str, A
 def _trace_paths(lens: Lens, field: float, px, py, wavelength_nm: float, aiming: str) -> dict:
     from .. import engine
 
-    return engine.trace_field_path(lens.to_engine_json(), field_deg=field, px=px, py=py, wavelength_nm=wavelength_nm,
-                                   aiming=aiming)
+    return engine.trace_field_path(
+        lens.to_engine_json(), field_deg=field, px=px, py=py, wavelength_nm=wavelength_nm, aiming=aiming
+    )
 
 
 def footprint(lens: Lens, fields: Sequence[float], aiming: str = "paraxial", n_edge: int = 32) -> np.ndarray:
@@ -63,16 +71,18 @@ def footprint(lens: Lens, fields: Sequence[float], aiming: str = "paraxial", n_e
     without a clear semi-diameter (as Zemax's automatic semi-diameters)."""
     t = np.linspace(0.0, 2 * np.pi, n_edge, endpoint=False)
     px, py = np.append(np.sin(t), 0.0), np.append(np.cos(t), 0.0)
-    h = ray_footprint(lens.to_engine_json(), len(lens.surfaces), sorted(set(fields)),
-                      [lens.primary_wavelength_nm], px, py, aiming)
+    h = ray_footprint(
+        lens.to_engine_json(), len(lens.surfaces), sorted(set(fields)), [lens.primary_wavelength_nm], px, py, aiming
+    )
     if np.any(h <= 0):
         bad = [i + 1 for i in np.flatnonzero(h <= 0)]
         raise ValueError(f"no ray reaches surface(s) {bad}: cannot size them (give semi_diameter)")
     return h
 
 
-def ray_fans(lens: Lens, fields: Sequence[float], n_rays: int = 9, aiming: str = "paraxial",
-             wavelength_nm: float | None = None) -> list[dict[str, Any]]:
+def ray_fans(
+    lens: Lens, fields: Sequence[float], n_rays: int = 9, aiming: str = "paraxial", wavelength_nm: float | None = None
+) -> list[dict[str, Any]]:
     """Meridional (y-z) fans: ``n_rays`` rays from py = -1 to 1 per field.  Each ray is
     its list of (z, y) points, surface by surface to where it ends (the image, or the
     surface where it failed; ``ok`` says which); ``direction`` (the beam's) lets the
@@ -86,9 +96,16 @@ def ray_fans(lens: Lens, fields: Sequence[float], n_rays: int = 9, aiming: str =
         d = _trace_paths(lens, f, np.zeros_like(py), py, wl, aiming)
         keep = [j for j in range(py.size) if d["last"][j] >= 0]
         rays = [d["path"][j, : d["last"][j] + 1][:, [2, 1]] for j in keep]
-        fans.append({"field_deg": float(f), "rays": rays, "ok": [bool(d["status"][j] == 0) for j in keep],
-                     "direction": d["launch_direction"],
-                     "status": d["status"], "n_image": int(np.sum(d["status"] == 0))})
+        fans.append(
+            {
+                "field_deg": float(f),
+                "rays": rays,
+                "ok": [bool(d["status"][j] == 0) for j in keep],
+                "direction": d["launch_direction"],
+                "status": d["status"],
+                "n_image": int(np.sum(d["status"] == 0)),
+            }
+        )
     return fans
 
 
@@ -117,17 +134,32 @@ def spot_diagram(lens: Lens, field: float, rings: int = 12, aiming: str = "parax
         raise ValueError(f"no ray of field {field} deg reaches the image")
     centroid = (allw[:, None] * allp).sum(axis=0) / allw.sum()
     s = lens.spot(field, aiming=aiming)
-    return {"field_deg": float(field), "centroid_um": centroid, "wavelengths_nm": lens.wavelengths_nm,
-            "points_um": [p - centroid for p in pts], "rms_um": float(s["rms_um"]),
-            "rms_um_per_wavelength": [float(v) for v in s["rms_um_per_wavelength"]],
-            "relative_illumination": (None if s["relative_illumination"] is None else float(s["relative_illumination"])),
-            "vignetting": s.get("vignetting"),
-            "chief_y_mm": s.get("chief_y_mm"), "n_rays": int(px.size * len(pts))}
+    return {
+        "field_deg": float(field),
+        "centroid_um": centroid,
+        "wavelengths_nm": lens.wavelengths_nm,
+        "points_um": [p - centroid for p in pts],
+        "rms_um": float(s["rms_um"]),
+        "rms_um_per_wavelength": [float(v) for v in s["rms_um_per_wavelength"]],
+        "relative_illumination": (None if s["relative_illumination"] is None else float(s["relative_illumination"])),
+        "vignetting": s.get("vignetting"),
+        "chief_y_mm": s.get("chief_y_mm"),
+        "n_rays": int(px.size * len(pts)),
+    }
 
 
-def write_report(lens: Lens, out_dir: str | Path, fields: Sequence[float] | None = None, aiming: str = "paraxial",
-                 rays: int = 9, freqs: Sequence[float] = DEFAULT_MTF_FREQS, max_freq: float | None = None,
-                 per_wavelength: bool = False, psf_method: str = "fft", progress: Progress = None) -> dict[str, Any]:
+def write_report(
+    lens: Lens,
+    out_dir: str | Path,
+    fields: Sequence[float] | None = None,
+    aiming: str = "paraxial",
+    rays: int = 9,
+    freqs: Sequence[float] = DEFAULT_MTF_FREQS,
+    max_freq: float | None = None,
+    per_wavelength: bool = False,
+    psf_method: str = "fft",
+    progress: Progress = None,
+) -> dict[str, Any]:
     """layout.png, spots.png, mtf.png and report.json in ``out_dir``; returns the JSON."""
     from . import plots as plotting
     from ..io import to_jsonable
@@ -142,8 +174,10 @@ def write_report(lens: Lens, out_dir: str | Path, fields: Sequence[float] | None
     top = max_freq if max_freq is not None else default_frequencies(lens.wavelengths_nm, samp["f_number"])[-1]
     asked = [top, *freqs]
     if min(asked) < 0 or max(asked) > samp["grid_nyquist_cyc_mm"]:
-        raise ValueError(f"MTF frequencies must lie in 0..{samp['grid_nyquist_cyc_mm']:.1f} cycles/mm "
-                         f"(twice the diffraction cutoff), got {', '.join(f'{q:g}' for q in asked)}")
+        raise ValueError(
+            f"MTF frequencies must lie in 0..{samp['grid_nyquist_cyc_mm']:.1f} cycles/mm "
+            f"(twice the diffraction cutoff), got {', '.join(f'{q:g}' for q in asked)}"
+        )
     out.mkdir(parents=True, exist_ok=True)
     say("layout")
     plotting.save_layout_png(out / "layout.png", lens, fields=fields, rays=rays, aiming=aiming)
@@ -159,29 +193,51 @@ def write_report(lens: Lens, out_dir: str | Path, fields: Sequence[float] | None
     for f in fields:
         say(f"MTF {f:g} deg ({len(lens.wavelengths_nm)} {psf_method} PSFs)")
         mtfs.append(field_mtf(lens, f, grid, aiming=aiming, method=psf_method, progress=lambda m: say("  " + m)))
-    plotting.save_mtf_png(out / "mtf.png", lens, mtfs, per_wavelength=per_wavelength, mark_freq=NYQUIST_5P86_UM,
-                          max_freq=top)
+    plotting.save_mtf_png(
+        out / "mtf.png", lens, mtfs, per_wavelength=per_wavelength, mark_freq=NYQUIST_5P86_UM, max_freq=top
+    )
     rows = []
     for s, m in zip(spots, mtfs):
-        rows.append({
-            "field_deg": s["field_deg"], "rms_spot_um": s["rms_um"], "rms_spot_um_per_wavelength": s["rms_um_per_wavelength"],
-            "relative_illumination": s["relative_illumination"], "vignetting": s["vignetting"], "chief_y_mm": s["chief_y_mm"],
-            "strehl_per_wavelength": m["strehl"], "mtf_psf_sampling": m["sampling_per_wavelength"],
-            "mtf": {f"{q:g}": mtf_at(m, q) for q in freqs},
-            "mtf_per_wavelength": {f"{p['wavelength_nm']:g}": {f"{q:g}": mtf_at({**p, "freq_cyc_mm": m["freq_cyc_mm"]}, q)
-                                                                for q in freqs} for p in m["per_wavelength"]},
-            "mtf_curve": {"freq_cyc_mm": m["freq_cyc_mm"], "tangential": m["tangential"], "sagittal": m["sagittal"],
-                          "diffraction_limit": m["diffraction_limit"]},
-            "warnings": m["warnings"],
-        })
+        rows.append(
+            {
+                "field_deg": s["field_deg"],
+                "rms_spot_um": s["rms_um"],
+                "rms_spot_um_per_wavelength": s["rms_um_per_wavelength"],
+                "relative_illumination": s["relative_illumination"],
+                "vignetting": s["vignetting"],
+                "chief_y_mm": s["chief_y_mm"],
+                "strehl_per_wavelength": m["strehl"],
+                "mtf_psf_sampling": m["sampling_per_wavelength"],
+                "mtf": {f"{q:g}": mtf_at(m, q) for q in freqs},
+                "mtf_per_wavelength": {
+                    f"{p['wavelength_nm']:g}": {
+                        f"{q:g}": mtf_at({**p, "freq_cyc_mm": m["freq_cyc_mm"]}, q) for q in freqs
+                    }
+                    for p in m["per_wavelength"]
+                },
+                "mtf_curve": {
+                    "freq_cyc_mm": m["freq_cyc_mm"],
+                    "tangential": m["tangential"],
+                    "sagittal": m["sagittal"],
+                    "diffraction_limit": m["diffraction_limit"],
+                },
+                "warnings": m["warnings"],
+            }
+        )
     report = {
-        "lens": lens.name, "source": lens.source, "aiming": aiming, "wavelengths_nm": lens.wavelengths_nm,
-        "wavelength_weights": lens.wavelength_weights, "primary_wavelength_nm": lens.primary_wavelength_nm,
-        "paraxial": par, "mtf_frequencies_cyc_mm": list(freqs),
+        "lens": lens.name,
+        "source": lens.source,
+        "aiming": aiming,
+        "wavelengths_nm": lens.wavelengths_nm,
+        "wavelength_weights": lens.wavelength_weights,
+        "primary_wavelength_nm": lens.primary_wavelength_nm,
+        "paraxial": par,
+        "mtf_frequencies_cyc_mm": list(freqs),
         "mtf_method": f"{psf_method} PSF (point-sampled), OTF along x (sagittal) and y (tangential); "
-                      "polychromatic with lateral colour; diffraction limit at the working f-number",
+        "polychromatic with lateral colour; diffraction limit at the working f-number",
         "mtf_sampling": mtfs[0]["sampling"] if mtfs else None,
-        "fields": rows, "files": ["layout.png", "spots.png", "mtf.png", "report.json"],
+        "fields": rows,
+        "files": ["layout.png", "spots.png", "mtf.png", "report.json"],
         "time_s": time.perf_counter() - t0,
     }
     (out / "report.json").write_text(json.dumps(to_jsonable(report), indent=1, allow_nan=False))

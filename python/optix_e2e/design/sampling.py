@@ -37,11 +37,22 @@ from .space import ParameterSpace, SpaceError
 from ..lens.surface import sag
 
 METHODS = ("uniform", "sobol", "lhs")
-REASONS = ("center_thickness", "edge_thickness", "air_gap", "back_focal_distance",
-           "surfaces_cross", "aperture_outside_surface")
-_ROW_REASON = {"center_thickness": "center_thickness", "edge_thickness": "edge_thickness",
-               "air_gap_center": "air_gap", "air_gap_edge": "air_gap", "stop_clearance": "air_gap",
-               "back_focal_distance": "back_focal_distance"}
+REASONS = (
+    "center_thickness",
+    "edge_thickness",
+    "air_gap",
+    "back_focal_distance",
+    "surfaces_cross",
+    "aperture_outside_surface",
+)
+_ROW_REASON = {
+    "center_thickness": "center_thickness",
+    "edge_thickness": "edge_thickness",
+    "air_gap_center": "air_gap",
+    "air_gap_edge": "air_gap",
+    "stop_clearance": "air_gap",
+    "back_focal_distance": "back_focal_distance",
+}
 
 
 @dataclass
@@ -58,8 +69,9 @@ class Limits:
         d = dict(d or {})
         unknown = sorted(set(d) - set(cls.__dataclass_fields__))
         if unknown:
-            raise SpaceError(f"{source}: unknown constraint(s) {', '.join(unknown)} "
-                             f"(known: {', '.join(cls.__dataclass_fields__)})")
+            raise SpaceError(
+                f"{source}: unknown constraint(s) {', '.join(unknown)} (known: {', '.join(cls.__dataclass_fields__)})"
+            )
         for k, v in d.items():
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise SpaceError(f"{source}: {k} must be a finite number >= 0, got {v!r}")
@@ -88,17 +100,22 @@ def geometry_problem(design: dict, semi_diameters: Sequence[float]) -> tuple[str
     surfs = design["surfaces"]
     for i, (s, h) in enumerate(zip(surfs, semi_diameters)):
         if not np.isfinite(sag(s, h)):
-            return ("aperture_outside_surface",
-                    f"surface {i + 1}: clear semi-diameter {h:.4g} mm lies beyond the surface (radius "
-                    f"{s.get('radius')}, conic {s.get('conic', 0.0)})")
+            return (
+                "aperture_outside_surface",
+                f"surface {i + 1}: clear semi-diameter {h:.4g} mm lies beyond the surface (radius "
+                f"{s.get('radius')}, conic {s.get('conic', 0.0)})",
+            )
     z = np.concatenate([[0.0], np.cumsum([float(s["thickness"]) for s in surfs])])
     for i in range(len(surfs) - 1):
         r = np.linspace(0.0, min(semi_diameters[i], semi_diameters[i + 1]), 17)
         gap = (z[i + 1] + sag(surfs[i + 1], r)) - (z[i] + sag(surfs[i], r))
         if np.any(gap < 0.0):
             j = int(np.argmin(gap))
-            return ("surfaces_cross", f"surfaces {i + 1} and {i + 2} cross inside the clear aperture "
-                                      f"(gap {gap[j]:.4g} mm at r = {r[j]:.4g} mm)")
+            return (
+                "surfaces_cross",
+                f"surfaces {i + 1} and {i + 2} cross inside the clear aperture "
+                f"(gap {gap[j]:.4g} mm at r = {r[j]:.4g} mm)",
+            )
     return None
 
 
@@ -109,9 +126,9 @@ def check_design(design: dict, semi_diameters: Sequence[float], limits: Limits) 
     if bad is not None and bad[0] == "aperture_outside_surface":
         return [bad[0]]
     reasons: list[str] = [bad[0]] if bad else []
-    rows = Constraints(min_center=limits.min_center, min_edge=limits.min_edge,
-                       min_air_gap=limits.min_air_gap, min_bfd=limits.min_bfd
-                       ).evaluate(design, {}, semi_diameters)
+    rows = Constraints(
+        min_center=limits.min_center, min_edge=limits.min_edge, min_air_gap=limits.min_air_gap, min_bfd=limits.min_bfd
+    ).evaluate(design, {}, semi_diameters)
     for row in rows:
         reason = _ROW_REASON[row["name"].split("[")[0]]
         if not row["ok"] and reason not in reasons:
@@ -144,24 +161,39 @@ def _unit_block(method: str, d: int, m: int, seed: int, state: dict) -> np.ndarr
 @dataclass
 class SampleResult:
     space: ParameterSpace
-    values: np.ndarray        # (n, d) accepted parameter values, in draw order
-    drawn: int                # candidates drawn
-    rejected: dict            # reason -> count
-    n_rejected: int           # candidates failing at least one check
+    values: np.ndarray  # (n, d) accepted parameter values, in draw order
+    drawn: int  # candidates drawn
+    rejected: dict  # reason -> count
+    n_rejected: int  # candidates failing at least one check
     limits: Limits
     method: str
     seed: int
 
     def summary(self) -> dict:
-        return {"accepted": int(len(self.values)), "drawn": self.drawn, "rejected": self.n_rejected,
-                "rejected_by_reason": dict(self.rejected), "acceptance_rate": len(self.values) / max(1, self.drawn),
-                "method": self.method, "seed": self.seed, "limits": asdict(self.limits),
-                "space": self.space.source, "parameters": self.space.names}
+        return {
+            "accepted": int(len(self.values)),
+            "drawn": self.drawn,
+            "rejected": self.n_rejected,
+            "rejected_by_reason": dict(self.rejected),
+            "acceptance_rate": len(self.values) / max(1, self.drawn),
+            "method": self.method,
+            "seed": self.seed,
+            "limits": asdict(self.limits),
+            "space": self.space.source,
+            "parameters": self.space.names,
+        }
 
 
-def sample_designs(space: ParameterSpace, base: Lens, n: int, seed: int = 0, method: str = "sobol",
-                   limits: Limits | None = None, max_draws: int | None = None,
-                   progress=None) -> SampleResult:
+def sample_designs(
+    space: ParameterSpace,
+    base: Lens,
+    n: int,
+    seed: int = 0,
+    method: str = "sobol",
+    limits: Limits | None = None,
+    max_draws: int | None = None,
+    progress=None,
+) -> SampleResult:
     """``n`` manufacturable designs (parameter value rows) from ``space`` over ``base``."""
     if n < 1:
         raise ValueError(f"n must be >= 1, got {n}")
@@ -182,7 +214,9 @@ def sample_designs(space: ParameterSpace, base: Lens, n: int, seed: int = 0, met
             raise SpaceError(
                 f"{space.source}: only {len(accepted)} of {n} designs pass the manufacturability "
                 f"checks after {drawn} candidates (rejections: "
-                + ", ".join(f"{k} {v}" for k, v in rejected.items() if v) + "); widen the ranges or relax the limits")
+                + ", ".join(f"{k} {v}" for k, v in rejected.items() if v)
+                + "); widen the ranges or relax the limits"
+            )
         block = _unit_block(method, len(space), n if method == "sobol" else n - len(accepted), seed, state)
         for u in block:
             if len(accepted) == n or drawn >= max_draws:

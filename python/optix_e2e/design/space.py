@@ -32,16 +32,40 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Sequence
 
-__all__ = ["Parameter", "ParameterSpace", "SpaceError", "parameter_from_name", "default_bounds",
-           "load_space", "bundled_spaces"]
+__all__ = [
+    "Parameter",
+    "ParameterSpace",
+    "SpaceError",
+    "parameter_from_name",
+    "default_bounds",
+    "load_space",
+    "bundled_spaces",
+]
 
-ORDINAL = {2: "2nd", 4: "4th", 6: "6th", 8: "8th", 10: "10th", 12: "12th", 14: "14th",
-           16: "16th", 18: "18th", 20: "20th"}
+ORDINAL = {
+    2: "2nd",
+    4: "4th",
+    6: "6th",
+    8: "8th",
+    10: "10th",
+    12: "12th",
+    14: "14th",
+    16: "16th",
+    18: "18th",
+    20: "20th",
+}
 ASPHERE_KINDS = {f"asphere_{v}": k for k, v in ORDINAL.items()}
 APERTURE_KINDS = {"f_number": "fno", "epd": "epd"}
 KINDS = {"radius", "conic", "thickness", "air_gap", *ASPHERE_KINDS, *APERTURE_KINDS}
-UNITS = {"radius": "mm", "conic": "-", "thickness": "mm", "air_gap": "mm", "f_number": "-",
-         "epd": "mm", **{f"asphere_{v}": f"mm^-{k - 1}" for k, v in ORDINAL.items()}}
+UNITS = {
+    "radius": "mm",
+    "conic": "-",
+    "thickness": "mm",
+    "air_gap": "mm",
+    "f_number": "-",
+    "epd": "mm",
+    **{f"asphere_{v}": f"mm^-{k - 1}" for k, v in ORDINAL.items()},
+}
 _NAME = re.compile(r"^s_(\d+)_(radius|conic|thickness|(\d+)(?:st|nd|rd|th))$")
 
 
@@ -63,8 +87,10 @@ class Parameter:
         if self.kind in APERTURE_KINDS:
             ap = lens["aperture"]
             if ap["type"] != APERTURE_KINDS[self.kind]:
-                raise SpaceError(f"parameter {self.name!r} ({self.kind}): the lens's aperture is "
-                                 f"given as {ap['type']!r}, not {APERTURE_KINDS[self.kind]!r}")
+                raise SpaceError(
+                    f"parameter {self.name!r} ({self.kind}): the lens's aperture is "
+                    f"given as {ap['type']!r}, not {APERTURE_KINDS[self.kind]!r}"
+                )
             return float(ap["value"])
         s = lens["surfaces"][self.surface - 1]
         if self.kind == "radius":
@@ -102,8 +128,9 @@ def _is_air(material) -> bool:
     return material == "air" or (isinstance(material, str) and material.lower() == "air")
 
 
-def parameter_from_name(name: str, lens: dict, bounds: tuple[float, float] | None = None,
-                        semi_diameters: Sequence[float] | None = None) -> Parameter:
+def parameter_from_name(
+    name: str, lens: dict, bounds: tuple[float, float] | None = None, semi_diameters: Sequence[float] | None = None
+) -> Parameter:
     """A parameter from a Table-1 style name (``s_3_radius``, ``s_1_4th``, ``s_2_thickness``),
     with ``bounds`` or :func:`default_bounds` around the lens's current value."""
     if name.strip() in APERTURE_KINDS:
@@ -114,8 +141,10 @@ def parameter_from_name(name: str, lens: dict, bounds: tuple[float, float] | Non
         return Parameter(kind, kind, 0, float(lo), float(hi), UNITS[kind])
     m = _NAME.match(name.strip())
     if not m:
-        raise SpaceError(f"parameter {name!r}: expected s_N_radius, s_N_conic, s_N_thickness, "
-                         f"s_N_<order> with order 2nd, 4th, ..., 20th (e.g. s_1_4th), f_number or epd")
+        raise SpaceError(
+            f"parameter {name!r}: expected s_N_radius, s_N_conic, s_N_thickness, "
+            f"s_N_<order> with order 2nd, 4th, ..., 20th (e.g. s_1_4th), f_number or epd"
+        )
     surf = int(m.group(1))
     n = len(lens["surfaces"])
     if not 1 <= surf <= n:
@@ -123,8 +152,7 @@ def parameter_from_name(name: str, lens: dict, bounds: tuple[float, float] | Non
     if m.group(3):
         order = int(m.group(3))
         if order not in ORDINAL or ORDINAL[order] != m.group(2):
-            raise SpaceError(f"parameter {name!r}: asphere order must be one of "
-                             f"{', '.join(ORDINAL.values())}")
+            raise SpaceError(f"parameter {name!r}: asphere order must be one of {', '.join(ORDINAL.values())}")
         kind = f"asphere_{ORDINAL[order]}"
     elif m.group(2) == "thickness":
         kind = "air_gap" if _is_air(lens["surfaces"][surf - 1]["material"]) else "thickness"
@@ -135,8 +163,7 @@ def parameter_from_name(name: str, lens: dict, bounds: tuple[float, float] | Non
     return Parameter(name, kind, surf, float(lo), float(hi), UNITS[kind])
 
 
-def default_bounds(p: Parameter, lens: dict,
-                   semi_diameters: Sequence[float] | None = None) -> tuple[float, float]:
+def default_bounds(p: Parameter, lens: dict, semi_diameters: Sequence[float] | None = None) -> tuple[float, float]:
     """Bounds used when a variable is chosen by name only (no space file).
 
     Radii keep their sign within 0.5x..3x of the current value (a flat surface needs a
@@ -160,23 +187,32 @@ def default_bounds(p: Parameter, lens: dict,
     if p.kind == "air_gap":
         return (0.0, 3.0 * v + 1.0)
     order = ASPHERE_KINDS[p.kind]
-    h = (semi_diameters[p.surface - 1] if semi_diameters is not None
-         else lens["surfaces"][p.surface - 1].get("semi_diameter")) or 10.0
-    amp = 0.5 / h ** order
+    h = (
+        semi_diameters[p.surface - 1]
+        if semi_diameters is not None
+        else lens["surfaces"][p.surface - 1].get("semi_diameter")
+    ) or 10.0
+    amp = 0.5 / h**order
     return (v - amp, v + amp)
 
 
 class ParameterSpace:
     """An ordered list of :class:`Parameter` over a base lens."""
 
-    def __init__(self, params: Sequence[Parameter], source: str = "<space>",
-                 lens_ref: str | None = None, description: str | None = None,
-                 notes: dict[str, str] | None = None, constraints: dict | None = None):
+    def __init__(
+        self,
+        params: Sequence[Parameter],
+        source: str = "<space>",
+        lens_ref: str | None = None,
+        description: str | None = None,
+        notes: dict[str, str] | None = None,
+        constraints: dict | None = None,
+    ):
         self.params = list(params)
         self.source = source
-        self.lens_ref = lens_ref          # base lens named by the file (bundled name or path)
+        self.lens_ref = lens_ref  # base lens named by the file (bundled name or path)
         self.description = description
-        self.notes = dict(notes or {})    # parameter name -> note
+        self.notes = dict(notes or {})  # parameter name -> note
         self.constraints = dict(constraints or {})  # manufacturability limits (optix_e2e.design.sampling)
         names = [p.name for p in self.params]
         dup = sorted({n for n in names if names.count(n) > 1})
@@ -185,19 +221,21 @@ class ParameterSpace:
         targets = [(p.surface, p.kind) for p in self.params]
         clash = sorted({t for t in targets if targets.count(t) > 1})
         if clash:
-            raise SpaceError(f"{source}: several parameters change the same thing: "
-                             + ", ".join(f"surface {s} {k}" for s, k in clash))
+            raise SpaceError(
+                f"{source}: several parameters change the same thing: "
+                + ", ".join(f"surface {s} {k}" for s, k in clash)
+            )
 
     # ----- construction ---------------------------------------------------------------
     @classmethod
-    def from_names(cls, names: "str | Sequence[str]", lens: dict,
-                   semi_diameters: Sequence[float] | None = None) -> "ParameterSpace":
+    def from_names(
+        cls, names: "str | Sequence[str]", lens: dict, semi_diameters: Sequence[float] | None = None
+    ) -> "ParameterSpace":
         if isinstance(names, str):
             names = [n for n in (x.strip() for x in names.split(",")) if n]
         if not names:
             raise SpaceError("no variables given")
-        return cls([parameter_from_name(n, lens, semi_diameters=semi_diameters) for n in names],
-                   source="--vars")
+        return cls([parameter_from_name(n, lens, semi_diameters=semi_diameters) for n in names], source="--vars")
 
     @classmethod
     def load(cls, path: "str | Path", lens: dict | None = None) -> "ParameterSpace":
@@ -230,8 +268,10 @@ class ParameterSpace:
         if isinstance(data, dict):
             unknown = sorted(set(data) - {"lens", "source", "description", "constraints", key})
             if unknown:
-                raise SpaceError(f"{path}: unknown top-level key(s) {', '.join(unknown)} "
-                                 f"(expected lens, source, description, constraints, {key})")
+                raise SpaceError(
+                    f"{path}: unknown top-level key(s) {', '.join(unknown)} "
+                    f"(expected lens, source, description, constraints, {key})"
+                )
             constraints = data.get("constraints")
             if constraints is not None and not isinstance(constraints, dict):
                 raise SpaceError(f"{path}: constraints must be a table (min_air_gap = 1.0, ...)")
@@ -243,14 +283,18 @@ class ParameterSpace:
         else:
             description = constraints = None
         if not isinstance(data, list) or not data:
-            raise SpaceError(f"{path}: no parameters (a TOML space has [[parameter]] tables; a JSON "
-                             f"space is a list of parameters or an object with a \"parameters\" list)")
+            raise SpaceError(
+                f"{path}: no parameters (a TOML space has [[parameter]] tables; a JSON "
+                f'space is a list of parameters or an object with a "parameters" list)'
+            )
         label = "[[parameter]] #{}" if key == "parameter" else "parameters[{}]"
-        params = [cls._entry(path, label.format(i + 1 if key == "parameter" else i), e, lens)
-                  for i, e in enumerate(data)]
+        params = [
+            cls._entry(path, label.format(i + 1 if key == "parameter" else i), e, lens) for i, e in enumerate(data)
+        ]
         notes = {e["name"]: e["note"] for e in data if "note" in e}
-        return cls(params, source=str(path), lens_ref=lens_ref, description=description, notes=notes,
-                   constraints=constraints)
+        return cls(
+            params, source=str(path), lens_ref=lens_ref, description=description, notes=notes, constraints=constraints
+        )
 
     def base_lens(self):
         """The base lens the file names (``lens``): a bundled name, or a path relative to
@@ -259,7 +303,7 @@ class ParameterSpace:
 
         ref = self.lens_ref
         if not ref:
-            raise SpaceError(f"{self.source}: the space names no base lens (add lens = \"...\")")
+            raise SpaceError(f'{self.source}: the space names no base lens (add lens = "...")')
         candidate = Path(self.source).parent / ref
         try:
             lens = Lens.load(str(candidate) if candidate.is_file() else ref)
@@ -267,12 +311,13 @@ class ParameterSpace:
             raise SpaceError(f"{self.source}: base lens {ref!r}: {exc}") from exc
         bad = [p.name for p in self.params if p.surface > len(lens.surfaces)]
         if bad:
-            raise SpaceError(f"{self.source}: parameter(s) {', '.join(bad)} name a surface beyond the "
-                             f"base lens's {len(lens.surfaces)} surfaces")
+            raise SpaceError(
+                f"{self.source}: parameter(s) {', '.join(bad)} name a surface beyond the "
+                f"base lens's {len(lens.surfaces)} surfaces"
+            )
         return lens
 
-    def save_toml(self, path: "str | Path", lens_ref: str | None = None,
-                  description: str | None = None) -> None:
+    def save_toml(self, path: "str | Path", lens_ref: str | None = None, description: str | None = None) -> None:
         """Write the space as TOML (what :meth:`load` reads back)."""
         import tomli_w
 
@@ -285,8 +330,9 @@ class ParameterSpace:
             doc["description"] = desc
         if self.constraints:
             doc["constraints"] = self.constraints
-        doc["parameter"] = [{**asdict(p), **({"note": self.notes[p.name]} if p.name in self.notes else {})}
-                            for p in self.params]
+        doc["parameter"] = [
+            {**asdict(p), **({"note": self.notes[p.name]} if p.name in self.notes else {})} for p in self.params
+        ]
         Path(path).write_text(tomli_w.dumps(doc), encoding="utf-8")
 
     @staticmethod
@@ -353,8 +399,9 @@ class ParameterSpace:
         if len(values) != len(self.params):
             raise SpaceError(f"{self.source}: {len(values)} values for {len(self.params)} parameters")
         out = dict(lens)
-        out["surfaces"] = [dict(sf, aspheric=dict(sf["aspheric"])) if sf.get("aspheric") else dict(sf)
-                           for sf in lens["surfaces"]]
+        out["surfaces"] = [
+            dict(sf, aspheric=dict(sf["aspheric"])) if sf.get("aspheric") else dict(sf) for sf in lens["surfaces"]
+        ]
         if "aperture" in out:
             out["aperture"] = dict(out["aperture"])
         for p, v in zip(self.params, values):
@@ -398,8 +445,10 @@ def load_space(spec: "str | Path") -> tuple[ParameterSpace, "object"]:
         if bundled.is_file():
             path = bundled
         else:
-            raise SpaceError(f"{spec!r} is neither a space file nor a bundled lens with a space "
-                             f"(bundled: {', '.join(bundled_spaces())})")
+            raise SpaceError(
+                f"{spec!r} is neither a space file nor a bundled lens with a space "
+                f"(bundled: {', '.join(bundled_spaces())})"
+            )
     space = ParameterSpace.load(path)
     lens = space.base_lens()
     bad = space.check_bounds(lens.data)

@@ -57,13 +57,30 @@ from ..lens import Lens
 from .optimizer import Merit, _is_design_error
 from .space import APERTURE_KINDS, ASPHERE_KINDS, Parameter, ParameterSpace, SpaceError
 
-__all__ = ["DEFAULT_STEPS", "OFFSETS", "APERTURE_MODES", "DEFAULT_PUPIL", "default_step", "free_apertures", "traced_apertures",
-           "evaluate_fields",
-           "ParamSensitivity", "Sensitivity", "sensitivity", "Allocation", "allocate",
-           "proposed_space", "MonteCarlo", "monte_carlo", "check_space_fits", "model_worst", "rss"]
+__all__ = [
+    "DEFAULT_STEPS",
+    "OFFSETS",
+    "APERTURE_MODES",
+    "DEFAULT_PUPIL",
+    "default_step",
+    "free_apertures",
+    "traced_apertures",
+    "evaluate_fields",
+    "ParamSensitivity",
+    "Sensitivity",
+    "sensitivity",
+    "Allocation",
+    "allocate",
+    "proposed_space",
+    "MonteCarlo",
+    "monte_carlo",
+    "check_space_fits",
+    "model_worst",
+    "rss",
+]
 
-OFFSETS = (-2.0, -1.0, 1.0, 2.0)   # multiples of the step traced per parameter
-ASPHERE_SAG_MM = 5e-4              # asphere step: a_n h^n = 0.5 um at the clear semi-diameter
+OFFSETS = (-2.0, -1.0, 1.0, 2.0)  # multiples of the step traced per parameter
+ASPHERE_SAG_MM = 5e-4  # asphere step: a_n h^n = 0.5 um at the clear semi-diameter
 DEFAULT_STEPS = {
     "radius": "0.1 % of |R|",
     "thickness": "0.01 mm",
@@ -79,8 +96,10 @@ def default_step(p: Parameter, value: float, semi_diameter: float | None = None)
     """The default perturbation step of parameter ``p`` at ``value`` (see the module doc)."""
     if p.kind == "radius":
         if not math.isfinite(value) or value == 0:
-            raise SpaceError(f"parameter {p.name!r}: radius {value} has no relative step "
-                             f"(a flat surface: use a curvature-free parameter)")
+            raise SpaceError(
+                f"parameter {p.name!r}: radius {value} has no relative step "
+                f"(a flat surface: use a curvature-free parameter)"
+            )
         return 1e-3 * abs(value)
     if p.kind in ("thickness", "air_gap"):
         return 0.01
@@ -162,12 +181,12 @@ class ParamSensitivity:
     param: Parameter
     nominal: float
     step: float
-    deltas: np.ndarray          # (4,) parameter offsets traced (units of the parameter)
-    fields: np.ndarray          # (4, F) per-field RMS (um); NaN where the design failed
+    deltas: np.ndarray  # (4,) parameter offsets traced (units of the parameter)
+    fields: np.ndarray  # (4, F) per-field RMS (um); NaN where the design failed
     nominal_fields: np.ndarray  # (F,)
-    a: np.ndarray               # (F,) linear coefficients of each field's model (um / unit)
-    b: np.ndarray               # (F,) quadratic coefficients (um / unit^2)
-    failed: list                # reasons of failed offsets
+    a: np.ndarray  # (F,) linear coefficients of each field's model (um / unit)
+    b: np.ndarray  # (F,) quadratic coefficients (um / unit^2)
+    failed: list  # reasons of failed offsets
 
     @property
     def worst(self) -> np.ndarray:
@@ -201,7 +220,7 @@ class ParamSensitivity:
     def predict(self, d) -> np.ndarray:
         """Model per-field RMS at offset(s) ``d``: shape (..., F)."""
         d = np.asarray(d, float)[..., None]
-        return self.nominal_fields + self.a * d + self.b * d ** 2
+        return self.nominal_fields + self.a * d + self.b * d**2
 
     def predict_worst(self, d) -> np.ndarray:
         return self.predict(d).max(axis=-1)
@@ -229,7 +248,7 @@ class ParamSensitivity:
     def fit_rms_um(self) -> float:
         """RMS residual of the per-field quadratic fits over the traced offsets (um)."""
         r = self.predict(self.deltas) - self.fields
-        return float(np.sqrt(np.nanmean(r ** 2))) if np.any(np.isfinite(r)) else math.nan
+        return float(np.sqrt(np.nanmean(r**2))) if np.any(np.isfinite(r)) else math.nan
 
 
 @dataclass
@@ -237,7 +256,7 @@ class Sensitivity:
     space: ParameterSpace
     fields_deg: list
     nominal_fields: np.ndarray
-    rows: list                   # ParamSensitivity, in the space's order
+    rows: list  # ParamSensitivity, in the space's order
     step_scale: float
 
     @property
@@ -251,9 +270,11 @@ class Sensitivity:
     def ranking(self) -> list:
         """Rows from the most to the least sensitive (|worst-field change| at +-1 step;
         ties and failures broken by the model growth at one step)."""
+
         def key(r):
             d = r.d_worst_step
             return (-(d if math.isfinite(d) else math.inf), -r.growth(r.step))
+
         return sorted(self.rows, key=key)
 
     def row(self, name: str) -> ParamSensitivity:
@@ -271,22 +292,32 @@ def check_space_fits(space: ParameterSpace, lens: dict) -> list[str]:
     for p in space.params:
         if p.kind not in APERTURE_KINDS:
             if not 1 <= p.surface <= n:
-                raise SpaceError(f"{space.source}: parameter {p.name} names surface {p.surface}; "
-                                 f"the lens has surfaces 1..{n}")
+                raise SpaceError(
+                    f"{space.source}: parameter {p.name} names surface {p.surface}; the lens has surfaces 1..{n}"
+                )
             if p.kind in ("thickness", "air_gap"):
                 mat = lens["surfaces"][p.surface - 1].get("material")
                 air = mat == "air" or (isinstance(mat, str) and mat.lower() == "air")
                 if air != (p.kind == "air_gap"):
-                    raise SpaceError(f"{space.source}: parameter {p.name} is a {p.kind} but surface "
-                                     f"{p.surface} of the lens is followed by "
-                                     f"{'air' if air else 'glass'}")
+                    raise SpaceError(
+                        f"{space.source}: parameter {p.name} is a {p.kind} but surface "
+                        f"{p.surface} of the lens is followed by "
+                        f"{'air' if air else 'glass'}"
+                    )
         p.get(lens)  # aperture kinds must match the lens's aperture type
     return space.check_bounds(lens)
 
 
-def sensitivity(space: ParameterSpace, lens: "Lens | dict", merit: Merit, step_scale: float = 1.0,
-                steps: dict | None = None, semi_diameters: Sequence[float] | None = None,
-                progress: Callable[[int, int], None] | None = None, apertures: str = "free") -> Sensitivity:
+def sensitivity(
+    space: ParameterSpace,
+    lens: "Lens | dict",
+    merit: Merit,
+    step_scale: float = 1.0,
+    steps: dict | None = None,
+    semi_diameters: Sequence[float] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    apertures: str = "free",
+) -> Sensitivity:
     """Trace each parameter at nominal + k step, k in :data:`OFFSETS`, and fit the models.
 
     ``lens``: the nominal (a Lens or a resolved lens dict); ``steps``: name -> step overriding
@@ -336,16 +367,16 @@ def sensitivity(space: ParameterSpace, lens: "Lens | dict", merit: Merit, step_s
 @dataclass
 class Allocation:
     name: str
-    share_um: float             # this parameter's RSS share of the budget
-    tolerance: float            # proposed half-width (parameter units)
-    capped: bool                # the share was not reached within the cap
+    share_um: float  # this parameter's RSS share of the budget
+    tolerance: float  # proposed half-width (parameter units)
+    capped: bool  # the share was not reached within the cap
     cap: float
-    lo: float                   # proposed range
+    lo: float  # proposed range
     hi: float
-    growth_model_um: float      # model growth over [lo, hi]
-    growth_traced_um: float = math.nan   # traced worst-field growth, max of the two ends
-    traced_ends_um: tuple = (math.nan, math.nan)   # traced worst-field RMS at lo, hi (inf: failed)
-    traced_failed: list = field(default_factory=list)   # reasons of failed ends
+    growth_model_um: float  # model growth over [lo, hi]
+    growth_traced_um: float = math.nan  # traced worst-field growth, max of the two ends
+    traced_ends_um: tuple = (math.nan, math.nan)  # traced worst-field RMS at lo, hi (inf: failed)
+    traced_failed: list = field(default_factory=list)  # reasons of failed ends
 
 
 def _physical(p: Parameter, lo: float, hi: float, nominal: float) -> tuple[float, float]:
@@ -376,8 +407,14 @@ def _solve_tolerance(r: ParamSensitivity, share: float, cap: float) -> tuple[flo
     return hi, False
 
 
-def allocate(sens: Sensitivity, budget_um: float, given: ParameterSpace | None = None,
-             merit: Merit | None = None, lens: "Lens | dict | None" = None, apertures: str = "free") -> list:
+def allocate(
+    sens: Sensitivity,
+    budget_um: float,
+    given: ParameterSpace | None = None,
+    merit: Merit | None = None,
+    lens: "Lens | dict | None" = None,
+    apertures: str = "free",
+) -> list:
     """Tolerances from an RSS-shared budget (see the module doc).  ``given`` (default: the
     analysed space) supplies the caps and the ranges the proposal is cut to.  With ``merit``
     and ``lens`` the two ends of each proposed range are traced (``growth_traced_um``)."""
@@ -421,7 +458,7 @@ def allocate(sens: Sensitivity, budget_um: float, given: ParameterSpace | None =
 
 def rss(values) -> float:
     v = np.asarray([x for x in values if math.isfinite(x)], float)
-    return float(np.sqrt(np.sum(v ** 2)))
+    return float(np.sqrt(np.sum(v**2)))
 
 
 def model_worst(sens: Sensitivity, values: np.ndarray) -> np.ndarray:
@@ -431,33 +468,46 @@ def model_worst(sens: Sensitivity, values: np.ndarray) -> np.ndarray:
     miss."""
     x = np.atleast_2d(np.asarray(values, float))
     d = x - np.array([r.nominal for r in sens.rows])[None, :]
-    a = np.stack([r.a for r in sens.rows])          # (P, F)
+    a = np.stack([r.a for r in sens.rows])  # (P, F)
     b = np.stack([r.b for r in sens.rows])
-    per_field = sens.nominal_fields[None, :] + d @ a + (d ** 2) @ b
+    per_field = sens.nominal_fields[None, :] + d @ a + (d**2) @ b
     return per_field.max(axis=1)
 
 
-def proposed_space(sens: Sensitivity, alloc: list, given: ParameterSpace | None = None,
-                   source: str = "<proposed>", description: str | None = None) -> ParameterSpace:
+def proposed_space(
+    sens: Sensitivity,
+    alloc: list,
+    given: ParameterSpace | None = None,
+    source: str = "<proposed>",
+    description: str | None = None,
+) -> ParameterSpace:
     """The proposed ranges as a space: same names, kinds, surfaces, units, notes and
     constraints as ``given`` (default: the analysed space)."""
     given = given or sens.space
     by = {a.name: a for a in alloc}
-    params = [Parameter(p.name, p.kind, p.surface, float(by[p.name].lo), float(by[p.name].hi), p.unit)
-              for p in sens.space.params]
-    return ParameterSpace(params, source=source, lens_ref=given.lens_ref, description=description,
-                          notes=given.notes, constraints=given.constraints)
+    params = [
+        Parameter(p.name, p.kind, p.surface, float(by[p.name].lo), float(by[p.name].hi), p.unit)
+        for p in sens.space.params
+    ]
+    return ParameterSpace(
+        params,
+        source=source,
+        lens_ref=given.lens_ref,
+        description=description,
+        notes=given.notes,
+        constraints=given.constraints,
+    )
 
 
 # ----- Monte Carlo -----------------------------------------------------------------------
 @dataclass
 class MonteCarlo:
     space: ParameterSpace
-    values: np.ndarray          # (n, P) drawn parameter values (accepted, in draw order)
-    fields: np.ndarray          # (n, F) per-field RMS (um); NaN for failed designs
+    values: np.ndarray  # (n, P) drawn parameter values (accepted, in draw order)
+    fields: np.ndarray  # (n, F) per-field RMS (um); NaN for failed designs
     spec_um: float
-    failures: dict              # reason -> count
-    sampling: dict              # sample_designs summary (drawn, rejected by reason)
+    failures: dict  # reason -> count
+    sampling: dict  # sample_designs summary (drawn, rejected by reason)
     seed: int
     failed_index: list = field(default_factory=list)
 
@@ -497,17 +547,33 @@ class MonteCarlo:
         return out
 
     def summary(self) -> dict:
-        return {"n": self.n, "seed": self.seed, "spec_um": self.spec_um, "yield": self.yield_,
-                "yield_stderr": self.yield_stderr, "n_failed": self.n_failed,
-                "failures": dict(self.failures), "worst_rms_percentiles_um": self.percentiles(),
-                "mean_worst_rms_um": float(np.mean(self.worst[np.isfinite(self.worst)]))
-                if np.any(np.isfinite(self.worst)) else math.nan,
-                "sampling": self.sampling}
+        return {
+            "n": self.n,
+            "seed": self.seed,
+            "spec_um": self.spec_um,
+            "yield": self.yield_,
+            "yield_stderr": self.yield_stderr,
+            "n_failed": self.n_failed,
+            "failures": dict(self.failures),
+            "worst_rms_percentiles_um": self.percentiles(),
+            "mean_worst_rms_um": float(np.mean(self.worst[np.isfinite(self.worst)]))
+            if np.any(np.isfinite(self.worst))
+            else math.nan,
+            "sampling": self.sampling,
+        }
 
 
-def monte_carlo(space: ParameterSpace, lens: "Lens | dict", merit: Merit, n: int, spec_um: float,
-                seed: int = 0, limits=None,
-                progress: Callable[[int, int], None] | None = None, apertures: str = "free") -> MonteCarlo:
+def monte_carlo(
+    space: ParameterSpace,
+    lens: "Lens | dict",
+    merit: Merit,
+    n: int,
+    spec_um: float,
+    seed: int = 0,
+    limits=None,
+    progress: Callable[[int, int], None] | None = None,
+    apertures: str = "free",
+) -> MonteCarlo:
     """``n`` manufacturable designs drawn uniformly from ``space`` (every parameter at once),
     traced; yield = fraction with worst-field RMS <= ``spec_um``.  ``limits``: a
     :class:`optix_e2e.design.sampling.Limits` (default: the space's ``[constraints]``)."""

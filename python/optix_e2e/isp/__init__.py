@@ -8,5 +8,4 @@ from .reference import ReferenceISP
 from .software import SoftwareISP
 from .unet import UNet
 
-__all__ = ["params", "ReferenceISP", "ISPProxy", "SoftwareISP", "UNet", "BilinearDemosaick",
-           "bilinear_demosaick"]
+__all__ = ["params", "ReferenceISP", "ISPProxy", "SoftwareISP", "UNet", "BilinearDemosaick", "bilinear_demosaick"]

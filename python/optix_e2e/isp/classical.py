@@ -29,7 +29,7 @@ from .demosaick import bilinear_demosaick
 
 # Malvar, He & Cutler (ICASSP 2004), Fig. 2 filters (x 1/8), the same as reference.py's.
 _G_AT_RB = [[0, 0, -1, 0, 0], [0, 0, 2, 0, 0], [-1, 2, 4, 2, -1], [0, 0, 2, 0, 0], [0, 0, -1, 0, 0]]
-_C_AT_G_ROW = [[0, 0, .5, 0, 0], [0, -1, 0, -1, 0], [-1, 4, 5, 4, -1], [0, -1, 0, -1, 0], [0, 0, .5, 0, 0]]
+_C_AT_G_ROW = [[0, 0, 0.5, 0, 0], [0, -1, 0, -1, 0], [-1, 4, 5, 4, -1], [0, -1, 0, -1, 0], [0, 0, 0.5, 0, 0]]
 _C_AT_OPP = [[0, 0, -1.5, 0, 0], [0, 2, 0, 2, 0], [-1.5, 0, 6, 0, -1.5], [0, 2, 0, 2, 0], [0, 0, -1.5, 0, 0]]
 _MALVAR = torch.tensor([_G_AT_RB, _C_AT_G_ROW, np.array(_C_AT_G_ROW).T.tolist(), _C_AT_OPP]) / 8
 
@@ -74,8 +74,13 @@ def to_linear_matrix(preset="imx249") -> np.ndarray:
     return m.T.numpy()
 
 
-def classical_isp(raw_dn: torch.Tensor, to_linear: torch.Tensor, black_level_dn: float, pattern: str = "RGGB",
-                  demosaick: str = "malvar") -> torch.Tensor:
+def classical_isp(
+    raw_dn: torch.Tensor,
+    to_linear: torch.Tensor,
+    black_level_dn: float,
+    pattern: str = "RGGB",
+    demosaick: str = "malvar",
+) -> torch.Tensor:
     """RAW [B, 1, H, W] in DN -> sRGB [B, 3, H, W]; ``to_linear`` [3, 3] camera RGB (DN above
     black) -> linear scene RGB (:func:`to_linear_matrix`)."""
     x = raw_dn - black_level_dn

@@ -24,10 +24,11 @@ from . import reference
 @dataclass(frozen=True)
 class Capture:
     """How scenes are lit and captured."""
+
     preset: str = "imx249"
-    level_min: float = 0.12     # scene white in units of the sensor's default white level
+    level_min: float = 0.12  # scene white in units of the sensor's default white level
     level_max: float = 1.0
-    tint: float = 0.25          # per-channel illuminant gain in [1 - tint, 1 + tint]
+    tint: float = 0.25  # per-channel illuminant gain in [1 - tint, 1 + tint]
 
 
 def reference_isp(capture: Capture = Capture()) -> reference.ReferenceISP:
@@ -60,8 +61,12 @@ def light(scene_srgb: torch.Tensor, rng: np.random.Generator, capture: Capture) 
     return lin * torch.as_tensor(tint, dtype=scene_srgb.dtype), ideal
 
 
-def capture_raw(scene_srgb: torch.Tensor, rng: np.random.Generator, capture: Capture = Capture(),
-                generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+def capture_raw(
+    scene_srgb: torch.Tensor,
+    rng: np.random.Generator,
+    capture: Capture = Capture(),
+    generator: torch.Generator | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """sRGB scenes [B, 3, H, W] -> (RAW [B, 1, H, W] in DN, ideal rendering [B, 3, H, W])."""
     lin, ideal = light(scene_srgb, rng, capture)
     with torch.no_grad():
@@ -71,17 +76,25 @@ def capture_raw(scene_srgb: torch.Tensor, rng: np.random.Generator, capture: Cap
 
 @dataclass
 class Pool:
-    raw: torch.Tensor          # [N, 1, S, S] float32 DN
+    raw: torch.Tensor  # [N, 1, S, S] float32 DN
     params_unit: torch.Tensor  # [N, n] in [0, 1]
-    target: torch.Tensor       # [N, 3, S, S] uint8 reference-ISP output
-    ideal: torch.Tensor        # [N, 3, S, S] uint8 ideal rendering
+    target: torch.Tensor  # [N, 3, S, S] uint8 reference-ISP output
+    ideal: torch.Tensor  # [N, 3, S, S] uint8 ideal rendering
 
     def batch(self, idx) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         return self.raw[idx], self.params_unit[idx], self.target[idx].float() / 255
 
 
-def make_pool(n: int, size: int, seed: int, capture: Capture = Capture(), *,
-              scene_fn=training_scene, progress: bool = True, chunk: int = 64) -> Pool:
+def make_pool(
+    n: int,
+    size: int,
+    seed: int,
+    capture: Capture = Capture(),
+    *,
+    scene_fn=training_scene,
+    progress: bool = True,
+    chunk: int = 64,
+) -> Pool:
     """n (RAW, hyperparameters, reference output) triples of size x size pixels."""
     if size % 2:
         raise ValueError(f"patch size must be even (whole CFA periods), got {size}")

@@ -12,8 +12,8 @@ from torch import nn
 
 from ..sensor.cfa import bayer_masks, check_pattern
 
-_RB = torch.tensor([[1., 2., 1.], [2., 4., 2.], [1., 2., 1.]]) / 4
-_G = torch.tensor([[0., 1., 0.], [1., 4., 1.], [0., 1., 0.]]) / 4
+_RB = torch.tensor([[1.0, 2.0, 1.0], [2.0, 4.0, 2.0], [1.0, 2.0, 1.0]]) / 4
+_G = torch.tensor([[0.0, 1.0, 0.0], [1.0, 4.0, 1.0], [0.0, 1.0, 0.0]]) / 4
 
 
 def bilinear_demosaick(cfa: torch.Tensor, pattern: str = "RGGB") -> torch.Tensor:

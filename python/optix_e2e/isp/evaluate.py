@@ -20,8 +20,9 @@ from .proxy import ISPProxy
 HELD_OUT_SEED = 20_261_121  # hyperparameter draws and sensor noise for evaluation
 
 
-def held_out_captures(size: int = 256, photos: list[str] | None = None, seed: int = HELD_OUT_SEED,
-                      capture: data.Capture = data.Capture()):
+def held_out_captures(
+    size: int = 256, photos: list[str] | None = None, seed: int = HELD_OUT_SEED, capture: data.Capture = data.Capture()
+):
     """(names, RAW [N, 1, size, size], ideal renderings [N, 3, size, size]) for the bundled photos."""
     names = photos or scenes.bundled_photos()
     imgs = torch.stack([scenes.load_photo(n, size=size) for n in names])
@@ -31,8 +32,16 @@ def held_out_captures(size: int = 256, photos: list[str] | None = None, seed: in
 
 
 @torch.no_grad()
-def evaluate_proxy(proxy: ISPProxy, *, size: int = 256, n_param_sets: int = 4, crop: int = 4,
-                   photos: list[str] | None = None, seed: int = HELD_OUT_SEED, progress: bool = True) -> dict:
+def evaluate_proxy(
+    proxy: ISPProxy,
+    *,
+    size: int = 256,
+    n_param_sets: int = 4,
+    crop: int = 4,
+    photos: list[str] | None = None,
+    seed: int = HELD_OUT_SEED,
+    progress: bool = True,
+) -> dict:
     proxy.eval()
     isp = data.reference_isp()
     names, raw, _ = held_out_captures(size, photos, seed)
@@ -42,28 +51,42 @@ def evaluate_proxy(proxy: ISPProxy, *, size: int = 256, n_param_sets: int = 4, c
     for i, name in enumerate(tqdm(names, desc="eval proxy", unit="photo", disable=not progress)):
         for label, p in settings:
             t0 = time.perf_counter()
-            truth = isp(raw[i:i + 1], [p])
+            truth = isp(raw[i : i + 1], [p])
             t1 = time.perf_counter()
-            pred = proxy.render(raw[i:i + 1], p)
+            pred = proxy.render(raw[i : i + 1], p)
             if not torch.isfinite(pred).all():
-                raise ValueError(f"the ISP proxy's output is not finite on photo {name} "
-                                 f"({label} hyperparameters); no metrics")
+                raise ValueError(
+                    f"the ISP proxy's output is not finite on photo {name} ({label} hyperparameters); no metrics"
+                )
             pred = pred.clamp(0, 1)
             t_ref, t_proxy = t_ref + t1 - t0, t_proxy + time.perf_counter() - t1
             s = metrics.summarize(pred, truth, crop=crop)
             rows.append({"photo": name, "params": label, **s})
+
     def mean(key, subset=rows):
         return float(np.mean([r[key] for r in subset]))
+
     random_rows = [r for r in rows if r["params"] != "default"]
     default_rows = [r for r in rows if r["params"] == "default"]
     return {
-        "proxy_psnr_db": mean("psnr_db"), "proxy_ssim": mean("ssim"), "proxy_haarpsi": mean("haarpsi"),
+        "proxy_psnr_db": mean("psnr_db"),
+        "proxy_ssim": mean("ssim"),
+        "proxy_haarpsi": mean("haarpsi"),
         "min_psnr_db": float(min(r["psnr_db"] for r in rows)),
-        "random_params": ({"psnr_db": mean("psnr_db", random_rows), "ssim": mean("ssim", random_rows)}
-                          if random_rows else None),
+        "random_params": (
+            {"psnr_db": mean("psnr_db", random_rows), "ssim": mean("ssim", random_rows)} if random_rows else None
+        ),
         "default_params": {"psnr_db": mean("psnr_db", default_rows), "ssim": mean("ssim", default_rows)},
-        "ms_per_image": {"reference_isp": 1e3 * t_ref / len(rows), "proxy": 1e3 * t_proxy / len(rows),
-                         "torch_threads": torch.get_num_threads()},
-        "n_photos": len(names), "n_param_sets": len(settings), "image_size": size, "crop_px": crop,
-        "seed": seed, "photos": names, "per_case": rows,
+        "ms_per_image": {
+            "reference_isp": 1e3 * t_ref / len(rows),
+            "proxy": 1e3 * t_proxy / len(rows),
+            "torch_threads": torch.get_num_threads(),
+        },
+        "n_photos": len(names),
+        "n_param_sets": len(settings),
+        "image_size": size,
+        "crop_px": crop,
+        "seed": seed,
+        "photos": names,
+        "per_case": rows,
     }

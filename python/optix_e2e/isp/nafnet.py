@@ -60,26 +60,47 @@ class NAFBlock(nn.Module):
 
 
 class NAFNet(nn.Module):
-    def __init__(self, in_channels: int, out_channels: int = 3, width: int = 32, depth: int = 3,
-                 enc_blocks: int = 1, mid_blocks: int = 2, dec_blocks: int = 1):
+    def __init__(
+        self,
+        in_channels: int,
+        out_channels: int = 3,
+        width: int = 32,
+        depth: int = 3,
+        enc_blocks: int = 1,
+        mid_blocks: int = 2,
+        dec_blocks: int = 1,
+    ):
         super().__init__()
         self.depth = depth
         self.intro = nn.Conv2d(in_channels, width, 3, padding=1)
-        widths = [width * 2 ** i for i in range(depth + 1)]
-        self.enc = nn.ModuleList([nn.Sequential(*[NAFBlock(widths[i]) for _ in range(enc_blocks)])
-                                  for i in range(depth)])
+        widths = [width * 2**i for i in range(depth + 1)]
+        self.enc = nn.ModuleList(
+            [nn.Sequential(*[NAFBlock(widths[i]) for _ in range(enc_blocks)]) for i in range(depth)]
+        )
         self.down = nn.ModuleList([nn.Conv2d(widths[i], widths[i + 1], 2, stride=2) for i in range(depth)])
         self.mid = nn.Sequential(*[NAFBlock(widths[depth]) for _ in range(mid_blocks)])
-        self.up = nn.ModuleList([nn.Sequential(nn.Conv2d(widths[i + 1], widths[i] * 4, 1, bias=False),
-                                               nn.PixelShuffle(2)) for i in reversed(range(depth))])
-        self.dec = nn.ModuleList([nn.Sequential(*[NAFBlock(widths[i]) for _ in range(dec_blocks)])
-                                  for i in reversed(range(depth))])
+        self.up = nn.ModuleList(
+            [
+                nn.Sequential(nn.Conv2d(widths[i + 1], widths[i] * 4, 1, bias=False), nn.PixelShuffle(2))
+                for i in reversed(range(depth))
+            ]
+        )
+        self.dec = nn.ModuleList(
+            [nn.Sequential(*[NAFBlock(widths[i]) for _ in range(dec_blocks)]) for i in reversed(range(depth))]
+        )
         self.head = nn.Conv2d(width, out_channels, 3, padding=1)
-        self.config = dict(in_channels=in_channels, out_channels=out_channels, width=width, depth=depth,
-                           enc_blocks=enc_blocks, mid_blocks=mid_blocks, dec_blocks=dec_blocks)
+        self.config = dict(
+            in_channels=in_channels,
+            out_channels=out_channels,
+            width=width,
+            depth=depth,
+            enc_blocks=enc_blocks,
+            mid_blocks=mid_blocks,
+            dec_blocks=dec_blocks,
+        )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        step = 2 ** self.depth
+        step = 2**self.depth
         if x.shape[-1] % step or x.shape[-2] % step:
             raise ValueError(f"NAFNet input H and W must be multiples of {step}, got {tuple(x.shape[-2:])}")
         x = self.intro(x)

@@ -34,18 +34,21 @@ class HyperParam:
 # but unity white balance and mid denoise / sharpening, not the
 # optimum for any scene: `optix isp tune` finds better ones through the proxy.
 SPACE: tuple[HyperParam, ...] = (
-    HyperParam("black_level_dn", 0.0, 128.0, 64.0, "DN",
-               "black level subtracted from the RAW before anything else"),
+    HyperParam("black_level_dn", 0.0, 128.0, 64.0, "DN", "black level subtracted from the RAW before anything else"),
     HyperParam("wb_red", 1.0, 2.6, 1.0, "x", "white-balance gain of the red pixels"),
     HyperParam("wb_blue", 1.0, 2.6, 1.0, "x", "white-balance gain of the blue pixels"),
-    HyperParam("demosaick", 0.0, 1.0, 0.0, "", "demosaicking method",
-               choices=("bilinear", "malvar")),
-    HyperParam("denoise_sigma", 0.0, 0.12, 0.04, "linear",
-               "range sigma of the bilateral denoiser (0 = off), in linear signal units"),
+    HyperParam("demosaick", 0.0, 1.0, 0.0, "", "demosaicking method", choices=("bilinear", "malvar")),
+    HyperParam(
+        "denoise_sigma",
+        0.0,
+        0.12,
+        0.04,
+        "linear",
+        "range sigma of the bilateral denoiser (0 = off), in linear signal units",
+    ),
     HyperParam("sharpen_amount", 0.0, 2.0, 0.5, "x", "unsharp-mask amount (0 = off)"),
     HyperParam("sharpen_radius_px", 0.5, 2.5, 1.0, "px", "unsharp-mask Gaussian radius"),
-    HyperParam("ccm_strength", 0.0, 1.0, 1.0, "",
-               "blend from identity (0) to the full colour-correction matrix (1)"),
+    HyperParam("ccm_strength", 0.0, 1.0, 1.0, "", "blend from identity (0) to the full colour-correction matrix (1)"),
     HyperParam("gamma", 1.6, 2.8, 2.2, "", "display gamma of the tone curve, y = x^(1/gamma)"),
 )
 NAMES = tuple(p.name for p in SPACE)
@@ -77,8 +80,10 @@ def check(params: dict) -> dict[str, float]:
 
 def sample(rng: np.random.Generator) -> dict[str, float]:
     """Uniform random hyperparameters over the whole space (categoricals uniform over choices)."""
-    return {p.name: float(rng.integers(len(p.choices))) if p.categorical else float(rng.uniform(p.low, p.high))
-            for p in SPACE}
+    return {
+        p.name: float(rng.integers(len(p.choices))) if p.categorical else float(rng.uniform(p.low, p.high))
+        for p in SPACE
+    }
 
 
 def to_unit(params: dict) -> np.ndarray:

@@ -22,8 +22,7 @@ BUNDLED = Path(__file__).with_name("bundled") / "isp_proxy.pt"
 
 
 class ISPProxy(nn.Module):
-    def __init__(self, pattern: str = "RGGB", adc_bits: int = 12, base: int = 32, depth: int = 3,
-                 pack: bool = True):
+    def __init__(self, pattern: str = "RGGB", adc_bits: int = 12, base: int = 32, depth: int = 3, pack: bool = True):
         super().__init__()
         self.n_params = len(hp.SPACE)
         self.net = RawUNet(self.n_params, pattern, adc_bits, base, depth, pack)
@@ -34,8 +33,10 @@ class ISPProxy(nn.Module):
         if params_unit.dim() == 1:
             params_unit = params_unit.unsqueeze(0).expand(raw_dn.shape[0], -1)
         if params_unit.shape != (raw_dn.shape[0], self.n_params):
-            raise ValueError(f"ISP proxy expects hyperparameters [B={raw_dn.shape[0]}, {self.n_params}], "
-                             f"got {tuple(params_unit.shape)}")
+            raise ValueError(
+                f"ISP proxy expects hyperparameters [B={raw_dn.shape[0]}, {self.n_params}], "
+                f"got {tuple(params_unit.shape)}"
+            )
         return self.net(raw_dn, params_unit)
 
     def render(self, raw_dn: torch.Tensor, params: dict | list[dict]) -> torch.Tensor:
@@ -46,9 +47,16 @@ class ISPProxy(nn.Module):
     def save(self, path, **meta) -> None:
         """Weights in float16 (the shipped proxy must stay small) plus everything to rebuild it."""
         state = {k: v.half() if v.is_floating_point() else v for k, v in self.state_dict().items()}
-        save_atomic({"format": "optix-isp-proxy/1", "state_dict": state, "config": self.net.config(),
-                     "space": [(p.name, p.low, p.high) for p in hp.SPACE],
-                     "meta": {**self.meta, **meta}}, path)
+        save_atomic(
+            {
+                "format": "optix-isp-proxy/1",
+                "state_dict": state,
+                "config": self.net.config(),
+                "space": [(p.name, p.low, p.high) for p in hp.SPACE],
+                "meta": {**self.meta, **meta},
+            },
+            path,
+        )
 
     @classmethod
     def load(cls, path=None, map_location="cpu") -> "ISPProxy":

@@ -18,8 +18,15 @@ from .unet import UNet, pad_to_multiple
 
 
 class RawUNet(nn.Module):
-    def __init__(self, n_cond: int = 0, pattern: str = "RGGB", adc_bits: int = 12, base: int = 32,
-                 depth: int = 3, pack: bool = True):
+    def __init__(
+        self,
+        n_cond: int = 0,
+        pattern: str = "RGGB",
+        adc_bits: int = 12,
+        base: int = 32,
+        depth: int = 3,
+        pack: bool = True,
+    ):
         super().__init__()
         self.n_cond, self.pattern, self.adc_bits, self.pack = n_cond, pattern, adc_bits, pack
         self.demosaick = BilinearDemosaick(pattern, with_masks=True)
@@ -27,14 +34,19 @@ class RawUNet(nn.Module):
         self.unet = UNet(6 * f + n_cond, 3 * f, base=base, depth=depth)
 
     def config(self) -> dict:
-        return dict(pattern=self.pattern, adc_bits=self.adc_bits, base=self.unet.config["base"],
-                    depth=self.unet.config["depth"], pack=self.pack)
+        return dict(
+            pattern=self.pattern,
+            adc_bits=self.adc_bits,
+            base=self.unet.config["base"],
+            depth=self.unet.config["depth"],
+            pack=self.pack,
+        )
 
     def forward(self, raw_dn: torch.Tensor, cond: torch.Tensor | None = None) -> torch.Tensor:
         """raw_dn [B, 1, H, W]; cond [B, n_cond] constants broadcast over the image."""
         if raw_dn.dim() != 4 or raw_dn.shape[1] != 1:
             raise ValueError(f"expected a RAW batch [B, 1, H, W], got {tuple(raw_dn.shape)}")
-        x, (h, w) = pad_to_multiple(raw_dn / (2.0 ** self.adc_bits - 1), 2 ** (self.unet.depth + self.pack))
+        x, (h, w) = pad_to_multiple(raw_dn / (2.0**self.adc_bits - 1), 2 ** (self.unet.depth + self.pack))
         feats = self.demosaick(x)
         if self.pack:
             feats = F.pixel_unshuffle(feats, 2)

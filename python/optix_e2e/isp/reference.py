@@ -25,13 +25,17 @@ from ..sensor.cfa import bayer_masks
 from . import params as hp
 
 # Malvar, He & Cutler (ICASSP 2004), Fig. 2 filters (x 1/8).
-_G_AT_RB = np.array([[0, 0, -1, 0, 0], [0, 0, 2, 0, 0], [-1, 2, 4, 2, -1],
-                     [0, 0, 2, 0, 0], [0, 0, -1, 0, 0]], float) / 8
-_C_AT_G_ROW = np.array([[0, 0, .5, 0, 0], [0, -1, 0, -1, 0], [-1, 4, 5, 4, -1],
-                        [0, -1, 0, -1, 0], [0, 0, .5, 0, 0]], float) / 8  # colour in the same row
-_C_AT_G_COL = _C_AT_G_ROW.T                                              # colour in the same column
-_C_AT_OPP = np.array([[0, 0, -1.5, 0, 0], [0, 2, 0, 2, 0], [-1.5, 0, 6, 0, -1.5],
-                      [0, 2, 0, 2, 0], [0, 0, -1.5, 0, 0]], float) / 8   # R at B, B at R
+_G_AT_RB = (
+    np.array([[0, 0, -1, 0, 0], [0, 0, 2, 0, 0], [-1, 2, 4, 2, -1], [0, 0, 2, 0, 0], [0, 0, -1, 0, 0]], float) / 8
+)
+_C_AT_G_ROW = (
+    np.array([[0, 0, 0.5, 0, 0], [0, -1, 0, -1, 0], [-1, 4, 5, 4, -1], [0, -1, 0, -1, 0], [0, 0, 0.5, 0, 0]], float) / 8
+)  # colour in the same row
+_C_AT_G_COL = _C_AT_G_ROW.T  # colour in the same column
+_C_AT_OPP = (
+    np.array([[0, 0, -1.5, 0, 0], [0, 2, 0, 2, 0], [-1.5, 0, 6, 0, -1.5], [0, 2, 0, 2, 0], [0, 0, -1.5, 0, 0]], float)
+    / 8
+)  # R at B, B at R
 
 _BILINEAR_RB = np.array([[1, 2, 1], [2, 4, 2], [1, 2, 1]], float) / 4
 _BILINEAR_G = np.array([[0, 1, 0], [1, 4, 1], [0, 1, 0]], float) / 4
@@ -44,8 +48,9 @@ def _conv(x: np.ndarray, k: np.ndarray) -> np.ndarray:
 
 def demosaick_bilinear(cfa: np.ndarray, pattern: str) -> np.ndarray:
     m = bayer_masks(pattern, *cfa.shape).numpy().astype(cfa.dtype)
-    return np.stack([_conv(cfa * m[0], _BILINEAR_RB), _conv(cfa * m[1], _BILINEAR_G),
-                     _conv(cfa * m[2], _BILINEAR_RB)], axis=-1)
+    return np.stack(
+        [_conv(cfa * m[0], _BILINEAR_RB), _conv(cfa * m[1], _BILINEAR_G), _conv(cfa * m[2], _BILINEAR_RB)], axis=-1
+    )
 
 
 def demosaick_malvar(cfa: np.ndarray, pattern: str) -> np.ndarray:
@@ -53,7 +58,7 @@ def demosaick_malvar(cfa: np.ndarray, pattern: str) -> np.ndarray:
     g_rb, c_row, c_col, c_opp = (_conv(cfa, k) for k in (_G_AT_RB, _C_AT_G_ROW, _C_AT_G_COL, _C_AT_OPP))
     out = np.empty(cfa.shape + (3,), cfa.dtype)
     out[..., 1] = np.where(m[1], cfa, g_rb)
-    for c, other in ((0, 2), (2, 0)):
+    for c, _other in ((0, 2), (2, 0)):
         in_row = m[c].any(axis=1, keepdims=True)  # rows that hold this colour
         at_g = np.where(in_row, c_row, c_col)
         out[..., c] = np.where(m[c], cfa, np.where(m[1], at_g, c_opp))
@@ -63,11 +68,18 @@ def demosaick_malvar(cfa: np.ndarray, pattern: str) -> np.ndarray:
 def default_ccm() -> np.ndarray:
     """Sensor RGB -> linear sRGB matrix of the default sensor (rows sum to 1)."""
     from .ccm import sensor_ccm
+
     return sensor_ccm()
 
 
-def run(raw: np.ndarray, params: dict | None = None, *, pattern: str = "RGGB", adc_bits: int = 12,
-        ccm: np.ndarray | None = None) -> np.ndarray:
+def run(
+    raw: np.ndarray,
+    params: dict | None = None,
+    *,
+    pattern: str = "RGGB",
+    adc_bits: int = 12,
+    ccm: np.ndarray | None = None,
+) -> np.ndarray:
     """RAW [H, W] in digital numbers -> sRGB-like image [H, W, 3] in [0, 1] (8-bit levels)."""
     raw = np.asarray(raw, dtype=np.float64)
     if raw.ndim != 2:
@@ -75,22 +87,24 @@ def run(raw: np.ndarray, params: dict | None = None, *, pattern: str = "RGGB", a
     if not np.all(np.isfinite(raw)):
         raise ValueError("reference ISP: RAW frame contains NaN or infinite values")
     p = hp.check(params or {})
-    white = 2.0 ** adc_bits - 1
+    white = 2.0**adc_bits - 1
     x = np.clip((raw - p["black_level_dn"]) / (white - p["black_level_dn"]), 0.0, None)
     m = bayer_masks(pattern, *x.shape).numpy()
     x = x * (1 + (p["wb_red"] - 1) * m[0] + (p["wb_blue"] - 1) * m[2])
     rgb = (demosaick_malvar if int(p["demosaick"]) == 1 else demosaick_bilinear)(x, pattern)
     rgb = np.clip(rgb, 0.0, None)
     if p["denoise_sigma"] > 0:
-        rgb = denoise_bilateral(rgb, sigma_color=p["denoise_sigma"], sigma_spatial=1.0, win_size=5,
-                                channel_axis=2, mode="reflect")
+        rgb = denoise_bilateral(
+            rgb, sigma_color=p["denoise_sigma"], sigma_spatial=1.0, win_size=5, channel_axis=2, mode="reflect"
+        )
     m_sensor = default_ccm() if ccm is None else np.asarray(ccm, float)
     blend = (1 - p["ccm_strength"]) * np.eye(3) + p["ccm_strength"] * m_sensor
     rgb = np.clip(rgb @ blend.T, 0.0, 1.0)
     rgb = rgb ** (1.0 / p["gamma"])
     if p["sharpen_amount"] > 0:
-        rgb = unsharp_mask(rgb, radius=p["sharpen_radius_px"], amount=p["sharpen_amount"],
-                           channel_axis=2, preserve_range=True)
+        rgb = unsharp_mask(
+            rgb, radius=p["sharpen_radius_px"], amount=p["sharpen_amount"], channel_axis=2, preserve_range=True
+        )
     return np.round(np.clip(rgb, 0.0, 1.0) * 255) / 255
 
 

@@ -33,8 +33,9 @@ from .unet import UNet
 FORMATS = ("optix-software-isp/1", "optix-software-isp/2")
 
 
-def position_channels(h: int, w: int, offset_px, full_field_px: float, *, device=None,
-                      dtype=torch.float32) -> torch.Tensor:
+def position_channels(
+    h: int, w: int, offset_px, full_field_px: float, *, device=None, dtype=torch.float32
+) -> torch.Tensor:
     """[B, 2, H, W]: (dy, dx) of every pixel of an H x W crop from the optical axis, over the
     full-field radius; ``offset_px``: the crop centre's (dy, dx) from the axis, one pair for
     the batch or [B, 2]."""
@@ -55,9 +56,20 @@ class SoftwareISP(nn.Module):
     output plus the network's correction (False with ``arch='unet'`` is the first version's
     net, RAW alone to RGB)."""
 
-    def __init__(self, pattern: str = "RGGB", adc_bits: int = 12, base: int = 32, depth: int = 3,
-                 pack: bool = True, *, arch: str = "nafnet", blocks: int = 1, position: bool = True,
-                 residual: bool = True, preset: str = "imx249"):
+    def __init__(
+        self,
+        pattern: str = "RGGB",
+        adc_bits: int = 12,
+        base: int = 32,
+        depth: int = 3,
+        pack: bool = True,
+        *,
+        arch: str = "nafnet",
+        blocks: int = 1,
+        position: bool = True,
+        residual: bool = True,
+        preset: str = "imx249",
+    ):
         super().__init__()
         if arch not in ("nafnet", "unet"):
             raise ValueError(f"arch must be nafnet or unet, got {arch!r}")
@@ -75,16 +87,25 @@ class SoftwareISP(nn.Module):
         if arch == "unet":
             self.body = UNet(c_in, 12, base=base, depth=depth)
         else:
-            self.body = NAFNet(c_in, 12, width=base, depth=depth, enc_blocks=blocks, mid_blocks=2 * blocks,
-                               dec_blocks=blocks)
+            self.body = NAFNet(
+                c_in, 12, width=base, depth=depth, enc_blocks=blocks, mid_blocks=2 * blocks, dec_blocks=blocks
+            )
         head = self.body.head
         nn.init.zeros_(head.weight)
         nn.init.zeros_(head.bias)
 
     def config(self) -> dict:
-        return dict(pattern=self.pattern, adc_bits=self.adc_bits, base=self.base_width, depth=self.depth,
-                    pack=self.pack, arch=self.arch, blocks=self.blocks, position=self.position,
-                    residual=self.residual)
+        return dict(
+            pattern=self.pattern,
+            adc_bits=self.adc_bits,
+            base=self.base_width,
+            depth=self.depth,
+            pack=self.pack,
+            arch=self.arch,
+            blocks=self.blocks,
+            position=self.position,
+            residual=self.residual,
+        )
 
     def calibrate(self, preset) -> "SoftwareISP":
         """Set the classical path from the camera's sensor preset (its black level, gain and
@@ -104,7 +125,7 @@ class SoftwareISP(nn.Module):
         if h % 2 or w % 2:
             raise ValueError(f"the software ISP needs whole CFA periods (even H and W), got {h}x{w}")
         base = self.classical(raw_dn)
-        feats = [raw_dn / (2.0 ** self.adc_bits - 1), base]
+        feats = [raw_dn / (2.0**self.adc_bits - 1), base]
         if self.position:
             if not full_field_px:
                 raise ValueError("this software ISP sees the field position: give full_field_px")

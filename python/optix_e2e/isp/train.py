@@ -35,24 +35,25 @@ class TrainConfig:
     pool: int = 3072
     refresh_every: int = 1500
     lr: float = 1e-3
-    clip_grad: float = 0.5           # max gradient norm per step
-    perceptual_weight: float = 0.1   # weight of (1 - HaarPSI) next to L1
-    crop: int = 4                    # border pixels left out of loss and metrics
+    clip_grad: float = 0.5  # max gradient norm per step
+    perceptual_weight: float = 0.1  # weight of (1 - HaarPSI) next to L1
+    crop: int = 4  # border pixels left out of loss and metrics
     base: int = 32
     depth: int = 3
     seed: int = 0
-    minutes: float = 0.0             # stop after this wall time (0 = run all steps)
+    minutes: float = 0.0  # stop after this wall time (0 = run all steps)
     val_every: int = 250
     val_size: int = 128
-    threads: int = 0                 # torch threads (0 = torch's default)
+    threads: int = 0  # torch threads (0 = torch's default)
 
 
 def _crop(x: torch.Tensor, c: int) -> torch.Tensor:
-    return x[..., c:x.shape[-2] - c, c:x.shape[-1] - c] if c else x
+    return x[..., c : x.shape[-2] - c, c : x.shape[-1] - c] if c else x
 
 
-def cosine_lr(lr: float, step: int, steps: int, minutes_done: float = 0.0, anneal_minutes: float = 0.0,
-              final: float = 0.02) -> float:
+def cosine_lr(
+    lr: float, step: int, steps: int, minutes_done: float = 0.0, anneal_minutes: float = 0.0, final: float = 0.02
+) -> float:
     """Cosine decay from ``lr`` to ``final`` x ``lr`` over ``steps``, or over ``anneal_minutes``
     of training when those run out first (so a time-boxed CPU run still anneals)."""
     frac = step / max(steps, 1)
@@ -80,8 +81,7 @@ def validate(model, pool: data.Pool, crop: int, batch: int = 16, kind: str = "pr
     return {"psnr_db": float(torch.cat(ps).mean()), "ssim": float(torch.cat(ss).mean())}
 
 
-def train_proxy(cfg: TrainConfig, out_dir: Path, *, init: Path | None = None,
-                progress: bool = True) -> dict:
+def train_proxy(cfg: TrainConfig, out_dir: Path, *, init: Path | None = None, progress: bool = True) -> dict:
     """Train (or continue training ``init``) and write proxy.pt, train.json and tb/ to out_dir."""
     model = ISPProxy.load(init) if init else ISPProxy(base=cfg.base, depth=cfg.depth)
     return _train(model, "proxy", cfg, Path(out_dir), progress)
@@ -135,13 +135,23 @@ def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) ->
             writer.add_scalar("train/lr", lr, step)
             history.append({"step": step, "loss": loss.item(), **val, "seconds": time.time() - t0})
             stop_if_diverged(step, out_dir / "proxy.pt", "lower --lr", proxy=model)  # before a NaN proxy.pt
-            _save(model, kind, out_dir, training={"config": asdict(cfg), "steps_done": step, "val": val},
-                  earlier_training=earlier)
+            _save(
+                model,
+                kind,
+                out_dir,
+                training={"config": asdict(cfg), "steps_done": step, "val": val},
+                earlier_training=earlier,
+            )
         if out_of_time:
             break
     bar.close()
     writer.close()
-    summary = {"steps_done": step, "seconds": round(time.time() - t0, 1), "config": asdict(cfg),
-               "final_val": history[-1] if history else None, "history": history}
+    summary = {
+        "steps_done": step,
+        "seconds": round(time.time() - t0, 1),
+        "config": asdict(cfg),
+        "final_val": history[-1] if history else None,
+        "history": history,
+    }
     (out_dir / "train.json").write_text(json.dumps(summary, indent=2))
     return summary

@@ -24,9 +24,18 @@ def _logit(u: np.ndarray) -> torch.Tensor:
     return torch.tensor(np.log(u / (1 - u)), dtype=torch.float32)
 
 
-def tune_params(proxy: ISPProxy, *, steps: int = 200, n_scenes: int = 48, size: int = 128,
-                lr: float = 0.05, perceptual_weight: float = 1.0, seed: int = 0, start: dict | None = None,
-                progress: bool = True) -> tuple[dict, list[float]]:
+def tune_params(
+    proxy: ISPProxy,
+    *,
+    steps: int = 200,
+    n_scenes: int = 48,
+    size: int = 128,
+    lr: float = 0.05,
+    perceptual_weight: float = 1.0,
+    seed: int = 0,
+    start: dict | None = None,
+    progress: bool = True,
+) -> tuple[dict, list[float]]:
     """Returns (tuned hyperparameters, loss history)."""
     proxy.eval()
     for p in proxy.parameters():
@@ -41,7 +50,8 @@ def tune_params(proxy: ISPProxy, *, steps: int = 200, n_scenes: int = 48, size: 
         idx = torch.as_tensor(rng.integers(n_scenes, size=8))
         out = proxy(raw[idx], torch.sigmoid(z))
         loss = (out - ideal[idx]).abs().mean() + perceptual_weight * metrics.perceptual_distance(
-            out.clamp(0, 1), ideal[idx]).mean()
+            out.clamp(0, 1), ideal[idx]
+        ).mean()
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -53,8 +63,10 @@ def true_isp_quality(params: dict, *, size: int = 256, photos=None, seed: int = 
     """The reference ISP's output on held-out photos against their ideal renderings."""
     names, raw, ideal = evaluate.held_out_captures(size, photos, seed)
     out = data.reference_isp()(raw, [params] * len(names))
-    per = [metrics.summarize(out[i:i + 1], ideal[i:i + 1]) for i in range(len(names))]
-    return {"psnr_db": float(np.mean([r["psnr_db"] for r in per])),
-            "ssim": float(np.mean([r["ssim"] for r in per])),
-            "haarpsi": float(np.mean([r["haarpsi"] for r in per])),
-            "per_photo": dict(zip(names, per))}
+    per = [metrics.summarize(out[i : i + 1], ideal[i : i + 1]) for i in range(len(names))]
+    return {
+        "psnr_db": float(np.mean([r["psnr_db"] for r in per])),
+        "ssim": float(np.mean([r["ssim"] for r in per])),
+        "haarpsi": float(np.mean([r["haarpsi"] for r in per])),
+        "per_photo": dict(zip(names, per)),
+    }

@@ -12,23 +12,28 @@ from torch import nn
 
 
 def _block(c_in: int, c_out: int) -> nn.Sequential:
-    return nn.Sequential(nn.Conv2d(c_in, c_out, 3, padding=1), nn.LeakyReLU(0.1, inplace=True),
-                         nn.Conv2d(c_out, c_out, 3, padding=1), nn.LeakyReLU(0.1, inplace=True))
+    return nn.Sequential(
+        nn.Conv2d(c_in, c_out, 3, padding=1),
+        nn.LeakyReLU(0.1, inplace=True),
+        nn.Conv2d(c_out, c_out, 3, padding=1),
+        nn.LeakyReLU(0.1, inplace=True),
+    )
 
 
 class UNet(nn.Module):
     def __init__(self, in_channels: int, out_channels: int = 3, base: int = 32, depth: int = 3):
         super().__init__()
-        widths = [base * 2 ** i for i in range(depth + 1)]
+        widths = [base * 2**i for i in range(depth + 1)]
         self.depth = depth
-        self.down = nn.ModuleList([_block(in_channels, widths[0])] +
-                                  [_block(widths[i], widths[i + 1]) for i in range(depth)])
+        self.down = nn.ModuleList(
+            [_block(in_channels, widths[0])] + [_block(widths[i], widths[i + 1]) for i in range(depth)]
+        )
         self.up = nn.ModuleList([_block(widths[i + 1] + widths[i], widths[i]) for i in reversed(range(depth))])
         self.head = nn.Conv2d(widths[0], out_channels, 1)
         self.config = dict(in_channels=in_channels, out_channels=out_channels, base=base, depth=depth)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        step = 2 ** self.depth
+        step = 2**self.depth
         if x.shape[-1] % step or x.shape[-2] % step:
             raise ValueError(f"UNet input H and W must be multiples of {step}, got {tuple(x.shape[-2:])}")
         skips = []

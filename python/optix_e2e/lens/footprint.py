@@ -8,8 +8,15 @@ from typing import Sequence
 import numpy as np
 
 
-def ray_footprint(lens_json: str, n_surfaces: int, fields_deg: Sequence[float],
-                  wavelengths_nm: Sequence[float], px, py, aiming: str = "paraxial") -> np.ndarray:
+def ray_footprint(
+    lens_json: str,
+    n_surfaces: int,
+    fields_deg: Sequence[float],
+    wavelengths_nm: Sequence[float],
+    px,
+    py,
+    aiming: str = "paraxial",
+) -> np.ndarray:
     """(n_surfaces,) largest radial height of the pupil rays (px, py) of every field and
     wavelength at each surface (0 where no ray gets there).
 

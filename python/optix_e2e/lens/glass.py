@@ -75,16 +75,21 @@ _POLYMERS = {
     "polystyrene": ("polystyrene", "organic/(C8H8)n - polystyrene/nk/Sultanova.yml"),
 }
 # Zemax's MISC catalog spells the plastics POLYCARB and POLYSTYR.
-_ALIASES = {"acrylic": "pmma", "pc": "polycarbonate", "ps": "polystyrene",
-            "polycarb": "polycarbonate", "polystyr": "polystyrene"}
+_ALIASES = {
+    "acrylic": "pmma",
+    "pc": "polycarbonate",
+    "ps": "polystyrene",
+    "polycarb": "polycarbonate",
+    "polystyr": "polystyrene",
+}
 
 
 # Crystals and fused silica of Zemax's INFRARED and MISC catalogs (both carry them).
 _CRYSTALS = {
-    "F_SILICA": "main/SiO2/nk/Malitson.yml",   # Zemax's F_SILICA is Malitson's fused silica
+    "F_SILICA": "main/SiO2/nk/Malitson.yml",  # Zemax's F_SILICA is Malitson's fused silica
     "CAF2": "main/CaF2/nk/Malitson.yml",
     "BAF2": "main/BaF2/nk/Malitson.yml",
-    "MGF2": "main/MgF2/nk/Dodge-o.yml",        # ordinary ray
+    "MGF2": "main/MgF2/nk/Dodge-o.yml",  # ordinary ray
     "SAPPHIRE": "main/Al2O3/nk/Malitson-o.yml",  # ordinary ray
     "GERMANIUM": "main/Ge/nk/Burnett.yml",
     "SILICON": "main/Si/nk/Salzberg.yml",
@@ -120,8 +125,10 @@ def _agf_sellmeier(kl: tuple, range_um: tuple, source: str) -> tuple:
 _LIGHTPATH_AGF = "Zemax LIGHTPATH.AGF (github.com/nzhagen/zemaxglass, AGF_files/lightpath.agf)"
 _RPO_AGF = "Zemax RPO.AGF of 2009-02-25 (github.com/nzhagen/zemaxglass, AGF_files/rpo.agf)"
 _MISC_AGF = "Zemax MISC.AGF (github.com/nzhagen/zemaxglass, misc.agf)"
-_SCHOTT_OLD_AGF = ("Zemax SCHOTT.AGF of 2008-02-26 with the obsolete glasses "
-                   "(github.com/dragonleopardpig/Kraken-Optical-Simulator, KrakenOS/Cat/SCHOTT-2.AGF)")
+_SCHOTT_OLD_AGF = (
+    "Zemax SCHOTT.AGF of 2008-02-26 with the obsolete glasses "
+    "(github.com/dragonleopardpig/Kraken-Optical-Simulator, KrakenOS/Cat/SCHOTT-2.AGF)"
+)
 
 #: Zemax catalog -> {Zemax name: page of the database (relative to its data folder), or a
 #: ("formula", n, coefficients, range_um, source) entry where the database lacks the material}.
@@ -129,10 +136,15 @@ _SCHOTT_OLD_AGF = ("Zemax SCHOTT.AGF of 2008-02-26 with the obsolete glasses "
 ZEMAX_NAMES: dict[str, dict[str, "str | tuple"]] = {
     "infrared": dict(_CRYSTALS),
     # ACRYLIC: Zemax's own formula (nd 1.491668); a bare "acrylic" stays the database's PMMA.
-    "misc": {**_CRYSTALS, "AL2O3": "main/Al2O3/nk/Malitson-o.yml",
-             "ACRYLIC": _agf_schott(
-                 (2.16330492, 0.0136580764, 0.0256700975, -0.00280976174, 0.0002842279, -9.02124935e-06),
-                 (0.365, 1.014), f"{_MISC_AGF}: ACRYLIC, nd 1.491668, vd 55.31")},
+    "misc": {
+        **_CRYSTALS,
+        "AL2O3": "main/Al2O3/nk/Malitson-o.yml",
+        "ACRYLIC": _agf_schott(
+            (2.16330492, 0.0136580764, 0.0256700975, -0.00280976174, 0.0002842279, -9.02124935e-06),
+            (0.365, 1.014),
+            f"{_MISC_AGF}: ACRYLIC, nd 1.491668, vd 55.31",
+        ),
+    },
     # Corning HPFS 7980 is synthetic fused silica (Corning's data sheet: nd 1.4584).
     "corning": {"C79-80": "main/SiO2/nk/Malitson.yml", "C7980": "main/SiO2/nk/Malitson.yml"},
     # LightPath's catalog: its own glasses, and the CDGM glasses it presses (D-ZK3M,
@@ -142,54 +154,84 @@ ZEMAX_NAMES: dict[str, dict[str, "str | tuple"]] = {
         "BD2": "specs/lightpath/infrared/BD-2.yml",
         "ECO550": _agf_schott(
             (2.52780621, -0.00782886154, 0.0171870201, 0.000300693162, 8.66557318e-06, 2.58488712e-07),
-            (0.4, 1.55), f"{_LIGHTPATH_AGF}: ECO550, nd 1.605503, vd 50.28"),
+            (0.4, 1.55),
+            f"{_LIGHTPATH_AGF}: ECO550, nd 1.605503, vd 50.28",
+        ),
         "ECO550M": _agf_schott(
             (2.52035773, -0.00825366386, 0.0165830522, 0.000476837067, -1.50343126e-05, 1.4015069e-06),
-            (0.365, 1.9701), f"{_LIGHTPATH_AGF}: ECO550M, nd 1.602897, vd 50.02"),
+            (0.365, 1.9701),
+            f"{_LIGHTPATH_AGF}: ECO550M, nd 1.602897, vd 50.02",
+        ),
         "ECO550_E": _agf_schott(
             (2.50983687, 1.51635542e-06, 0.0148303868, 0.000981490801, 3.23688017e-06, 7.98861178e-08),
-            (0.25, 2.05), f"{_LIGHTPATH_AGF}: ECO550_E, nd 1.600348, vd 47.14"),
+            (0.25, 2.05),
+            f"{_LIGHTPATH_AGF}: ECO550_E, nd 1.600348, vd 47.14",
+        ),
         "C0550": _agf_schott(
             (2.5275, -0.00824759, 0.0161384, 0.000710762, -7.35332e-05, 6.55454e-06),
-            (0.32, 1.7), f"{_LIGHTPATH_AGF}: C0550, nd 1.605004, vd 50.42"),
+            (0.32, 1.7),
+            f"{_LIGHTPATH_AGF}: C0550, nd 1.605004, vd 50.42",
+        ),
         "PBH71": _agf_sellmeier(
             (1.97039844, 0.0155780448, 0.520330498, 0.0632642123, 1.30696186, 142.045097),
-            (0.3, 2.4), f"{_LIGHTPATH_AGF}: PBH71, nd 1.922864, vd 21.29"),
+            (0.3, 2.4),
+            f"{_LIGHTPATH_AGF}: PBH71, nd 1.922864, vd 21.29",
+        ),
         "D-ZK3M": _agf_schott(
             (2.481845, -0.01213254, 0.01179439, 0.000804573, -9.005814e-05, 4.898641e-06),
-            (0.365, 2.325), f"{_LIGHTPATH_AGF}: D-ZK3M, nd 1.586420, vd 60.71"),
+            (0.365, 2.325),
+            f"{_LIGHTPATH_AGF}: D-ZK3M, nd 1.586420, vd 60.71",
+        ),
         "D-ZLAF52LAM": _agf_schott(
             (3.1607213, -0.0084677629, 0.037044808, -0.0010934271, 0.000243631811, -8.9247355e-06),
-            (0.365, 2.325), f"{_LIGHTPATH_AGF}: D-ZLAF52LAM, nd 1.805885, vd 40.79"),
+            (0.365, 2.325),
+            f"{_LIGHTPATH_AGF}: D-ZLAF52LAM, nd 1.805885, vd 40.79",
+        ),
         "D-ZLAF52LA_M": _agf_schott(
             (3.1717081, -0.013708448, 0.029629026, 0.0011150095, -5.5576606e-05, 5.6941122e-06),
-            (0.36, 1.55), f"{_LIGHTPATH_AGF}: D-ZLAF52LA_M (Ver. 2), nd 1.805881, vd 40.89"),
+            (0.36, 1.55),
+            f"{_LIGHTPATH_AGF}: D-ZLAF52LA_M (Ver. 2), nd 1.805881, vd 40.89",
+        ),
     },
     # RPO's molded CDGM glasses, with RPO's data for the molded glass.
     "rpo": {
         "D-LAK6_MOLD": _agf_schott(
             (2.80532992, -0.0177972005, 0.0169077957, 0.000786545091, -2.23253554e-05, -5.36623399e-08),
-            (0.365, 1.1), f"{_RPO_AGF}: D-LAK6_MOLD, nd 1.689442, vd 52.83"),
+            (0.365, 1.1),
+            f"{_RPO_AGF}: D-LAK6_MOLD, nd 1.689442, vd 52.83",
+        ),
         "H-LAK54_MOLD": _agf_schott(
             (2.9277611, -0.0147660748, 0.0206867604, 0.000708735021, -4.16441993e-05, 2.58153901e-06),
-            (0.365, 1.692), f"{_RPO_AGF}: H-LAK54_MOLD, nd 1.728497, vd 51.10"),
+            (0.365, 1.692),
+            f"{_RPO_AGF}: H-LAK54_MOLD, nd 1.728497, vd 51.10",
+        ),
     },
     # Withdrawn Schott glasses. BK7 (replaced by N-BK7): SCHOTT's data sheet gives BK7 the
     # same Sellmeier coefficients (B1..B3, C1..C3 in um^2) as N-BK7 (nd 1.51680, vd 64.17).
     # BAFN10, BAFN11 and K3: the obsolete-glass part of Zemax's SCHOTT catalog.
     "schott": {
-        "BK7": ("formula", 2, (0.0, 1.03961212, 0.00600069867, 0.231792344, 0.0200179144,
-                               1.01046945, 103.560653), (0.3, 2.5),
-                "SCHOTT optical glass data sheet, BK7"),
+        "BK7": (
+            "formula",
+            2,
+            (0.0, 1.03961212, 0.00600069867, 0.231792344, 0.0200179144, 1.01046945, 103.560653),
+            (0.3, 2.5),
+            "SCHOTT optical glass data sheet, BK7",
+        ),
         "BAFN10": _agf_sellmeier(
             (1.60477289, 0.00947021617, 0.123762468, 0.0451639792, 1.0727052, 108.539427),
-            (0.334, 2.325), f"{_SCHOTT_OLD_AGF}: BAFN10, nd 1.670031, vd 47.11"),
+            (0.334, 2.325),
+            f"{_SCHOTT_OLD_AGF}: BAFN10, nd 1.670031, vd 47.11",
+        ),
         "BAFN11": _agf_sellmeier(
             (1.60255217, 0.00938812347, 0.116918887, 0.0440475344, 1.02861126, 104.533133),
-            (0.334, 2.325), f"{_SCHOTT_OLD_AGF}: BAFN11, nd 1.666721, vd 48.42"),
+            (0.334, 2.325),
+            f"{_SCHOTT_OLD_AGF}: BAFN11, nd 1.666721, vd 48.42",
+        ),
         "K3": _agf_sellmeier(
             (1.08999358, 0.00670233559, 0.181850015, 0.0254232565, 0.936478693, 113.486321),
-            (0.334, 2.325), f"{_SCHOTT_OLD_AGF}: K3, nd 1.518230, vd 58.98"),
+            (0.334, 2.325),
+            f"{_SCHOTT_OLD_AGF}: K3, nd 1.518230, vd 58.98",
+        ),
     },
 }
 
@@ -213,8 +255,13 @@ def _builtin(catalog: str, name: str) -> tuple:
     if isinstance(entry, tuple):
         return entry
     e = _agf_glasses()[catalog][name]
-    return ("formula", e["formula"], tuple(e["coefficients"]), tuple(e["range_um"]),
-            f"{e['source']}: {name}, nd {e['nd']}, vd {e['vd']}")
+    return (
+        "formula",
+        e["formula"],
+        tuple(e["coefficients"]),
+        tuple(e["range_um"]),
+        f"{e['source']}: {name}, nd {e['nd']}, vd {e['vd']}",
+    )
 
 
 #: How far past either end of its data a glass is extrapolated, as a fraction of the data's
@@ -273,8 +320,10 @@ class Glass:
         if not out:
             return None
         ws = ", ".join(f"{w:g}" for w in out)
-        return (f"{self.label}: data cover {lo * 1e3:g}-{hi * 1e3:g} nm; {ws} nm extrapolated "
-                f"(allowed up to {EXTRAPOLATION_FRACTION:.0%} of the span past either end)")
+        return (
+            f"{self.label}: data cover {lo * 1e3:g}-{hi * 1e3:g} nm; {ws} nm extrapolated "
+            f"(allowed up to {EXTRAPOLATION_FRACTION:.0%} of the span past either end)"
+        )
 
     def n(self, wavelength_um):
         """Refractive index evaluated in numpy (an independent check of the engine)."""
@@ -369,7 +418,7 @@ def _index() -> dict[str, list[tuple[str, str, str]]]:
             key = ((len(CATALOG_PREFERENCE) + 1, catalog), len(CLASS_PREFERENCE) + 2, rel)
             found.setdefault(name.casefold(), []).append((key, name, catalog, rel))
     for key_name, (name, rel) in _POLYMERS.items():
-        found.setdefault(key_name, []).append(((( -1, ""), 0, rel), name, "organic", rel))
+        found.setdefault(key_name, []).append((((-1, ""), 0, rel), name, "organic", rel))
     return {k: [(n, c, p) for _, n, c, p in sorted(v)] for k, v in found.items()}
 
 
@@ -400,7 +449,7 @@ def resolve(name: str | dict, catalog: str | None = None) -> Glass:
     if isinstance(name, dict):
         unknown = set(name) - {"glass", "catalog"}
         if "glass" not in name or unknown:
-            raise GlassError(f"a catalog glass is {{\"glass\": NAME, \"catalog\": VENDOR}}, got {name!r}")
+            raise GlassError(f'a catalog glass is {{"glass": NAME, "catalog": VENDOR}}, got {name!r}')
         name, catalog = name["glass"], name.get("catalog", catalog)
     if not isinstance(name, str) or not name.strip():
         raise GlassError(f"glass name must be a non-empty string, got {name!r}")

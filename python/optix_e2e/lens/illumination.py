@@ -10,6 +10,7 @@ irradiance there. Sample points come from a scrambled Sobol sequence (seeded), s
 runs agree. ``tracer="optiland"`` traces the same rays with optiland (a test dependency),
 an independent ray tracer.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -37,9 +38,14 @@ def _optiland_tracer(lens: Lens, wavelength_nm: float):
     o.surfaces.add(index=0, radius=np.inf, thickness=np.inf)
     for i, s in enumerate(lens.surfaces, 1):
         r = s.get("radius", "inf")
-        kw = dict(index=i, radius=np.inf if r == "inf" else float(r), thickness=float(s["thickness"]),
-                  material="air" if n[i] == 1.0 else IdealMaterial(float(n[i])),
-                  is_stop=bool(s.get("stop")), conic=float(s.get("conic", 0.0)))
+        kw = dict(
+            index=i,
+            radius=np.inf if r == "inf" else float(r),
+            thickness=float(s["thickness"]),
+            material="air" if n[i] == 1.0 else IdealMaterial(float(n[i])),
+            is_stop=bool(s.get("stop")),
+            conic=float(s.get("conic", 0.0)),
+        )
         if s.get("aspheric"):
             a = s["aspheric"]
             kw.update(surface_type="even_asphere", coefficients=[a.get(f"a{2 * k}", 0.0) for k in range(1, 11)])
@@ -53,11 +59,20 @@ def _optiland_tracer(lens: Lens, wavelength_nm: float):
     o.wavelengths.add(value=wavelength_nm / 1000.0, is_primary=True)
 
     def trace(origins: np.ndarray, dirs: np.ndarray):
-        rays = RealRays(x=origins[:, 0], y=origins[:, 1], z=origins[:, 2], L=dirs[:, 0], M=dirs[:, 1], N=dirs[:, 2],
-                        intensity=np.ones(len(origins)), wavelength=np.full(len(origins), wavelength_nm / 1000.0))
+        rays = RealRays(
+            x=origins[:, 0],
+            y=origins[:, 1],
+            z=origins[:, 2],
+            L=dirs[:, 0],
+            M=dirs[:, 1],
+            N=dirs[:, 2],
+            intensity=np.ones(len(origins)),
+            wavelength=np.full(len(origins), wavelength_nm / 1000.0),
+        )
         o.surfaces.trace(rays)
         x, y, i = (np.asarray(v, dtype=float) for v in (rays.x, rays.y, rays.i))
         return x, y, np.isfinite(x) & np.isfinite(y) & (i > 0)
+
     return trace
 
 
@@ -70,12 +85,23 @@ def _engine_tracer(lens: Lens, wavelength_nm: float):
         t = engine.trace(text, origins=origins, directions=dirs, wavelength_nm=wavelength_nm)
         ok = t["status"] == 0
         return t["position"][:, 0], t["position"][:, 1], ok
+
     return trace
 
 
-def irradiance_count(lens: Lens, field_deg: float, wavelength_nm: float, *, n_rays: int = 2 ** 21,
-                     box_um: float = 100.0, cone_mrad: float | None = None, tracer: str = "engine",
-                     aiming: str = "paraxial", seed: int = 0, chunk: int = 2 ** 18) -> dict:
+def irradiance_count(
+    lens: Lens,
+    field_deg: float,
+    wavelength_nm: float,
+    *,
+    n_rays: int = 2**21,
+    box_um: float = 100.0,
+    cone_mrad: float | None = None,
+    tracer: str = "engine",
+    aiming: str = "paraxial",
+    seed: int = 0,
+    chunk: int = 2**18,
+) -> dict:
     """Image irradiance (flux per mm^2 for unit radiance) at the chief ray's image point,
     counted from `n_rays` rays, and the count of rays in the box (its relative statistical
     uncertainty is about 1/sqrt(count)). `box_um`: side of the counting box; `cone_mrad`:
@@ -111,7 +137,7 @@ def irradiance_count(lens: Lens, field_deg: float, wavelength_nm: float, *, n_ra
         else:
             qx, qy = (2 * u[:, 0] - 1) * half_pupil, (2 * u[:, 1] - 1) * half_pupil
         dl, dm = l0 + (2 * u[:, 2] - 1) * delta, m0 + (2 * u[:, 3] - 1) * delta
-        dn = np.sqrt(1 - dl ** 2 - dm ** 2)
+        dn = np.sqrt(1 - dl**2 - dm**2)
         dirs = np.stack([dl, dm, dn], axis=1)
         s = (z_launch - ze) / dn
         origins = np.stack([qx + s * dl, qy + s * dm, np.full(k, z_launch)], axis=1)
@@ -128,5 +154,8 @@ def relative_illumination_count(lens: Lens, field_deg: float, wavelength_nm: flo
     here = irradiance_count(lens, field_deg, wavelength_nm, **kw)
     axis = irradiance_count(lens, 0.0, wavelength_nm, **kw)
     ri = here["irradiance"] / axis["irradiance"]
-    return {"relative_illumination": ri, "sigma": float(np.sqrt(1 / max(here["count"], 1) + 1 / max(axis["count"], 1))),
-            "counts": [here["count"], axis["count"]]}
+    return {
+        "relative_illumination": ri,
+        "sigma": float(np.sqrt(1 / max(here["count"], 1) + 1 / max(axis["count"], 1))),
+        "counts": [here["count"], axis["count"]],
+    }

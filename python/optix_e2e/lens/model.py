@@ -20,10 +20,12 @@ __all__ = ["Lens", "LensLoadError", "bundled_lenses", "DEFAULT_RGB_CHANNELS"]
 
 BUNDLED_DIR = Path(__file__).resolve().parent.parent / "bundled"
 #: Bundled lens name -> its shipped surrogate checkpoint in BUNDLED_DIR (optix_e2e.surrogate).
-BUNDLED_SURROGATES = {"paper-triplet-v1": "surrogate_paper_triplet.pt",
-                      "paper-triplet-e2e": "surrogate_paper_triplet_e2e.pt",  # the space, not a lens
-                      "paper-triplet-detect": "surrogate_paper_triplet_detect.pt",  # e2e + the f-number
-                      "apo-gauss-8e-mv": "surrogate_apo_gauss_8e_mv.pt"}  # the eight-element experiment
+BUNDLED_SURROGATES = {
+    "paper-triplet-v1": "surrogate_paper_triplet.pt",
+    "paper-triplet-e2e": "surrogate_paper_triplet_e2e.pt",  # the space, not a lens
+    "paper-triplet-detect": "surrogate_paper_triplet_detect.pt",  # e2e + the f-number
+    "apo-gauss-8e-mv": "surrogate_apo_gauss_8e_mv.pt",
+}  # the eight-element experiment
 
 #: Default sensor channels (R, G, B): three wavelengths each, weights ~ a smooth
 #: spectral response.  Used when a lens does not list exactly three wavelengths or when
@@ -86,9 +88,11 @@ def _surfaces_crossing_in_beam(data: dict) -> str | None:
         j = np.flatnonzero(gap < -1e-9)
         if len(j):
             k = int(j[0])
-            return (f"surfaces {i + 1} and {i + 2} cross at height {r[k]:.3g} mm, inside the beam (thickness "
-                    f"{float(a['thickness']):g} mm leaves a gap of {gap[k]:.3g} mm there; the beam's paraxial "
-                    f"radius is {min(ha, hb):.3g} mm)")
+            return (
+                f"surfaces {i + 1} and {i + 2} cross at height {r[k]:.3g} mm, inside the beam (thickness "
+                f"{float(a['thickness']):g} mm leaves a gap of {gap[k]:.3g} mm there; the beam's paraxial "
+                f"radius is {min(ha, hb):.3g} mm)"
+            )
     return None
 
 
@@ -125,7 +129,9 @@ class Lens:
             return cls.from_file(BUNDLED_DIR / f"{spec}.json", source=f"bundled lens {spec!r}")
         if path.suffix.lower() in (".json", ".zmx") or path.parent != Path("."):
             raise LensLoadError(f"{spec}: no such lens file")
-        raise LensLoadError(f"{spec!r} is neither a lens file nor a bundled lens (bundled: {', '.join(bundled_lenses())})")
+        raise LensLoadError(
+            f"{spec!r} is neither a lens file nor a bundled lens (bundled: {', '.join(bundled_lenses())})"
+        )
 
     @classmethod
     def from_file(cls, path: "str | Path", source: str | None = None, *, strict: bool = True) -> "Lens":
@@ -148,8 +154,9 @@ class Lens:
         except UnicodeDecodeError as exc:
             line = raw.count(b"\n", 0, exc.start) + 1
             col = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
-            raise LensLoadError(f"{path}:{line}:{col}: not UTF-8 text (byte 0x{raw[exc.start]:02x}); "
-                                f"save the lens file as UTF-8") from None
+            raise LensLoadError(
+                f"{path}:{line}:{col}: not UTF-8 text (byte 0x{raw[exc.start]:02x}); save the lens file as UTF-8"
+            ) from None
         try:
             data = json.loads(text)
         except json.JSONDecodeError as exc:
@@ -173,8 +180,14 @@ class Lens:
 
         t = np.linspace(0.0, 2 * np.pi, n_rim, endpoint=False)
         try:
-            h = ray_footprint(self.to_engine_json(), len(self.surfaces) + 1, self.fields_deg, self.wavelengths_nm,
-                              np.append(np.sin(t), 0.0), np.append(np.cos(t), 0.0))
+            h = ray_footprint(
+                self.to_engine_json(),
+                len(self.surfaces) + 1,
+                self.fields_deg,
+                self.wavelengths_nm,
+                np.append(np.sin(t), 0.0),
+                np.append(np.cos(t), 0.0),
+            )
         except Exception:  # noqa: BLE001 - a lens the engine cannot trace (afocal, say) still exports
             return [0.0] * (len(self.surfaces) + 1)  # DIAM 0: automatic, size unknown
         return [float(v) * 1.01 for v in h]
@@ -244,7 +257,9 @@ class Lens:
         if mode == "lens":
             pairs = sorted(zip(self.wavelengths_nm, self.wavelength_weights), reverse=True)
             if len(pairs) != 3:
-                raise PrescriptionError(f"{self.source}: channel mode 'lens' needs exactly 3 wavelengths, lens has {len(pairs)}")
+                raise PrescriptionError(
+                    f"{self.source}: channel mode 'lens' needs exactly 3 wavelengths, lens has {len(pairs)}"
+                )
             return [[p] for p in pairs]
         if mode == "rgb":
             return [list(c) for c in DEFAULT_RGB_CHANNELS]
@@ -280,24 +295,31 @@ class Lens:
     def paraxial(self, wavelength_nm: float | None = None) -> dict[str, float]:
         return self._engine_call(engine.paraxial, wavelength_nm=wavelength_nm)
 
-    def trace_field(self, field_deg: float, px, py, wavelength_nm: float | None = None,
-                    aiming: str = "paraxial") -> dict[str, np.ndarray]:
+    def trace_field(
+        self, field_deg: float, px, py, wavelength_nm: float | None = None, aiming: str = "paraxial"
+    ) -> dict[str, np.ndarray]:
         wl = self.primary_wavelength_nm if wavelength_nm is None else wavelength_nm
-        return self._engine_call(engine.trace_field, field_deg=field_deg, px=px, py=py, wavelength_nm=wl,
-                                 aiming=aiming)
+        return self._engine_call(engine.trace_field, field_deg=field_deg, px=px, py=py, wavelength_nm=wl, aiming=aiming)
 
-    def spot(self, field_deg: float, wavelengths_nm: Sequence[float] | None = None,
-             weights: Sequence[float] | None = None, rings: int = 64,
-             aiming: str = "paraxial") -> dict[str, Any]:
+    def spot(
+        self,
+        field_deg: float,
+        wavelengths_nm: Sequence[float] | None = None,
+        weights: Sequence[float] | None = None,
+        rings: int = 64,
+        aiming: str = "paraxial",
+    ) -> dict[str, Any]:
         """Spot statistics; by default polychromatic over the lens's wavelengths and weights."""
         if wavelengths_nm is None:
             wavelengths_nm = self.wavelengths_nm
             weights = self.wavelength_weights if weights is None else weights
-        return self._engine_call(engine.spot, field_deg=field_deg, wavelengths_nm=wavelengths_nm, weights=weights,
-                                 rings=rings, aiming=aiming)
+        return self._engine_call(
+            engine.spot, field_deg=field_deg, wavelengths_nm=wavelengths_nm, weights=weights, rings=rings, aiming=aiming
+        )
 
-    def wavefront(self, field_deg: float, rings: int = 8, arms: int = 16, tilt: str = "wavelength",
-                  aiming: str = "paraxial") -> dict[str, Any]:
+    def wavefront(
+        self, field_deg: float, rings: int = 8, arms: int = 16, tilt: str = "wavelength", aiming: str = "paraxial"
+    ) -> dict[str, Any]:
         """RMS wavefront error (waves) of a field over the lens's wavelengths: OPD against the
         chief ray's reference sphere, piston removed per wavelength, tilt per wavelength
         (Zemax's centroid reference) or per field; a Gaussian quadrature of ``rings`` x
@@ -305,8 +327,17 @@ class Lens:
         wavelength-weighted quadratic mean."""
         px, py, pw = pupil_quadrature(rings, arms)
         ww = np.asarray(self.wavelength_weights, float)
-        out = self._engine_call(engine.wavefront, field_deg=field_deg, px=px, py=py, weights=pw,
-                                wavelengths_nm=self.wavelengths_nm, wavelength_weights=ww, aiming=aiming, tilt=tilt)
+        out = self._engine_call(
+            engine.wavefront,
+            field_deg=field_deg,
+            px=px,
+            py=py,
+            weights=pw,
+            wavelengths_nm=self.wavelengths_nm,
+            wavelength_weights=ww,
+            aiming=aiming,
+            tilt=tilt,
+        )
         out["rms_waves_poly"] = float(np.sqrt(np.sum(ww * np.asarray(out["rms_waves"]) ** 2) / ww.sum()))
         return out
 
@@ -321,11 +352,11 @@ class Lens:
             # paraxial curvature: an r^2 aspheric term adds 2 a2
             c = curvature(surf) + 2.0 * float((surf.get("aspheric") or {}).get("a2", 0.0))
             total += (n[i + 1] - n[i]) * c / (n[i] * n[i + 1])
-        return {"petzval_sum_per_mm": total,
-                "petzval_radius_mm": -1.0 / (n[-1] * total) if total != 0 else math.inf}
+        return {"petzval_sum_per_mm": total, "petzval_radius_mm": -1.0 / (n[-1] * total) if total != 0 else math.inf}
 
-    def psf(self, field_deg: float, wavelength_nm: float | None = None, method: str = "fft",
-            **kwargs) -> tuple[np.ndarray, dict[str, Any]]:
+    def psf(
+        self, field_deg: float, wavelength_nm: float | None = None, method: str = "fft", **kwargs
+    ) -> tuple[np.ndarray, dict[str, Any]]:
         """Monochromatic PSF; keyword arguments as :func:`optix_e2e.engine.psf`.  ``method``
         "auto" picks the cheapest method and sampling predicted to meet
         ``accuracy`` (relative L1, default 0.02) and records its choice under ``"auto"``."""

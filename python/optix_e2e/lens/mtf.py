@@ -56,8 +56,9 @@ def diffraction_mtf(freq_cyc_mm, wavelength_nm: float, f_number: float) -> np.nd
     return 2.0 / np.pi * (np.arccos(v) - v * np.sqrt(1.0 - v * v))
 
 
-def otf_1d(psf: np.ndarray, pixel_um: float, freq_cyc_mm, axis: str, offset_mm: float = 0.0,
-           total: float | None = None) -> np.ndarray:
+def otf_1d(
+    psf: np.ndarray, pixel_um: float, freq_cyc_mm, axis: str, offset_mm: float = 0.0, total: float | None = None
+) -> np.ndarray:
     """Complex OTF along ``axis`` ("x": sagittal, "y": tangential) of a PSF whose pixel
     (size//2, size//2) lies at ``offset_mm`` along that axis.
 
@@ -99,8 +100,14 @@ def psf_sampling(lens, wavelengths_nm: Sequence[float], pupil_samples: int = 64)
     lam_min_um = min(wavelengths_nm) * 1e-3
     pixel_um = lam_min_um * n_f / 4.0
     size = int(WINDOW_FRACTION * 4 * pupil_samples) // 2 * 2
-    return {"pixel_um": pixel_um, "size": size, "pupil_samples": pupil_samples, "f_number": n_f,
-            "window_um": pixel_um * size, "grid_nyquist_cyc_mm": 1e3 / (2 * pixel_um)}
+    return {
+        "pixel_um": pixel_um,
+        "size": size,
+        "pupil_samples": pupil_samples,
+        "f_number": n_f,
+        "window_um": pixel_um * size,
+        "grid_nyquist_cyc_mm": 1e3 / (2 * pixel_um),
+    }
 
 
 def _sized_psf(lens, field_deg: float, wl: float, samp: dict, aiming: str, method: str = "fft"):
@@ -116,8 +123,9 @@ def _sized_psf(lens, field_deg: float, wl: float, samp: dict, aiming: str, metho
     while True:
         size = int(WINDOW_FRACTION * 4 * n_pupil) // 2 * 2
         try:
-            psf, d = lens.psf(field_deg, wl, method, pixel_um=p_um, size=size, pupil_samples=n_pupil,
-                              aiming=aiming, integrate=False)
+            psf, d = lens.psf(
+                field_deg, wl, method, pixel_um=p_um, size=size, pupil_samples=n_pupil, aiming=aiming, integrate=False
+            )
         except engine.PsfError as err:
             if method != "fft":
                 raise
@@ -126,10 +134,13 @@ def _sized_psf(lens, field_deg: float, wl: float, samp: dict, aiming: str, metho
             # at the first window (as a Huygens request keeps it, see below).
             method, n_pupil = "huygens", samp["pupil_samples"]
             size = int(WINDOW_FRACTION * 4 * n_pupil) // 2 * 2
-            psf, d = lens.psf(field_deg, wl, method, pixel_um=p_um, size=size, pupil_samples=n_pupil,
-                              aiming=aiming, integrate=False)
-            d = {**d, "warnings": [f"FFT PSF refused ({str(err).split(' (')[0]}); Huygens PSF used",
-                                   *d.get("warnings", [])]}
+            psf, d = lens.psf(
+                field_deg, wl, method, pixel_um=p_um, size=size, pupil_samples=n_pupil, aiming=aiming, integrate=False
+            )
+            d = {
+                **d,
+                "warnings": [f"FFT PSF refused ({str(err).split(' (')[0]}); Huygens PSF used", *d.get("warnings", [])],
+            }
         extent = max(float(d.get("spot_extent_x_um", 0.0)), float(d.get("spot_extent_y_um", 0.0)))
         need = extent / (0.85 * 0.5 * size * p_um)
         # Diffraction spreads light past the rays: also grow while the window holds
@@ -141,8 +152,17 @@ def _sized_psf(lens, field_deg: float, wl: float, samp: dict, aiming: str, metho
         if method == "huygens":
             need = 0.0
         if need <= 1.0 or n_pupil >= MAX_PUPIL_SAMPLES:
-            return psf, d, {"pupil_samples": n_pupil, "size": size, "window_um": size * p_um, "spot_extent_um": extent,
-                            "method": method}
+            return (
+                psf,
+                d,
+                {
+                    "pupil_samples": n_pupil,
+                    "size": size,
+                    "window_um": size * p_um,
+                    "spot_extent_um": extent,
+                    "method": method,
+                },
+            )
         n_pupil = min(MAX_PUPIL_SAMPLES, n_pupil * 2 ** math.ceil(math.log2(need)))
 
 
@@ -151,10 +171,17 @@ def default_frequencies(wavelengths_nm: Sequence[float], f_number: float, n: int
     return np.linspace(0.0, 1.0 / (min(wavelengths_nm) * 1e-6 * f_number), n)
 
 
-def field_mtf(lens, field_deg: float, freq_cyc_mm=None, wavelengths_nm: Sequence[float] | None = None,
-              weights: Sequence[float] | None = None, aiming: str = "paraxial", pupil_samples: int = 64,
-              method: str = "fft",
-              progress: Callable[[str], Any] | None = None) -> dict[str, Any]:
+def field_mtf(
+    lens,
+    field_deg: float,
+    freq_cyc_mm=None,
+    wavelengths_nm: Sequence[float] | None = None,
+    weights: Sequence[float] | None = None,
+    aiming: str = "paraxial",
+    pupil_samples: int = 64,
+    method: str = "fft",
+    progress: Callable[[str], Any] | None = None,
+) -> dict[str, Any]:
     """Tangential and sagittal MTF of one field, polychromatic and per wavelength, from
     FFT PSFs (``method="huygens"``: Huygens PSFs, the reference where the FFT's
     assumptions break, e.g. strongly distorted exit pupils at large fields).
@@ -177,13 +204,17 @@ def field_mtf(lens, field_deg: float, freq_cyc_mm=None, wavelengths_nm: Sequence
     if any(w < 0 for w in weights) or sum(weights) <= 0:
         raise ValueError(f"wavelength weights must be >= 0 with a positive sum, got {weights}")
     samp = psf_sampling(lens, wavelengths_nm, pupil_samples)
-    freq = default_frequencies(wavelengths_nm, samp["f_number"]) if freq_cyc_mm is None else np.asarray(freq_cyc_mm, float)
+    freq = (
+        default_frequencies(wavelengths_nm, samp["f_number"]) if freq_cyc_mm is None else np.asarray(freq_cyc_mm, float)
+    )
     if freq.ndim != 1 or np.any(~np.isfinite(freq)) or np.any(freq < 0):
         raise ValueError("frequencies must be a 1-D list of finite values >= 0 (cycles/mm)")
     too_high = freq[freq > samp["grid_nyquist_cyc_mm"]]
     if too_high.size:
-        raise ValueError(f"{too_high.max():g} cycles/mm is beyond the PSF grid's Nyquist frequency "
-                         f"{samp['grid_nyquist_cyc_mm']:.1f} (twice the diffraction cutoff)")
+        raise ValueError(
+            f"{too_high.max():g} cycles/mm is beyond the PSF grid's Nyquist frequency "
+            f"{samp['grid_nyquist_cyc_mm']:.1f} (twice the diffraction cutoff)"
+        )
     wsum = sum(weights)
     n_w = {wl: working_f_number(lens, wl, aiming) for wl in wavelengths_nm}
     otf_t = np.zeros(freq.size, complex)
@@ -202,13 +233,32 @@ def field_mtf(lens, field_deg: float, freq_cyc_mm=None, wavelengths_nm: Sequence
         os_ = otf_1d(psf, samp["pixel_um"], freq, "x", float(d.get("chief_x_mm", 0.0)), total)
         otf_t += w / wsum * ot
         otf_s += w / wsum * os_
-        per_wl.append({"wavelength_nm": wl, "weight": w, "tangential": np.abs(ot), "sagittal": np.abs(os_),
-                       "f_number": n_w[wl], "diffraction_limit": diffraction_mtf(freq, wl, n_w[wl])})
+        per_wl.append(
+            {
+                "wavelength_nm": wl,
+                "weight": w,
+                "tangential": np.abs(ot),
+                "sagittal": np.abs(os_),
+                "f_number": n_w[wl],
+                "diffraction_limit": diffraction_mtf(freq, wl, n_w[wl]),
+            }
+        )
     dl = sum(p["weight"] / wsum * p["diffraction_limit"] for p in per_wl)
-    return {"field_deg": float(field_deg), "freq_cyc_mm": freq, "tangential": np.abs(otf_t),
-            "sagittal": np.abs(otf_s), "diffraction_limit": dl, "per_wavelength": per_wl,
-            "cutoff_cyc_mm": max(1.0 / (wl * 1e-6 * n) for wl, n in n_w.items()),
-            "method": method, "sampling": samp, "sampling_per_wavelength": sampling_used, "aiming": aiming, "strehl": strehl, "warnings": warnings}
+    return {
+        "field_deg": float(field_deg),
+        "freq_cyc_mm": freq,
+        "tangential": np.abs(otf_t),
+        "sagittal": np.abs(otf_s),
+        "diffraction_limit": dl,
+        "per_wavelength": per_wl,
+        "cutoff_cyc_mm": max(1.0 / (wl * 1e-6 * n) for wl, n in n_w.items()),
+        "method": method,
+        "sampling": samp,
+        "sampling_per_wavelength": sampling_used,
+        "aiming": aiming,
+        "strehl": strehl,
+        "warnings": warnings,
+    }
 
 
 def mtf_at(result: dict[str, Any], freq_cyc_mm: float) -> dict[str, float]:

@@ -18,12 +18,29 @@ from . import glass as _glass
 __all__ = ["PrescriptionError", "resolve_prescription"]
 
 TOP_KEYS = {
-    "name", "description", "source", "units", "aperture", "fields_deg", "wavelengths_nm",
-    "wavelength_weights", "primary_wavelength_nm", "surfaces", "image", "object_distance",
+    "name",
+    "description",
+    "source",
+    "units",
+    "aperture",
+    "fields_deg",
+    "wavelengths_nm",
+    "wavelength_weights",
+    "primary_wavelength_nm",
+    "surfaces",
+    "image",
+    "object_distance",
 }
 SURFACE_KEYS = {
-    "radius", "curvature", "thickness", "material", "conic", "aspheric",
-    "semi_diameter", "stop", "name",
+    "radius",
+    "curvature",
+    "thickness",
+    "material",
+    "conic",
+    "aspheric",
+    "semi_diameter",
+    "stop",
+    "name",
 }
 # even terms a2..a20; odd terms a1..a7 (OpticStudio's odd asphere; a1 alone is an axicon)
 ASPHERIC_KEYS = {f"a{2 * i}" for i in range(1, 11)} | {"a1", "a3", "a5", "a7"}
@@ -40,12 +57,11 @@ class _Checker:
     def fail(self, where: str, msg: str):
         raise PrescriptionError(f"{self.source}: {where}: {msg}")
 
-    def number(self, where: str, value: Any, *, positive=False, nonneg=False, length=False,
-               radius=False) -> float:
+    def number(self, where: str, value: Any, *, positive=False, nonneg=False, length=False, radius=False) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             self.fail(where, f"must be a number, got {_short(value)}")
         try:
-            value = float(value)   # an int of hundreds of digits has no float
+            value = float(value)  # an int of hundreds of digits has no float
         except OverflowError:
             self.fail(where, f"must be finite, got a {len(str(abs(value)))}-digit number")
         if not math.isfinite(value):
@@ -57,7 +73,7 @@ class _Checker:
         if length and abs(value) > MAX_LENGTH_MM:
             self.fail(where, f"{value:g} mm is beyond {MAX_LENGTH_MM:g} mm")
         if radius and abs(value) > MAX_RADIUS_MM:
-            self.fail(where, f"{value:g} mm is beyond {MAX_RADIUS_MM:g} mm (write \"inf\" for a plane)")
+            self.fail(where, f'{value:g} mm is beyond {MAX_RADIUS_MM:g} mm (write "inf" for a plane)')
         return float(value)
 
     def numbers(self, where: str, value: Any, **kw) -> list[float]:
@@ -101,14 +117,14 @@ def _resolve(data: Any, source: str) -> dict:
         if not isinstance(out.get(key, ""), str):
             ck.fail(key, f"must be a string, got {_short(out[key])}")
     if out.get("units", "mm") != "mm":
-        ck.fail("units", f"only \"mm\" is supported, got {out['units']!r}")
+        ck.fail("units", f'only "mm" is supported, got {out["units"]!r}')
 
     ap = out.get("aperture")
     if not isinstance(ap, dict):
-        ck.fail("aperture", "missing or not an object {\"type\": \"epd\"|\"fno\"|\"object_na\", \"value\": ...}")
+        ck.fail("aperture", 'missing or not an object {"type": "epd"|"fno"|"object_na", "value": ...}')
     ck.keys("aperture", ap, {"type", "value"})
     if ap.get("type") not in ("epd", "fno", "object_na"):
-        ck.fail("aperture.type", f"must be \"epd\", \"fno\" or \"object_na\", got {ap.get('type')!r}")
+        ck.fail("aperture.type", f'must be "epd", "fno" or "object_na", got {ap.get("type")!r}')
     ck.number("aperture.value", ap.get("value"), positive=True, length=True)
 
     # object plane to the first surface; absent, null or "inf": an object at infinity
@@ -118,8 +134,10 @@ def _resolve(data: Any, source: str) -> dict:
     finite = dist is not None and not isinstance(dist, str)
     if ap["type"] == "object_na":
         if not finite:
-            ck.fail("aperture.type", "\"object_na\" needs a finite \"object_distance\" "
-                    "(an object at infinity has no object-space NA)")
+            ck.fail(
+                "aperture.type",
+                '"object_na" needs a finite "object_distance" (an object at infinity has no object-space NA)',
+            )
         if ap["value"] >= 1:
             ck.fail("aperture.value", f"an object-space NA must be below 1 (object in air), got {ap['value']!r}")
 
@@ -149,23 +167,26 @@ def _resolve(data: Any, source: str) -> dict:
         if s.get("stop", False):
             stops.append(i)
     if len(stops) != 1:
-        ck.fail("surfaces", f"exactly one surface must have \"stop\": true, found {len(stops)}"
-                + (f" (surfaces {', '.join(str(i + 1) for i in stops)})" if stops else ""))
+        ck.fail(
+            "surfaces",
+            f'exactly one surface must have "stop": true, found {len(stops)}'
+            + (f" (surfaces {', '.join(str(i + 1) for i in stops)})" if stops else ""),
+        )
 
     image = out.get("image")
     if image is not None:
         if not isinstance(image, dict):
-            ck.fail("image", "must be an object {\"semi_diameter\": ..., \"radius\": ...}")
+            ck.fail("image", 'must be an object {"semi_diameter": ..., "radius": ...}')
         ck.keys("image", image, {"semi_diameter", "radius"})
         if image.get("semi_diameter") is not None:
             ck.number("image.semi_diameter", image["semi_diameter"], positive=True, length=True)
         r = image.get("radius")  # a curved image surface (a curved sensor); absent or "inf": flat
         if isinstance(r, str):
             if r.strip().lower() not in ("inf", "infinity"):
-                ck.fail("image.radius", f"must be a number, \"inf\" or null, got {_short(r)}")
+                ck.fail("image.radius", f'must be a number, "inf" or null, got {_short(r)}')
             image["radius"] = "inf"
         elif r is not None and ck.number("image.radius", r, radius=True) == 0:
-            ck.fail("image.radius", "must not be 0 (use \"inf\" for a flat image)")
+            ck.fail("image.radius", 'must not be 0 (use "inf" for a flat image)')
     return out
 
 
@@ -174,30 +195,30 @@ def _check_surface(ck: _Checker, where: str, s: Any):
         ck.fail(where, f"a surface is a JSON object, got {_short(s)}")
     ck.keys(where, s, SURFACE_KEYS)
     if "radius" in s and "curvature" in s:
-        ck.fail(where, "give \"radius\" or \"curvature\", not both")
+        ck.fail(where, 'give "radius" or "curvature", not both')
     if "curvature" in s:
         ck.number(f"{where} curvature", s["curvature"])
     else:
         r = s.get("radius")
         if isinstance(r, str):
             if r.strip().lower() not in ("inf", "infinity"):
-                ck.fail(f"{where} radius", f"must be a number, \"inf\" or null, got {_short(r)}")
+                ck.fail(f"{where} radius", f'must be a number, "inf" or null, got {_short(r)}')
             s["radius"] = "inf"
         elif r is not None:
             if ck.number(f"{where} radius", r, radius=True) == 0:
-                ck.fail(f"{where} radius", "must not be 0 (use \"inf\" for a plane)")
+                ck.fail(f"{where} radius", 'must not be 0 (use "inf" for a plane)')
     if "thickness" not in s:
         ck.fail(f"{where} thickness", "missing (distance to the next surface; for the last one, to the image plane)")
     ck.number(f"{where} thickness", s["thickness"], length=True)
     if "material" not in s:
-        ck.fail(f"{where} material", "missing (\"air\", a glass name or a material object)")
+        ck.fail(f"{where} material", 'missing ("air", a glass name or a material object)')
     s["material"] = _resolve_material(ck, f"{where} material", s["material"])
     if "conic" in s:
         ck.number(f"{where} conic", s["conic"])
     if "aspheric" in s:
         a = s["aspheric"]
         if not isinstance(a, dict):
-            ck.fail(f"{where} aspheric", "must be an object like {\"a4\": 1e-5, \"a6\": ...}")
+            ck.fail(f"{where} aspheric", 'must be an object like {"a4": 1e-5, "a6": ...}')
         ck.keys(f"{where} aspheric", a, ASPHERIC_KEYS)
         for k, v in a.items():
             ck.number(f"{where} aspheric.{k}", v)
@@ -215,7 +236,7 @@ def _resolve_material(ck: _Checker, where: str, m: Any):
             return "air"
         return _catalog_glass(ck, where, m, None)
     if not isinstance(m, dict):
-        ck.fail(where, f"must be \"air\", a glass name or an object, got {_short(m)}")
+        ck.fail(where, f'must be "air", a glass name or an object, got {_short(m)}')
     if "glass" in m:
         ck.keys(where, m, {"glass", "catalog"})
         return _catalog_glass(ck, where, m["glass"], m.get("catalog"))

@@ -14,8 +14,12 @@ import unicodedata
 def printable(text: str) -> str:
     """``text`` with control and other non-printing characters written as escapes (\\x1b,
     \\u202e); letters of every script and ordinary spaces are kept."""
-    return "".join(c if c == " " or c.isprintable() or unicodedata.category(c)[0] not in "CZ"
-                   else c.encode("unicode_escape").decode("ascii") for c in text)
+    return "".join(
+        c
+        if c == " " or c.isprintable() or unicodedata.category(c)[0] not in "CZ"
+        else c.encode("unicode_escape").decode("ascii")
+        for c in text
+    )
 
 
 def display_name(path: "str | os.PathLike") -> str:

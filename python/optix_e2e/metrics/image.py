@@ -39,8 +39,16 @@ import piq
 import torch
 from torch import nn
 
-__all__ = ["psnr", "ssim", "haarpsi", "perceptual_distance", "PerceptualLoss",
-           "L1PerceptualLoss", "summarize", "HAARPSI_MIN_SIZE"]
+__all__ = [
+    "psnr",
+    "ssim",
+    "haarpsi",
+    "perceptual_distance",
+    "PerceptualLoss",
+    "L1PerceptualLoss",
+    "summarize",
+    "HAARPSI_MIN_SIZE",
+]
 
 HAARPSI_MIN_SIZE = 16  # 2 ** (scales + 1) with piq's default scales=3
 _SSIM_KERNEL = 11
@@ -74,7 +82,7 @@ def psnr(x: torch.Tensor, y: torch.Tensor, data_range: float = 1.0, crop: int = 
     """Peak signal-to-noise ratio in dB, 10 log10(data_range^2 / MSE); inf for identical images."""
     x, y, single = _prepare(x, y, crop)
     mse = (x - y).pow(2).flatten(1).mean(1)
-    return _out(10.0 * torch.log10(data_range ** 2 / mse), single)
+    return _out(10.0 * torch.log10(data_range**2 / mse), single)
 
 
 def ssim(x: torch.Tensor, y: torch.Tensor, crop: int = 0, *, downsample: bool = False) -> torch.Tensor:
@@ -87,8 +95,9 @@ def ssim(x: torch.Tensor, y: torch.Tensor, crop: int = 0, *, downsample: bool = 
     """
     x, y, single = _prepare(x, y, crop)
     if min(x.shape[-2:]) < _SSIM_KERNEL:
-        raise ValueError(f"SSIM needs images of at least {_SSIM_KERNEL}x{_SSIM_KERNEL} pixels, "
-                         f"got {x.shape[-2]}x{x.shape[-1]}")
+        raise ValueError(
+            f"SSIM needs images of at least {_SSIM_KERNEL}x{_SSIM_KERNEL} pixels, got {x.shape[-2]}x{x.shape[-1]}"
+        )
     v = piq.ssim(_clamp01(x), _clamp01(y), data_range=1.0, reduction="none", downsample=downsample)
     return _out(v, single)
 
@@ -97,8 +106,10 @@ def haarpsi(x: torch.Tensor, y: torch.Tensor, crop: int = 0) -> torch.Tensor:
     """HaarPSI similarity in (0, 1], 1 for identical images (higher is better)."""
     x, y, single = _prepare(x, y, crop)
     if min(x.shape[-2:]) < HAARPSI_MIN_SIZE:
-        raise ValueError(f"HaarPSI needs images of at least {HAARPSI_MIN_SIZE}x{HAARPSI_MIN_SIZE} "
-                         f"pixels, got {x.shape[-2]}x{x.shape[-1]}")
+        raise ValueError(
+            f"HaarPSI needs images of at least {HAARPSI_MIN_SIZE}x{HAARPSI_MIN_SIZE} "
+            f"pixels, got {x.shape[-2]}x{x.shape[-1]}"
+        )
     if x.shape[1] not in (1, 3):
         raise ValueError(f"HaarPSI takes 1 or 3 channels, got {x.shape[1]}")
     score = piq.haarpsi(_clamp01(x), _clamp01(y), data_range=1.0, reduction="none")
@@ -135,6 +146,8 @@ class L1PerceptualLoss(nn.Module):
 @torch.no_grad()
 def summarize(x: torch.Tensor, y: torch.Tensor, crop: int = 0) -> dict[str, float]:
     """Batch means as floats: {"psnr_db", "ssim", "haarpsi"} (psnr_db is inf if all identical)."""
-    return {"psnr_db": float(psnr(x, y, crop=crop).mean()),
-            "ssim": float(ssim(x, y, crop=crop).mean()),
-            "haarpsi": float(haarpsi(x, y, crop=crop).mean())}
+    return {
+        "psnr_db": float(psnr(x, y, crop=crop).mean()),
+        "ssim": float(ssim(x, y, crop=crop).mean()),
+        "haarpsi": float(haarpsi(x, y, crop=crop).mean()),
+    }

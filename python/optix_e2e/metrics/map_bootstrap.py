@@ -40,8 +40,10 @@ class MatchTable:
 
         if len(preds) != len(targets):
             raise ValueError(f"{len(preds)} detection lists for {len(targets)} images")
-        classes = sorted({int(c) for t in targets for c in t["labels"].tolist()}
-                         | {int(c) for p in preds for c in p["labels"].tolist()})
+        classes = sorted(
+            {int(c) for t in targets for c in t["labels"].tolist()}
+            | {int(c) for p in preds for c in p["labels"].tolist()}
+        )
         self.classes = classes
         self.n_images = len(targets)
         # per class: n_gt per image [N]; detections: image, score, matched per threshold [D, T]
@@ -95,13 +97,13 @@ class MatchTable:
             ctp, cfp = np.cumsum(dw * tp, 0), np.cumsum(dw * ~tp, 0)
             ap = np.zeros(len(IOU_THRESHOLDS))
             for k in range(len(IOU_THRESHOLDS)):
-                keep = dw[:, 0] > 0                  # an image drawn 0 times has no detections here
+                keep = dw[:, 0] > 0  # an image drawn 0 times has no detections here
                 tk, fk = ctp[keep, k], cfp[keep, k]
                 if not len(tk):
                     continue
                 recall = tk / n_gt
                 precision = tk / np.maximum(tk + fk, np.finfo(float).eps)
-                precision = np.maximum.accumulate(precision[::-1])[::-1]   # the envelope
+                precision = np.maximum.accumulate(precision[::-1])[::-1]  # the envelope
                 idx = np.searchsorted(recall, RECALL_POINTS, side="left")
                 ok = idx < len(recall)
                 ap[k] = np.where(ok, precision[np.minimum(idx, len(recall) - 1)], 0.0).mean()

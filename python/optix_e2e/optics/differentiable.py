@@ -38,8 +38,16 @@ class DifferentiableOptics(nn.Module):
     the middle of each range where the base lies outside it). The surrogate's weights are
     frozen (``requires_grad=False``); only the lens parameters learn."""
 
-    def __init__(self, surrogate: "OpticsSurrogate | str", init=None, *, patch: int = 64,
-                 full_field_px: float | None = None, eps: float = 1e-4, backend: str = "surrogate"):
+    def __init__(
+        self,
+        surrogate: "OpticsSurrogate | str",
+        init=None,
+        *,
+        patch: int = 64,
+        full_field_px: float | None = None,
+        eps: float = 1e-4,
+        backend: str = "surrogate",
+    ):
         super().__init__()
         if not isinstance(surrogate, OpticsSurrogate):
             surrogate = OpticsSurrogate.load(surrogate)
@@ -168,8 +176,7 @@ class DifferentiableOptics(nn.Module):
         else:  # the engine computes every field of the dataset anyway
             psf, vig = self.psfs()
             psf, vig, fields = psf[self.field_index], vig[self.field_index], fields[self.field_index]
-        return render(image, psf, fields, vig, patch=self.patch, full_field_px=self.full_field_px,
-                      offset_px=offset_px)
+        return render(image, psf, fields, vig, patch=self.patch, full_field_px=self.full_field_px, offset_px=offset_px)
 
     def exact_psfs(self) -> tuple[torch.Tensor, torch.Tensor]:
         """The exact engine's (psf, vignetting) for the current parameters, computed as the

@@ -43,49 +43,69 @@ from ..surrogate.exact import exact_arrays
 class StepChoice:
     """The chosen central-difference step of each parameter (its units), the ladder it came
     from (fractions of each parameter's range) and the estimated relative error there."""
+
     names: list[str]
     steps: np.ndarray
     ladder: list[float]
-    rel_error: np.ndarray          # |D(h_j) - D(h_j+1)| / |D(h_j)| at the chosen j, per parameter
-    curves: np.ndarray             # [P, L - 1]: that estimate at every rung
+    rel_error: np.ndarray  # |D(h_j) - D(h_j+1)| / |D(h_j)| at the chosen j, per parameter
+    curves: np.ndarray  # [P, L - 1]: that estimate at every rung
 
     def to_json(self) -> dict:
         """JSON-safe: an estimate no rung gave (the engine rejected its designs) is null."""
+
         def num(x):
             return float(x) if np.isfinite(x) else None
-        return {"names": self.names, "steps": [float(s) for s in self.steps], "ladder": self.ladder,
-                "rel_error": [num(e) for e in self.rel_error], "curves": [[num(c) for c in row] for row in self.curves]}
+
+        return {
+            "names": self.names,
+            "steps": [float(s) for s in self.steps],
+            "ladder": self.ladder,
+            "rel_error": [num(e) for e in self.rel_error],
+            "curves": [[num(c) for c in row] for row in self.curves],
+        }
 
     @classmethod
     def from_json(cls, d: dict) -> "StepChoice":
         def arr(x):
             return np.array([np.inf if e is None else e for e in x], float)
-        return cls(list(d["names"]), np.array(d["steps"], float), list(d["ladder"]), arr(d["rel_error"]),
-                   np.array([arr(row) for row in d["curves"]]))
+
+        return cls(
+            list(d["names"]),
+            np.array(d["steps"], float),
+            list(d["ladder"]),
+            arr(d["rel_error"]),
+            np.array([arr(row) for row in d["curves"]]),
+        )
 
 
 @dataclass
 class ExactOptics:
     """The engine on a surrogate's (or a dataset manifest's) terms: ``psfs(values)`` and
     ``jacobian(values)`` for raw parameter values [P] (float64 numpy)."""
+
     manifest: dict
     psf_kind: str = "psf_sensor"
     bin: int = 1
     lo: np.ndarray | None = None
     hi: np.ndarray | None = None
-    steps: np.ndarray | None = None      # per parameter (None: choose_steps on first use)
+    steps: np.ndarray | None = None  # per parameter (None: choose_steps on first use)
     step_choice: StepChoice | None = None
-    last: dict = field(default_factory=dict)   # what the last call did: designs, seconds, one-sided
+    last: dict = field(default_factory=dict)  # what the last call did: designs, seconds, one-sided
     designs_computed: int = 0
-    seconds: float = 0.0                 # engine time of every call so far
-    _cache: tuple | None = None          # (values bytes, psf, vig) of the last design computed
+    seconds: float = 0.0  # engine time of every call so far
+    _cache: tuple | None = None  # (values bytes, psf, vig) of the last design computed
 
     @classmethod
     def from_surrogate(cls, sur) -> "ExactOptics":
         if not sur.manifest:
             raise ValueError("exact optics need the surrogate's dataset manifest (its space, fields and settings)")
-        return cls(sur.manifest, sur.psf_kind, sur.bin, sur.param_min.double().cpu().numpy(),
-                   sur.param_max.double().cpu().numpy())
+        return cls(
+            sur.manifest,
+            sur.psf_kind,
+            sur.bin,
+            sur.param_min.double().cpu().numpy(),
+            sur.param_max.double().cpu().numpy(),
+        )
 
     @property
     def names(self) -> list[str]:
@@ -143,14 +163,18 @@ class ExactOptics:
         h = self.steps
         # the sides inside the ranges (a side beyond a bound is not computed: one-sided there)
         tol = 1e-12 * (hi - lo)
-        sides = [(i, s) for s in (1.0, -1.0) for i in range(p)
-                 if (v[i] + h[i] <= hi[i] + tol[i] if s > 0 else v[i] - h[i] >= lo[i] - tol[i])]
+        sides = [
+            (i, s)
+            for s in (1.0, -1.0)
+            for i in range(p)
+            if (v[i] + h[i] <= hi[i] + tol[i] if s > 0 else v[i] - h[i] >= lo[i] - tol[i])
+        ]
         rows = [v] + [v + s * h[i] * np.eye(p)[i] for i, s in sides]
         t0 = time.perf_counter()
         psf, vig, reasons = self._run(np.stack(rows))
         if psf[0] is None:
             raise self._rejected(v, reasons.get(0, "engine error"))
-        at = {side: 1 + k for k, side in enumerate(sides)}   # (parameter, sign) -> row
+        at = {side: 1 + k for k, side in enumerate(sides)}  # (parameter, sign) -> row
         jp = np.empty((p, *psf[0].shape))
         jv = np.empty((p, *vig[0].shape))
         one_sided = []
@@ -167,17 +191,22 @@ class ExactOptics:
                 jv[i] = s * (vig[k] - vig[0]) / h[i]
                 one_sided.append(self.names[i])
             else:
-                why = "; ".join(reasons[k] for k in (ku, kd) if k is not None and k in reasons) \
+                why = (
+                    "; ".join(reasons[k] for k in (ku, kd) if k is not None and k in reasons)
                     or "both outside the parameter's range"
-                raise EngineRejectedDesign(f"no derivative in {self.names[i]}: the designs at "
-                                           f"{self.names[i]} = {v[i]:.6g} +- {h[i]:.3g} are both rejected ({why})")
+                )
+                raise EngineRejectedDesign(
+                    f"no derivative in {self.names[i]}: the designs at "
+                    f"{self.names[i]} = {v[i]:.6g} +- {h[i]:.3g} are both rejected ({why})"
+                )
         self.last = {"designs": len(rows), "seconds": time.perf_counter() - t0, "one_sided": one_sided}
         self._cache = (v.reshape(1, -1).tobytes(), psf[0], vig[0])
         return psf[0], vig[0], jp, jv
 
 
-def choose_steps(engine: ExactOptics, values, ladder: tuple[float, ...] = (3e-2, 1e-2, 3e-3, 1e-3, 3e-4, 1e-4, 3e-5)
-                 ) -> StepChoice:
+def choose_steps(
+    engine: ExactOptics, values, ladder: tuple[float, ...] = (3e-2, 1e-2, 3e-3, 1e-3, 3e-4, 1e-4, 3e-5)
+) -> StepChoice:
     """Each parameter's central-difference step from a ladder of fractions of its range (one
     engine call of 2 P L designs): the rung where successive estimates agree best, i.e. where
     truncation (~h^2) and round-off (~1/h) balance. A rung whose designs the engine rejects
@@ -187,7 +216,7 @@ def choose_steps(engine: ExactOptics, values, ladder: tuple[float, ...] = (3e-2,
     width = hi - lo
     p, n_l = len(v), len(ladder)
     rows = []
-    for j, frac in enumerate(ladder):
+    for _j, frac in enumerate(ladder):
         for s in (1.0, -1.0):
             rows.append(v[None] + s * np.diag(frac * width))
     psf, vig, _ = engine._run(np.concatenate(rows))
@@ -226,8 +255,10 @@ class _ExactPSF(torch.autograd.Function):
             psf, vig = engine.psfs(v)
         ctx.dtype = values.dtype
         # copies: the engine's arrays stay in its cache
-        return (torch.tensor(psf, dtype=values.dtype, device=values.device),
-                torch.tensor(vig, dtype=values.dtype, device=values.device))
+        return (
+            torch.tensor(psf, dtype=values.dtype, device=values.device),
+            torch.tensor(vig, dtype=values.dtype, device=values.device),
+        )
 
     @staticmethod
     def backward(ctx, g_psf, g_vig):

@@ -44,12 +44,21 @@ def _polar(dy: torch.Tensor, dx: torch.Tensor, full: float) -> tuple[torch.Tenso
     return torch.hypot(yy, xx) / full, torch.atan2(xx, yy)
 
 
-def pixel_polar(h: int, w: int, full_field_px: float | None = None, *, device=None,
-                dtype=torch.float32, offset_px: tuple[float, float] = (0.0, 0.0)) -> tuple[torch.Tensor, torch.Tensor]:
+def pixel_polar(
+    h: int,
+    w: int,
+    full_field_px: float | None = None,
+    *,
+    device=None,
+    dtype=torch.float32,
+    offset_px: tuple[float, float] = (0.0, 0.0),
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Normalized field radius and azimuth (radians from +y towards +x) of pixel centres, [H, W] each."""
-    return _polar(torch.arange(h, device=device, dtype=dtype) - (h - 1) / 2 + float(offset_px[0]),
-                  torch.arange(w, device=device, dtype=dtype) - (w - 1) / 2 + float(offset_px[1]),
-                  _full_field(h, w, full_field_px))
+    return _polar(
+        torch.arange(h, device=device, dtype=dtype) - (h - 1) / 2 + float(offset_px[0]),
+        torch.arange(w, device=device, dtype=dtype) - (w - 1) / 2 + float(offset_px[1]),
+        _full_field(h, w, full_field_px),
+    )
 
 
 def interpolate_fields(values: torch.Tensor, fields: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
@@ -94,15 +103,25 @@ def _triangle(p: int, dtype, device) -> torch.Tensor:
     return 1 - (2 * n - p + 1).abs() / p  # shifted copies at hop p/2 sum to 1
 
 
-def _prepare(image: torch.Tensor, psfs: torch.Tensor, fields, vignetting: torch.Tensor | None,
-             full_field_px: float | None, offset_px=(0.0, 0.0)) -> tuple[torch.Tensor, torch.Tensor, float]:
+def _prepare(
+    image: torch.Tensor,
+    psfs: torch.Tensor,
+    fields,
+    vignetting: torch.Tensor | None,
+    full_field_px: float | None,
+    offset_px=(0.0, 0.0),
+) -> tuple[torch.Tensor, torch.Tensor, float]:
     """Checks shared by both renderers; returns (image times the relative illumination at each
     source pixel, fields as a tensor, full-field radius in pixels)."""
     if image.dim() != 4 or psfs.dim() != 4 or psfs.shape[1] != image.shape[1]:
-        raise ValueError(f"render expects image [B, C, H, W] and psfs [K, C, S, S] with the same C, "
-                         f"got {tuple(image.shape)} and {tuple(psfs.shape)}")
+        raise ValueError(
+            f"render expects image [B, C, H, W] and psfs [K, C, S, S] with the same C, "
+            f"got {tuple(image.shape)} and {tuple(psfs.shape)}"
+        )
     if psfs.shape[-1] != psfs.shape[-2] or psfs.shape[-1] % 2 == 0:
-        raise ValueError(f"PSFs must be square with an odd size (centre pixel on the chief ray), got {tuple(psfs.shape[-2:])}")
+        raise ValueError(
+            f"PSFs must be square with an odd size (centre pixel on the chief ray), got {tuple(psfs.shape[-2:])}"
+        )
     fields = torch.as_tensor(fields, dtype=image.dtype, device=image.device)
     if fields.numel() != psfs.shape[0] or (fields.numel() > 1 and bool((fields.diff() <= 0).any())):
         raise ValueError(f"fields must be {psfs.shape[0]} strictly increasing radii, got {fields.tolist()}")
@@ -115,9 +134,16 @@ def _prepare(image: torch.Tensor, psfs: torch.Tensor, fields, vignetting: torch.
     return image, fields, _full_field(h, w, full_field_px)
 
 
-def render(image: torch.Tensor, psfs: torch.Tensor, fields, vignetting: torch.Tensor | None = None, *,
-           patch: int = 64, full_field_px: float | None = None,
-           offset_px: tuple[float, float] = (0.0, 0.0)) -> torch.Tensor:
+def render(
+    image: torch.Tensor,
+    psfs: torch.Tensor,
+    fields,
+    vignetting: torch.Tensor | None = None,
+    *,
+    patch: int = 64,
+    full_field_px: float | None = None,
+    offset_px: tuple[float, float] = (0.0, 0.0),
+) -> torch.Tensor:
     """Blur ``image`` [B, C, H, W] with the field-dependent ``psfs`` [K, C, S, S] -> [B, C, H, W].
 
     vignetting: [K, C] relative illumination at the K fields (None: 1). patch: even, >= 2.
@@ -151,11 +177,18 @@ def render(image: torch.Tensor, psfs: torch.Tensor, fields, vignetting: torch.Te
     out = out.reshape(b, ny * nx, c * n * n).permute(0, 2, 1)
     canvas = F.fold(out, (hp + s - 1, wp + s - 1), n, stride=hop)
     o = hop + s // 2
-    return canvas[..., o:o + h, o:o + w]
+    return canvas[..., o : o + h, o : o + w]
 
 
-def render_exact(image: torch.Tensor, psfs: torch.Tensor, fields, vignetting: torch.Tensor | None = None, *,
-                 full_field_px: float | None = None, offset_px: tuple[float, float] = (0.0, 0.0)) -> torch.Tensor:
+def render_exact(
+    image: torch.Tensor,
+    psfs: torch.Tensor,
+    fields,
+    vignetting: torch.Tensor | None = None,
+    *,
+    full_field_px: float | None = None,
+    offset_px: tuple[float, float] = (0.0, 0.0),
+) -> torch.Tensor:
     """Brute force reference: every source pixel spreads with its own interpolated, rotated PSF.
     O(H W S^2) memory; for tests and small images only."""
     offset_px = (float(offset_px[0]), float(offset_px[1]))
@@ -168,4 +201,4 @@ def render_exact(image: torch.Tensor, psfs: torch.Tensor, fields, vignetting: to
     contrib = (src[..., None, None] * kern.unsqueeze(0)).permute(0, 2, 3, 4, 1)  # [B, C, S, S, HW]
     canvas = F.fold(contrib.reshape(b, c * s * s, h * w), (h + s - 1, w + s - 1), s)
     o = s // 2
-    return canvas[..., o:o + h, o:o + w]
+    return canvas[..., o : o + h, o : o + w]

@@ -39,6 +39,7 @@ from torch import nn
 class Block:
     """One parameter block: its parameters, Adam learning rate, steps per turn, prox weight and
     the coordinates the prox term measures (``coords``: tensor -> tensor, default identity)."""
+
     name: str
     params: list[nn.Parameter]
     lr: float
@@ -72,8 +73,9 @@ class ProximalCompositional:
             raise ValueError(f"block names must be unique, got {names}")
         for b in blocks:
             if b.steps < 1 or b.lr <= 0 or b.beta < 0:
-                raise ValueError(f"block {b.name}: steps >= 1, lr > 0 and beta >= 0 required "
-                                 f"(got {b.steps}, {b.lr}, {b.beta})")
+                raise ValueError(
+                    f"block {b.name}: steps >= 1, lr > 0 and beta >= 0 required (got {b.steps}, {b.lr}, {b.beta})"
+                )
         if n_cycles < 0 or n_finetune < 0:
             raise ValueError("n_cycles and n_finetune must be >= 0")
         self.blocks, self.n_cycles, self.n_finetune = blocks, int(n_cycles), int(n_finetune)
@@ -129,17 +131,28 @@ class ProximalCompositional:
         for o in opts:
             o.step()
         self.t += 1
-        return {"step": self.t, "phase": kind, "block": block.name if block else "all",
-                "loss": float(task.detach()), "prox": float(prox.detach()) if prox is not None else 0.0, **info}
+        return {
+            "step": self.t,
+            "phase": kind,
+            "block": block.name if block else "all",
+            "loss": float(task.detach()),
+            "prox": float(prox.detach()) if prox is not None else 0.0,
+            **info,
+        }
 
     def state_dict(self) -> dict:
-        return {"kind": self.kind, "t": self.t, "opts": {k: o.state_dict() for k, o in self.opts.items()},
-                "anchor": self.anchor}
+        return {
+            "kind": self.kind,
+            "t": self.t,
+            "opts": {k: o.state_dict() for k, o in self.opts.items()},
+            "anchor": self.anchor,
+        }
 
     def load_state_dict(self, st: dict) -> None:
         if not isinstance(st, dict) or st.get("kind") != self.kind:
-            raise ValueError(f"optimizer state is for {st.get('kind') if isinstance(st, dict) else st!r}, "
-                             f"not {self.kind!r}")
+            raise ValueError(
+                f"optimizer state is for {st.get('kind') if isinstance(st, dict) else st!r}, not {self.kind!r}"
+            )
         if set(st.get("opts", {})) != set(self.opts):
             raise ValueError(f"optimizer state has blocks {sorted(st.get('opts', {}))}, this run {sorted(self.opts)}")
         self.t = int(st["t"])
@@ -188,7 +201,8 @@ class Vanilla:
 
     def load_state_dict(self, st: dict) -> None:
         if not isinstance(st, dict) or st.get("kind") != self.kind:
-            raise ValueError(f"optimizer state is for {st.get('kind') if isinstance(st, dict) else st!r}, "
-                             f"not {self.kind!r}")
+            raise ValueError(
+                f"optimizer state is for {st.get('kind') if isinstance(st, dict) else st!r}, not {self.kind!r}"
+            )
         self.t = int(st["t"])
         self.opt.load_state_dict(st["opt"])

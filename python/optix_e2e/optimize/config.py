@@ -23,23 +23,41 @@ except ImportError:  # Python 3.10
 
 
 MAX_THREADS = 1024  # torch aborts (a segmentation fault) when asked for tens of thousands
-BIG = 10 ** 7       # steps and counts: far above any real run, far below what overflows
+BIG = 10**7  # steps and counts: far above any real run, far below what overflows
 
 # Every numeric setting's range, checked in one place (DesignConfig.check): (low, high, low
 # excluded). Floats must also be finite. A new numeric setting without a range is a test failure.
 RANGES: dict[str, tuple[float, float, bool]] = {
-    "seed": (0, 2 ** 63 - 1, False),
-    "crop": (16, 1024, False), "crop_width": (0, 1024, False), "batch": (1, 256, False),
-    "n_cycles": (0, BIG, False), "steps_optics": (1, BIG, False), "steps_isp": (1, BIG, False),
-    "n_finetune": (0, BIG, False), "steps_detector": (1, BIG, False),
-    "lr_optics": (0.0, 10.0, True), "lr_isp_net": (0.0, 10.0, True), "lr_isp_params": (0.0, 10.0, True),
-    "lr_detector": (0.0, 10.0, True), "lr_vanilla": (0.0, 10.0, True),
-    "beta_optics": (0.0, 1e6, False), "beta_isp": (0.0, 1e6, False), "beta_detector": (0.0, 1e6, False),
-    "eval_scenes": (1, 100_000, False), "check_every": (1, BIG, False), "hybrid_threshold": (0.0, 10.0, True),
-    "refine_designs": (1, 100_000, False), "refine_steps": (1, BIG, False), "fields": (0, 1000, False),
-    "patch": (2, 1024, False), "checkpoint_every": (1, BIG, False),
-    "eval_size": (16, 1024, False), "eval_procedural": (0, 10_000, False), "eval_level": (0.0, 10.0, True),
-    "bootstrap": (100, 1_000_000, False), "threads": (0, MAX_THREADS, False),
+    "seed": (0, 2**63 - 1, False),
+    "crop": (16, 1024, False),
+    "crop_width": (0, 1024, False),
+    "batch": (1, 256, False),
+    "n_cycles": (0, BIG, False),
+    "steps_optics": (1, BIG, False),
+    "steps_isp": (1, BIG, False),
+    "n_finetune": (0, BIG, False),
+    "steps_detector": (1, BIG, False),
+    "lr_optics": (0.0, 10.0, True),
+    "lr_isp_net": (0.0, 10.0, True),
+    "lr_isp_params": (0.0, 10.0, True),
+    "lr_detector": (0.0, 10.0, True),
+    "lr_vanilla": (0.0, 10.0, True),
+    "beta_optics": (0.0, 1e6, False),
+    "beta_isp": (0.0, 1e6, False),
+    "beta_detector": (0.0, 1e6, False),
+    "eval_scenes": (1, 100_000, False),
+    "check_every": (1, BIG, False),
+    "hybrid_threshold": (0.0, 10.0, True),
+    "refine_designs": (1, 100_000, False),
+    "refine_steps": (1, BIG, False),
+    "fields": (0, 1000, False),
+    "patch": (2, 1024, False),
+    "checkpoint_every": (1, BIG, False),
+    "eval_size": (16, 1024, False),
+    "eval_procedural": (0, 10_000, False),
+    "eval_level": (0.0, 10.0, True),
+    "bootstrap": (100, 1_000_000, False),
+    "threads": (0, MAX_THREADS, False),
 }
 
 
@@ -62,52 +80,52 @@ def check_ranges(values: dict, ranges: dict = RANGES, what: str = "setting") -> 
 @dataclass(frozen=True)
 class DesignConfig:
     task: str = "iq-software"
-    optimizer: str = "alg1"          # alg1 | vanilla
+    optimizer: str = "alg1"  # alg1 | vanilla
     budget: str = "quick"
     seed: int = 0
     surrogate: str = "paper-triplet-e2e"  # bundled name, checkpoint or run directory
-    optics_init: str = "nominal"     # nominal | uniform (random in the space, from the seed)
-    images: str = ""                 # a folder of the user's images, mixed into training (half the crops)
-    software_isp: str = ""           # the pre-trained software ISP to start from ("": the bundled one)
+    optics_init: str = "nominal"  # nominal | uniform (random in the space, from the seed)
+    images: str = ""  # a folder of the user's images, mixed into training (half the crops)
+    software_isp: str = ""  # the pre-trained software ISP to start from ("": the bundled one)
     # training
-    crop: int = 128                  # sensor pixels per side of a training crop (its height)
-    crop_width: int = 0              # its width (0: square)
+    crop: int = 128  # sensor pixels per side of a training crop (its height)
+    crop_width: int = 0  # its width (0: square)
     batch: int = 4
     # the schedule (docs/e2e.md, "Choosing the schedule"): one cycle, then joint fine-tuning,
     # chosen on validation batches (a training stream of another seed), not the held-out set
-    n_cycles: int = 1                # Alg. 1's n_c
-    steps_optics: int = 10           # n_i of the optics block
-    steps_isp: int = 10              # n_i of the ISP block
-    n_finetune: int = 80             # n_f
-    lr_optics: float = 1e-2          # Adam, on the sigmoid-reparameterized lens parameters (paper: 1e-2)
-    lr_isp_net: float = 1e-4         # the software ISP's weights (paper: 1e-4)
-    lr_isp_params: float = 1e-2      # the hardware ISP's hyperparameters (their logits)
-    beta_optics: float = 0.1         # Eq. 15's beta per block
+    n_cycles: int = 1  # Alg. 1's n_c
+    steps_optics: int = 10  # n_i of the optics block
+    steps_isp: int = 10  # n_i of the ISP block
+    n_finetune: int = 80  # n_f
+    lr_optics: float = 1e-2  # Adam, on the sigmoid-reparameterized lens parameters (paper: 1e-2)
+    lr_isp_net: float = 1e-4  # the software ISP's weights (paper: 1e-4)
+    lr_isp_params: float = 1e-2  # the hardware ISP's hyperparameters (their logits)
+    beta_optics: float = 0.1  # Eq. 15's beta per block
     beta_isp: float = 0.0
     # the detection task's third block, the detector (tasks/detection.py)
-    detector: str = ""               # the pre-trained detector to start from ("": the bundled one)
-    steps_detector: int = 10         # n_i of the detector block
-    lr_detector: float = 2e-4        # AdamW-free Adam on its weights
+    detector: str = ""  # the pre-trained detector to start from ("": the bundled one)
+    steps_detector: int = 10  # n_i of the detector block
+    lr_detector: float = 2e-4  # AdamW-free Adam on its weights
     beta_detector: float = 0.0
-    eval_scenes: int = 100           # detection: held-out street scenes (one position each)
-    lr_vanilla: float = 1e-3         # the vanilla baseline's one learning rate
+    eval_scenes: int = 100  # detection: held-out street scenes (one position each)
+    lr_vanilla: float = 1e-3  # the vanilla baseline's one learning rate
     # the optics model in the loop (optimize/hybrid.py, docs/optics-in-the-loop.md)
-    optics: str = "surrogate"        # surrogate | exact | hybrid | auto (from the measured trade-off)
-    check_every: int = 10            # exact check of the current design every N steps (and after the last)
-    hybrid_threshold: float = 0.02   # hybrid: refine when the worst field's PSF rel. L1 passes this
-    refine: str = "correction"       # hybrid: correction (exact minus surrogate at the design) | network
-    refine_designs: int = 192        # refine = network: engine designs about the design
-    refine_steps: int = 150          # refine = network: fine-tune steps
-    fields: int = 0                  # field samples K the renderer uses in training (0: all the surrogate's)
-    patch: int = 64                  # overlap-add patch of the renderer
+    optics: str = "surrogate"  # surrogate | exact | hybrid | auto (from the measured trade-off)
+    check_every: int = 10  # exact check of the current design every N steps (and after the last)
+    hybrid_threshold: float = 0.02  # hybrid: refine when the worst field's PSF rel. L1 passes this
+    refine: str = "correction"  # hybrid: correction (exact minus surrogate at the design) | network
+    refine_designs: int = 192  # refine = network: engine designs about the design
+    refine_steps: int = 150  # refine = network: fine-tune steps
+    fields: int = 0  # field samples K the renderer uses in training (0: all the surrogate's)
+    patch: int = 64  # overlap-add patch of the renderer
     checkpoint_every: int = 20
     # evaluation
     eval_size: int = 192
-    eval_procedural: int = 13        # + the bundled photos (9) = 22 held-out images, each at eval_positions
+    eval_procedural: int = 13  # + the bundled photos (9) = 22 held-out images, each at eval_positions
     eval_level: float = 0.7
-    eval_positions: str = "frame"    # frame: 4 stratified uniform positions per image | centre-corner
+    eval_positions: str = "frame"  # frame: 4 stratified uniform positions per image | centre-corner
     bootstrap: int = 2000
-    threads: int = 0                 # torch CPU threads (0: torch's default)
+    threads: int = 0  # torch CPU threads (0: torch's default)
 
     @property
     def total_steps(self) -> int:
@@ -137,8 +155,20 @@ class DesignConfig:
             raise ValueError(f"fields must be 0 (all) or at least 2, got {self.fields}")
         if self.optics_init not in ("nominal", "uniform"):
             raise ValueError(f"optics_init must be nominal or uniform, got {self.optics_init!r}")
-        for k in ("crop", "batch", "steps_optics", "steps_isp", "steps_detector", "eval_size", "eval_scenes", "patch",
-                  "checkpoint_every", "check_every", "refine_designs", "refine_steps"):
+        for k in (
+            "crop",
+            "batch",
+            "steps_optics",
+            "steps_isp",
+            "steps_detector",
+            "eval_size",
+            "eval_scenes",
+            "patch",
+            "checkpoint_every",
+            "check_every",
+            "refine_designs",
+            "refine_steps",
+        ):
             if getattr(self, k) < 1:
                 raise ValueError(f"{k} must be >= 1, got {getattr(self, k)}")
         if self.crop_width < 0 or self.crop_width % 16:
@@ -156,7 +186,9 @@ class DesignConfig:
                 raise ValueError(f"{k} must be >= 0, got {getattr(self, k)}")
         for k in ("crop", "crop_width", "eval_size"):
             if getattr(self, k) > 1024:
-                raise ValueError(f"{k} must be at most 1024 pixels (the sensor frame is 1920 x 1200), got {getattr(self, k)}")
+                raise ValueError(
+                    f"{k} must be at most 1024 pixels (the sensor frame is 1920 x 1200), got {getattr(self, k)}"
+                )
         if self.images and not Path(self.images).is_dir():
             raise ValueError(f"images: no such folder {self.images}")
         if self.software_isp and not Path(self.software_isp).is_file():
@@ -173,8 +205,19 @@ class DesignConfig:
 
 # smoke: seconds, for tests; quick: the main job (./run.sh); full: the figures we report.
 BUDGETS: dict[str, dict] = {
-    "smoke": dict(crop=32, batch=1, n_cycles=1, steps_optics=2, steps_isp=2, n_finetune=2, eval_size=32, check_every=3,
-                  eval_procedural=1, checkpoint_every=2, bootstrap=200),
+    "smoke": dict(
+        crop=32,
+        batch=1,
+        n_cycles=1,
+        steps_optics=2,
+        steps_isp=2,
+        n_finetune=2,
+        eval_size=32,
+        check_every=3,
+        eval_procedural=1,
+        checkpoint_every=2,
+        bootstrap=200,
+    ),
     "quick": dict(),
     "full": dict(n_cycles=2, steps_optics=25, steps_isp=25, n_finetune=300, eval_size=256),
 }
@@ -186,8 +229,9 @@ TASK_BUDGETS: dict[str, dict[str, dict]] = {
     "detection": {
         "smoke": dict(surrogate="paper-triplet-detect", crop=64, crop_width=96, steps_detector=2, eval_scenes=4),
         "quick": dict(surrogate="paper-triplet-detect", crop=192, crop_width=288, batch=4, eval_scenes=100),
-        "full": dict(surrogate="paper-triplet-detect", crop=192, crop_width=288, batch=4, steps_detector=25,
-                     eval_scenes=200),
+        "full": dict(
+            surrogate="paper-triplet-detect", crop=192, crop_width=288, batch=4, steps_detector=25, eval_scenes=200
+        ),
     },
 }
 

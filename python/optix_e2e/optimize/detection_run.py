@@ -40,7 +40,7 @@ from .config import DesignConfig
 from .run import build_camera, design_field_heights, start_run, train
 
 BUNDLED_DETECTOR = Path(__file__).resolve().parent.parent / "tasks" / "bundled" / "street_detector.pt"
-PANEL_SCORE = 0.3   # detections drawn in the panels: score at least this
+PANEL_SCORE = 0.3  # detections drawn in the panels: score at least this
 
 
 def load_start_detector(cfg: DesignConfig, size: tuple[int, int]) -> torch.nn.Module:
@@ -56,10 +56,12 @@ def load_start_detector(cfg: DesignConfig, size: tuple[int, int]) -> torch.nn.Mo
     return det
 
 
-def build_detection_camera(cfg: DesignConfig, sur, *, fixed_optics: FixedOptics | None = None,
-                           frame: SensorFrame = SensorFrame()) -> DetectionCamera:
-    return DetectionCamera(build_camera(cfg, sur, fixed_optics=fixed_optics, frame=frame),
-                           load_start_detector(cfg, cfg.crop_hw))
+def build_detection_camera(
+    cfg: DesignConfig, sur, *, fixed_optics: FixedOptics | None = None, frame: SensorFrame = SensorFrame()
+) -> DetectionCamera:
+    return DetectionCamera(
+        build_camera(cfg, sur, fixed_optics=fixed_optics, frame=frame), load_start_detector(cfg, cfg.crop_hw)
+    )
 
 
 def _loss_at(cfg: DesignConfig, cam: DetectionCamera, frame: SensorFrame, ranks: parallel.Ranks = parallel.Ranks()):
@@ -69,6 +71,7 @@ def _loss_at(cfg: DesignConfig, cam: DetectionCamera, frame: SensorFrame, ranks:
     def loss_at(t: int, gen: torch.Generator):
         b = street_batch(cfg.seed, t, cfg.batch, cfg.crop_hw, cam.margin, (task.level_min, task.level_max), frame)
         return cam(b.scene[part], b.offset_px, gen, b.targets[part])
+
     return loss_at
 
 
@@ -103,8 +106,10 @@ def paired_map(a: list[dict], b: list[dict], samples, n_boot: int, seed: int, da
     lights = [s.object_light for s in samples]
     dark_a, dark_t = in_the_dark(a, targets, lights, dark)
     dark_b, _ = in_the_dark(b, targets, lights, dark)
-    tables = {"all": (MatchTable(a, targets), MatchTable(b, targets)),
-              "dark": (MatchTable(dark_a, dark_t), MatchTable(dark_b, dark_t))}
+    tables = {
+        "all": (MatchTable(a, targets), MatchTable(b, targets)),
+        "dark": (MatchTable(dark_a, dark_t), MatchTable(dark_b, dark_t)),
+    }
     rng = np.random.default_rng(seed)
     counts = np.stack([np.bincount(rng.integers(0, n, n), minlength=n) for _ in range(n_boot)])
     out: dict = {"n_images": n, "n_boot": n_boot, "dark": {}}
@@ -127,14 +132,20 @@ def _digest(psf, vig, fh, f_number, cam: DetectionCamera, n: int) -> str:
 
 
 def _preds_json(preds: list[dict]) -> list[dict]:
-    return [{"boxes": p["boxes"].tolist(), "scores": p["scores"].tolist(), "labels": p["labels"].tolist()}
-            for p in preds]
+    return [
+        {"boxes": p["boxes"].tolist(), "scores": p["scores"].tolist(), "labels": p["labels"].tolist()} for p in preds
+    ]
 
 
 def _preds_from_json(rows: list[dict]) -> list[dict]:
-    return [{"boxes": torch.tensor(r["boxes"], dtype=torch.float32).reshape(-1, 4),
-             "scores": torch.tensor(r["scores"], dtype=torch.float32),
-             "labels": torch.tensor(r["labels"], dtype=torch.int64)} for r in rows]
+    return [
+        {
+            "boxes": torch.tensor(r["boxes"], dtype=torch.float32).reshape(-1, 4),
+            "scores": torch.tensor(r["scores"], dtype=torch.float32),
+            "labels": torch.tensor(r["labels"], dtype=torch.int64),
+        }
+        for r in rows
+    ]
 
 
 def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, log=print) -> dict | None:
@@ -148,11 +159,15 @@ def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool
     if cfg.fields:
         raise ValueError("fields: the detection run renders from all the surrogate's field samples (fields = 0)")
     if cfg.optics not in ("surrogate", "auto"):
-        raise ValueError(f"optics {cfg.optics}: the detection run trains through the surrogate (exact and hybrid "
-                         f"optics are for the image-quality tasks)")
+        raise ValueError(
+            f"optics {cfg.optics}: the detection run trains through the surrogate (exact and hybrid "
+            f"optics are for the image-quality tasks)"
+        )
     if "f_number" not in sur.param_names:
-        raise ValueError(f"surrogate {cfg.surrogate}: its space has no f_number parameter; the detection task "
-                         f"learns the aperture (use paper-triplet-detect)")
+        raise ValueError(
+            f"surrogate {cfg.surrogate}: its space has no f_number parameter; the detection task "
+            f"learns the aperture (use paper-triplet-detect)"
+        )
     build_detection_camera(cfg, sur, frame=frame)  # everything is checked before the run directory is claimed
     progress, log, writer = claim_run_dir(out, cfg, ranks, progress, log)
     parts = DetectionCamera.LOSS_PARTS
@@ -161,20 +176,49 @@ def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool
         cam = build_detection_camera(cfg, sur, frame=frame)
         opt_kind = cfg.optimizer
         from .run import make_optimizer
-        e2e = train(cfg, cam, make_optimizer(cfg, cam, opt_kind), out, "end_to_end", progress=progress,
-                    writer=writer, frame=frame, log=log, loss_at=_loss_at(cfg, cam, frame, ranks), parts=parts,
-                    ranks=ranks)
+
+        e2e = train(
+            cfg,
+            cam,
+            make_optimizer(cfg, cam, opt_kind),
+            out,
+            "end_to_end",
+            progress=progress,
+            writer=writer,
+            frame=frame,
+            log=log,
+            loss_at=_loss_at(cfg, cam, frame, ranks),
+            parts=parts,
+            ranks=ranks,
+        )
         nominal_values = cam.optics.base_values()
         n_nominal = float(nominal_values[sur.param_names.index("f_number")])
         with torch.no_grad():
             psf_ns, vig_ns = sur.psfs(nominal_values, check=False)
-        fixed = FixedOptics(psf_ns, vig_ns, cam.optics.render_fields, patch=cfg.patch,
-                            full_field_px=frame.full_field_px, f_number=n_nominal)
+        fixed = FixedOptics(
+            psf_ns,
+            vig_ns,
+            cam.optics.render_fields,
+            patch=cfg.patch,
+            full_field_px=frame.full_field_px,
+            f_number=n_nominal,
+        )
         log(f"[2/4] nominal lens + ISP and detector fine-tuned, the same {cfg.total_steps} steps")
         nom_cam = build_detection_camera(cfg, sur, fixed_optics=fixed, frame=frame)
-        nom = train(cfg, nom_cam, make_optimizer(cfg, nom_cam, "nominal"), out, "nominal", progress=progress,
-                    writer=writer, frame=frame, log=log, loss_at=_loss_at(cfg, nom_cam, frame, ranks), parts=parts,
-                    ranks=ranks)
+        nom = train(
+            cfg,
+            nom_cam,
+            make_optimizer(cfg, nom_cam, "nominal"),
+            out,
+            "nominal",
+            progress=progress,
+            writer=writer,
+            frame=frame,
+            log=log,
+            loss_at=_loss_at(cfg, nom_cam, frame, ranks),
+            parts=parts,
+            ranks=ranks,
+        )
     finally:
         if writer is not None:
             writer.close()
@@ -190,16 +234,25 @@ def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool
     exact = exact_optics(sur, torch.stack([nominal_values, final_values]).double().numpy(), fallback="huygens")
     with torch.no_grad():
         psf_es, vig_es = sur.psfs(final_values, check=False)
-    heights = {who: design_field_heights(sur, v.numpy(), exact["image_distance"][i])
-               for i, (who, v) in enumerate(values.items())}
+    heights = {
+        who: design_field_heights(sur, v.numpy(), exact["image_distance"][i])
+        for i, (who, v) in enumerate(values.items())
+    }
     h_train = cam.optics.render_fields
-    optics = {"nominal": {"exact": (exact["psf"][0], exact["vignetting"][0], heights["nominal"]),
-                          "surrogate": (psf_ns, vig_ns, h_train)},
-              "end_to_end": {"exact": (exact["psf"][1], exact["vignetting"][1], heights["end_to_end"]),
-                             "surrogate": (psf_es, vig_es, h_train)}}
+    optics = {
+        "nominal": {
+            "exact": (exact["psf"][0], exact["vignetting"][0], heights["nominal"]),
+            "surrogate": (psf_ns, vig_ns, h_train),
+        },
+        "end_to_end": {
+            "exact": (exact["psf"][1], exact["vignetting"][1], heights["end_to_end"]),
+            "surrogate": (psf_es, vig_es, h_train),
+        },
+    }
     cams = {"nominal": nom_cam, "end_to_end": cam}
-    samples = heldout_streets(cfg.eval_scenes, cfg.crop_hw, exact["psf"].shape[-1] // 2,
-                              (task.level_min, task.level_max), frame)
+    samples = heldout_streets(
+        cfg.eval_scenes, cfg.crop_hw, exact["psf"].shape[-1] // 2, (task.level_min, task.level_max), frame
+    )
     preds: dict[str, dict[str, list]] = {}
     reused_s = 0.0
     for who in cams:
@@ -220,19 +273,27 @@ def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool
                 except (KeyError, TypeError, ValueError, RuntimeError):
                     pass
             t0 = time.perf_counter()
-            fo = FixedOptics(psf, vig, fh, patch=cfg.patch, full_field_px=frame.full_field_px,
-                             f_number=f_numbers[who])
+            fo = FixedOptics(psf, vig, fh, patch=cfg.patch, full_field_px=frame.full_field_px, f_number=f_numbers[who])
             ev_cam = DetectionCamera(Camera(fo, cams[who].sensor, cams[who].isp), cams[who].detector)
             preds[who][kind] = evaluate_detection(ev_cam, samples, progress, f"eval {who} ({kind} optics)")
-            write_json_atomic(path, {"key": key, "wall_s": time.perf_counter() - t0,
-                                     "images": [s.name for s in samples],
-                                     "detections": _preds_json(preds[who][kind])})
+            write_json_atomic(
+                path,
+                {
+                    "key": key,
+                    "wall_s": time.perf_counter() - t0,
+                    "images": [s.name for s in samples],
+                    "detections": _preds_json(preds[who][kind]),
+                },
+            )
 
     log("[4/4] mAP and its interval, lens export, checks, PSF grids, panels, reports")
-    scores = {who: {kind: detection_scores(preds[who][kind], samples, task.dark) for kind in ("exact", "surrogate")}
-              for who in cams}
-    paired = paired_map(preds["nominal"]["exact"], preds["end_to_end"]["exact"], samples, cfg.bootstrap, cfg.seed,
-                        task.dark)
+    scores = {
+        who: {kind: detection_scores(preds[who][kind], samples, task.dark) for kind in ("exact", "surrogate")}
+        for who in cams
+    }
+    paired = paired_map(
+        preds["nominal"]["exact"], preds["end_to_end"]["exact"], samples, cfg.bootstrap, cfg.seed, task.dark
+    )
     fields_deg = [float(f) for f in sur.manifest["fields_deg"]]
     exported, checks = outputs.write_design_outputs(out, cfg, sur, nominal_values.numpy(), final_values.numpy(), exact)
     _detection_panels(out / "panels.png", samples, preds, optics, cams, f_numbers, cfg.patch, frame)
@@ -241,38 +302,62 @@ def run_detection_design(cfg: DesignConfig, out: "str | Path", *, progress: bool
     def camera_summary(who: str) -> dict:
         s = scores[who]["exact"]
         rep = reports[who]
-        return {"map_50": s["map_50"], "map": s["map"], "map_75": s["map_75"], "n_objects": s["n_objects"],
-                "dark": s["dark"], "f_number": f_numbers[who],
-                "f_number_paraxial": float(rep["paraxial"]["f_number"]),
-                "rms_spot_um": [float(r["rms_spot_um"]) for r in rep["fields"]],
-                "relative_illumination": [r["relative_illumination"] for r in rep["fields"]],
-                "report_fields_deg": [float(r["field_deg"]) for r in rep["fields"]],
-                "surrogate": {k: scores[who]["surrogate"][k] for k in ("map_50", "map", "dark")}}
+        return {
+            "map_50": s["map_50"],
+            "map": s["map"],
+            "map_75": s["map_75"],
+            "n_objects": s["n_objects"],
+            "dark": s["dark"],
+            "f_number": f_numbers[who],
+            "f_number_paraxial": float(rep["paraxial"]["f_number"]),
+            "rms_spot_um": [float(r["rms_spot_um"]) for r in rep["fields"]],
+            "relative_illumination": [r["relative_illumination"] for r in rep["fields"]],
+            "report_fields_deg": [float(r["field_deg"]) for r in rep["fields"]],
+            "surrogate": {k: scores[who]["surrogate"][k] for k in ("map_50", "map", "dark")},
+        }
 
     results = {
-        "task": cfg.task, "description": task.description, "optimizer": cfg.optimizer, "budget": cfg.budget,
-        "seed": cfg.seed, "optics_eval": "exact",
-        "nominal": camera_summary("nominal"), "end_to_end": camera_summary("end_to_end"),
+        "task": cfg.task,
+        "description": task.description,
+        "optimizer": cfg.optimizer,
+        "budget": cfg.budget,
+        "seed": cfg.seed,
+        "optics_eval": "exact",
+        "nominal": camera_summary("nominal"),
+        "end_to_end": camera_summary("end_to_end"),
         "paired": paired,
         "lens_zmx": str(Path(exported["zmx"]).relative_to(out)),
         "lens_json": str(Path(exported["json"]).relative_to(out)),
-        "design": {"parameters": sur.param_names, "nominal": [float(v) for v in nominal_values],
-                   "end_to_end": [float(v) for v in final_values], "checks": checks},
+        "design": {
+            "parameters": sur.param_names,
+            "nominal": [float(v) for v in nominal_values],
+            "end_to_end": [float(v) for v in final_values],
+            "checks": checks,
+        },
         "surrogate_psf_rel_l1_per_field": {
             "fields_deg": fields_deg,
             "nominal": outputs.psf_rel_l1_per_field(psf_ns, exact["psf"][0]),
-            "end_to_end": outputs.psf_rel_l1_per_field(psf_es, exact["psf"][1])},
+            "end_to_end": outputs.psf_rel_l1_per_field(psf_es, exact["psf"][1]),
+        },
         "exact_psf_method": {"nominal": exact["methods"][0], "end_to_end": exact["methods"][1]},
         "exact_psf_energy_in_window": {
-            "fields_deg": fields_deg, "window_px": int(exact["psf"].shape[-1]),
+            "fields_deg": fields_deg,
+            "window_px": int(exact["psf"].shape[-1]),
             "nominal": [float(e) for e in exact["energy_in_window"][0].min(axis=-1)],
-            "end_to_end": [float(e) for e in exact["energy_in_window"][1].min(axis=-1)]},
-        "held_out": {"n_images": len(samples), "n_objects": scores["nominal"]["exact"]["n_objects"],
-                     "n_objects_dark": scores["nominal"]["exact"]["dark"]["n_objects"],
-                     "size_px": list(cfg.crop_hw), "levels": [task.level_min, task.level_max]},
+            "end_to_end": [float(e) for e in exact["energy_in_window"][1].min(axis=-1)],
+        },
+        "held_out": {
+            "n_images": len(samples),
+            "n_objects": scores["nominal"]["exact"]["n_objects"],
+            "n_objects_dark": scores["nominal"]["exact"]["dark"]["n_objects"],
+            "size_px": list(cfg.crop_hw),
+            "levels": [task.level_min, task.level_max],
+        },
         "isp_hyperparameters": {"nominal": nom_cam.isp.hyperparameters(), "end_to_end": cam.isp.hyperparameters()},
-        "training": {k: {kk: v[kk] for kk in ("steps", "wall_s", "final_loss", "cut_steps")} for k, v in
-                     (("end_to_end", e2e), ("nominal", nom))},
+        "training": {
+            k: {kk: v[kk] for kk in ("steps", "wall_s", "final_loss", "cut_steps")}
+            for k, v in (("end_to_end", e2e), ("nominal", nom))
+        },
         "surrogate": cfg.surrogate,
     }
     _write_history(out / "history.csv", {"end_to_end": e2e["history"], "nominal": nom["history"]}, parts)
@@ -291,14 +376,30 @@ def _write_scenes(path: Path, samples, preds: dict) -> None:
         w = csv.writer(f)
         w.writerow(["image", "radius", "level", "n_objects", "n_dark", *(f"n_detections_{who}" for who in preds)])
         for i, s in enumerate(samples):
-            w.writerow([s.name, f"{s.radius:.4f}", f"{s.level:.4f}", len(s.target["labels"]),
-                        int((s.object_light < 0.1).sum()),
-                        *(int((preds[who]["exact"][i]["scores"] >= PANEL_SCORE).sum()) for who in preds)])
+            w.writerow(
+                [
+                    s.name,
+                    f"{s.radius:.4f}",
+                    f"{s.level:.4f}",
+                    len(s.target["labels"]),
+                    int((s.object_light < 0.1).sum()),
+                    *(int((preds[who]["exact"][i]["scores"] >= PANEL_SCORE).sum()) for who in preds),
+                ]
+            )
 
 
 @torch.no_grad()
-def _detection_panels(path: Path, samples, preds: dict, optics: dict, cams: dict, f_numbers: dict, patch: int,
-                      frame: SensorFrame, n_scenes: int = 3) -> None:
+def _detection_panels(
+    path: Path,
+    samples,
+    preds: dict,
+    optics: dict,
+    cams: dict,
+    f_numbers: dict,
+    patch: int,
+    frame: SensorFrame,
+    n_scenes: int = 3,
+) -> None:
     """The held-out scenes with the most objects in the dark: the ideal image with its boxes,
     then each camera's output (exact optics, reference ISP) with its detections (score >= 0.3)."""
     from torchvision.utils import draw_bounding_boxes
@@ -312,15 +413,16 @@ def _detection_panels(path: Path, samples, preds: dict, optics: dict, cams: dict
     def boxed(img: torch.Tensor, boxes, labels, colour) -> torch.Tensor:
         u8 = (img.clamp(0, 1) * 255).round().to(torch.uint8)
         if len(boxes):
-            u8 = draw_bounding_boxes(u8, boxes, [names.get(int(k), str(int(k))) for k in labels], colors=colour,
-                                     width=1)
+            u8 = draw_bounding_boxes(
+                u8, boxes, [names.get(int(k), str(int(k))) for k in labels], colors=colour, width=1
+            )
         return u8.float() / 255
 
     rows = []
     for i in order:
         s = samples[i]
         m = (s.scene.shape[-2] - s.size[0]) // 2
-        inner = s.scene[:, m:m + s.size[0], m:m + s.size[1]]
+        inner = s.scene[:, m : m + s.size[0], m : m + s.size[1]]
         ideal = color.linear_to_srgb((inner / s.level).clamp(0, 1))
         imgs = [boxed(ideal, s.target["boxes"], s.target["labels"], "yellow")]
         for who in ("nominal", "end_to_end"):
@@ -332,7 +434,12 @@ def _detection_panels(path: Path, samples, preds: dict, optics: dict, cams: dict
             keep = p["scores"] >= PANEL_SCORE
             imgs.append(boxed(img, p["boxes"][keep], p["labels"][keep], "cyan"))
         rows.append((f"{s.name} (r {s.radius:.2f}, {int((s.object_light < 0.1).sum())} in the dark)", imgs))
-    outputs.save_panels(path, rows, ["scene (ideal, at sunlit exposure) + boxes",
-                                     f"nominal f/{f_numbers['nominal']:.2f} + fine-tuned",
-                                     f"end-to-end f/{f_numbers['end_to_end']:.2f}"])
-
+    outputs.save_panels(
+        path,
+        rows,
+        [
+            "scene (ideal, at sunlit exposure) + boxes",
+            f"nominal f/{f_numbers['nominal']:.2f} + fine-tuned",
+            f"end-to-end f/{f_numbers['end_to_end']:.2f}",
+        ],
+    )

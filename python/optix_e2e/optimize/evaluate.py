@@ -33,8 +33,17 @@ def evaluate(camera, samples) -> list[dict]:
         out, _ = camera(s.scene[None], s.offset_px, gen, final=True)
         x, y = (out.clamp(0, 1) * 255).round() / 255, s.target[None]
         radius = float(np.hypot(*s.offset_px)) / camera.optics.full_field_px if camera.optics.full_field_px else 0.0
-        rows.append({"image": s.name, "position": s.position, "radius": radius, "psnr_db": float(psnr(x, y)[0]),
-                     "ssim": float(ssim(x, y)[0]), "lpips": float(lpips(x, y)[0]), "haarpsi": float(haarpsi(x, y)[0])})
+        rows.append(
+            {
+                "image": s.name,
+                "position": s.position,
+                "radius": radius,
+                "psnr_db": float(psnr(x, y)[0]),
+                "ssim": float(ssim(x, y)[0]),
+                "lpips": float(lpips(x, y)[0]),
+                "haarpsi": float(haarpsi(x, y)[0]),
+            }
+        )
     return rows
 
 
@@ -52,10 +61,15 @@ def summarize(rows: list[dict]) -> dict:
     out = {m: float(np.mean([r[m] for r in rows])) for m in METRICS}
     out["one_minus_lpips"] = 1.0 - out["lpips"]
     out["n_samples"] = len(rows)
-    out["by_position"] = {p: {m: float(np.mean([r[m] for r in rows if r["position"] == p])) for m in METRICS}
-                          for p in sorted({r["position"] for r in rows})}
-    out["by_zone"] = {z: {"n_samples": len(zr), **{m: float(np.mean([r[m] for r in zr])) for m in METRICS}}
-                      for z in ZONES if (zr := in_zone(rows, z))}
+    out["by_position"] = {
+        p: {m: float(np.mean([r[m] for r in rows if r["position"] == p])) for m in METRICS}
+        for p in sorted({r["position"] for r in rows})
+    }
+    out["by_zone"] = {
+        z: {"n_samples": len(zr), **{m: float(np.mean([r[m] for r in zr])) for m in METRICS}}
+        for z in ZONES
+        if (zr := in_zone(rows, z))
+    }
     return out
 
 
@@ -79,8 +93,12 @@ def paired(a_rows: list[dict], b_rows: list[dict], n_boot: int = 2000, seed: int
         d = np.array([b[k] - a[k] for k in images])
         boots = d[idx].mean(1)
         lo, hi = np.percentile(boots, [2.5, 97.5])
-        out[m] = {"mean": float(d.mean()), "ci95": [float(lo), float(hi)], "n_images": len(images),
-                  "better": "higher" if m != "lpips" else "lower"}
+        out[m] = {
+            "mean": float(d.mean()),
+            "ci95": [float(lo), float(hi)],
+            "n_images": len(images),
+            "better": "higher" if m != "lpips" else "lower",
+        }
     return out
 
 

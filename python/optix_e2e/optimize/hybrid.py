@@ -58,9 +58,18 @@ class OpticsModeMismatch(ValueError):
 class OpticsMonitor:
     """Checks (and, in hybrid mode, keeps) the optics model of a DifferentiableOptics."""
 
-    def __init__(self, optics, mode: str, every: int, threshold: float = 0.02, refine: str = "correction",
-                 refine_settings: RefineSettings = RefineSettings(), writer=None, name: str = "end_to_end",
-                 log=None):
+    def __init__(
+        self,
+        optics,
+        mode: str,
+        every: int,
+        threshold: float = 0.02,
+        refine: str = "correction",
+        refine_settings: RefineSettings = RefineSettings(),
+        writer=None,
+        name: str = "end_to_end",
+        log=None,
+    ):
         if mode not in ("surrogate", "exact", "hybrid"):
             raise ValueError(f"optics must be surrogate, exact or hybrid here, got {mode!r}")
         if refine not in REFINE_MODES:
@@ -94,13 +103,16 @@ class OpticsMonitor:
             model_psf, model_vig = self._model_psfs()
         used = optics.backend
         model_err = psf_errors(model_psf, psf_x)
-        rec = {"step": int(step), "backend": used,
-               # the error of the PSFs the steps before this check used (0 for the engine's own)
-               "error_per_field": [0.0] * len(model_err) if used == "exact" else model_err,
-               "model_error_per_field": model_err,
-               "network_error_per_field": psf_errors(net_psf, psf_x),
-               "vignetting_abs_error_max": float((model_vig.double() - vig_x.double()).abs().max()),
-               "events": []}
+        rec = {
+            "step": int(step),
+            "backend": used,
+            # the error of the PSFs the steps before this check used (0 for the engine's own)
+            "error_per_field": [0.0] * len(model_err) if used == "exact" else model_err,
+            "model_error_per_field": model_err,
+            "network_error_per_field": psf_errors(net_psf, psf_x),
+            "vignetting_abs_error_max": float((model_vig.double() - vig_x.double()).abs().max()),
+            "events": [],
+        }
         over = max(model_err) > self.threshold
         if self.mode == "hybrid" and not final:
             if over:
@@ -109,14 +121,24 @@ class OpticsMonitor:
                 still_over = max(ev["error_after"]) > self.threshold
                 if used == "surrogate" and (self.refined_at_last_check or still_over):
                     optics.backend = "exact"
-                    rec["events"].append(self._event(step, "exact_on", "the refined surrogate did not hold "
-                                                     f"(worst field {max(model_err):.4f} > {self.threshold})"))
+                    rec["events"].append(
+                        self._event(
+                            step,
+                            "exact_on",
+                            f"the refined surrogate did not hold (worst field {max(model_err):.4f} > {self.threshold})",
+                        )
+                    )
                 self.refined_at_last_check = True
             else:
                 if used == "exact":
                     optics.backend = "surrogate"
-                    rec["events"].append(self._event(step, "exact_off", f"the refined surrogate is back under "
-                                                     f"the threshold (worst field {max(model_err):.4f})"))
+                    rec["events"].append(
+                        self._event(
+                            step,
+                            "exact_off",
+                            f"the refined surrogate is back under the threshold (worst field {max(model_err):.4f})",
+                        )
+                    )
                 self.refined_at_last_check = False
         rec["seconds"] = time.perf_counter() - t0
         self.checks.append(rec)
@@ -152,14 +174,24 @@ class OpticsMonitor:
             optics.correction = None
             rs = self.refine_settings
             seed = rs.seed * 100003 + int(step)
-            designs = refine_around(optics.surrogate, optics.exact, values,
-                                    RefineSettings(rs.designs, rs.radius, rs.steps, rs.batch, rs.lr, seed))["designs"]
+            designs = refine_around(
+                optics.surrogate,
+                optics.exact,
+                values,
+                RefineSettings(rs.designs, rs.radius, rs.steps, rs.batch, rs.lr, seed),
+            )["designs"]
         after = psf_errors(self._model_psfs()[0], psf_x)
         seconds = time.perf_counter() - t0
         self.refine_seconds += seconds
-        return self._event(step, "refine", f"{self.refine} at the current design: worst field {max(before):.4f} -> "
-                           f"{max(after):.4f} ({seconds:.1f} s)", error_before=before, error_after=after,
-                           engine_designs=designs, seconds=seconds)
+        return self._event(
+            step,
+            "refine",
+            f"{self.refine} at the current design: worst field {max(before):.4f} -> {max(after):.4f} ({seconds:.1f} s)",
+            error_before=before,
+            error_after=after,
+            engine_designs=designs,
+            seconds=seconds,
+        )
 
     # -- resuming ------------------------------------------------------------------------
     def state_dict(self) -> dict:
@@ -168,22 +200,39 @@ class OpticsMonitor:
         once, at the first design that needed a gradient) and its counters."""
         c = self.optics.correction
         ex = self.optics._exact
-        engine = None if ex is None else {
-            "steps": None if ex.steps is None else [float(h) for h in ex.steps],
-            "step_choice": ex.step_choice.to_json() if ex.step_choice is not None else None,
-            "designs_computed": int(ex.designs_computed), "seconds": float(ex.seconds)}
-        return {"mode": self.mode, "refine": self.refine, "checks": self.checks, "events": self.events,
-                "backend": self.optics.backend, "refined_at_last_check": self.refined_at_last_check,
-                "refine_seconds": self.refine_seconds,
-                "correction": None if c is None else [c[0].clone(), c[1].clone()], "engine": engine}
+        engine = (
+            None
+            if ex is None
+            else {
+                "steps": None if ex.steps is None else [float(h) for h in ex.steps],
+                "step_choice": ex.step_choice.to_json() if ex.step_choice is not None else None,
+                "designs_computed": int(ex.designs_computed),
+                "seconds": float(ex.seconds),
+            }
+        )
+        return {
+            "mode": self.mode,
+            "refine": self.refine,
+            "checks": self.checks,
+            "events": self.events,
+            "backend": self.optics.backend,
+            "refined_at_last_check": self.refined_at_last_check,
+            "refine_seconds": self.refine_seconds,
+            "correction": None if c is None else [c[0].clone(), c[1].clone()],
+            "engine": engine,
+        }
 
     def load_state_dict(self, st: dict) -> None:
         from ..optics.exact import StepChoice
 
-        if st.get("mode", self.mode) != self.mode or (self.mode == "hybrid" and st.get("refine", self.refine) != self.refine):
-            raise OpticsModeMismatch(f"this run was started with optics {st.get('mode')} (refine {st.get('refine')}), not "
-                             f"{self.mode} (refine {self.refine}): with --optics auto the bundled trade-off has "
-                             f"changed since; use another --out or --optics {st.get('mode')}")
+        if st.get("mode", self.mode) != self.mode or (
+            self.mode == "hybrid" and st.get("refine", self.refine) != self.refine
+        ):
+            raise OpticsModeMismatch(
+                f"this run was started with optics {st.get('mode')} (refine {st.get('refine')}), not "
+                f"{self.mode} (refine {self.refine}): with --optics auto the bundled trade-off has "
+                f"changed since; use another --out or --optics {st.get('mode')}"
+            )
         self.checks, self.events = list(st["checks"]), list(st["events"])
         self.optics.backend = st["backend"]
         self.refined_at_last_check = bool(st["refined_at_last_check"])
@@ -201,16 +250,21 @@ class OpticsMonitor:
         """For results.json: settings, every check, the events, and the final design's errors."""
         last = self.checks[-1] if self.checks else None
         ex = self.optics.exact if self.optics._exact is not None else None
-        return {"mode": self.mode, "check_every": self.every, "threshold": self.threshold,
-                "refine": self.refine if self.mode == "hybrid" else None,
-                "final_error_per_field": last["error_per_field"] if last else None,
-                "final_network_error_per_field": last["network_error_per_field"] if last else None,
-                "n_refinements": sum(e["event"] == "refine" for e in self.events),
-                "engine_designs": ex.designs_computed if ex is not None else 0,
-                "engine_seconds": ex.seconds if ex is not None else 0.0,
-                "refine_seconds": self.refine_seconds,
-                "step_choice": ex.step_choice.to_json() if ex is not None and ex.step_choice is not None else None,
-                "checks": self.checks, "events": self.events}
+        return {
+            "mode": self.mode,
+            "check_every": self.every,
+            "threshold": self.threshold,
+            "refine": self.refine if self.mode == "hybrid" else None,
+            "final_error_per_field": last["error_per_field"] if last else None,
+            "final_network_error_per_field": last["network_error_per_field"] if last else None,
+            "n_refinements": sum(e["event"] == "refine" for e in self.events),
+            "engine_designs": ex.designs_computed if ex is not None else 0,
+            "engine_seconds": ex.seconds if ex is not None else 0.0,
+            "refine_seconds": self.refine_seconds,
+            "step_choice": ex.step_choice.to_json() if ex is not None and ex.step_choice is not None else None,
+            "checks": self.checks,
+            "events": self.events,
+        }
 
 
 # --optics auto: the measured trade-off (benches/optics_tradeoff.py writes it; the package ships
@@ -256,19 +310,43 @@ def resolve_optics(cfg, path=None) -> tuple[str, dict]:
     The surrogate (the paper's way) where nothing was measured for the task."""
     if cfg.optics != "auto":
         return cfg.optics, {"requested": cfg.optics, "chosen": cfg.optics, "refine": cfg.refine, "why": "asked for"}
-    rows = [r for r in read_tradeoff(path) if r.get("task") == cfg.task and r.get("sweep") == "optics"
-            and r["psnr_db"] is not None and r["wall_s"] is not None and r["psnr_vs_best_hi"] is not None]
+    rows = [
+        r
+        for r in read_tradeoff(path)
+        if r.get("task") == cfg.task
+        and r.get("sweep") == "optics"
+        and r["psnr_db"] is not None
+        and r["wall_s"] is not None
+        and r["psnr_vs_best_hi"] is not None
+    ]
     if not rows:
-        return "surrogate", {"requested": "auto", "chosen": "surrogate", "refine": cfg.refine,
-                             "why": f"no measured trade-off for task {cfg.task}: the surrogate (the paper's way)"}
+        return "surrogate", {
+            "requested": "auto",
+            "chosen": "surrogate",
+            "refine": cfg.refine,
+            "why": f"no measured trade-off for task {cfg.task}: the surrogate (the paper's way)",
+        }
     good = [r for r in rows if r["psnr_vs_best_hi"] >= 0.0]
     pick = min(good, key=lambda r: r["wall_s"])
     best = max(rows, key=lambda r: r["psnr_db"])
-    table = {r["point"]: {"optics": r["optics"], "refine": r.get("refine") or None, "psnr_db": r["psnr_db"], "wall_s": r["wall_s"],
-                           "psnr_vs_best_ci95": [r["psnr_vs_best_lo"], r["psnr_vs_best_hi"]]} for r in rows}
+    table = {
+        r["point"]: {
+            "optics": r["optics"],
+            "refine": r.get("refine") or None,
+            "psnr_db": r["psnr_db"],
+            "wall_s": r["wall_s"],
+            "psnr_vs_best_ci95": [r["psnr_vs_best_lo"], r["psnr_vs_best_hi"]],
+        }
+        for r in rows
+    }
     return pick["optics"], {
-        "requested": "auto", "chosen": pick["optics"], "refine": pick.get("refine") or cfg.refine, "point": pick["point"],
-        "table": table, "source": TRADEOFF_CSV,
+        "requested": "auto",
+        "chosen": pick["optics"],
+        "refine": pick.get("refine") or cfg.refine,
+        "point": pick["point"],
+        "table": table,
+        "source": TRADEOFF_CSV,
         "why": f"{pick['point']}: the fastest ({pick['wall_s']:.0f} s of training) not measurably worse than the "
-               f"best held-out PSNR ({best['point']}, {best['psnr_db']:.2f} dB; paired interval "
-               f"[{pick['psnr_vs_best_lo']:+.3f}, {pick['psnr_vs_best_hi']:+.3f}] dB) measured for {cfg.task}"}
+        f"best held-out PSNR ({best['point']}, {best['psnr_db']:.2f} dB; paired interval "
+        f"[{pick['psnr_vs_best_lo']:+.3f}, {pick['psnr_vs_best_hi']:+.3f}] dB) measured for {cfg.task}",
+    }

@@ -55,14 +55,14 @@ LENS_KINDS = ("perfect", "nominal", "space")
 @dataclass(frozen=True)
 class PretrainConfig:
     steps: int = 200_000
-    minutes: float = 0.0             # stop after this wall time in this call (0: no limit)
+    minutes: float = 0.0  # stop after this wall time in this call (0: no limit)
     batch: int = 8
-    crop: int = 128                  # sensor pixels per side
-    pool: int = 256                  # samples per pool
-    pool_steps: int = 160            # steps on one pool before the next
+    crop: int = 128  # sensor pixels per side
+    pool: int = 256  # samples per pool
+    pool_steps: int = 160  # steps on one pool before the next
     lr: float = 5e-4
-    lr_final: float = 0.02           # the cosine ends at lr * lr_final
-    anneal_minutes: float = 0.0      # the cosine's length in minutes when it is shorter than the steps (0: steps)
+    lr_final: float = 0.02  # the cosine ends at lr * lr_final
+    anneal_minutes: float = 0.0  # the cosine's length in minutes when it is shorter than the steps (0: steps)
     clip_grad: float = 1.0
     arch: str = "nafnet"
     width: int = 32
@@ -70,8 +70,8 @@ class PretrainConfig:
     blocks: int = 1
     position: bool = True
     surrogate: str = "paper-triplet-e2e"
-    lens_mix: tuple = (0.2, 0.3, 0.5)   # perfect, nominal, drawn from the space
-    low_light: float = 0.3           # fraction of samples at low light
+    lens_mix: tuple = (0.2, 0.3, 0.5)  # perfect, nominal, drawn from the space
+    low_light: float = 0.3  # fraction of samples at low light
     level_min: float = 0.35
     level_max: float = 1.0
     val_size: int = 48
@@ -95,15 +95,16 @@ def _lens_psfs(sur, kind: str, rng, nominal) -> tuple[torch.Tensor, torch.Tensor
 
 @dataclass
 class Pool:
-    raw: torch.Tensor       # [N, 1, S, S] DN
-    ideal: torch.Tensor     # [N, 3, S, S] uint8
-    offset: torch.Tensor    # [N, 2] crop centre from the axis, px
-    lens: list              # [N] lens kind
-    low: torch.Tensor       # [N] bool: low light
+    raw: torch.Tensor  # [N, 1, S, S] DN
+    ideal: torch.Tensor  # [N, 3, S, S] uint8
+    offset: torch.Tensor  # [N, 2] crop centre from the axis, px
+    lens: list  # [N] lens kind
+    low: torch.Tensor  # [N] bool: low light
 
 
-def make_pool(cfg: PretrainConfig, n: int, seed, sur, heights, nominal, f_number: float, *,
-              progress: bool = False) -> Pool:
+def make_pool(
+    cfg: PretrainConfig, n: int, seed, sur, heights, nominal, f_number: float, *, progress: bool = False
+) -> Pool:
     """``n`` samples (module doc); deterministic in ``seed``. The sensor is calibrated for the
     space's nominal ``f_number``, as in the design runs."""
     rng = np.random.default_rng(seed)
@@ -127,19 +128,17 @@ def make_pool(cfg: PretrainConfig, n: int, seed, sur, heights, nominal, f_number
             if psfs is None:
                 img = lin
             else:
-                img = render(lin, psfs[0], heights, psfs[1], patch=64, full_field_px=frame.full_field_px,
-                             offset_px=off)
-            img = img[..., m:m + s, m:m + s]
+                img = render(lin, psfs[0], heights, psfs[1], patch=64, full_field_px=frame.full_field_px, offset_px=off)
+            img = img[..., m : m + s, m : m + s]
             low = bool(rng.random() < cfg.low_light)
             raw = simulate_raw(img.clamp(min=0), presets[low], quantize="uniform", generator=gen)
-        ideal = color.linear_to_srgb(lin[..., m:m + s, m:m + s].clamp(0, 1))
+        ideal = color.linear_to_srgb(lin[..., m : m + s, m : m + s].clamp(0, 1))
         raws.append(raw)
         ideals.append((ideal * 255).round().to(torch.uint8))
         offs.append(off)
         kinds.append(kind)
         lows.append(low)
-    return Pool(torch.cat(raws), torch.cat(ideals), torch.tensor(offs, dtype=torch.float32), kinds,
-                torch.tensor(lows))
+    return Pool(torch.cat(raws), torch.cat(ideals), torch.tensor(offs, dtype=torch.float32), kinds, torch.tensor(lows))
 
 
 def _psnr(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
@@ -172,19 +171,25 @@ def validate(model: SoftwareISP, pool: Pool, batch: int = 8) -> dict:
 
 def _resumable(cfg: PretrainConfig) -> dict:
     """The settings a resumed run must share with the run it continues (JSON-like)."""
-    return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(cfg).items()
-            if k not in ("steps", "minutes", "threads", "anneal_minutes")}
+    return {
+        k: list(v) if isinstance(v, tuple) else v
+        for k, v in asdict(cfg).items()
+        if k not in ("steps", "minutes", "threads", "anneal_minutes")
+    }
 
 
 def export(model: SoftwareISP, path: Path, meta: dict) -> None:
     """The weights in float16 with their manifest (``meta``): the shipped form."""
-    sd = {k: (v.half() if v.is_floating_point() and not k.startswith("classical.") else v)
-          for k, v in model.state_dict().items()}
+    sd = {
+        k: (v.half() if v.is_floating_point() and not k.startswith("classical.") else v)
+        for k, v in model.state_dict().items()
+    }
     save_atomic({"format": "optix-software-isp/2", "config": model.config(), "state_dict": sd, "meta": meta}, path)
 
 
-def pretrain(cfg: PretrainConfig, out: "str | Path", *, init: "str | Path | None" = None, progress: bool = True,
-             log=print) -> dict:
+def pretrain(
+    cfg: PretrainConfig, out: "str | Path", *, init: "str | Path | None" = None, progress: bool = True, log=print
+) -> dict:
     """Train (or continue from out/state.pt) and write state.pt, software_isp.pt (float16),
     curve.csv, train.json and tb/ into ``out``. ``init``: a software ISP checkpoint whose
     weights a new run starts from (its architecture must be the config's; the optimizer
@@ -239,15 +244,32 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, init: "str | Path | None
 
     def save():
         stop_if_diverged(step, state_path, "lower --lr", software_isp=model)  # never a NaN state over a good one
-        save_atomic({"format": FORMAT, "config": _resumable(cfg), "model": model.state_dict(),
-                     "optimizer": opt.state_dict(), "step": step,
-                     "seconds": time.time() - t0, "curve": curve, "earlier_training": earlier}, state_path)
+        save_atomic(
+            {
+                "format": FORMAT,
+                "config": _resumable(cfg),
+                "model": model.state_dict(),
+                "optimizer": opt.state_dict(),
+                "step": step,
+                "seconds": time.time() - t0,
+                "curve": curve,
+                "earlier_training": earlier,
+            },
+            state_path,
+        )
 
     def record() -> dict:
         """Validate and add a point to the curve."""
         v = validate(model, val)
-        curve.append({"step": step, "minutes": round((time.time() - t0) / 60, 2), "lr": lr,
-                      "loss": round(loss.item(), 5), **{k: round(x, 3) for k, x in v.items()}})
+        curve.append(
+            {
+                "step": step,
+                "minutes": round((time.time() - t0) / 60, 2),
+                "lr": lr,
+                "loss": round(loss.item(), 5),
+                **{k: round(x, 3) for k, x in v.items()},
+            }
+        )
         return v
 
     while step < cfg.steps:
@@ -278,21 +300,28 @@ def pretrain(cfg: PretrainConfig, out: "str | Path", *, init: "str | Path | None
             v = record()
             for k, x in v.items():
                 writer.add_scalar(f"val/{k}", x, step)
-            bar.write(f"step {step}: val PSNR {v['psnr_db']:.2f} dB "
-                      f"(perfect lens {v.get('psnr_db_perfect_normal', float('nan')):.2f}, "
-                      f"nominal {v.get('psnr_db_nominal_normal', float('nan')):.2f}, "
-                      f"low light nominal {v.get('psnr_db_nominal_low', float('nan')):.2f})")
+            bar.write(
+                f"step {step}: val PSNR {v['psnr_db']:.2f} dB "
+                f"(perfect lens {v.get('psnr_db_perfect_normal', float('nan')):.2f}, "
+                f"nominal {v.get('psnr_db_nominal_normal', float('nan')):.2f}, "
+                f"low light nominal {v.get('psnr_db_nominal_low', float('nan')):.2f})"
+            )
         if step % cfg.checkpoint_every == 0 or step == cfg.steps:
             save()
     save()
     bar.close()
     writer.close()
-    meta = {"command": "optix " + " ".join(sys.argv[1:]) if Path(sys.argv[0]).name == "optix" else "pretrain()",
-            "config": asdict(cfg), "steps": step,
-            "minutes": round((time.time() - t0) / 60, 1), "parameters": n_params, "curve": curve,
-            "earlier_training": earlier,
-            "data": "natural training scenes through the perfect lens, the nominal and lenses drawn from "
-                    f"{cfg.surrogate} (its surrogate's PSFs), normal and low light, crops all over the frame"}
+    meta = {
+        "command": "optix " + " ".join(sys.argv[1:]) if Path(sys.argv[0]).name == "optix" else "pretrain()",
+        "config": asdict(cfg),
+        "steps": step,
+        "minutes": round((time.time() - t0) / 60, 1),
+        "parameters": n_params,
+        "curve": curve,
+        "earlier_training": earlier,
+        "data": "natural training scenes through the perfect lens, the nominal and lenses drawn from "
+        f"{cfg.surrogate} (its surrogate's PSFs), normal and low light, crops all over the frame",
+    }
     export(model, out / "software_isp.pt", meta)
     with open(out / "curve.csv", "w") as f:
         keys = sorted({k for c in curve for k in c}, key=lambda k: (k != "step", k))

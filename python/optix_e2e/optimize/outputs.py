@@ -29,10 +29,16 @@ def check_final_design(manifest: dict, values, image_distance: float) -> dict:
     lens = Lens(d, source="<end-to-end design>")
     limits = Limits.from_dict(manifest.get("sampling_summary", {}).get("limits"))
     reasons = check_design(d, apertures(lens), limits)
-    return {"inside_space": not outside, "outside": outside, "manufacturable": not reasons,
-            "manufacturability_problems": reasons, "limits": {k: getattr(limits, k) for k in limits.__dataclass_fields__},
-            **focus_check(manifest, d), "image_distance_mm": float(image_distance),
-            "focus": manifest["settings"]["focus"]}
+    return {
+        "inside_space": not outside,
+        "outside": outside,
+        "manufacturable": not reasons,
+        "manufacturability_problems": reasons,
+        "limits": {k: getattr(limits, k) for k in limits.__dataclass_fields__},
+        **focus_check(manifest, d),
+        "image_distance_mm": float(image_distance),
+        "focus": manifest["settings"]["focus"],
+    }
 
 
 def focus_check(manifest: dict, d: dict, tol_um: float = 2.0) -> dict:
@@ -46,8 +52,13 @@ def focus_check(manifest: dict, d: dict, tol_um: float = 2.0) -> dict:
 
     wavelengths = sorted({float(wl) for c in manifest["channels"] for wl, _ in c})
     try:
-        shift_um = 1e3 * best_focus_shift(json.dumps(d), [float(f) for f in manifest["fields_deg"]], wavelengths,
-                                          rings=8, aiming=manifest["settings"].get("aiming", "paraxial"))
+        shift_um = 1e3 * best_focus_shift(
+            json.dumps(d),
+            [float(f) for f in manifest["fields_deg"]],
+            wavelengths,
+            rings=8,
+            aiming=manifest["settings"].get("aiming", "paraxial"),
+        )
     except Exception as err:  # noqa: BLE001 - an untraceable lens is not refocused; say why
         return {"refocused": False, "focus_shift_um": None, "focus_error": " ".join(str(err).split())}
     return {"refocused": bool(abs(shift_um) <= tol_um), "focus_shift_um": shift_um}
@@ -72,8 +83,11 @@ def catalog_material(material):
             g = glass.resolve(spec)
         except glass.GlassError:
             continue
-        if (g.formula == material["formula"] and list(g.coefficients) == list(material["coefficients"])
-                and g.catalog == cat):
+        if (
+            g.formula == material["formula"]
+            and list(g.coefficients) == list(material["coefficients"])
+            and g.catalog == cat
+        ):
             return spec
     return material
 
@@ -141,12 +155,26 @@ def write_design_outputs(out: Path, cfg, sur, nominal_values, final_values, exac
     lenses' exact PSF grids (psf_*.png). Returns (the exported end-to-end paths, checks)."""
     fields_deg = [float(f) for f in sur.manifest["fields_deg"]]
     (out / "lens").mkdir(exist_ok=True)
-    desc = (f"end-to-end design for {cfg.task} ({cfg.optimizer}, budget {cfg.budget}, seed {cfg.seed}) in the space of "
-            f"{sur.manifest['base_lens'].get('name', 'the base lens')}; made by optix design")
-    exported = export_lens(sur.manifest, np.asarray(final_values), exact["image_distance"][1],
-                           out / "lens" / "end_to_end", f"{cfg.task}-end-to-end", desc)
-    export_lens(sur.manifest, np.asarray(nominal_values), exact["image_distance"][0], out / "lens" / "nominal",
-                "nominal", "the nominal design, refocused as the dataset does")
+    desc = (
+        f"end-to-end design for {cfg.task} ({cfg.optimizer}, budget {cfg.budget}, seed {cfg.seed}) in the space of "
+        f"{sur.manifest['base_lens'].get('name', 'the base lens')}; made by optix design"
+    )
+    exported = export_lens(
+        sur.manifest,
+        np.asarray(final_values),
+        exact["image_distance"][1],
+        out / "lens" / "end_to_end",
+        f"{cfg.task}-end-to-end",
+        desc,
+    )
+    export_lens(
+        sur.manifest,
+        np.asarray(nominal_values),
+        exact["image_distance"][0],
+        out / "lens" / "nominal",
+        "nominal",
+        "the nominal design, refocused as the dataset does",
+    )
     checks = check_final_design(sur.manifest, np.asarray(final_values), exact["image_distance"][1])
     pitch = float(sur.manifest["settings"]["sensor_pixel_um"]) * sur.bin
     save_psf_grids(out / "psf_nominal.png", exact["psf"][0], fields_deg, pitch, "nominal (engine)")

@@ -26,7 +26,15 @@ import torch
 from tqdm import tqdm
 
 from .. import parallel
-from ..camera import Camera, FixedOptics, HardwareISPStage, PerfectOptics, SensorStage, SoftwareISPStage, calibrated_preset
+from ..camera import (
+    Camera,
+    FixedOptics,
+    HardwareISPStage,
+    PerfectOptics,
+    SensorStage,
+    SoftwareISPStage,
+    calibrated_preset,
+)
 from ..isp import params as hp
 from ..isp.proxy import ISPProxy
 from ..isp.software import SoftwareISP
@@ -47,6 +55,8 @@ LOSS_PARTS = ("l1", "lpips")  # the image-quality tasks' loss terms, in history.
 
 def history_keys(parts: tuple[str, ...] = LOSS_PARTS) -> tuple[str, ...]:
     return ("step", "phase", "block", "loss", "prox", *parts, "cut", "optics", "seconds")
+
+
 SOFTWARE_ISP = Path(__file__).resolve().parent.parent / "isp" / "bundled" / "software_isp.pt"
 
 
@@ -56,8 +66,10 @@ def load_surrogate(spec: str, pixel_um: float | None = None) -> OpticsSurrogate:
     if pixel_um is not None:
         pitch = float(sur.manifest.get("settings", {}).get("sensor_pixel_um", float("nan"))) * sur.bin
         if sur.psf_kind != "psf_sensor" or not math.isclose(pitch, pixel_um, rel_tol=1e-6):
-            raise ValueError(f"surrogate {spec}: its PSFs are {sur.psf_kind} at {pitch} um per pixel; the camera "
-                             f"renders at the sensor's {pixel_um} um (train it on psf_sensor, --bin 1)")
+            raise ValueError(
+                f"surrogate {spec}: its PSFs are {sur.psf_kind} at {pitch} um per pixel; the camera "
+                f"renders at the sensor's {pixel_um} um (train it on psf_sensor, --bin 1)"
+            )
     return sur
 
 
@@ -104,8 +116,9 @@ class Manufacturable:
         self.checks += 1
         d = design_lens(self.manifest, np.asarray(values, np.float64), self.image_distance)
         lim = self.limits
-        rows = Constraints(min_center=lim.min_center, min_edge=lim.min_edge, min_air_gap=lim.min_air_gap,
-                           min_bfd=lim.min_bfd).evaluate(d, {}, apertures(Lens(d, source="<design>")))
+        rows = Constraints(
+            min_center=lim.min_center, min_edge=lim.min_edge, min_air_gap=lim.min_air_gap, min_bfd=lim.min_bfd
+        ).evaluate(d, {}, apertures(Lens(d, source="<design>")))
         return np.array([r["value"] - r["limit"] for r in rows if "limit" in r])
 
 
@@ -113,8 +126,14 @@ def _values(optics: DifferentiableOptics, u: torch.Tensor) -> np.ndarray:
     return (optics.lo + (optics.hi - optics.lo) * torch.sigmoid(u)).detach().double().numpy()
 
 
-def project_step(optics: DifferentiableOptics, u_prev: torch.Tensor, step: torch.Tensor, guard: Manufacturable,
-                 h: float = 1e-3, near_mm: float = 0.05) -> torch.Tensor:
+def project_step(
+    optics: DifferentiableOptics,
+    u_prev: torch.Tensor,
+    step: torch.Tensor,
+    guard: Manufacturable,
+    h: float = 1e-3,
+    near_mm: float = 0.05,
+) -> torch.Tensor:
     """The step with its components across the limits it would break removed: the limits
     within ``near_mm`` of their bound at u_prev, linearized by forward differences in u
     (one margin evaluation per parameter), and the step projected onto {J d >= -m}
@@ -142,8 +161,9 @@ def project_step(optics: DifferentiableOptics, u_prev: torch.Tensor, step: torch
     return torch.as_tensor(d + jac.T @ lam, dtype=step.dtype)
 
 
-def keep_manufacturable(optics: DifferentiableOptics, u_prev: torch.Tensor, guard: Manufacturable,
-                        iters: int = 12, project: bool = True) -> bool:
+def keep_manufacturable(
+    optics: DifferentiableOptics, u_prev: torch.Tensor, guard: Manufacturable, iters: int = 12, project: bool = True
+) -> bool:
     """After an optimizer step: if the new lens parameters break a manufacturability limit,
     the step is projected along the limits it leans across (``project_step``: the lens slides
     along an active limit instead of stopping at it), then, if the projected step still
@@ -213,8 +233,14 @@ def initial_isp_unit(cfg: DesignConfig) -> torch.Tensor:
     return torch.as_tensor(hp.to_unit(hp.sample(rng)), dtype=torch.float32)
 
 
-def build_camera(cfg: DesignConfig, sur: OpticsSurrogate, *, fixed_optics: FixedOptics | None = None,
-                 frame: SensorFrame = SensorFrame(), own_surrogate: bool = False) -> Camera:
+def build_camera(
+    cfg: DesignConfig,
+    sur: OpticsSurrogate,
+    *,
+    fixed_optics: FixedOptics | None = None,
+    frame: SensorFrame = SensorFrame(),
+    own_surrogate: bool = False,
+) -> Camera:
     """The camera at its initialization: the same for Alg. 1, vanilla and the nominal baseline
     (apart from the optics, fixed at the nominal for the latter). ``own_surrogate``: the optics
     get a copy of the surrogate (a hybrid run refines its own)."""
@@ -222,8 +248,9 @@ def build_camera(cfg: DesignConfig, sur: OpticsSurrogate, *, fixed_optics: Fixed
 
     task = get_task(cfg.task)
     if fixed_optics is None:
-        optics = DifferentiableOptics(copy.deepcopy(sur) if own_surrogate else sur, patch=cfg.patch,
-                                      full_field_px=frame.full_field_px)
+        optics = DifferentiableOptics(
+            copy.deepcopy(sur) if own_surrogate else sur, patch=cfg.patch, full_field_px=frame.full_field_px
+        )
         optics.set_values(initial_optics_values(cfg, optics))
         optics.render_fields = nominal_field_heights(sur)
         optics.use_fields(cfg.fields)
@@ -241,8 +268,11 @@ def build_camera(cfg: DesignConfig, sur: OpticsSurrogate, *, fixed_optics: Fixed
     return Camera(optics, sensor, isp)
 
 
-BLOCK_SETTINGS = {"optics": ("lr_optics", "steps_optics", "beta_optics"), "isp": (None, "steps_isp", "beta_isp"),
-                  "detector": ("lr_detector", "steps_detector", "beta_detector")}
+BLOCK_SETTINGS = {
+    "optics": ("lr_optics", "steps_optics", "beta_optics"),
+    "isp": (None, "steps_isp", "beta_isp"),
+    "detector": ("lr_detector", "steps_detector", "beta_detector"),
+}
 
 
 def make_optimizer(cfg: DesignConfig, camera, kind: str):
@@ -261,17 +291,26 @@ def make_optimizer(cfg: DesignConfig, camera, kind: str):
         coords = torch.sigmoid if name == "optics" or (name == "isp" and task.isp == "hardware") else None
         blocks.append(Block(name, params, lr, getattr(cfg, steps_key), getattr(cfg, beta_key), coords))
     if kind == "nominal":
-        return ProximalCompositional([Block(b.name, b.params, b.lr, 1, 0.0) for b in blocks], n_cycles=0,
-                                     n_finetune=cfg.total_steps)
+        return ProximalCompositional(
+            [Block(b.name, b.params, b.lr, 1, 0.0) for b in blocks], n_cycles=0, n_finetune=cfg.total_steps
+        )
     if kind == "vanilla":
         return Vanilla(blocks, cfg.lr_vanilla, cfg.total_steps)
     return ProximalCompositional(blocks, cfg.n_cycles, cfg.n_finetune)
 
 
 def _save_state(path: Path, camera: Camera, opt, wall_s: float, history: list, monitor=None) -> None:
-    save_atomic({"format": "optix-design-state/1", "camera": camera.state_dict(), "optimizer": opt.state_dict(),
-                 "wall_s": wall_s, "history": history,
-                 "monitor": monitor.state_dict() if monitor is not None else None}, path)
+    save_atomic(
+        {
+            "format": "optix-design-state/1",
+            "camera": camera.state_dict(),
+            "optimizer": opt.state_dict(),
+            "wall_s": wall_s,
+            "history": history,
+            "monitor": monitor.state_dict() if monitor is not None else None,
+        },
+        path,
+    )
 
 
 def _load_state(path: Path, camera: Camera, opt, monitor=None) -> tuple[float, list]:
@@ -293,8 +332,10 @@ def _load_state(path: Path, camera: Camera, opt, monitor=None) -> tuple[float, l
     except OpticsModeMismatch:
         raise  # its own message: the run's optics model differs, the checkpoint is fine
     except DAMAGED_STATE_ERRORS as err:
-        raise ValueError(f"{path}: damaged design checkpoint ({type(err).__name__}: {' '.join(str(err).split())}); "
-                         f"remove it to restart that training") from None
+        raise ValueError(
+            f"{path}: damaged design checkpoint ({type(err).__name__}: {' '.join(str(err).split())}); "
+            f"remove it to restart that training"
+        ) from None
     return wall_s, history
 
 
@@ -304,10 +345,24 @@ def noise_generator(seed: int, t: int, ranks: parallel.Ranks = parallel.Ranks())
     return torch.Generator().manual_seed(int(np.random.SeedSequence(key).generate_state(1)[0]))
 
 
-def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progress: bool = True,
-          writer=None, frame: SensorFrame = SensorFrame(), folder=None, on_step=None, log=None,
-          loss_at=None, parts: tuple[str, ...] = LOSS_PARTS, monitor=None,
-          ranks: parallel.Ranks = parallel.Ranks()) -> dict:
+def train(
+    cfg: DesignConfig,
+    camera: Camera,
+    opt,
+    out: Path,
+    name: str,
+    *,
+    progress: bool = True,
+    writer=None,
+    frame: SensorFrame = SensorFrame(),
+    folder=None,
+    on_step=None,
+    log=None,
+    loss_at=None,
+    parts: tuple[str, ...] = LOSS_PARTS,
+    monitor=None,
+    ranks: parallel.Ranks = parallel.Ranks(),
+) -> dict:
     """Run ``opt`` to its last step on the task loss, checkpointing into out/{name}_state.pt.
     ``loss_at(t, generator)`` -> (loss, {part: value}) is step t's loss (default: the
     image-quality task's on ``training_batch``); ``parts`` name the values it reports.
@@ -332,17 +387,23 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
         part = parallel.batch_slice(cfg.batch, ranks)
 
         def loss_at(t, gen):
-            batch = training_batch(cfg.seed, t, cfg.batch, cfg.crop, m, (task.level_min, task.level_max), frame,
-                                   folder)
+            batch = training_batch(cfg.seed, t, cfg.batch, cfg.crop, m, (task.level_min, task.level_max), frame, folder)
             out_img, _ = camera(batch.scene[part], batch.offset_px, gen)
             return loss_mod(out_img, batch.target[part])
+
     optics = camera.optics if isinstance(camera.optics, DifferentiableOptics) else None
     guard = Manufacturable(optics.surrogate.manifest) if optics is not None and optics.surrogate.manifest else None
     camera.train()
     m = camera.margin
     t_start = time.perf_counter()
-    bar = tqdm(total=opt.total_steps, initial=opt.t, desc=f"{name} ({opt.kind})", unit="step", disable=not progress,
-               leave=False)
+    bar = tqdm(
+        total=opt.total_steps,
+        initial=opt.t,
+        desc=f"{name} ({opt.kind})",
+        unit="step",
+        disable=not progress,
+        leave=False,
+    )
     if monitor is not None and opt.t == 0 and not monitor.checks:
         monitor.check(0)
     while opt.t < opt.total_steps:
@@ -360,8 +421,9 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
         parallel.stop_if_diverged(opt.t, state_path, hint, loss=info["loss"])
         info["optics"] = backend
         # the paper enforces its limits on every lens: a step that breaks one is cut back
-        info["cut"] = int(guard is not None and info["block"] in ("optics", "all")
-                          and keep_manufacturable(optics, u_prev, guard))
+        info["cut"] = int(
+            guard is not None and info["block"] in ("optics", "all") and keep_manufacturable(optics, u_prev, guard)
+        )
         info["seconds"] = time.perf_counter() - t0
         history.append({k: info[k] for k in history_keys(parts)})
         if writer is not None:
@@ -382,16 +444,25 @@ def train(cfg: DesignConfig, camera: Camera, opt, out: Path, name: str, *, progr
     bar.close()
     wall = wall_s + (time.perf_counter() - t_start if ran else 0.0)
     camera.eval()
-    return {"steps": opt.t, "wall_s": wall, "final_loss": history[-1]["loss"] if history else math.nan,
-            "cut_steps": int(sum(h.get("cut", 0) for h in history)), "history": history}
+    return {
+        "steps": opt.t,
+        "wall_s": wall,
+        "final_loss": history[-1]["loss"] if history else math.nan,
+        "cut_steps": int(sum(h.get("cut", 0) for h in history)),
+        "history": history,
+    }
 
 
 def start_run(cfg: DesignConfig, out: "str | Path") -> tuple[Path, object, SensorFrame, OpticsSurrogate]:
     """What every design run starts from: its folder, task, sensor frame and surrogate (checked
     to render at the sensor's pitch), with the torch threads set."""
     parallel.set_threads(cfg.threads)
-    return Path(out), get_task(cfg.task), SensorFrame(), load_surrogate(cfg.surrogate,
-                                                                         calibrated_preset("imx249").pixel_um)
+    return (
+        Path(out),
+        get_task(cfg.task),
+        SensorFrame(),
+        load_surrogate(cfg.surrogate, calibrated_preset("imx249").pixel_um),
+    )
 
 
 def claim_run_dir(out: Path, cfg: DesignConfig, ranks: parallel.Ranks, progress: bool, log):
@@ -434,20 +505,43 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     folder = ImageFolder(cfg.images) if cfg.images else None
     mode, choice = resolve_optics(cfg)
     if ranks.distributed and mode != "surrogate":
-        raise ValueError(f"--optics {cfg.optics} ({mode}) runs the engine inside the training steps and is not "
-                         f"split over processes; under torchrun use --optics surrogate")
+        raise ValueError(
+            f"--optics {cfg.optics} ({mode}) runs the engine inside the training steps and is not "
+            f"split over processes; under torchrun use --optics surrogate"
+        )
     build_camera(cfg, sur, frame=frame)
     progress, log, writer = claim_run_dir(out, cfg, ranks, progress, log)
     try:
-        log(f"[1/4] end-to-end training: {cfg.task}, {cfg.optimizer}, {cfg.total_steps} steps, optics {mode}"
-            + (f" (auto: {choice['why']})" if cfg.optics == "auto" else ""))
+        log(
+            f"[1/4] end-to-end training: {cfg.task}, {cfg.optimizer}, {cfg.total_steps} steps, optics {mode}"
+            + (f" (auto: {choice['why']})" if cfg.optics == "auto" else "")
+        )
         camera = build_camera(cfg, sur, frame=frame, own_surrogate=mode == "hybrid")
-        monitor = OpticsMonitor(camera.optics, mode, cfg.check_every, cfg.hybrid_threshold, choice["refine"],
-                                RefineSettings(designs=cfg.refine_designs, steps=cfg.refine_steps, seed=cfg.seed),
-                                writer=writer, name="end_to_end", log=log)
-        e2e = train(cfg, camera, make_optimizer(cfg, camera, cfg.optimizer), out, "end_to_end", progress=progress,
-                    writer=writer, frame=frame, folder=folder, log=log, ranks=ranks,
-                    monitor=monitor if ranks.is_main else None)  # surrogate optics: it only measures
+        monitor = OpticsMonitor(
+            camera.optics,
+            mode,
+            cfg.check_every,
+            cfg.hybrid_threshold,
+            choice["refine"],
+            RefineSettings(designs=cfg.refine_designs, steps=cfg.refine_steps, seed=cfg.seed),
+            writer=writer,
+            name="end_to_end",
+            log=log,
+        )
+        e2e = train(
+            cfg,
+            camera,
+            make_optimizer(cfg, camera, cfg.optimizer),
+            out,
+            "end_to_end",
+            progress=progress,
+            writer=writer,
+            frame=frame,
+            folder=folder,
+            log=log,
+            ranks=ranks,
+            monitor=monitor if ranks.is_main else None,
+        )  # surrogate optics: it only measures
         nominal_values = camera.optics.base_values()
         with torch.no_grad():
             psf_ns, vig_ns = sur.psfs(nominal_values, check=False)
@@ -455,15 +549,33 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         # nominal lens where the run trusts the engine, the surrogate's where it does not
         psf_nt, vig_nt = psf_ns, vig_ns
         if mode != "surrogate":
-            psf_nt, vig_nt = (torch.as_tensor(a, dtype=torch.float32) for a in camera.optics.exact.psfs(
-                nominal_values.double().numpy()))
+            psf_nt, vig_nt = (
+                torch.as_tensor(a, dtype=torch.float32)
+                for a in camera.optics.exact.psfs(nominal_values.double().numpy())
+            )
         idx = camera.optics.field_index or list(range(len(sur.fields_deg)))
-        fixed = FixedOptics(psf_nt[idx], vig_nt[idx], camera.optics.render_fields[idx], patch=cfg.patch,
-                            full_field_px=frame.full_field_px)
+        fixed = FixedOptics(
+            psf_nt[idx],
+            vig_nt[idx],
+            camera.optics.render_fields[idx],
+            patch=cfg.patch,
+            full_field_px=frame.full_field_px,
+        )
         log(f"[2/4] nominal lens + processing fine-tuned, the same {cfg.total_steps} steps")
         nominal = build_camera(cfg, sur, fixed_optics=fixed, frame=frame)
-        nom = train(cfg, nominal, make_optimizer(cfg, nominal, "nominal"), out, "nominal", progress=progress,
-                    writer=writer, frame=frame, folder=folder, log=log, ranks=ranks)
+        nom = train(
+            cfg,
+            nominal,
+            make_optimizer(cfg, nominal, "nominal"),
+            out,
+            "nominal",
+            progress=progress,
+            writer=writer,
+            frame=frame,
+            folder=folder,
+            log=log,
+            ranks=ranks,
+        )
     finally:
         if writer is not None:
             writer.close()
@@ -478,16 +590,30 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         psf_es, vig_es = sur.psfs(final_values, check=False)
     # field positions: each design's own chief-ray heights under exact optics, the nominal's
     # (what training used) under the surrogate's
-    heights = {who: design_field_heights(sur, v.numpy(), exact["image_distance"][i])
-               for i, (who, v) in enumerate((("nominal", nominal_values), ("end_to_end", final_values)))}
+    heights = {
+        who: design_field_heights(sur, v.numpy(), exact["image_distance"][i])
+        for i, (who, v) in enumerate((("nominal", nominal_values), ("end_to_end", final_values)))
+    }
     h_train = camera.optics.render_fields
-    optics = {"nominal": {"exact": (exact["psf"][0], exact["vignetting"][0], heights["nominal"]),
-                          "surrogate": (psf_ns, vig_ns, h_train)},
-              "end_to_end": {"exact": (exact["psf"][1], exact["vignetting"][1], heights["end_to_end"]),
-                             "surrogate": (psf_es, vig_es, h_train)}}
+    optics = {
+        "nominal": {
+            "exact": (exact["psf"][0], exact["vignetting"][0], heights["nominal"]),
+            "surrogate": (psf_ns, vig_ns, h_train),
+        },
+        "end_to_end": {
+            "exact": (exact["psf"][1], exact["vignetting"][1], heights["end_to_end"]),
+            "surrogate": (psf_es, vig_es, h_train),
+        },
+    }
     cams = {"nominal": nominal, "end_to_end": camera}
-    samples = heldout_set(cfg.eval_size, exact["psf"].shape[-1] // 2, cfg.eval_procedural, cfg.eval_level, frame,
-                          positions=POSITIONS[cfg.eval_positions])
+    samples = heldout_set(
+        cfg.eval_size,
+        exact["psf"].shape[-1] // 2,
+        cfg.eval_procedural,
+        cfg.eval_level,
+        frame,
+        positions=POSITIONS[cfg.eval_positions],
+    )
     rows: dict[str, dict[str, list]] = {}
     reused_s = 0.0  # seconds of evaluations reused from an earlier call
     for who in ("nominal", "end_to_end"):
@@ -503,8 +629,10 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
                 continue
             t0 = time.perf_counter()
             fo = FixedOptics(psf, vig, fh, patch=cfg.patch, full_field_px=frame.full_field_px)
-            rows[who][kind] = ev.evaluate(Camera(fo, cams[who].sensor, cams[who].isp), tqdm(
-                samples, desc=f"eval {who} ({kind} optics)", unit="img", disable=not progress, leave=False))
+            rows[who][kind] = ev.evaluate(
+                Camera(fo, cams[who].sensor, cams[who].isp),
+                tqdm(samples, desc=f"eval {who} ({kind} optics)", unit="img", disable=not progress, leave=False),
+            )
             write_json_atomic(path, {"key": key, "wall_s": time.perf_counter() - t0, "rows": rows[who][kind]})
 
     # the room the lens has: the nominal camera's processing behind a perfect lens (the scene
@@ -512,16 +640,19 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     # noise draws
     size = int(exact["psf"].shape[-1])
     path = out / "eval_perfect_lens_exact.json"
-    key = _camera_digest(torch.tensor([float(size)]), torch.ones(1), torch.zeros(1), nominal.isp,
-                         len(samples), tag="perfect-optics")
+    key = _camera_digest(
+        torch.tensor([float(size)]), torch.ones(1), torch.zeros(1), nominal.isp, len(samples), tag="perfect-optics"
+    )
     cached = _read_eval_cache(path, key)
     if cached is not None:
         perfect_rows, reused_s = cached["rows"], reused_s + float(cached.get("wall_s", 0.0))
     else:
         t0 = time.perf_counter()
         po = PerfectOptics(size, full_field_px=frame.full_field_px)
-        perfect_rows = ev.evaluate(Camera(po, nominal.sensor, nominal.isp), tqdm(
-            samples, desc="eval perfect lens", unit="img", disable=not progress, leave=False))
+        perfect_rows = ev.evaluate(
+            Camera(po, nominal.sensor, nominal.isp),
+            tqdm(samples, desc="eval perfect lens", unit="img", disable=not progress, leave=False),
+        )
         write_json_atomic(path, {"key": key, "wall_s": time.perf_counter() - t0, "rows": perfect_rows})
 
     log("[4/4] lens export, checks, PSF grids, panels, reports")
@@ -529,51 +660,86 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     names = sur.param_names
     exported, checks = outputs.write_design_outputs(out, cfg, sur, nominal_values.numpy(), final_values.numpy(), exact)
     from ..scenes import bundled_photos
+
     # the panels: three photos at the two extremes of the field, the centre and the corner
-    _panels(out / "panels.png", heldout_set(cfg.eval_size, exact["psf"].shape[-1] // 2, 0, cfg.eval_level, frame,
-                                            photos=bundled_photos()[:3]), cams, optics)
+    _panels(
+        out / "panels.png",
+        heldout_set(cfg.eval_size, exact["psf"].shape[-1] // 2, 0, cfg.eval_level, frame, photos=bundled_photos()[:3]),
+        cams,
+        optics,
+    )
     from ..design.report import write_report
+
     for who in ("nominal", "end_to_end"):
         write_report(Lens.load(out / "lens" / f"{who}.json"), out / "report" / who)
 
-    summary = {who: {**ev.summarize(rows[who]["exact"]), "surrogate": ev.summarize(rows[who]["surrogate"])}
-               for who in ("nominal", "end_to_end")}
+    summary = {
+        who: {**ev.summarize(rows[who]["exact"]), "surrogate": ev.summarize(rows[who]["surrogate"])}
+        for who in ("nominal", "end_to_end")
+    }
     results = {
-        "task": cfg.task, "description": task.description, "optimizer": cfg.optimizer, "budget": cfg.budget,
-        "seed": cfg.seed, "optics_eval": "exact",
-        "nominal": summary["nominal"], "end_to_end": summary["end_to_end"],
+        "task": cfg.task,
+        "description": task.description,
+        "optimizer": cfg.optimizer,
+        "budget": cfg.budget,
+        "seed": cfg.seed,
+        "optics_eval": "exact",
+        "nominal": summary["nominal"],
+        "end_to_end": summary["end_to_end"],
         # the nominal camera's processing behind a perfect lens (PerfectOptics): the lens's room
         "perfect_lens": ev.summarize(perfect_rows),
         "paired": ev.paired(rows["nominal"]["exact"], rows["end_to_end"]["exact"], cfg.bootstrap, cfg.seed),
-        "paired_by_zone": ev.paired_by_zone(rows["nominal"]["exact"], rows["end_to_end"]["exact"], cfg.bootstrap,
-                                            cfg.seed),
-        "paired_surrogate_optics": ev.paired(rows["nominal"]["surrogate"], rows["end_to_end"]["surrogate"],
-                                             cfg.bootstrap, cfg.seed),
-        "lens_zmx": str(Path(exported["zmx"]).relative_to(out)), "lens_json": str(Path(exported["json"]).relative_to(out)),
-        "design": {"parameters": names, "nominal": [float(v) for v in nominal_values],
-                   "end_to_end": [float(v) for v in final_values], "checks": checks},
+        "paired_by_zone": ev.paired_by_zone(
+            rows["nominal"]["exact"], rows["end_to_end"]["exact"], cfg.bootstrap, cfg.seed
+        ),
+        "paired_surrogate_optics": ev.paired(
+            rows["nominal"]["surrogate"], rows["end_to_end"]["surrogate"], cfg.bootstrap, cfg.seed
+        ),
+        "lens_zmx": str(Path(exported["zmx"]).relative_to(out)),
+        "lens_json": str(Path(exported["json"]).relative_to(out)),
+        "design": {
+            "parameters": names,
+            "nominal": [float(v) for v in nominal_values],
+            "end_to_end": [float(v) for v in final_values],
+            "checks": checks,
+        },
         "surrogate_psf_rel_l1_per_field": {
             "fields_deg": fields_deg,
             "nominal": outputs.psf_rel_l1_per_field(psf_ns, exact["psf"][0]),
-            "end_to_end": outputs.psf_rel_l1_per_field(psf_es, exact["psf"][1])},
+            "end_to_end": outputs.psf_rel_l1_per_field(psf_es, exact["psf"][1]),
+        },
         # the exact PSFs are normalized over their window: how much of each field's flux that
         # window holds (worst channel), for both lenses
         "exact_psf_energy_in_window": {
-            "fields_deg": fields_deg, "window_px": int(exact["psf"].shape[-1]),
+            "fields_deg": fields_deg,
+            "window_px": int(exact["psf"].shape[-1]),
             "nominal": [float(e) for e in exact["energy_in_window"][0].min(axis=-1)],
-            "end_to_end": [float(e) for e in exact["energy_in_window"][1].min(axis=-1)]},
-        "held_out": {"n_images": len({s.name for s in samples}), "n_samples": len(samples),
-                     "positions": cfg.eval_positions, "per_image": len(POSITIONS[cfg.eval_positions]),
-                     "size_px": cfg.eval_size},
-        "training": {k: {kk: v[kk] for kk in ("steps", "wall_s", "final_loss", "cut_steps")} for k, v in
-                     (("end_to_end", e2e), ("nominal", nom))},
+            "end_to_end": [float(e) for e in exact["energy_in_window"][1].min(axis=-1)],
+        },
+        "held_out": {
+            "n_images": len({s.name for s in samples}),
+            "n_samples": len(samples),
+            "positions": cfg.eval_positions,
+            "per_image": len(POSITIONS[cfg.eval_positions]),
+            "size_px": cfg.eval_size,
+        },
+        "training": {
+            k: {kk: v[kk] for kk in ("steps", "wall_s", "final_loss", "cut_steps")}
+            for k, v in (("end_to_end", e2e), ("nominal", nom))
+        },
         "surrogate": cfg.surrogate,
-        "optics_model": {**monitor.summary(), "requested": cfg.optics, "choice": choice,
-                         "exact_gradient_steps": exact_gradient_steps(e2e["history"])},
+        "optics_model": {
+            **monitor.summary(),
+            "requested": cfg.optics,
+            "choice": choice,
+            "exact_gradient_steps": exact_gradient_steps(e2e["history"]),
+        },
     }
     if task.isp == "hardware":
-        results["isp_hyperparameters"] = {"nominal": nominal.isp.hyperparameters(),
-                                          "end_to_end": camera.isp.hyperparameters()}
+        results["isp_hyperparameters"] = {
+            "nominal": nominal.isp.hyperparameters(),
+            "end_to_end": camera.isp.hyperparameters(),
+        }
     _write_history(out / "history.csv", {"end_to_end": e2e["history"], "nominal": nom["history"]})
     _write_rows(out / "metrics.csv", rows)
     # training (both runs, across resumes) + exact PSFs, evaluation and outputs of this call
@@ -605,9 +771,13 @@ def _read_eval_cache(path: Path, key: str) -> dict | None:
     from .evaluate import METRICS
 
     for r in cached["rows"]:
-        if not (isinstance(r, dict) and isinstance(r.get("image"), str) and isinstance(r.get("position"), str)
-                and all(isinstance(r.get(m), (int, float)) and not isinstance(r.get(m), bool) for m in METRICS)
-                and isinstance(r.get("radius"), (int, float))):
+        if not (
+            isinstance(r, dict)
+            and isinstance(r.get("image"), str)
+            and isinstance(r.get("position"), str)
+            and all(isinstance(r.get(m), (int, float)) and not isinstance(r.get(m), bool) for m in METRICS)
+            and isinstance(r.get("radius"), (int, float))
+        ):
             return None
     return cached
 
@@ -630,8 +800,9 @@ def _panels(path: Path, samples, cams: dict, optics: dict, n_images: int = 3) ->
             psf, vig, fh = optics[who]["exact"]
             cam = cams[who]
             fo = FixedOptics(psf, vig, fh, patch=cam.optics.patch, full_field_px=cam.optics.full_field_px)
-            out, _ = Camera(fo, cam.sensor, cam.isp)(s.scene[None], s.offset_px,
-                                                     torch.Generator().manual_seed(int(s.noise_seed)), final=True)
+            out, _ = Camera(fo, cam.sensor, cam.isp)(
+                s.scene[None], s.offset_px, torch.Generator().manual_seed(int(s.noise_seed)), final=True
+            )
             imgs.append(out[0])
         rows.append((f"{s.name} ({s.position})", imgs))
     save_panels(path, rows, ["target", "nominal + fine-tuned processing", "end-to-end"])
@@ -658,5 +829,16 @@ def _write_rows(path: Path, rows: dict) -> None:
         for who, kinds in rows.items():
             for kind, rs in kinds.items():
                 for r in rs:
-                    w.writerow([who, kind, r["image"], r["position"], r.get("radius", ""), r["psnr_db"], r["ssim"],
-                                r["lpips"], r["haarpsi"]])
+                    w.writerow(
+                        [
+                            who,
+                            kind,
+                            r["image"],
+                            r["position"],
+                            r.get("radius", ""),
+                            r["psnr_db"],
+                            r["ssim"],
+                            r["lpips"],
+                            r["haarpsi"],
+                        ]
+                    )

@@ -34,8 +34,10 @@ def write_street_coco(out: "str | Path", n: int, size=(256, 384), seed: int = 0,
 
     out = Path(out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise ValueError(f"{out} is not an empty folder; a street set is written whole into a new or empty "
-                         f"--out (nothing there is replaced)")
+        raise ValueError(
+            f"{out} is not an empty folder; a street set is written whole into a new or empty "
+            f"--out (nothing there is replaced)"
+        )
     (out / "images").mkdir(parents=True, exist_ok=True)
     images, anns = [], []
     for i in tqdm(range(n), desc="street scenes", unit="scene", disable=not progress):
@@ -46,13 +48,29 @@ def write_street_coco(out: "str | Path", n: int, size=(256, 384), seed: int = 0,
         h, w = s.radiance.shape[-2:]
         images.append({"id": i + 1, "file_name": name, "height": int(h), "width": int(w)})
         for (x0, y0, x1, y1), c, light in zip(s.boxes.tolist(), s.labels.tolist(), s.object_light.tolist()):
-            anns.append({"id": len(anns) + 1, "image_id": i + 1, "category_id": int(c),
-                         "bbox": [x0, y0, x1 - x0, y1 - y0], "area": (x1 - x0) * (y1 - y0), "iscrowd": 0,
-                         "illumination": light})
+            anns.append(
+                {
+                    "id": len(anns) + 1,
+                    "image_id": i + 1,
+                    "category_id": int(c),
+                    "bbox": [x0, y0, x1 - x0, y1 - y0],
+                    "area": (x1 - x0) * (y1 - y0),
+                    "iscrowd": 0,
+                    "illumination": light,
+                }
+            )
     ann_path = out / "annotations.json"
     tmp = ann_path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps({"info": {"description": f"optix-e2e street scenes, seed {seed}", "size": list(size)},
-                               "images": images, "annotations": anns, "categories": list(CATEGORIES)}))
+    tmp.write_text(
+        json.dumps(
+            {
+                "info": {"description": f"optix-e2e street scenes, seed {seed}", "size": list(size)},
+                "images": images,
+                "annotations": anns,
+                "categories": list(CATEGORIES),
+            }
+        )
+    )
     tmp.replace(ann_path)
     return ann_path
 
@@ -89,8 +107,9 @@ class CocoDetection(torch.utils.data.Dataset):
         except UnicodeDecodeError as err:
             raise CocoFormatError(f"{self.ann_file}: not UTF-8 text ({err.reason} at byte {err.start})") from None
         except json.JSONDecodeError as err:
-            raise CocoFormatError(f"{self.ann_file}: invalid JSON at line {err.lineno}, column {err.colno}: "
-                                  f"{err.msg}") from None
+            raise CocoFormatError(
+                f"{self.ann_file}: invalid JSON at line {err.lineno}, column {err.colno}: {err.msg}"
+            ) from None
         except OSError as err:
             raise CocoFormatError(f"{self.ann_file}: cannot read ({err.strerror})") from None
         except RecursionError:
@@ -122,8 +141,9 @@ class CocoDetection(torch.utils.data.Dataset):
             if not (self.image_dir / name).is_file():
                 raise CocoFormatError(f"{where}: image file {self.image_dir / name} not found")
             index[iid] = len(self.images)
-            self.images.append({"id": iid, "file_name": name, "height": h, "width": w, "boxes": [], "labels": [],
-                                "illumination": []})
+            self.images.append(
+                {"id": iid, "file_name": name, "height": h, "width": w, "boxes": [], "labels": [], "illumination": []}
+            )
         seen = set()
         for k, a in enumerate(anns):
             where = f"{f}: annotations[{k}]"
@@ -136,27 +156,33 @@ class CocoDetection(torch.utils.data.Dataset):
             if iid not in index:
                 raise CocoFormatError(f"{where}: image_id {iid} is not among the images")
             if cid not in self.categories:
-                raise CocoFormatError(f"{where}: category_id {cid} is not among the categories "
-                                      f"({', '.join(map(str, sorted(self.categories)))})")
+                raise CocoFormatError(
+                    f"{where}: category_id {cid} is not among the categories "
+                    f"({', '.join(map(str, sorted(self.categories)))})"
+                )
             box = a.get("bbox")
             im = self.images[index[iid]]
-            if (not isinstance(box, list) or len(box) != 4
-                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-                               for x in box)):
+            if (
+                not isinstance(box, list)
+                or len(box) != 4
+                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in box)
+            ):
                 raise CocoFormatError(f"{where}: bbox must be four finite numbers [x, y, width, height], got {box!r}")
             x, y, bw, bh = map(float, box)
             if bw <= 0 or bh <= 0:
                 raise CocoFormatError(f"{where}: bbox {box} has no area")
             if x < -1 or y < -1 or x + bw > im["width"] + 1 or y + bh > im["height"] + 1:
-                raise CocoFormatError(f"{where}: bbox {box} lies outside its image {im['file_name']} "
-                                      f"({im['width']} x {im['height']})")
+                raise CocoFormatError(
+                    f"{where}: bbox {box} lies outside its image {im['file_name']} ({im['width']} x {im['height']})"
+                )
             if a.get("iscrowd", 0):
                 continue
             im["boxes"].append([x, y, x + bw, y + bh])
             im["labels"].append(cid)
             light = a.get("illumination")  # our scenes' extra key; None where a file lacks it
-            if light is not None and (isinstance(light, bool) or not isinstance(light, (int, float))
-                                      or not math.isfinite(light) or light < 0):
+            if light is not None and (
+                isinstance(light, bool) or not isinstance(light, (int, float)) or not math.isfinite(light) or light < 0
+            ):
                 raise CocoFormatError(f"{where}: illumination must be a finite number >= 0, got {light!r}")
             im["illumination"].append(None if light is None else float(light))
 
@@ -176,9 +202,14 @@ class CocoDetection(torch.utils.data.Dataset):
             arr = np.repeat(arr[..., None], 3, axis=-1)
         arr = arr[..., :3]
         if arr.shape[:2] != (im["height"], im["width"]):
-            raise CocoFormatError(f"{path}: image is {arr.shape[1]} x {arr.shape[0]}, the annotation file says "
-                                  f"{im['width']} x {im['height']}")
+            raise CocoFormatError(
+                f"{path}: image is {arr.shape[1]} x {arr.shape[0]}, the annotation file says "
+                f"{im['width']} x {im['height']}"
+            )
         scale = 65535.0 if arr.dtype == np.uint16 else 255.0
         img = torch.from_numpy(np.ascontiguousarray(arr.transpose(2, 0, 1))).float() / scale
-        return img, {"boxes": torch.tensor(im["boxes"], dtype=torch.float32).reshape(-1, 4),
-                     "labels": torch.tensor(im["labels"], dtype=torch.int64), "image_id": im["id"]}
+        return img, {
+            "boxes": torch.tensor(im["boxes"], dtype=torch.float32).reshape(-1, 4),
+            "labels": torch.tensor(im["labels"], dtype=torch.int64),
+            "image_id": im["id"],
+        }

@@ -28,8 +28,13 @@ class ImageFolder(Dataset):
     ``dataset[i]``, ValueError naming the file if an image cannot be decoded.
     """
 
-    def __init__(self, root: str | Path, size: int | tuple[int, int] | None = None,
-                 extensions: tuple[str, ...] = DEFAULT_EXTENSIONS, recursive: bool = True):
+    def __init__(
+        self,
+        root: str | Path,
+        size: int | tuple[int, int] | None = None,
+        extensions: tuple[str, ...] = DEFAULT_EXTENSIONS,
+        recursive: bool = True,
+    ):
         self.root = Path(root)
         if not self.root.exists():
             raise FileNotFoundError(f"image folder not found: {self.root}")
@@ -39,8 +44,10 @@ class ImageFolder(Dataset):
         pattern = "**/*" if recursive else "*"
         self.paths = sorted(p for p in self.root.glob(pattern) if p.is_file() and p.suffix.lower() in exts)
         if not self.paths:
-            raise ValueError(f"no images ({', '.join(sorted(exts))}) found in {self.root}"
-                             + (" or its subfolders" if recursive else ""))
+            raise ValueError(
+                f"no images ({', '.join(sorted(exts))}) found in {self.root}"
+                + (" or its subfolders" if recursive else "")
+            )
         self.size = size
 
     def __len__(self) -> int:

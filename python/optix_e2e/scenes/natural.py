@@ -30,8 +30,15 @@ from ..color import linear_to_srgb, srgb_to_linear
 from .photos import to_image_tensor
 from .procedural import _hw, _rng, dead_leaves
 
-__all__ = ["natural_dead_leaves", "text_scene", "gradient_scene", "texture_scene", "photo_crop",
-           "training_photos", "natural_scene"]
+__all__ = [
+    "natural_dead_leaves",
+    "text_scene",
+    "gradient_scene",
+    "texture_scene",
+    "photo_crop",
+    "training_photos",
+    "natural_scene",
+]
 
 
 def _package_dir(module: str) -> Path | None:
@@ -43,8 +50,10 @@ def _package_dir(module: str) -> Path | None:
 
 
 # package -> (sub-folder, files): photographs shipped inside installed packages
-_COLOUR_FILES = {"sklearn": ("datasets/images", ("china.jpg", "flower.jpg")),
-                 "matplotlib": ("mpl-data/sample_data", ("grace_hopper.jpg", "Minduka_Present_Blue_Pack.png"))}
+_COLOUR_FILES = {
+    "sklearn": ("datasets/images", ("china.jpg", "flower.jpg")),
+    "matplotlib": ("mpl-data/sample_data", ("grace_hopper.jpg", "Minduka_Present_Blue_Pack.png")),
+}
 _GREY_FILES = ("brick.png", "grass.png", "gravel.png", "text.png", "page.png", "coins.png", "camera.png", "moon.png")
 
 
@@ -113,8 +122,12 @@ def text_scene(size, seed=None) -> torch.Tensor:
         font = ImageFont.truetype(str(fonts[int(rng.integers(len(fonts)))]), px) if fonts else ImageFont.load_default()
         fg = np.array(bg) + rng.choice([-1, 1]) * rng.integers(60, 256, 3)
         text = "".join(rng.choice(list(alphabet), int(rng.integers(5, 40))))
-        draw.text((int(rng.integers(-20, max(1, w // 3))), y), text, fill=tuple(int(v) for v in np.clip(fg, 0, 255)),
-                  font=font)
+        draw.text(
+            (int(rng.integers(-20, max(1, w // 3))), y),
+            text,
+            fill=tuple(int(v) for v in np.clip(fg, 0, 255)),
+            font=font,
+        )
         y += int(px * rng.uniform(1.0, 1.6))
     return torch.from_numpy(np.asarray(im, dtype=np.float32) / 255).permute(2, 0, 1).contiguous()
 
@@ -154,10 +167,14 @@ def _random_view(img: torch.Tensor, h: int, w: int, rng, min_scale: float) -> to
     s = max(s, h / H, w / W)
     hh, ww = max(h, int(round(H * s))), max(w, int(round(W * s)))
     if (hh, ww) != (H, W):
-        img = F.interpolate(img[None], size=(hh, ww), mode="area" if s < 1 else "bilinear",
-                            **({} if s < 1 else {"align_corners": False}))[0]
+        img = F.interpolate(
+            img[None],
+            size=(hh, ww),
+            mode="area" if s < 1 else "bilinear",
+            **({} if s < 1 else {"align_corners": False}),
+        )[0]
     y, x = int(rng.integers(0, hh - h + 1)), int(rng.integers(0, ww - w + 1))
-    out = img[:, y:y + h, x:x + w]
+    out = img[:, y : y + h, x : x + w]
     if rng.random() < 0.5:
         out = out.flip(-1)
     if rng.random() < 0.5:
@@ -187,8 +204,15 @@ def photo_crop(size, seed=None) -> torch.Tensor:
 
 
 # the training mix of every stage that learns from scenes (ISP pre-training and the tasks)
-NATURAL_MIX = {"natural_dead_leaves": 0.4, "photo_crop": 0.2, "texture_scene": 0.15, "text_scene": 0.1,
-               "gradient_scene": 0.05, "slanted_edge": 0.05, "color_chart": 0.05}
+NATURAL_MIX = {
+    "natural_dead_leaves": 0.4,
+    "photo_crop": 0.2,
+    "texture_scene": 0.15,
+    "text_scene": 0.1,
+    "gradient_scene": 0.05,
+    "slanted_edge": 0.05,
+    "color_chart": 0.05,
+}
 
 
 def natural_scene(size, seed=None, mix: dict[str, float] | None = None) -> torch.Tensor:
@@ -205,8 +229,13 @@ def natural_scene(size, seed=None, mix: dict[str, float] | None = None) -> torch
         return procedural.slanted_edge(size, angle, float(rng.uniform(2, 10)), rng, light=float(rng.uniform(0.3, 0.9)))
     if kind == "color_chart":
         return procedural.color_chart(size, surround=float(rng.uniform(0.2, 0.8)))
-    fn = {"natural_dead_leaves": natural_dead_leaves, "photo_crop": photo_crop, "texture_scene": texture_scene,
-          "text_scene": text_scene, "gradient_scene": gradient_scene}.get(kind)
+    fn = {
+        "natural_dead_leaves": natural_dead_leaves,
+        "photo_crop": photo_crop,
+        "texture_scene": texture_scene,
+        "text_scene": text_scene,
+        "gradient_scene": gradient_scene,
+    }.get(kind)
     if fn is None:
         raise ValueError(f"unknown scene kind {kind!r}; use {', '.join(NATURAL_MIX)}")
     return fn(size, rng)

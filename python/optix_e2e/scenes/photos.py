@@ -22,15 +22,15 @@ __all__ = ["bundled_photos", "load_photo", "to_image_tensor", "fit_size"]
 
 # name -> file in skimage/data.  All are 8-bit RGB photographs.
 _PHOTO_FILES = {
-    "astronaut": "astronaut.png",          # portrait, NASA
-    "chelsea": "chelsea.png",              # cat, fur texture
-    "coffee": "coffee.png",                # saturated colours, specular highlights
-    "rocket": "rocket.jpg",                # outdoor scene, sky, vehicle
-    "motorcycle_left": "motorcycle_left.png",   # Middlebury stereo pair, fine detail
+    "astronaut": "astronaut.png",  # portrait, NASA
+    "chelsea": "chelsea.png",  # cat, fur texture
+    "coffee": "coffee.png",  # saturated colours, specular highlights
+    "rocket": "rocket.jpg",  # outdoor scene, sky, vehicle
+    "motorcycle_left": "motorcycle_left.png",  # Middlebury stereo pair, fine detail
     "motorcycle_right": "motorcycle_right.png",
     "hubble_deep_field": "hubble_deep_field.jpg",  # point sources on black
-    "retina": "retina.jpg",                # fundus photograph, red/orange
-    "ihc": "ihc.png",                      # stained tissue micrograph
+    "retina": "retina.jpg",  # fundus photograph, red/orange
+    "ihc": "ihc.png",  # stained tissue micrograph
 }
 
 
@@ -91,10 +91,11 @@ def fit_size(img: torch.Tensor, size: int | tuple[int, int] | None) -> torch.Ten
     ch, cw = (h, round(h * tw / th)) if h * tw <= w * th else (round(w * th / tw), w)
     ch, cw = min(max(ch, 1), h), min(max(cw, 1), w)
     y0, x0 = (h - ch) // 2, (w - cw) // 2
-    img = img[:, y0:y0 + ch, x0:x0 + cw]
+    img = img[:, y0 : y0 + ch, x0 : x0 + cw]
     if (ch, cw) != (th, tw):
-        img = F.interpolate(img[None], size=(th, tw), mode="bilinear", align_corners=False,
-                            antialias=True)[0].clamp(0.0, 1.0)
+        img = F.interpolate(img[None], size=(th, tw), mode="bilinear", align_corners=False, antialias=True)[0].clamp(
+            0.0, 1.0
+        )
     return img.contiguous()
 
 
@@ -104,8 +105,9 @@ def load_photo(name: str, size: int | tuple[int, int] | None = None) -> torch.Te
         raise ValueError(f"unknown photo {name!r}; known photos: {', '.join(bundled_photos())}")
     path = _photo_path(name)
     if path is None:
-        raise FileNotFoundError(f"photo {name!r} ({_PHOTO_FILES[name]}) is not in this "
-                                f"scikit-image installation ({_data_dir()})")
+        raise FileNotFoundError(
+            f"photo {name!r} ({_PHOTO_FILES[name]}) is not in this scikit-image installation ({_data_dir()})"
+        )
     import imageio.v3 as iio
 
     return fit_size(to_image_tensor(iio.imread(path)), size)

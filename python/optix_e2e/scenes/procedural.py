@@ -21,8 +21,8 @@ import torch.nn.functional as F
 
 from ..color import colorchecker_srgb, linear_to_srgb, srgb_to_linear
 
-__all__ = ["dead_leaves", "slanted_edge", "color_chart", "chart_patch_boxes", "mixed_scene",
-           "random_crops"]
+__all__ = ["dead_leaves", "slanted_edge", "color_chart", "chart_patch_boxes", "mixed_scene", "random_crops"]
+
 
 def _hw(size) -> tuple[int, int]:
     h, w = (size, size) if isinstance(size, (int, np.integer)) else (int(size[0]), int(size[1]))
@@ -37,13 +37,14 @@ def _rng(seed) -> np.random.Generator:
 
 # ----------------------------------------------------------------------------- dead leaves
 
+
 def _power_law(rng: np.random.Generator, n: int, lo: float, hi: float, exponent: float) -> np.ndarray:
     """``n`` samples with density ~ r**exponent on [lo, hi] (inverse CDF)."""
     u = rng.random(n)
     e = exponent + 1.0
     if abs(e) < 1e-9:
         return lo * (hi / lo) ** u
-    return (lo ** e + u * (hi ** e - lo ** e)) ** (1.0 / e)
+    return (lo**e + u * (hi**e - lo**e)) ** (1.0 / e)
 
 
 _NONE = np.iinfo(np.int64).max  # label of a pixel no disc covers (yet)
@@ -60,8 +61,10 @@ def _disk_radii(rng, n, lo, hi, alpha, h, w) -> np.ndarray:
     """
     coef = np.array([h * w, 2.0 * (h + w), 4.0])
     powers = np.array([-alpha, 1.0 - alpha, 2.0 - alpha])
-    mass = np.array([np.log(hi / lo) if abs(p + 1) < 1e-9 else (hi ** (p + 1) - lo ** (p + 1)) / (p + 1)
-                     for p in powers]) * coef
+    mass = (
+        np.array([np.log(hi / lo) if abs(p + 1) < 1e-9 else (hi ** (p + 1) - lo ** (p + 1)) / (p + 1) for p in powers])
+        * coef
+    )
     which = rng.choice(3, size=n, p=mass / mass.sum())
     samples = np.stack([_power_law(rng, n, lo, hi, p) for p in powers])
     return samples[which, np.arange(n)]
@@ -82,11 +85,11 @@ def _stamp(label: np.ndarray, h: int, w: int, cx, cy, r, first: int) -> None:
     octave = np.ceil(np.log2(np.maximum(r, 1.0))).astype(np.int64)
     for k in np.unique(octave).tolist():
         sel = np.flatnonzero(octave == k)
-        off = np.arange(-2 ** k - 1, 2 ** k + 1)
+        off = np.arange(-(2**k) - 1, 2**k + 1)
         direct = len(todo) < len(off) ** 2
         step = max(1, _CHUNK // (len(todo) if direct else len(off) ** 2))
         for s in range(0, len(sel), step):
-            j = sel[s:s + step]
+            j = sel[s : s + step]
             if direct:  # [discs, uncovered pixels]
                 hit = (tx - cx[j, None]) ** 2 + (ty - cy[j, None]) ** 2 <= r[j, None] ** 2
                 label[todo] = np.minimum(label[todo], np.where(hit, ids[j, None], _NONE).min(0))
@@ -131,9 +134,17 @@ def _colors(rng, n: int, colors) -> torch.Tensor:
     return pool[torch.from_numpy(rng.integers(0, len(pool), n))]
 
 
-def dead_leaves(size, seed=None, *, r_min: float = 1.0, r_max: float | None = None,
-                alpha: float = 3.0, colors="photos", supersample: int = 2,
-                max_disks: int = 2_000_000) -> torch.Tensor:
+def dead_leaves(
+    size,
+    seed=None,
+    *,
+    r_min: float = 1.0,
+    r_max: float | None = None,
+    alpha: float = 3.0,
+    colors="photos",
+    supersample: int = 2,
+    max_disks: int = 2_000_000,
+) -> torch.Tensor:
     """A dead-leaves chart: occluding discs, radius density ~ r**-alpha on [r_min, r_max].
 
     Radii are in output pixels; ``r_max`` defaults to half the larger image side.  The
@@ -182,6 +193,7 @@ def dead_leaves(size, seed=None, *, r_min: float = 1.0, r_max: float | None = No
 
 # --------------------------------------------------------------------------- slanted edge
 
+
 def _box_cdf(t: torch.Tensor, a: float, b: float) -> torch.Tensor:
     """CDF of U(-a/2, a/2) + U(-b/2, b/2): the fraction of a unit pixel on one side of a line.
 
@@ -198,8 +210,7 @@ def _box_cdf(t: torch.Tensor, a: float, b: float) -> torch.Tensor:
     return ((q(t + p) - q(t + m) - q(t - m) + q(t - p)) / (a * b)).clamp(0.0, 1.0)
 
 
-def slanted_edge(size, angle_deg: float = 5.0, contrast: float = 4.0, seed=None, *,
-                 light: float = 0.6) -> torch.Tensor:
+def slanted_edge(size, angle_deg: float = 5.0, contrast: float = 4.0, seed=None, *, light: float = 0.6) -> torch.Tensor:
     """An ISO 12233 style slanted edge: dark left, light right, through the image centre.
 
     The edge is the line x = xc + tan(angle) * (y - yc) (pixel coordinates, y down), so
@@ -223,6 +234,7 @@ def slanted_edge(size, angle_deg: float = 5.0, contrast: float = 4.0, seed=None,
 
 
 # ---------------------------------------------------------------------------- colour chart
+
 
 def chart_patch_boxes(size, gap: float = 0.25) -> list[tuple[int, int, int, int]]:
     """Pixel boxes (y0, y1, x0, x1) of the 24 patches of :func:`color_chart`, in
@@ -264,6 +276,7 @@ def color_chart(size, seed=None, *, surround: float = 0.5, gap: float = 0.25, ji
 
 # ------------------------------------------------------------------------------- mixtures
 
+
 def mixed_scene(size, seed=None, *, weights: dict[str, float] | None = None) -> torch.Tensor:
     """A random procedural scene: by default dead leaves (70%, random alpha in [2.5, 3.5] and
     palette), a slanted edge (15%, random angle/orientation/contrast) or a colour chart (15%:
@@ -275,12 +288,15 @@ def mixed_scene(size, seed=None, *, weights: dict[str, float] | None = None) -> 
     p = np.array([weights[k] for k in kinds], dtype=float)
     kind = kinds[rng.choice(len(kinds), p=p / p.sum())]
     if kind == "dead_leaves":
-        return dead_leaves(size, rng, alpha=float(rng.uniform(2.5, 3.5)),
-                           colors=str(rng.choice(["photos", "photos", "uniform", "grey"])))
+        return dead_leaves(
+            size,
+            rng,
+            alpha=float(rng.uniform(2.5, 3.5)),
+            colors=str(rng.choice(["photos", "photos", "uniform", "grey"])),
+        )
     if kind == "slanted_edge":
         angle = float(rng.uniform(2, 10) * rng.choice([-1, 1]) + 90 * rng.integers(0, 4))
-        return slanted_edge(size, angle, float(rng.uniform(2, 10)), rng,
-                            light=float(rng.uniform(0.3, 0.9)))
+        return slanted_edge(size, angle, float(rng.uniform(2, 10)), rng, light=float(rng.uniform(0.3, 0.9)))
     if kind == "color_chart":
         return color_chart(size, rng, surround=float(rng.uniform(0.2, 0.8)), jitter=0.2)
     raise ValueError(f"unknown scene kind {kind!r}; use dead_leaves, slanted_edge, color_chart")
@@ -294,4 +310,4 @@ def random_crops(img: torch.Tensor, size, n: int, seed=None) -> torch.Tensor:
         raise ValueError(f"crop {h}x{w} does not fit in a {H}x{W} image")
     rng = _rng(seed)
     ys, xs = rng.integers(0, H - h + 1, n), rng.integers(0, W - w + 1, n)
-    return torch.stack([img[:, y:y + h, x:x + w] for y, x in zip(ys.tolist(), xs.tolist())])
+    return torch.stack([img[:, y : y + h, x : x + w] for y, x in zip(ys.tolist(), xs.tolist())])

@@ -26,29 +26,54 @@ import numpy as np
 import torch
 
 #: COCO categories of the scenes (ids as written in COCO JSON; 0 is left for "background")
-CATEGORIES = ({"id": 1, "name": "vehicle"}, {"id": 2, "name": "pedestrian"}, {"id": 3, "name": "bike"},
-              {"id": 4, "name": "traffic light"})
+CATEGORIES = (
+    {"id": 1, "name": "vehicle"},
+    {"id": 2, "name": "pedestrian"},
+    {"id": 3, "name": "bike"},
+    {"id": 4, "name": "traffic light"},
+)
 CLASS_IDS = {c["name"]: c["id"] for c in CATEGORIES}
 
-_CAR_COLOURS = np.array([[0.55, 0.05, 0.04], [0.05, 0.12, 0.45], [0.75, 0.75, 0.72], [0.04, 0.04, 0.05],
-                         [0.38, 0.40, 0.42], [0.70, 0.55, 0.05], [0.10, 0.30, 0.12]], np.float32)
-_CLOTHES = np.array([[0.60, 0.08, 0.08], [0.08, 0.15, 0.50], [0.05, 0.05, 0.06], [0.55, 0.50, 0.35],
-                     [0.15, 0.40, 0.20], [0.70, 0.65, 0.10], [0.45, 0.20, 0.45]], np.float32)
+_CAR_COLOURS = np.array(
+    [
+        [0.55, 0.05, 0.04],
+        [0.05, 0.12, 0.45],
+        [0.75, 0.75, 0.72],
+        [0.04, 0.04, 0.05],
+        [0.38, 0.40, 0.42],
+        [0.70, 0.55, 0.05],
+        [0.10, 0.30, 0.12],
+    ],
+    np.float32,
+)
+_CLOTHES = np.array(
+    [
+        [0.60, 0.08, 0.08],
+        [0.08, 0.15, 0.50],
+        [0.05, 0.05, 0.06],
+        [0.55, 0.50, 0.35],
+        [0.15, 0.40, 0.20],
+        [0.70, 0.65, 0.10],
+        [0.45, 0.20, 0.45],
+    ],
+    np.float32,
+)
 _SKIN = np.array([[0.62, 0.42, 0.32], [0.45, 0.28, 0.18], [0.25, 0.15, 0.10]], np.float32)
-_FACADES = np.array([[0.45, 0.42, 0.38], [0.55, 0.45, 0.35], [0.35, 0.33, 0.32], [0.60, 0.58, 0.52],
-                     [0.42, 0.28, 0.22]], np.float32)
+_FACADES = np.array(
+    [[0.45, 0.42, 0.38], [0.55, 0.45, 0.35], [0.35, 0.33, 0.32], [0.60, 0.58, 0.52], [0.42, 0.28, 0.22]], np.float32
+)
 _LAMPS = {"red": (1.0, 0.08, 0.04), "yellow": (1.0, 0.65, 0.02), "green": (0.08, 1.0, 0.45)}
 
 
 @dataclass
 class StreetScene:
-    radiance: torch.Tensor   # [3, H, W] linear radiance (a sunlit white surface = level)
-    light: torch.Tensor      # [H, W] illumination relative to sunlight (1 = sunlit)
-    boxes: torch.Tensor      # [N, 4] visible extent, x0, y0, x1, y1 in pixels (x1, y1 exclusive)
-    labels: torch.Tensor     # [N] COCO category ids (CATEGORIES)
+    radiance: torch.Tensor  # [3, H, W] linear radiance (a sunlit white surface = level)
+    light: torch.Tensor  # [H, W] illumination relative to sunlight (1 = sunlit)
+    boxes: torch.Tensor  # [N, 4] visible extent, x0, y0, x1, y1 in pixels (x1, y1 exclusive)
+    labels: torch.Tensor  # [N] COCO category ids (CATEGORIES)
     object_light: torch.Tensor  # [N] mean illumination over each object's visible pixels
     object_index: list[int]  # [N] each labelled object's index among the scene's objects (for ``hide``)
-    owner: np.ndarray        # [H, W] index of the object a pixel shows (-1: background)
+    owner: np.ndarray  # [H, W] index of the object a pixel shows (-1: background)
 
 
 def _grid(y0: int, x0: int, h: int, w: int, H: int, W: int):
@@ -59,8 +84,11 @@ def _grid(y0: int, x0: int, h: int, w: int, H: int, W: int):
         return None
     v = (np.arange(ya, yb, dtype=np.float32)[:, None] + 0.5 - y0) / h
     u = (np.arange(xa, xb, dtype=np.float32)[None, :] + 0.5 - x0) / w
-    return np.broadcast_to(u, (yb - ya, xb - xa)), np.broadcast_to(v, (yb - ya, xb - xa)), \
-        (slice(ya, yb), slice(xa, xb))
+    return (
+        np.broadcast_to(u, (yb - ya, xb - xa)),
+        np.broadcast_to(v, (yb - ya, xb - xa)),
+        (slice(ya, yb), slice(xa, xb)),
+    )
 
 
 def _rect(u, v, u0, u1, v0, v1):
@@ -77,7 +105,7 @@ def _segment(u, v, a, b, half_width, aspect):
     pu, pv = (u - a[0]) * aspect, v - a[1]
     du, dv = (b[0] - a[0]) * aspect, b[1] - a[1]
     t = np.clip((pu * du + pv * dv) / max(du * du + dv * dv, 1e-12), 0.0, 1.0)
-    return (pu - t * du) ** 2 + (pv - t * dv) ** 2 <= half_width ** 2
+    return (pu - t * du) ** 2 + (pv - t * dv) ** 2 <= half_width**2
 
 
 def _vehicle(u, v, aspect, rng):
@@ -97,8 +125,7 @@ def _vehicle(u, v, aspect, rng):
     lamps = _rect(u, v, 0.04, 0.2, 0.50, 0.62) | _rect(u, v, 0.8, 0.96, 0.50, 0.62)
     plate = _rect(u, v, 0.38, 0.62, 0.62, 0.72)
     tyres = _rect(u, v, 0.05, 0.22, 0.86, 1.0) | _rect(u, v, 0.78, 0.95, 0.86, 1.0)
-    return [(body | cabin, paint), (window, glass), (lamps, light), (plate, np.array([0.8, 0.8, 0.75])),
-            (tyres, tyre)]
+    return [(body | cabin, paint), (window, glass), (lamps, light), (plate, np.array([0.8, 0.8, 0.75])), (tyres, tyre)]
 
 
 def _pedestrian(u, v, aspect, rng):
@@ -107,10 +134,12 @@ def _pedestrian(u, v, aspect, rng):
     stride = float(rng.uniform(0.0, 0.12))
     head = _disc(u, v, 0.5, 0.08, 0.075, aspect)
     torso = _rect(u, v, 0.2, 0.8, 0.16, 0.56)
-    arms = _segment(u, v, (0.16, 0.2), (0.12 - stride, 0.52), 0.035, aspect) | \
-        _segment(u, v, (0.84, 0.2), (0.88 + stride, 0.52), 0.035, aspect)
-    legs = _segment(u, v, (0.38, 0.56), (0.38 - stride * 2, 0.98), 0.045, aspect) | \
-        _segment(u, v, (0.62, 0.56), (0.62 + stride * 2, 0.98), 0.045, aspect)
+    arms = _segment(u, v, (0.16, 0.2), (0.12 - stride, 0.52), 0.035, aspect) | _segment(
+        u, v, (0.84, 0.2), (0.88 + stride, 0.52), 0.035, aspect
+    )
+    legs = _segment(u, v, (0.38, 0.56), (0.38 - stride * 2, 0.98), 0.045, aspect) | _segment(
+        u, v, (0.62, 0.56), (0.62 + stride * 2, 0.98), 0.045, aspect
+    )
     return [(arms | torso, shirt), (legs, trousers), (head, skin)]
 
 
@@ -118,13 +147,19 @@ def _bike(u, v, aspect, rng):
     frame = _CLOTHES[rng.integers(len(_CLOTHES))] * 1.3
     r, t = 0.32, 0.045
     front, back = (0.80, 0.66), (0.20, 0.66)
-    tyres = (_disc(u, v, *back, r, aspect) & ~_disc(u, v, *back, r - 2 * t, aspect)) | \
-        (_disc(u, v, *front, r, aspect) & ~_disc(u, v, *front, r - 2 * t, aspect))
+    tyres = (_disc(u, v, *back, r, aspect) & ~_disc(u, v, *back, r - 2 * t, aspect)) | (
+        _disc(u, v, *front, r, aspect) & ~_disc(u, v, *front, r - 2 * t, aspect)
+    )
     seat, crank, head = (0.40, 0.22), (0.47, 0.66), (0.72, 0.18)
-    bars = (_segment(u, v, back, seat, t, aspect) | _segment(u, v, seat, crank, t, aspect)
-            | _segment(u, v, crank, back, t, aspect) | _segment(u, v, seat, head, t, aspect)
-            | _segment(u, v, head, front, t, aspect) | _segment(u, v, head, (0.66, 0.02), t, aspect)
-            | _rect(u, v, 0.32, 0.48, 0.17, 0.23))
+    bars = (
+        _segment(u, v, back, seat, t, aspect)
+        | _segment(u, v, seat, crank, t, aspect)
+        | _segment(u, v, crank, back, t, aspect)
+        | _segment(u, v, seat, head, t, aspect)
+        | _segment(u, v, head, front, t, aspect)
+        | _segment(u, v, head, (0.66, 0.02), t, aspect)
+        | _rect(u, v, 0.32, 0.48, 0.17, 0.23)
+    )
     return [(tyres, np.array([0.04, 0.04, 0.04])), (bars, np.clip(frame, 0, 0.9))]
 
 
@@ -178,14 +213,14 @@ def _background(H: int, W: int, horizon: int, rng) -> tuple[np.ndarray, np.ndarr
         bw = int(rng.uniform(0.12, 0.35) * W)
         top = int(horizon - rng.uniform(0.08, 0.45) * H)
         ya = max(top, 0)
-        alb[ya:horizon, x:x + bw] = _FACADES[rng.integers(len(_FACADES))]
-        sky[ya:horizon, x:x + bw] = False
+        alb[ya:horizon, x : x + bw] = _FACADES[rng.integers(len(_FACADES))]
+        sky[ya:horizon, x : x + bw] = False
         fh = max(horizon - ya, 1)
         wy, wx = max(int(fh / rng.uniform(4, 9)), 2), max(int(bw / rng.uniform(3, 7)), 2)
         win = np.array([0.10, 0.12, 0.16]) if rng.random() < 0.7 else np.array([0.55, 0.5, 0.3])
-        yy, xx = np.mgrid[ya:horizon, x:min(x + bw, W)]
+        yy, xx = np.mgrid[ya:horizon, x : min(x + bw, W)]
         sel = (((yy - ya) % wy) > wy * 0.35) & (((xx - x) % wx) > wx * 0.3) & (yy < horizon - wy * 0.6)
-        alb[ya:horizon, x:min(x + bw, W)][sel] = win
+        alb[ya:horizon, x : min(x + bw, W)][sel] = win
         x += bw
     alb[horizon:] = rng.uniform(0.12, 0.22)  # asphalt
     vx, spread = rng.uniform(0.3, 0.7) * W, rng.uniform(-0.6, 0.6)
@@ -196,19 +231,30 @@ def _background(H: int, W: int, horizon: int, rng) -> tuple[np.ndarray, np.ndarr
         if dash[k]:
             c = vx + spread * depth[k]
             half = max(0.5, 0.012 * depth[k])
-            alb[y, max(int(c - half), 0):max(int(c + half + 1), 0)] = 0.8
+            alb[y, max(int(c - half), 0) : max(int(c + half + 1), 0)] = 0.8
     # dead-leaves clutter at low contrast over everything but the sky
     tex = dead_leaves((H, W), rng, alpha=3.0, colors="grey").numpy().transpose(1, 2, 0)
     return np.where(sky[..., None], alb, alb * (0.75 + 0.5 * tex)).clip(0.0, 1.0).astype(np.float32), sky
 
 
-_SHAPES = {"vehicle": (_vehicle, (1.2, 2.6), 1.5 / 1.4), "pedestrian": (_pedestrian, (0.34, 0.46), 1.75 / 1.4),
-           "bike": (_bike, (1.6, 1.9), 1.05 / 1.4)}
+_SHAPES = {
+    "vehicle": (_vehicle, (1.2, 2.6), 1.5 / 1.4),
+    "pedestrian": (_pedestrian, (0.34, 0.46), 1.75 / 1.4),
+    "bike": (_bike, (1.6, 1.9), 1.05 / 1.4),
+}
 
 
-def street_scene(size=(256, 384), seed=None, *, n_objects: tuple[int, int] = (4, 12), level: float = 1.0,
-                 min_px: float = 8.0, max_frac: float = 1 / 3, min_visible: float = 0.3,
-                 hide: frozenset = frozenset()) -> StreetScene:
+def street_scene(
+    size=(256, 384),
+    seed=None,
+    *,
+    n_objects: tuple[int, int] = (4, 12),
+    level: float = 1.0,
+    min_px: float = 8.0,
+    max_frac: float = 1 / 3,
+    min_visible: float = 0.3,
+    hide: frozenset = frozenset(),
+) -> StreetScene:
     """A labelled street scene (see the module's docstring). Objects whose visible part is
     under ``min_visible`` of the object, or under 4 px on a side, are left unlabelled (they
     still occlude). ``hide``: indices of objects not to draw (the same scene otherwise: every
@@ -238,8 +284,16 @@ def street_scene(size=(256, 384), seed=None, *, n_objects: tuple[int, int] = (4,
             base = horizon + h / height_m  # flat road: height proportional to the distance below the horizon
             y0 = base - h
         # an object wider than the frame straddles it (the bounds may cross in narrow frames)
-        objs.append((base, cls, int(round(y0)), int(round(rng.uniform(-0.1 * w, max(-0.1 * w, W - 0.9 * w)))),
-                     max(int(round(h)), 2), max(int(round(w)), 2)))
+        objs.append(
+            (
+                base,
+                cls,
+                int(round(y0)),
+                int(round(rng.uniform(-0.1 * w, max(-0.1 * w, W - 0.9 * w)))),
+                max(int(round(h)), 2),
+                max(int(round(w)), 2),
+            )
+        )
     objs.sort(key=lambda o: o[0])  # far (near the horizon) first: nearer objects occlude them
     kept = []
     for k, (base, cls, y0, x0, h, w) in enumerate(objs):
@@ -247,8 +301,8 @@ def street_scene(size=(256, 384), seed=None, *, n_objects: tuple[int, int] = (4,
             pw = max(1, int(round(0.12 * w)))
             ya, yb = max(y0 + h, 0), min(int(base), H)
             xa = min(max(x0 + w // 2 - pw // 2, 0), W)
-            albedo[ya:yb, xa:xa + pw] = 0.2
-            owner[ya:yb, xa:xa + pw] = -1
+            albedo[ya:yb, xa : xa + pw] = 0.2
+            owner[ya:yb, xa : xa + pw] = -1
         g = _grid(y0, x0, h, w, H, W)
         if g is None:
             continue
@@ -282,9 +336,12 @@ def street_scene(size=(256, 384), seed=None, *, n_objects: tuple[int, int] = (4,
         olight.append(float(light[ys, xs].mean()))
         index.append(k)
     radiance = (albedo * light[..., None] + emissive) * level
-    return StreetScene(radiance=torch.from_numpy(np.ascontiguousarray(radiance.transpose(2, 0, 1))),
-                       light=torch.from_numpy(light),
-                       boxes=torch.tensor(boxes, dtype=torch.float32).reshape(-1, 4),
-                       labels=torch.tensor(labels, dtype=torch.int64), object_light=torch.tensor(olight),
-                       object_index=index, owner=owner)
-
+    return StreetScene(
+        radiance=torch.from_numpy(np.ascontiguousarray(radiance.transpose(2, 0, 1))),
+        light=torch.from_numpy(light),
+        boxes=torch.tensor(boxes, dtype=torch.float32).reshape(-1, 4),
+        labels=torch.tensor(labels, dtype=torch.int64),
+        object_light=torch.tensor(olight),
+        object_index=index,
+        owner=owner,
+    )

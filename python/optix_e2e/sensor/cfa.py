@@ -19,8 +19,7 @@ def check_pattern(pattern: str) -> str:
     return p
 
 
-def bayer_masks(pattern: str, height: int, width: int, *, device=None,
-                dtype=torch.float32) -> torch.Tensor:
+def bayer_masks(pattern: str, height: int, width: int, *, device=None, dtype=torch.float32) -> torch.Tensor:
     """Sampling masks of a Bayer CFA: [3, H, W], 1 where a pixel measures R, G or B."""
     p = check_pattern(pattern)
     masks = torch.zeros(3, height, width, device=device, dtype=dtype)

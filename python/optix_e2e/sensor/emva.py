@@ -36,8 +36,13 @@ def dark_current_mean(preset, exposure_s: float | None = None, temperature_c: fl
 
 def _resolve(preset, exposure_s=None, gain=None, f_number=None, temperature_c=None, cfa=None) -> SensorPreset:
     p = get_preset(preset)
-    changes = {k: v for k, v in dict(exposure_s=exposure_s, gain_dn_per_e=gain, f_number=f_number,
-                                     temperature_c=temperature_c, cfa=cfa).items() if v is not None}
+    changes = {
+        k: v
+        for k, v in dict(
+            exposure_s=exposure_s, gain_dn_per_e=gain, f_number=f_number, temperature_c=temperature_c, cfa=cfa
+        ).items()
+        if v is not None
+    }
     if gain is not None:
         check_positive("gain", gain)
     return p.with_(**changes) if changes else p
@@ -65,15 +70,27 @@ def expected_electrons(linear_rgb: torch.Tensor, preset="imx249", *, exposure_s=
     x = linear_rgb
     interp = interpolation_weights().to(device=x.device, dtype=x.dtype)  # [L, 3]
     # electrons per unit relative spectrum, per channel and band: L_scale * (Eq. 3 factor) * eta
-    per_band = (p.radiance_scale * photons_per_radiance(p.pixel_um, p.exposure_s, p.f_number)
-                * p.qe_curves(WAVELENGTHS_NM)).to(device=x.device, dtype=x.dtype)  # [3, L]
+    per_band = (
+        p.radiance_scale * photons_per_radiance(p.pixel_um, p.exposure_s, p.f_number) * p.qe_curves(WAVELENGTHS_NM)
+    ).to(device=x.device, dtype=x.dtype)  # [3, L]
     spectrum = torch.relu(torch.einsum("lc,...chw->...lhw", interp, x))
     return torch.einsum("cl,...lhw->...chw", per_band, spectrum)
 
 
-def simulate_raw(linear_rgb: torch.Tensor, preset="imx249", *, exposure_s=None, gain=None, f_number=None,
-                 temperature_c=None, cfa=None, noise: bool = True, quantize: str = "uniform",
-                 generator: torch.Generator | None = None, common_noise: bool = False) -> torch.Tensor:
+def simulate_raw(
+    linear_rgb: torch.Tensor,
+    preset="imx249",
+    *,
+    exposure_s=None,
+    gain=None,
+    f_number=None,
+    temperature_c=None,
+    cfa=None,
+    noise: bool = True,
+    quantize: str = "uniform",
+    generator: torch.Generator | None = None,
+    common_noise: bool = False,
+) -> torch.Tensor:
     """Linear RGB [B, 3, H, W] (or [3, H, W]) -> RAW digital numbers [B, 1, H, W] (or [1, H, W]).
 
     linear_rgb: relative linear radiance (1.0 = the preset's ``radiance_scale``), >= 0.
@@ -89,14 +106,26 @@ def simulate_raw(linear_rgb: torch.Tensor, preset="imx249", *, exposure_s=None, 
     squeeze = x.dim() == 3
     if squeeze:
         x = x[None]
-    y = raw_from_electrons(mosaic(expected_electrons(x, p), p.cfa), p, noise=noise, quantize=quantize,
-                           generator=generator, common_noise=common_noise)
+    y = raw_from_electrons(
+        mosaic(expected_electrons(x, p), p.cfa),
+        p,
+        noise=noise,
+        quantize=quantize,
+        generator=generator,
+        common_noise=common_noise,
+    )
     return y[0] if squeeze else y
 
 
-def raw_from_electrons(photo_electrons: torch.Tensor, preset="imx249", *, noise: bool = True,
-                       quantize: str = "uniform", generator: torch.Generator | None = None,
-                       common_noise: bool = False) -> torch.Tensor:
+def raw_from_electrons(
+    photo_electrons: torch.Tensor,
+    preset="imx249",
+    *,
+    noise: bool = True,
+    quantize: str = "uniform",
+    generator: torch.Generator | None = None,
+    common_noise: bool = False,
+) -> torch.Tensor:
     """Eq. 5 from the mean photo-electrons per pixel (any shape, e.g. [B, 1, H, W]) to DN, same shape.
 
     Adds the dark current mu_I (Eq. 4), samples Poisson(mu_e + mu_I) and the dark noise n_d (noise=True),
@@ -158,17 +187,34 @@ class Sensor(nn.Module):
     change them between calls, e.g. ``sensor.exposure_s = 1e-3``.
     """
 
-    def __init__(self, preset="imx249", *, exposure_s=None, gain=None, f_number=None, temperature_c=None,
-                 noise: bool = True, quantize: str = "uniform"):
+    def __init__(
+        self,
+        preset="imx249",
+        *,
+        exposure_s=None,
+        gain=None,
+        f_number=None,
+        temperature_c=None,
+        noise: bool = True,
+        quantize: str = "uniform",
+    ):
         super().__init__()
         self.preset = get_preset(preset)
         self.exposure_s, self.gain, self.f_number, self.temperature_c = exposure_s, gain, f_number, temperature_c
         self.noise, self.quantize = noise, quantize
 
     def forward(self, x: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
-        return simulate_raw(x, self.preset, exposure_s=self.exposure_s, gain=self.gain, f_number=self.f_number,
-                            temperature_c=self.temperature_c, noise=self.noise, quantize=self.quantize,
-                            generator=generator)
+        return simulate_raw(
+            x,
+            self.preset,
+            exposure_s=self.exposure_s,
+            gain=self.gain,
+            f_number=self.f_number,
+            temperature_c=self.temperature_c,
+            noise=self.noise,
+            quantize=self.quantize,
+            generator=generator,
+        )
 
     def extra_repr(self) -> str:
         return f"preset={self.preset.name}, exposure_s={self.exposure_s}, gain={self.gain}, noise={self.noise}"

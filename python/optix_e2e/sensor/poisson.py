@@ -32,8 +32,9 @@ def pathwise(rate: torch.Tensor, eps: torch.Tensor, min_rate: float = 1.0) -> to
     return rate + torch.sqrt(rate.clamp_min(min_rate)) * eps
 
 
-def poisson_sample(rate: torch.Tensor, *, generator: torch.Generator | None = None,
-                   estimator: str = "gaussian", min_rate: float = 1.0) -> torch.Tensor:
+def poisson_sample(
+    rate: torch.Tensor, *, generator: torch.Generator | None = None, estimator: str = "gaussian", min_rate: float = 1.0
+) -> torch.Tensor:
     """k ~ Poisson(rate) elementwise (same shape and dtype), differentiable w.r.t. rate (see module doc).
 
     Negative rates are treated as 0. The returned values are exactly the integer draws.

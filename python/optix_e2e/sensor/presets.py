@@ -64,24 +64,37 @@ class SensorPreset:
     radiance_scale: float = 0.017720  # W m^-2 sr^-1 nm^-1 per unit of linear RGB
 
     def __post_init__(self):
-        for f in ("pixel_um", "full_well_e", "gain_dn_per_e", "doubling_c", "exposure_s", "f_number",
-                  "qe_peak", "ir_cut_nm", "ir_cut_width_nm", "radiance_scale"):
+        for f in (
+            "pixel_um",
+            "full_well_e",
+            "gain_dn_per_e",
+            "doubling_c",
+            "exposure_s",
+            "f_number",
+            "qe_peak",
+            "ir_cut_nm",
+            "ir_cut_width_nm",
+            "radiance_scale",
+        ):
             check_positive(f, getattr(self, f))
         for f in ("dark_noise_e", "black_level_dn", "dark_current_e_per_s"):
             check_positive(f, getattr(self, f), allow_zero=True)
         for f in ("t_ref_c", "temperature_c"):
             t = float(getattr(self, f))
             if not math.isfinite(t) or t < ABSOLUTE_ZERO_C:
-                raise ValueError(f"{f} must be finite and at least {ABSOLUTE_ZERO_C} C (absolute zero), "
-                                 f"got {getattr(self, f)!r}")
+                raise ValueError(
+                    f"{f} must be finite and at least {ABSOLUTE_ZERO_C} C (absolute zero), got {getattr(self, f)!r}"
+                )
         try:  # Eq. 4 doubles the dark current every doubling_c: it must stay a float
             rate = self.dark_current_rate_e_per_s
         except OverflowError:
             rate = math.inf
         if not math.isfinite(rate):
-            raise ValueError(f"temperature_c = {self.temperature_c:g} C: the dark current "
-                             f"{self.dark_current_e_per_s:g} e-/s doubling every {self.doubling_c:g} C from "
-                             f"{self.t_ref_c:g} C (Eq. 4) overflows")
+            raise ValueError(
+                f"temperature_c = {self.temperature_c:g} C: the dark current "
+                f"{self.dark_current_e_per_s:g} e-/s doubling every {self.doubling_c:g} C from "
+                f"{self.t_ref_c:g} C (Eq. 4) overflows"
+            )
         for f in ("width", "height", "adc_bits"):
             v = getattr(self, f)
             if not isinstance(v, int) or v < 1:
@@ -110,7 +123,7 @@ class SensorPreset:
 
     @property
     def adc_max_dn(self) -> int:
-        return 2 ** self.adc_bits - 1
+        return 2**self.adc_bits - 1
 
     @property
     def saturation_e(self) -> float:
@@ -141,16 +154,32 @@ class SensorPreset:
     def low_light(self, factor: float = 100.0) -> "SensorPreset":
         """The paper's low-light setting: exposure / factor and gain K * factor (same mean DN)."""
         factor = check_positive("factor", factor)
-        return self.with_(name=f"{self.name}-lowlight{factor:g}", exposure_s=self.exposure_s / factor,
-                          gain_dn_per_e=self.gain_dn_per_e * factor)
+        return self.with_(
+            name=f"{self.name}-lowlight{factor:g}",
+            exposure_s=self.exposure_s / factor,
+            gain_dn_per_e=self.gain_dn_per_e * factor,
+        )
 
 
 PRESETS: dict[str, SensorPreset] = {
     "imx249": SensorPreset(),
     "phone-1um": SensorPreset(
-        name="phone-1um", width=4000, height=3000, pixel_um=1.0, adc_bits=10, full_well_e=4500.0,
-        dark_noise_e=2.0, gain_dn_per_e=0.2, black_level_dn=64.0, dark_current_e_per_s=20.0,
-        doubling_c=6.0, exposure_s=10e-3, f_number=1.8, qe_peak=0.65, radiance_scale=0.009739),
+        name="phone-1um",
+        width=4000,
+        height=3000,
+        pixel_um=1.0,
+        adc_bits=10,
+        full_well_e=4500.0,
+        dark_noise_e=2.0,
+        gain_dn_per_e=0.2,
+        black_level_dn=64.0,
+        dark_current_e_per_s=20.0,
+        doubling_c=6.0,
+        exposure_s=10e-3,
+        f_number=1.8,
+        qe_peak=0.65,
+        radiance_scale=0.009739,
+    ),
 }
 
 

@@ -27,14 +27,14 @@ from .emva import _resolve, dark_current_mean, expected_electrons, raw_from_elec
 COMPARED = {
     "gain": "measured K vs the preset's gain_dn_per_e",
     "dark_noise": "measured temporal dark noise vs sqrt(sigma_d^2 + mu_I) (read noise plus dark-current "
-                  "shot noise at this exposure and temperature: what a dark frame pair measures)",
+    "shot noise at this exposure and temperature: what a dark frame pair measures)",
     "saturation": "EMVA saturation capacity (mean at the variance peak, in e-) vs the preset's saturation: "
-                  "full well, or (ADC max - black level)/K where the ADC clips first. The variance peaks a "
-                  "little before hard clipping, so the measured value sits slightly below it",
+    "full well, or (ADC max - black level)/K where the ADC clips first. The variance peaks a "
+    "little before hard clipping, so the measured value sits slightly below it",
 }
 
 
-MIN_SPAN_DN = 10.0      # dark to saturation: fewer DN leave quantisation steps, not a curve
+MIN_SPAN_DN = 10.0  # dark to saturation: fewer DN leave quantisation steps, not a curve
 MIN_SATURATION_E = 10.0  # fewer electrons at saturation leave no shot-noise curve to fit
 
 
@@ -45,24 +45,42 @@ def check_measurable(p, e_per_unit: float, max_fraction: float = 1.15) -> None:
     mu_dark = dark_current_mean(p)
     sat = p.saturation_e
     settings = f"exposure {p.exposure_s:g} s, gain K {p.gain_dn_per_e:g} DN/e-, {p.temperature_c:g} C"
-    if mu_dark + 3.0 * math.sqrt(mu_dark + p.dark_noise_e ** 2) >= sat:
-        raise ValueError(f"photon transfer: dark frames saturate ({mu_dark:.4g} e- of dark current against a "
-                         f"saturation of {sat:.4g} e-; {settings})")
+    if mu_dark + 3.0 * math.sqrt(mu_dark + p.dark_noise_e**2) >= sat:
+        raise ValueError(
+            f"photon transfer: dark frames saturate ({mu_dark:.4g} e- of dark current against a "
+            f"saturation of {sat:.4g} e-; {settings})"
+        )
     if sat < MIN_SATURATION_E:
-        raise ValueError(f"photon transfer: saturation at {sat:.3g} e- (ADC range / gain K) is below "
-                         f"{MIN_SATURATION_E:g} e-: no shot-noise curve to measure ({settings})")
+        raise ValueError(
+            f"photon transfer: saturation at {sat:.3g} e- (ADC range / gain K) is below "
+            f"{MIN_SATURATION_E:g} e-: no shot-noise curve to measure ({settings})"
+        )
     if p.gain_dn_per_e * sat < MIN_SPAN_DN:
-        raise ValueError(f"photon transfer: dark to saturation spans {p.gain_dn_per_e * sat:.3g} DN (gain K x "
-                         f"{sat:.4g} e-), below {MIN_SPAN_DN:g} DN: nothing but quantisation ({settings})")
+        raise ValueError(
+            f"photon transfer: dark to saturation spans {p.gain_dn_per_e * sat:.3g} DN (gain K x "
+            f"{sat:.4g} e-), below {MIN_SPAN_DN:g} DN: nothing but quantisation ({settings})"
+        )
     top = max_fraction * sat / e_per_unit if e_per_unit > 0 else math.inf
     if not top < float(np.finfo(np.float32).max):
-        raise ValueError(f"photon transfer: a white input gives {e_per_unit:.3g} photo-electrons; reaching "
-                         f"saturation needs an input level of {top:.3g}, beyond float32 ({settings})")
+        raise ValueError(
+            f"photon transfer: a white input gives {e_per_unit:.3g} photo-electrons; reaching "
+            f"saturation needs an input level of {top:.3g}, beyond float32 ({settings})"
+        )
 
 
-def photon_transfer(preset="imx249", *, exposure_s=None, gain=None, temperature_c=None, n_levels: int = 50,
-                    patch: int = 256, max_fraction: float = 1.15, seed: int = 0, quantize: str = "round",
-                    progress=None) -> dict:
+def photon_transfer(
+    preset="imx249",
+    *,
+    exposure_s=None,
+    gain=None,
+    temperature_c=None,
+    n_levels: int = 50,
+    patch: int = 256,
+    max_fraction: float = 1.15,
+    seed: int = 0,
+    quantize: str = "round",
+    progress=None,
+) -> dict:
     """Simulate and analyse a photon-transfer series; returns measured/preset values, errors and curves.
 
     progress: optional callable(done_levels, n_levels).
@@ -98,12 +116,16 @@ def photon_transfer(preset="imx249", *, exposure_s=None, gain=None, temperature_
     x_sat = x[i_sat]
     fit = (x > 0) & (x <= 0.7 * x_sat)
     if fit.sum() < 2:
-        raise ValueError(f"photon transfer: only {int(fit.sum())} of {n_levels} levels fall below 70% of "
-                         f"saturation, too few to fit the gain K; use more --levels")
+        raise ValueError(
+            f"photon transfer: only {int(fit.sum())} of {n_levels} levels fall below 70% of "
+            f"saturation, too few to fit the gain K; use more --levels"
+        )
     k = float(np.sum(x[fit] * yv[fit]) / np.sum(x[fit] ** 2))
     if not (math.isfinite(k) and k > 0):
-        raise ValueError(f"photon transfer: the fitted gain K = {k:g} DN/e- is not positive; "
-                         f"the simulated series shows no shot noise")
+        raise ValueError(
+            f"photon transfer: the fitted gain K = {k:g} DN/e- is not positive; "
+            f"the simulated series shows no shot noise"
+        )
     q = 1.0 / 12.0 if quantize in ("round", "uniform") else 0.0
     dark_e = math.sqrt(max(variances[0] - q, 0.0)) / k
     sat_e = x_sat / k
@@ -117,35 +139,62 @@ def photon_transfer(preset="imx249", *, exposure_s=None, gain=None, temperature_
     warnings = []
     sd_dn = math.sqrt(variances[0])
     if sd_dn < 0.5:
-        warnings.append(f"dark noise {sd_dn:.2f} DN is below 0.5 DN: quantisation dominates and the dark-noise "
-                        f"estimate is biased (EMVA 1288)")
+        warnings.append(
+            f"dark noise {sd_dn:.2f} DN is below 0.5 DN: quantisation dominates and the dark-noise "
+            f"estimate is biased (EMVA 1288)"
+        )
     if p.black_level_dn < 3 * p.gain_dn_per_e * p.dark_noise_e:
-        warnings.append(f"black level {p.black_level_dn:g} DN is below 3 sigma of the dark noise: dark frames "
-                        f"clip at 0 DN, dark noise and gain estimates are biased")
+        warnings.append(
+            f"black level {p.black_level_dn:g} DN is below 3 sigma of the dark noise: dark frames "
+            f"clip at 0 DN, dark noise and gain estimates are biased"
+        )
     if p.adc_limited:
         warnings.append("the ADC clips before full well: saturation is (ADC max - black level) / K")
     if i_sat == n_levels - 1:
         warnings.append("variance still rising at the brightest level: raise max_fraction")
     mu_i = dark_current_mean(p)
-    ref_dark = math.sqrt(p.dark_noise_e ** 2 + mu_i)
+    ref_dark = math.sqrt(p.dark_noise_e**2 + mu_i)
     return {
-        "preset": p.name, "channel": "G", "exposure_s": p.exposure_s, "temperature_c": p.temperature_c,
-        "f_number": p.f_number, "quantize": quantize, "seed": seed, "n_levels": n_levels, "patch": patch,
+        "preset": p.name,
+        "channel": "G",
+        "exposure_s": p.exposure_s,
+        "temperature_c": p.temperature_c,
+        "f_number": p.f_number,
+        "quantize": quantize,
+        "seed": seed,
+        "n_levels": n_levels,
+        "patch": patch,
         "pixels_per_frame": int(green.sum()),
-        "measured_gain_dn_per_e": k, "preset_gain_dn_per_e": p.gain_dn_per_e,
+        "measured_gain_dn_per_e": k,
+        "preset_gain_dn_per_e": p.gain_dn_per_e,
         "gain_rel_err": k / p.gain_dn_per_e - 1,
-        "measured_dark_noise_e": dark_e, "preset_dark_noise_e": p.dark_noise_e, "dark_current_e": mu_i,
-        "reference_dark_noise_e": ref_dark, "dark_noise_rel_err": dark_e / ref_dark - 1,
-        "measured_saturation_e": float(sat_e), "preset_full_well_e": p.full_well_e,
-        "reference_saturation_e": p.saturation_e, "saturation_limited_by": "adc" if p.adc_limited else "full_well",
+        "measured_dark_noise_e": dark_e,
+        "preset_dark_noise_e": p.dark_noise_e,
+        "dark_current_e": mu_i,
+        "reference_dark_noise_e": ref_dark,
+        "dark_noise_rel_err": dark_e / ref_dark - 1,
+        "measured_saturation_e": float(sat_e),
+        "preset_full_well_e": p.full_well_e,
+        "reference_saturation_e": p.saturation_e,
+        "saturation_limited_by": "adc" if p.adc_limited else "full_well",
         "saturation_rel_err": float(sat_e / p.saturation_e - 1),
-        "measured_saturation_dn": float(x_sat), "dark_mean_dn": float(means[0]),
-        "dark_variance_dn2": float(variances[0]), "linearity_error_pct": linearity,
-        "fit_range": [0.0, float(0.7 * x_sat)], "n_fit_points": int(fit.sum()),
-        "compared": COMPARED, "warnings": warnings,
-        "curves": {"input_level": levels.tolist(), "mean_photoelectrons": mu_e.tolist(),
-                   "mean_dn": means.tolist(), "mean_minus_dark_dn": x.tolist(), "variance_dn2": variances.tolist(),
-                   "fit_mask": fit.tolist(), "saturation_index": i_sat},
+        "measured_saturation_dn": float(x_sat),
+        "dark_mean_dn": float(means[0]),
+        "dark_variance_dn2": float(variances[0]),
+        "linearity_error_pct": linearity,
+        "fit_range": [0.0, float(0.7 * x_sat)],
+        "n_fit_points": int(fit.sum()),
+        "compared": COMPARED,
+        "warnings": warnings,
+        "curves": {
+            "input_level": levels.tolist(),
+            "mean_photoelectrons": mu_e.tolist(),
+            "mean_dn": means.tolist(),
+            "mean_minus_dark_dn": x.tolist(),
+            "variance_dn2": variances.tolist(),
+            "fit_mask": fit.tolist(),
+            "saturation_index": i_sat,
+        },
     }
 
 
@@ -172,12 +221,14 @@ def save_ptc(result: dict, out_dir) -> dict:
     ax.plot(x[fit], var[fit], "o", ms=3, color="tab:green", label="fit range (0-70% sat)")
     xs = np.linspace(0, x.max(), 100)
     ax.plot(xs, var[0] + k * xs, "-", color="k", lw=1, label=f"K = {k:.4f} DN/e-")
-    ax.axvline(x[i_sat], color="tab:red", ls="--", lw=1,
-               label=f"saturation {result['measured_saturation_e']:.0f} e-")
+    ax.axvline(x[i_sat], color="tab:red", ls="--", lw=1, label=f"saturation {result['measured_saturation_e']:.0f} e-")
     ax.set_xlabel("mean signal minus dark (DN)")
     ax.set_ylabel("temporal variance (DN$^2$)")
-    ax.set_title(f"photon transfer: {result['preset']}, {result['channel']} pixels, "
-                 f"dark noise {result['measured_dark_noise_e']:.2f} e-", fontsize=10)
+    ax.set_title(
+        f"photon transfer: {result['preset']}, {result['channel']} pixels, "
+        f"dark noise {result['measured_dark_noise_e']:.2f} e-",
+        fontsize=10,
+    )
     ax.legend(fontsize=8)
     ax2.plot(c["mean_photoelectrons"], x, "o-", ms=3)
     ax2.set_xlabel("mean photo-electrons per pixel")

@@ -60,8 +60,9 @@ class RGBToSpectrum(nn.Module):
         return torch.relu(torch.einsum("lc,...chw->...lhw", self.weights.to(rgb.dtype), rgb))
 
 
-def photons_per_radiance(pixel_um: float, exposure_s: float, f_number: float,
-                         wavelengths_nm=WAVELENGTHS_NM, band_nm: float = BAND_NM) -> torch.Tensor:
+def photons_per_radiance(
+    pixel_um: float, exposure_s: float, f_number: float, wavelengths_nm=WAVELENGTHS_NM, band_nm: float = BAND_NM
+) -> torch.Tensor:
     """[L] mean photons per pixel per band for a spectral radiance of 1 W m^-2 sr^-1 nm^-1.
 
     Eq. 3: mu_p = I_MS * pi A t lambda^2 / (h c (1 + (2N)^2)).  Read dimensionally, one factor

@@ -4,5 +4,14 @@ from .checkpoint import OpticsSurrogate, SurrogateFileError, SurrogateRangeError
 from .loss import LossWeights, OpticsLoss, optics_loss, optics_loss_terms
 from .model import SurrogateConfig, SurrogateNet
 
-__all__ = ["OpticsSurrogate", "SurrogateRangeError", "SurrogateFileError", "SurrogateConfig", "SurrogateNet",
-           "LossWeights", "OpticsLoss", "optics_loss", "optics_loss_terms"]
+__all__ = [
+    "OpticsSurrogate",
+    "SurrogateRangeError",
+    "SurrogateFileError",
+    "SurrogateConfig",
+    "SurrogateNet",
+    "LossWeights",
+    "OpticsLoss",
+    "optics_loss",
+    "optics_loss_terms",
+]

@@ -56,9 +56,23 @@ class OpticsSurrogate(nn.Module):
     """Raw lens parameters [B, P] + normalized field [B] -> (psf [B, C, S, S] unit sum,
     vignetting [B, C]). ``psfs(params)`` gives every trained field at once for the renderer."""
 
-    def __init__(self, cfg: SurrogateConfig, *, param_names, param_mean, param_std, param_min, param_max,
-                 fields_deg, pitch_um: float, psf_kind: str = "psf_sensor", bin: int = 1,
-                 channel_names=("R", "G", "B"), manifest: dict | None = None, meta: dict | None = None):
+    def __init__(
+        self,
+        cfg: SurrogateConfig,
+        *,
+        param_names,
+        param_mean,
+        param_std,
+        param_min,
+        param_max,
+        fields_deg,
+        pitch_um: float,
+        psf_kind: str = "psf_sensor",
+        bin: int = 1,
+        channel_names=("R", "G", "B"),
+        manifest: dict | None = None,
+        meta: dict | None = None,
+    ):
         super().__init__()
         self.net = SurrogateNet(cfg)
         self.cfg = cfg
@@ -71,7 +85,9 @@ class OpticsSurrogate(nn.Module):
         self.register_buffer("param_min", torch.as_tensor(np.asarray(param_min, float), dtype=torch.float64))
         self.register_buffer("param_max", torch.as_tensor(np.asarray(param_max, float), dtype=torch.float64))
         self.fields_deg = [float(f) for f in fields_deg]
-        self.register_buffer("fields", torch.tensor(self.fields_deg, dtype=torch.float32) / max(max(self.fields_deg), 1e-12))
+        self.register_buffer(
+            "fields", torch.tensor(self.fields_deg, dtype=torch.float32) / max(max(self.fields_deg), 1e-12)
+        )
         self.pitch_um = float(pitch_um)
         self.psf_kind, self.bin = psf_kind, int(bin)
         self.channel_names = list(channel_names)
@@ -95,12 +111,14 @@ class OpticsSurrogate(nn.Module):
         problems = []
         if not torch.isfinite(p).all():
             problems.append("non-finite parameter values")
-        bad = (p < lo - tol) | (p > hi + tol)                 # [N, P]
+        bad = (p < lo - tol) | (p > hi + tol)  # [N, P]
         for j in torch.nonzero(bad.any(0)).flatten().tolist():
             v = float(p[bad[:, j], j][0])
-            problems.append(f"{self.param_names[j]} = {v:.6g} outside its training range "
-                            f"[{float(lo[j]):.6g}, {float(hi[j]):.6g}]"
-                            + (f" ({int(bad[:, j].sum())} rows)" if p.shape[0] > 1 else ""))
+            problems.append(
+                f"{self.param_names[j]} = {v:.6g} outside its training range "
+                f"[{float(lo[j]):.6g}, {float(hi[j]):.6g}]"
+                + (f" ({int(bad[:, j].sum())} rows)" if p.shape[0] > 1 else "")
+            )
         self._complain(problems, mode, "(the network would extrapolate)")
         return problems
 
@@ -121,8 +139,11 @@ class OpticsSurrogate(nn.Module):
         self.check_params(params)
         field = torch.as_tensor(field, dtype=self.param_mean.dtype, device=self.param_mean.device).reshape(-1)
         if field.numel() and (field.min() < -1e-6 or field.max() > 1 + 1e-6):
-            self._complain([f"field {float(field.min()):.4g}..{float(field.max()):.4g} outside [0, 1]"],
-                           self.out_of_range, "of the full field")
+            self._complain(
+                [f"field {float(field.min()):.4g}..{float(field.max()):.4g} outside [0, 1]"],
+                self.out_of_range,
+                "of the full field",
+            )
         if field.numel() == 1 and params.shape[0] > 1:
             field = field.expand(params.shape[0])
         return self.net(self.normalize(params), field)
@@ -148,12 +169,22 @@ class OpticsSurrogate(nn.Module):
     def state(self, half: bool = False) -> dict:
         sd = {k: (v.half() if half and v.is_floating_point() else v).cpu() for k, v in self.net.state_dict().items()}
         return {
-            "format": FORMAT, "config": self.cfg.to_json(), "state_dict": sd, "half": half,
-            "param_names": self.param_names, "param_mean": self.param_mean.tolist(),
-            "param_std": self.param_std.tolist(), "param_min": self.param_min.tolist(),
-            "param_max": self.param_max.tolist(), "fields_deg": self.fields_deg, "pitch_um": self.pitch_um,
-            "psf_kind": self.psf_kind, "bin": self.bin, "channel_names": self.channel_names,
-            "manifest": self.manifest, "meta": self.meta,
+            "format": FORMAT,
+            "config": self.cfg.to_json(),
+            "state_dict": sd,
+            "half": half,
+            "param_names": self.param_names,
+            "param_mean": self.param_mean.tolist(),
+            "param_std": self.param_std.tolist(),
+            "param_min": self.param_min.tolist(),
+            "param_max": self.param_max.tolist(),
+            "fields_deg": self.fields_deg,
+            "pitch_um": self.pitch_um,
+            "psf_kind": self.psf_kind,
+            "bin": self.bin,
+            "channel_names": self.channel_names,
+            "manifest": self.manifest,
+            "meta": self.meta,
         }
 
     def save(self, path: "str | Path", half: bool = False, **meta) -> None:
@@ -166,8 +197,14 @@ class OpticsSurrogate(nn.Module):
     def from_state(cls, st: dict, where: str = "<state>") -> "OpticsSurrogate":
         if not isinstance(st, dict) or st.get("format") != FORMAT:
             raise SurrogateFileError(f"{where}: not an {FORMAT} checkpoint")
-        net = build_module(lambda **c: SurrogateNet(SurrogateConfig(**c)), st.get("config"), st.get("state_dict"),
-                           where, "surrogate checkpoint", SurrogateFileError)
+        net = build_module(
+            lambda **c: SurrogateNet(SurrogateConfig(**c)),
+            st.get("config"),
+            st.get("state_dict"),
+            where,
+            "surrogate checkpoint",
+            SurrogateFileError,
+        )
         numbers = {k: st.get(k) for k in ("param_mean", "param_std", "param_min", "param_max", "fields_deg")}
         numbers["pitch_um"] = [st.get("pitch_um")]
         for key, values in numbers.items():
@@ -177,29 +214,51 @@ class OpticsSurrogate(nn.Module):
             except (TypeError, ValueError, OverflowError):
                 ok = False
             if not ok:
-                raise SurrogateFileError(f"{where}: damaged surrogate checkpoint: {key} is not a list of finite numbers")
+                raise SurrogateFileError(
+                    f"{where}: damaged surrogate checkpoint: {key} is not a list of finite numbers"
+                )
             if key.startswith("param_") and arr.size != net.cfg.n_params:
-                raise SurrogateFileError(f"{where}: damaged surrogate checkpoint: {arr.size} values in {key} "
-                                         f"for a {net.cfg.n_params}-parameter network")
+                raise SurrogateFileError(
+                    f"{where}: damaged surrogate checkpoint: {arr.size} values in {key} "
+                    f"for a {net.cfg.n_params}-parameter network"
+                )
         lo, hi = np.asarray(st["param_min"], float), np.asarray(st["param_max"], float)
         mean, std = np.asarray(st["param_mean"], float), np.asarray(st["param_std"], float)
         # the normalization the network was trained with: a parameter that varies has a spread
         # inside its range, its mean inside the range (a zeroed or swapped record would feed the
         # network inputs it never saw, without a word)
-        if (lo > hi).any() or (std < 0).any() or ((hi > lo) & ~(std > 0)).any() or (std > (hi - lo) + 1e-9).any() \
-                or ((mean < lo - 1e-9) | (mean > hi + 1e-9)).any():
-            raise SurrogateFileError(f"{where}: damaged surrogate checkpoint: param_min/param_max/param_mean/param_std "
-                                     f"are not a range and a spread inside it")
+        if (
+            (lo > hi).any()
+            or (std < 0).any()
+            or ((hi > lo) & ~(std > 0)).any()
+            or (std > (hi - lo) + 1e-9).any()
+            or ((mean < lo - 1e-9) | (mean > hi + 1e-9)).any()
+        ):
+            raise SurrogateFileError(
+                f"{where}: damaged surrogate checkpoint: param_min/param_max/param_mean/param_std "
+                f"are not a range and a spread inside it"
+            )
         if not float(st["pitch_um"]) > 0:
             raise SurrogateFileError(f"{where}: damaged surrogate checkpoint: pitch_um must be > 0")
         for key in ("manifest", "meta"):
             if not isinstance(st.get(key) or {}, dict):
                 raise SurrogateFileError(f"{where}: damaged surrogate checkpoint: {key} is not a dict")
         try:
-            m = cls(net.cfg, param_names=st["param_names"], param_mean=st["param_mean"], param_std=st["param_std"],
-                    param_min=st["param_min"], param_max=st["param_max"], fields_deg=st["fields_deg"],
-                    pitch_um=st["pitch_um"], psf_kind=st["psf_kind"], bin=st["bin"],
-                    channel_names=st["channel_names"], manifest=st.get("manifest"), meta=st.get("meta"))
+            m = cls(
+                net.cfg,
+                param_names=st["param_names"],
+                param_mean=st["param_mean"],
+                param_std=st["param_std"],
+                param_min=st["param_min"],
+                param_max=st["param_max"],
+                fields_deg=st["fields_deg"],
+                pitch_um=st["pitch_um"],
+                psf_kind=st["psf_kind"],
+                bin=st["bin"],
+                channel_names=st["channel_names"],
+                manifest=st.get("manifest"),
+                meta=st.get("meta"),
+            )
         except (KeyError, TypeError, ValueError, RuntimeError) as exc:
             raise SurrogateFileError(f"{where}: damaged surrogate checkpoint ({type(exc).__name__}: {exc})") from None
         if m.manifest:  # the dataset record the design tools read: its space and base lens
@@ -220,5 +279,3 @@ class OpticsSurrogate(nn.Module):
         m = cls.from_state(st.get("model", st) if isinstance(st, dict) else st, str(path))
         m.eval()
         return m
-
-

@@ -74,9 +74,14 @@ def _shards(root: Path, man: dict, check: tuple[str, ...]):
         yield k, open_shard(root, k, man, check_hashes=check)[0]
 
 
-def load_arrays(root: "str | Path", psf: str = "psf_sensor", bin: int = 1,
-                designs: Sequence[int] | None = None, max_designs: int | None = None,
-                progress: Callable[[int, int], None] | None = None) -> tuple[PsfArrays, dict]:
+def load_arrays(
+    root: "str | Path",
+    psf: str = "psf_sensor",
+    bin: int = 1,
+    designs: Sequence[int] | None = None,
+    max_designs: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[PsfArrays, dict]:
     """Read the dataset in ``root`` (only ``designs``, global indices, if given; at most
     ``max_designs`` in index order). Missing shards are an error naming the shard."""
     root = Path(root)
@@ -89,7 +94,7 @@ def load_arrays(root: "str | Path", psf: str = "psf_sensor", bin: int = 1,
         idx = np.asarray(arrays["design"])
         rows = np.arange(len(idx)) if keep is None else np.flatnonzero(np.isin(idx, keep))
         if max_designs is not None:
-            rows = rows[:max_designs - n]
+            rows = rows[: max_designs - n]
         if len(rows):
             parts["psf"].append(bin_psf(np.asarray(arrays[psf][rows], np.float32), bin))
             parts["params"].append(np.asarray(arrays["params"][rows], np.float64))
@@ -119,7 +124,7 @@ def design_indices(root: "str | Path", max_designs: int | None = None) -> tuple[
     for _, arrays in _shards(root, man, ("design",)):
         idx = np.asarray(arrays["design"])
         if max_designs is not None:
-            idx = idx[:max_designs - n]
+            idx = idx[: max_designs - n]
         parts.append(idx)
         n += len(idx)
         if max_designs is not None and n >= max_designs:
@@ -130,7 +135,9 @@ def design_indices(root: "str | Path", max_designs: int | None = None) -> tuple[
 
 
 def to_tensors(a: PsfArrays, device="cpu") -> dict[str, torch.Tensor]:
-    return {"params": torch.as_tensor(a.params, dtype=torch.float32, device=device),
-            "psf": torch.as_tensor(a.psf, device=device),
-            "vignetting": torch.as_tensor(a.vignetting, device=device),
-            "design": torch.as_tensor(a.design, device=device)}
+    return {
+        "params": torch.as_tensor(a.params, dtype=torch.float32, device=device),
+        "psf": torch.as_tensor(a.psf, device=device),
+        "vignetting": torch.as_tensor(a.vignetting, device=device),
+        "design": torch.as_tensor(a.design, device=device),
+    }

@@ -51,7 +51,9 @@ def check_compatible(model: OpticsSurrogate, man: dict, root) -> None:
     try:
         size, pitch = psf_grid(man, model.psf_kind, model.bin), psf_pitch_um(man, model.psf_kind, model.bin)
         if size != model.cfg.psf_size or abs(pitch - model.pitch_um) > 1e-9:
-            problems.append(f"{model.psf_kind} grid {size} px at {pitch} um vs {model.cfg.psf_size} px at {model.pitch_um} um")
+            problems.append(
+                f"{model.psf_kind} grid {size} px at {pitch} um vs {model.cfg.psf_size} px at {model.pitch_um} um"
+            )
     except ValueError as exc:
         problems.append(str(exc))
     if trained:
@@ -70,7 +72,7 @@ def _ee_curves(p: torch.Tensor) -> torch.Tensor:
     yy, xx = torch.meshgrid(torch.arange(s) - c, torch.arange(s) - c, indexing="ij")
     rr = torch.hypot(yy, xx)
     radii = torch.arange(1, s // 2 + 1, dtype=rr.dtype)
-    masks = (rr[None] <= radii[:, None, None]).to(p)      # [R, S, S]
+    masks = (rr[None] <= radii[:, None, None]).to(p)  # [R, S, S]
     return torch.einsum("...ij,rij->...r", p, masks)
 
 
@@ -92,8 +94,12 @@ def summarize(m: dict, fields_deg) -> dict:
     out = {"overall": {}, "per_field": []}
     for name in METRICS:
         v = m[name]
-        out["overall"][name] = {"median": float(np.median(v)), "mean": float(np.mean(v)),
-                                "p90": float(np.percentile(v, 90)), "max": float(np.max(v))}
+        out["overall"][name] = {
+            "median": float(np.median(v)),
+            "mean": float(np.mean(v)),
+            "p90": float(np.percentile(v, 90)),
+            "max": float(np.max(v)),
+        }
     for j, f in enumerate(fields_deg):
         row = {"field_deg": float(f)}
         for name in METRICS:
@@ -112,15 +118,28 @@ def f_number_bands(m: dict, f_numbers: np.ndarray, fields_deg, edges=(2.9, 3.3, 
         if not sel.any():
             continue
         rel = m["psf_rel_l1"][sel]
-        out.append({"f_number": [lo, hi], "n_designs": int(sel.sum()),
-                    "psf_rel_l1_median": float(np.median(rel)),
-                    "psf_rel_l1_median_per_field": {f"{f:g}": float(np.median(rel[:, j])) for j, f in enumerate(fields_deg)},
-                    "vignetting_abs_err_median": float(np.median(m["vignetting_abs_err"][sel]))})
+        out.append(
+            {
+                "f_number": [lo, hi],
+                "n_designs": int(sel.sum()),
+                "psf_rel_l1_median": float(np.median(rel)),
+                "psf_rel_l1_median_per_field": {
+                    f"{f:g}": float(np.median(rel[:, j])) for j, f in enumerate(fields_deg)
+                },
+                "vignetting_abs_err_median": float(np.median(m["vignetting_abs_err"][sel])),
+            }
+        )
     return out
 
 
-def evaluate(model: OpticsSurrogate, data_root, max_designs: int | None = None, png: "str | Path | None" = None,
-             grid_designs: int = 3, grid_fields: int = 5) -> dict:
+def evaluate(
+    model: OpticsSurrogate,
+    data_root,
+    max_designs: int | None = None,
+    png: "str | Path | None" = None,
+    grid_designs: int = 3,
+    grid_fields: int = 5,
+) -> dict:
     """Score ``model`` on the designs of ``data_root`` it did not train on: all of them for
     another dataset, the held-out validation designs when it is the training dataset."""
     man = read_manifest(data_root)
@@ -129,12 +148,15 @@ def evaluate(model: OpticsSurrogate, data_root, max_designs: int | None = None, 
     same = data.get("designs_csv_sha256") == man["designs_csv_sha256"]
     designs = data.get("val_designs") if same else None
     if same and not designs:
-        raise SurrogateDataMismatch(f"{data_root}: the model trained on every design of this dataset; "
-                                    f"evaluate on another one (e.g. `optix dataset ... --seed 1`)")
+        raise SurrogateDataMismatch(
+            f"{data_root}: the model trained on every design of this dataset; "
+            f"evaluate on another one (e.g. `optix dataset ... --seed 1`)"
+        )
     if designs is not None and max_designs:
         designs = designs[:max_designs]
-    arrays, _ = load_arrays(data_root, model.psf_kind, model.bin, designs=designs,
-                            max_designs=None if designs is not None else max_designs)
+    arrays, _ = load_arrays(
+        data_root, model.psf_kind, model.bin, designs=designs, max_designs=None if designs is not None else max_designs
+    )
     params = torch.as_tensor(arrays.params, dtype=torch.float32)
     problems = model.check_params(params, mode="ignore")
     model.eval()
@@ -143,8 +165,10 @@ def evaluate(model: OpticsSurrogate, data_root, max_designs: int | None = None, 
     seconds = time.perf_counter() - t0
     bad = ~(torch.isfinite(psf).flatten(1).all(1) & torch.isfinite(vig).flatten(1).all(1))
     if bad.any():
-        raise ValueError(f"the surrogate predicts non-finite PSFs or vignetting for {int(bad.sum())} of "
-                         f"{len(bad)} designs (damaged weights?); no metrics")
+        raise ValueError(
+            f"the surrogate predicts non-finite PSFs or vignetting for {int(bad.sum())} of "
+            f"{len(bad)} designs (damaged weights?); no metrics"
+        )
     m = sample_metrics(psf, vig, torch.as_tensor(arrays.psf), torch.as_tensor(arrays.vignetting))
     s = summarize(m, model.fields_deg)
     o = s["overall"]
@@ -155,7 +179,8 @@ def evaluate(model: OpticsSurrogate, data_root, max_designs: int | None = None, 
         "strehl_rel_err_median": o["strehl_rel_err"]["median"],
         "ee_abs_err_median": o["ee_abs_err"]["median"],
         **s,
-        "n_designs": int(len(arrays)), "n_psfs": int(psf.shape[0] * psf.shape[1] * psf.shape[2]),
+        "n_designs": int(len(arrays)),
+        "n_psfs": int(psf.shape[0] * psf.shape[1] * psf.shape[2]),
         "held_out": "validation designs of the training dataset" if same else "every design of another dataset",
         "out_of_range": problems,
         "psf": {"kind": model.psf_kind, "size": model.cfg.psf_size, "pitch_um": model.pitch_um},
@@ -165,16 +190,18 @@ def evaluate(model: OpticsSurrogate, data_root, max_designs: int | None = None, 
         "model_data": {k: v for k, v in data.items() if k != "val_designs"},
     }
     if "f_number" in model.param_names:  # a space with the aperture: accuracy per f-number band too
-        report["per_f_number_band"] = f_number_bands(m, arrays.params[:, model.param_names.index("f_number")],
-                                                     model.fields_deg)
+        report["per_f_number_band"] = f_number_bands(
+            m, arrays.params[:, model.param_names.index("f_number")], model.fields_deg
+        )
     if png:
         save_grid(png, model, arrays, psf.numpy(), m["psf_rel_l1"], grid_designs, grid_fields)
         report["png"] = str(png)
     return report
 
 
-def save_grid(path, model: OpticsSurrogate, arrays, pred: np.ndarray, rel_l1: np.ndarray,
-              n_designs: int = 3, n_fields: int = 5) -> None:
+def save_grid(
+    path, model: OpticsSurrogate, arrays, pred: np.ndarray, rel_l1: np.ndarray, n_designs: int = 3, n_fields: int = 5
+) -> None:
     """Rows: designs x (exact, predicted, |difference| x 5); columns: fields. RGB composites
     scaled to each exact PSF's peak."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -193,16 +220,22 @@ def save_grid(path, model: OpticsSurrogate, arrays, pred: np.ndarray, rel_l1: np
         for b, j in enumerate(cols):
             exact, guess = arrays.psf[i, j], pred[i, j]
             peak = float(exact.max()) or 1.0
-            panels = [(exact, "exact"), (guess, f"surrogate, L1 {rel_l1[i, j].mean():.1%}"),
-                      (np.abs(guess - exact) * 5, "|diff| x 5")]
+            panels = [
+                (exact, "exact"),
+                (guess, f"surrogate, L1 {rel_l1[i, j].mean():.1%}"),
+                (np.abs(guess - exact) * 5, "|diff| x 5"),
+            ]
             for r, (img, label) in enumerate(panels):
                 ax = axes[3 * a + r, b]
                 ax.imshow(rgb_composite(np.clip(img / peak, 0, 1)), origin="lower", interpolation="nearest")
                 ax.set_xticks([])
                 ax.set_yticks([])
                 ax.set_title(f"design {int(arrays.design[i])}, {model.fields_deg[j]:.1f} deg\n{label}", fontsize=7)
-    fig.suptitle(f"surrogate vs exact PSFs ({model.psf_kind}, {model.cfg.psf_size} px at {model.pitch_um:g} um; "
-                 f"RGB, linear, each exact PSF's peak = 1)", fontsize=9)
+    fig.suptitle(
+        f"surrogate vs exact PSFs ({model.psf_kind}, {model.cfg.psf_size} px at {model.pitch_um:g} um; "
+        f"RGB, linear, each exact PSF's peak = 1)",
+        fontsize=9,
+    )
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)

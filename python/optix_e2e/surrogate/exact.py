@@ -51,8 +51,10 @@ def exact_optics(surrogate, values, fallback: str | None = None) -> dict:
         # the same sensor-pitch PSFs from point samples at 2 um where the dataset's are finer
         # (a quarter of the cost; the Huygens PSF is smooth where the FFT fails: aberrated)
         st = surrogate.manifest["settings"]
-        man = {**surrogate.manifest, "settings": {**st, "psf_method": "huygens",
-                                                  "pixel_um": max(float(st["pixel_um"]), 2.0)}}
+        man = {
+            **surrogate.manifest,
+            "settings": {**st, "psf_method": "huygens", "pixel_um": max(float(st["pixel_um"]), 2.0)},
+        }
         redo, meta2 = exact_arrays(man, values[failed])
         if meta2["n_failed"]:
             raise ValueError(f"engine rejected the design (Huygens too): {meta2['failures'][0]['reason']}")
@@ -65,9 +67,13 @@ def exact_optics(surrogate, values, fallback: str | None = None) -> dict:
         for i in failed:
             methods[i] = "huygens"
     psf = torch.stack([bin_psf(torch.as_tensor(p), surrogate.bin) for p in arrays[surrogate.psf_kind]]).float()
-    return {"psf": psf, "vignetting": torch.as_tensor(arrays["relative_illumination"], dtype=torch.float32),
-            "image_distance": [float(z) for z in arrays["image_distance"]],
-            "energy_in_window": np.asarray(arrays["energy_in_window"], np.float64), "methods": methods}
+    return {
+        "psf": psf,
+        "vignetting": torch.as_tensor(arrays["relative_illumination"], dtype=torch.float32),
+        "image_distance": [float(z) for z in arrays["image_distance"]],
+        "energy_in_window": np.asarray(arrays["energy_in_window"], np.float64),
+        "methods": methods,
+    }
 
 
 def rms_spot_um(manifest: dict, values, rings: int = 32) -> np.ndarray:

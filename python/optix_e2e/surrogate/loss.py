@@ -29,21 +29,29 @@ class LossWeights:
 
     def total(self, terms: dict[str, torch.Tensor]) -> torch.Tensor:
         """The weighted sum of :func:`optics_loss_terms`."""
-        return (self.pixel * terms["pixel"] + self.fourier * terms["fourier"]
-                + self.gradient * terms["gradient"] + self.vignetting * terms["vignetting"])
+        return (
+            self.pixel * terms["pixel"]
+            + self.fourier * terms["fourier"]
+            + self.gradient * terms["gradient"]
+            + self.vignetting * terms["vignetting"]
+        )
 
 
-def optics_loss_terms(psf: torch.Tensor, vignetting: torch.Tensor, psf_true: torch.Tensor,
-                      vignetting_true: torch.Tensor) -> dict[str, torch.Tensor]:
+def optics_loss_terms(
+    psf: torch.Tensor, vignetting: torch.Tensor, psf_true: torch.Tensor, vignetting_true: torch.Tensor
+) -> dict[str, torch.Tensor]:
     """The four terms of Eq. 8 (scalars). psf, psf_true [B, C, S, S]; vignetting [B, C]."""
     if psf.shape != psf_true.shape or vignetting.shape != vignetting_true.shape:
-        raise ValueError(f"shape mismatch: psf {list(psf.shape)} vs {list(psf_true.shape)}, "
-                         f"vignetting {list(vignetting.shape)} vs {list(vignetting_true.shape)}")
+        raise ValueError(
+            f"shape mismatch: psf {list(psf.shape)} vs {list(psf_true.shape)}, "
+            f"vignetting {list(vignetting.shape)} vs {list(vignetting_true.shape)}"
+        )
     d = psf - psf_true
     pixel = d.abs().sum((-2, -1)).mean()
     fourier = (torch.fft.fft2(psf) - torch.fft.fft2(psf_true)).abs().mean()
-    gradient = ((d[..., 1:, :] - d[..., :-1, :]).abs().sum((-2, -1))
-                + (d[..., :, 1:] - d[..., :, :-1]).abs().sum((-2, -1))).mean()
+    gradient = (
+        (d[..., 1:, :] - d[..., :-1, :]).abs().sum((-2, -1)) + (d[..., :, 1:] - d[..., :, :-1]).abs().sum((-2, -1))
+    ).mean()
     vig = (vignetting - vignetting_true).abs().mean()
     return {"pixel": pixel, "fourier": fourier, "gradient": gradient, "vignetting": vig}
 

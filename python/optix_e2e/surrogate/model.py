@@ -43,16 +43,20 @@ class SurrogateConfig:
 
     @property
     def start_size(self) -> int:
-        return math.ceil(self.psf_size / 2 ** self.n_up)
+        return math.ceil(self.psf_size / 2**self.n_up)
 
     def to_json(self) -> dict:
         return asdict(self)
 
 
 def _up_block(c_in: int, c_out: int) -> nn.Sequential:
-    return nn.Sequential(nn.Upsample(scale_factor=2, mode="nearest"),
-                         nn.Conv2d(c_in, c_out, 3, padding=1), nn.SiLU(),
-                         nn.Conv2d(c_out, c_out, 3, padding=1), nn.SiLU())
+    return nn.Sequential(
+        nn.Upsample(scale_factor=2, mode="nearest"),
+        nn.Conv2d(c_in, c_out, 3, padding=1),
+        nn.SiLU(),
+        nn.Conv2d(c_out, c_out, 3, padding=1),
+        nn.SiLU(),
+    )
 
 
 class SurrogateNet(nn.Module):
@@ -89,7 +93,7 @@ class SurrogateNet(nn.Module):
         s0 = cfg.start_size
         x = self.decoder(self.to_grid(h).reshape(-1, cfg.base_channels, s0, s0))
         top = (x.shape[-1] - cfg.psf_size) // 2
-        logits = x[..., top:top + cfg.psf_size, top:top + cfg.psf_size]
+        logits = x[..., top : top + cfg.psf_size, top : top + cfg.psf_size]
         b, c, s, _ = logits.shape
         psf = torch.softmax(logits.reshape(b, c, s * s), dim=-1).reshape(b, c, s, s)
         return psf, vignetting

@@ -20,10 +20,10 @@ from .loss import LossWeights, optics_loss_terms
 
 @dataclass(frozen=True)
 class RefineSettings:
-    designs: int = 192        # engine designs sampled about the design (plus the design itself)
-    radius: float = 0.02      # half-width of the box, as a fraction of each parameter's range
-    steps: int = 150          # Adam steps of the fine-tune
-    batch: int = 64           # (design, field) samples per step; a quarter from the centre design
+    designs: int = 192  # engine designs sampled about the design (plus the design itself)
+    radius: float = 0.02  # half-width of the box, as a fraction of each parameter's range
+    steps: int = 150  # Adam steps of the fine-tune
+    batch: int = 64  # (design, field) samples per step; a quarter from the centre design
     lr: float = 3e-4
     seed: int = 0
 
@@ -31,8 +31,9 @@ class RefineSettings:
         return asdict(self)
 
 
-def local_designs(values: np.ndarray, lo: np.ndarray, hi: np.ndarray, n: int, radius: float,
-                  rng: np.random.Generator) -> np.ndarray:
+def local_designs(
+    values: np.ndarray, lo: np.ndarray, hi: np.ndarray, n: int, radius: float, rng: np.random.Generator
+) -> np.ndarray:
     """``n`` designs uniform in the box values +- radius * (hi - lo), clipped into the ranges."""
     width = hi - lo
     d = values[None] + radius * width[None] * rng.uniform(-1.0, 1.0, (n, len(values)))
@@ -63,8 +64,8 @@ def refine_around(sur, engine, values, settings: RefineSettings = RefineSettings
 
         raise EngineRejectedDesign("cannot refine the surrogate: the engine rejects the current design")
     params = torch.as_tensor(designs[ok], dtype=torch.float32)
-    psf_t = torch.as_tensor(np.stack([psf[i] for i in ok]), dtype=torch.float32)     # [N, K, C, S, S]
-    vig_t = torch.as_tensor(np.stack([vig[i] for i in ok]), dtype=torch.float32)     # [N, K, C]
+    psf_t = torch.as_tensor(np.stack([psf[i] for i in ok]), dtype=torch.float32)  # [N, K, C, S, S]
+    vig_t = torch.as_tensor(np.stack([vig[i] for i in ok]), dtype=torch.float32)  # [N, K, C]
     before = field_errors(sur, v, psf_t[0])
     net = sur.net
     was = [p.requires_grad for p in net.parameters()]
@@ -78,7 +79,7 @@ def refine_around(sur, engine, values, settings: RefineSettings = RefineSettings
     try:
         for _ in range(settings.steps):
             d = torch.randint(n, (settings.batch,), generator=gen)
-            d[: settings.batch // 4] = 0            # the design itself, every step
+            d[: settings.batch // 4] = 0  # the design itself, every step
             f = torch.randint(k, (settings.batch,), generator=gen)
             p, g = net(sur.normalize(params[d]), sur.fields[f])
             loss = weights.total(optics_loss_terms(p, g, psf_t[d, f], vig_t[d, f]))
@@ -92,5 +93,11 @@ def refine_around(sur, engine, values, settings: RefineSettings = RefineSettings
             p.requires_grad_(r)
             p.grad = None
     after = field_errors(sur, v, psf_t[0])
-    return {"designs": len(designs), "rejected": len(designs) - n, "steps": settings.steps,
-            "seconds": time.perf_counter() - t0, "error_before": before, "error_after": after}
+    return {
+        "designs": len(designs),
+        "rejected": len(designs) - n,
+        "steps": settings.steps,
+        "seconds": time.perf_counter() - t0,
+        "error_before": before,
+        "error_after": after,
+    }

@@ -37,35 +37,50 @@ from .model import SurrogateConfig
 
 # changing these makes a different model or different data: resuming refuses
 MAX_STEPS = 10_000_000  # the command line's maximum of --steps
-_FIXED = ("psf", "bin", "hidden", "depth", "base_channels", "n_up", "val_designs", "max_designs", "seed",
-          "batch", "loss_pixel", "loss_fourier", "loss_gradient", "loss_vignetting", "init")
+_FIXED = (
+    "psf",
+    "bin",
+    "hidden",
+    "depth",
+    "base_channels",
+    "n_up",
+    "val_designs",
+    "max_designs",
+    "seed",
+    "batch",
+    "loss_pixel",
+    "loss_fourier",
+    "loss_gradient",
+    "loss_vignetting",
+    "init",
+)
 
 
 @dataclass
 class TrainConfig:
-    psf: str = "psf_sensor"        # "psf_sensor" (sensor pitch) or "psf" (super-resolved)
-    bin: int = 1                   # sum bin x bin blocks of the PSFs first
+    psf: str = "psf_sensor"  # "psf_sensor" (sensor pitch) or "psf" (super-resolved)
+    bin: int = 1  # sum bin x bin blocks of the PSFs first
     hidden: int = 256
     depth: int = 4
     base_channels: int = 64
     n_up: int = 2
     steps: int = 20000
-    batch: int = 256               # (design, field) samples per step
+    batch: int = 256  # (design, field) samples per step
     lr: float = 2e-3
     warmup: int = 200
     clip_grad: float = 1.0
-    val_designs: int = 256         # designs held out of training (chosen with the seed)
-    max_designs: int = 0           # use only the first N designs (0: all)
+    val_designs: int = 256  # designs held out of training (chosen with the seed)
+    max_designs: int = 0  # use only the first N designs (0: all)
     val_every: int = 500
-    minutes: float = 0.0           # stop after this much training time in all (0: run all steps)
+    minutes: float = 0.0  # stop after this much training time in all (0: run all steps)
     seed: int = 0
-    threads: int = 0               # torch CPU threads (0: torch's default)
-    device: str = "auto"           # auto: CUDA when present
+    threads: int = 0  # torch CPU threads (0: torch's default)
+    device: str = "auto"  # auto: CUDA when present
     loss_pixel: float = 1.0
     loss_fourier: float = 1.0
     loss_gradient: float = 1.0
     loss_vignetting: float = 1.0
-    init: str = ""                 # start from this surrogate's weights (a fine-tune; same architecture)
+    init: str = ""  # start from this surrogate's weights (a fine-tune; same architecture)
 
     @property
     def weights(self) -> LossWeights:
@@ -89,7 +104,7 @@ def predict_all(model: OpticsSurrogate, params: torch.Tensor, batch_designs: int
     the caller's data)."""
     psf, vig = [], []
     for i in range(0, params.shape[0], batch_designs):
-        p, v = model.psfs(params[i:i + batch_designs], check=False)
+        p, v = model.psfs(params[i : i + batch_designs], check=False)
         psf.append(p)
         vig.append(v)
     return torch.cat(psf), torch.cat(vig)
@@ -100,10 +115,14 @@ def validate(model: OpticsSurrogate, t: dict) -> dict:
     model.eval()
     psf, vig = predict_all(model, t["params"])
     model.train()
-    rel = (psf - t["psf"]).abs().sum((-2, -1))            # [N, K, C]: relative L1 of unit-sum PSFs
+    rel = (psf - t["psf"]).abs().sum((-2, -1))  # [N, K, C]: relative L1 of unit-sum PSFs
     verr = (vig - t["vignetting"]).abs()
-    return {"psf_rel_l1_median": float(rel.median()), "psf_rel_l1_mean": float(rel.mean()),
-            "vignetting_abs_err_median": float(verr.median()), "vignetting_abs_err_max": float(verr.max())}
+    return {
+        "psf_rel_l1_median": float(rel.median()),
+        "psf_rel_l1_mean": float(rel.mean()),
+        "vignetting_abs_err_median": float(verr.median()),
+        "vignetting_abs_err_max": float(verr.max()),
+    }
 
 
 def _split(designs: np.ndarray, n_val: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -113,8 +132,9 @@ def _split(designs: np.ndarray, n_val: int, seed: int) -> tuple[np.ndarray, np.n
     return np.sort(perm[n_val:]), np.sort(perm[:n_val])
 
 
-def rank_designs(designs: np.ndarray, val_designs: int, seed: int, rank: int = 0,
-                 world: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def rank_designs(
+    designs: np.ndarray, val_designs: int, seed: int, rank: int = 0, world: int = 1
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(training designs, validation designs, this rank's training designs): the seeded split
     of the dataset's ``designs``, and the training designs at positions rank, rank + world,
     ... (ascending: the global batch's position p is rank p % world's row p // world)."""
@@ -126,13 +146,30 @@ def rank_designs(designs: np.ndarray, val_designs: int, seed: int, rank: int = 0
 
 def build_model(cfg: TrainConfig, man: dict, train_vig: np.ndarray, meta: dict) -> OpticsSurrogate:
     params = man["space"]["parameters"]
-    mc = SurrogateConfig(n_params=len(params), channels=len(man["channels"]), psf_size=psf_grid(man, cfg.psf, cfg.bin),
-                         hidden=cfg.hidden, depth=cfg.depth, base_channels=cfg.base_channels, n_up=cfg.n_up)
+    mc = SurrogateConfig(
+        n_params=len(params),
+        channels=len(man["channels"]),
+        psf_size=psf_grid(man, cfg.psf, cfg.bin),
+        hidden=cfg.hidden,
+        depth=cfg.depth,
+        base_channels=cfg.base_channels,
+        n_up=cfg.n_up,
+    )
     model = OpticsSurrogate(
-        mc, param_names=[p["name"] for p in params], param_mean=man["param_mean"], param_std=man["param_std"],
-        param_min=[p["min"] for p in params], param_max=[p["max"] for p in params], fields_deg=man["fields_deg"],
-        pitch_um=psf_pitch_um(man, cfg.psf, cfg.bin), psf_kind=cfg.psf, bin=cfg.bin,
-        channel_names=man["channel_names"], manifest=man, meta=meta)
+        mc,
+        param_names=[p["name"] for p in params],
+        param_mean=man["param_mean"],
+        param_std=man["param_std"],
+        param_min=[p["min"] for p in params],
+        param_max=[p["max"] for p in params],
+        fields_deg=man["fields_deg"],
+        pitch_um=psf_pitch_um(man, cfg.psf, cfg.bin),
+        psf_kind=cfg.psf,
+        bin=cfg.bin,
+        channel_names=man["channel_names"],
+        manifest=man,
+        meta=meta,
+    )
     with torch.no_grad():  # start the vignetting head at the data's mean per channel
         model.net.vignetting_head.weight.mul_(0.1)
         model.net.vignetting_head.bias.copy_(torch.as_tensor(train_vig.reshape(-1, train_vig.shape[-1]).mean(0)))
@@ -149,14 +186,19 @@ def _start_from(model: OpticsSurrogate, spec: str) -> None:
     model gives the source's outputs exactly where the new parameters sit at their mean."""
     src = OpticsSurrogate.load(spec)
     n_src = src.cfg.n_params
-    same = (replace(src.cfg, n_params=model.cfg.n_params) == model.cfg
-            and list(model.param_names[:n_src]) == list(src.param_names)
-            and torch.equal(src.fields.cpu(), model.fields.cpu()) and src.pitch_um == model.pitch_um)
+    same = (
+        replace(src.cfg, n_params=model.cfg.n_params) == model.cfg
+        and list(model.param_names[:n_src]) == list(src.param_names)
+        and torch.equal(src.fields.cpu(), model.fields.cpu())
+        and src.pitch_um == model.pitch_um
+    )
     if not same:
-        raise ValueError(f"--init {spec}: its architecture, parameters, fields or PSF pitch differ from this run's "
-                         f"(its parameters must be the first of this space's)")
+        raise ValueError(
+            f"--init {spec}: its architecture, parameters, fields or PSF pitch differ from this run's "
+            f"(its parameters must be the first of this space's)"
+        )
     state = {k: v.float() for k, v in src.net.state_dict().items()}
-    w, b = state["encoder.0.weight"].double(), state["encoder.0.bias"].double()   # [H, P_src + 1], [H]
+    w, b = state["encoder.0.weight"].double(), state["encoder.0.bias"].double()  # [H, P_src + 1], [H]
     # w x_src + b with x_src = (v - m_src) / s_src and v = m + s x: weights w s / s_src on x,
     # the bias taking w (m - m_src) / s_src
     m_src, s_src = src.param_mean.double().cpu(), src.param_std.double().cpu()
@@ -177,8 +219,14 @@ def _vignetting_mean(vig: torch.Tensor, ranks: parallel.Ranks) -> np.ndarray:
     return (tot[:-1] / tot[-1]).numpy()[None]
 
 
-def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, progress: bool = True,
-          log=lambda m: None, stop_after: int | None = None) -> dict | None:
+def train(
+    data_root: "str | Path",
+    out_dir: "str | Path",
+    cfg: TrainConfig,
+    progress: bool = True,
+    log=lambda m: None,
+    stop_after: int | None = None,
+) -> dict | None:
     """Train a surrogate on the dataset in ``data_root``, or resume the run in ``out_dir``.
     ``stop_after``: leave this call after that many steps (as an interruption would; the
     next call resumes). Under torchrun, every rank calls it (see the module docstring) and
@@ -203,27 +251,35 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
         defaults = TrainConfig()
         diff = [k for k in _FIXED if old.get(k, getattr(defaults, k)) != getattr(cfg, k)]
         if diff:
-            raise ValueError(f"{state_path}: this run was started with other settings ({', '.join(diff)}); "
-                             f"use the same options or another --out")
+            raise ValueError(
+                f"{state_path}: this run was started with other settings ({', '.join(diff)}); "
+                f"use the same options or another --out"
+            )
         log(f"resuming {state_path} at step {resumed.get('step')}")
 
     designs, man = design_indices(data_root, cfg.max_designs or None)
     if resumed is not None:
         old_data = resumed.get("data")
         if not isinstance(old_data, dict) or "designs_csv_sha256" not in old_data:
-            raise ValueError(f"{state_path}: damaged surrogate training state (no data record); remove it to "
-                             f"train from the start")
+            raise ValueError(
+                f"{state_path}: damaged surrogate training state (no data record); remove it to train from the start"
+            )
         if old_data["designs_csv_sha256"] != man["designs_csv_sha256"]:
             raise ValueError(f"{state_path}: that run trained on another dataset than {data_root}")
     tr_designs, va_designs, mine = rank_designs(designs, cfg.val_designs, cfg.seed, ranks.rank, W)
-    arrays, man = load_arrays(data_root, cfg.psf, cfg.bin,
-                              designs=np.concatenate([mine, va_designs]) if ranks.is_main else mine)
+    arrays, man = load_arrays(
+        data_root, cfg.psf, cfg.bin, designs=np.concatenate([mine, va_designs]) if ranks.is_main else mine
+    )
     in_train = np.isin(arrays.design, mine)
     train_t = to_tensors(arrays.subset(np.flatnonzero(in_train)), device)
     val_t = to_tensors(arrays.subset(np.flatnonzero(~in_train)), device) if ranks.is_main else None
-    data_meta = {"root": str(Path(data_root).resolve()), "designs_csv_sha256": man["designs_csv_sha256"],
-                 "n_train_designs": int(len(tr_designs)), "n_val_designs": int(len(va_designs)),
-                 "val_designs": va_designs.tolist()}
+    data_meta = {
+        "root": str(Path(data_root).resolve()),
+        "designs_csv_sha256": man["designs_csv_sha256"],
+        "n_train_designs": int(len(tr_designs)),
+        "n_val_designs": int(len(va_designs)),
+        "val_designs": va_designs.tolist(),
+    }
     del arrays
 
     torch.manual_seed(cfg.seed)
@@ -244,8 +300,10 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
             if not (0 <= step <= MAX_STEPS and math.isfinite(seconds) and seconds >= 0):
                 raise ValueError(f"step {step}, seconds {seconds}")
         except DAMAGED_STATE_ERRORS as err:
-            raise ValueError(f"{state_path}: damaged surrogate training state ({type(err).__name__}: "
-                             f"{' '.join(str(err).split())}); remove it to train from the start") from None
+            raise ValueError(
+                f"{state_path}: damaged surrogate training state ({type(err).__name__}: "
+                f"{' '.join(str(err).split())}); remove it to train from the start"
+            ) from None
     model.train()
     net = model.net
     if ranks.distributed:  # averages the gradients over the ranks in backward
@@ -260,13 +318,30 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
     first_step = step
 
     def checkpoint(val: dict | None) -> None:
-        meta = {"data": data_meta, "training": {"config": asdict(cfg), "steps_done": step,
-                                                  "seconds": round(time.time() - t_start, 1),
-                                                  "device": str(device), "val": val}}
+        meta = {
+            "data": data_meta,
+            "training": {
+                "config": asdict(cfg),
+                "steps_done": step,
+                "seconds": round(time.time() - t_start, 1),
+                "device": str(device),
+                "val": val,
+            },
+        }
         model.save(out_dir / "surrogate.pt", **meta)
-        save_atomic({"config": asdict(cfg), "model": model.net.state_dict(), "optimizer": opt.state_dict(),
-                     "generator": gen.get_state(), "step": step, "seconds": time.time() - t_start,
-                     "history": history, "data": data_meta}, state_path)
+        save_atomic(
+            {
+                "config": asdict(cfg),
+                "model": model.net.state_dict(),
+                "optimizer": opt.state_dict(),
+                "generator": gen.get_state(),
+                "step": step,
+                "seconds": time.time() - t_start,
+                "history": history,
+                "data": data_meta,
+            },
+            state_path,
+        )
 
     while step < cfg.steps:
         # the global batch, the same on every rank; this rank computes the samples of its designs
@@ -286,7 +361,7 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
         if float(parallel.all_sum(torch.tensor([0.0 if finite else 1.0]), ranks)[0]) > 0:
             parallel.stop_if_diverged(step + 1, state_path, "lower --lr", loss=math.nan if finite else loss.detach())
         opt.zero_grad(set_to_none=True)
-        (loss * W).backward()       # DistributedDataParallel divides the summed gradients by W
+        (loss * W).backward()  # DistributedDataParallel divides the summed gradients by W
         torch.nn.utils.clip_grad_norm_(model.net.parameters(), cfg.clip_grad)
         elapsed = time.time() - t_start
         if cfg.minutes:  # rank 0's clock, so that every rank anneals and stops alike
@@ -323,10 +398,16 @@ def train(data_root: "str | Path", out_dir: "str | Path", cfg: TrainConfig, prog
         if out_of_time or interrupted:
             break
     bar.close()
-    summary = {"steps_done": step, "seconds": round(time.time() - t_start, 1), "device": str(device),
-               "processes": W, "config": asdict(cfg),
-               "data": {k2: v for k2, v in data_meta.items() if k2 != "val_designs"},
-               "final_val": history[-1] if history else None, "history": history}
+    summary = {
+        "steps_done": step,
+        "seconds": round(time.time() - t_start, 1),
+        "device": str(device),
+        "processes": W,
+        "config": asdict(cfg),
+        "data": {k2: v for k2, v in data_meta.items() if k2 != "val_designs"},
+        "final_val": history[-1] if history else None,
+        "history": history,
+    }
     if ranks.is_main:
         writer.close()
         (out_dir / "train.json").write_text(json.dumps(summary, indent=2))

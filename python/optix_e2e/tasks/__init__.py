@@ -14,5 +14,16 @@ def get_task(name: str) -> "ImageQualityTask | DetectionTask":
     return TASKS[name]
 
 
-__all__ = ["TASKS", "ImageQualityTask", "DetectionTask", "DETECTION", "TaskLoss", "get_task", "task_loss",
-           "SensorFrame", "training_batch", "heldout_set", "HeldoutSample"]
+__all__ = [
+    "TASKS",
+    "ImageQualityTask",
+    "DetectionTask",
+    "DETECTION",
+    "TaskLoss",
+    "get_task",
+    "task_loss",
+    "SensorFrame",
+    "training_batch",
+    "heldout_set",
+    "HeldoutSample",
+]

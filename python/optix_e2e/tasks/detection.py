@@ -35,21 +35,23 @@ from torch.nn import functional as F
 
 from ..scenes.street import street_scene
 
-HELDOUT_STREET0 = 2_100_000_000   # held-out street scenes: seeds from here (training: [6, seed, step])
+HELDOUT_STREET0 = 2_100_000_000  # held-out street scenes: seeds from here (training: [6, seed, step])
 HELDOUT_NOISE0 = (1 << 60) + (1 << 40)
 
 
 @dataclass(frozen=True)
 class DetectionTask:
     name: str = "detection"
-    isp: str = "hardware"           # the hardware ISP: proxy in the loop, reference in evaluation
-    exposure_factor: float = 1.0    # the preset's 5 ms and gain (see the module's docstring)
+    isp: str = "hardware"  # the hardware ISP: proxy in the loop, reference in evaluation
+    exposure_factor: float = 1.0  # the preset's 5 ms and gain (see the module's docstring)
     gain_factor: float = 1.0
-    level_min: float = 0.1          # sunlit white, in units of the calibrated white (log-uniform)
+    level_min: float = 0.1  # sunlit white, in units of the calibrated white (log-uniform)
     level_max: float = 0.4
-    dark: float = 0.1               # objects lit under this fraction of their scene's sunlight are "in the dark"
-    description: str = ("object detection at dusk, hardware ISP, detector (paper Sec. 6.1, Eq. 12, Table 4); "
-                        "the f-number is a lens parameter")
+    dark: float = 0.1  # objects lit under this fraction of their scene's sunlight are "in the dark"
+    description: str = (
+        "object detection at dusk, hardware ISP, detector (paper Sec. 6.1, Eq. 12, Table 4); "
+        "the f-number is a lens parameter"
+    )
 
 
 DETECTION = DetectionTask()
@@ -57,8 +59,8 @@ DETECTION = DetectionTask()
 
 @dataclass
 class DetectionBatch:
-    scene: torch.Tensor            # [B, 3, H + 2m, W + 2m] linear radiance (1 = calibrated white)
-    targets: list[dict]            # per image {"boxes" [N, 4] xyxy in crop pixels, "labels" [N]}
+    scene: torch.Tensor  # [B, 3, H + 2m, W + 2m] linear radiance (1 = calibrated white)
+    targets: list[dict]  # per image {"boxes" [N, 4] xyxy in crop pixels, "labels" [N]}
     offset_px: tuple[float, float]
     object_light: list[torch.Tensor]
 
@@ -66,12 +68,12 @@ class DetectionBatch:
 @dataclass
 class DetectionSample:
     name: str
-    scene: torch.Tensor            # [3, H + 2m, W + 2m]
+    scene: torch.Tensor  # [3, H + 2m, W + 2m]
     target: dict
-    object_light: torch.Tensor     # [N]
+    object_light: torch.Tensor  # [N]
     offset_px: tuple[float, float]
-    size: tuple[int, int]          # (H, W) of the crop, without the margin
-    radius: float                  # crop centre's distance from the axis / the full field's
+    size: tuple[int, int]  # (H, W) of the crop, without the margin
+    radius: float  # crop centre's distance from the axis / the full field's
     level: float
     noise_seed: int
 
@@ -92,8 +94,9 @@ def _flip(x: torch.Tensor, boxes: torch.Tensor, w: int) -> tuple[torch.Tensor, t
     return x.flip(-1), b
 
 
-def street_batch(seed: int, step: int, batch: int, size: tuple[int, int], margin: int,
-                 levels: tuple[float, float], frame) -> DetectionBatch:
+def street_batch(
+    seed: int, step: int, batch: int, size: tuple[int, int], margin: int, levels: tuple[float, float], frame
+) -> DetectionBatch:
     """Training batch ``step`` of the run seeded ``seed``: ``batch`` street scenes of ``size``
     (H, W) with a ``margin``, at one position on the sensor (even rows and columns: the CFA's
     phase), each at a log-uniform light level, half flipped left-right."""
@@ -114,8 +117,9 @@ def street_batch(seed: int, step: int, batch: int, size: tuple[int, int], margin
     return DetectionBatch(torch.stack(scenes), targets, crop_offset(frame, y0, x0, h, w), lights)
 
 
-def heldout_streets(n: int, size: tuple[int, int], margin: int, levels: tuple[float, float],
-                    frame) -> list[DetectionSample]:
+def heldout_streets(
+    n: int, size: tuple[int, int], margin: int, levels: tuple[float, float], frame
+) -> list[DetectionSample]:
     """The held-out set: ``n`` street scenes (seeds training never draws), scene i in quadrant
     i mod 4 of the frame at a uniform position inside it, at a log-uniform light level."""
     h, w = size
@@ -124,14 +128,24 @@ def heldout_streets(n: int, size: tuple[int, int], margin: int, levels: tuple[fl
         rng = np.random.default_rng([HELDOUT_STREET0, i])
         level = float(np.exp(rng.uniform(np.log(levels[0]), np.log(levels[1]))))
         qy, qx = divmod(i % 4, 2)
-        ny, nx = (frame.height - h) // 2 + 1, (frame.width - w) // 2 + 1   # even top rows / left columns
+        ny, nx = (frame.height - h) // 2 + 1, (frame.width - w) // 2 + 1  # even top rows / left columns
         y0 = 2 * (qy * (ny // 2) + int(rng.integers(0, ny // 2)))
         x0 = 2 * (qx * (nx // 2) + int(rng.integers(0, nx // 2)))
         sc = street_scene((h, w), np.random.default_rng(rng.integers(1 << 62)), level=level)
         off = crop_offset(frame, y0, x0, h, w)
-        out.append(DetectionSample(f"street-{i:04d}", _pad(sc.radiance, margin),
-                                   {"boxes": sc.boxes, "labels": sc.labels}, sc.object_light, off, (h, w),
-                                   float(np.hypot(*off)) / frame.full_field_px, level, HELDOUT_NOISE0 + i))
+        out.append(
+            DetectionSample(
+                f"street-{i:04d}",
+                _pad(sc.radiance, margin),
+                {"boxes": sc.boxes, "labels": sc.labels},
+                sc.object_light,
+                off,
+                (h, w),
+                float(np.hypot(*off)) / frame.full_field_px,
+                level,
+                HELDOUT_NOISE0 + i,
+            )
+        )
     return out
 
 

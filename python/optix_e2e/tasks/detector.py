@@ -31,8 +31,14 @@ def _stage(cin: int, cout: int) -> nn.Sequential:
     def gn(c):
         return nn.GroupNorm(min(8, c // 4), c)
 
-    return nn.Sequential(nn.Conv2d(cin, cout, 3, 2, 1, bias=False), gn(cout), nn.SiLU(),
-                         nn.Conv2d(cout, cout, 3, 1, 1, bias=False), gn(cout), nn.SiLU())
+    return nn.Sequential(
+        nn.Conv2d(cin, cout, 3, 2, 1, bias=False),
+        gn(cout),
+        nn.SiLU(),
+        nn.Conv2d(cout, cout, 3, 1, 1, bias=False),
+        gn(cout),
+        nn.SiLU(),
+    )
 
 
 class TinyBackbone(nn.Module):
@@ -57,8 +63,9 @@ class TinyBackbone(nn.Module):
         return self.fpn(feats)
 
 
-def make_detector(width: int = 32, fpn: int = 64, image_size: tuple[int, int] = (256, 384),
-                  score_thresh: float = 0.05) -> nn.Module:
+def make_detector(
+    width: int = 32, fpn: int = 64, image_size: tuple[int, int] = (256, 384), score_thresh: float = 0.05
+) -> nn.Module:
     """The FCOS detector on ``TinyBackbone``; images of ``image_size`` are used at that size
     (no resizing). Input: a list of [3, H, W] sRGB images in [0, 1]; in training also a list
     of {"boxes" [N, 4] xyxy, "labels" [N] (COCO ids)}, returning the loss terms; in eval, a
@@ -68,9 +75,17 @@ def make_detector(width: int = 32, fpn: int = 64, image_size: tuple[int, int] = 
 
     h, w = image_size
     anchors = AnchorGenerator(sizes=((8,), (16,), (32,), (64,)), aspect_ratios=((1.0,),) * 4)
-    return FCOS(TinyBackbone(width, fpn), NUM_CLASSES, min_size=min(h, w), max_size=max(h, w),
-                image_mean=[0.45, 0.45, 0.45], image_std=[0.25, 0.25, 0.25], anchor_generator=anchors,
-                score_thresh=score_thresh, detections_per_img=100)
+    return FCOS(
+        TinyBackbone(width, fpn),
+        NUM_CLASSES,
+        min_size=min(h, w),
+        max_size=max(h, w),
+        image_mean=[0.45, 0.45, 0.45],
+        image_std=[0.25, 0.25, 0.25],
+        anchor_generator=anchors,
+        score_thresh=score_thresh,
+        detections_per_img=100,
+    )
 
 
 def mean_average_precision(preds: list[dict], targets: list[dict]) -> dict:
@@ -80,15 +95,22 @@ def mean_average_precision(preds: list[dict], targets: list[dict]) -> dict:
     from torchmetrics.detection import MeanAveragePrecision
 
     m = MeanAveragePrecision(box_format="xyxy", iou_type="bbox", backend="faster_coco_eval")
-    m.update([{k: p[k].detach().cpu() for k in ("boxes", "scores", "labels")} for p in preds],
-             [{k: t[k].detach().cpu() for k in ("boxes", "labels")} for t in targets])
+    m.update(
+        [{k: p[k].detach().cpu() for k in ("boxes", "scores", "labels")} for p in preds],
+        [{k: t[k].detach().cpu() for k in ("boxes", "labels")} for t in targets],
+    )
     r = m.compute()
-    return {"map": float(r["map"]), "map_50": float(r["map_50"]), "map_75": float(r["map_75"]),
-            "n_objects": int(sum(len(t["labels"]) for t in targets))}
+    return {
+        "map": float(r["map"]),
+        "map_50": float(r["map_50"]),
+        "map_75": float(r["map_75"]),
+        "n_objects": int(sum(len(t["labels"]) for t in targets)),
+    }
 
 
-def in_the_dark(preds: list[dict], targets: list[dict], lights: list[torch.Tensor],
-                dark: float = 0.1) -> tuple[list[dict], list[dict]]:
+def in_the_dark(
+    preds: list[dict], targets: list[dict], lights: list[torch.Tensor], dark: float = 0.1
+) -> tuple[list[dict], list[dict]]:
     """Detections and targets restricted to the objects lit under ``dark`` (``lights``: each
     target's mean illumination, a fraction of the sunlight): the other objects' boxes are
     removed from the targets, and detections matching one of them (IoU >= 0.5) from the
@@ -99,8 +121,11 @@ def in_the_dark(preds: list[dict], targets: list[dict], lights: list[torch.Tenso
     for p, t, light in zip(preds, targets, lights):
         keep = torch.as_tensor(light, dtype=torch.float32).reshape(-1) < dark
         drop = t["boxes"][~keep]
-        far = box_iou(p["boxes"], drop).max(1).values < 0.5 if len(drop) and len(p["boxes"]) else \
-            torch.ones(len(p["boxes"]), dtype=torch.bool)
+        far = (
+            box_iou(p["boxes"], drop).max(1).values < 0.5
+            if len(drop) and len(p["boxes"])
+            else torch.ones(len(p["boxes"]), dtype=torch.bool)
+        )
         dp.append({k: v[far] for k, v in p.items()})
         dt.append({"boxes": t["boxes"][keep], "labels": t["labels"][keep]})
     return dp, dt
@@ -113,6 +138,6 @@ def detect(model: nn.Module, images: torch.Tensor, batch: int = 8) -> list[dict]
     model.eval()
     out = []
     for i in range(0, len(images), batch):
-        out += model(list(images[i:i + batch]))
+        out += model(list(images[i : i + batch]))
     model.train(was)
     return out

@@ -39,12 +39,16 @@ def load_coco_folder(folder: "str | Path") -> tuple[torch.Tensor, list[dict], Co
     ours = {c["id"]: c["name"] for c in CATEGORIES}
     for cid, name in sorted(ds.categories.items()):  # the detector's classes are the street set's
         if ours.get(cid) != name:
-            raise ValueError(f"{folder / 'annotations.json'}: category {cid} {name!r} is not one the detector "
-                             f"knows ({', '.join(f'{k} {v!r}' for k, v in ours.items())})")
+            raise ValueError(
+                f"{folder / 'annotations.json'}: category {cid} {name!r} is not one the detector "
+                f"knows ({', '.join(f'{k} {v!r}' for k, v in ours.items())})"
+            )
     sizes = {(im["height"], im["width"]) for im in ds.images}
     if len(sizes) != 1:
-        raise ValueError(f"{folder}: images of several sizes ({', '.join(f'{h}x{w}' for h, w in sorted(sizes))}); "
-                         f"the detector trains on one size")
+        raise ValueError(
+            f"{folder}: images of several sizes ({', '.join(f'{h}x{w}' for h, w in sorted(sizes))}); "
+            f"the detector trains on one size"
+        )
     imgs, targets = [], []
     for i in range(len(ds)):
         img, t = ds[i]
@@ -74,16 +78,22 @@ def load_detector(path: "str | Path"):
         raise ValueError(f"{path}: not a detector checkpoint ({FORMAT})")
     _check_record(ck, path)
     cfg = ck.get("config")
-    model = build_module(lambda **c: make_detector(**{**c, "image_size": tuple(c["image_size"])}), cfg,
-                         ck.get("state_dict"), path, "detector checkpoint")
+    model = build_module(
+        lambda **c: make_detector(**{**c, "image_size": tuple(c["image_size"])}),
+        cfg,
+        ck.get("state_dict"),
+        path,
+        "detector checkpoint",
+    )
     return model, ck
 
 
 def _check_record(ck: dict, path: Path) -> None:
     """The training record every detector checkpoint carries: its step and wall time."""
-    checks = {"step": lambda v: isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= MAX_STEPS,
-              "wall_s": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-              and v >= 0}
+    checks = {
+        "step": lambda v: isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= MAX_STEPS,
+        "wall_s": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0,
+    }
     for key, ok in checks.items():
         if key not in ck or not ok(ck[key]):
             what = "missing" if key not in ck else f"{ck[key]}"[:40]
@@ -123,9 +133,22 @@ def _batch(images: torch.Tensor, targets: list[dict], seed: int, step: int, batc
     return xs, ts
 
 
-def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, minutes: float | None = None,
-                   batch: int = 8, lr: float = 2e-3, seed: int = 0, width: int = 32, fpn: int = 64, dim: float = 1.0,
-                   checkpoint_every: int = 100, progress: bool = True, log=print) -> dict:
+def train_detector(
+    data: "str | Path",
+    out: "str | Path",
+    *,
+    steps: int = 4000,
+    minutes: float | None = None,
+    batch: int = 8,
+    lr: float = 2e-3,
+    seed: int = 0,
+    width: int = 32,
+    fpn: int = 64,
+    dim: float = 1.0,
+    checkpoint_every: int = 100,
+    progress: bool = True,
+    log=print,
+) -> dict:
     """Train (or continue) a detector on the COCO folder ``data``; returns the run's summary."""
     from torch.utils.tensorboard import SummaryWriter
     from tqdm import tqdm
@@ -139,10 +162,16 @@ def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, 
     if ck_path.is_file():
         model, ck = load_detector(ck_path)
         check_finite_weights(model.state_dict(), ck_path)
-        if (ck["config"] != config or ck.get("data") != str(Path(data).resolve()) or ck.get("seed") != seed
-                or ck.get("dim", 1.0) != dim):
-            raise ValueError(f"{out} holds a detector trained with other settings (config {ck['config']}, data "
-                             f"{ck.get('data')}, seed {ck.get('seed')}, dim {ck.get('dim', 1.0)}); use another --out")
+        if (
+            ck["config"] != config
+            or ck.get("data") != str(Path(data).resolve())
+            or ck.get("seed") != seed
+            or ck.get("dim", 1.0) != dim
+        ):
+            raise ValueError(
+                f"{out} holds a detector trained with other settings (config {ck['config']}, data "
+                f"{ck.get('data')}, seed {ck.get('seed')}, dim {ck.get('dim', 1.0)}); use another --out"
+            )
         step, wall = ck["step"], float(ck["wall_s"])  # checked by load_detector; a larger --steps continues
         log(f"resuming at step {step} of {steps}")
     else:
@@ -154,8 +183,10 @@ def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, 
         try:
             opt.load_state_dict(ck["optimizer"])
         except DAMAGED_STATE_ERRORS as err:
-            raise ValueError(f"{ck_path}: damaged detector checkpoint (optimizer: {type(err).__name__}: {err}); "
-                             f"remove it to train from the start") from None
+            raise ValueError(
+                f"{ck_path}: damaged detector checkpoint (optimizer: {type(err).__name__}: {err}); "
+                f"remove it to train from the start"
+            ) from None
     budget_s = None if minutes is None else 60.0 * minutes
 
     def lr_at(s: int, frac: float) -> float:  # warm-up, then cosine to 1 % by the budget's end
@@ -177,8 +208,19 @@ def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, 
     t0 = time.perf_counter()
 
     def checkpoint() -> None:
-        save_detector(ck_path, model, config, optimizer=opt.state_dict(), step=step, steps=steps, seed=seed, dim=dim,
-                      wall_s=wall + time.perf_counter() - t0, data=str(Path(data).resolve()))
+        save_detector(
+            ck_path,
+            model,
+            config,
+            optimizer=opt.state_dict(),
+            step=step,
+            steps=steps,
+            seed=seed,
+            dim=dim,
+            wall_s=wall + time.perf_counter() - t0,
+            data=str(Path(data).resolve()),
+        )
+
     bar = tqdm(total=steps, initial=step, desc="detector", unit="step", disable=not progress)
     try:
         while step < steps:
@@ -198,9 +240,15 @@ def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, 
             loss.backward()
             opt.step()
             step += 1
-            hw.writerow([step, f"{loss.item():.6g}", *(f"{losses[k].item():.6g}" for k in
-                         ("classification", "bbox_regression", "bbox_ctrness")), f"{opt.param_groups[0]['lr']:.3g}",
-                         f"{time.perf_counter() - ts:.4f}"])
+            hw.writerow(
+                [
+                    step,
+                    f"{loss.item():.6g}",
+                    *(f"{losses[k].item():.6g}" for k in ("classification", "bbox_regression", "bbox_ctrness")),
+                    f"{opt.param_groups[0]['lr']:.3g}",
+                    f"{time.perf_counter() - ts:.4f}",
+                ]
+            )
             writer.add_scalar("detector/loss", loss.item(), step)
             bar.update(1)
             bar.set_postfix(loss=f"{loss.item():.3f}")
@@ -215,8 +263,14 @@ def train_detector(data: "str | Path", out: "str | Path", *, steps: int = 4000, 
     stop_if_diverged(step, ck_path, "lower --lr", detector=model)
     checkpoint()
     wall += time.perf_counter() - t0
-    return {"run": str(out), "steps": step, "wall_s": wall, "n_images": len(images),
-            "n_objects": int(sum(len(t["labels"]) for t in targets)), "image_size": list(size)}
+    return {
+        "run": str(out),
+        "steps": step,
+        "wall_s": wall,
+        "n_images": len(images),
+        "n_objects": int(sum(len(t["labels"]) for t in targets)),
+        "image_size": list(size),
+    }
 
 
 def evaluate_detector(model, data: "str | Path", batch: int = 8, dark: float = 0.1) -> dict:
@@ -228,11 +282,16 @@ def evaluate_detector(model, data: "str | Path", batch: int = 8, dark: float = 0
         raise ValueError(f"{data}: no objects to score (the annotation file lists none that is not a crowd)")
     preds = detect(model, images.float() / 255, batch)
     res = mean_average_precision(preds, targets)
-    if any(im["illumination"] for im in ds.images) and all(x is not None for im in ds.images
-                                                            for x in im["illumination"]):
+    if any(im["illumination"] for im in ds.images) and all(
+        x is not None for im in ds.images for x in im["illumination"]
+    ):
         lights = [torch.tensor(im["illumination"], dtype=torch.float32).reshape(-1) for im in ds.images]
         r = mean_average_precision(*in_the_dark(preds, targets, lights, dark))
         none = r["n_objects"] == 0  # no object in the dark: nothing to score (torchmetrics says -1)
-        res["dark"] = {"threshold": dark, "map_50": None if none else r["map_50"], "map": None if none else r["map"],
-                       "n_objects": r["n_objects"]}
+        res["dark"] = {
+            "threshold": dark,
+            "map_50": None if none else r["map_50"],
+            "map": None if none else r["map"],
+            "n_objects": r["n_objects"],
+        }
     return res

@@ -24,27 +24,36 @@ from ..metrics.lpips import LPIPS
 @dataclass(frozen=True)
 class ImageQualityTask:
     name: str
-    isp: str                      # "software" (f_NN) or "hardware" (proxy in the loop, reference in evaluation)
-    lpips_weight: float           # L = L1 + lpips_weight * LPIPS
+    isp: str  # "software" (f_NN) or "hardware" (proxy in the loop, reference in evaluation)
+    lpips_weight: float  # L = L1 + lpips_weight * LPIPS
     exposure_factor: float = 1.0  # x the sensor preset's exposure (5 ms for the IMX249)
-    gain_factor: float = 1.0      # x its gain
-    level_min: float = 0.35       # scene white in units of the calibrated white (log-uniform in training)
+    gain_factor: float = 1.0  # x its gain
+    level_min: float = 0.35  # scene white in units of the calibrated white (log-uniform in training)
     level_max: float = 1.0
     description: str = ""
 
 
 TASKS: dict[str, ImageQualityTask] = {
-    "iq-software": ImageQualityTask("iq-software", "software", 1.0,
-                                    description="image quality, software ISP (paper Table 2, rows 1-2)"),
-    "iq-hardware": ImageQualityTask("iq-hardware", "hardware", 3.0,
-                                    description="image quality, hardware ISP through its proxy (Table 2, rows 3-4)"),
-    "low-light": ImageQualityTask("low-light", "software", 1.0, exposure_factor=0.01, gain_factor=100.0,
-                                  description="low-light imaging: exposure / 100, gain x 100 (Table 3)"),
+    "iq-software": ImageQualityTask(
+        "iq-software", "software", 1.0, description="image quality, software ISP (paper Table 2, rows 1-2)"
+    ),
+    "iq-hardware": ImageQualityTask(
+        "iq-hardware", "hardware", 3.0, description="image quality, hardware ISP through its proxy (Table 2, rows 3-4)"
+    ),
+    "low-light": ImageQualityTask(
+        "low-light",
+        "software",
+        1.0,
+        exposure_factor=0.01,
+        gain_factor=100.0,
+        description="low-light imaging: exposure / 100, gain x 100 (Table 3)",
+    ),
 }
 
 
-def task_loss(output: torch.Tensor, target: torch.Tensor, lpips_module: nn.Module, lpips_weight: float,
-              crop: int = 0) -> tuple[torch.Tensor, dict]:
+def task_loss(
+    output: torch.Tensor, target: torch.Tensor, lpips_module: nn.Module, lpips_weight: float, crop: int = 0
+) -> tuple[torch.Tensor, dict]:
     """L1 + w LPIPS of sRGB images [B, 3, H, W] (batch means); ``crop`` border pixels dropped.
     Returns (loss, {"l1", "lpips"})."""
     if crop:

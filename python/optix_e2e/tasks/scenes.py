@@ -33,13 +33,14 @@ import torch
 from .. import color, scenes
 
 HELDOUT_SEED0 = 2_000_000_000  # procedural held-out scenes use seeds from here; training streams are [1, seed, step]
-HELDOUT_NOISE0 = 1 << 60        # held-out noise seeds (training noise: SeedSequence([4, seed, step]))
+HELDOUT_NOISE0 = 1 << 60  # held-out noise seeds (training noise: SeedSequence([4, seed, step]))
 POSITIONS = {"frame": ("frame",) * 4, "centre-corner": ("centre", "corner")}  # a design run's eval_positions
 
 
 @dataclass(frozen=True)
 class SensorFrame:
     """The sensor's pixel grid: the optical axis at its centre, the full field at its corners."""
+
     height: int = 1200
     width: int = 1920
 
@@ -57,8 +58,8 @@ class SensorFrame:
 
 @dataclass
 class Batch:
-    scene: torch.Tensor     # [B, 3, S + 2m, S + 2m] linear radiance (1 = calibrated white)
-    target: torch.Tensor    # [B, 3, S, S] ideal sRGB rendering of the inner crop
+    scene: torch.Tensor  # [B, 3, S + 2m, S + 2m] linear radiance (1 = calibrated white)
+    target: torch.Tensor  # [B, 3, S, S] ideal sRGB rendering of the inner crop
     offset_px: tuple[float, float]
     names: list[str]
 
@@ -78,8 +79,17 @@ def training_scene(size: int, rng: np.random.Generator) -> torch.Tensor:
     return scenes.natural_scene(size, rng)
 
 
-def training_batch(seed: int, step: int, batch: int, size: int, margin: int, level_range: tuple[float, float],
-                   frame: SensorFrame = SensorFrame(), folder=None, tint: float = 0.0) -> Batch:
+def training_batch(
+    seed: int,
+    step: int,
+    batch: int,
+    size: int,
+    margin: int,
+    level_range: tuple[float, float],
+    frame: SensorFrame = SensorFrame(),
+    folder=None,
+    tint: float = 0.0,
+) -> Batch:
     """Batch ``step`` of the training stream ``seed`` (see the module doc)."""
     rng = np.random.default_rng([1, int(seed), int(step)])  # stream tag 1: training batches
     full = size + 2 * margin
@@ -107,16 +117,22 @@ def training_batch(seed: int, step: int, batch: int, size: int, margin: int, lev
 @dataclass
 class HeldoutSample:
     name: str
-    position: str           # "centre", "corner" or "frame" (a stratified uniform position)
-    scene: torch.Tensor     # [3, S + 2m, S + 2m] linear
-    target: torch.Tensor    # [3, S, S] sRGB
+    position: str  # "centre", "corner" or "frame" (a stratified uniform position)
+    scene: torch.Tensor  # [3, S + 2m, S + 2m] linear
+    target: torch.Tensor  # [3, S, S] sRGB
     offset_px: tuple[float, float]
     noise_seed: int
 
 
-def heldout_set(size: int, margin: int, n_procedural: int = 12, level: float = 0.7,
-                frame: SensorFrame = SensorFrame(), photos: list[str] | None = None,
-                positions: tuple[str, ...] = ("centre", "corner")) -> list[HeldoutSample]:
+def heldout_set(
+    size: int,
+    margin: int,
+    n_procedural: int = 12,
+    level: float = 0.7,
+    frame: SensorFrame = SensorFrame(),
+    photos: list[str] | None = None,
+    positions: tuple[str, ...] = ("centre", "corner"),
+) -> list[HeldoutSample]:
     """The fixed evaluation set: bundled photos + ``n_procedural`` held-out procedural scenes,
     each at ``positions`` (see the module doc; the j-th "frame" entry of an image lies in
     quadrant j % 4); deterministic."""
@@ -124,8 +140,12 @@ def heldout_set(size: int, margin: int, n_procedural: int = 12, level: float = 0
     if unknown:
         raise ValueError(f"unknown held-out position(s) {unknown}: centre, corner or frame")
     full = size + 2 * margin
-    items = [(f"photo:{p}", scenes.load_photo(p, full)) for p in (scenes.bundled_photos() if photos is None else photos)]
-    items += [(f"procedural:{HELDOUT_SEED0 + i}", scenes.mixed_scene(full, HELDOUT_SEED0 + i)) for i in range(n_procedural)]
+    items = [
+        (f"photo:{p}", scenes.load_photo(p, full)) for p in (scenes.bundled_photos() if photos is None else photos)
+    ]
+    items += [
+        (f"procedural:{HELDOUT_SEED0 + i}", scenes.mixed_scene(full, HELDOUT_SEED0 + i)) for i in range(n_procedural)
+    ]
     cy, cx = (frame.height - size) // 2 & ~1, (frame.width - size) // 2 & ~1
     where = {"centre": (cy, cx), "corner": frame.corner(size)}
     out = []
@@ -140,5 +160,7 @@ def heldout_set(size: int, margin: int, n_procedural: int = 12, level: float = 0
                 x0 = 2 * (qx * hx + int(rng.integers(0, hx + 1)))
             else:
                 y0, x0 = where[pos]
-            out.append(HeldoutSample(name, pos, lin[0], ideal[0], frame.offset(y0, x0, size), HELDOUT_NOISE0 + 1000 * k + j))
+            out.append(
+                HeldoutSample(name, pos, lin[0], ideal[0], frame.offset(y0, x0, size), HELDOUT_NOISE0 + 1000 * k + j)
+            )
     return out

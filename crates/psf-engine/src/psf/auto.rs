@@ -100,7 +100,11 @@ pub fn probe(lens: &Lens, field_deg: f64, wavelength_nm: f64, aiming: Aiming) ->
         sy += dy;
         sxx += dx * dx + dy * dy;
     }
-    let rms = if n > 0.0 { (sxx / n - (sx / n).powi(2) - (sy / n).powi(2)).max(0.0).sqrt() } else { 0.0 };
+    let rms = if n > 0.0 {
+        (sxx / n - (sx / n).powi(2) - (sy / n).powi(2)).max(0.0).sqrt()
+    } else {
+        0.0
+    };
     let map = fit_affine(&p);
     let mut resid = 0.0f64;
     for b in 0..p.n {
@@ -139,9 +143,24 @@ struct Model {
     c: f64,
     safety: f64,
 }
-const FAST: Model = Model { a: 0.052, b: 0.124, c: 4.5e-4, safety: 1.6 };
-const FFT: Model = Model { a: 0.106, b: 0.362, c: 6.5e-4, safety: 2.6 };
-const HUYGENS: Model = Model { a: 0.209, b: 0.225, c: 1e-4, safety: 1.6 };
+const FAST: Model = Model {
+    a: 0.052,
+    b: 0.124,
+    c: 4.5e-4,
+    safety: 1.6,
+};
+const FFT: Model = Model {
+    a: 0.106,
+    b: 0.362,
+    c: 6.5e-4,
+    safety: 2.6,
+};
+const HUYGENS: Model = Model {
+    a: 0.209,
+    b: 0.225,
+    c: 1e-4,
+    safety: 1.6,
+};
 /// Geometric: e = GEO_SAFETY (GEO_A airy / spot_rms + GEO_NOISE sqrt(spot pixels / rays)).
 const GEO_A: f64 = 0.70;
 const GEO_NOISE: f64 = 0.48;
@@ -197,24 +216,50 @@ pub fn candidates(pr: &Probe, o: &PsfOptions, n_surfaces: usize) -> Vec<Candidat
             let cells = 2.0 * na * g as f64 * o.pixel_mm / lam;
             let e = FAST.error(tail(pr, g as f64 * o.pixel_mm, o), step(cells as usize));
             let cost = COST_FAST.0 + COST_FAST.1 * (g * g) as f64 * (g as f64).log2() * 0.5;
-            out.push(Candidate { method: Method::Fft, fast: true, pupil_samples: n, predicted_error: e, predicted_cost_s: cost });
+            out.push(Candidate {
+                method: Method::Fft,
+                fast: true,
+                pupil_samples: n,
+                predicted_error: e,
+                predicted_cost_s: cost,
+            });
         }
     }
     for n in FFT_N {
         let period = n as f64 * lam / (2.0 * na);
         let ok = taylor_ok && across_ok(n);
-        let e = if ok { FFT.error(tail(pr, period, o), step(n)) } else { f64::INFINITY };
+        let e = if ok {
+            FFT.error(tail(pr, period, o), step(n))
+        } else {
+            f64::INFINITY
+        };
         let want = (2.0 * (o.size as f64 * o.pixel_mm * 0.5 + pr.spot_extent_mm) / o.pixel_mm).ceil() as usize;
         let g = (4 * n).max(want.next_power_of_two()).min(8192.max(4 * n));
         let cost = COST_FFT.0 + COST_FFT.1 * (g * g) as f64 * (g as f64).log2();
-        out.push(Candidate { method: Method::Fft, fast: false, pupil_samples: n, predicted_error: e, predicted_cost_s: cost });
+        out.push(Candidate {
+            method: Method::Fft,
+            fast: false,
+            pupil_samples: n,
+            predicted_error: e,
+            predicted_cost_s: cost,
+        });
     }
     if !o.integrate {
         for n in HUYGENS_N {
             let period = n as f64 * lam / (2.0 * na);
-            let e = if across_ok(n) { HUYGENS.error(tail(pr, period, o), step(n)) } else { f64::INFINITY };
+            let e = if across_ok(n) {
+                HUYGENS.error(tail(pr, period, o), step(n))
+            } else {
+                f64::INFINITY
+            };
             let cost = COST_HUYGENS.0 + COST_HUYGENS.1 * rays(n) * (o.size * o.size) as f64;
-            out.push(Candidate { method: Method::Huygens, fast: false, pupil_samples: n, predicted_error: e, predicted_cost_s: cost });
+            out.push(Candidate {
+                method: Method::Huygens,
+                fast: false,
+                pupil_samples: n,
+                predicted_error: e,
+                predicted_cost_s: cost,
+            });
         }
     }
     let airy = lam / na;
@@ -222,7 +267,13 @@ pub fn candidates(pr: &Probe, o: &PsfOptions, n_surfaces: usize) -> Vec<Candidat
     for n in GEO_N {
         let e = GEO_SAFETY * (GEO_A * airy / pr.spot_rms_mm.max(1e-9) + GEO_NOISE * (spot_px / rays(n)).sqrt());
         let cost = COST_GEO.0 + COST_GEO.1 * rays(n) * (n_surfaces as f64 + 1.0);
-        out.push(Candidate { method: Method::Geometric, fast: false, pupil_samples: n, predicted_error: e, predicted_cost_s: cost });
+        out.push(Candidate {
+            method: Method::Geometric,
+            fast: false,
+            pupil_samples: n,
+            predicted_error: e,
+            predicted_cost_s: cost,
+        });
     }
     out.sort_by(|a, b| a.predicted_cost_s.total_cmp(&b.predicted_cost_s));
     out
@@ -234,7 +285,10 @@ pub fn choose(cands: &[Candidate], target: f64) -> (Candidate, bool) {
     if let Some(c) = cands.iter().find(|c| c.predicted_error <= target) {
         return (c.clone(), true);
     }
-    let best = cands.iter().min_by(|a, b| a.predicted_error.total_cmp(&b.predicted_error)).expect("candidates");
+    let best = cands
+        .iter()
+        .min_by(|a, b| a.predicted_error.total_cmp(&b.predicted_error))
+        .expect("candidates");
     (best.clone(), false)
 }
 
@@ -265,7 +319,13 @@ pub fn escalate(cands: &[Candidate], c: &Candidate, failed: &[String]) -> Option
         .filter(untried)
         .filter(finite)
         .find(|k| k.predicted_error <= c.predicted_error.max(0.0) && k.predicted_cost_s >= c.predicted_cost_s)
-        .or_else(|| cands.iter().filter(untried).filter(finite).min_by(|a, b| a.predicted_error.total_cmp(&b.predicted_error)))
+        .or_else(|| {
+            cands
+                .iter()
+                .filter(untried)
+                .filter(finite)
+                .min_by(|a, b| a.predicted_error.total_cmp(&b.predicted_error))
+        })
         .cloned()
 }
 

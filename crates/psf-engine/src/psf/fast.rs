@@ -139,7 +139,10 @@ fn legendre_monomials() -> &'static [[f64; MAX_DEGREE + 1]; MAX_DEGREE + 1] {
 
 /// Terms (i, j) of P_i(u) P_j(v) with i + j <= deg and i of the given parity.
 fn terms(deg: usize, parity: usize) -> Vec<(usize, usize)> {
-    (parity..=deg).step_by(2).flat_map(|i| (0..=deg - i).map(move |j| (i, j))).collect()
+    (parity..=deg)
+        .step_by(2)
+        .flat_map(|i| (0..=deg - i).map(move |j| (i, j)))
+        .collect()
 }
 
 /// P_0..=P_MAX_DEGREE at one point.
@@ -148,11 +151,13 @@ type Leg = [f64; MAX_DEGREE + 1];
 /// Legendre values at each of `x`.
 fn legendre_table(x: &[f64]) -> Vec<Leg> {
     let mut d = [0.0; MAX_DEGREE + 1];
-    x.iter().map(|&x| {
-        let mut p = [0.0; MAX_DEGREE + 1];
-        legendre(x, MAX_DEGREE, &mut p, &mut d);
-        p
-    }).collect()
+    x.iter()
+        .map(|&x| {
+            let mut p = [0.0; MAX_DEGREE + 1];
+            legendre(x, MAX_DEGREE, &mut p, &mut d);
+            p
+        })
+        .collect()
 }
 
 /// Least squares of each of `ys` on the terms at the points (u, v) (their Legendre values
@@ -177,8 +182,38 @@ fn lsq(pu: &[Leg], pv: &[Leg], ys: &[&[f64]], tm: &[(usize, usize)]) -> Option<(
     let (mut g, mut rhs) = (vec![0.0; t * t], vec![0.0; t * nf]);
     // SAFETY: the pointers and strides describe the row-major arrays above, in bounds.
     unsafe {
-        matrixmultiply::dgemm(t, m, t, 1.0, phi.as_ptr(), 1, t as isize, phi.as_ptr(), t as isize, 1, 0.0, g.as_mut_ptr(), t as isize, 1);
-        matrixmultiply::dgemm(t, m, nf, 1.0, phi.as_ptr(), 1, t as isize, y.as_ptr(), nf as isize, 1, 0.0, rhs.as_mut_ptr(), nf as isize, 1);
+        matrixmultiply::dgemm(
+            t,
+            m,
+            t,
+            1.0,
+            phi.as_ptr(),
+            1,
+            t as isize,
+            phi.as_ptr(),
+            t as isize,
+            1,
+            0.0,
+            g.as_mut_ptr(),
+            t as isize,
+            1,
+        );
+        matrixmultiply::dgemm(
+            t,
+            m,
+            nf,
+            1.0,
+            phi.as_ptr(),
+            1,
+            t as isize,
+            y.as_ptr(),
+            nf as isize,
+            1,
+            0.0,
+            rhs.as_mut_ptr(),
+            nf as isize,
+            1,
+        );
     }
     // Cholesky G = L L^T in the lower triangle.
     for c in 0..t {
@@ -224,9 +259,34 @@ fn lsq(pu: &[Leg], pv: &[Leg], ys: &[&[f64]], tm: &[(usize, usize)]) -> Option<(
     let mut fitted = vec![0.0; m * nf];
     // SAFETY: as above.
     unsafe {
-        matrixmultiply::dgemm(m, t, nf, 1.0, phi.as_ptr(), t as isize, 1, coef.as_ptr(), nf as isize, 1, 0.0, fitted.as_mut_ptr(), nf as isize, 1);
+        matrixmultiply::dgemm(
+            m,
+            t,
+            nf,
+            1.0,
+            phi.as_ptr(),
+            t as isize,
+            1,
+            coef.as_ptr(),
+            nf as isize,
+            1,
+            0.0,
+            fitted.as_mut_ptr(),
+            nf as isize,
+            1,
+        );
     }
-    let worst = (0..nf).map(|f| fitted.iter().zip(&y).skip(f).step_by(nf).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max)).collect();
+    let worst = (0..nf)
+        .map(|f| {
+            fitted
+                .iter()
+                .zip(&y)
+                .skip(f)
+                .step_by(nf)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max)
+        })
+        .collect();
     let coefs = (0..nf).map(|f| (0..t).map(|r| coef[r * nf + f]).collect()).collect();
     Some((coefs, worst))
 }
@@ -347,7 +407,17 @@ impl RowSeries {
                 r[a + b] += y[a] * y[b];
             }
         }
-        RowSeries { w, x, xd, xv, y, yd, yv, j, r }
+        RowSeries {
+            w,
+            x,
+            xd,
+            xv,
+            y,
+            yd,
+            yv,
+            j,
+            r,
+        }
     }
 }
 
@@ -389,7 +459,13 @@ fn cover_cell(r: f64, gx: f64, gy: f64) -> f64 {
     let q1 = (dd + hi) * (dd + hi) / (2.0 * a * b);
     let q2 = 0.5 + dd / a;
     let q3 = 1.0 - (hi - dd) * (hi - dd) / (2.0 * a * b);
-    let c = if dd < -lo { q1 } else if dd <= lo { q2 } else { q3 };
+    let c = if dd < -lo {
+        q1
+    } else if dd <= lo {
+        q2
+    } else {
+        q3
+    };
     // Deep inside (also where the gradient vanishes, at the pupil centre): fully covered.
     if r < 0.5 || d >= hi {
         1.0
@@ -403,7 +479,16 @@ fn cover_cell(r: f64, gx: f64, gy: f64) -> f64 {
 /// W, |J|, r^2, the interior amplitude sqrt|J| and area |J| of cells 0..n (one pass,
 /// vectorized across the cells).
 #[inline(always)]
-fn cells<const NQ: usize, const NJ: usize, const NR: usize>(sr: &RowSeries, s: &[f64], r_in2: f64, w: &mut [f64], amp: &mut [f64], jac: &mut [f64], r2: &mut [f64], jin: &mut [f64]) {
+fn cells<const NQ: usize, const NJ: usize, const NR: usize>(
+    sr: &RowSeries,
+    s: &[f64],
+    r_in2: f64,
+    w: &mut [f64],
+    amp: &mut [f64],
+    jac: &mut [f64],
+    r2: &mut [f64],
+    jin: &mut [f64],
+) {
     let n = s.len();
     let (w, amp, jac, r2, jin) = (&mut w[..n], &mut amp[..n], &mut jac[..n], &mut r2[..n], &mut jin[..n]);
     for i in 0..n {
@@ -423,7 +508,14 @@ fn cells<const NQ: usize, const NJ: usize, const NR: usize>(sr: &RowSeries, s: &
 /// The partly covered cells of a row (r^2 within (r_in2, r_out2)): their amplitude, and
 /// their area, energy and amplitude sums (mirror images included).
 #[inline(always)]
-fn rim<const NQ: usize>(cw: &mut CellWork, sr: &RowSeries, n: usize, sc: f64, r_in2: f64, r_out2: f64) -> (f64, f64, f64) {
+fn rim<const NQ: usize>(
+    cw: &mut CellWork,
+    sr: &RowSeries,
+    n: usize,
+    sc: f64,
+    r_in2: f64,
+    r_out2: f64,
+) -> (f64, f64, f64) {
     let (mut area, mut energy, mut amp_sum) = (0.0, 0.0, 0.0);
     for i in 0..n {
         let (r2, jac) = (cw.r2[i], cw.jac[i]);
@@ -448,7 +540,16 @@ fn rim<const NQ: usize>(cw: &mut CellWork, sr: &RowSeries, n: usize, sc: f64, r_
 }
 
 #[inline(always)]
-fn row_body(cw: &mut CellWork, row: &mut [Complex32], tab: [&Table; 3], v: f64, nq: usize, n: usize, sc: f64, delta: f64) -> (f64, f64, f64) {
+fn row_body(
+    cw: &mut CellWork,
+    row: &mut [Complex32],
+    tab: [&Table; 3],
+    v: f64,
+    nq: usize,
+    n: usize,
+    sc: f64,
+    delta: f64,
+) -> (f64, f64, f64) {
     let sr = &RowSeries::new(tab[0], tab[1], tab[2], v, nq);
     for v in [&mut cw.w, &mut cw.amp, &mut cw.jac, &mut cw.r2, &mut cw.jin] {
         if v.len() < n {
@@ -459,7 +560,15 @@ fn row_body(cw: &mut CellWork, row: &mut [Complex32], tab: [&Table; 3], v: f64, 
     // empty: one branch-free pass, then the few rim cells one by one.
     let (r_in2, r_out2) = ((1.0 - delta).max(0.0).powi(2), (1.0 + delta).powi(2));
     {
-        let CellWork { s, w, amp, jac, r2, jin, .. } = &mut *cw;
+        let CellWork {
+            s,
+            w,
+            amp,
+            jac,
+            r2,
+            jin,
+            ..
+        } = &mut *cw;
         let s = &s[..n];
         match nq {
             5 => cells::<5, 9, 10>(sr, s, r_in2, w, amp, jac, r2, jin),
@@ -484,7 +593,10 @@ fn row_body(cw: &mut CellWork, row: &mut [Complex32], tab: [&Table; 3], v: f64, 
         }
         (acc[0] + acc[1]) + (acc[2] + acc[3])
     };
-    let (a_in, m_in) = (2.0 * lanes(&cw.jin[..n]) - cw.jin[0], 2.0 * lanes(&cw.amp[..n]) - cw.amp[0]);
+    let (a_in, m_in) = (
+        2.0 * lanes(&cw.jin[..n]) - cw.jin[0],
+        2.0 * lanes(&cw.amp[..n]) - cw.amp[0],
+    );
     let (mut area, mut amp_sum, mut energy) = (a_in, m_in, a_in);
     // The rim cells one by one.
     let (a, e, m) = match nq {
@@ -502,7 +614,11 @@ fn row_body(cw: &mut CellWork, row: &mut [Complex32], tab: [&Table; 3], v: f64, 
     let (head, tail) = row.split_at_mut(n);
     for ((o, &t), &a) in head[..m].iter_mut().zip(&cw.w[..m]).zip(&cw.amp[..m]) {
         let (c, s) = cis_turns(t);
-        *o = if a > 0.0 { Complex32::new((a * c) as f32, (a * s) as f32) } else { Complex32::new(0.0, 0.0) };
+        *o = if a > 0.0 {
+            Complex32::new((a * c) as f32, (a * s) as f32)
+        } else {
+            Complex32::new(0.0, 0.0)
+        };
     }
     zero_fill(&mut head[m..]);
     let tl = tail.len();
@@ -521,8 +637,22 @@ fn cis_turns(t: f64) -> (f64, f64) {
     let (q, th) = octant(t);
     let x2 = th * th;
     // sin(th) / th and cos(th) fitted in x2 on [0, (pi/4)^2] (errors 6e-15 and 6e-14).
-    const S: [f64; 6] = [0.9999999999999961, -0.16666666666617147, 0.008333333323944567, -0.00019841263326625605, 2.7555276987761723e-06, -2.475688510829627e-08];
-    const C: [f64; 6] = [0.999999999999938, -0.4999999999934691, 0.04166666654360046, -0.0013888880383500714, 2.479892728171647e-05, -2.7173353223481015e-07];
+    const S: [f64; 6] = [
+        0.9999999999999961,
+        -0.16666666666617147,
+        0.008333333323944567,
+        -0.00019841263326625605,
+        2.7555276987761723e-06,
+        -2.475688510829627e-08,
+    ];
+    const C: [f64; 6] = [
+        0.999999999999938,
+        -0.4999999999934691,
+        0.04166666654360046,
+        -0.0013888880383500714,
+        2.479892728171647e-05,
+        -2.7173353223481015e-07,
+    ];
     let s = th * S.iter().rev().fold(0.0, |acc, &c| acc * x2 + c);
     let c = C.iter().rev().fold(0.0, |acc, &c| acc * x2 + c);
     quarter_turns(q, c, s)
@@ -530,7 +660,16 @@ fn cis_turns(t: f64) -> (f64, f64) {
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn row_avx2(cw: &mut CellWork, row: &mut [Complex32], tab: [&Table; 3], v: f64, nq: usize, n: usize, sc: f64, delta: f64) -> (f64, f64, f64) {
+unsafe fn row_avx2(
+    cw: &mut CellWork,
+    row: &mut [Complex32],
+    tab: [&Table; 3],
+    v: f64,
+    nq: usize,
+    n: usize,
+    sc: f64,
+    delta: f64,
+) -> (f64, f64, f64) {
     row_body(cw, row, tab, v, nq, n, sc, delta)
 }
 
@@ -539,7 +678,16 @@ impl CellWork {
     /// returns the row's pupil area, amplitude sum and energy, mirrored cells included.
     /// `delta`: bound on the change of the pupil radius over one cell (the edge zone).
     /// `tab`: the tables of W, px and py; `v` the row.
-    fn row(&mut self, row: &mut [Complex32], tab: [&Table; 3], v: f64, nq: usize, n: usize, sc: f64, delta: f64) -> (f64, f64, f64) {
+    fn row(
+        &mut self,
+        row: &mut [Complex32],
+        tab: [&Table; 3],
+        v: f64,
+        nq: usize,
+        n: usize,
+        sc: f64,
+        delta: f64,
+    ) -> (f64, f64, f64) {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2 (checked just above).
@@ -585,19 +733,32 @@ pub fn axis_clear(sys: &System) -> Result<bool> {
 
 /// The fast PSF: Ok(Ok(data)) with `d` filled, or Ok(Err(reason)) where it does not apply
 /// (the caller then runs fft.rs). Engine errors (the chief ray fails, ...) are errors.
-pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostics) -> Result<std::result::Result<Vec<f64>, &'static str>> {
+pub fn fast_psf(
+    sys: &System,
+    field_deg: f64,
+    o: &PsfOptions,
+    d: &mut Diagnostics,
+) -> Result<std::result::Result<Vec<f64>, &'static str>> {
     let beam = Beam::new(sys, field_deg, Aiming::Paraxial)?;
     if beam.object.is_some() {
-        return Ok(Err("a finite object: the pupil's flux is not uniform (cos^4 over the pupil), which this path assumes"));
+        return Ok(Err(
+            "a finite object: the pupil's flux is not uniform (cos^4 over the pupil), which this path assumes",
+        ));
     }
     let chief_launch = beam.launch(0.0, 0.0);
-    let Reference { chief, chief_opl, radius } = reference(&beam, &chief_launch)?;
+    let Reference {
+        chief,
+        chief_opl,
+        radius,
+    } = reference(&beam, &chief_launch)?;
     let n_img = sys.image_index();
     let wl_mm = sys.wavelength_nm * 1e-6;
     let s = samples();
     let t = beam.trace_pupil_soa(&s.px, &s.py);
     if t.status.iter().any(|&c| c != 0) {
-        return Ok(Err("a ray of the coarse pupil set did not reach the image (vignetting, TIR or a miss)"));
+        return Ok(Err(
+            "a ray of the coarse pupil set did not reach the image (vignetting, TIR or a miss)",
+        ));
     }
     let nr = s.px.len();
     let chief_sphere_opl = chief_opl - n_img * radius;
@@ -621,7 +782,11 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
     }
     // Normalized direction coordinates u = L / rho, v = (M - M_chief) / rho in [-1, 1].
     let mc = chief.d.y;
-    let rho = l.iter().map(|x| x.abs()).chain(m.iter().map(|y| (y - mc).abs())).fold(0.0, f64::max);
+    let rho = l
+        .iter()
+        .map(|x| x.abs())
+        .chain(m.iter().map(|y| (y - mc).abs()))
+        .fold(0.0, f64::max);
     if !(rho > 0.0 && rho.is_finite()) {
         return Ok(Err("degenerate pupil"));
     }
@@ -648,8 +813,15 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
     // Affine fits (degree 1) guard against the polynomials' excursions far outside the pupil.
     // (px = pxu u, py = py0 + pyv v by least squares: the degree-1 fits in closed form.)
     let pxu = u.iter().zip(&s.px).map(|(a, b)| a * b).sum::<f64>() / u.iter().map(|a| a * a).sum::<f64>();
-    let (nv, sv, svv) = (v.len() as f64, v.iter().sum::<f64>(), v.iter().map(|a| a * a).sum::<f64>());
-    let (sy, svy) = (s.py.iter().sum::<f64>(), v.iter().zip(&s.py).map(|(a, b)| a * b).sum::<f64>());
+    let (nv, sv, svv) = (
+        v.len() as f64,
+        v.iter().sum::<f64>(),
+        v.iter().map(|a| a * a).sum::<f64>(),
+    );
+    let (sy, svy) = (
+        s.py.iter().sum::<f64>(),
+        v.iter().zip(&s.py).map(|(a, b)| a * b).sum::<f64>(),
+    );
     let det = nv * svv - sv * sv;
     let (py0, pyv) = ((svv * sy - sv * svy) / det, (nv * svy - sv * sy) / det);
     if !(pxu.is_finite() && pxu != 0.0 && py0.is_finite() && pyv.is_finite() && pyv != 0.0) {
@@ -659,7 +831,11 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
     // Grid: window within half the FFT field, spot within a quarter, pupil_samples across.
     let pix = o.pixel_mm;
     // (Image space is inverted: u < 0 on the traced half px > 0; the fits are odd or even.)
-    let (umax, vmin, vmax) = (u.iter().map(|x| x.abs()).fold(0.0, f64::max), v.iter().cloned().fold(f64::INFINITY, f64::min), v.iter().cloned().fold(f64::NEG_INFINITY, f64::max));
+    let (umax, vmin, vmax) = (
+        u.iter().map(|x| x.abs()).fold(0.0, f64::max),
+        v.iter().cloned().fold(f64::INFINITY, f64::min),
+        v.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
+    );
     let min_extent = (2.0 * umax).min(vmax - vmin) * rho;
     let want = grid_want(o.pupil_samples, wl_mm, n_img, min_extent, ex.max(ey), o);
     if !(want <= MAX_GRID as f64) {
@@ -674,7 +850,9 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
     let b_hi = (half + vmax / sc).ceil() + 2.0;
     let t_hi = (umax / sc).ceil() as usize + 2;
     if b_lo < 0.0 || b_hi >= g as f64 || t_hi >= g / 2 {
-        return Ok(Err("the pupil does not fit in the direction grid (pixel too coarse for the aperture)"));
+        return Ok(Err(
+            "the pupil does not fit in the direction grid (pixel too coarse for the aperture)",
+        ));
     }
     let (b_lo, b_hi) = (b_lo as usize, b_hi as usize);
     let nrow = b_hi - b_lo + 1;
@@ -686,7 +864,11 @@ pub fn fast_psf(sys: &System, field_deg: f64, o: &PsfOptions, d: &mut Diagnostic
     let scratch_len = fft.get_inplace_scratch_len();
     let mut rows_v = buffer::<f32>(nrow * g);
     let rows = &mut rows_v[..nrow * g];
-    let (tw, ty, tx) = (Table::new(&ce[0], &te, 0, deg), Table::new(&ce[1], &te, 0, deg), Table::new(&co[0], &to, 1, deg));
+    let (tw, ty, tx) = (
+        Table::new(&ce[0], &te, 0, deg),
+        Table::new(&ce[1], &te, 0, deg),
+        Table::new(&co[0], &to, 1, deg),
+    );
     let nq = deg / 2 + 1;
     let (mut area, mut amp_sum, mut energy) = (0.0f64, 0.0f64, 0.0f64);
     let mut cw_ = CELL_WORK.with(|c| std::mem::take(&mut *c.borrow_mut()));
@@ -823,7 +1005,14 @@ mod tests {
     #[test]
     fn cell_cover_is_the_area_inside_the_edge() {
         // Monte Carlo-free check: integrate the indicator on a fine grid.
-        for &(d, ang) in &[(0.0, 0.3), (0.2, 0.0), (-0.3, 0.7), (0.6, 0.785), (-0.65, 1.2), (0.1, 1.5707963)] {
+        for &(d, ang) in &[
+            (0.0, 0.3),
+            (0.2, 0.0),
+            (-0.3, 0.7),
+            (0.6, 0.785),
+            (-0.65, 1.2),
+            (0.1, std::f64::consts::FRAC_PI_2),
+        ] {
             let (nx, ny) = (f64::cos(ang), f64::sin(ang));
             let n = 400;
             let mut inside = 0usize;
@@ -848,7 +1037,10 @@ mod tests {
             let t = -50.0 + i as f64 * 0.005_000_37;
             let (s, c) = (2.0 * PI * t).sin_cos();
             let (zc, zs) = cis_turns(t);
-            assert!((zc - c).abs() < 1e-13 && (zs - s).abs() < 1e-13, "t = {t}: {zc} + {zs}i vs {c} + {s}i");
+            assert!(
+                (zc - c).abs() < 1e-13 && (zs - s).abs() < 1e-13,
+                "t = {t}: {zc} + {zs}i vs {c} + {s}i"
+            );
         }
     }
 
@@ -865,7 +1057,10 @@ mod tests {
                 let (mut a, mut b, mut t) = ([0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1]);
                 legendre(x + h, MAX_DEGREE, &mut a, &mut t);
                 legendre(x - h, MAX_DEGREE, &mut b, &mut t);
-                assert!((dp[i] - (a[i] - b[i]) / (2.0 * h)).abs() < 1e-5 * (1.0 + dp[i].abs()), "P'_{i}({x})");
+                assert!(
+                    (dp[i] - (a[i] - b[i]) / (2.0 * h)).abs() < 1e-5 * (1.0 + dp[i].abs()),
+                    "P'_{i}({x})"
+                );
             }
         }
         assert_eq!(fast_len(256), 256);

@@ -143,11 +143,29 @@ pub fn fit_affine(p: &Pupil) -> AffineMap {
     let cl = super::pupil::solve3(ata, bl);
     let cm = super::pupil::solve3(ata, bm);
     match (cl, cm) {
-        (Some(cl), Some(cm)) if cl[1].abs() > 0.0 && cm[2].abs() > 0.0 => AffineMap { l0: cl[0], lx: cl[1], m0: cm[0], my: cm[2] },
+        (Some(cl), Some(cm)) if cl[1].abs() > 0.0 && cm[2].abs() > 0.0 => AffineMap {
+            l0: cl[0],
+            lx: cl[1],
+            m0: cm[0],
+            my: cm[2],
+        },
         // Degenerate pupils (a single row of rays): fall back to the mean Jacobian.
         _ => {
-            let jm = (p.jacobian.iter().zip(&p.valid).filter(|(_, v)| **v).map(|(j, _)| *j).sum::<f64>() / p.n_valid() as f64).sqrt();
-            AffineMap { l0: 0.0, lx: jm, m0: 0.0, my: jm }
+            let jm = (p
+                .jacobian
+                .iter()
+                .zip(&p.valid)
+                .filter(|(_, v)| **v)
+                .map(|(j, _)| *j)
+                .sum::<f64>()
+                / p.n_valid() as f64)
+                .sqrt();
+            AffineMap {
+                l0: 0.0,
+                lx: jm,
+                m0: 0.0,
+                my: jm,
+            }
         }
     }
 }
@@ -155,7 +173,10 @@ pub fn fit_affine(p: &Pupil) -> AffineMap {
 /// Contiguous range of native indices (start, length) that a set of resampling weights
 /// reads, widened by one sample on each side (for the peak search) and clipped to the grid.
 fn span(w: &[Vec<(usize, f64)>], g: usize) -> (usize, usize) {
-    let (lo, hi) = w.iter().flatten().fold((usize::MAX, 0), |(lo, hi), &(m, _)| (lo.min(m), hi.max(m)));
+    let (lo, hi) = w
+        .iter()
+        .flatten()
+        .fold((usize::MAX, 0), |(lo, hi), &(m, _)| (lo.min(m), hi.max(m)));
     if lo > hi {
         return (g / 2, 1);
     }
@@ -191,7 +212,14 @@ struct BinRun {
 impl BinRun {
     /// The bins of native samples i0..i0+len (in increasing bin order).
     fn native(i0: usize, len: usize, g: usize, sgn: f64) -> Self {
-        BinRun { first: if sgn > 0.0 { bin(i0, g, sgn) } else { bin(i0 + len - 1, g, sgn) }, len }
+        BinRun {
+            first: if sgn > 0.0 {
+                bin(i0, g, sgn)
+            } else {
+                bin(i0 + len - 1, g, sgn)
+            },
+            len,
+        }
     }
     fn bins(self, g: usize) -> impl Iterator<Item = usize> {
         (0..self.len).map(move |t| (self.first + t) % g)
@@ -292,7 +320,16 @@ pub(crate) fn cis_turns(t: f64) -> Complex64 {
     let (q, th) = octant(t);
     let x2 = th * th;
     // Taylor coefficients (-1)^k / (2k+1)! and (-1)^k / (2k)!, Horner in x^2.
-    const S: [f64; 8] = [1.0, -1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0, 1.0 / 362880.0, -1.0 / 39916800.0, 1.0 / 6227020800.0, -1.0 / 1307674368000.0];
+    const S: [f64; 8] = [
+        1.0,
+        -1.0 / 6.0,
+        1.0 / 120.0,
+        -1.0 / 5040.0,
+        1.0 / 362880.0,
+        -1.0 / 39916800.0,
+        1.0 / 6227020800.0,
+        -1.0 / 1307674368000.0,
+    ];
     const C: [f64; 9] = [
         1.0,
         -0.5,
@@ -377,7 +414,15 @@ pub(super) fn zero_fill<T: Real>(v: &mut [Complex<T>]) {
 /// Whether the pupil function is mirror symmetric in x about the grid centre (column a ->
 /// n - 1 - a): same samples, same field, residual dL odd and dM even, to 1e-9 relative
 /// (of the largest |field|, |dL| and |dM|).
-fn mirror_symmetric(n: usize, valid: &[bool], field: &[Complex64], res_l: &[f64], res_m: &[f64], max_rl: f64, max_rm: f64) -> bool {
+fn mirror_symmetric(
+    n: usize,
+    valid: &[bool],
+    field: &[Complex64],
+    res_l: &[f64],
+    res_m: &[f64],
+    max_rl: f64,
+    max_rm: f64,
+) -> bool {
     const TOL: f64 = 1e-9;
     let fmax2 = field.iter().map(|z| z.norm_sqr()).fold(0.0, f64::max);
     let (tf, tl, tm) = (TOL * TOL * fmax2, TOL * max_rl, TOL * max_rm);
@@ -386,7 +431,9 @@ fn mirror_symmetric(n: usize, valid: &[bool], field: &[Complex64], res_l: &[f64]
         let (v, f, l, m) = (&valid[r.clone()], &field[r.clone()], &res_l[r.clone()], &res_m[r]);
         (0..n.div_ceil(2)).all(|a| {
             let am = n - 1 - a;
-            v[a] == v[am] && (!v[a] || ((f[a] - f[am]).norm_sqr() <= tf && (l[a] + l[am]).abs() <= tl && (m[a] - m[am]).abs() <= tm))
+            v[a] == v[am]
+                && (!v[a]
+                    || ((f[a] - f[am]).norm_sqr() <= tf && (l[a] + l[am]).abs() <= tl && (m[a] - m[am]).abs() <= tm))
         })
     })
 }
@@ -397,7 +444,14 @@ const COLS_PER_TASK: usize = 24;
 
 /// The FFT grid's diagnostics (mm in, um out), with the warning that the geometric spot
 /// reaches past half the FFT field (its light wraps around); shared with the fast path.
-pub(super) fn report_grid(d: &mut Diagnostics, g: usize, pitch: (f64, f64), period: (f64, f64), extent: (f64, f64), energy_in_window: f64) {
+pub(super) fn report_grid(
+    d: &mut Diagnostics,
+    g: usize,
+    pitch: (f64, f64),
+    period: (f64, f64),
+    extent: (f64, f64),
+    energy_in_window: f64,
+) {
     let ((dx, dy), (px, py), (ex, ey)) = (pitch, period, extent);
     if ex > 0.5 * px || ey > 0.5 * py {
         d.warn(format!(
@@ -424,7 +478,12 @@ pub fn fft_psf(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics) -> Result<(Vec<f6
 
 /// `use_mirror`: exploit an x mirror symmetry of the pupil where there is one. T: the
 /// precision of the transform stage.
-fn fft_psf_impl<T: Real>(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mirror: bool) -> Result<(Vec<f64>, Option<f64>)> {
+fn fft_psf_impl<T: Real>(
+    p: &Pupil,
+    o: &PsfOptions,
+    d: &mut Diagnostics,
+    use_mirror: bool,
+) -> Result<(Vec<f64>, Option<f64>)> {
     let n = p.n;
     let k = 2.0 * PI * p.n_image / p.wavelength_mm;
     let map = fit_affine(p);
@@ -432,15 +491,23 @@ fn fft_psf_impl<T: Real>(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mir
     // the output pixel (so the cubic resampling stays accurate), capped at 8192.
     let field = p.wavelength_mm / (p.n_image * map.lx.abs().min(map.my.abs()));
     let want = (2.0 * field / o.pixel_mm).ceil() as usize;
-    let g = o.fft_grid.unwrap_or_else(|| (4 * n).max(want.next_power_of_two()).min(MAX_GRID.max(4 * n)));
+    let g = o
+        .fft_grid
+        .unwrap_or_else(|| (4 * n).max(want.next_power_of_two()).min(MAX_GRID.max(4 * n)));
     if o.fft_grid.is_none() && g < want {
-        d.warn(format!("FFT grid capped at {g}: the native pitch exceeds half the output pixel; the resampled PSF is approximate"));
+        d.warn(format!(
+            "FFT grid capped at {g}: the native pitch exceeds half the output pixel; the resampled PSF is approximate"
+        ));
     }
     if g < n {
-        return Err(EngineError::Argument(format!("fft_grid {g} is smaller than pupil_samples {n}")));
+        return Err(EngineError::Argument(format!(
+            "fft_grid {g} is smaller than pupil_samples {n}"
+        )));
     }
     if g < 2 * n {
-        d.warn(format!("fft_grid {g} < 2 x pupil_samples {n}: the intensity is sampled below Nyquist and aliases"));
+        d.warn(format!(
+            "fft_grid {g} < 2 x pupil_samples {n}: the intensity is sampled below Nyquist and aliases"
+        ));
     }
     let dx = p.wavelength_mm / (p.n_image * g as f64 * map.lx.abs());
     let dy = p.wavelength_mm / (p.n_image * g as f64 * map.my.abs());
@@ -505,7 +572,11 @@ fn fft_psf_impl<T: Real>(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mir
     // Only the native samples that the resampling onto the output window reads are
     // computed: columns x0..x0+nx and rows y0..y0+ny of the (shifted) native grid.
     let c_out = (o.size / 2) as f64;
-    let weights = if o.integrate { resample::weights_1d } else { resample::point_weights_1d };
+    let weights = if o.integrate {
+        resample::weights_1d
+    } else {
+        resample::point_weights_1d
+    };
     let wx = weights(g, dx, (g / 2) as f64, o.size, o.pixel_mm, c_out);
     let wy = weights(g, dy, (g / 2) as f64, o.size, o.pixel_mm, c_out);
     let (x0, nx) = span(&wx, g);
@@ -524,14 +595,23 @@ fn fft_psf_impl<T: Real>(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mir
         (BinRun { first: 0, len: r + 1 }, (0..nx).map(rep).collect())
     } else {
         let run = BinRun::native(x0, nx, g, sgn_x);
-        (run, (0..nx).map(|i| (bin(x0 + i, g, sgn_x) + g - run.first) % g).collect())
+        (
+            run,
+            (0..nx).map(|i| (bin(x0 + i, g, sgn_x) + g - run.first) % g).collect(),
+        )
     };
     let nc = cols.len;
     d.set("fft_mirror_symmetry", mirror);
     // The residuals scaled to about unit size by powers of two (exact), the scales folded
     // into the Taylor factors: the terms t_p of a mirror pair then have comparable
     // magnitudes, so that rounding their sum to f32 keeps the smaller one's digits.
-    let pow2 = |x: f64| if x > 0.0 && x.is_finite() { 2f64.powi(x.log2().round() as i32) } else { 1.0 };
+    let pow2 = |x: f64| {
+        if x > 0.0 && x.is_finite() {
+            2f64.powi(x.log2().round() as i32)
+        } else {
+            1.0
+        }
+    };
     let (sl, sm) = (pow2(max_rl), pow2(max_rm));
     res_l.iter_mut().for_each(|v| *v /= sl);
     res_m.iter_mut().for_each(|v| *v /= sm);
@@ -540,7 +620,9 @@ fn fft_psf_impl<T: Real>(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mir
         (0..=order)
             .map(|t| {
                 let c = Complex64::new(0.0, k * s).powi(t as i32) / factorial(t);
-                run.bins(g).map(|m| c * (signed(m, g) * pitch * sgn).powi(t as i32)).collect()
+                run.bins(g)
+                    .map(|m| c * (signed(m, g) * pitch * sgn).powi(t as i32))
+                    .collect()
             })
             .collect()
     };
@@ -558,7 +640,12 @@ fn fft_psf_impl<T: Real>(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mir
             .map(|pp| {
                 let (ap, aq) = (&xpow[pp], &xpow[pp + 1]);
                 let alpha = ap.iter().zip(aq).map(|(a, b)| narrow(0.5 * (a + b))).collect();
-                let beta = ap.iter().zip(aq).zip(cols.bins(g)).map(|((a, b), m)| narrow(0.5 * (a - b) * cis_turns(((n - 1) * m) as f64 / g as f64))).collect();
+                let beta = ap
+                    .iter()
+                    .zip(aq)
+                    .zip(cols.bins(g))
+                    .map(|((a, b), m)| narrow(0.5 * (a - b) * cis_turns(((n - 1) * m) as f64 / g as f64)))
+                    .collect();
                 (alpha, beta)
             })
             .collect()
@@ -664,9 +751,15 @@ fn fft_psf_impl<T: Real>(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mir
             .into_par_iter()
             .map(|q| {
                 let mut r = zeros::<T>(nr * nc);
-                r[..nr * nc].par_chunks_mut(ROWS_PER_TASK * nc).enumerate().for_each(|(t, out)| row_task(q, t * ROWS_PER_TASK, out));
+                r[..nr * nc]
+                    .par_chunks_mut(ROWS_PER_TASK * nc)
+                    .enumerate()
+                    .for_each(|(t, out)| row_task(q, t * ROWS_PER_TASK, out));
                 let mut u = zeros::<T>(nc * ny);
-                u[..nc * ny].par_chunks_mut(COLS_PER_TASK * ny).enumerate().for_each(|(t, out)| col_task(q, &r, t * COLS_PER_TASK, out));
+                u[..nc * ny]
+                    .par_chunks_mut(COLS_PER_TASK * ny)
+                    .enumerate()
+                    .for_each(|(t, out)| col_task(q, &r, t * COLS_PER_TASK, out));
                 recycle(r);
                 u
             })
@@ -675,7 +768,10 @@ fn fft_psf_impl<T: Real>(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mir
     let mut parts = parts.into_iter();
     let mut ut = parts.next().expect("order >= 0");
     for u in parts {
-        ut[..nc * ny].iter_mut().zip(&u[..nc * ny]).for_each(|(a, b)| *a = *a + *b);
+        ut[..nc * ny]
+            .iter_mut()
+            .zip(&u[..nc * ny])
+            .for_each(|(a, b)| *a = *a + *b);
         recycle(u);
     }
     // Native intensity over the window, row-major (ny x nx), along +x / +y.
@@ -737,7 +833,10 @@ fn fft_psf_impl<T: Real>(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mir
     );
     let strehl = match (vertex, direct) {
         (None, _) => {
-            d.warn(format!("Strehl not reported: the PSF peak lies at or beyond the edge of the {}x{} window", o.size, o.size));
+            d.warn(format!(
+                "Strehl not reported: the PSF peak lies at or beyond the edge of the {}x{} window",
+                o.size, o.size
+            ));
             None
         }
         (Some((_, _, eps_pk, trunc_pk)), None) => {
@@ -764,13 +863,27 @@ fn fft_psf_impl<T: Real>(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics, use_mir
             period_y * 1e3
         ));
     }
-    report_grid(d, g, (dx, dy), (period_x, period_y), (ex, ey), if transmitted > 0.0 { window_energy / transmitted } else { 0.0 });
+    report_grid(
+        d,
+        g,
+        (dx, dy),
+        (period_x, period_y),
+        (ex, ey),
+        if transmitted > 0.0 {
+            window_energy / transmitted
+        } else {
+            0.0
+        },
+    );
     Ok((out, strehl))
 }
 
 /// OPD (waves) and amplitude weights (n/lambda) sqrt(f J) of the listed pupil samples.
 fn pupil_weights(p: &Pupil, amp: f64, idx: &[usize]) -> (Vec<f64>, Vec<f64>) {
-    (idx.iter().map(|&j| p.opd_waves[j]).collect(), idx.iter().map(|&j| amp * (p.flux[j] * p.jacobian[j]).sqrt()).collect())
+    (
+        idx.iter().map(|&j| p.opd_waves[j]).collect(),
+        idx.iter().map(|&j| amp * (p.flux[j] * p.jacobian[j]).sqrt()).collect(),
+    )
 }
 
 /// |U(x, y)|^2 by the exact direct sum over the listed samples with weights w.
@@ -817,7 +930,14 @@ mod tests {
     use test_common::cooke;
 
     fn opts() -> PsfOptions {
-        PsfOptions { method: Method::Fft, pupil_samples: 64, fft_grid: Some(256), size: 64, pixel_mm: 1e-3, ..Default::default() }
+        PsfOptions {
+            method: Method::Fft,
+            pupil_samples: 64,
+            fft_grid: Some(256),
+            size: 64,
+            pixel_mm: 1e-3,
+            ..Default::default()
+        }
     }
 
     #[test]
@@ -826,7 +946,10 @@ mod tests {
             let t = -50.0 + i as f64 * 0.005_000_37;
             let (s, c) = (2.0 * PI * t).sin_cos();
             let z = cis_turns(t);
-            assert!((z.re - c).abs() < 1e-13 && (z.im - s).abs() < 1e-13, "t = {t}: {z} vs {c} + {s}i");
+            assert!(
+                (z.re - c).abs() < 1e-13 && (z.im - s).abs() < 1e-13,
+                "t = {t}: {z} vs {c} + {s}i"
+            );
         }
     }
 
@@ -839,7 +962,14 @@ mod tests {
         let r = psf(&lens, 30.0, 550.0, &opts()).unwrap();
         assert!(r.strehl.is_none(), "Strehl {:?} reported", r.strehl);
         assert_eq!(r.diagnostics.values.get("strehl"), Some(&Value::Null));
-        assert!(r.diagnostics.warnings.iter().any(|w| w.starts_with("Strehl not reported")), "{:?}", r.diagnostics.warnings);
+        assert!(
+            r.diagnostics
+                .warnings
+                .iter()
+                .any(|w| w.starts_with("Strehl not reported")),
+            "{:?}",
+            r.diagnostics.warnings
+        );
         assert!(r.data.iter().all(|v| v.is_finite()));
         // Where the PSF is sound the Strehl is a number in (0, 1].
         for field in [0.0, 20.0] {
@@ -856,8 +986,17 @@ mod tests {
     fn mirror_symmetry_shortcut_matches_the_general_path() {
         let lens = cooke();
         let sys = System::new(&lens, 550.0).unwrap();
-        for (field, integrate, size) in [(0.0, false, 256), (20.0, false, 64), (14.0, true, 48), (20.0, false, 33)] {
-            let o = PsfOptions { integrate, size, ..opts() };
+        for (field, integrate, size) in [
+            (0.0, false, 256),
+            (20.0, false, 64),
+            (14.0, true, 48),
+            (20.0, false, 33),
+        ] {
+            let o = PsfOptions {
+                integrate,
+                size,
+                ..opts()
+            };
             let p = pupil::sample_pupil(&sys, field, Aiming::Paraxial, 64).unwrap();
             let (mut d1, mut d2) = (Diagnostics::default(), Diagnostics::default());
             // In f64, so that the comparison sees the algebra of the shortcut, not rounding
@@ -870,7 +1009,10 @@ mod tests {
             assert!(d1.values["distortion_order"].as_f64().unwrap() >= 2.0);
             let peak = b.iter().cloned().fold(0.0, f64::max);
             let diff = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
-            assert!(diff < 1e-11 * peak, "{field} deg: max difference {diff:e} of peak {peak:e}");
+            assert!(
+                diff < 1e-11 * peak,
+                "{field} deg: max difference {diff:e} of peak {peak:e}"
+            );
             let (sa, sb) = (sa.unwrap(), sb.unwrap());
             assert!((sa / sb - 1.0).abs() < 1e-11, "{field} deg: Strehl {sa} vs {sb}");
         }
@@ -884,8 +1026,24 @@ mod tests {
     fn single_precision_transform_matches_double() {
         let lens = cooke();
         let sys = System::new(&lens, 550.0).unwrap();
-        let fine = PsfOptions { pupil_samples: 128, fft_grid: None, size: 128, pixel_mm: 0.25e-3, ..opts() };
-        for (o, label) in [(opts(), "64/256"), (PsfOptions { integrate: true, ..opts() }, "64/256 integrated"), (fine, "128/default")] {
+        let fine = PsfOptions {
+            pupil_samples: 128,
+            fft_grid: None,
+            size: 128,
+            pixel_mm: 0.25e-3,
+            ..opts()
+        };
+        for (o, label) in [
+            (opts(), "64/256"),
+            (
+                PsfOptions {
+                    integrate: true,
+                    ..opts()
+                },
+                "64/256 integrated",
+            ),
+            (fine, "128/default"),
+        ] {
             for field in [0.0, 14.0, 20.0] {
                 let p = pupil::sample_pupil(&sys, field, Aiming::Paraxial, o.pupil_samples).unwrap();
                 for mirror in [true, false] {
@@ -897,10 +1055,25 @@ mod tests {
                     let diff = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
                     let (ea, eb): (f64, f64) = (a.iter().sum(), b.iter().sum());
                     let (sa, sb) = (sa.unwrap(), sb.unwrap());
-                    println!("{label} {field} deg mirror {mirror}: diff {:.2e} of peak, energy {:.2e}, Strehl {:.2e}", diff / peak, (ea / eb - 1.0).abs(), (sa / sb - 1.0).abs());
-                    assert!(diff < 2e-6 * peak, "{label} {field} deg mirror {mirror}: max difference {:e} of peak", diff / peak);
-                    assert!((ea / eb - 1.0).abs() < 1e-6, "{label} {field} deg mirror {mirror}: energy {ea} vs {eb}");
-                    assert!((sa / sb - 1.0).abs() < 1e-6, "{label} {field} deg mirror {mirror}: Strehl {sa} vs {sb}");
+                    println!(
+                        "{label} {field} deg mirror {mirror}: diff {:.2e} of peak, energy {:.2e}, Strehl {:.2e}",
+                        diff / peak,
+                        (ea / eb - 1.0).abs(),
+                        (sa / sb - 1.0).abs()
+                    );
+                    assert!(
+                        diff < 2e-6 * peak,
+                        "{label} {field} deg mirror {mirror}: max difference {:e} of peak",
+                        diff / peak
+                    );
+                    assert!(
+                        (ea / eb - 1.0).abs() < 1e-6,
+                        "{label} {field} deg mirror {mirror}: energy {ea} vs {eb}"
+                    );
+                    assert!(
+                        (sa / sb - 1.0).abs() < 1e-6,
+                        "{label} {field} deg mirror {mirror}: Strehl {sa} vs {sb}"
+                    );
                 }
             }
         }

@@ -36,7 +36,11 @@ pub fn geometric_psf(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics) -> (Vec<f64
         lmax = lmax.max(p.l[j]);
     }
     let na = 0.5 * (lmax - lmin) * p.n_image;
-    let airy = if na > 0.0 { 0.61 * p.wavelength_mm / na } else { f64::INFINITY };
+    let airy = if na > 0.0 {
+        0.61 * p.wavelength_mm / na
+    } else {
+        f64::INFINITY
+    };
     if rms < airy {
         d.warn(format!(
             "geometric PSF near the diffraction limit: RMS spot {:.2} um is smaller than the Airy radius {:.2} um; use method=fft or huygens",
@@ -51,6 +55,9 @@ pub fn geometric_psf(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics) -> (Vec<f64
     d.set("strehl_method", "marechal");
     let transmitted = p.transmitted_fraction();
     let window: f64 = out.iter().sum();
-    d.set("energy_in_window", if transmitted > 0.0 { window / transmitted } else { 0.0 });
+    d.set(
+        "energy_in_window",
+        if transmitted > 0.0 { window / transmitted } else { 0.0 },
+    );
     (out, (-(2.0 * std::f64::consts::PI * sigma).powi(2)).exp())
 }

@@ -50,7 +50,9 @@ fn wavelets(p: &Pupil, k: f64) -> Vec<Wavelet> {
 }
 
 fn exact_field(ws: &[Wavelet], k: f64, x: DVec3) -> Complex64 {
-    ws.iter().map(|w| Complex64::from_polar(w.w, w.base + k * ((x - w.s).length() - w.r0))).sum()
+    ws.iter()
+        .map(|w| Complex64::from_polar(w.w, w.base + k * ((x - w.s).length() - w.r0)))
+        .sum()
 }
 
 /// Phasors exp(i (a t + b t^2)) for t = (c - h) * pitch, c = 0..len, by recurrence.
@@ -89,14 +91,21 @@ pub fn huygens_psf(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics) -> Result<(Ve
             if stopped() {
                 return;
             }
-            row.iter_mut().enumerate().for_each(|(c, v)| *v = exact_field(&ws, k, pixel(r, c)));
+            row.iter_mut()
+                .enumerate()
+                .for_each(|(c, v)| *v = exact_field(&ws, k, pixel(r, c)));
             prog.inspect(|p| p.step());
         });
         field
     } else {
         d.set("huygens_evaluation", "separable");
         let half = (h + 0.5) * pitch;
-        let eps = ws.iter().map(|w| k * w.u.x.abs() * w.u.y.abs() / w.r0).fold(0.0, f64::max) * half * half;
+        let eps = ws
+            .iter()
+            .map(|w| k * w.u.x.abs() * w.u.y.abs() / w.r0)
+            .fold(0.0, f64::max)
+            * half
+            * half;
         let mut terms = 1;
         while terms < 8 && eps.powi(terms as i32) / factorial(terms) > CROSS_TOL_RAD {
             terms += 1;
@@ -107,26 +116,33 @@ pub fn huygens_psf(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics) -> Result<(Ve
         let mut a = vec![Complex32::new(0.0, 0.0); kk * s];
         let mut b = vec![Complex32::new(0.0, 0.0); kk * s];
         let offs: Vec<f64> = (0..s).map(|c| (c as f64 - h) * pitch).collect();
-        a.par_chunks_mut(s).zip(b.par_chunks_mut(s)).enumerate().for_each(|(idx, (ac, bc))| {
-            let (t, j) = (idx / jn, idx % jn);
-            let w = &ws[j];
-            chirp(ac, k * w.u.y, k * (1.0 - w.u.y * w.u.y) / (2.0 * w.r0), h, pitch);
-            chirp(bc, k * w.u.x, k * (1.0 - w.u.x * w.u.x) / (2.0 * w.r0), h, pitch);
-            let kappa = -k * w.u.x * w.u.y / w.r0;
-            let coef = Complex64::from_polar(w.w, w.base) * Complex64::new(0.0, kappa).powi(t as i32) / factorial(t);
-            let coef = Complex32::new(coef.re as f32, coef.im as f32);
-            for (c, v) in bc.iter_mut().enumerate() {
-                *v *= coef * (offs[c].powi(t as i32) as f32);
-            }
-            if t > 0 {
-                for (r, v) in ac.iter_mut().enumerate() {
-                    *v *= offs[r].powi(t as i32) as f32;
+        a.par_chunks_mut(s)
+            .zip(b.par_chunks_mut(s))
+            .enumerate()
+            .for_each(|(idx, (ac, bc))| {
+                let (t, j) = (idx / jn, idx % jn);
+                let w = &ws[j];
+                chirp(ac, k * w.u.y, k * (1.0 - w.u.y * w.u.y) / (2.0 * w.r0), h, pitch);
+                chirp(bc, k * w.u.x, k * (1.0 - w.u.x * w.u.x) / (2.0 * w.r0), h, pitch);
+                let kappa = -k * w.u.x * w.u.y / w.r0;
+                let coef =
+                    Complex64::from_polar(w.w, w.base) * Complex64::new(0.0, kappa).powi(t as i32) / factorial(t);
+                let coef = Complex32::new(coef.re as f32, coef.im as f32);
+                for (c, v) in bc.iter_mut().enumerate() {
+                    *v *= coef * (offs[c].powi(t as i32) as f32);
                 }
-            }
-        });
+                if t > 0 {
+                    for (r, v) in ac.iter_mut().enumerate() {
+                        *v *= offs[r].powi(t as i32) as f32;
+                    }
+                }
+            });
         let mut u = vec![Complex32::new(0.0, 0.0); s * s];
         // Blocks of rows, one per thread, or of at most 64 rows where progress is watched.
-        let blocks = rayon::current_num_threads().max(1).max(if prog.is_some() { s.div_ceil(64) } else { 1 }).min(s);
+        let blocks = rayon::current_num_threads()
+            .max(1)
+            .max(if prog.is_some() { s.div_ceil(64) } else { 1 })
+            .min(s);
         let rows_per = s.div_ceil(blocks);
         prog.inspect(|p| p.start(s.div_ceil(rows_per)));
         u.par_chunks_mut(rows_per * s).enumerate().for_each(|(bi, uc)| {
@@ -167,16 +183,34 @@ pub fn huygens_psf(p: &Pupil, o: &PsfOptions, d: &mut Diagnostics) -> Result<(Ve
     let area = pitch * pitch;
     let out: Vec<f64> = field.iter().map(|z| z.norm_sqr() * area).collect();
     // Strehl from the sampled peak refined at the parabolic vertex with the exact sum.
-    let (imax, vmax) = out.iter().enumerate().fold((0, f64::MIN), |acc, (i, &v)| if v > acc.1 { (i, v) } else { acc });
+    let (imax, vmax) = out
+        .iter()
+        .enumerate()
+        .fold((0, f64::MIN), |acc, (i, &v)| if v > acc.1 { (i, v) } else { acc });
     let (ry, rx) = (imax / s, imax % s);
     let at = |r: usize, c: usize| out[r.min(s - 1) * s + c.min(s - 1)];
-    let ox = if rx > 0 && rx + 1 < s { super::parabolic_offset(at(ry, rx - 1), vmax, at(ry, rx + 1)) } else { 0.0 };
-    let oy = if ry > 0 && ry + 1 < s { super::parabolic_offset(at(ry - 1, rx), vmax, at(ry + 1, rx)) } else { 0.0 };
+    let ox = if rx > 0 && rx + 1 < s {
+        super::parabolic_offset(at(ry, rx - 1), vmax, at(ry, rx + 1))
+    } else {
+        0.0
+    };
+    let oy = if ry > 0 && ry + 1 < s {
+        super::parabolic_offset(at(ry - 1, rx), vmax, at(ry + 1, rx))
+    } else {
+        0.0
+    };
     let xr = p.chief + DVec3::new((rx as f64 - h + ox) * pitch, (ry as f64 - h + oy) * pitch, 0.0);
     let peak = exact_field(&ws, k, xr).norm_sqr().max(vmax / area);
     let strehl = peak / (peak_ref * peak_ref);
     let transmitted = p.transmitted_fraction();
     let window_energy: f64 = out.iter().sum();
-    d.set("energy_in_window", if transmitted > 0.0 { window_energy / transmitted } else { 0.0 });
+    d.set(
+        "energy_in_window",
+        if transmitted > 0.0 {
+            window_energy / transmitted
+        } else {
+            0.0
+        },
+    );
     Ok((out, strehl))
 }

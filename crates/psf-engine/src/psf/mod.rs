@@ -37,7 +37,9 @@ impl std::str::FromStr for Method {
             "fft" => Ok(Method::Fft),
             "huygens" => Ok(Method::Huygens),
             "auto" => Ok(Method::Auto),
-            _ => arg(format!("method must be \"auto\", \"geometric\", \"fft\" or \"huygens\", got \"{s}\"")),
+            _ => arg(format!(
+                "method must be \"auto\", \"geometric\", \"fft\" or \"huygens\", got \"{s}\""
+            )),
         }
     }
 }
@@ -106,7 +108,19 @@ impl Progress {
 
 impl Default for PsfOptions {
     fn default() -> Self {
-        PsfOptions { method: Method::Fft, pixel_mm: 1e-3, size: 64, pupil_samples: 64, fft_grid: None, aiming: Aiming::Paraxial, huygens_exact: false, integrate: false, fast: false, accuracy: auto::DEFAULT_TARGET, progress: None }
+        PsfOptions {
+            method: Method::Fft,
+            pixel_mm: 1e-3,
+            size: 64,
+            pupil_samples: 64,
+            fft_grid: None,
+            aiming: Aiming::Paraxial,
+            huygens_exact: false,
+            integrate: false,
+            fast: false,
+            accuracy: auto::DEFAULT_TARGET,
+            progress: None,
+        }
     }
 }
 
@@ -117,9 +131,17 @@ impl PsfOptions {
     pub fn memory(&self) -> crate::budget::Need {
         let out = (self.size * self.size) as f64 * 8.0 * 3.0;
         let g = self.fft_grid.unwrap_or(4 * self.pupil_samples) as f64;
-        let fft = if self.method == Method::Fft { g * g * 16.0 * 2.0 } else { 0.0 };
+        let fft = if self.method == Method::Fft {
+            g * g * 16.0 * 2.0
+        } else {
+            0.0
+        };
         let pupil = (self.pupil_samples as f64).powi(2) * 96.0;
-        crate::budget::Need(vec![("output".into(), out), (format!("FFT grid {g}^2"), fft), ("pupil".into(), pupil)])
+        crate::budget::Need(vec![
+            ("output".into(), out),
+            (format!("FFT grid {g}^2"), fft),
+            ("pupil".into(), pupil),
+        ])
     }
 
     pub fn check(&self) -> Result<()> {
@@ -133,14 +155,18 @@ impl PsfOptions {
             return arg(format!("pupil_samples {} must be within 4..4096", self.pupil_samples));
         }
         if !(self.accuracy.is_finite() && self.accuracy > 0.0) {
-            return arg(format!("accuracy target {} must be a positive relative L1 error (e.g. 0.02)", self.accuracy));
+            return arg(format!(
+                "accuracy target {} must be a positive relative L1 error (e.g. 0.02)",
+                self.accuracy
+            ));
         }
         if let Some(g) = self.fft_grid {
             if !(4..=65536).contains(&g) {
                 return arg(format!("fft_grid {g} must be within 4..65536"));
             }
         }
-        self.memory().check(&format!("a {}x{} {} PSF", self.size, self.size, self.method.name()))?;
+        self.memory()
+            .check(&format!("a {}x{} {} PSF", self.size, self.size, self.method.name()))?;
         if self.method == Method::Huygens && self.integrate {
             // (It evaluates the field at pixel centres only; said rather than ignored.)
             return arg("integrate: the Huygens PSF samples pixel centres and does not integrate over pixels; use method fft, or a finer pixel and sum blocks");
@@ -239,13 +265,22 @@ pub(crate) fn psf_path(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfO
         let mut failed: Vec<String> = vec![];
         let mut next = Some(c);
         while let Some(c) = next.take() {
-            let chosen = PsfOptions { method: c.method, fast: c.fast, pupil_samples: c.pupil_samples, ..o.clone() };
+            let chosen = PsfOptions {
+                method: c.method,
+                fast: c.fast,
+                pupil_samples: c.pupil_samples,
+                ..o.clone()
+            };
             match psf_path(lens, field_deg, wavelength_nm, &chosen) {
                 Ok((mut p, clear)) => {
                     auto::record(&mut p.diagnostics, &c, met, &pr, o.accuracy, probe_s);
                     if !failed.is_empty() {
                         p.diagnostics.set("auto_escalated_from", failed.clone());
-                        p.diagnostics.warn(format!("auto: {} failed its checks; escalated to {}", failed.join(", "), auto::label(c.method.name(), c.fast, c.pupil_samples)));
+                        p.diagnostics.warn(format!(
+                            "auto: {} failed its checks; escalated to {}",
+                            failed.join(", "),
+                            auto::label(c.method.name(), c.fast, c.pupil_samples)
+                        ));
                     }
                     p.diagnostics.set("time_s", t0.elapsed().as_secs_f64());
                     return Ok((p, clear));
@@ -254,7 +289,10 @@ pub(crate) fn psf_path(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfO
                     failed.push(auto::label(c.method.name(), c.fast, c.pupil_samples));
                     next = auto::escalate(&cands, &c, &failed);
                     if next.is_none() {
-                        return Err(EngineError::Psf(format!("auto: every candidate failed ({}); last: {why}", failed.join(", "))));
+                        return Err(EngineError::Psf(format!(
+                            "auto: every candidate failed ({}); last: {why}",
+                            failed.join(", ")
+                        )));
                     }
                 }
                 Err(e) => return Err(e),
@@ -290,14 +328,30 @@ fn common_diagnostics(d: &mut Diagnostics, o: &PsfOptions, field_deg: f64, wavel
     d.set("pupil_samples", o.pupil_samples as f64);
     d.set("pixel_um", o.pixel_mm * 1e3);
     d.set("size", o.size as f64);
-    d.set("sampling", if o.integrate || o.method == Method::Geometric { "integrate" } else { "point" });
+    d.set(
+        "sampling",
+        if o.integrate || o.method == Method::Geometric {
+            "integrate"
+        } else {
+            "point"
+        },
+    );
     d.set("aiming", if o.aiming == Aiming::Real { "real" } else { "paraxial" });
 }
 
 /// Checks shared by every method: energy outside the window, non-finite values; the
 /// Strehl ratio and the time recorded.
 #[allow(clippy::too_many_arguments)]
-fn finish(mut d: Diagnostics, data: Vec<f64>, strehl: Option<f64>, transmitted: f64, o: &PsfOptions, field_deg: f64, wavelength_nm: f64, t0: Instant) -> Result<Psf> {
+fn finish(
+    mut d: Diagnostics,
+    data: Vec<f64>,
+    strehl: Option<f64>,
+    transmitted: f64,
+    o: &PsfOptions,
+    field_deg: f64,
+    wavelength_nm: f64,
+    t0: Instant,
+) -> Result<Psf> {
     let e = d.values.get("energy_in_window").and_then(Value::as_f64).unwrap_or(1.0);
     // More energy in the window than was transmitted: the sampled field is wrong (aliasing,
     // pupil distortion the method cannot follow). No such PSF leaves the engine.
@@ -311,15 +365,30 @@ fn finish(mut d: Diagnostics, data: Vec<f64>, strehl: Option<f64>, transmitted: 
         )));
     }
     if e < 0.99 && transmitted > 0.0 {
-        d.warn(format!("{:.1}% of the transmitted energy falls outside the {}x{} window", 100.0 * (1.0 - e), o.size, o.size));
+        d.warn(format!(
+            "{:.1}% of the transmitted energy falls outside the {}x{} window",
+            100.0 * (1.0 - e),
+            o.size,
+            o.size
+        ));
     }
     // (Blocks without an early exit inside, so that the test vectorizes.)
-    if data.chunks(16).any(|c| c.iter().fold(false, |bad, v| bad | !v.is_finite())) {
-        return Err(EngineError::Psf(format!("non-finite PSF value at {field_deg} deg, {wavelength_nm} nm")));
+    if data
+        .chunks(16)
+        .any(|c| c.iter().fold(false, |bad, v| bad | !v.is_finite()))
+    {
+        return Err(EngineError::Psf(format!(
+            "non-finite PSF value at {field_deg} deg, {wavelength_nm} nm"
+        )));
     }
     d.set("strehl", strehl.map_or(Value::Null, Value::from));
     d.set("time_s", t0.elapsed().as_secs_f64());
-    Ok(Psf { size: o.size, data, strehl, diagnostics: d })
+    Ok(Psf {
+        size: o.size,
+        data,
+        strehl,
+        diagnostics: d,
+    })
 }
 
 fn psf_in_pool(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) -> Result<Psf> {
@@ -374,7 +443,9 @@ fn psf_in_pool(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfOptions) 
         }
         // The Strehl's direct pupil sum needs the same sampling as the PSF itself.
         Some(_) if o.method != Method::Geometric && step > 0.5 => {
-            d.warn(format!("Strehl not reported: the pupil is undersampled ({step:.2} waves between neighbouring samples > 0.5)"));
+            d.warn(format!(
+                "Strehl not reported: the pupil is undersampled ({step:.2} waves between neighbouring samples > 0.5)"
+            ));
             None
         }
         s => s,

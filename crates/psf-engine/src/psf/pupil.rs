@@ -69,7 +69,12 @@ impl Pupil {
     }
 
     pub fn transmitted_fraction(&self) -> f64 {
-        self.flux.iter().zip(&self.valid).filter(|(_, v)| **v).map(|(f, _)| f).sum()
+        self.flux
+            .iter()
+            .zip(&self.valid)
+            .filter(|(_, v)| **v)
+            .map(|(f, _)| f)
+            .sum()
     }
 
     pub fn n_valid(&self) -> usize {
@@ -177,8 +182,9 @@ pub(crate) fn solve3(mut a: [[f64; 3]; 3], mut b: [f64; 3]) -> Option<[f64; 3]> 
         for r in 0..3 {
             if r != col {
                 let f = a[r][col] / a[col][col];
-                for c in 0..3 {
-                    a[r][c] -= f * a[col][c];
+                let pivot = a[col];
+                for (x, p) in a[r].iter_mut().zip(pivot) {
+                    *x -= f * p;
                 }
                 b[r] -= f * b[col];
             }
@@ -194,7 +200,11 @@ pub fn sample_pupil(sys: &System, field_deg: f64, aiming: Aiming, n: usize) -> R
     }
     let beam = Beam::new(sys, field_deg, aiming)?;
     let chief_launch = beam.launch(0.0, 0.0);
-    let Reference { chief, chief_opl, radius } = reference(&beam, &chief_launch)?;
+    let Reference {
+        chief,
+        chief_opl,
+        radius,
+    } = reference(&beam, &chief_launch)?;
     let n_img = sys.image_index();
     let grid = grid(n);
     let nn = n * n;
@@ -233,13 +243,33 @@ pub fn sample_pupil(sys: &System, field_deg: f64, aiming: Aiming, n: usize) -> R
             let v3 = |a: &[f64], k: usize| DVec3::new(a[3 * k], a[3 * k + 1], a[3 * k + 2]);
             for (k, &j) in grid.idx.iter().enumerate() {
                 let o = v3(&t.origin, k);
-                total += take_ray(&mut p, &ctx, j, o, beam.paraxial_flux_weight(o), Status::from_code(t.status[k]), v3(&t.position, k), v3(&t.direction, k), t.opl[k]);
+                total += take_ray(
+                    &mut p,
+                    &ctx,
+                    j,
+                    o,
+                    beam.paraxial_flux_weight(o),
+                    Status::from_code(t.status[k]),
+                    v3(&t.position, k),
+                    v3(&t.direction, k),
+                    t.opl[k],
+                );
             }
         }
         Aiming::Real => {
             let (launches, rays) = beam.trace_pupil(&grid.px, &grid.py);
             for ((&j, l), r) in grid.idx.iter().zip(&launches).zip(&rays) {
-                total += take_ray(&mut p, &ctx, j, l.origin, beam.flux_weight(l), r.status, r.p, r.d, r.opl);
+                total += take_ray(
+                    &mut p,
+                    &ctx,
+                    j,
+                    l.origin,
+                    beam.flux_weight(l),
+                    r.status,
+                    r.p,
+                    r.d,
+                    r.opl,
+                );
             }
         }
     }
@@ -299,7 +329,11 @@ pub(crate) fn reference(beam: &Beam, chief_launch: &Launch) -> Result<Reference>
     if !(radius.is_finite() && radius > 0.0 && radius < MAX_REFERENCE_RADIUS_MM) {
         return Err(EngineError::Psf(format!("exit pupil at infinity (image-space telecentric; reference sphere radius {radius:.3e} mm): reference sphere undefined")));
     }
-    Ok(Reference { chief, chief_opl, radius })
+    Ok(Reference {
+        chief,
+        chief_opl,
+        radius,
+    })
 }
 
 /// Signed distance t (< 0) back along a ray from its image-plane point `pos` (unit
@@ -328,7 +362,17 @@ struct RayCtx<'b, 's, 'l> {
 /// in the pupil; returns its flux.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn take_ray(p: &mut Pupil, c: &RayCtx, j: usize, origin: DVec3, weight: f64, status: Status, pos: DVec3, dir: DVec3, opl: f64) -> f64 {
+fn take_ray(
+    p: &mut Pupil,
+    c: &RayCtx,
+    j: usize,
+    origin: DVec3,
+    weight: f64,
+    status: Status,
+    pos: DVec3,
+    dir: DVec3,
+    opl: f64,
+) -> f64 {
     p.inside[j] = true;
     let f = weight * c.cell;
     p.flux[j] = f;
@@ -376,7 +420,12 @@ fn grid(n: usize) -> Arc<Grid> {
             return g.clone();
         }
         let coord = |i: usize| -1.0 + (2.0 * i as f64 + 1.0) / n as f64;
-        let mut g = Grid { n, px: vec![], py: vec![], idx: vec![] };
+        let mut g = Grid {
+            n,
+            px: vec![],
+            py: vec![],
+            idx: vec![],
+        };
         for b in 0..n {
             for a in 0..n {
                 let (x, y) = (coord(a), coord(b));
@@ -408,7 +457,13 @@ pub fn recycle(p: Pupil) {
 /// otherwise, and the grid-average slope for isolated samples.
 fn jacobians(p: &mut Pupil) {
     let n = p.n;
-    let Pupil { valid, l, m, jacobian: jac, .. } = p;
+    let Pupil {
+        valid,
+        l,
+        m,
+        jacobian: jac,
+        ..
+    } = p;
     // Difference over the valid neighbours lo = j - step and/or hi = j + step (one at least).
     #[inline(always)]
     fn diff(v: &[f64], j: usize, step: usize, lo: bool, hi: bool) -> f64 {

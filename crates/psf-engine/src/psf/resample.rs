@@ -19,7 +19,14 @@ fn hat_integral(lo: f64, hi: f64) -> f64 {
 /// Sparse weights w[c] = [(native index, weight)] mapping native samples at
 /// x_m = (m - native_centre) * native_pitch to output pixels centred at
 /// (c - out_centre) * out_pitch with width out_pitch. Weights carry units of length.
-pub fn weights_1d(native_len: usize, native_pitch: f64, native_centre: f64, out_len: usize, out_pitch: f64, out_centre: f64) -> Vec<Vec<(usize, f64)>> {
+pub fn weights_1d(
+    native_len: usize,
+    native_pitch: f64,
+    native_centre: f64,
+    out_len: usize,
+    out_pitch: f64,
+    out_centre: f64,
+) -> Vec<Vec<(usize, f64)>> {
     (0..out_len)
         .map(|c| {
             let x0 = (c as f64 - out_centre - 0.5) * out_pitch;
@@ -55,7 +62,14 @@ fn keys(t: f64) -> f64 {
 /// Point-sampling weights: the cubic interpolant of the native samples evaluated at each
 /// output pixel centre, times the output pitch (so values carry units of length, like
 /// `weights_1d`, and a 2-D product gives intensity x pixel area).
-pub fn point_weights_1d(native_len: usize, native_pitch: f64, native_centre: f64, out_len: usize, out_pitch: f64, out_centre: f64) -> Vec<Vec<(usize, f64)>> {
+pub fn point_weights_1d(
+    native_len: usize,
+    native_pitch: f64,
+    native_centre: f64,
+    out_len: usize,
+    out_pitch: f64,
+    out_centre: f64,
+) -> Vec<Vec<(usize, f64)>> {
     (0..out_len)
         .map(|c| {
             let u = (c as f64 - out_centre) * out_pitch / native_pitch + native_centre;
@@ -74,7 +88,10 @@ pub fn point_weights_1d(native_len: usize, native_pitch: f64, native_centre: f64
 pub fn apply(native: &[f64], nx: usize, wy: &[Vec<(usize, f64)>], wx: &[Vec<(usize, f64)>]) -> Vec<f64> {
     let (oy, ox) = (wy.len(), wx.len());
     let mut out = vec![0.0; oy * ox];
-    let (lo, hi) = wy.iter().flatten().fold((usize::MAX, 0), |(lo, hi), &(n, _)| (lo.min(n), hi.max(n)));
+    let (lo, hi) = wy
+        .iter()
+        .flatten()
+        .fold((usize::MAX, 0), |(lo, hi), &(n, _)| (lo.min(n), hi.max(n)));
     if lo > hi {
         return out;
     }
@@ -112,7 +129,10 @@ mod tests {
         let total: f64 = native.iter().sum::<f64>() * 0.1;
         for (pitch, len) in [(0.37, 60usize), (0.05, 400)] {
             let w = weights_1d(401, 0.1, 200.0, len, pitch, len as f64 / 2.0);
-            let out: f64 = w.iter().map(|ws| ws.iter().map(|&(m, v)| v * native[m]).sum::<f64>()).sum();
+            let out: f64 = w
+                .iter()
+                .map(|ws| ws.iter().map(|&(m, v)| v * native[m]).sum::<f64>())
+                .sum();
             assert!((out - total).abs() < 1e-9 * total, "{out} vs {total}");
         }
     }

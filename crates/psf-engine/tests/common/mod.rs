@@ -8,7 +8,11 @@ use std::path::PathBuf;
 
 pub fn reference_dir() -> PathBuf {
     let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/reference");
-    assert!(p.join("cooke_triplet.json").exists(), "reference data missing: expected {} (shared/ beside the repo)", p.display());
+    assert!(
+        p.join("cooke_triplet.json").exists(),
+        "reference data missing: expected {} (shared/ beside the repo)",
+        p.display()
+    );
     p
 }
 
@@ -30,7 +34,12 @@ pub fn cooke_json() -> Value {
         let material = if m["name"] == "air" {
             json!("air")
         } else {
-            let kind: u64 = m["formula"].as_str().unwrap().trim_start_matches("formula ").parse().unwrap();
+            let kind: u64 = m["formula"]
+                .as_str()
+                .unwrap()
+                .trim_start_matches("formula ")
+                .parse()
+                .unwrap();
             json!({"formula": kind, "coefficients": m["coefficients"], "range_um": m["valid_range_um"], "name": m["name"]})
         };
         surfaces.push(json!({
@@ -70,12 +79,18 @@ pub fn singlet(r1: f64, r2: f64, t: f64, n: f64, epd: f64, back: f64) -> Lens {
 /// (refractiveindex.info: PMMA from "organic", N-SF11 from "schott").
 pub fn paper_triplet_json() -> Value {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../python/optix_e2e/bundled/paper-triplet-v1.json");
-    let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))).unwrap();
+    let mut v: Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display())))
+            .unwrap();
     for s in v["surfaces"].as_array_mut().unwrap() {
         let m = s["material"].clone();
         s["material"] = match m.as_str() {
-            Some("PMMA") => json!({"formula": 2, "coefficients": [0.0, 1.1819, 0.011313], "range_um": [0.4368, 1.052], "name": "PMMA (organic)"}),
-            Some("N-SF11") => json!({"formula": 2, "coefficients": [0.0, 1.73759695, 0.013188707, 0.313747346, 0.0623068142, 1.89878101, 155.23629], "range_um": [0.37, 2.5], "name": "N-SF11 (schott)"}),
+            Some("PMMA") => {
+                json!({"formula": 2, "coefficients": [0.0, 1.1819, 0.011313], "range_um": [0.4368, 1.052], "name": "PMMA (organic)"})
+            }
+            Some("N-SF11") => {
+                json!({"formula": 2, "coefficients": [0.0, 1.73759695, 0.013188707, 0.313747346, 0.0623068142, 1.89878101, 155.23629], "range_um": [0.37, 2.5], "name": "N-SF11 (schott)"})
+            }
             Some("air") => json!("air"),
             _ => panic!("paper-triplet: unexpected material {m}"),
         };

@@ -49,7 +49,7 @@ def _renamed(name: str, catalog: str) -> list[str]:
     """Names ``name`` may carry in ``catalog``'s newer editions."""
     new, old = VENDOR_PREFIXES[catalog]
     up = name.strip().upper()
-    core = next((up[len(p):] for p in old if up.startswith(p) and len(up) > len(p)), up)
+    core = next((up[len(p) :] for p in old if up.startswith(p) and len(up) > len(p)), up)
     cores = [core]
     m = _INNER_N.fullmatch(core) if catalog == "schott" else None
     if m:

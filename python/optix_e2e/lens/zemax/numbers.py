@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 
+
 def _neighbours(x: float, k: int = 4):
     yield x
     lo = hi = x

@@ -8,8 +8,22 @@ from typing import Any
 
 from ..text import display_name
 from .. import glass as _glass
-from .common import (GCAT_TO_CATALOG, IGNORED, MAX_FIELDS, MAX_PARM, MAX_SURFACES, MAX_WAVES, N_EVENASPH,
-                     N_ODDASPHE, SURFACE_FEATURES, SURFACE_TYPES, UNITS_MM, UNSUPPORTED, ZemaxError, ZemaxImport)
+from .common import (
+    GCAT_TO_CATALOG,
+    IGNORED,
+    MAX_FIELDS,
+    MAX_PARM,
+    MAX_SURFACES,
+    MAX_WAVES,
+    N_EVENASPH,
+    N_ODDASPHE,
+    SURFACE_FEATURES,
+    SURFACE_TYPES,
+    UNITS_MM,
+    UNSUPPORTED,
+    ZemaxError,
+    ZemaxImport,
+)
 from .glass_names import successor_names
 from .numbers import _from_um, _radius
 
@@ -28,8 +42,9 @@ def _decode(raw: bytes, source: str) -> tuple[str, str]:
         return raw.decode(enc), enc
     except UnicodeDecodeError as exc:
         if enc.startswith("utf-16"):
-            raise ZemaxError(f"{source}: cannot decode as {enc} at byte {exc.start} "
-                             f"({exc.reason}; truncated file?)") from None
+            raise ZemaxError(
+                f"{source}: cannot decode as {enc} at byte {exc.start} ({exc.reason}; truncated file?)"
+            ) from None
         return raw.decode("latin-1"), "latin-1"  # older ANSI files
 
 
@@ -72,8 +87,17 @@ class _Parser:
             self.fail(line, key, f"expected a finite number, got {tok[i]!r}")
         return v
 
-    def int_(self, line: int, key: str, tok: list[str], i: int, default: int | None = None,
-             lo: int | None = None, hi: int | None = None, what: str = "value") -> int:
+    def int_(
+        self,
+        line: int,
+        key: str,
+        tok: list[str],
+        i: int,
+        default: int | None = None,
+        lo: int | None = None,
+        hi: int | None = None,
+        what: str = "value",
+    ) -> int:
         """An integer token; a fraction ('2.5', '1,5') or a value outside lo..hi is an error."""
         if i >= len(tok) and default is not None:
             return default
@@ -95,13 +119,14 @@ class _Parser:
         if not tok:
             return
         key = tok[0]
-        rest = raw_line.strip()[len(key):].strip()
+        rest = raw_line.strip()[len(key) :].strip()
         if key == "SURF":
             sid = self.int_(lineno, key, tok, 1, lo=0, hi=MAX_SURFACES, what="surface number")
             if sid != len(self.surfs):
                 self.fail(lineno, key, f"surface {sid} out of order (expected SURF {len(self.surfs)})")
-            self.surfs.append({"id": sid, "line": lineno, "type": "STANDARD", "curv": 0.0,
-                               "disz": 0.0, "parm": {}, "lines": {}})
+            self.surfs.append(
+                {"id": sid, "line": lineno, "type": "STANDARD", "curv": 0.0, "disz": 0.0, "parm": {}, "lines": {}}
+            )
             return
         s = self.surfs[-1] if self.surfs else None
         if key in UNSUPPORTED:
@@ -117,8 +142,12 @@ class _Parser:
             self.fail(lineno, key, "surface keyword before the first SURF")
         if handler is None:
             if self.strict:
-                self.fail(lineno, key, "unknown keyword; not supported by this reader "
-                          "(see docs/zemax.md; strict=False / --lenient lists it as ignored)")
+                self.fail(
+                    lineno,
+                    key,
+                    "unknown keyword; not supported by this reader "
+                    "(see docs/zemax.md; strict=False / --lenient lists it as ignored)",
+                )
             self.ignored.append((lineno, key, "unknown keyword (lenient mode)"))
             return
         s["lines"][key] = lineno
@@ -134,7 +163,7 @@ class _Parser:
         elif key in ("FWGN", "FWGT"):
             why = "field weights (used by Zemax's merit function only)"
         elif key == "RAIM":
-            why = "ray-aiming setting (optix picks aiming per analysis: aiming=\"paraxial\"|\"real\")"
+            why = 'ray-aiming setting (optix picks aiming per analysis: aiming="paraxial"|"real")'
         elif key == "COAT":
             why = "coating (transmission only; optix traces uncoated geometry)"
         self.ignored.append((line, key, why))
@@ -155,8 +184,11 @@ class _Parser:
 
     def _aperture(self, line, key, ap):
         if "aperture" in self.hdr:
-            self.fail(line, key, f"second aperture definition (first: {self.hdr['aperture_key']} "
-                      f"on line {self.hdr['aperture_line']})")
+            self.fail(
+                line,
+                key,
+                f"second aperture definition (first: {self.hdr['aperture_key']} on line {self.hdr['aperture_line']})",
+            )
         self.hdr.update(aperture=ap, aperture_key=key, aperture_line=line)
 
     def k_ENPD(self, line, key, tok, rest, s):
@@ -191,8 +223,11 @@ class _Parser:
     def k_ENVD(self, line, key, tok, rest, s):
         t, p = self.num(line, key, tok, 1, 20.0), self.num(line, key, tok, 2, 1.0)
         if t != 20 or p != 1:
-            self.fail(line, key, f"environment {t:g} C, {p:g} atm: thermal/pressure index changes "
-                      "are not modelled (20 C, 1 atm only)")
+            self.fail(
+                line,
+                key,
+                f"environment {t:g} C, {p:g} atm: thermal/pressure index changes are not modelled (20 C, 1 atm only)",
+            )
         self.ignored.append((line, key, "standard environment 20 C, 1 atm"))
 
     def k_GCAT(self, line, key, tok, rest, s):
@@ -247,15 +282,15 @@ class _Parser:
         t = tok[1] if len(tok) > 1 else ""
         if t not in SURFACE_TYPES:
             what = f"{SURFACE_FEATURES[t]} ({t})" if t in SURFACE_FEATURES else f"unknown surface type {t!r}"
-            self.fail(line, key, f"{self.where(s)}: {what} is not supported; "
-                      f"supported: {', '.join(SURFACE_TYPES)}")
+            self.fail(line, key, f"{self.where(s)}: {what} is not supported; supported: {', '.join(SURFACE_TYPES)}")
         s["type"] = t
 
     def k_CURV(self, line, key, tok, rest, s):
         c = self.num(line, key, tok, 1)
         if c != 0 and not math.isfinite(1.0 / c):
-            self.fail(line, key, f"{self.where(s)}: curvature {tok[1]} has no finite radius "
-                      "(write 0 for a flat surface)")
+            self.fail(
+                line, key, f"{self.where(s)}: curvature {tok[1]} has no finite radius (write 0 for a flat surface)"
+            )
         s["curv"] = c
 
     def k_DISZ(self, line, key, tok, rest, s):
@@ -318,8 +353,27 @@ class _Parser:
         s["glas"] = (line, tok)
 
 
-HEADER_KEYS = {"MODE", "NAME", "UNIT", "ENPD", "FNUM", "FLOA", "OBNA", "ENVD", "GCAT", "FTYP", "XFLN",
-               "YFLN", "XFLD", "YFLD", "WAVM", "WAVL", "WWGT", "PWAV", "MNUM"}
+HEADER_KEYS = {
+    "MODE",
+    "NAME",
+    "UNIT",
+    "ENPD",
+    "FNUM",
+    "FLOA",
+    "OBNA",
+    "ENVD",
+    "GCAT",
+    "FTYP",
+    "XFLN",
+    "YFLN",
+    "XFLD",
+    "YFLD",
+    "WAVM",
+    "WAVL",
+    "WWGT",
+    "PWAV",
+    "MNUM",
+}
 
 
 def parse_zmx(text: str, source: str = "<zmx>", *, strict: bool = True, name: str = "lens") -> ZemaxImport:
@@ -341,39 +395,62 @@ def _build(p: _Parser, end: int, name: str) -> dict:
     if "aperture" not in h:
         p.fail(end, "ENPD", "no aperture definition (ENPD, FNUM, FLOA or OBNA) in the file (truncated file?)")
     if len(p.surfs) < 3:
-        p.fail(end, "SURF", f"{len(p.surfs)} surface(s); a lens needs the object surface, at least one "
-               "surface and the image surface (truncated file?)")
+        p.fail(
+            end,
+            "SURF",
+            f"{len(p.surfs)} surface(s); a lens needs the object surface, at least one "
+            "surface and the image surface (truncated file?)",
+        )
 
     _check_pickups(p)
     obj, image, body = p.surfs[0], p.surfs[-1], p.surfs[1:-1]
     finite_object = not math.isinf(obj["disz"])
     if finite_object and obj["disz"] < 0:
-        p.fail(obj["lines"].get("DISZ", obj["line"]), "DISZ",
-               f"object distance {obj['disz']:g}: a virtual object (negative DISZ on SURF 0) is not supported")
+        p.fail(
+            obj["lines"].get("DISZ", obj["line"]),
+            "DISZ",
+            f"object distance {obj['disz']:g}: a virtual object (negative DISZ on SURF 0) is not supported",
+        )
     if obj["curv"] != 0 and finite_object:
         p.fail(obj["lines"].get("CURV", obj["line"]), "CURV", "curved object surfaces are not supported")
     if h["aperture"][0] == "object_na" and not finite_object:
-        p.fail(h["aperture_line"], "OBNA", "object-space NA with the object at infinity (DISZ INFINITY) "
-               "defines no pupil: give ENPD, FNUM or FLOA")
+        p.fail(
+            h["aperture_line"],
+            "OBNA",
+            "object-space NA with the object at infinity (DISZ INFINITY) defines no pupil: give ENPD, FNUM or FLOA",
+        )
     if "glas" in obj:
         p.fail(obj["glas"][0], "GLAS", "object space must be air")
     # The last SURF is the image; a glass there means the file was cut short.
     if "glas" in image:
-        p.fail(image["glas"][0], "GLAS", f"{p.where(image)} is the last surface, taken as the image "
-               "plane, but has glass after it: the file looks truncated")
+        p.fail(
+            image["glas"][0],
+            "GLAS",
+            f"{p.where(image)} is the last surface, taken as the image "
+            "plane, but has glass after it: the file looks truncated",
+        )
     if image.get("coni", 0.0) != 0 and image["curv"] != 0:
-        p.fail(image["lines"]["CONI"], "CONI", f"{p.where(image)} (image): a conic image surface is "
-               "not supported (a spherical or flat one is)")
+        p.fail(
+            image["lines"]["CONI"],
+            "CONI",
+            f"{p.where(image)} (image): a conic image surface is not supported (a spherical or flat one is)",
+        )
     if image["type"] != "STANDARD" or any(v != 0 for v, _ in image["parm"].values()):
         p.fail(image["line"], "SURF", f"{p.where(image)} (image) must be a plain STANDARD surface")
     if image["disz"] != 0:  # OpticStudio always writes DISZ 0 on the image surface
-        p.fail(image["lines"].get("DISZ", image["line"]), "DISZ",
-               f"{p.where(image)}, the last surface, is taken as the image plane but has thickness "
-               f"{image['disz']:g} after it: the file looks truncated")
+        p.fail(
+            image["lines"].get("DISZ", image["line"]),
+            "DISZ",
+            f"{p.where(image)}, the last surface, is taken as the image plane but has thickness "
+            f"{image['disz']:g} after it: the file looks truncated",
+        )
     stops = [s for s in body if s.get("stop")]
     if obj.get("stop") or image.get("stop"):
-        p.fail((obj if obj.get("stop") else image)["lines"]["STOP"], "STOP",
-               "the stop must be one of the lens surfaces, not the object or the image")
+        p.fail(
+            (obj if obj.get("stop") else image)["lines"]["STOP"],
+            "STOP",
+            "the stop must be one of the lens surfaces, not the object or the image",
+        )
     if not stops:
         p.fail(end, "STOP", "no surface is marked STOP (the aperture stop must be given)")
 
@@ -395,20 +472,30 @@ def _build(p: _Parser, end: int, name: str) -> dict:
     out.update(fields)
     out.update(_waves(p, end))
     out["surfaces"] = surfaces
-    img_sd = image.get("clap") if "clap" in image else (
-        image["diam"][0] if "diam" in image and image["diam"][1] == 1 else None)
+    img_sd = (
+        image.get("clap")
+        if "clap" in image
+        else (image["diam"][0] if "diam" in image and image["diam"][1] == 1 else None)
+    )
     if "diam" in image and image["diam"][1] != 1 and "clap" not in image:
-        p.ignored.append((image["lines"]["DIAM"], "DIAM",
-                          "automatic image semi-diameter (not a clear aperture)"))
+        p.ignored.append((image["lines"]["DIAM"], "DIAM", "automatic image semi-diameter (not a clear aperture)"))
     out["image"] = {"semi_diameter": img_sd * scale if img_sd else None}
     if image["curv"] != 0:  # a curved sensor: traced to the sphere (docs/zemax.md)
         out["image"]["radius"] = _radius(image["curv"]) * scale
         if img_sd and abs(image["curv"]) * img_sd >= 1:
-            p.fail(image["lines"].get("DIAM", image["line"]), "DIAM", f"{p.where(image)} (image): "
-                   f"semi-diameter {img_sd:g} exceeds the curved image surface (radius {_radius(image['curv']):g})")
+            p.fail(
+                image["lines"].get("DIAM", image["line"]),
+                "DIAM",
+                f"{p.where(image)} (image): "
+                f"semi-diameter {img_sd:g} exceeds the curved image surface (radius {_radius(image['curv']):g})",
+            )
     if "DISZ" not in image["lines"]:  # OpticStudio (and our writer) write DISZ in every SURF block
-        p.fail(end, "SURF", f"{p.where(image)}, the last surface (taken as the image plane), has no "
-               "DISZ line: the file looks truncated")
+        p.fail(
+            end,
+            "SURF",
+            f"{p.where(image)}, the last surface (taken as the image plane), has no "
+            "DISZ line: the file looks truncated",
+        )
     _drop_crossing_diams(p, body, out["surfaces"])
     if kind == "floa":
         _resolve_floa(p, out, h["aperture_line"])
@@ -428,29 +515,45 @@ def _check_pickups(p: _Parser):
     for s in p.surfs:
         for n, (line, src, scale, offset, column) in sorted(s.get("ppar", {}).items()):
             if n not in s["parm"]:
-                p.fail(line, "PPAR", f"{p.where(s)}: pickup solve on parameter {n}, but the surface "
-                       f"has no PARM {n} line with its value (truncated file?)")
+                p.fail(
+                    line,
+                    "PPAR",
+                    f"{p.where(s)}: pickup solve on parameter {n}, but the surface "
+                    f"has no PARM {n} line with its value (truncated file?)",
+                )
             value = s["parm"][n][0]
             source = p.surfs[src] if 0 <= src < len(p.surfs) else None
             from_n = column or n
             if source is None or from_n not in source["parm"]:
-                p.ignored.append((line, "PPAR", "parameter pickup solve (its source is not a parameter "
-                                  "of this file; the PARM value written with it is imported)"))
+                p.ignored.append(
+                    (
+                        line,
+                        "PPAR",
+                        "parameter pickup solve (its source is not a parameter "
+                        "of this file; the PARM value written with it is imported)",
+                    )
+                )
                 continue
             picked = scale * source["parm"][from_n][0] + offset
             if abs(picked - value) > 1e-9 * max(1.0, abs(value), abs(picked)):
-                p.notes.append(f"line {line}: {p.where(s)}: PPAR picks up {picked:.12g} for parameter {n} "
-                               f"(SURF {src} x {scale:g} + {offset:g}) but PARM {n} holds {value:.12g}; "
-                               "the PARM value is imported")
+                p.notes.append(
+                    f"line {line}: {p.where(s)}: PPAR picks up {picked:.12g} for parameter {n} "
+                    f"(SURF {src} x {scale:g} + {offset:g}) but PARM {n} holds {value:.12g}; "
+                    "the PARM value is imported"
+                )
             else:
-                p.ignored.append((line, "PPAR", "parameter pickup solve (agrees with the PARM value written "
-                                  "with it, which is imported)"))
+                p.ignored.append(
+                    (
+                        line,
+                        "PPAR",
+                        "parameter pickup solve (agrees with the PARM value written with it, which is imported)",
+                    )
+                )
 
 
 def _surface(p: _Parser, s: dict, scale: float, last: bool = False) -> dict:
     c = s["curv"]
-    surf: dict[str, Any] = {"radius": "inf" if c == 0 else _radius(c) * scale,
-                            "thickness": s["disz"] * scale}
+    surf: dict[str, Any] = {"radius": "inf" if c == 0 else _radius(c) * scale, "thickness": s["disz"] * scale}
     if math.isinf(s["disz"]):
         if not last:
             p.fail(s["lines"]["DISZ"], "DISZ", f"{p.where(s)}: infinite thickness inside the lens")
@@ -467,9 +570,12 @@ def _surface(p: _Parser, s: dict, scale: float, last: bool = False) -> dict:
         elif s["type"] == "ODDASPHE" and 1 <= i <= N_ODDASPHE:
             power = i  # PARM i: coefficient of r^i (odd powers too: r^1 alone is an axicon)
         else:
-            p.fail(line, "PARM", f"{p.where(s)}: PARM {i} = {v:g} has no meaning on a {s['type']} surface"
-                   + {"EVENASPH": " (EVENASPH uses PARM 1-8)", "ODDASPHE": " (ODDASPHE uses PARM 1-8)"}
-                   .get(s["type"], ""))
+            p.fail(
+                line,
+                "PARM",
+                f"{p.where(s)}: PARM {i} = {v:g} has no meaning on a {s['type']} surface"
+                + {"EVENASPH": " (EVENASPH uses PARM 1-8)", "ODDASPHE": " (ODDASPHE uses PARM 1-8)"}.get(s["type"], ""),
+            )
         asph[f"a{power}"] = v * scale ** (1 - power)  # a_k has units length^(1-k)
     if asph:
         surf["aspheric"] = asph
@@ -483,8 +589,10 @@ def _surface(p: _Parser, s: dict, scale: float, last: bool = False) -> dict:
         if sd <= 0:
             # A floating aperture follows the surface's semi-diameter; without a DIAM that is
             # OpticStudio's automatic one (the beam's footprint), so it clips nothing.
-            p.notes.append(f"line {s['lines']['FLAP']}: {p.where(s)}: floating aperture (FLAP) with "
-                           "no value and no DIAM: automatic semi-diameter, no clear aperture")
+            p.notes.append(
+                f"line {s['lines']['FLAP']}: {p.where(s)}: floating aperture (FLAP) with "
+                "no value and no DIAM: automatic semi-diameter, no clear aperture"
+            )
             sd = None
         elif sd < 0:
             p.fail(s["lines"]["FLAP"], "FLAP", f"{p.where(s)}: negative floating aperture {sd:g}")
@@ -510,14 +618,21 @@ def _material(p: _Parser, s: dict):
     if solve == 1:  # model glass: GLAS ___BLANK 1 0 nd vd dPgF ...
         dpgf = p.num(line, "GLAS", tok, 6, 0.0)
         if dpgf != 0:
-            p.fail(line, "GLAS", f"{p.where(s)}: model glass dPgF = {dpgf:g} is not supported "
-                   "(optix model glass has no partial-dispersion term)")
+            p.fail(
+                line,
+                "GLAS",
+                f"{p.where(s)}: model glass dPgF = {dpgf:g} is not supported "
+                "(optix model glass has no partial-dispersion term)",
+            )
         if nd <= 0:
             p.fail(line, "GLAS", f"{p.where(s)}: model glass needs nd > 0, got {nd:g}")
         return {"n": nd} if vd == 0 else {"nd": nd, "vd": vd}
     if solve != 0:
-        p.fail(line, "GLAS", f"{p.where(s)}: glass solve type {solve} (pickup/offset/substitute) "
-               "is not supported; fix the glass first")
+        p.fail(
+            line,
+            "GLAS",
+            f"{p.where(s)}: glass solve type {solve} (pickup/offset/substitute) is not supported; fix the glass first",
+        )
     if name.upper() in ("___BLANK", "MODEL"):
         p.fail(line, "GLAS", f"{p.where(s)}: {name} without the model flag (GLAS {name} 1 0 nd vd)")
     return _catalog_glass(p, line, s, name, nd, vd)
@@ -559,28 +674,41 @@ def _catalog_glass(p: _Parser, line: int, s: dict, name: str, nd: float, vd: flo
     if not hits:
         if _recorded_index_usable(nd, vd):
             # The file's own (nd, vd) for a glass we lack: a model glass, said so.
-            p.notes.append(f"{p.where(s)}: glass {name} is not in the glass database (GCAT "
-                           f"{' '.join(gcat_names)}); imported as a model glass from the nd {nd:g}, "
-                           f"vd {vd:g} on line {line} (dispersion away from the d line is approximate)")
+            p.notes.append(
+                f"{p.where(s)}: glass {name} is not in the glass database (GCAT "
+                f"{' '.join(gcat_names)}); imported as a model glass from the nd {nd:g}, "
+                f"vd {vd:g} on line {line} (dispersion away from the d line is approximate)"
+            )
             return {"nd": nd, "vd": vd} if vd > 0 else {"n": nd}
         successor = _successor_glass(name, searched)
         if successor is not None:
             snd, svd = _nd_vd(successor)
-            p.notes.append(f"{p.where(s)}: glass {name} (line {line}) is not in the glass database "
-                           f"(GCAT {' '.join(gcat_names) or 'none'}) and the GLAS line records no nd/vd; "
-                           f"imported as {successor.name} ({successor.catalog}, nd {snd:.5f}, vd {svd:.2f}), "
-                           "its vendor's newer name for it or another vendor's equivalent of that name: check the indices")
+            p.notes.append(
+                f"{p.where(s)}: glass {name} (line {line}) is not in the glass database "
+                f"(GCAT {' '.join(gcat_names) or 'none'}) and the GLAS line records no nd/vd; "
+                f"imported as {successor.name} ({successor.catalog}, nd {snd:.5f}, vd {svd:.2f}), "
+                "its vendor's newer name for it or another vendor's equivalent of that name: check the indices"
+            )
             return {"glass": successor.name, "catalog": successor.catalog}
         try:
             elsewhere = _glass.resolve(name)
-            where = (f"; not substituted: {name} exists in catalog {elsewhere.catalog} "
-                     f"(add {elsewhere.catalog.upper()} to GCAT to use it)")
+            where = (
+                f"; not substituted: {name} exists in catalog {elsewhere.catalog} "
+                f"(add {elsewhere.catalog.upper()} to GCAT to use it)"
+            )
         except _glass.GlassError as exc:
             where = "; " + str(exc).split("; ", 1)[-1]
-        recorded = ("; the GLAS line records no nd/vd to import it as a model glass" if nd <= 1 else
-                    f"; the GLAS line's nd {nd:g}, vd {vd:g} is OpticStudio's placeholder, not the glass's data")
-        p.fail(line, "GLAS", f"{p.where(s)}: unknown glass {name!r} in the file's catalogs "
-               f"(GCAT {' '.join(gcat_names)}){where}{recorded}")
+        recorded = (
+            "; the GLAS line records no nd/vd to import it as a model glass"
+            if nd <= 1
+            else f"; the GLAS line's nd {nd:g}, vd {vd:g} is OpticStudio's placeholder, not the glass's data"
+        )
+        p.fail(
+            line,
+            "GLAS",
+            f"{p.where(s)}: unknown glass {name!r} in the file's catalogs "
+            f"(GCAT {' '.join(gcat_names)}){where}{recorded}",
+        )
     g = hits[0]  # molded glasses (LightPath's D-ZK3M, RPO's *_MOLD) carry the molder's own data
     if nd > 1 and len(hits) > 1:  # nearest (nd, vd); ties keep the GCAT order
         g = min(hits, key=lambda h: abs(_nd_vd(h)[0] - nd) + abs(_nd_vd(h)[1] - vd) * 1e-3)
@@ -610,8 +738,12 @@ def _fields(p: _Parser, end: int, finite_object: bool = False) -> dict:
     if "xfld" in h:
         xline, xkey, xs = h["xfld"]
         if any(x != 0 for x in xs[:n]):
-            p.fail(xline, xkey, "x field angles are not supported (fields lie along +y; "
-                   "a rotationally symmetric lens needs only the radial angle)")
+            p.fail(
+                xline,
+                xkey,
+                "x field angles are not supported (fields lie along +y; "
+                "a rotationally symmetric lens needs only the radial angle)",
+            )
     fline, ftype = h.get("ftype", (line, 0))
     if ftype == 1 and finite_object:
         # object heights: angles once the entrance pupil is known (_object_heights_to_angles)
@@ -627,11 +759,14 @@ def _fields(p: _Parser, end: int, finite_object: bool = False) -> dict:
         return {"fields_deg": [0.0] * len(ys), "image_heights": (line, ys)}
     if ftype != 0:  # only the on-axis field means the same in every field type
         if any(y != 0 for y in ys):
-            kinds = {1: "object height", 2: "paraxial image height", 3: "real image height",
-                     4: "theodolite angle"}
-            p.fail(fline, "FTYP", f"field type {ftype} ({kinds.get(ftype, 'unknown')}); only angle "
-                   "fields (type 0), paraxial image heights (type 2) and, for a finite object, object "
-                   "heights (type 1) are supported")
+            kinds = {1: "object height", 2: "paraxial image height", 3: "real image height", 4: "theodolite angle"}
+            p.fail(
+                fline,
+                "FTYP",
+                f"field type {ftype} ({kinds.get(ftype, 'unknown')}); only angle "
+                "fields (type 0), paraxial image heights (type 2) and, for a finite object, object "
+                "heights (type 1) are supported",
+            )
         p.notes.append(f"field type {ftype} with only the on-axis field: read as angle 0")
     for y in ys:
         if y < 0:
@@ -644,8 +779,7 @@ def _waves(p: _Parser, end: int) -> dict:
     slots = list(range(1, n + 1))
     missing = [i for i in slots if i not in p.wavm]
     if n < 1 or missing:
-        p.fail(end, "WAVM", f"{n} wavelength(s) declared but slot(s) {missing or [1]} not given "
-               "(truncated file?)")
+        p.fail(end, "WAVM", f"{n} wavelength(s) declared but slot(s) {missing or [1]} not given (truncated file?)")
     for i in sorted(p.wavm):
         if i > n:
             p.ignored.append((p.wavm[i][2], "WAVM", f"inactive wavelength slot (FTYP declares {n})"))
@@ -678,12 +812,14 @@ def _indices(p: _Parser, out: dict, line: int, key: str, what: str) -> list[floa
     """Refractive indices of the media (object space first) at the primary wavelength."""
     from ... import engine
 
-    return list(_engine_on(p, out, line, key, what, engine.refractive_indices,
-                           wavelength_nm=out["primary_wavelength_nm"]))
+    return list(
+        _engine_on(p, out, line, key, what, engine.refractive_indices, wavelength_nm=out["primary_wavelength_nm"])
+    )
 
 
-def _marginal_heights(surfaces: list[dict], n: list[float],
-                      start: tuple[float, float] = (0.5, 0.0)) -> list[tuple[float, float]]:
+def _marginal_heights(
+    surfaces: list[dict], n: list[float], start: tuple[float, float] = (0.5, 0.0)
+) -> list[tuple[float, float]]:
     """(y, n u) at each surface of a paraxial ray entering at the first vertex with `start`
     = (y, n u): by default the marginal ray of a unit EPD from an object at infinity (it
     enters parallel at height 1/2 wherever the pupil lies); the paraxial curvature of an
@@ -711,12 +847,15 @@ def _resolve_floa(p: _Parser, out: dict, line: int):
     n = _indices(p, out, line, "FLOA", "size the pupil")
     unit = abs(_marginal_heights(surfaces, n)[i_stop][0])
     if not unit > 1e-12:
-        p.fail(line, "FLOA", f"cannot size the pupil: the stop (surface {i_stop + 1}) is at a paraxial "
-               "image of the object")
+        p.fail(
+            line, "FLOA", f"cannot size the pupil: the stop (surface {i_stop + 1}) is at a paraxial image of the object"
+        )
     epd = stop["semi_diameter"] / unit
     out["aperture"] = {"type": "epd", "value": epd}
-    out["description"] += (f"; aperture FLOA (float by stop size): stop semi-diameter "
-                           f"{stop['semi_diameter']:.10g} mm -> paraxial EPD {epd:.10g} mm")
+    out["description"] += (
+        f"; aperture FLOA (float by stop size): stop semi-diameter "
+        f"{stop['semi_diameter']:.10g} mm -> paraxial EPD {epd:.10g} mm"
+    )
     p.notes.append(f"FLOA resolved to EPD {epd:.10g} mm")
 
 
@@ -732,16 +871,19 @@ def _object_heights_to_angles(p: _Parser, out: dict, scale: float, line: int, he
     _height_fields(p, out, line, heights, scale, L, "object-height", f"object to entrance pupil {L:.10g} mm")
 
 
-def _height_fields(p: _Parser, out: dict, line: int, heights: list[float], scale: float, per_tan: float,
-                   what: str, detail: str):
+def _height_fields(
+    p: _Parser, out: dict, line: int, heights: list[float], scale: float, per_tan: float, what: str, detail: str
+):
     """Fields given as heights h (lens units) that are ``per_tan`` mm per unit tan(angle):
     the angles atan(h / per_tan), with a note."""
     angles = [math.degrees(math.atan(h * scale / per_tan)) for h in heights]
     if any(a >= 89.9 for a in angles):
         p.fail(line, "YFLN", f"{what} {max(heights):g} is beyond 89.9 deg of field")
     out["fields_deg"] = angles
-    p.notes.append(f"line {line}: {what} fields {', '.join(f'{h:g}' for h in heights)} -> field angles "
-                   f"{', '.join(f'{a:.10g}' for a in angles)} deg ({detail})")
+    p.notes.append(
+        f"line {line}: {what} fields {', '.join(f'{h:g}' for h in heights)} -> field angles "
+        f"{', '.join(f'{a:.10g}' for a in angles)} deg ({detail})"
+    )
 
 
 def _image_heights_to_angles(p: _Parser, out: dict, scale: float, line: int, heights: list[float]):
@@ -757,8 +899,16 @@ def _image_heights_to_angles(p: _Parser, out: dict, scale: float, line: int, hei
     k = abs(float(par["paraxial_image_height_mm"])) / math.tan(math.radians(probe_deg))
     if not (math.isfinite(k) and k > 1e-12):
         p.fail(line, "YFLN", "image-height fields of a system that forms no finite image (afocal)")
-    _height_fields(p, out, line, heights, scale, k, "paraxial image-height",
-                   f"paraxial image height {k:.10g} mm per unit tan(angle)")
+    _height_fields(
+        p,
+        out,
+        line,
+        heights,
+        scale,
+        k,
+        "paraxial image-height",
+        f"paraxial image height {k:.10g} mm per unit tan(angle)",
+    )
 
 
 def _image_at_infinity(p: _Parser, last: dict, out: dict):
@@ -771,15 +921,18 @@ def _image_at_infinity(p: _Parser, last: dict, out: dict):
     # the axial marginal ray: parallel from infinity, or (y, u) = (d, 1) from a finite object
     y, nu = _marginal_heights(out["surfaces"], n, start=(0.5, 0.0) if d is None else (d, n[0]))[-1]
     if abs(nu) < 1e-15:
-        p.notes.append(f"line {line}: {p.where(last)}: image at infinity of "
-                       + ("an afocal system" if d is None else "an object in the front focal plane")
-                       + ": the image plane is the last surface")
+        p.notes.append(
+            f"line {line}: {p.where(last)}: image at infinity of "
+            + ("an afocal system" if d is None else "an object in the front focal plane")
+            + ": the image plane is the last surface"
+        )
         return
     dist = -y / (nu / n[-1])
     out["surfaces"][-1]["thickness"] = dist
-    p.notes.append(f"line {line}: {p.where(last)}: image at infinity (DISZ INFINITY): the image plane "
-                   f"is put at the paraxial " + ("focus, BFL" if d is None else "image of the object,")
-                   + f" {dist:.10g} mm")
+    p.notes.append(
+        f"line {line}: {p.where(last)}: image at infinity (DISZ INFINITY): the image plane "
+        f"is put at the paraxial " + ("focus, BFL" if d is None else "image of the object,") + f" {dist:.10g} mm"
+    )
 
 
 def _drop_crossing_diams(p: _Parser, body: list[dict], surfaces: list[dict]):
@@ -801,9 +954,11 @@ def _drop_crossing_diams(p: _Parser, body: list[dict], surfaces: list[dict]):
             continue
         for s, surf in ((body[i], a), (body[i + 1], b)):
             if "clap" not in s and "flap" not in s:
-                p.notes.append(f"{p.where(s)}: DIAM {surf.pop('semi_diameter'):g} dropped: surfaces "
-                               f"{i + 1} and {i + 2} would cross inside their DIAMs (a DIAM does not clip "
-                               "in OpticStudio)")
+                p.notes.append(
+                    f"{p.where(s)}: DIAM {surf.pop('semi_diameter'):g} dropped: surfaces "
+                    f"{i + 1} and {i + 2} would cross inside their DIAMs (a DIAM does not clip "
+                    "in OpticStudio)"
+                )
 
 
 def _note_extrapolated_glass(p: _Parser, body: list[dict], out: dict):

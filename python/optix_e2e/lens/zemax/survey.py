@@ -34,35 +34,41 @@ EFL_TOLERANCE = 0.01
 
 _NUM = r"(-?\d+(?:\.\d+)?)"
 #: Nominal focal length in catalog NAME/NOTE text, most specific first.
-_FL_PATTERNS = [re.compile(p, re.IGNORECASE) for p in (
-    rf"\b(?:f|efl)\s*=\s*{_NUM}",                  # f = 35mm, efl=10.0mm, f=11.00mm
-    rf"\bEFL\s+{_NUM}",                            # EFL 2.01
-    rf"{_NUM}\s*(?:mm)?\s*FL\b",                   # 22.5mm FL, -100mm FL, 18.4FL
-    rf"\bX\s*{_NUM}\s*(?:mm\s*)?FL\b",             # 12.5 DIA X 25 FL, 25.4 SQ X -50 FL
-    # Edmund stock names: LENS ACH 25 X 200, LENS PCX GE 25 X 40, LENS PCX ZNSE 25.4 X 50.8MM
-    rf"\bLENS\s+(?:[A-Z0-9-]+\s+){{1,3}}[\d.]+\s*(?:MM)?\s*X\s*{_NUM}(?![\d.])",
-    rf"\bInfinite(?:\s+Conjugate)?\s+{_NUM}(?![\d.])",    # Thorlabs achromats: Infinite Conjugate 200
-)]
+_FL_PATTERNS = [
+    re.compile(p, re.IGNORECASE)
+    for p in (
+        rf"\b(?:f|efl)\s*=\s*{_NUM}",  # f = 35mm, efl=10.0mm, f=11.00mm
+        rf"\bEFL\s+{_NUM}",  # EFL 2.01
+        rf"{_NUM}\s*(?:mm)?\s*FL\b",  # 22.5mm FL, -100mm FL, 18.4FL
+        rf"\bX\s*{_NUM}\s*(?:mm\s*)?FL\b",  # 12.5 DIA X 25 FL, 25.4 SQ X -50 FL
+        # Edmund stock names: LENS ACH 25 X 200, LENS PCX GE 25 X 40, LENS PCX ZNSE 25.4 X 50.8MM
+        rf"\bLENS\s+(?:[A-Z0-9-]+\s+){{1,3}}[\d.]+\s*(?:MM)?\s*X\s*{_NUM}(?![\d.])",
+        rf"\bInfinite(?:\s+Conjugate)?\s+{_NUM}(?![\d.])",  # Thorlabs achromats: Infinite Conjugate 200
+    )
+]
 _PART_FL = re.compile(r"^ACA?\d{3}-(\d{3})\b")  # Thorlabs achromats: AC254-200-B -> 200 mm
 
 
 @dataclass
 class FileResult:
     file: str
-    target: bool          # rotationally symmetric refractive (see module doc)
-    features: str         # what puts it outside the target set ("" inside)
+    target: bool  # rotationally symmetric refractive (see module doc)
+    features: str  # what puts it outside the target set ("" inside)
     imported: bool
     traced: bool
     efl_mm: float | None
     nominal_mm: float | None
-    efl_ok: bool | None   # |EFL / nominal - 1| <= 1 %; None without a nominal value
-    error: str            # one line: the reader's or the trace's error
+    efl_ok: bool | None  # |EFL / nominal - 1| <= 1 %; None without a nominal value
+    error: str  # one line: the reader's or the trace's error
 
 
 def nominal_focal_length(text: str) -> float | None:
     """The focal length a catalog file's NAME or NOTE lines state, or None."""
-    lines = [ln.split(None, 1)[1] for ln in text.splitlines()
-             if ln.startswith(("NAME ", "NOTE ")) and len(ln.split(None, 1)) > 1]
+    lines = [
+        ln.split(None, 1)[1]
+        for ln in text.splitlines()
+        if ln.startswith(("NAME ", "NOTE ")) and len(ln.split(None, 1)) > 1
+    ]
     for pat in _FL_PATTERNS:
         for ln in lines:
             m = pat.search(ln)
@@ -181,8 +187,9 @@ def survey(folder: Path) -> tuple[dict, list[FileResult]]:
         return round(n / d, 4) if d else None
 
     refused_target = Counter(reason(r.error) for r in target if not r.traced)
-    refused_other = Counter(reason(r.error) if not r.imported else "imported anyway: " + r.features
-                            for r in results if not r.target)
+    refused_other = Counter(
+        reason(r.error) if not r.imported else "imported anyway: " + r.features for r in results if not r.target
+    )
     summary = {
         "folder": str(folder),
         "files": len(results),
@@ -194,8 +201,9 @@ def survey(folder: Path) -> tuple[dict, list[FileResult]]:
         "target_with_nominal_efl": len(with_nominal),
         "target_efl_within_1pct": sum(bool(r.efl_ok) for r in with_nominal),
         "target_rate": rate(len(good), len(target)),
-        "efl_mismatches": [f"{r.file}: EFL {r.efl_mm:.4g} vs nominal {r.nominal_mm:g}"
-                           for r in with_nominal if not r.efl_ok],
+        "efl_mismatches": [
+            f"{r.file}: EFL {r.efl_mm:.4g} vs nominal {r.nominal_mm:g}" for r in with_nominal if not r.efl_ok
+        ],
         "target_refused_reasons": refused_target.most_common(20),
         "other_refused_reasons": refused_other.most_common(20),
     }

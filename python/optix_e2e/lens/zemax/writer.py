@@ -29,11 +29,22 @@ def zmx_text(data: dict, source: str = "<lens>", footprint: "list[float] | None"
     def fail(where, msg):
         raise ZemaxError(f"{source}: {where}: {msg}")
 
-    lines = ["VERS 190513 80 123457 L123457", "MODE SEQ", f"NAME {data.get('name', 'lens')}",
-             "PFIL 0 0 0", "LANG 0", "UNIT MM X W X CM MR CPMM"]
+    lines = [
+        "VERS 190513 80 123457 L123457",
+        "MODE SEQ",
+        f"NAME {data.get('name', 'lens')}",
+        "PFIL 0 0 0",
+        "LANG 0",
+        "UNIT MM X W X CM MR CPMM",
+    ]
     ap = data["aperture"]
-    lines.append({"epd": f"ENPD {_f(ap['value'])}", "fno": f"FNUM {_f(ap['value'])} 0",
-                  "object_na": f"OBNA {_f(ap['value'])} 0"}[ap["type"]])
+    lines.append(
+        {
+            "epd": f"ENPD {_f(ap['value'])}",
+            "fno": f"FNUM {_f(ap['value'])} 0",
+            "object_na": f"OBNA {_f(ap['value'])} 0",
+        }[ap["type"]]
+    )
     lines += ["ENVD 2.0E+1 1 0", "GFAC 0 0"]
     glas, gcat = [], []
     for i, s in enumerate(data["surfaces"]):
@@ -50,9 +61,13 @@ def zmx_text(data: dict, source: str = "<lens>", footprint: "list[float] | None"
     primary = float(data.get("primary_wavelength_nm", wls[len(wls) // 2]))
     if primary not in wls:
         fail("primary_wavelength_nm", f"{primary} is not one of wavelengths_nm (Zemax's PWAV is an index)")
-    lines += ["RAIM 0 0 1 1 0 0 0 0 0", f"FTYP 0 0 {len(fields)} {len(wls)} 0 0 0",
-              "XFLN " + " ".join("0" for _ in fields), "YFLN " + " ".join(_f(f) for f in fields),
-              "FWGN " + " ".join("1" for _ in fields)]
+    lines += [
+        "RAIM 0 0 1 1 0 0 0 0 0",
+        f"FTYP 0 0 {len(fields)} {len(wls)} 0 0 0",
+        "XFLN " + " ".join("0" for _ in fields),
+        "YFLN " + " ".join(_f(f) for f in fields),
+        "FWGN " + " ".join("1" for _ in fields),
+    ]
     lines += [f"WAVM {i} {_f(_to_um(w))} {_f(k)}" for i, (w, k) in enumerate(zip(wls, weights), 1)]
     lines.append(f"PWAV {wls.index(primary) + 1}")
     dist = data.get("object_distance")
@@ -61,8 +76,13 @@ def zmx_text(data: dict, source: str = "<lens>", footprint: "list[float] | None"
     auto = [0.0] * (n_surf + 1) if footprint is None else [float(h) for h in footprint]
     if len(auto) != n_surf + 1:
         fail("footprint", f"{len(auto)} heights for {n_surf} surfaces and the image")
-    lines += ["SURF 0", "  TYPE STANDARD", "  CURV 0.0", f"  DISZ {_f(dist) if finite else 'INFINITY'}",
-              '  DIAM 0 0 0 0 1 ""']
+    lines += [
+        "SURF 0",
+        "  TYPE STANDARD",
+        "  CURV 0.0",
+        f"  DISZ {_f(dist) if finite else 'INFINITY'}",
+        '  DIAM 0 0 0 0 1 ""',
+    ]
     for i, s in enumerate(data["surfaces"]):
         where = f"surface {i + 1} (surfaces[{i}])"
         lines.append(f"SURF {i + 1}")
@@ -75,8 +95,11 @@ def zmx_text(data: dict, source: str = "<lens>", footprint: "list[float] | None"
         top = N_ODDASPHE if odd else 2 * N_EVENASPH
         high = [k for k in asph if int(k[1:]) > top]
         if high:
-            fail(f"{where} aspheric", f"{', '.join(high)}: Zemax " + (
-                f"ODDASPHE (needed for the odd terms) stops at a{N_ODDASPHE}" if odd else "EVENASPH stops at a16"))
+            fail(
+                f"{where} aspheric",
+                f"{', '.join(high)}: Zemax "
+                + (f"ODDASPHE (needed for the odd terms) stops at a{N_ODDASPHE}" if odd else "EVENASPH stops at a16"),
+            )
         lines.append(f"  TYPE {'ODDASPHE' if odd else 'EVENASPH' if asph else 'STANDARD'}")
         lines.append(f"  CURV {_f(_surface_curv(s))}")
         lines.append(f"  DISZ {_f(s['thickness'])}")
@@ -94,8 +117,12 @@ def zmx_text(data: dict, source: str = "<lens>", footprint: "list[float] | None"
             lines.append(f"  PARM {int(k[1:]) if odd else int(k[1:]) // 2} {_f(asph[k])}")
     image = data.get("image") or {}
     img_curv = _surface_curv({"radius": image.get("radius")})  # a curved sensor, or 0
-    lines += [f"SURF {len(data['surfaces']) + 1}", "  TYPE STANDARD", f"  CURV {_f(img_curv) if img_curv else '0.0'}",
-              "  DISZ 0.0"]
+    lines += [
+        f"SURF {len(data['surfaces']) + 1}",
+        "  TYPE STANDARD",
+        f"  CURV {_f(img_curv) if img_curv else '0.0'}",
+        "  DISZ 0.0",
+    ]
     isd = image.get("semi_diameter")
     if isd:
         lines += [f'  DIAM {_f(isd)} 1 0 0 1 ""', f"  CLAP 0 {_f(isd)} 0"]
@@ -127,12 +154,21 @@ def _glas_line(m, where: str, fail) -> "tuple[str, str | None] | None":
         return f"___BLANK 1 0 {_f(m['nd'])} {_f(m['vd'])} 0 0 0 0 0 0", None
     if isinstance(m, dict) and "n" in m:  # Vd = 0: no dispersion
         return f"___BLANK 1 0 {_f(m['n'])} 0 0 0 0 0 0 0", None
-    fail(where, "a formula or tabulated material has no Zemax equivalent; use a catalog "
-         "glass name or a model glass {\"nd\", \"vd\"}")
+    fail(
+        where,
+        "a formula or tabulated material has no Zemax equivalent; use a catalog "
+        'glass name or a model glass {"nd", "vd"}',
+    )
 
 
-def write_zmx(data: dict, path: "str | Path", *, encoding: str = "utf-8", source: str = "<lens>",
-              footprint: "list[float] | None" = None) -> Path:
+def write_zmx(
+    data: dict,
+    path: "str | Path",
+    *,
+    encoding: str = "utf-8",
+    source: str = "<lens>",
+    footprint: "list[float] | None" = None,
+) -> Path:
     """Write ``data`` as a .zmx file; ``encoding="utf-16"`` gives OpticStudio's own
     encoding (UTF-16 LE with a BOM)."""
     if encoding.lower().replace("_", "-") not in ("utf-8", "utf-16"):
