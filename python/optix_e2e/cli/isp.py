@@ -115,12 +115,20 @@ def _report(summary: dict, as_json: bool, out_dir: Path, name: str) -> None:
     click.echo(f"wrote {out_dir / name}, {out_dir / 'train.json'}, TensorBoard logs in {out_dir / 'tb'}")
 
 
-def _emit(res: dict, out_dir: Path | None, name: str, as_json: bool) -> bool:
-    """Write OUT/name if asked; print the JSON if asked. True when the JSON was printed."""
+def _claim(out_dir: Path | None, name: str) -> None:
+    """Refuse an --out that holds files other than ``name`` before any work is done."""
     if out_dir is not None:
-        from ..io import claim_out_dir, write_text_atomic
+        from ..io import claim_out_dir
 
         claim_out_dir(out_dir, f"ISP {name}", {name})
+
+
+def _emit(res: dict, out_dir: Path | None, name: str, as_json: bool) -> bool:
+    """Write OUT/name if asked (claimed by :func:`_claim` first); print the JSON if asked.
+    True when the JSON was printed."""
+    if out_dir is not None:
+        from ..io import write_text_atomic
+
         out_dir.mkdir(parents=True, exist_ok=True)
         write_text_atomic(out_dir / name, dumps(res, indent=2))
     if as_json:
@@ -259,6 +267,7 @@ def eval_cmd(proxy, size, param_sets, photos, out_dir, as_json):
     from ..isp.evaluate import evaluate_proxy
     from ..isp.proxy import BUNDLED, ISPProxy
 
+    _claim(out_dir, "eval.json")
     model = ISPProxy.load(proxy)
     res = evaluate_proxy(model, size=size, n_param_sets=param_sets, photos=list(photos) or None)
     res["proxy"] = str(proxy or BUNDLED)
@@ -307,6 +316,7 @@ def tune_cmd(proxy, steps, n_scenes, perceptual_weight, size, seed, out_dir, as_
     from ..isp.proxy import ISPProxy
     from ..isp.tune import true_isp_quality, tune_params
 
+    _claim(out_dir, "tune.json")
     model = ISPProxy.load(proxy)
     tuned, history = tune_params(model, steps=steps, n_scenes=n_scenes, perceptual_weight=perceptual_weight, seed=seed)
     before, after = true_isp_quality(hp.defaults(), size=size), true_isp_quality(tuned, size=size)

@@ -6,6 +6,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from ... import engine
 from ..text import display_name
 from .. import glass as _glass
 from .common import (
@@ -799,7 +800,6 @@ def _engine_on(p: _Parser, out: dict, line: int, key: str, what: str, fn, **kwar
     error one ZemaxError naming the line and keyword that needed it."""
     import json
 
-    from ... import engine
     from ..prescription import PrescriptionError, resolve_prescription
 
     try:
@@ -810,8 +810,6 @@ def _engine_on(p: _Parser, out: dict, line: int, key: str, what: str, fn, **kwar
 
 def _indices(p: _Parser, out: dict, line: int, key: str, what: str) -> list[float]:
     """Refractive indices of the media (object space first) at the primary wavelength."""
-    from ... import engine
-
     return list(
         _engine_on(p, out, line, key, what, engine.refractive_indices, wavelength_nm=out["primary_wavelength_nm"])
     )
@@ -864,8 +862,6 @@ def _object_heights_to_angles(p: _Parser, out: dict, scale: float, line: int, he
     object point at height h is the one whose chief ray leaves at atan(h / L) towards the
     paraxial entrance pupil's centre, L = object plane to entrance pupil (as OpticStudio
     defines angle fields for a finite object), so each field is the same object point."""
-    from ... import engine
-
     par = _engine_on(p, out, line, "YFLN", "place the object-height fields", engine.paraxial)
     L = abs(float(par["object_to_pupil_mm"]))
     _height_fields(p, out, line, heights, scale, L, "object-height", f"object to entrance pupil {L:.10g} mm")
@@ -893,8 +889,6 @@ def _image_heights_to_angles(p: _Parser, out: dict, scale: float, line: int, hei
     angle gives the slope (taken at the paraxial image, wherever the image plane is)."""
     probe_deg = 10.0
     out["fields_deg"] = [probe_deg]
-    from ... import engine
-
     par = _engine_on(p, out, line, "YFLN", "place the image-height fields", engine.paraxial)
     k = abs(float(par["paraxial_image_height_mm"])) / math.tan(math.radians(probe_deg))
     if not (math.isfinite(k) and k > 1e-12):
