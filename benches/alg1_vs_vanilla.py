@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from optix_e2e.optimize.evaluate import METRICS, paired
+from optix_e2e.camera_design.evaluate import METRICS, paired
 
 
 def share_nominal(src: Path, dst: Path) -> None:
@@ -57,7 +57,7 @@ def run_config(user_toml: str | None, init: str) -> str:
     another is refused rather than silently mislabelled)."""
     import tomli_w
 
-    from optix_e2e.optimize.config import read_config_file
+    from optix_e2e.camera_design.config import read_config_file
 
     data = read_config_file(Path(user_toml)) if user_toml else {}
     if data.setdefault("optics_init", init) != init:

@@ -24,7 +24,7 @@ from dataclasses import asdict
 
 from optix_e2e.dataset import DatasetSettings, generate
 from optix_e2e.dataset.manifest import prepare
-from optix_e2e.design.space import load_space
+from optix_e2e.lens_design.space import load_space
 
 
 def engine_only(root: str) -> float:

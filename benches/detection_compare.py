@@ -14,8 +14,8 @@ import argparse
 import json
 from pathlib import Path
 
-from optix_e2e.optimize.config import DesignConfig
-from optix_e2e.optimize.detection_run import _preds_from_json, detection_scores, paired_map
+from optix_e2e.camera_design.config import DesignConfig
+from optix_e2e.camera_design.detection import _preds_from_json, detection_scores, paired_map
 from optix_e2e.tasks import SensorFrame, get_task
 from optix_e2e.tasks.detection import heldout_streets
 

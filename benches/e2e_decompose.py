@@ -28,8 +28,8 @@ from pathlib import Path
 import torch
 
 from optix_e2e.camera import Camera
-from optix_e2e.optimize.config import DesignConfig
-from optix_e2e.optimize.run import build_camera, load_surrogate
+from optix_e2e.camera_design.config import DesignConfig
+from optix_e2e.camera_design.build import build_camera, load_surrogate
 from optix_e2e.tasks import SensorFrame, TaskLoss, get_task, training_batch
 from optix_e2e.torchfile import load_plain
 
@@ -95,11 +95,11 @@ def main() -> None:
 def heldout_swap(run: Path, cfg: DesignConfig, sur, frame, nom, e2e, json_out) -> None:
     """Lens x processing on the held-out set under exact optics (see the module doc)."""
     from optix_e2e.camera import FixedOptics
-    from optix_e2e.optimize import evaluate as ev
-    from optix_e2e.optimize.run import design_field_heights
-    from optix_e2e.surrogate.exact import exact_optics
+    from optix_e2e.camera_design import evaluate as ev
+    from optix_e2e.camera_design.build import design_field_heights
+    from optix_e2e.surrogate.ground_truth import exact_optics
     from optix_e2e.tasks import heldout_set
-    from optix_e2e.tasks.scenes import POSITIONS
+    from optix_e2e.tasks.samples import POSITIONS
 
     values = torch.stack([nom.optics.base_values(), e2e.optics.values().detach()])
     exact = exact_optics(sur, values.double().numpy())

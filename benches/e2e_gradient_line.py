@@ -20,9 +20,9 @@ from pathlib import Path
 import torch
 
 from optix_e2e.camera import Camera, FixedOptics
-from optix_e2e.optimize.config import make_config
-from optix_e2e.optimize.run import build_camera, design_field_heights, load_surrogate
-from optix_e2e.surrogate.exact import exact_optics
+from optix_e2e.camera_design.config import make_config
+from optix_e2e.camera_design.build import build_camera, design_field_heights, load_surrogate
+from optix_e2e.surrogate.ground_truth import exact_optics
 from optix_e2e.tasks import SensorFrame, TaskLoss, get_task, training_batch
 
 

@@ -43,10 +43,10 @@ from optix_e2e import color
 from optix_e2e.metrics.image import psnr, ssim
 from optix_e2e.sensor import get_preset
 from optix_e2e.sensor.emva import expected_electrons, raw_from_electrons, simulate_raw
-from optix_e2e.optimize.run import SOFTWARE_ISP, base_lens_f_number, design_field_heights, load_surrogate
-from optix_e2e.surrogate.exact import exact_optics
+from optix_e2e.camera_design.build import SOFTWARE_ISP, base_lens_f_number, design_field_heights, load_surrogate
+from optix_e2e.surrogate.ground_truth import exact_optics
 from optix_e2e.tasks import SensorFrame, heldout_set
-from optix_e2e.tasks.scenes import POSITIONS
+from optix_e2e.tasks.samples import POSITIONS
 
 
 class _Classical(torch.nn.Module):

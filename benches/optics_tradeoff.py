@@ -50,14 +50,15 @@ EVAL_PATCH = 32
 
 def run_point(name: str, seed: int, overrides: dict, a, log) -> dict:
     from optix_e2e.camera import Camera, FixedOptics, calibrated_preset
-    from optix_e2e.optimize import evaluate as ev
-    from optix_e2e.optimize.config import make_config
-    from optix_e2e.optimize.hybrid import OpticsMonitor, exact_gradient_steps
-    from optix_e2e.optimize.run import build_camera, design_field_heights, load_surrogate, make_optimizer, train
-    from optix_e2e.surrogate.exact import exact_optics
+    from optix_e2e.camera_design import evaluate as ev
+    from optix_e2e.camera_design.config import make_config
+    from optix_e2e.camera_design.hybrid import OpticsMonitor, exact_gradient_steps
+    from optix_e2e.camera_design.build import build_camera, design_field_heights, load_surrogate, make_optimizer
+    from optix_e2e.camera_design.training import train
+    from optix_e2e.surrogate.ground_truth import exact_optics
     from optix_e2e.surrogate.refine import RefineSettings
     from optix_e2e.tasks import SensorFrame, heldout_set
-    from optix_e2e.tasks.scenes import POSITIONS
+    from optix_e2e.tasks.samples import POSITIONS
 
     out = Path(a.out) / (name if seed == 0 else f"{name}-s{seed}")
     out.mkdir(parents=True, exist_ok=True)
@@ -135,7 +136,7 @@ def run_point(name: str, seed: int, overrides: dict, a, log) -> dict:
 
 
 def main() -> None:
-    from optix_e2e.optimize import evaluate as ev
+    from optix_e2e.camera_design import evaluate as ev
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True)
@@ -273,7 +274,7 @@ def main() -> None:
     chart(out / "tradeoff.png", table)
     print(f"wrote {out / 'tradeoff.csv'}, {out / 'tradeoff.json'}, {out / 'tradeoff.png'}")
     if a.bundle:
-        from optix_e2e.optimize.hybrid import tradeoff_path
+        from optix_e2e.camera_design.hybrid import tradeoff_path
 
         dest = Path(__file__).resolve().parent.parent / "python" / "optix_e2e" / "bundled" / tradeoff_path().name
         shutil.copyfile(out / "tradeoff.csv", dest)

@@ -37,9 +37,9 @@ from pathlib import Path
 import numpy as np
 
 from optix_e2e.lens import Lens
-from optix_e2e.design.global_search import global_search
-from optix_e2e.design.optimizer import Constraints, LensProblem, Merit, polish
-from optix_e2e.design.space import ParameterSpace
+from optix_e2e.lens_design.global_search import global_search
+from optix_e2e.lens_design.optimizer import Constraints, LensProblem, Merit, polish
+from optix_e2e.lens_design.space import ParameterSpace
 
 SPH = (
     "s_1_radius,s_2_radius,s_6_radius,s_7_radius,s_1_thickness,s_2_thickness,s_4_thickness,"

@@ -31,15 +31,15 @@ from tqdm import tqdm
 def main() -> None:
     from optix_e2e.camera import Camera, FixedOptics, SensorStage, SoftwareISPStage, calibrated_preset
     from optix_e2e.camera.stages import image_height_fractions
-    from optix_e2e.optimize.outputs import design_lens
+    from optix_e2e.camera_design.outputs import design_lens
     from optix_e2e.dataset.layout import read_manifest
     from optix_e2e.dataset.manifest import space_and_base
     from optix_e2e.isp import params as hp
     from optix_e2e.isp.reference import ReferenceISP
     from optix_e2e.isp.software import SoftwareISP
     from optix_e2e.metrics.lpips import LPIPS
-    from optix_e2e.optimize.run import SOFTWARE_ISP
-    from optix_e2e.surrogate.exact import exact_arrays
+    from optix_e2e.camera_design.build import SOFTWARE_ISP
+    from optix_e2e.surrogate.ground_truth import exact_arrays
     from optix_e2e.tasks import SensorFrame, get_task, heldout_set, task_loss
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

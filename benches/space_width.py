@@ -5,7 +5,7 @@ designs for the bundled space and for copies of it scaled about the nominal.
     python benches/space_width.py [--space paper-triplet] [--scales 4 2 1 0.4] [-n 40]
 
 For each scale: sample n designs (scrambled Sobol', seed 0, the space's manufacturability
-limits), refocus each to its best focus over 7 fields (optix_e2e.design.focus, as the dataset
+limits), refocus each to its best focus over 7 fields (optix_e2e.lens_design.focus, as the dataset
 generator does over its 13), and take the largest polychromatic RMS spot over the lens's
 fields (engine hexapolar spot, 12 rings).  Prints one JSON line per scale: median, 90th
 percentile, the fraction under 25 and 40 um, the acceptance rate.  It measures; it asserts
@@ -21,9 +21,9 @@ import numpy as np
 
 from optix_e2e import _engine
 from optix_e2e.lens.apertures import engine_base
-from optix_e2e.design.focus import refocus
-from optix_e2e.design.sampling import Limits, sample_designs
-from optix_e2e.design.space import Parameter, ParameterSpace, load_space
+from optix_e2e.lens_design.focus import refocus
+from optix_e2e.lens_design.sampling import Limits, sample_designs
+from optix_e2e.lens_design.space import Parameter, ParameterSpace, load_space
 
 
 def main() -> None:

@@ -21,7 +21,7 @@ import json
 import sys
 from pathlib import Path
 
-from optix_e2e.design.report import DEFAULT_MTF_FREQS
+from optix_e2e.lens_design.report import DEFAULT_MTF_FREQS
 from optix_e2e.lens.mtf import NYQUIST_5P86_UM
 
 METRICS = [

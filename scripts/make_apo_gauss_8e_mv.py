@@ -22,7 +22,7 @@ import math
 import numpy as np
 
 from optix_e2e import _engine
-from optix_e2e.design.space import ParameterSpace, load_space
+from optix_e2e.lens_design.space import ParameterSpace, load_space
 from optix_e2e.lens import Lens
 from optix_e2e.lens.scale import scale_lens
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 
 from optix_e2e.lens import Lens
-from optix_e2e.design.space import ASPHERE_KINDS, Parameter, ParameterSpace, load_space
+from optix_e2e.lens_design.space import ASPHERE_KINDS, Parameter, ParameterSpace, load_space
 
 
 def rule(p, v: float, lens: dict) -> tuple[float, float] | None:

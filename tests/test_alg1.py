@@ -1,4 +1,4 @@
-"""Algorithm 1 (optix_e2e.optimize.alg1) on a toy composition of three blocks with a known
+"""Algorithm 1 (optix_e2e.camera_design.alg1) on a toy composition of three blocks with a known
 optimum: turns, the proximal term (Eq. 15), fine-tuning, the vanilla baseline."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import pytest
 import torch
 from torch import nn
 
-from optix_e2e.optimize.alg1 import Block, ProximalCompositional, Vanilla
+from optix_e2e.camera_design.alg1 import Block, ProximalCompositional, Vanilla
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

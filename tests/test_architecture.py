@@ -14,6 +14,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "python" / "optix_e2e"
 #: what sits on a lower layer, never a sibling of its own layer nor anything above.
 LAYER = {
     "_engine": 0,
+    "errors": 0,
     "engine": 1,
     "io": 1,
     "color": 1,
@@ -26,14 +27,14 @@ LAYER = {
     "scenes": 2,
     "metrics": 2,
     "isp": 3,
-    "design": 3,
+    "lens_design": 3,
     "accuracy": 4,
     "dataset": 5,
     "surrogate": 6,
     "optics": 7,
     "camera": 8,
     "tasks": 9,
-    "optimize": 10,
+    "camera_design": 10,
     "cli": 11,
     "__main__": 12,
 }
@@ -99,3 +100,71 @@ def test_nothing_imports_the_cli():
 def test_the_extension_is_imported_only_through_the_engine_door():
     importers = {m for m, t, _ in _imports() if "_engine" in t.split(".")}
     assert importers == {"engine"}, f"import the engine through optix_e2e.engine, not _engine: {sorted(importers)}"
+
+
+def test_the_package_raises_its_own_errors():
+    """docs/architecture.md, "Errors": the package raises ``errors.InputError`` / ``RunError`` (or a
+    named subclass), never a bare ValueError/RuntimeError, so the CLI can tell a user's error
+    (one line) from a bug (a traceback)."""
+    bad = []
+    for path in PACKAGE.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Raise) and node.exc is not None:
+                exc = node.exc.func if isinstance(node.exc, ast.Call) else node.exc
+                if isinstance(exc, ast.Name) and exc.id in ("ValueError", "RuntimeError", "Exception"):
+                    bad.append(f"{path.relative_to(PACKAGE)}:{node.lineno} raises {exc.id}")
+            if isinstance(node, ast.ClassDef) and node.name.endswith("Error") and path.name != "errors.py":
+                bases = {b.id for b in node.bases if isinstance(b, ast.Name)}
+                if bases and bases <= {"ValueError", "RuntimeError", "Exception"}:
+                    bad.append(f"{path.relative_to(PACKAGE)}:{node.lineno} {node.name} derives from {sorted(bases)}")
+    assert not bad, "\n".join(sorted(bad))
+
+
+def test_named_errors_share_one_base():
+    from optix_e2e.dataset.layout import DatasetError
+    from optix_e2e.errors import InputError, OptixError, RunError
+    from optix_e2e.lens.glass import GlassError
+    from optix_e2e.lens.prescription import PrescriptionError
+    from optix_e2e.lens.zemax.common import ZemaxError
+    from optix_e2e.metrics.lpips import LPIPSWeightsError
+    from optix_e2e.parallel import TrainingDiverged
+    from optix_e2e.surrogate.checkpoint import SurrogateFileError
+
+    for cls in (DatasetError, GlassError, PrescriptionError, ZemaxError, SurrogateFileError):
+        assert issubclass(cls, InputError) and issubclass(cls, ValueError), cls
+    for cls in (LPIPSWeightsError, TrainingDiverged):
+        assert issubclass(cls, RunError) and issubclass(cls, RuntimeError), cls
+    assert issubclass(InputError, OptixError) and issubclass(RunError, OptixError)
+
+
+def test_cli_prints_package_errors_in_one_line_and_lets_bugs_show():
+    import click
+    import pytest
+    from click.testing import CliRunner
+
+    from optix_e2e.cli._common import friendly_errors
+    from optix_e2e.engine import ArgumentError, EngineError, predicted_psf_seconds
+    from optix_e2e.errors import InputError
+
+    def command(exc):
+        @click.command()
+        @friendly_errors
+        def cmd():
+            raise exc
+
+        return cmd
+
+    for exc, shown in (
+        (InputError("lens.json: surface 3: radius must be finite"), "Error: lens.json: surface 3"),
+        (FileNotFoundError(2, "No such file or directory", "x.zmx"), "Error: [Errno 2] No such file"),
+    ):
+        r = CliRunner().invoke(command(exc), [])
+        assert r.exit_code == 1 and r.output.startswith(shown), r.output
+    # an engine argument the extension refuses is an EngineError (one line), and still a ValueError
+    with pytest.raises(ArgumentError, match="method must be") as info:
+        predicted_psf_seconds(method="nope", pixel_um=1.0, size=64, pupil_samples=64)
+    assert isinstance(info.value, EngineError) and isinstance(info.value, ValueError)
+    # a bug is not dressed as a user error: it propagates with its type
+    for bug in (ValueError("math domain error"), RuntimeError("shape mismatch"), KeyError("k")):
+        r = CliRunner().invoke(command(bug), [])
+        assert r.exit_code == 1 and r.exception is bug and "Error:" not in r.output, r.output

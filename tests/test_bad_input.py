@@ -17,7 +17,7 @@ from click.testing import CliRunner
 
 from optix_e2e.cli import main
 from optix_e2e.io import read_small_text, write_json_atomic
-from optix_e2e.optimize.config import RANGES, DesignConfig, make_config, read_config_file
+from optix_e2e.camera_design.config import RANGES, DesignConfig, make_config, read_config_file
 from optix_e2e.parallel import MAX_THREADS, set_threads
 
 
@@ -411,8 +411,8 @@ def test_every_numeric_command_line_option_is_finite_and_counts_have_a_maximum()
 def test_a_design_state_with_a_step_beyond_its_run_is_damaged(tmp_path):
     import torch
 
-    from optix_e2e.optimize.alg1 import Block, Vanilla
-    from optix_e2e.optimize.run import _load_state, _save_state
+    from optix_e2e.camera_design.alg1 import Block, Vanilla
+    from optix_e2e.camera_design.training import _load_state, _save_state
 
     w = torch.nn.Linear(2, 1)
     opt = Vanilla([Block("isp", list(w.parameters()), 1e-3)], 1e-3, 6)
@@ -460,7 +460,7 @@ def test_damaged_detector_checkpoints_are_named_not_tracebacks(tmp_path):
 
 
 def test_a_damaged_evaluation_cache_is_evaluated_again_not_a_traceback(tmp_path):
-    from optix_e2e.optimize.run import _read_eval_cache
+    from optix_e2e.camera_design.image_quality import read_eval_cache
 
     path = tmp_path / "eval_nominal_exact.json"
     row = {
@@ -473,7 +473,7 @@ def test_a_damaged_evaluation_cache_is_evaluated_again_not_a_traceback(tmp_path)
         "haarpsi": 0.7,
     }
     path.write_text(json.dumps({"key": "k", "rows": [row]}))
-    assert _read_eval_cache(path, "k")["rows"] == [row]
+    assert read_eval_cache(path, "k")["rows"] == [row]
     for rows in (
         [{**row, "psnr_db": "x"}],
         [{k: v for k, v in row.items() if k != "ssim"}],
@@ -481,9 +481,9 @@ def test_a_damaged_evaluation_cache_is_evaluated_again_not_a_traceback(tmp_path)
         [{**row, "image": 1}],
     ):
         path.write_text(json.dumps({"key": "k", "rows": rows}))
-        assert _read_eval_cache(path, "k") is None
+        assert read_eval_cache(path, "k") is None
     path.write_bytes(b"\xff\xfe garbage")
-    assert _read_eval_cache(path, "k") is None
+    assert read_eval_cache(path, "k") is None
 
 
 def test_stop_if_diverged_names_the_step_and_what_left_the_finite_numbers(tmp_path):

@@ -1,4 +1,4 @@
-"""Checkpoints we load never run code, and damaged ones give one clear error (issue 16 items 3, 8)."""
+"""Checkpoints we load never run code, and damaged ones give one clear error."""
 
 from __future__ import annotations
 

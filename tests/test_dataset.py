@@ -96,7 +96,7 @@ def test_layout_shapes_and_physics(reference):
 def test_designs_match_the_sampler_and_psfs_match_the_engine(reference):
     from optix_e2e import _engine
     from optix_e2e.lens.apertures import engine_base
-    from optix_e2e.design.space import load_space
+    from optix_e2e.lens_design.space import load_space
 
     space, base = load_space("paper-triplet")
     x = np.load(reference / "shards" / "00000" / "params.npy")[0]
@@ -214,7 +214,7 @@ def test_engine_failures_are_recorded_not_written(tmp_path):
     list with its reason; the good designs are written."""
     from optix_e2e.dataset.generate import compute_shard, write_shard
     from optix_e2e.dataset.manifest import prepare
-    from optix_e2e.design.space import load_space
+    from optix_e2e.lens_design.space import load_space
 
     (tmp_path / "lens.json").write_text(json.dumps(Lens.load("cooke-f50").data))
     space_file = tmp_path / "space.toml"
@@ -245,7 +245,7 @@ def test_engine_failures_are_recorded_not_written(tmp_path):
     # these designs replace the sampled ones: designs.csv and its checksum must say so
     from optix_e2e.dataset.layout import sha256_file
     from optix_e2e.io import write_json_atomic
-    from optix_e2e.design.sampling import write_designs_csv
+    from optix_e2e.lens_design.sampling import write_designs_csv
 
     write_designs_csv(root / "designs.csv", space.names, designs)
     write_json_atomic(root / "manifest.json", {**man, "designs_csv_sha256": sha256_file(root / "designs.csv")})

@@ -1,4 +1,4 @@
-"""Damaged datasets (issue 16 item 9): a re-run redoes a damaged shard, a damaged manifest
+"""Damaged datasets: a re-run redoes a damaged shard, a damaged manifest
 key or a changed designs.csv gives one clear error in verify and PsfDataset."""
 
 from __future__ import annotations

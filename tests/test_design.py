@@ -1,4 +1,4 @@
-"""The end-to-end pipeline (issue 18): gradients through the camera, the same start for every
+"""The end-to-end pipeline: gradients through the camera, the same start for every
 optimizer, the low-light setting and calibration, the held-out set, the run settings."""
 
 from __future__ import annotations
@@ -14,10 +14,10 @@ from optix_e2e.camera import Camera, SensorStage, SoftwareISPStage, calibrated_p
 from optix_e2e.isp.software import SoftwareISP
 from optix_e2e.lens import Lens
 from optix_e2e.optics import DifferentiableOptics
-from optix_e2e.optimize.config import make_config
-from optix_e2e.optimize.run import build_camera, load_surrogate, make_optimizer
+from optix_e2e.camera_design.config import make_config
+from optix_e2e.camera_design.build import build_camera, load_surrogate, make_optimizer
 from optix_e2e.tasks import SensorFrame, get_task, heldout_set, task_loss, training_batch
-from optix_e2e.tasks.scenes import POSITIONS
+from optix_e2e.tasks.samples import POSITIONS
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -156,8 +156,9 @@ def test_config_files_and_run_directories_are_checked(tmp_path):
     with pytest.raises(ValueError, match="not a regular file"):  # a folder (a pipe, a device: tests/test_bad_input.py)
         make_config("quick", tmp_path)
     # a damaged run directory (config.json not UTF-8) and a damaged checkpoint: one error naming it
-    from optix_e2e.optimize.config import check_run_dir
-    from optix_e2e.optimize.run import _load_state, build_camera, make_optimizer
+    from optix_e2e.camera_design.config import check_run_dir
+    from optix_e2e.camera_design.training import _load_state
+    from optix_e2e.camera_design.build import build_camera, make_optimizer
     from optix_e2e.io import save_atomic
 
     run = tmp_path / "run"
@@ -214,7 +215,7 @@ def test_evaluation_noise_is_common_to_both_cameras_and_has_the_sensor_statistic
 
 
 def test_paired_differences_and_their_bootstrap_interval():
-    from optix_e2e.optimize.evaluate import paired, summarize
+    from optix_e2e.camera_design.evaluate import paired, summarize
 
     rows_a, rows_b = [], []
     for i in range(20):
@@ -251,9 +252,9 @@ def test_the_shipped_software_isp_is_pretrained():
     from optix_e2e.isp.classical import ClassicalISP
     from optix_e2e.metrics.image import psnr
     from optix_e2e.optics.render import render
-    from optix_e2e.optimize.run import SOFTWARE_ISP, nominal_field_heights
+    from optix_e2e.camera_design.build import SOFTWARE_ISP, nominal_field_heights
     from optix_e2e.sensor import simulate_raw
-    from optix_e2e.tasks.scenes import HELDOUT_SEED0, SensorFrame, heldout_set
+    from optix_e2e.tasks.samples import HELDOUT_SEED0, SensorFrame, heldout_set
 
     sur = load_surrogate("paper-triplet-e2e")
     psf, vig = sur.psfs(DifferentiableOptics(sur).base_values(), check=False)
@@ -302,7 +303,7 @@ def test_the_shipped_software_isp_is_pretrained():
 
 
 def test_a_step_that_breaks_a_manufacturing_limit_is_cut_back_to_the_boundary():
-    from optix_e2e.optimize.run import Manufacturable, keep_manufacturable
+    from optix_e2e.camera_design.guard import Manufacturable, keep_manufacturable
 
     sur = load_surrogate("paper-triplet-v1")
     optics = DifferentiableOptics(sur)
@@ -351,7 +352,7 @@ def test_fields_are_rendered_where_their_chief_rays_land():
 def test_a_step_across_an_active_limit_slides_along_it():
     # from a point on the edge-thickness limit, a step leaning across it keeps its tangential
     # part (projection), where cutting back along the step would stop almost at once
-    from optix_e2e.optimize.run import Manufacturable, keep_manufacturable
+    from optix_e2e.camera_design.guard import Manufacturable, keep_manufacturable
 
     sur = load_surrogate("paper-triplet-v1")
     optics = DifferentiableOptics(sur)
@@ -383,7 +384,7 @@ def test_a_step_to_an_untraceable_lens_is_cut_back_not_fatal():
     # the projection linearizes the limits with the engine; where it cannot trace a point
     # (found: margins raised and killed the run at the same step on every resume), the step
     # falls back to the cut back along itself, and the result is manufacturable
-    from optix_e2e.optimize.run import Manufacturable, keep_manufacturable
+    from optix_e2e.camera_design.guard import Manufacturable, keep_manufacturable
 
     class Untraceable(Manufacturable):
         def margins(self, values):
@@ -411,8 +412,8 @@ def test_a_step_to_an_untraceable_lens_is_cut_back_not_fatal():
 def test_the_final_design_check_finds_a_lens_out_of_focus():
     # refocused = the dataset's best-focus criterion, evaluated again with a finer pupil, asks
     # for (almost) no shift; 10 um off the refocused plane it asks for 10 um back
-    from optix_e2e.optimize.outputs import check_final_design
-    from optix_e2e.surrogate.exact import exact_optics
+    from optix_e2e.camera_design.outputs import check_final_design
+    from optix_e2e.surrogate.ground_truth import exact_optics
 
     sur = load_surrogate("paper-triplet-e2e")
     base = DifferentiableOptics(sur).base_values().double().numpy()

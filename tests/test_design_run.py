@@ -34,10 +34,15 @@ def _design(out, *extra, env=None):
     ]
 
 
-def test_a_smoke_design_run_writes_every_output_and_resumes_after_kill_9(tmp_path):
-    out = tmp_path / "run"
-    cfg = tmp_path / "c.toml"
-    cfg.write_text("n_cycles = 3\ncheckpoint_every = 1\n")  # 3 x (2 + 2) + 2 = 14 steps, a checkpoint after each
+N_STEPS = 14  # n_cycles 3: 3 x (2 + 2) + 2 steps, a checkpoint after each
+
+
+@pytest.fixture(scope="module")
+def killed_run(tmp_path_factory):
+    """A smoke run killed (SIGKILL) once its first checkpoint is on disk; what it left."""
+    tmp = tmp_path_factory.mktemp("design")
+    out, cfg = tmp / "run", tmp / "c.toml"
+    cfg.write_text("n_cycles = 3\ncheckpoint_every = 1\n")
     p = subprocess.Popen(_design(out, "--config", str(cfg)), stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     state = out / "end_to_end_state.pt"
     deadline = time.time() + 240
@@ -47,19 +52,44 @@ def test_a_smoke_design_run_writes_every_output_and_resumes_after_kill_9(tmp_pat
     assert state.is_file(), "no checkpoint within the deadline"
     os.kill(p.pid, signal.SIGKILL)
     p.wait()
-    assert not (out / "results.json").exists()
     from optix_e2e.torchfile import load_plain
 
-    before = load_plain(state, "design checkpoint")
-    t_kill = int(before["optimizer"]["t"])
-    assert 1 <= t_kill < 14 and len(before["history"]) == t_kill
-    # other settings are refused; the same command resumes and finishes
+    return {"tmp": tmp, "out": out, "cfg": cfg, "state": load_plain(state, "design checkpoint")}
+
+
+@pytest.fixture(scope="module")
+def resumed_run(killed_run):
+    """The same command again: it resumes and finishes (stdout, results)."""
+    out = killed_run["out"]
+    r = subprocess.run(_design(out, "--config", str(killed_run["cfg"])), capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    return {**killed_run, "stdout": r.stdout, "res": json.loads((out / "results.json").read_text())}
+
+
+def test_kill_9_leaves_a_checkpoint_and_no_results(killed_run):
+    t_kill = int(killed_run["state"]["optimizer"]["t"])
+    assert 1 <= t_kill < N_STEPS and len(killed_run["state"]["history"]) == t_kill
+    assert not (killed_run["out"] / "results.json").exists()
+
+
+def test_other_settings_are_refused_in_a_killed_runs_folder(killed_run):
+    out, cfg = killed_run["out"], killed_run["cfg"]
     r = subprocess.run(_design(out, "--config", str(cfg), "--seed", "1"), capture_output=True, text=True)
     assert r.returncode == 1 and "other settings" in r.stdout + r.stderr and "seed" in r.stdout + r.stderr
-    r = subprocess.run(_design(out, "--config", str(cfg)), capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stdout + r.stderr
-    assert f"end_to_end: resuming at step {t_kill} of 14" in r.stdout, r.stdout
-    res = json.loads((out / "results.json").read_text())
+
+
+def test_the_same_command_resumes_at_the_killed_step_and_runs_each_step_once(resumed_run):
+    before = resumed_run["state"]
+    t_kill = int(before["optimizer"]["t"])
+    assert f"end_to_end: resuming at step {t_kill} of {N_STEPS}" in resumed_run["stdout"], resumed_run["stdout"]
+    rows = [r for r in csv.DictReader(open(resumed_run["out"] / "history.csv")) if r["run"] == "end_to_end"]
+    assert [int(r["step"]) for r in rows] == list(range(1, N_STEPS + 1))
+    # the steps before the kill were not run again (a restart would re-time them)
+    assert [float(r["seconds"]) for r in rows[:t_kill]] == [h["seconds"] for h in before["history"]]
+
+
+def test_results_hold_every_figure_under_exact_optics(resumed_run):
+    res = resumed_run["res"]
     for k in ("task", "optics_eval", "nominal", "end_to_end", "paired", "lens_zmx", "wall_s"):
         assert k in res, k
     assert res["optics_eval"] == "exact" and res["task"] == "iq-software"
@@ -68,10 +98,18 @@ def test_a_smoke_design_run_writes_every_output_and_resumes_after_kill_9(tmp_pat
             assert isinstance(res[who][m], float) and isinstance(res[who]["surrogate"][m], float)
     # the lens's room: the nominal camera's processing behind a perfect lens, the same keys
     assert set(res["perfect_lens"]) == set(res["nominal"]) - {"surrogate"}
-    assert res["perfect_lens"]["n_samples"] == res["nominal"]["n_samples"] and "perfect lens" in r.stdout
+    assert res["perfect_lens"]["n_samples"] == res["nominal"]["n_samples"] and "perfect lens" in resumed_run["stdout"]
     for m in ("psnr_db", "ssim", "lpips", "haarpsi"):
         lo, hi = res["paired"][m]["ci95"]
         assert lo <= res["paired"][m]["mean"] <= hi
+    win = res["exact_psf_energy_in_window"]
+    for who in ("nominal", "end_to_end"):
+        assert len(win[who]) == len(win["fields_deg"]) and all(0.5 < e <= 1.01 for e in win[who]), win
+        assert res["exact_psf_method"][who] == "fft"
+
+
+def test_every_output_file_is_written(resumed_run):
+    out = resumed_run["out"]
     for f in (
         "panels.png",
         "psf_nominal.png",
@@ -84,24 +122,24 @@ def test_a_smoke_design_run_writes_every_output_and_resumes_after_kill_9(tmp_pat
     ):
         assert (out / f).is_file(), f
     assert any((out / "tb").iterdir())
-    # the steps ran once each, in order, across the kill
-    rows = [r for r in csv.DictReader(open(out / "history.csv")) if r["run"] == "end_to_end"]
-    assert [int(r["step"]) for r in rows] == list(range(1, 15))
-    # ... and the steps before the kill were not run again (a restart would re-time them)
-    assert [float(r["seconds"]) for r in rows[:t_kill]] == [h["seconds"] for h in before["history"]]
-    # the exported lens reloads to the same design, in .zmx and JSON
+
+
+def test_the_exported_lens_reloads_to_the_same_design(resumed_run):
+    res, out = resumed_run["res"], resumed_run["out"]
     z, j = Lens.load(out / res["lens_zmx"]), Lens.load(out / res["lens_json"])
     assert z.paraxial()["efl_mm"] == pytest.approx(j.paraxial()["efl_mm"], rel=1e-9)
     for f in (0.0, 14.9):
         assert z.spot(f)["rms_um"] == pytest.approx(j.spot(f)["rms_um"], rel=1e-6)
-    assert res["design"]["checks"]["inside_space"] and res["design"]["checks"]["manufacturable"]
-    assert res["design"]["checks"]["refocused"], res["design"]["checks"]
-    win = res["exact_psf_energy_in_window"]
-    for who in ("nominal", "end_to_end"):
-        assert len(win[who]) == len(win["fields_deg"]) and all(0.5 < e <= 1.01 for e in win[who]), win
-    # the same run uninterrupted lands on the same lens
-    r = subprocess.run(_design(tmp_path / "again", "--config", str(cfg)), capture_output=True, text=True, timeout=600)
+    checks = res["design"]["checks"]
+    assert checks["inside_space"] and checks["manufacturable"] and checks["refocused"], checks
+
+
+def test_an_uninterrupted_run_lands_on_the_same_lens(resumed_run):
+    tmp, res = resumed_run["tmp"], resumed_run["res"]
+    r = subprocess.run(
+        _design(tmp / "again", "--config", str(resumed_run["cfg"])), capture_output=True, text=True, timeout=600
+    )
     assert r.returncode == 0, r.stdout + r.stderr
-    again = json.loads((tmp_path / "again" / "results.json").read_text())
+    again = json.loads((tmp / "again" / "results.json").read_text())
     assert again["design"]["end_to_end"] == res["design"]["end_to_end"]
     assert again["end_to_end"]["psnr_db"] == res["end_to_end"]["psnr_db"]

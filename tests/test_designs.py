@@ -1,7 +1,7 @@
 """The bundled nominal designs (docs/designs.md): paper-triplet and double-gauss-f5.
 
 Geometry (sags, edge thicknesses, gaps) is recomputed here from the prescription with its
-own formulas, independently of optix_e2e.design.optimizer.  The double Gauss is checked against
+own formulas, independently of optix_e2e.lens_design.optimizer.  The double Gauss is checked against
 optiland 0.6.3 (its DoubleGauss sample is the published prescription we bundle; both tools
 read the same refractiveindex.info Schott pages, so first-order data agree to rounding).
 """
@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 
 from optix_e2e.lens import BUNDLED_DIR, Lens, bundled_lenses
-from optix_e2e.design.space import ParameterSpace
+from optix_e2e.lens_design.space import ParameterSpace
 
 SPACES = BUNDLED_DIR / "spaces"
 
-# paper-triplet: requirements (issue 3) and the bound on the per-field RMS spot radius;
+# paper-triplet: requirements and the bound on the per-field RMS spot radius;
 # measured figures are in docs/designs.md
 TRIPLET_EFL_MM = 25.0
 TRIPLET_EFL_TOL = 1e-3  # the relative tolerance the optimizer was run with
@@ -283,7 +283,7 @@ def test_recentred_space_rules_reproduce_v1_and_contain_the_nominal(tmp_path):
             assert (p.max - p.min) == pytest.approx(2 * 0.4 * 0.0375 * abs(v), rel=1e-4)
 
 
-# apo-gauss-8e: JP 2025-108279 A, Example 1 (issue 21). The patent's table: radius, thickness,
+# apo-gauss-8e: JP 2025-108279 A, Example 1. The patent's table: radius, thickness,
 # nd, vd per surface (None: air; the stop is its own flat surface), f = 49.10, Fno 3.56
 APO_PATENT = [
     (25.402, 1.10, 1.48749, 70.44),

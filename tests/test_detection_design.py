@@ -1,4 +1,4 @@
-"""The detection task's parts (issue 19 items 3-4): the photon count follows the lens's
+"""The detection task's parts: the photon count follows the lens's
 f-number by Eq. 3, a surrogate widened by a parameter starts from its source exactly, the
 street batches and held-out scenes, and the paired mAP interval."""
 
@@ -131,7 +131,7 @@ def test_heldout_streets_cover_the_frame_and_repeat():
 def test_paired_map_interval():
     """Identical detections: a difference of exactly 0; an oracle against a blind camera: +1
     with the interval at +1 (every resample has objects)."""
-    from optix_e2e.optimize.detection_run import paired_map
+    from optix_e2e.camera_design.detection import paired_map
     from optix_e2e.tasks.detection import DetectionSample
 
     rng = np.random.default_rng(0)

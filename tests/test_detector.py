@@ -1,4 +1,4 @@
-"""The detector and its mAP (issue 19 item 2): the mAP implementation against hand-made
+"""The detector and its mAP: the mAP implementation against hand-made
 cases, the detector learns a tiny set, and its mAP falls as blur and noise grow."""
 
 from __future__ import annotations

@@ -192,7 +192,7 @@ def test_single_process_helpers_are_no_ops():
 def _toy(kind: str):
     """Two parameter blocks of a small regression, float64, and Alg. 1 (with its prox term)
     or vanilla over them; a batch of 8 samples."""
-    from optix_e2e.optimize.alg1 import Block, ProximalCompositional, Vanilla
+    from optix_e2e.camera_design.alg1 import Block, ProximalCompositional, Vanilla
 
     g = torch.Generator().manual_seed(0)
     x, y = torch.randn(8, 3, generator=g, dtype=torch.float64), torch.randn(8, generator=g, dtype=torch.float64)

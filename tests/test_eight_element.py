@@ -1,4 +1,4 @@
-"""The eight-element experiment (issue 21, paper Sec. 6.2): the patent lens scaled to the
+"""The eight-element experiment (paper Sec. 6.2): the patent lens scaled to the
 sensor (optix_e2e.lens.scale), the tolerance analysis with the lens's clear apertures
 (``optix tolerance --apertures fixed``), its bundled space, and the lens export of a design
 traced with fixed apertures."""
@@ -15,9 +15,9 @@ from click.testing import CliRunner
 from optix_e2e import _engine
 from optix_e2e.cli import main
 from optix_e2e.dataset import DatasetSettings, generate
-from optix_e2e.design import tolerance as T
-from optix_e2e.design.optimizer import Merit
-from optix_e2e.design.space import load_space
+from optix_e2e.lens_design import tolerance as T
+from optix_e2e.lens_design.optimizer import Merit
+from optix_e2e.lens_design.space import load_space
 from optix_e2e.lens import Lens
 from optix_e2e.lens.scale import scale_lens
 
@@ -219,7 +219,7 @@ def test_export_keeps_the_clear_apertures_of_a_fixed_aperture_dataset(tmp_path):
     """A design of a dataset made with --apertures fixed is exported with the base lens's clear
     semi-diameters (the vignetting it was trained and judged with), the stop sized by its
     footprint; the file loads back as the same lens."""
-    from optix_e2e.optimize.outputs import export_lens
+    from optix_e2e.camera_design.outputs import export_lens
 
     rep = generate(
         "apo-gauss-8e-mv",
@@ -236,7 +236,7 @@ def test_export_keeps_the_clear_apertures_of_a_fixed_aperture_dataset(tmp_path):
         manifest, space.values(base.data), float(base.data["surfaces"][-1]["thickness"]), tmp_path / "lens", "x", "test"
     )
     back = Lens.load(paths["json"])
-    from optix_e2e.design.sampling import apertures
+    from optix_e2e.lens_design.sampling import apertures
 
     footprint = apertures(
         Lens(

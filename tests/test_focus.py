@@ -1,4 +1,4 @@
-"""Refocusing (optix_e2e.design.focus): the closed-form best focus against a brute-force scan of
+"""Refocusing (optix_e2e.lens_design.focus): the closed-form best focus against a brute-force scan of
 the engine's own RMS spot, and the paraxial focus against the paraxial BFL."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from optix_e2e import _engine
-from optix_e2e.design.focus import best_focus_shift, refocus
+from optix_e2e.lens_design.focus import best_focus_shift, refocus
 from optix_e2e.lens import Lens
 
 

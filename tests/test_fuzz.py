@@ -1,4 +1,4 @@
-"""Seeded fuzz test of lens input files (issue 16): mutants of the bundled lenses' JSON and
+"""Seeded fuzz test of lens input files: mutants of the bundled lenses' JSON and
 .zmx (tests/fuzz_lens_inputs.py) give results without NaN or the project's own errors, and
 the process that runs them ends normally (an abort would show as a signal exit). The count
 bounds the run; 600 mutants take a few seconds here. Deeper runs: the script with --n."""

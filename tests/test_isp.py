@@ -180,7 +180,7 @@ def test_proxy_save_load_round_trip_and_bad_files(tmp_path):
 def test_software_isp_pretraining_learns_and_resumes(tmp_path):
     # tiny shapes: the mechanism (pools through lenses of the space, the loss falls, the
     # validation curve, state.pt continues the same run, the float16 export loads)
-    from optix_e2e.optimize.isp_pretraining import PretrainConfig, pretrain
+    from optix_e2e.camera_design.isp_pretraining import PretrainConfig, pretrain
 
     cfg = PretrainConfig(
         steps=16,

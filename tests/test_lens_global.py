@@ -1,4 +1,4 @@
-"""The global search (optix_e2e.design.global_search), the wavefront merit and ``optix lens list``.
+"""The global search (optix_e2e.lens_design.global_search), the wavefront merit and ``optix lens list``.
 
 Reference values: a test problem whose basins and global minimum are known in closed form;
 the defocus wavefront W20 = dz / (8 N^2) and its piston-free RMS W20 / (2 sqrt 3) (Born &
@@ -16,11 +16,11 @@ from click.testing import CliRunner
 
 from optix_e2e.cli import main
 from optix_e2e.lens import Lens
-from optix_e2e.design.global_search import global_search
+from optix_e2e.lens_design.global_search import global_search
 from optix_e2e import _engine
-from optix_e2e.design.optimizer import Constraints, LensProblem, Merit, polish
+from optix_e2e.lens_design.optimizer import Constraints, LensProblem, Merit, polish
 from optix_e2e.lens.pupil import pupil_quadrature
-from optix_e2e.design.space import ParameterSpace
+from optix_e2e.lens_design.space import ParameterSpace
 
 
 class Ripples:
@@ -188,7 +188,7 @@ def test_wavefront_merit_optimizes_focus():
     """Local optimization of the image distance on the wavefront merit returns to focus."""
     raw = _hyperbolic(dz=0.3).data
     space = ParameterSpace.from_names("s_2_thickness", raw)
-    from optix_e2e.design.optimizer import optimize
+    from optix_e2e.lens_design.optimizer import optimize
 
     res = optimize(raw, space, Merit(Lens(raw), kind="wavefront"), max_nfev=50)
     assert res.after["merit"] < 1e-4

@@ -1,4 +1,4 @@
-"""Hostile JSON lens files (issue 16 item 6): one PrescriptionError naming the file (and
+"""Hostile JSON lens files: one PrescriptionError naming the file (and
 the line where there is one), never a traceback; crossing surfaces are named even when the
 lens gives no semi-diameters."""
 

@@ -1,4 +1,4 @@
-"""The classic optimizer (optix_e2e.design.optimizer), parameter spaces (optix_e2e.design.space) and the
+"""The classic optimizer (optix_e2e.lens_design.optimizer), parameter spaces (optix_e2e.lens_design.space) and the
 ``optimize`` CLI command.
 
 Reference values: the engine's own hexapolar spot statistics (an independent sampling of
@@ -18,9 +18,9 @@ from click.testing import CliRunner
 
 from optix_e2e.cli.lens_optimize import optimize_cmd
 from optix_e2e.lens import BUNDLED_DIR, Lens
-from optix_e2e.design.optimizer import Constraints, Merit, element_geometry, optimize, sag
+from optix_e2e.lens_design.optimizer import Constraints, Merit, element_geometry, optimize, sag
 from optix_e2e.lens.pupil import pupil_quadrature
-from optix_e2e.design.space import ParameterSpace, SpaceError, parameter_from_name
+from optix_e2e.lens_design.space import ParameterSpace, SpaceError, parameter_from_name
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from optix_e2e.optics.differentiable import DifferentiableOptics
 from optix_e2e.optics.render import render
 from optix_e2e.surrogate import OpticsSurrogate, SurrogateConfig, SurrogateRangeError
 from optix_e2e.surrogate.evaluate import evaluate
-from optix_e2e.surrogate.exact import rms_spot_um
+from optix_e2e.surrogate.ground_truth import rms_spot_um
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

@@ -1,4 +1,4 @@
-"""The optics model in the loop (optimize/hybrid.py): exact checks along the way, hybrid
+"""The optics model in the loop (camera_design/hybrid.py): exact checks along the way, hybrid
 refinement and its fall-back to exact gradients, `optix design --optics exact | hybrid`, and
 `--optics auto` reading the measured trade-off."""
 
@@ -14,9 +14,9 @@ import pytest
 import torch
 
 from optix_e2e.optics import DifferentiableOptics
-from optix_e2e.optimize.config import make_config
-from optix_e2e.optimize.hybrid import OpticsMonitor, resolve_optics
-from optix_e2e.optimize.run import load_surrogate
+from optix_e2e.camera_design.config import make_config
+from optix_e2e.camera_design.hybrid import OpticsMonitor, resolve_optics
+from optix_e2e.camera_design.build import load_surrogate
 from optix_e2e.surrogate.refine import RefineSettings
 
 
@@ -102,7 +102,8 @@ class _Killed(Exception):
 def _train_exact(out, kill_at=None):
     """A smoke end-to-end training on exact optics (6 steps, a checkpoint after each), killed
     in the middle of step ``kill_at`` (after its check, before its checkpoint) if given."""
-    from optix_e2e.optimize.run import build_camera, make_optimizer, train
+    from optix_e2e.camera_design.build import build_camera, make_optimizer
+    from optix_e2e.camera_design.training import train
     from optix_e2e.tasks import SensorFrame
 
     cfg = make_config("smoke", optics="exact", checkpoint_every=1, check_every=2, threads=1)

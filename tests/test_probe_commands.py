@@ -1,4 +1,4 @@
-"""A seeded probe of whole commands with damaged inputs (issue 32: bad input).
+"""A seeded probe of whole commands with damaged inputs.
 
 Each scenario builds, from a seeded generator, an input a careless or hostile user might
 give one command: a design config with a setting out of reason, a COCO set with one kind of
@@ -155,7 +155,7 @@ def copy_tree(src: Path, dst: Path) -> Path:
 
 # ---------------------------------------------------------------------- optix design
 def _design_config(rng: random.Random) -> tuple[str, str]:
-    from optix_e2e.optimize.config import RANGES
+    from optix_e2e.camera_design.config import RANGES
 
     kind = rng.choice(["value", "unknown", "syntax", "binary", "nested"])
     if kind == "value":

@@ -99,7 +99,7 @@ def test_batch_values_are_in_range_or_the_design_fails():
     are broken or badly defocused): each design either fails with a reason or has finite
     relative illumination in [0, 1.05], window energy <= 1.01 and unit-sum channels."""
     from optix_e2e import _engine
-    from optix_e2e.design.space import load_space
+    from optix_e2e.lens_design.space import load_space
 
     space, base = load_space("paper-triplet")
     lo = np.array([p.min for p in space.params])

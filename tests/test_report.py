@@ -1,5 +1,5 @@
-"""Layout, spot diagrams, report and the ``plot``/``report`` commands (optix_e2e.design.report,
-optix_e2e.design.plots, cli/lens_report.py), and the engine's ray paths (trace_field_path).
+"""Layout, spot diagrams, report and the ``plot``/``report`` commands (optix_e2e.lens_design.report,
+optix_e2e.lens_design.plots, cli/lens_report.py), and the engine's ray paths (trace_field_path).
 
 Geometry is checked against closed forms (sphere, parabola and asphere sags) and against
 the engine: every path point lies on the Python sag of its surface to 1e-12 mm, which
@@ -17,7 +17,7 @@ from optix_e2e import _engine
 from optix_e2e.cli.lens_report import plot, report
 from optix_e2e.lens import Lens
 from optix_e2e.lens.mtf import field_mtf
-from optix_e2e.design.report import footprint, hexapolar, sag, spot_diagram, surface_geometry
+from optix_e2e.lens_design.report import footprint, hexapolar, sag, spot_diagram, surface_geometry
 
 ASPHERIC = {
     "name": "asph-test",
@@ -137,7 +137,7 @@ def test_plot_command_draws_every_ray(tmp_path, cooke):
     line = json.loads(res.output)
     assert [f["reached_image"] for f in line["fields"]] == [7, 7, 7]
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    from optix_e2e.design.plots import save_layout_png
+    from optix_e2e.lens_design.plots import save_layout_png
 
     r = save_layout_png(tmp_path / "again.png", cooke, fields=[0, 10, 20], rays=7)
     (x0, x1), (y0, y1) = r["xlim"], r["ylim"]

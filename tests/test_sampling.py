@@ -1,4 +1,4 @@
-"""Design sampling (optix_e2e.design.sampling, ``optix sample``): ranges, manufacturability checks,
+"""Design sampling (optix_e2e.lens_design.sampling, ``optix sample``): ranges, manufacturability checks,
 rejection counts and seeded reproducibility."""
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ import pytest
 from click.testing import CliRunner
 
 from optix_e2e.cli.sample import sample
-from optix_e2e.design.optimizer import element_geometry
-from optix_e2e.design.sampling import REASONS, Limits, apertures, check_design, sample_designs
-from optix_e2e.design.space import SpaceError, load_space
+from optix_e2e.lens_design.optimizer import element_geometry
+from optix_e2e.lens_design.sampling import REASONS, Limits, apertures, check_design, sample_designs
+from optix_e2e.lens_design.space import SpaceError, load_space
 
 
 @pytest.fixture(scope="module")
@@ -110,7 +110,7 @@ def test_cli_writes_csv_and_summary(tmp_path):
 
 @pytest.mark.parametrize("name", ["apo-gauss-8e", "apo-gauss-8e-mv"])
 def test_eight_element_space_designs_pass_the_samplers_constraints(name):
-    """apo-gauss-8e (issue 21: the patent's scale, the tolerance analysis's starting space) and
+    """apo-gauss-8e (the patent's scale, the tolerance analysis's starting space) and
     apo-gauss-8e-mv (scaled to the sensor; the design space from the tolerance analysis):
     sampled designs pass the limits, checked independently of the sampler, and the nominal
     itself passes them."""

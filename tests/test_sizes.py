@@ -1,4 +1,4 @@
-"""Oversized requests (issue 16 item 7): each is one clear error that says what the request
+"""Oversized requests: each is one clear error that says what the request
 would need, before anything is allocated or written; never an allocation failure that aborts
 the process (exit 134). A long Huygens sum shows its progress and stops on request."""
 

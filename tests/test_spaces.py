@@ -1,4 +1,4 @@
-"""TOML parameter spaces (optix_e2e.design.space): the bundled ones, the file format and its errors,
+"""TOML parameter spaces (optix_e2e.lens_design.space): the bundled ones, the file format and its errors,
 and the aperture kinds."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from optix_e2e.lens import Lens, bundled_lenses
-from optix_e2e.design.space import ParameterSpace, SpaceError, bundled_spaces, load_space, parameter_from_name
+from optix_e2e.lens_design.space import ParameterSpace, SpaceError, bundled_spaces, load_space, parameter_from_name
 
 
 def test_every_bundled_lens_ships_a_space_containing_it():

@@ -1,4 +1,4 @@
-"""Labelled street scenes and COCO data (issue 19 item 1): boxes match the drawn objects,
+"""Labelled street scenes and COCO data: boxes match the drawn objects,
 sizes, classes and light as asked, deterministic, COCO round trip, loader errors."""
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ from optix_e2e.surrogate import (
     optics_loss_terms,
 )
 from optix_e2e.surrogate.evaluate import SurrogateDataMismatch, evaluate, sample_metrics
-from optix_e2e.surrogate.exact import exact_arrays
+from optix_e2e.surrogate.ground_truth import exact_arrays
 from optix_e2e.surrogate.train import TrainConfig, train
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")

@@ -1,4 +1,4 @@
-"""Tolerance analysis (optix_e2e.design.tolerance, ``optix tolerance``): quadratic sensitivity models,
+"""Tolerance analysis (optix_e2e.lens_design.tolerance, ``optix tolerance``): quadratic sensitivity models,
 ranking, budget -> ranges, Monte Carlo yield, the command's files and errors.
 
 All on the bundled paper-triplet with a coarse pupil (3 rings x 6 arms) and small Monte Carlo
@@ -15,9 +15,9 @@ import pytest
 from click.testing import CliRunner
 
 from optix_e2e.cli import main
-from optix_e2e.design.optimizer import Merit
-from optix_e2e.design.space import Parameter, ParameterSpace, load_space
-from optix_e2e.design import tolerance as T
+from optix_e2e.lens_design.optimizer import Merit
+from optix_e2e.lens_design.space import Parameter, ParameterSpace, load_space
+from optix_e2e.lens_design import tolerance as T
 
 RINGS, ARMS = 3, 6
 

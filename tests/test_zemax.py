@@ -356,7 +356,7 @@ def test_optiland_reads_our_file(tmp_path, which):
     """optiland's own .zmx reader loads our file to the same system: EFL/BFL to 1e-9
     and surface data (radius, thickness, conic, a2..a16, stop). apo-gauss-8e: the eight-element
     lens (HOYA glasses by name; optiland finds them in its own copy of the catalog), and the same
-    scaled to the sensor with the camera's wavelengths (apo-gauss-8e-mv, issue 21)."""
+    scaled to the sensor with the camera's wavelengths (apo-gauss-8e-mv)."""
     lens = {
         "cooke": lambda: Lens.load("cooke-f50"),
         "full": lambda: Lens(_full_for_optiland()),

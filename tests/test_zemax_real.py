@@ -1,4 +1,4 @@
-"""Real OpticStudio files and hostile .zmx input (issue 16, items 4 and 5).
+"""Real OpticStudio files and hostile .zmx input.
 
 The real files are the 640 samples in ../shared/zmx-samples (vendor catalogs and public
 repositories, unedited), found like the reference data (conftest.py): <repo>/../shared,

@@ -6,11 +6,15 @@ documented in ``_engine.pyi`` (checked against the built module by tests/test_en
 The lens is always the resolved JSON prescription (``Lens.to_engine_json()``); arrays are
 float64 and C-contiguous (converted here); errors are the extension's own classes, re-exported
 below: ``EngineError`` and its subclasses ``LensError``, ``MaterialError``, ``TraceError``,
-``PsfError``.
+``PsfError``, and ``ArgumentError`` (defined here, also a ``ValueError``) for a value the engine
+refuses as an argument (a size, a sample count, a field angle, a method name), which the
+extension raises as a plain ``ValueError``. The command line prints every ``EngineError`` as one
+line (cli/_common.py).
 """
 
 from __future__ import annotations
 
+import functools
 from typing import Any, Sequence
 
 import numpy as np
@@ -19,6 +23,7 @@ from . import _engine as _ext
 from ._engine import EngineError, LensError, MaterialError, PsfError, TraceError
 
 __all__ = [
+    "ArgumentError",
     "EngineError",
     "LensError",
     "MaterialError",
@@ -46,38 +51,64 @@ __all__ = [
 Channels = Sequence[Sequence[tuple[float, float]]]
 
 
+class ArgumentError(EngineError, ValueError):
+    """A value the engine refuses as an argument; the message says which and why."""
+
+
+def _door(fn):
+    """Re-raise the extension's plain ``ValueError`` (a refused argument) as ``ArgumentError``."""
+
+    @functools.wraps(fn)
+    def call(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except ValueError as exc:
+            if isinstance(exc, EngineError):
+                raise
+            raise ArgumentError(str(exc)) from None
+
+    return call
+
+
 def _f64(a) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.float64)
 
 
+@_door
 def validate_lens(lens_json: str) -> None:
     _ext.validate_lens(lens_json)
 
 
+@_door
 def refractive_indices(lens_json: str, *, wavelength_nm: float) -> np.ndarray:
     return _ext.refractive_indices(lens_json, float(wavelength_nm))
 
 
+@_door
 def paraxial(lens_json: str, *, wavelength_nm: float | None = None) -> dict[str, float]:
     return _ext.paraxial(lens_json, None if wavelength_nm is None else float(wavelength_nm))
 
 
+@_door
 def trace(lens_json: str, *, origins, directions, wavelength_nm: float) -> dict[str, np.ndarray]:
     return _ext.trace(lens_json, _f64(origins), _f64(directions), float(wavelength_nm))
 
 
+@_door
 def trace_field(
     lens_json: str, *, field_deg: float, px, py, wavelength_nm: float, aiming: str = "paraxial"
 ) -> dict[str, np.ndarray]:
     return _ext.trace_field(lens_json, float(field_deg), _f64(px), _f64(py), float(wavelength_nm), aiming)
 
 
+@_door
 def trace_field_path(
     lens_json: str, *, field_deg: float, px, py, wavelength_nm: float, aiming: str = "paraxial"
 ) -> dict[str, np.ndarray]:
     return _ext.trace_field_path(lens_json, float(field_deg), _f64(px), _f64(py), float(wavelength_nm), aiming)
 
 
+@_door
 def wavefront(
     lens_json: str,
     *,
@@ -103,6 +134,7 @@ def wavefront(
     )
 
 
+@_door
 def spot(
     lens_json: str,
     *,
@@ -122,6 +154,7 @@ def spot(
     )
 
 
+@_door
 def psf(
     lens_json: str,
     *,
@@ -157,6 +190,7 @@ def psf(
     )
 
 
+@_door
 def psf_rgb(
     lens_json: str,
     *,
@@ -186,6 +220,7 @@ def psf_rgb(
     )
 
 
+@_door
 def psf_batch(
     lens_jsons: Sequence[str],
     *,
@@ -221,6 +256,7 @@ def psf_batch(
     )
 
 
+@_door
 def auto_candidates(
     lens_json: str,
     *,
@@ -236,6 +272,7 @@ def auto_candidates(
     )
 
 
+@_door
 def best_focus_batch(
     lens_jsons: Sequence[str],
     *,
@@ -253,20 +290,24 @@ def best_focus_batch(
     )
 
 
+@_door
 def crc32(data: np.ndarray, *, crc: int = 0) -> int:
     return _ext.crc32(data, int(crc))
 
 
+@_door
 def predicted_psf_seconds(
     *, method: str, pixel_um: float, size: int, pupil_samples: int, fft_grid: int | None = None, n_surfaces: int = 10
 ) -> float | None:
     return _ext.predicted_psf_seconds(method, float(pixel_um), int(size), int(pupil_samples), fft_grid, int(n_surfaces))
 
 
+@_door
 def available_memory() -> float:
     return _ext.available_memory()
 
 
+@_door
 def extension_file() -> str:
     """The compiled extension's file (Dask workers compare its digest with the client's)."""
     return _ext.__file__

@@ -13,6 +13,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+from .errors import InputError
 
 
 def fsync_dir(path: Path) -> None:
@@ -37,15 +38,15 @@ def read_small_text(path: "str | Path", max_bytes: int = 1 << 20, what: str = "f
     path = Path(path)
     st = path.stat()
     if not stat.S_ISREG(st.st_mode):
-        raise ValueError(f"{path}: the {what} is not a regular file")
+        raise InputError(f"{path}: the {what} is not a regular file")
     with open(path, "rb") as f:
         data = f.read(max_bytes + 1)
     if len(data) > max_bytes:
-        raise ValueError(f"{path}: the {what} is larger than {max_bytes} bytes")
+        raise InputError(f"{path}: the {what} is larger than {max_bytes} bytes")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as err:
-        raise ValueError(f"{path}: the {what} is not UTF-8 text ({err.reason} at byte {err.start})") from None
+        raise InputError(f"{path}: the {what} is not UTF-8 text ({err.reason} at byte {err.start})") from None
 
 
 def claim_out_dir(
@@ -63,7 +64,7 @@ def claim_out_dir(
     if not out.exists():
         return False
     if not out.is_dir():
-        raise ValueError(f"{out} is not a folder; choose another --out")
+        raise InputError(f"{out} is not a folder; choose another --out")
     if marker and (out / marker).is_file():
         return True
     names = sorted(p.name for p in out.iterdir())
@@ -72,7 +73,7 @@ def claim_out_dir(
         return False
     shown = ", ".join(foreign[:3] or names[:3]) + (", ..." if len(foreign) > 3 else "")
     what = f"no {kind}" + (f" ({marker})" if marker else "")
-    raise ValueError(f"{out} is not empty and holds {what} but {shown}; choose another --out")
+    raise InputError(f"{out} is not empty and holds {what} but {shown}; choose another --out")
 
 
 def write_text_atomic(path: Path, text: str) -> None:
@@ -101,7 +102,7 @@ def write_json_atomic(path: Path, obj) -> None:
     try:
         text = json.dumps(obj, indent=2, allow_nan=False) + "\n"
     except (TypeError, ValueError) as err:
-        raise ValueError(f"{path}: cannot be written as JSON ({err})") from None
+        raise InputError(f"{path}: cannot be written as JSON ({err})") from None
     write_text_atomic(path, text)
 
 

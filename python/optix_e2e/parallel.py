@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import torch
 import torch.distributed as dist
+from .errors import InputError, RunError
 
 
 MAX_THREADS = 1024  # torch aborts with a segmentation fault when asked for tens of thousands
@@ -28,12 +29,12 @@ MAX_THREADS = 1024  # torch aborts with a segmentation fault when asked for tens
 def set_threads(n: int) -> None:
     """torch's CPU threads: ``n`` in [1, MAX_THREADS], or 0 for torch's default (unchanged)."""
     if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= MAX_THREADS:
-        raise ValueError(f"threads must be an integer from 0 (torch's default) to {MAX_THREADS}, got {n!r}")
+        raise InputError(f"threads must be an integer from 0 (torch's default) to {MAX_THREADS}, got {n!r}")
     if n:
         torch.set_num_threads(n)
 
 
-class TrainingDiverged(ValueError):
+class TrainingDiverged(RunError):
     """A training loss or the weights left the finite numbers; the last good checkpoint is kept."""
 
 
@@ -65,7 +66,7 @@ def check_finite_weights(state: dict, path: "os.PathLike | str") -> None:
     weights would overwrite a good checkpoint with garbage): one error naming the file and key."""
     for k, v in state.items():
         if isinstance(v, torch.Tensor) and v.is_floating_point() and not bool(torch.isfinite(v).all()):
-            raise ValueError(f"{path}: the weights are not finite ({k}); this state came from a diverged run")
+            raise InputError(f"{path}: the weights are not finite ({k}); this state came from a diverged run")
 
 
 @dataclass(frozen=True)
@@ -94,7 +95,7 @@ def _env_int(name: str, default: int) -> int:
     try:
         return int(v)
     except ValueError:
-        raise ValueError(f"environment variable {name}={v!r} is not an integer (set by torchrun)") from None
+        raise InputError(f"environment variable {name}={v!r} is not an integer (set by torchrun)") from None
 
 
 def pick_device(name: str, local_rank: int = 0) -> torch.device:
@@ -113,7 +114,7 @@ def setup(device: str = "auto") -> Ranks:
     world = _env_int("WORLD_SIZE", 1)
     rank, local = _env_int("RANK", 0), _env_int("LOCAL_RANK", 0)
     if world > 1 and torch.device(device if device != "auto" else "cpu").index is not None:
-        raise ValueError(
+        raise InputError(
             f"--device {device}: under torchrun each process takes its own GPU (cuda:LOCAL_RANK); "
             f"give --device cuda or auto"
         )
@@ -121,7 +122,7 @@ def setup(device: str = "auto") -> Ranks:
     if world <= 1:
         return Ranks(device=dev)
     if not 0 <= rank < world:
-        raise ValueError(f"RANK={rank} is outside WORLD_SIZE={world}")
+        raise InputError(f"RANK={rank} is outside WORLD_SIZE={world}")
     if not dist.is_initialized():
         if dev.type == "cuda":
             torch.cuda.set_device(dev)
@@ -199,7 +200,7 @@ def average_gradients(params, ranks: Ranks, extra: torch.Tensor | None = None) -
 
 
 def average_step(ranks: Ranks, params, task: torch.Tensor, info: dict) -> tuple[torch.Tensor, dict]:
-    """An optimizer's ``reduce`` (optimize/alg1.py): average the gradients of ``params``, the
+    """An optimizer's ``reduce`` (camera_design/alg1.py): average the gradients of ``params``, the
     task loss and the info's numbers over the ranks, in one all-reduce."""
     if not ranks.distributed:
         return task, info
@@ -212,7 +213,7 @@ def average_step(ranks: Ranks, params, task: torch.Tensor, info: dict) -> tuple[
 def batch_slice(batch: int, ranks: Ranks) -> slice:
     """This rank's contiguous part of a global batch of ``batch`` samples (equal parts)."""
     if batch % ranks.world:
-        raise ValueError(
+        raise InputError(
             f"the batch of {batch} does not split evenly over {ranks.world} processes "
             f"(torchrun --nproc_per_node); use a multiple of {ranks.world}"
         )

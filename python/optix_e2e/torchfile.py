@@ -11,6 +11,8 @@ import pickle
 import re
 from pathlib import Path
 
+from .errors import InputError
+
 
 #: What restoring a damaged state raises once it is loaded as plain data: a missing or
 #: misspelt key, a value of another type or shape, a count out of reason. Every resume
@@ -31,7 +33,7 @@ def _reason(exc: BaseException) -> str:
     return text
 
 
-def load_plain(path: "str | Path", what: str, error: type[Exception] = ValueError, map_location="cpu"):
+def load_plain(path: "str | Path", what: str, error: type[Exception] = InputError, map_location="cpu"):
     """The contents of a torch file holding only plain data; anything else raises ``error``
     with one line naming the file and ``what`` it should have been."""
     import torch
@@ -51,7 +53,7 @@ def load_plain(path: "str | Path", what: str, error: type[Exception] = ValueErro
         raise error(f"{path}: unreadable {what} ({type(exc).__name__}: {_reason(exc)})") from None
 
 
-def build_module(factory, config, state_dict, path, what: str, error: type[Exception] = ValueError):
+def build_module(factory, config, state_dict, path, what: str, error: type[Exception] = InputError):
     """``factory(**config)`` with ``state_dict`` loaded, checked first: the config is a dict the
     factory accepts, the weights are finite tensors, and their names and shapes are the ones
     that config builds (tried on the meta device, so a hostile config allocates nothing)."""

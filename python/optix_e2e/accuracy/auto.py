@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .metrics import rel_l1
+from .psf_errors import rel_l1
 from .sweep import CHANNEL_RESPONSE, channel_wavelengths
 
 #: Wavelengths-per-channel choices (nested midpoint rules, and 5 predicted from 3).

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .metrics import rel_l1
+from .psf_errors import rel_l1
 from .reference import converged_reference
 from .sweep import timed
 
@@ -149,9 +149,9 @@ def held_out_cases(spaces, n_designs: int, seed: int) -> list[Case]:
     manufacturability checks, best focus as in the dataset, no clear apertures), each at
     a random field in [0, full] and a random wavelength in 450-650 nm."""
     from ..lens.apertures import engine_base
-    from ..design.focus import refocus_many
-    from ..design.sampling import sample_designs
-    from ..design.space import load_space
+    from ..lens_design.focus import refocus_many
+    from ..lens_design.sampling import sample_designs
+    from ..lens_design.space import load_space
 
     rng = np.random.default_rng(seed)
     out = []

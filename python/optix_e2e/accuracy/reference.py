@@ -8,7 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .metrics import rel_l1
+from .psf_errors import rel_l1
+from ..errors import RunError
 
 
 @dataclass
@@ -60,7 +61,7 @@ def converged_reference(
             if change <= tol:
                 return Reference(psf, diag.get("strehl"), n, change, time.perf_counter() - t0, diag)
         prev, n = psf, 2 * n
-    raise RuntimeError(
+    raise RunError(
         f"Huygens reference at {field_deg} deg, {wavelength_nm} nm did not converge to "
         f"{tol:.1%} by {max_samples} pupil samples (last change {change:.2%})"
     )

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..lens import Lens
-from .metrics import ee_radius, rel_l1, rel_l2, render_error, scene_chart
+from .psf_errors import ee_radius, rel_l1, rel_l2, render_error, scene_chart
 from .reference import converged_reference
 
 

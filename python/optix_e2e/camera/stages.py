@@ -28,6 +28,7 @@ from ..optics.render import render
 from ..sensor import get_preset, simulate_raw
 from ..sensor.emva import calibrate_radiance_scale
 from ..sensor.spectral import aperture_gain
+from ..errors import InputError
 
 
 def image_height_fractions(lens_data: dict, fields_deg) -> torch.Tensor:
@@ -40,7 +41,7 @@ def image_height_fractions(lens_data: dict, fields_deg) -> torch.Tensor:
     lens = Lens(lens_data, source="<design>")
     h = [0.0 if f == 0 else float(lens.wavefront(float(f))["chief_image_mm"][1]) for f in fields_deg]
     if not all(b > a for a, b in zip(h, h[1:])):
-        raise ValueError(f"chief-ray heights are not increasing with the field: {h}")
+        raise InputError(f"chief-ray heights are not increasing with the field: {h}")
     return torch.tensor([x / h[-1] for x in h], dtype=torch.float32)
 
 

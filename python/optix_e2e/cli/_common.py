@@ -7,11 +7,11 @@ import math
 
 import click
 
-from ..lens.glass import GlassError
 from ..lens import Lens
+from ..engine import EngineError
+from ..errors import OptixError
 from ..io import dumps, to_jsonable  # noqa: F401  (the subcommands' strict JSON)
 from ..lens.text import printable
-from ..lens.prescription import PrescriptionError
 
 AIMING = click.Choice(["paraxial", "real"])
 
@@ -33,16 +33,10 @@ SEED = click.IntRange(0, 2**63 - 1)  # what numpy and torch generators accept
 THREADS = click.IntRange(0, 1024)  # parallel.MAX_THREADS: torch aborts when asked for tens of thousands
 
 
-def _engine_errors() -> tuple[type[BaseException], ...]:
-    try:
-        from ..engine import EngineError
-    except ImportError:
-        return ()
-    return (EngineError,)
-
-
 def friendly_errors(fn):
-    """Turn expected failures into a one-line ``Error: ...`` and exit status 1."""
+    """Turn the package's own errors (``errors.OptixError``), the engine's (``EngineError``) and
+    the operating system's (a file that cannot be read or written) into one ``Error: ...`` line
+    and exit status 1. Anything else is a bug and propagates as one, traceback included."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
@@ -50,9 +44,9 @@ def friendly_errors(fn):
             return fn(*args, **kwargs)
         except click.ClickException:
             raise
-        except (PrescriptionError, GlassError, ValueError, OSError, RuntimeError, ImportError) as exc:
+        except (OptixError, OSError) as exc:
             raise click.ClickException(_one_line(exc)) from None
-        except _engine_errors() as exc:
+        except EngineError as exc:
             raise click.ClickException(f"engine: {type(exc).__name__}: {_one_line(exc)}") from None
 
     return wrapper

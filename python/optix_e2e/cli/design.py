@@ -22,7 +22,7 @@ from ._common import SEED, THREADS, dumps, friendly_errors
     "--config",
     "config_file",
     type=click.Path(dir_okay=False),
-    help="TOML file overriding any setting of the budget by name (optix_e2e.optimize.config).",
+    help="TOML file overriding any setting of the budget by name (optix_e2e.camera_design.config).",
 )
 @click.option(
     "--optimizer",
@@ -70,8 +70,8 @@ def design(task, out, config_file, optimizer, budget, seed, surrogate, images, o
     `torchrun --nproc_per_node N -m optix_e2e design ...` shares each training batch over N
     processes (gloo; the batch must divide by N; docs/distributed.md)."""
     from .. import parallel
-    from ..optimize.config import make_config
-    from ..optimize.run import run_design
+    from ..camera_design.config import make_config
+    from ..camera_design.run import hooks_for, run_design
 
     cfg = make_config(
         budget,
@@ -84,60 +84,14 @@ def design(task, out, config_file, optimizer, budget, seed, surrogate, images, o
         threads=threads,
         optics=optics,
     )
-    if cfg.task == "detection":
-        if images:
-            raise click.UsageError("--images is for the image-quality tasks; detection trains on street scenes")
-        if cfg.optics not in ("surrogate", "auto"):
-            raise click.UsageError("--optics exact and hybrid are for the image-quality tasks (detection: surrogate)")
-        from ..optimize.detection_run import run_detection_design
-
-        try:
-            res = run_detection_design(cfg, Path(out), progress=not quiet, log=click.echo)
-        finally:
-            parallel.teardown()
-        if res is None:  # not rank 0 of a torchrun run: rank 0 reports
-            return
-        n, e, p = res["nominal"], res["end_to_end"], res["paired"]
-        click.echo(
-            f"held-out ({res['held_out']['n_images']} street scenes, {res['held_out']['n_objects']} objects, "
-            f"{res['held_out']['n_objects_dark']} in the dark), exact optics, reference ISP:"
-        )
-        click.echo(f"  f-number  nominal f/{n['f_number']:.2f}   end-to-end f/{e['f_number']:.2f}")
-        for k, label in (("map_50", "mAP@0.5"), ("map", "mAP")):
-            lo, hi = p[k]["ci95"]
-            click.echo(
-                f"  {label:8s} nominal {n[k]:.4f}   end-to-end {e[k]:.4f}   diff {p[k]['mean']:+.4f} "
-                f"[{lo:+.4f}, {hi:+.4f}]"
-            )
-        click.echo(
-            f"results: {Path(out) / 'results.json'}  (lens: {Path(out) / res['lens_zmx']}, wall {res['wall_s']:.0f} s)"
-        )
-        click.echo(dumps({"results": str(Path(out) / "results.json"), "wall_s": res["wall_s"]}))
-        return
     try:
         res = run_design(cfg, Path(out), progress=not quiet, log=click.echo)
     finally:
         parallel.teardown()
-    if res is None:
+    if res is None:  # not rank 0 of a torchrun run: rank 0 reports
         return
-    n, e, p = res["nominal"], res["end_to_end"], res["paired"]
-    click.echo(
-        f"held-out ({res['held_out']['n_images']} images x {res['held_out']['per_image']} positions), exact optics:"
-    )
-    for m, label in (("psnr_db", "PSNR dB"), ("ssim", "SSIM"), ("lpips", "LPIPS"), ("haarpsi", "HaarPSI")):
-        lo, hi = p[m]["ci95"]
-        click.echo(
-            f"  {label:8s} nominal {n[m]:.4f}   end-to-end {e[m]:.4f}   diff {p[m]['mean']:+.4f} "
-            f"[{lo:+.4f}, {hi:+.4f}]   perfect lens {res['perfect_lens'][m]:.4f}"
-        )
-    click.echo("  (perfect lens: the nominal camera's processing, the scene unblurred and unshaded)")
-    om = res["optics_model"]
-    click.echo(
-        f"optics model {om['mode']} ({om['choice']['why']}); PSF rel. L1 at the final design, worst field: "
-        f"the model the last steps used {max(om['final_error_per_field']):.4f}, the network "
-        f"{max(om['final_network_error_per_field']):.4f}; {om['n_refinements']} refinements, "
-        f"{om['exact_gradient_steps']} lens steps on exact gradients"
-    )
+    for line in hooks_for(cfg).summary_lines(res):
+        click.echo(line)
     click.echo(
         f"results: {Path(out) / 'results.json'}  (lens: {Path(out) / res['lens_zmx']}, wall {res['wall_s']:.0f} s)"
     )

@@ -231,7 +231,7 @@ def train_proxy_cmd(out_dir, as_json, init, **kw):
 @friendly_errors
 def train_software_cmd(out_dir, as_json, crop, init, **kw):
     """Pre-train the software ISP on RAW through lenses of the design space (docs/isp.md)."""
-    from ..optimize.isp_pretraining import PretrainConfig, pretrain
+    from ..camera_design.isp_pretraining import PretrainConfig, pretrain
 
     if crop % 16:
         raise click.BadParameter(f"must be a multiple of 16, got {crop}", param_hint="--crop")

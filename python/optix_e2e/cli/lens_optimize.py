@@ -12,9 +12,9 @@ import numpy as np
 
 from ._common import AIMING, FINITE, FiniteFloatRange, SEED, dumps, friendly_errors
 from ..lens import BUNDLED_DIR, Lens, LensLoadError
-from ..design.optimizer import Constraints, LensProblem, Merit, optimize
-from ..design.optimizer import set_semi_diameters as _with_semi_diameters
-from ..design.space import ParameterSpace, SpaceError
+from ..lens_design.optimizer import Constraints, LensProblem, Merit, optimize
+from ..lens_design.optimizer import set_semi_diameters as _with_semi_diameters
+from ..lens_design.space import ParameterSpace, SpaceError
 
 
 def _raw_lens(spec: str) -> tuple[dict, str]:
@@ -52,7 +52,7 @@ def _floats(text: str | None, what: str) -> list[float] | None:
     "--vars",
     "var_names",
     help="Comma-separated variables, e.g. s_1_radius,s_1_conic,s_2_thickness "
-    "(default bounds around the current values; see optix_e2e.design.space).",
+    "(default bounds around the current values; see optix_e2e.lens_design.space).",
 )
 @click.option(
     "--space",
@@ -313,7 +313,7 @@ def optimize_cmd(
     if global_summary is not None:
         summary["global"] = global_summary
         if basins_path:
-            from ..design.global_search import basins_csv
+            from ..lens_design.global_search import basins_csv
 
             Path(basins_path).write_text(basins_csv(global_summary), encoding="utf-8")
     text = dumps(summary, indent=2)
@@ -350,7 +350,7 @@ def _run_global(raw, space, merit, minutes, rounds, seed, workers, batch, max_it
 
     from tqdm import tqdm
 
-    from ..design.global_search import global_search
+    from ..lens_design.global_search import global_search
 
     if minutes is None and rounds is None:
         minutes = 5.0

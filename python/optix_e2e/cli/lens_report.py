@@ -69,7 +69,7 @@ def plot(lens_spec, out, fields, rays, aiming, wavelength_nm):
     if out.suffix.lower() not in FIGURE_SUFFIXES:
         raise click.BadParameter(f"{out.name}: use one of {', '.join(FIGURE_SUFFIXES)}", param_hint="--out")
     lens_ = load_lens(lens_spec)
-    from ..design.plots import save_layout_png
+    from ..lens_design.plots import save_layout_png
 
     out.parent.mkdir(parents=True, exist_ok=True)
     res = save_layout_png(out, lens_, fields=_fields(fields), rays=rays, aiming=aiming, wavelength_nm=wavelength_nm)
@@ -119,7 +119,7 @@ def report(lens_spec, out, fields, aiming, rays, freqs, max_freq, per_wavelength
     frequencies and the MTF curves.
     """
     from ..io import claim_out_dir
-    from ..design.report import DEFAULT_MTF_FREQS, write_report
+    from ..lens_design.report import DEFAULT_MTF_FREQS, write_report
 
     claim_out_dir(out, "lens report", {"layout.png", "spots.png", "mtf.png", "report.json"})
     lens_ = load_lens(lens_spec)

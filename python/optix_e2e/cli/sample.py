@@ -7,8 +7,8 @@ from pathlib import Path
 
 import click
 
-from ..design.sampling import METHODS, Limits, sample_designs, write_designs_csv
-from ..design.space import load_space
+from ..lens_design.sampling import METHODS, Limits, sample_designs, write_designs_csv
+from ..lens_design.space import load_space
 from ._common import FINITE, SEED, dumps, friendly_errors
 
 

@@ -11,9 +11,9 @@ from pathlib import Path
 import click
 
 from ..lens import Lens
-from ..design.optimizer import Merit
-from ..design.tolerance import DEFAULT_PUPIL
-from ..design.space import SPACES_DIR, ParameterSpace, SpaceError, bundled_spaces
+from ..lens_design.optimizer import Merit
+from ..lens_design.tolerance import DEFAULT_PUPIL
+from ..lens_design.space import SPACES_DIR, ParameterSpace, SpaceError, bundled_spaces
 from ._common import FINITE, SEED, FiniteFloatRange, dumps, friendly_errors
 
 MC_SPACES = ("proposed", "given")
@@ -263,14 +263,14 @@ def tolerance(
     from tqdm import tqdm
 
     from ..io import claim_out_dir
-    from ..design import tolerance as tol
+    from ..lens_design import tolerance as tol
 
     claim_out_dir(
         out_dir,
         "tolerance analysis",
         {"proposed.toml", "sensitivity.csv", "sensitivity.png", "yield.png", "tolerance.json"},
     )
-    from ..design.sampling import Limits
+    from ..lens_design.sampling import Limits
 
     for opt, v in (("--budget-um", budget_um), ("--spec-um", spec_um)):
         if v is not None and not (math.isfinite(v) and v > 0):

@@ -18,6 +18,7 @@ import threading
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator
+from ..errors import RunError
 
 
 # the engine's batch PSFs use every core of a worker's process unless told otherwise; a
@@ -31,7 +32,7 @@ _buffers: dict[int, tuple] = {}
 _buffers_lock = threading.Lock()
 
 
-class ClusterError(RuntimeError):
+class ClusterError(RunError):
     """The Dask cluster cannot be reached or cannot run the dataset's shards."""
 
 
@@ -202,7 +203,7 @@ def run_shard(out: str, k: int, expect: dict) -> dict:
     read from there) and write it atomically; a shard already complete is left alone.
     ``expect``: the client's identity (:func:`_identity`), checked first on every task, so
     a worker that joins late with another view or build writes nothing."""
-    from ..design.sampling import read_designs_csv
+    from ..lens_design.sampling import read_designs_csv
     from .generate import _clean_stale, _complete, compute_shard, write_shard
     from .layout import read_manifest, shards_dir
     from .manifest import space_and_base

@@ -25,15 +25,16 @@ from typing import Callable
 import numpy as np
 
 from ..lens import Lens
-from ..design.focus import refocus_many
-from ..design.sampling import apertures, geometry_problem
-from ..design.space import ParameterSpace, load_space
+from ..lens_design.focus import refocus_many
+from ..lens_design.sampling import apertures, geometry_problem
+from ..lens_design.space import ParameterSpace, load_space
 from ..io import fsync_dir, write_json_atomic
 from .layout import ARRAYS, FORMAT, DatasetError, aligned_empty, save_npy, shard_name, shards_dir
 from .manifest import prepare
 from ..lens.apertures import engine_base
 from .settings import DatasetSettings
 from .verify import check_shard
+from ..errors import InputError
 
 
 @dataclass
@@ -316,9 +317,9 @@ def parse_shard_range(spec: str | None, n_shards: int) -> range:
         else:
             r = range(int(spec), int(spec) + 1)
     except ValueError:
-        raise ValueError(f"--shards {spec!r}: expected A:B or K (integers)") from None
+        raise InputError(f"--shards {spec!r}: expected A:B or K (integers)") from None
     if r.start < 0 or r.stop > n_shards or r.start >= r.stop:
-        raise ValueError(f"--shards {spec!r}: the dataset has shards 0..{n_shards - 1}")
+        raise InputError(f"--shards {spec!r}: the dataset has shards 0..{n_shards - 1}")
     return r
 
 
@@ -339,7 +340,7 @@ def generate(
     s = settings or DatasetSettings()
     s.check()
     if n < 1:
-        raise ValueError(f"n must be >= 1, got {n}")
+        raise InputError(f"n must be >= 1, got {n}")
     out = Path(out)
     if dask is not None:  # a malformed address is refused before anything is written
         from .cluster import parse_address

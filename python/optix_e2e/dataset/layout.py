@@ -31,6 +31,7 @@ import zlib
 from pathlib import Path
 
 import numpy as np
+from ..errors import InputError
 
 FORMAT = "optix-psf-dataset/1"
 ARRAYS = ("design", "params", "psf", "psf_sensor", "relative_illumination", "image_distance", "energy_in_window")
@@ -39,7 +40,7 @@ VALUES = ARRAYS[1:]  # the per-design data, after the design index
 # (fsync_dir, the atomic writes, read_small_text and claim_out_dir live in optix_e2e.io)
 
 
-class DatasetError(RuntimeError):
+class DatasetError(InputError):
     """A dataset directory that does not match the request, or is damaged; the message
     names the file and what is wrong."""
 
@@ -108,7 +109,7 @@ def npy_header(arr: np.ndarray, pad_to: int = 64) -> bytes:
     n = 10 + len(text) + 1
     text += " " * ((-n) % pad_to) + "\n"
     if len(text) > 65535:
-        raise ValueError(f"npy header of {len(text)} bytes")
+        raise InputError(f"npy header of {len(text)} bytes")
     return b"\x93NUMPY\x01\x00" + len(text).to_bytes(2, "little") + text.encode("latin1")
 
 

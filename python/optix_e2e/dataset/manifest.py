@@ -13,12 +13,13 @@ from typing import Callable
 import numpy as np
 
 from ..lens import Lens
-from ..design.sampling import Limits, read_designs_csv, sample_designs, write_designs_csv
-from ..design.space import Parameter, ParameterSpace, SpaceError
+from ..lens_design.sampling import Limits, read_designs_csv, sample_designs, write_designs_csv
+from ..lens_design.space import Parameter, ParameterSpace, SpaceError
 from ..io import claim_out_dir, write_json_atomic
 from .layout import FORMAT, DatasetError, differing_keys, read_json, sha256_file
 from ..lens.apertures import engine_base
 from .settings import DatasetSettings, field_positions
+from ..errors import InputError
 
 
 def _request(
@@ -164,16 +165,16 @@ def space_and_base(manifest: dict) -> tuple[ParameterSpace, Lens]:
         or not isinstance(sp.get("parameters"), list)
         or not all(isinstance(p, dict) for p in sp["parameters"])
     ):
-        raise ValueError(
+        raise InputError(
             "the manifest has no parameter space ('space' with a list of 'parameters'); "
             "it is damaged or not a dataset's"
         )
     if not isinstance(manifest.get("base_lens"), dict):
-        raise ValueError("the manifest has no base lens ('base_lens'); it is damaged or not a dataset's")
+        raise InputError("the manifest has no base lens ('base_lens'); it is damaged or not a dataset's")
     try:
         space = ParameterSpace([Parameter(**p) for p in sp["parameters"]], source=str(sp.get("source", "<manifest>")))
     except TypeError as err:
-        raise ValueError(f"the manifest's parameter space is damaged ({err})") from None
+        raise InputError(f"the manifest's parameter space is damaged ({err})") from None
     return space, Lens(manifest["base_lens"], source="<manifest base lens>")
 
 

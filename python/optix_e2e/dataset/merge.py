@@ -11,6 +11,7 @@ from ..io import write_json_atomic
 from .layout import DatasetError, differing_keys, read_manifest, shard_name, shards_dir
 from .generate import temporary_name
 from .verify import read_shard_meta
+from ..errors import InputError
 
 # manifest keys that may differ between processes of one dataset
 _LOCAL = {"created_unix", "versions"}
@@ -23,7 +24,7 @@ def merge(out: "str | Path", parts: Sequence["str | Path"]) -> dict:
     out = Path(out)
     parts = [Path(p) for p in parts]
     if not parts:
-        raise ValueError("merge: no input directories")
+        raise InputError("merge: no input directories")
     mans = [read_manifest(p) for p in parts]
     ref = {k: v for k, v in mans[0].items() if k not in _LOCAL}
     for p, m in zip(parts[1:], mans[1:]):

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..lens import Lens
+from ..errors import InputError
 
 
 # The engine's largest PSF (pixels across; crates/psf-engine PsfOptions::check).
@@ -41,30 +42,30 @@ class DatasetSettings:
 
     def check(self) -> None:
         if self.n_fields < 0:
-            raise ValueError(f"n_fields must be >= 1 (or 0: auto), got {self.n_fields}")
+            raise InputError(f"n_fields must be >= 1 (or 0: auto), got {self.n_fields}")
         if not (self.window_um > 0 and self.pixel_um > 0 and self.sensor_pixel_um > 0):
-            raise ValueError("window_um, pixel_um and sensor_pixel_um must be positive")
+            raise InputError("window_um, pixel_um and sensor_pixel_um must be positive")
         if self.size < 8:
-            raise ValueError(f"window {self.window_um} um at {self.pixel_um} um/pixel is only {self.size} pixels")
+            raise InputError(f"window {self.window_um} um at {self.pixel_um} um/pixel is only {self.size} pixels")
         if self.size > MAX_SIZE:
-            raise ValueError(
+            raise InputError(
                 f"window {self.window_um} um at {self.pixel_um} um/pixel is {self.size} pixels across; "
                 f"the engine computes at most {MAX_SIZE} (a smaller window_um or a larger pixel_um)"
             )
         if self.sensor_size < 1:
-            raise ValueError(f"window {self.window_um} um holds no {self.sensor_pixel_um} um sensor pixel")
+            raise InputError(f"window {self.window_um} um holds no {self.sensor_pixel_um} um sensor pixel")
         if self.shard_size < 1:
-            raise ValueError(f"shard_size must be >= 1, got {self.shard_size}")
+            raise InputError(f"shard_size must be >= 1, got {self.shard_size}")
         if self.apertures not in ("auto", "fixed"):
-            raise ValueError(f"apertures must be 'auto' or 'fixed', got {self.apertures!r}")
+            raise InputError(f"apertures must be 'auto' or 'fixed', got {self.apertures!r}")
         if self.focus not in ("best", "paraxial", "fixed"):
-            raise ValueError(f"focus must be 'best', 'paraxial' or 'fixed', got {self.focus!r}")
+            raise InputError(f"focus must be 'best', 'paraxial' or 'fixed', got {self.focus!r}")
         if self.psf_method not in ("auto", "fft", "huygens", "geometric"):
-            raise ValueError(f"psf_method must be auto, fft, huygens or geometric, got {self.psf_method!r}")
+            raise InputError(f"psf_method must be auto, fft, huygens or geometric, got {self.psf_method!r}")
         if not self.accuracy > 0:
-            raise ValueError(f"accuracy must be a positive relative L1 error, got {self.accuracy}")
+            raise InputError(f"accuracy must be a positive relative L1 error, got {self.accuracy}")
         if self.channels not in ("lens", "rgb", "auto"):
-            raise ValueError(f"channels must be 'lens', 'rgb' or 'auto', got {self.channels!r}")
+            raise InputError(f"channels must be 'lens', 'rgb' or 'auto', got {self.channels!r}")
 
     def check_memory(self, n_designs: int, n_fields: int, n_channels: int) -> None:
         """Refuse, before anything is written, settings whose shard buffers (PSFs and sensor
@@ -79,7 +80,7 @@ class DatasetSettings:
         work = (os.cpu_count() or 1) * (self.size**2 * 24.0 + (4 * self.pupil_samples) ** 2 * 32.0)
         avail = engine.available_memory()
         if buffers + work > avail:
-            raise ValueError(
+            raise InputError(
                 f"a shard of {min(self.shard_size, n_designs)} designs x {n_fields} fields x {n_channels} "
                 f"channels at {self.size}x{self.size} pixels would need about {human(buffers + work)} "
                 f"(shard buffers {human(buffers)}), more than the {human(avail)} of memory available: "

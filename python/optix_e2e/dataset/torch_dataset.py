@@ -20,6 +20,7 @@ from torch.utils.data import Dataset
 
 from .layout import DatasetError, read_manifest, shard_name, shards_dir
 from .verify import open_shard, read_shard_meta
+from ..errors import InputError
 
 
 class PsfDataset(Dataset):
@@ -46,7 +47,7 @@ class PsfDataset(Dataset):
         self.root = Path(root)
         self.manifest = man = read_manifest(self.root)
         if psf not in ("psf", "psf_sensor"):
-            raise ValueError(f"psf must be 'psf' or 'psf_sensor', got {psf!r}")
+            raise InputError(f"psf must be 'psf' or 'psf_sensor', got {psf!r}")
         self.psf_key = psf
         self.verify = verify
         self.fields_deg = np.asarray(man["fields_deg"], float)

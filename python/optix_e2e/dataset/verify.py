@@ -8,8 +8,8 @@ from typing import Collection
 
 import numpy as np
 
-from ..design.sampling import read_designs_csv
-from ..design.space import SpaceError
+from ..lens_design.sampling import read_designs_csv
+from ..lens_design.space import SpaceError
 from .layout import (
     FORMAT,
     VALUES,

@@ -26,6 +26,7 @@ from ..sensor import get_preset
 from ..sensor.cfa import bayer_masks, check_pattern
 from ..sensor.emva import expected_electrons
 from .demosaick import bilinear_demosaick
+from ..errors import InputError
 
 # Malvar, He & Cutler (ICASSP 2004), Fig. 2 filters (x 1/8), the same as reference.py's.
 _G_AT_RB = [[0, 0, -1, 0, 0], [0, 0, 2, 0, 0], [-1, 2, 4, 2, -1], [0, 0, 2, 0, 0], [0, 0, -1, 0, 0]]
@@ -38,7 +39,7 @@ def malvar_demosaick(cfa: torch.Tensor, pattern: str = "RGGB") -> torch.Tensor:
     """CFA image [B, 1, H, W] -> RGB [B, 3, H, W] by Malvar-He-Cutler's gradient-corrected
     linear filters (reflect padding keeps the CFA phase). Differentiable."""
     if cfa.dim() != 4 or cfa.shape[1] != 1:
-        raise ValueError(f"malvar_demosaick expects [B, 1, H, W], got {tuple(cfa.shape)}")
+        raise InputError(f"malvar_demosaick expects [B, 1, H, W], got {tuple(cfa.shape)}")
     h, w = cfa.shape[-2:]
     m = bayer_masks(pattern, h, w, device=cfa.device, dtype=cfa.dtype)  # [3, H, W]
     est = F.conv2d(F.pad(cfa, (2, 2, 2, 2), mode="reflect"), _MALVAR.to(cfa)[:, None])  # [B, 4, H, W]
@@ -96,7 +97,7 @@ class ClassicalISP(nn.Module):
     def __init__(self, preset="imx249", demosaick: str = "malvar"):
         super().__init__()
         if demosaick not in ("malvar", "bilinear"):
-            raise ValueError(f"demosaick must be malvar or bilinear, got {demosaick!r}")
+            raise InputError(f"demosaick must be malvar or bilinear, got {demosaick!r}")
         self.demosaick = demosaick
         self.pattern = check_pattern("RGGB")
         self.register_buffer("to_linear", torch.zeros(3, 3))

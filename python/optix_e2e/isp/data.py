@@ -19,6 +19,7 @@ from .. import color, scenes
 from ..sensor import get_preset, simulate_raw
 from . import params as hp
 from . import reference
+from ..errors import InputError
 
 
 @dataclass(frozen=True)
@@ -97,7 +98,7 @@ def make_pool(
 ) -> Pool:
     """n (RAW, hyperparameters, reference output) triples of size x size pixels."""
     if size % 2:
-        raise ValueError(f"patch size must be even (whole CFA periods), got {size}")
+        raise InputError(f"patch size must be even (whole CFA periods), got {size}")
     rng = np.random.default_rng(seed)
     gen = torch.Generator().manual_seed(seed)
     isp = reference_isp(capture)

@@ -11,6 +11,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..sensor.cfa import bayer_masks, check_pattern
+from ..errors import InputError
 
 _RB = torch.tensor([[1.0, 2.0, 1.0], [2.0, 4.0, 2.0], [1.0, 2.0, 1.0]]) / 4
 _G = torch.tensor([[0.0, 1.0, 0.0], [1.0, 4.0, 1.0], [0.0, 1.0, 0.0]]) / 4
@@ -19,7 +20,7 @@ _G = torch.tensor([[0.0, 1.0, 0.0], [1.0, 4.0, 1.0], [0.0, 1.0, 0.0]]) / 4
 def bilinear_demosaick(cfa: torch.Tensor, pattern: str = "RGGB") -> torch.Tensor:
     """CFA image [B, 1, H, W] -> RGB [B, 3, H, W]. Reflect padding keeps the CFA phase."""
     if cfa.dim() != 4 or cfa.shape[1] != 1:
-        raise ValueError(f"bilinear_demosaick expects [B, 1, H, W], got {tuple(cfa.shape)}")
+        raise InputError(f"bilinear_demosaick expects [B, 1, H, W], got {tuple(cfa.shape)}")
     m = bayer_masks(pattern, cfa.shape[-2], cfa.shape[-1], device=cfa.device, dtype=cfa.dtype)
     k = torch.stack([_RB, _G, _RB]).unsqueeze(1).to(cfa)  # [3, 1, 3, 3]
     x = F.pad(cfa * m.unsqueeze(0), (1, 1, 1, 1), mode="reflect")

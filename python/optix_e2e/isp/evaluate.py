@@ -16,6 +16,7 @@ from ..metrics import image as metrics
 from . import data
 from . import params as hp
 from .proxy import ISPProxy
+from ..errors import InputError
 
 HELD_OUT_SEED = 20_261_121  # hyperparameter draws and sensor noise for evaluation
 
@@ -55,7 +56,7 @@ def evaluate_proxy(
             t1 = time.perf_counter()
             pred = proxy.render(raw[i : i + 1], p)
             if not torch.isfinite(pred).all():
-                raise ValueError(
+                raise InputError(
                     f"the ISP proxy's output is not finite on photo {name} ({label} hyperparameters); no metrics"
                 )
             pred = pred.clamp(0, 1)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 from torch import nn
+from ..errors import InputError
 
 
 class LayerNorm2d(nn.Module):
@@ -102,7 +103,7 @@ class NAFNet(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         step = 2**self.depth
         if x.shape[-1] % step or x.shape[-2] % step:
-            raise ValueError(f"NAFNet input H and W must be multiples of {step}, got {tuple(x.shape[-2:])}")
+            raise InputError(f"NAFNet input H and W must be multiples of {step}, got {tuple(x.shape[-2:])}")
         x = self.intro(x)
         skips = []
         for enc, down in zip(self.enc, self.down):

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from ..errors import InputError
 
 
 @dataclass(frozen=True)
@@ -63,17 +64,17 @@ def check(params: dict) -> dict[str, float]:
     """Complete ``params`` with defaults and validate every value against its range."""
     unknown = set(params) - set(NAMES)
     if unknown:
-        raise ValueError(f"unknown ISP hyperparameter(s) {sorted(unknown)}: expected {list(NAMES)}")
+        raise InputError(f"unknown ISP hyperparameter(s) {sorted(unknown)}: expected {list(NAMES)}")
     out = defaults()
     for name, value in params.items():
         p = _BY_NAME[name]
         if p.categorical and isinstance(value, str):
             if value not in p.choices:
-                raise ValueError(f"ISP hyperparameter {name}: {value!r} is not one of {p.choices}")
+                raise InputError(f"ISP hyperparameter {name}: {value!r} is not one of {p.choices}")
             value = p.choices.index(value)
         v = float(value)
         if not np.isfinite(v) or v < p.low - 1e-9 or v > p.high + 1e-9:
-            raise ValueError(f"ISP hyperparameter {name}={value} outside its range [{p.low}, {p.high}] {p.unit}")
+            raise InputError(f"ISP hyperparameter {name}={value} outside its range [{p.low}, {p.high}] {p.unit}")
         out[name] = float(round(v)) if p.categorical else v
     return out
 
@@ -96,7 +97,7 @@ def from_unit(u) -> dict[str, float]:
     """Vector in [0, 1]^n -> dict (categoricals rounded to a valid choice)."""
     u = np.clip(np.asarray(u, dtype=np.float64).reshape(-1), 0.0, 1.0)
     if u.size != len(SPACE):
-        raise ValueError(f"expected {len(SPACE)} ISP hyperparameters, got {u.size}")
+        raise InputError(f"expected {len(SPACE)} ISP hyperparameters, got {u.size}")
     out = {}
     for p, x in zip(SPACE, u):
         v = p.low + x * (p.high - p.low)

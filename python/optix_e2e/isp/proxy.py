@@ -17,6 +17,7 @@ from ..io import save_atomic
 from ..torchfile import build_module, load_plain
 from . import params as hp
 from .rawnet import RawUNet
+from ..errors import InputError
 
 BUNDLED = Path(__file__).with_name("bundled") / "isp_proxy.pt"
 
@@ -33,7 +34,7 @@ class ISPProxy(nn.Module):
         if params_unit.dim() == 1:
             params_unit = params_unit.unsqueeze(0).expand(raw_dn.shape[0], -1)
         if params_unit.shape != (raw_dn.shape[0], self.n_params):
-            raise ValueError(
+            raise InputError(
                 f"ISP proxy expects hyperparameters [B={raw_dn.shape[0]}, {self.n_params}], "
                 f"got {tuple(params_unit.shape)}"
             )
@@ -65,14 +66,14 @@ class ISPProxy(nn.Module):
             raise FileNotFoundError(f"ISP proxy checkpoint not found: {path}")
         ckpt = load_plain(path, "ISP proxy checkpoint", map_location=map_location)
         if not isinstance(ckpt, dict) or ckpt.get("format") != "optix-isp-proxy/1":
-            raise ValueError(f"{path}: not an optix ISP proxy checkpoint (format 'optix-isp-proxy/1')")
+            raise InputError(f"{path}: not an optix ISP proxy checkpoint (format 'optix-isp-proxy/1')")
         try:
             space = [tuple(s) for s in ckpt["space"]]
         except (KeyError, TypeError):
-            raise ValueError(f"{path}: damaged ISP proxy checkpoint: no hyperparameter space") from None
+            raise InputError(f"{path}: damaged ISP proxy checkpoint: no hyperparameter space") from None
         expected = [(p.name, p.low, p.high) for p in hp.SPACE]
         if space != expected:
-            raise ValueError(f"{path}: proxy was trained for hyperparameters {space}, this ISP has {expected}")
+            raise InputError(f"{path}: proxy was trained for hyperparameters {space}, this ISP has {expected}")
         model = build_module(cls, ckpt.get("config"), ckpt.get("state_dict"), path, "ISP proxy checkpoint")
         meta = ckpt.get("meta", {})
         model.meta = dict(meta) if isinstance(meta, dict) else {}

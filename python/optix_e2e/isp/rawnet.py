@@ -15,6 +15,7 @@ from torch import nn
 
 from .demosaick import BilinearDemosaick
 from .unet import UNet, pad_to_multiple
+from ..errors import InputError
 
 
 class RawUNet(nn.Module):
@@ -45,7 +46,7 @@ class RawUNet(nn.Module):
     def forward(self, raw_dn: torch.Tensor, cond: torch.Tensor | None = None) -> torch.Tensor:
         """raw_dn [B, 1, H, W]; cond [B, n_cond] constants broadcast over the image."""
         if raw_dn.dim() != 4 or raw_dn.shape[1] != 1:
-            raise ValueError(f"expected a RAW batch [B, 1, H, W], got {tuple(raw_dn.shape)}")
+            raise InputError(f"expected a RAW batch [B, 1, H, W], got {tuple(raw_dn.shape)}")
         x, (h, w) = pad_to_multiple(raw_dn / (2.0**self.adc_bits - 1), 2 ** (self.unet.depth + self.pack))
         feats = self.demosaick(x)
         if self.pack:

@@ -23,6 +23,7 @@ from skimage.restoration import denoise_bilateral
 
 from ..sensor.cfa import bayer_masks
 from . import params as hp
+from ..errors import InputError
 
 # Malvar, He & Cutler (ICASSP 2004), Fig. 2 filters (x 1/8).
 _G_AT_RB = (
@@ -83,9 +84,9 @@ def run(
     """RAW [H, W] in digital numbers -> sRGB-like image [H, W, 3] in [0, 1] (8-bit levels)."""
     raw = np.asarray(raw, dtype=np.float64)
     if raw.ndim != 2:
-        raise ValueError(f"reference ISP expects one RAW frame [H, W], got shape {raw.shape}")
+        raise InputError(f"reference ISP expects one RAW frame [H, W], got shape {raw.shape}")
     if not np.all(np.isfinite(raw)):
-        raise ValueError("reference ISP: RAW frame contains NaN or infinite values")
+        raise InputError("reference ISP: RAW frame contains NaN or infinite values")
     p = hp.check(params or {})
     white = 2.0**adc_bits - 1
     x = np.clip((raw - p["black_level_dn"]) / (white - p["black_level_dn"]), 0.0, None)
@@ -113,7 +114,7 @@ def run_batch(raw, params_list, **kw) -> np.ndarray:
     raw = np.asarray(raw.detach().cpu() if hasattr(raw, "detach") else raw)
     raw = raw.reshape(raw.shape[0], raw.shape[-2], raw.shape[-1])
     if len(params_list) != raw.shape[0]:
-        raise ValueError(f"{raw.shape[0]} RAW frames but {len(params_list)} hyperparameter sets")
+        raise InputError(f"{raw.shape[0]} RAW frames but {len(params_list)} hyperparameter sets")
     return np.stack([run(r, p, **kw).transpose(2, 0, 1) for r, p in zip(raw, params_list)]).astype(np.float32)
 
 

@@ -29,6 +29,7 @@ from .classical import ClassicalISP
 from .nafnet import NAFNet
 from .rawnet import RawUNet
 from .unet import UNet
+from ..errors import InputError
 
 FORMATS = ("optix-software-isp/1", "optix-software-isp/2")
 
@@ -72,16 +73,16 @@ class SoftwareISP(nn.Module):
     ):
         super().__init__()
         if arch not in ("nafnet", "unet"):
-            raise ValueError(f"arch must be nafnet or unet, got {arch!r}")
+            raise InputError(f"arch must be nafnet or unet, got {arch!r}")
         if not residual and (arch != "unet" or position):
-            raise ValueError("residual=False is the first version's network: arch='unet', position=False")
+            raise InputError("residual=False is the first version's network: arch='unet', position=False")
         self.arch, self.position, self.residual, self.blocks = arch, bool(position), bool(residual), int(blocks)
         self.pattern, self.adc_bits, self.base_width, self.depth, self.pack = pattern, adc_bits, base, depth, pack
         if not residual:
             self.net = RawUNet(0, pattern, adc_bits, base, depth, pack)
             return
         if not pack:
-            raise ValueError("the software ISP packs its RAW input 2x2 (pack=True)")
+            raise InputError("the software ISP packs its RAW input 2x2 (pack=True)")
         self.classical = ClassicalISP(preset)
         c_in = 4 * (1 + 3 + (2 if position else 0))  # packed: RAW, the classical RGB, the position
         if arch == "unet":
@@ -120,15 +121,15 @@ class SoftwareISP(nn.Module):
         if not self.residual:
             return self.net(raw_dn)
         if raw_dn.dim() != 4 or raw_dn.shape[1] != 1:
-            raise ValueError(f"expected a RAW batch [B, 1, H, W], got {tuple(raw_dn.shape)}")
+            raise InputError(f"expected a RAW batch [B, 1, H, W], got {tuple(raw_dn.shape)}")
         b, _, h, w = raw_dn.shape
         if h % 2 or w % 2:
-            raise ValueError(f"the software ISP needs whole CFA periods (even H and W), got {h}x{w}")
+            raise InputError(f"the software ISP needs whole CFA periods (even H and W), got {h}x{w}")
         base = self.classical(raw_dn)
         feats = [raw_dn / (2.0**self.adc_bits - 1), base]
         if self.position:
             if not full_field_px:
-                raise ValueError("this software ISP sees the field position: give full_field_px")
+                raise InputError("this software ISP sees the field position: give full_field_px")
             pos = position_channels(h, w, offset_px, full_field_px, device=raw_dn.device, dtype=raw_dn.dtype)
             feats.append(pos.expand(b, -1, -1, -1))  # one offset for the batch, or one per sample
         x = torch.cat(feats, 1)
@@ -144,7 +145,7 @@ class SoftwareISP(nn.Module):
         """A checkpoint written by ``optix isp train-software`` (software_isp.pt)."""
         ckpt = load_plain(path, "software ISP checkpoint", map_location=map_location)
         if not isinstance(ckpt, dict) or ckpt.get("format") not in FORMATS:
-            raise ValueError(f"{path}: not an optix software ISP checkpoint (format {' or '.join(FORMATS)})")
+            raise InputError(f"{path}: not an optix software ISP checkpoint (format {' or '.join(FORMATS)})")
         config = ckpt.get("config")
         if ckpt["format"] == FORMATS[0] and isinstance(config, dict):
             config = {**config, "arch": "unet", "position": False, "residual": False}

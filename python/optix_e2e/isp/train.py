@@ -1,7 +1,7 @@
 """Training of the hardware ISP's proxy (Eq. 9) with TensorBoard logs and a tqdm progress
 bar: L1 + perceptual loss against the reference ISP's output on sensor RAW over random
 hyperparameters. (The software ISP is pre-trained through lenses of the design space:
-optimize/isp_pretraining.py.)
+camera_design/isp_pretraining.py.)
 
 Data stream: pools of procedural scenes captured by the simulated sensor and rendered by the
 reference ISP under random hyperparameters (``data.make_pool``); a fresh pool replaces the

@@ -9,6 +9,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 from torch import nn
+from ..errors import InputError
 
 
 def _block(c_in: int, c_out: int) -> nn.Sequential:
@@ -35,7 +36,7 @@ class UNet(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         step = 2**self.depth
         if x.shape[-1] % step or x.shape[-2] % step:
-            raise ValueError(f"UNet input H and W must be multiples of {step}, got {tuple(x.shape[-2:])}")
+            raise InputError(f"UNet input H and W must be multiples of {step}, got {tuple(x.shape[-2:])}")
         skips = []
         for i, block in enumerate(self.down):
             x = block(x if i == 0 else F.max_pool2d(x, 2))

@@ -53,6 +53,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from ..errors import InputError
 
 __all__ = [
     "CATALOG_PREFERENCE",
@@ -269,7 +270,7 @@ def _builtin(catalog: str, name: str) -> tuple:
 EXTRAPOLATION_FRACTION = 0.1
 
 
-class GlassError(ValueError):
+class GlassError(InputError):
     """Unknown glass or catalog, or a database page this package cannot use."""
 
 

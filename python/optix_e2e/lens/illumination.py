@@ -16,12 +16,13 @@ from __future__ import annotations
 import numpy as np
 
 from .model import Lens
+from ..errors import InputError
 
 
 def _image_point(lens: Lens, field_deg: float, wavelength_nm: float) -> tuple[float, float]:
     chief = lens.trace_field(field_deg, [0.0], [0.0], wavelength_nm)
     if int(chief["status"][0]) != 0:
-        raise ValueError(f"the chief ray at {field_deg} deg does not reach the image")
+        raise InputError(f"the chief ray at {field_deg} deg does not reach the image")
     return float(chief["position"][0, 0]), float(chief["position"][0, 1])
 
 

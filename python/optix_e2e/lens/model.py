@@ -15,6 +15,7 @@ from .. import engine
 from .text import display_name
 from .prescription import PrescriptionError, resolve_prescription
 from .pupil import pupil_quadrature
+from ..errors import InputError
 
 __all__ = ["Lens", "LensLoadError", "bundled_lenses", "DEFAULT_RGB_CHANNELS"]
 
@@ -263,7 +264,7 @@ class Lens:
             return [[p] for p in pairs]
         if mode == "rgb":
             return [list(c) for c in DEFAULT_RGB_CHANNELS]
-        raise ValueError(f"unknown channel mode {mode!r} (lens or rgb)")
+        raise InputError(f"unknown channel mode {mode!r} (lens or rgb)")
 
     def to_engine_json(self) -> str:
         """The resolved prescription as the JSON string the engine takes."""

@@ -35,6 +35,7 @@ import math
 from typing import Any, Callable, Sequence
 
 import numpy as np
+from ..errors import InputError
 
 __all__ = ["diffraction_mtf", "otf_1d", "psf_sampling", "field_mtf", "NYQUIST_5P86_UM"]
 
@@ -51,7 +52,7 @@ def diffraction_mtf(freq_cyc_mm, wavelength_nm: float, f_number: float) -> np.nd
     """MTF of an aberration-free circular pupil: 2/pi (acos v - v sqrt(1 - v^2)),
     v = f / f_c, f_c = 1 / (lambda N); zero beyond the cutoff."""
     if not (wavelength_nm > 0 and f_number > 0):
-        raise ValueError(f"diffraction_mtf needs a positive wavelength and f-number, got {wavelength_nm}, {f_number}")
+        raise InputError(f"diffraction_mtf needs a positive wavelength and f-number, got {wavelength_nm}, {f_number}")
     v = np.clip(np.abs(np.asarray(freq_cyc_mm, dtype=float)) * wavelength_nm * 1e-6 * f_number, 0.0, 1.0)
     return 2.0 / np.pi * (np.arccos(v) - v * np.sqrt(1.0 - v * v))
 
@@ -69,11 +70,11 @@ def otf_1d(
     Airy pattern's MTF at low frequencies).  Default: the window's sum.
     """
     if axis not in ("x", "y"):
-        raise ValueError(f"axis must be 'x' or 'y', got {axis!r}")
+        raise InputError(f"axis must be 'x' or 'y', got {axis!r}")
     lsf = psf.sum(axis=1 if axis == "y" else 0)  # rows are y
     inside = float(lsf.sum())
     if not inside > 0:
-        raise ValueError("the PSF holds no energy: no OTF")
+        raise InputError("the PSF holds no energy: no OTF")
     total = inside if total is None else max(float(total), inside)
     coord = (np.arange(lsf.size) - lsf.size // 2) * pixel_um * 1e-3 + offset_mm
     f = np.atleast_1d(np.asarray(freq_cyc_mm, dtype=float))
@@ -95,7 +96,7 @@ def working_f_number(lens, wavelength_nm: float, aiming: str = "paraxial") -> fl
 def psf_sampling(lens, wavelengths_nm: Sequence[float], pupil_samples: int = 64) -> dict[str, float]:
     """Pixel pitch and window for MTF-grade PSFs (see the module docstring)."""
     if pupil_samples < 16:
-        raise ValueError(f"pupil_samples must be at least 16 for an MTF, got {pupil_samples}")
+        raise InputError(f"pupil_samples must be at least 16 for an MTF, got {pupil_samples}")
     n_f = min(working_f_number(lens, w) for w in wavelengths_nm)
     lam_min_um = min(wavelengths_nm) * 1e-3
     pixel_um = lam_min_um * n_f / 4.0
@@ -193,25 +194,25 @@ def field_mtf(
     wavelength) and strehl per wavelength (None where the engine does not trust it).
     """
     if method not in ("fft", "huygens"):
-        raise ValueError(f"MTF PSF method must be 'fft' or 'huygens', got {method!r}")
+        raise InputError(f"MTF PSF method must be 'fft' or 'huygens', got {method!r}")
     if wavelengths_nm is None:
         wavelengths_nm = lens.wavelengths_nm
         weights = lens.wavelength_weights if weights is None else weights
     wavelengths_nm = [float(w) for w in wavelengths_nm]
     weights = [1.0] * len(wavelengths_nm) if weights is None else [float(w) for w in weights]
     if not wavelengths_nm or len(weights) != len(wavelengths_nm):
-        raise ValueError(f"{len(wavelengths_nm)} wavelengths and {len(weights)} weights")
+        raise InputError(f"{len(wavelengths_nm)} wavelengths and {len(weights)} weights")
     if any(w < 0 for w in weights) or sum(weights) <= 0:
-        raise ValueError(f"wavelength weights must be >= 0 with a positive sum, got {weights}")
+        raise InputError(f"wavelength weights must be >= 0 with a positive sum, got {weights}")
     samp = psf_sampling(lens, wavelengths_nm, pupil_samples)
     freq = (
         default_frequencies(wavelengths_nm, samp["f_number"]) if freq_cyc_mm is None else np.asarray(freq_cyc_mm, float)
     )
     if freq.ndim != 1 or np.any(~np.isfinite(freq)) or np.any(freq < 0):
-        raise ValueError("frequencies must be a 1-D list of finite values >= 0 (cycles/mm)")
+        raise InputError("frequencies must be a 1-D list of finite values >= 0 (cycles/mm)")
     too_high = freq[freq > samp["grid_nyquist_cyc_mm"]]
     if too_high.size:
-        raise ValueError(
+        raise InputError(
             f"{too_high.max():g} cycles/mm is beyond the PSF grid's Nyquist frequency "
             f"{samp['grid_nyquist_cyc_mm']:.1f} (twice the diffraction cutoff)"
         )
@@ -266,5 +267,5 @@ def mtf_at(result: dict[str, Any], freq_cyc_mm: float) -> dict[str, float]:
     interpolation on the result's frequency grid)."""
     f = result["freq_cyc_mm"]
     if not (f[0] <= freq_cyc_mm <= f[-1]):
-        raise ValueError(f"{freq_cyc_mm:g} cycles/mm is outside the computed range {f[0]:g}..{f[-1]:g}")
+        raise InputError(f"{freq_cyc_mm:g} cycles/mm is outside the computed range {f[0]:g}..{f[-1]:g}")
     return {k: float(np.interp(freq_cyc_mm, f, result[k])) for k in ("tangential", "sagittal", "diffraction_limit")}

@@ -13,6 +13,7 @@ import copy
 import math
 from typing import Any
 
+from ..errors import InputError
 from . import glass as _glass
 
 __all__ = ["PrescriptionError", "resolve_prescription"]
@@ -46,7 +47,7 @@ SURFACE_KEYS = {
 ASPHERIC_KEYS = {f"a{2 * i}" for i in range(1, 11)} | {"a1", "a3", "a5", "a7"}
 
 
-class PrescriptionError(ValueError):
+class PrescriptionError(InputError):
     """Invalid lens prescription; the message names the source and the JSON location."""
 
 

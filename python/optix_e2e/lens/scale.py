@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import math
+from ..errors import InputError
 
 __all__ = ["scale_lens"]
 
@@ -28,7 +29,7 @@ def _len(v, s: float):
 def scale_lens(data: dict, factor: float) -> dict:
     """A copy of the lens dict ``data`` with every length times ``factor`` (> 0)."""
     if not (isinstance(factor, (int, float)) and math.isfinite(factor) and factor > 0):
-        raise ValueError(f"scale factor must be a positive number, got {factor!r}")
+        raise InputError(f"scale factor must be a positive number, got {factor!r}")
     out = copy.deepcopy(data)
     for srf in out["surfaces"]:
         if "radius" in srf:

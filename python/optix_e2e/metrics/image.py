@@ -38,6 +38,7 @@ from __future__ import annotations
 import piq
 import torch
 from torch import nn
+from ..errors import InputError
 
 __all__ = [
     "psnr",
@@ -56,15 +57,15 @@ _SSIM_KERNEL = 11
 
 def _prepare(x: torch.Tensor, y: torch.Tensor, crop: int) -> tuple[torch.Tensor, torch.Tensor, bool]:
     if x.shape != y.shape:
-        raise ValueError(f"images differ in shape: {tuple(x.shape)} vs {tuple(y.shape)}")
+        raise InputError(f"images differ in shape: {tuple(x.shape)} vs {tuple(y.shape)}")
     if x.ndim not in (3, 4):
-        raise ValueError(f"expected [C,H,W] or [B,C,H,W], got shape {tuple(x.shape)}")
+        raise InputError(f"expected [C,H,W] or [B,C,H,W], got shape {tuple(x.shape)}")
     single = x.ndim == 3
     if single:
         x, y = x[None], y[None]
     if crop:
         if 2 * crop >= min(x.shape[-2:]):
-            raise ValueError(f"crop={crop} removes the whole {x.shape[-2]}x{x.shape[-1]} image")
+            raise InputError(f"crop={crop} removes the whole {x.shape[-2]}x{x.shape[-1]} image")
         x, y = x[..., crop:-crop, crop:-crop], y[..., crop:-crop, crop:-crop]
     return x, y, single
 
@@ -95,7 +96,7 @@ def ssim(x: torch.Tensor, y: torch.Tensor, crop: int = 0, *, downsample: bool = 
     """
     x, y, single = _prepare(x, y, crop)
     if min(x.shape[-2:]) < _SSIM_KERNEL:
-        raise ValueError(
+        raise InputError(
             f"SSIM needs images of at least {_SSIM_KERNEL}x{_SSIM_KERNEL} pixels, got {x.shape[-2]}x{x.shape[-1]}"
         )
     v = piq.ssim(_clamp01(x), _clamp01(y), data_range=1.0, reduction="none", downsample=downsample)
@@ -106,12 +107,12 @@ def haarpsi(x: torch.Tensor, y: torch.Tensor, crop: int = 0) -> torch.Tensor:
     """HaarPSI similarity in (0, 1], 1 for identical images (higher is better)."""
     x, y, single = _prepare(x, y, crop)
     if min(x.shape[-2:]) < HAARPSI_MIN_SIZE:
-        raise ValueError(
+        raise InputError(
             f"HaarPSI needs images of at least {HAARPSI_MIN_SIZE}x{HAARPSI_MIN_SIZE} "
             f"pixels, got {x.shape[-2]}x{x.shape[-1]}"
         )
     if x.shape[1] not in (1, 3):
-        raise ValueError(f"HaarPSI takes 1 or 3 channels, got {x.shape[1]}")
+        raise InputError(f"HaarPSI takes 1 or 3 channels, got {x.shape[1]}")
     score = piq.haarpsi(_clamp01(x), _clamp01(y), data_range=1.0, reduction="none")
     # Two images without any structure at HaarPSI's coarsest scale (black, both) weigh nothing:
     # piq's ratio is then eps / eps = 1 and its logit infinite. Such images are identical as far

@@ -28,6 +28,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from ..errors import InputError, RunError
+
 __all__ = ["LPIPS", "lpips", "weights_path", "weights_digest", "LPIPSWeightsError"]
 
 # LPIPS's input scaling layer (the original's ScalingLayer)
@@ -40,7 +42,7 @@ FEATURE_CONVS = (0, 3, 6, 8, 10)  # indices of the convolutions in torchvision's
 WEIGHTS_SHA256 = "eaa8d368b94a76ccca58d8c582077d34f8a014459def952832f4edd7fb86bb54"
 
 
-class LPIPSWeightsError(RuntimeError):
+class LPIPSWeightsError(RunError):
     """The shipped LPIPS weights are missing or damaged (a broken install)."""
 
 
@@ -70,7 +72,7 @@ def _state() -> dict:
             arrays = {k: z[k] for k in z.files}
         digest = weights_digest(arrays)
         if digest != WEIGHTS_SHA256:
-            raise ValueError(f"checksum {digest[:12]}... is not the shipped {WEIGHTS_SHA256[:12]}...")
+            raise InputError(f"checksum {digest[:12]}... is not the shipped {WEIGHTS_SHA256[:12]}...")
         features = {}
         for i in FEATURE_CONVS:
             for kind in ("weight", "bias"):
@@ -114,7 +116,7 @@ class LPIPS(nn.Module):
         if single:
             x, y = x[None], y[None]
         if x.shape != y.shape or x.dim() != 4 or x.shape[1] != 3:
-            raise ValueError(
+            raise InputError(
                 f"LPIPS: need two [B, 3, H, W] (or [3, H, W]) images of one shape, got "
                 f"{tuple(x.shape)} and {tuple(y.shape)}"
             )

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 import torch
+from ..errors import InputError
 
 IOU_THRESHOLDS = np.linspace(0.5, 0.95, 10)
 RECALL_POINTS = np.linspace(0.0, 1.0, 101)
@@ -39,7 +40,7 @@ class MatchTable:
         from torchvision.ops import box_iou
 
         if len(preds) != len(targets):
-            raise ValueError(f"{len(preds)} detection lists for {len(targets)} images")
+            raise InputError(f"{len(preds)} detection lists for {len(targets)} images")
         classes = sorted(
             {int(c) for t in targets for c in t["labels"].tolist()}
             | {int(c) for p in preds for c in p["labels"].tolist()}

@@ -15,7 +15,7 @@ paper's ranges are manufacturing tolerances: a design at a bound is allowed, bey
 ``backend``: "surrogate" (the network, the paper's way) or "exact" (the engine's PSFs and
 central-difference gradients, optics/exact.py: the same pipeline with no network; the
 surrogate file then only says on whose terms, its space, fields, settings and ranges).
-``backend`` can be switched on a live module (the hybrid runs of optimize/hybrid.py do).
+``backend`` can be switched on a live module (the hybrid runs of camera_design/hybrid.py do).
 
 The image is in sensor pixels at the surrogate's PSF pitch (5.86 um for the shipped
 paper-triplet-v1 surrogate); the K fields span the axis to ``full_field_px`` pixels from the
@@ -29,6 +29,7 @@ from torch import nn
 
 from .render import render
 from ..surrogate.checkpoint import OpticsSurrogate
+from ..errors import InputError
 
 
 class DifferentiableOptics(nn.Module):
@@ -65,7 +66,7 @@ class DifferentiableOptics(nn.Module):
         self._exact = None
         self.backend = backend
         # an additive correction of the surrogate's output (psf [K, C, S, S], vignetting [K, C]):
-        # exact minus surrogate at an anchor design (optimize/hybrid.py); None: the network alone
+        # exact minus surrogate at an anchor design (camera_design/hybrid.py); None: the network alone
         self.correction: tuple[torch.Tensor, torch.Tensor] | None = None
         # the fields the renderer uses (indices into the K trained fields; None: all of them)
         self.field_index: list[int] | None = None
@@ -77,7 +78,7 @@ class DifferentiableOptics(nn.Module):
     @backend.setter
     def backend(self, name: str) -> None:
         if name not in ("surrogate", "exact"):
-            raise ValueError(f"optics backend must be surrogate or exact, got {name!r}")
+            raise InputError(f"optics backend must be surrogate or exact, got {name!r}")
         self._backend = name
 
     @property
@@ -162,7 +163,7 @@ class DifferentiableOptics(nn.Module):
         a coarser interpolation of the PSF along the field."""
         n = len(self.surrogate.fields_deg)
         if k < 0 or k == 1 or k > n:
-            raise ValueError(f"field samples: 0 (all {n}) or 2..{n}, got {k}")
+            raise InputError(f"field samples: 0 (all {n}) or 2..{n}, got {k}")
         self.field_index = None if k in (0, n) else sorted({round(i * (n - 1) / (k - 1)) for i in range(k)})
 
     def forward(self, image: torch.Tensor, offset_px: tuple[float, float] = (0.0, 0.0)) -> torch.Tensor:
@@ -182,7 +183,7 @@ class DifferentiableOptics(nn.Module):
         """The exact engine's (psf, vignetting) for the current parameters, computed as the
         surrogate's training data was; ``render(image, *exact_psfs(), fields)`` checks a
         result against the real optics."""
-        from ..surrogate.exact import exact_optics
+        from ..surrogate.ground_truth import exact_optics
 
         ex = exact_optics(self.surrogate, self.values().detach().double().numpy()[None])
         return ex["psf"][0], ex["vignetting"][0]

@@ -6,7 +6,7 @@ function): the engine computes a design's K fields x RGB PSFs in milliseconds an
 designs in parallel in one call, so the 2P + 1 designs of a central-difference Jacobian
 (P = 19 in the paper-triplet e2e space: 39 designs) are one batch. Everything the dataset does
 to a design comes with it unchanged, refocusing included (the closed-form best focus of
-design/focus.py is a smooth function of the lens), so the gradient is that of exactly the
+lens_design/focus.py is a smooth function of the lens), so the gradient is that of exactly the
 PSFs the surrogate was trained to imitate. Forward-mode would need dual numbers through the
 ray trace, the aiming, the focus, the pupil sampling, the FFT and the resampling of the Rust
 engine: a second engine to keep right.
@@ -35,8 +35,9 @@ import numpy as np
 import torch
 
 from ..surrogate.data import bin_psf
-from ..surrogate.exact import EngineRejectedDesign
-from ..surrogate.exact import exact_arrays
+from ..surrogate.ground_truth import EngineRejectedDesign
+from ..surrogate.ground_truth import exact_arrays
+from ..errors import InputError
 
 
 @dataclass
@@ -98,7 +99,7 @@ class ExactOptics:
     @classmethod
     def from_surrogate(cls, sur) -> "ExactOptics":
         if not sur.manifest:
-            raise ValueError("exact optics need the surrogate's dataset manifest (its space, fields and settings)")
+            raise InputError("exact optics need the surrogate's dataset manifest (its space, fields and settings)")
         return cls(
             sur.manifest,
             sur.psf_kind,

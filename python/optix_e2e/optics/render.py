@@ -32,6 +32,7 @@ import math
 
 import torch
 import torch.nn.functional as F
+from ..errors import InputError
 
 
 def _full_field(h: int, w: int, full_field_px: float | None) -> float:
@@ -114,20 +115,20 @@ def _prepare(
     """Checks shared by both renderers; returns (image times the relative illumination at each
     source pixel, fields as a tensor, full-field radius in pixels)."""
     if image.dim() != 4 or psfs.dim() != 4 or psfs.shape[1] != image.shape[1]:
-        raise ValueError(
+        raise InputError(
             f"render expects image [B, C, H, W] and psfs [K, C, S, S] with the same C, "
             f"got {tuple(image.shape)} and {tuple(psfs.shape)}"
         )
     if psfs.shape[-1] != psfs.shape[-2] or psfs.shape[-1] % 2 == 0:
-        raise ValueError(
+        raise InputError(
             f"PSFs must be square with an odd size (centre pixel on the chief ray), got {tuple(psfs.shape[-2:])}"
         )
     fields = torch.as_tensor(fields, dtype=image.dtype, device=image.device)
     if fields.numel() != psfs.shape[0] or (fields.numel() > 1 and bool((fields.diff() <= 0).any())):
-        raise ValueError(f"fields must be {psfs.shape[0]} strictly increasing radii, got {fields.tolist()}")
+        raise InputError(f"fields must be {psfs.shape[0]} strictly increasing radii, got {fields.tolist()}")
     b, c, h, w = image.shape
     if offset_px != (0.0, 0.0) and full_field_px is None:
-        raise ValueError("a crop (offset_px) needs the frame's full_field_px")
+        raise InputError("a crop (offset_px) needs the frame's full_field_px")
     if vignetting is not None:
         r, _ = pixel_polar(h, w, full_field_px, device=image.device, dtype=image.dtype, offset_px=offset_px)
         image = image * interpolate_fields(vignetting.to(image), fields, r.reshape(-1)).T.reshape(1, c, h, w)
@@ -151,7 +152,7 @@ def render(
     Light from outside the frame is not modelled (zero outside); light leaving the frame is lost.
     """
     if patch < 2 or patch % 2:
-        raise ValueError(f"patch must be an even number >= 2, got {patch}")
+        raise InputError(f"patch must be an even number >= 2, got {patch}")
     offset_px = (float(offset_px[0]), float(offset_px[1]))
     image, fields, full = _prepare(image, psfs, fields, vignetting, full_field_px, offset_px)
     b, c, h, w = image.shape

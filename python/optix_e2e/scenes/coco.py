@@ -16,9 +16,10 @@ import numpy as np
 import torch
 
 from .street import CATEGORIES, street_scene
+from ..errors import InputError
 
 
-class CocoFormatError(ValueError):
+class CocoFormatError(InputError):
     """A COCO file or image folder that cannot be used as it is; the message names the file
     and the image or annotation."""
 
@@ -34,7 +35,7 @@ def write_street_coco(out: "str | Path", n: int, size=(256, 384), seed: int = 0,
 
     out = Path(out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise ValueError(
+        raise InputError(
             f"{out} is not an empty folder; a street set is written whole into a new or empty "
             f"--out (nothing there is replaced)"
         )

@@ -8,6 +8,7 @@ import torch
 from torch.utils.data import Dataset
 
 from .photos import fit_size, to_image_tensor
+from ..errors import InputError
 
 __all__ = ["ImageFolder"]
 
@@ -44,7 +45,7 @@ class ImageFolder(Dataset):
         pattern = "**/*" if recursive else "*"
         self.paths = sorted(p for p in self.root.glob(pattern) if p.is_file() and p.suffix.lower() in exts)
         if not self.paths:
-            raise ValueError(
+            raise InputError(
                 f"no images ({', '.join(sorted(exts))}) found in {self.root}"
                 + (" or its subfolders" if recursive else "")
             )
@@ -63,5 +64,5 @@ class ImageFolder(Dataset):
                 array = array[0]
             img = to_image_tensor(array)
         except Exception as err:  # imageio raises OSError, ValueError, SyntaxError, ... per plugin
-            raise ValueError(f"cannot read image {path}: {err}") from err
+            raise InputError(f"cannot read image {path}: {err}") from err
         return fit_size(img, self.size)

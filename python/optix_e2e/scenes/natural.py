@@ -29,6 +29,7 @@ import torch.nn.functional as F
 from ..color import linear_to_srgb, srgb_to_linear
 from .photos import to_image_tensor
 from .procedural import _hw, _rng, dead_leaves
+from ..errors import InputError
 
 __all__ = [
     "natural_dead_leaves",
@@ -237,5 +238,5 @@ def natural_scene(size, seed=None, mix: dict[str, float] | None = None) -> torch
         "gradient_scene": gradient_scene,
     }.get(kind)
     if fn is None:
-        raise ValueError(f"unknown scene kind {kind!r}; use {', '.join(NATURAL_MIX)}")
+        raise InputError(f"unknown scene kind {kind!r}; use {', '.join(NATURAL_MIX)}")
     return fn(size, rng)

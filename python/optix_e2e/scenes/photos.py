@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
+from ..errors import InputError
 
 __all__ = ["bundled_photos", "load_photo", "to_image_tensor", "fit_size"]
 
@@ -67,11 +68,11 @@ def to_image_tensor(array: np.ndarray) -> torch.Tensor:
     elif a.dtype == np.bool_ or np.issubdtype(a.dtype, np.floating):
         a = np.clip(a.astype(np.float32), 0.0, 1.0)
     else:
-        raise ValueError(f"unsupported image dtype {a.dtype} (expected uint8, uint16 or float)")
+        raise InputError(f"unsupported image dtype {a.dtype} (expected uint8, uint16 or float)")
     if a.ndim == 2:
         a = a[:, :, None]
     if a.ndim != 3 or a.shape[2] not in (1, 2, 3, 4):
-        raise ValueError(f"unsupported image shape {array.shape} (expected HxW or HxWxC, C<=4)")
+        raise InputError(f"unsupported image shape {array.shape} (expected HxW or HxWxC, C<=4)")
     a = a[:, :, :1].repeat(3, axis=2) if a.shape[2] <= 2 else a[:, :, :3]
     return torch.from_numpy(np.ascontiguousarray(a.transpose(2, 0, 1)))
 
@@ -86,7 +87,7 @@ def fit_size(img: torch.Tensor, size: int | tuple[int, int] | None) -> torch.Ten
         return img
     th, tw = (size, size) if isinstance(size, int) else (int(size[0]), int(size[1]))
     if th < 1 or tw < 1:
-        raise ValueError(f"size must be positive, got {size}")
+        raise InputError(f"size must be positive, got {size}")
     _, h, w = img.shape
     ch, cw = (h, round(h * tw / th)) if h * tw <= w * th else (round(w * th / tw), w)
     ch, cw = min(max(ch, 1), h), min(max(cw, 1), w)
@@ -102,7 +103,7 @@ def fit_size(img: torch.Tensor, size: int | tuple[int, int] | None) -> torch.Ten
 def load_photo(name: str, size: int | tuple[int, int] | None = None) -> torch.Tensor:
     """Load a bundled photo as float32 sRGB [3,H,W] in [0,1]; see :func:`fit_size` for ``size``."""
     if name not in _PHOTO_FILES:
-        raise ValueError(f"unknown photo {name!r}; known photos: {', '.join(bundled_photos())}")
+        raise InputError(f"unknown photo {name!r}; known photos: {', '.join(bundled_photos())}")
     path = _photo_path(name)
     if path is None:
         raise FileNotFoundError(

@@ -20,6 +20,7 @@ import torch
 import torch.nn.functional as F
 
 from ..color import colorchecker_srgb, linear_to_srgb, srgb_to_linear
+from ..errors import InputError
 
 __all__ = ["dead_leaves", "slanted_edge", "color_chart", "chart_patch_boxes", "mixed_scene", "random_crops"]
 
@@ -27,7 +28,7 @@ __all__ = ["dead_leaves", "slanted_edge", "color_chart", "chart_patch_boxes", "m
 def _hw(size) -> tuple[int, int]:
     h, w = (size, size) if isinstance(size, (int, np.integer)) else (int(size[0]), int(size[1]))
     if h < 1 or w < 1:
-        raise ValueError(f"size must be positive, got {size}")
+        raise InputError(f"size must be positive, got {size}")
     return int(h), int(w)
 
 
@@ -127,10 +128,10 @@ def _colors(rng, n: int, colors) -> torch.Tensor:
             return torch.from_numpy(rng.random((n, 3), dtype=np.float32))
         if colors == "grey":
             return torch.from_numpy(rng.random((n, 1), dtype=np.float32)).expand(n, 3)
-        raise ValueError(f"unknown colors {colors!r}; use 'photos', 'uniform', 'grey' or an [K,3] array")
+        raise InputError(f"unknown colors {colors!r}; use 'photos', 'uniform', 'grey' or an [K,3] array")
     pool = torch.as_tensor(np.asarray(colors), dtype=torch.float32)
     if pool.ndim != 2 or pool.shape[1] != 3:
-        raise ValueError(f"a colour palette must have shape [K, 3], got {tuple(pool.shape)}")
+        raise InputError(f"a colour palette must have shape [K, 3], got {tuple(pool.shape)}")
     return pool[torch.from_numpy(rng.integers(0, len(pool), n))]
 
 
@@ -169,11 +170,11 @@ def dead_leaves(
     rng = _rng(seed)
     s = int(supersample)
     if s < 1:
-        raise ValueError(f"supersample must be >= 1, got {supersample}")
+        raise InputError(f"supersample must be >= 1, got {supersample}")
     H, W = h * s, w * s
     lo, hi = r_min * s, (r_max if r_max is not None else max(h, w) / 2) * s
     if not 0 < lo < hi:
-        raise ValueError(f"need 0 < r_min < r_max, got r_min={r_min}, r_max={r_max}")
+        raise InputError(f"need 0 < r_min < r_max, got r_min={r_min}, r_max={r_max}")
     label = np.full(H * W, _NONE, dtype=np.int64)
     n, batch = 0, 1024
     while n < max_disks:
@@ -222,7 +223,7 @@ def slanted_edge(size, angle_deg: float = 5.0, contrast: float = 4.0, seed=None,
     """
     h, w = _hw(size)
     if contrast < 1:
-        raise ValueError(f"contrast must be >= 1, got {contrast}")
+        raise InputError(f"contrast must be >= 1, got {contrast}")
     theta = math.radians(angle_deg)
     shift = 0.0 if seed is None else float(_rng(seed).uniform(-0.5, 0.5))
     y = torch.arange(h, dtype=torch.float64)[:, None] + 0.5 - h / 2
@@ -250,7 +251,7 @@ def chart_patch_boxes(size, gap: float = 0.25) -> list[tuple[int, int, int, int]
         y0, x0 = oy + g + row * (p + g), ox + g + col * (p + g)
         boxes.append((round(y0), round(y0 + p), round(x0), round(x0 + p)))
     if any(y1 <= y0 or x1 <= x0 for y0, y1, x0, x1 in boxes):
-        raise ValueError(f"size {size} is too small for a 4x6 colour chart")
+        raise InputError(f"size {size} is too small for a 4x6 colour chart")
     return boxes
 
 
@@ -299,7 +300,7 @@ def mixed_scene(size, seed=None, *, weights: dict[str, float] | None = None) -> 
         return slanted_edge(size, angle, float(rng.uniform(2, 10)), rng, light=float(rng.uniform(0.3, 0.9)))
     if kind == "color_chart":
         return color_chart(size, rng, surround=float(rng.uniform(0.2, 0.8)), jitter=0.2)
-    raise ValueError(f"unknown scene kind {kind!r}; use dead_leaves, slanted_edge, color_chart")
+    raise InputError(f"unknown scene kind {kind!r}; use dead_leaves, slanted_edge, color_chart")
 
 
 def random_crops(img: torch.Tensor, size, n: int, seed=None) -> torch.Tensor:
@@ -307,7 +308,7 @@ def random_crops(img: torch.Tensor, size, n: int, seed=None) -> torch.Tensor:
     h, w = _hw(size)
     _, H, W = img.shape
     if h > H or w > W:
-        raise ValueError(f"crop {h}x{w} does not fit in a {H}x{W} image")
+        raise InputError(f"crop {h}x{w} does not fit in a {H}x{W} image")
     rng = _rng(seed)
     ys, xs = rng.integers(0, H - h + 1, n), rng.integers(0, W - w + 1, n)
     return torch.stack([img[:, y : y + h, x : x + w] for y, x in zip(ys.tolist(), xs.tolist())])

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from ..errors import InputError
 
 #: COCO categories of the scenes (ids as written in COCO JSON; 0 is left for "background")
 CATEGORIES = (
@@ -261,7 +262,7 @@ def street_scene(
     random draw is still made), to check what an object changes."""
     H, W = (size, size) if isinstance(size, (int, np.integer)) else (int(size[0]), int(size[1]))
     if H < 32 or W < 32:
-        raise ValueError(f"street scenes need at least 32 x 32 pixels, got {H} x {W}")
+        raise InputError(f"street scenes need at least 32 x 32 pixels, got {H} x {W}")
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     horizon = int(rng.uniform(0.3, 0.5) * H)
     albedo, sky = _background(H, W, horizon, rng)

@@ -7,6 +7,7 @@ G at (0, 1) and (1, 0), B at (1, 1)). Channel order everywhere is (R, G, B).
 from __future__ import annotations
 
 import torch
+from ..errors import InputError
 
 PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 _CHANNEL = {"R": 0, "G": 1, "B": 2}
@@ -15,7 +16,7 @@ _CHANNEL = {"R": 0, "G": 1, "B": 2}
 def check_pattern(pattern: str) -> str:
     p = pattern.upper()
     if p not in PATTERNS:
-        raise ValueError(f"unknown CFA pattern {pattern!r}: expected one of {', '.join(PATTERNS)}")
+        raise InputError(f"unknown CFA pattern {pattern!r}: expected one of {', '.join(PATTERNS)}")
     return p
 
 
@@ -32,6 +33,6 @@ def bayer_masks(pattern: str, height: int, width: int, *, device=None, dtype=tor
 def mosaic(rgb: torch.Tensor, pattern: str = "RGGB") -> torch.Tensor:
     """RGB image [..., 3, H, W] -> single-channel CFA image [..., 1, H, W] (differentiable)."""
     if rgb.shape[-3] != 3:
-        raise ValueError(f"mosaic expects 3 colour channels in dim -3, got shape {tuple(rgb.shape)}")
+        raise InputError(f"mosaic expects 3 colour channels in dim -3, got shape {tuple(rgb.shape)}")
     m = bayer_masks(pattern, rgb.shape[-2], rgb.shape[-1], device=rgb.device, dtype=rgb.dtype)
     return (rgb * m).sum(dim=-3, keepdim=True)

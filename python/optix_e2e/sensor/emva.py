@@ -21,6 +21,7 @@ from .cfa import mosaic
 from .poisson import poisson_sample
 from .presets import SensorPreset, check_positive, get_preset
 from .spectral import WAVELENGTHS_NM, interpolation_weights, photons_per_radiance
+from ..errors import InputError
 
 QUANTIZE = ("uniform", "round", "none")
 
@@ -50,13 +51,13 @@ def _resolve(preset, exposure_s=None, gain=None, f_number=None, temperature_c=No
 
 def _check_image(x: torch.Tensor) -> torch.Tensor:
     if not isinstance(x, torch.Tensor):
-        raise ValueError(f"linear_rgb must be a torch.Tensor, got {type(x).__name__}")
+        raise InputError(f"linear_rgb must be a torch.Tensor, got {type(x).__name__}")
     if x.dim() not in (3, 4) or x.shape[-3] != 3:
-        raise ValueError(f"linear_rgb must have shape [B, 3, H, W] or [3, H, W], got {tuple(x.shape)}")
+        raise InputError(f"linear_rgb must have shape [B, 3, H, W] or [3, H, W], got {tuple(x.shape)}")
     if not x.is_floating_point():
         x = x.float()
     if not bool(torch.isfinite(x).all()):
-        raise ValueError("linear_rgb contains NaN or infinite values")
+        raise InputError("linear_rgb contains NaN or infinite values")
     return x
 
 
@@ -139,12 +140,12 @@ def raw_from_electrons(
     ``torch.poisson`` consumes a signal-dependent amount of the random stream instead.
     """
     if quantize not in QUANTIZE:
-        raise ValueError(f"quantize must be one of {', '.join(QUANTIZE)}, got {quantize!r}")
+        raise InputError(f"quantize must be one of {', '.join(QUANTIZE)}, got {quantize!r}")
     p = get_preset(preset)
     mu_e = photo_electrons + dark_current_mean(p)
     if common_noise and noise:
         if quantize != "uniform":
-            raise ValueError("common_noise needs quantize='uniform'")
+            raise InputError("common_noise needs quantize='uniform'")
         from scipy.stats import poisson
 
         with torch.no_grad():

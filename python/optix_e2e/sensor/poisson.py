@@ -23,6 +23,7 @@ straight-through gradient 1: still exact for the mean, bounded for dark pixels.
 from __future__ import annotations
 
 import torch
+from ..errors import InputError
 
 ESTIMATORS = ("gaussian", "straight_through")
 
@@ -40,7 +41,7 @@ def poisson_sample(
     Negative rates are treated as 0. The returned values are exactly the integer draws.
     """
     if estimator not in ESTIMATORS:
-        raise ValueError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {estimator!r}")
+        raise InputError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {estimator!r}")
     mu = rate.detach().clamp_min(0)
     k = torch.poisson(mu, generator=generator)
     if not rate.requires_grad:

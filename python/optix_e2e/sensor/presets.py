@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import torch
 
 from .cfa import check_pattern
+from ..errors import InputError
 
 ABSOLUTE_ZERO_C = -273.15
 
@@ -29,10 +30,10 @@ def check_positive(name: str, value, *, allow_zero: bool = False) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
+        raise InputError(f"{name} must be a number, got {value!r}") from None
     if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
         what = "non-negative" if allow_zero else "positive"
-        raise ValueError(f"{name} must be {what} and finite, got {value!r}")
+        raise InputError(f"{name} must be {what} and finite, got {value!r}")
     return v
 
 
@@ -82,7 +83,7 @@ class SensorPreset:
         for f in ("t_ref_c", "temperature_c"):
             t = float(getattr(self, f))
             if not math.isfinite(t) or t < ABSOLUTE_ZERO_C:
-                raise ValueError(
+                raise InputError(
                     f"{f} must be finite and at least {ABSOLUTE_ZERO_C} C (absolute zero), got {getattr(self, f)!r}"
                 )
         try:  # Eq. 4 doubles the dark current every doubling_c: it must stay a float
@@ -90,7 +91,7 @@ class SensorPreset:
         except OverflowError:
             rate = math.inf
         if not math.isfinite(rate):
-            raise ValueError(
+            raise InputError(
                 f"temperature_c = {self.temperature_c:g} C: the dark current "
                 f"{self.dark_current_e_per_s:g} e-/s doubling every {self.doubling_c:g} C from "
                 f"{self.t_ref_c:g} C (Eq. 4) overflows"
@@ -98,23 +99,23 @@ class SensorPreset:
         for f in ("width", "height", "adc_bits"):
             v = getattr(self, f)
             if not isinstance(v, int) or v < 1:
-                raise ValueError(f"{f} must be a positive integer, got {v!r}")
+                raise InputError(f"{f} must be a positive integer, got {v!r}")
         if self.adc_bits > 24:
-            raise ValueError(f"adc_bits must be at most 24, got {self.adc_bits}")
+            raise InputError(f"adc_bits must be at most 24, got {self.adc_bits}")
         if self.qe_peak > 1:
-            raise ValueError(f"qe_peak must be at most 1, got {self.qe_peak}")
+            raise InputError(f"qe_peak must be at most 1, got {self.qe_peak}")
         if self.black_level_dn >= self.adc_max_dn:
-            raise ValueError(f"black_level_dn ({self.black_level_dn}) must be below the ADC maximum {self.adc_max_dn}")
+            raise InputError(f"black_level_dn ({self.black_level_dn}) must be below the ADC maximum {self.adc_max_dn}")
         for f in ("qe_center_nm", "qe_sigma_nm", "qe_relative"):
             v = getattr(self, f)
             if len(v) != 3:
-                raise ValueError(f"{f} needs 3 values (R, G, B), got {v!r}")
+                raise InputError(f"{f} needs 3 values (R, G, B), got {v!r}")
             for x in v:
                 check_positive(f, x)
         try:
             object.__setattr__(self, "cfa", check_pattern(self.cfa))
         except (ValueError, AttributeError) as exc:
-            raise ValueError(f"cfa: {exc}") from None
+            raise InputError(f"cfa: {exc}") from None
 
     @property
     def dark_current_rate_e_per_s(self) -> float:
@@ -148,7 +149,7 @@ class SensorPreset:
         """A copy with some fields changed (validated)."""
         unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
         if unknown:
-            raise ValueError(f"unknown SensorPreset field(s): {', '.join(sorted(unknown))}")
+            raise InputError(f"unknown SensorPreset field(s): {', '.join(sorted(unknown))}")
         return dataclasses.replace(self, **changes)
 
     def low_light(self, factor: float = 100.0) -> "SensorPreset":
@@ -189,5 +190,5 @@ def get_preset(name) -> SensorPreset:
         return name
     key = str(name).lower()
     if key not in PRESETS:
-        raise ValueError(f"unknown sensor preset {name!r}: known presets are {', '.join(PRESETS)}")
+        raise InputError(f"unknown sensor preset {name!r}: known presets are {', '.join(PRESETS)}")
     return PRESETS[key]

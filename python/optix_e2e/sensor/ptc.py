@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..errors import InputError
 from .cfa import bayer_masks
 from .emva import _resolve, dark_current_mean, expected_electrons, raw_from_electrons
 
@@ -46,23 +47,23 @@ def check_measurable(p, e_per_unit: float, max_fraction: float = 1.15) -> None:
     sat = p.saturation_e
     settings = f"exposure {p.exposure_s:g} s, gain K {p.gain_dn_per_e:g} DN/e-, {p.temperature_c:g} C"
     if mu_dark + 3.0 * math.sqrt(mu_dark + p.dark_noise_e**2) >= sat:
-        raise ValueError(
+        raise InputError(
             f"photon transfer: dark frames saturate ({mu_dark:.4g} e- of dark current against a "
             f"saturation of {sat:.4g} e-; {settings})"
         )
     if sat < MIN_SATURATION_E:
-        raise ValueError(
+        raise InputError(
             f"photon transfer: saturation at {sat:.3g} e- (ADC range / gain K) is below "
             f"{MIN_SATURATION_E:g} e-: no shot-noise curve to measure ({settings})"
         )
     if p.gain_dn_per_e * sat < MIN_SPAN_DN:
-        raise ValueError(
+        raise InputError(
             f"photon transfer: dark to saturation spans {p.gain_dn_per_e * sat:.3g} DN (gain K x "
             f"{sat:.4g} e-), below {MIN_SPAN_DN:g} DN: nothing but quantisation ({settings})"
         )
     top = max_fraction * sat / e_per_unit if e_per_unit > 0 else math.inf
     if not top < float(np.finfo(np.float32).max):
-        raise ValueError(
+        raise InputError(
             f"photon transfer: a white input gives {e_per_unit:.3g} photo-electrons; reaching "
             f"saturation needs an input level of {top:.3g}, beyond float32 ({settings})"
         )
@@ -86,9 +87,9 @@ def photon_transfer(
     progress: optional callable(done_levels, n_levels).
     """
     if n_levels < 10:
-        raise ValueError(f"n_levels must be at least 10, got {n_levels}")
+        raise InputError(f"n_levels must be at least 10, got {n_levels}")
     if patch < 8:
-        raise ValueError(f"patch must be at least 8 pixels, got {patch}")
+        raise InputError(f"patch must be at least 8 pixels, got {patch}")
     p = _resolve(preset, exposure_s=exposure_s, gain=gain, temperature_c=temperature_c)
     gen = torch.Generator().manual_seed(seed)
     white = torch.ones(3, 1, 1, dtype=torch.float64)
@@ -116,13 +117,13 @@ def photon_transfer(
     x_sat = x[i_sat]
     fit = (x > 0) & (x <= 0.7 * x_sat)
     if fit.sum() < 2:
-        raise ValueError(
+        raise InputError(
             f"photon transfer: only {int(fit.sum())} of {n_levels} levels fall below 70% of "
             f"saturation, too few to fit the gain K; use more --levels"
         )
     k = float(np.sum(x[fit] * yv[fit]) / np.sum(x[fit] ** 2))
     if not (math.isfinite(k) and k > 0):
-        raise ValueError(
+        raise InputError(
             f"photon transfer: the fitted gain K = {k:g} DN/e- is not positive; "
             f"the simulated series shows no shot noise"
         )

@@ -22,16 +22,17 @@ from ..io import save_atomic
 from ..lens import BUNDLED_SURROGATES
 from ..torchfile import build_module, load_plain
 from .model import SurrogateConfig, SurrogateNet
+from ..errors import InputError
 
 FORMAT = "optix-surrogate/1"
 BUNDLED = BUNDLED_SURROGATES
 
 
-class SurrogateRangeError(ValueError):
+class SurrogateRangeError(InputError):
     """Lens parameters outside the ranges the surrogate was trained on."""
 
 
-class SurrogateFileError(RuntimeError):
+class SurrogateFileError(InputError):
     """A checkpoint that cannot be read or is not a surrogate; the message names the file."""
 
 
@@ -78,7 +79,7 @@ class OpticsSurrogate(nn.Module):
         self.cfg = cfg
         self.param_names = list(param_names)
         if len(self.param_names) != cfg.n_params:
-            raise ValueError(f"{len(self.param_names)} parameter names for a {cfg.n_params}-parameter network")
+            raise InputError(f"{len(self.param_names)} parameter names for a {cfg.n_params}-parameter network")
         std = np.asarray(param_std, float)
         self.register_buffer("param_mean", torch.as_tensor(np.asarray(param_mean, float), dtype=torch.float32))
         self.register_buffer("param_std", torch.as_tensor(np.where(std > 0, std, 1.0), dtype=torch.float32))
@@ -104,7 +105,7 @@ class OpticsSurrogate(nn.Module):
         :class:`SurrogateRangeError` (mode "error"), warns ("warn") or only returns them."""
         mode = mode or self.out_of_range
         if mode not in ("error", "warn", "ignore"):
-            raise ValueError(f"out_of_range must be error, warn or ignore, got {mode!r}")
+            raise InputError(f"out_of_range must be error, warn or ignore, got {mode!r}")
         p = torch.as_tensor(params).detach().to("cpu", torch.float64).reshape(-1, self.cfg.n_params)
         lo, hi = self.param_min.cpu(), self.param_max.cpu()
         tol = 1e-6 * (hi - lo)

@@ -19,6 +19,7 @@ import torch
 
 from ..dataset.layout import DatasetError, read_manifest, shard_name, shards_dir
 from ..dataset.verify import open_shard
+from ..errors import InputError
 
 PSF_KINDS = ("psf_sensor", "psf")
 
@@ -57,10 +58,10 @@ def psf_pitch_um(manifest: dict, psf: str, bin: int = 1) -> float:
 def psf_grid(manifest: dict, psf: str, bin: int = 1) -> int:
     """Output window in pixels of the given PSF kind and binning."""
     if psf not in PSF_KINDS:
-        raise ValueError(f"psf must be one of {PSF_KINDS}, got {psf!r}")
+        raise InputError(f"psf must be one of {PSF_KINDS}, got {psf!r}")
     size = manifest["sensor_size"] if psf == "psf_sensor" else manifest["psf_size"]
     if bin < 1 or size % bin:
-        raise ValueError(f"bin {bin} does not divide the {size}-pixel {psf} window")
+        raise InputError(f"bin {bin} does not divide the {size}-pixel {psf} window")
     return size // bin
 
 

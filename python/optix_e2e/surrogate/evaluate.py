@@ -27,11 +27,12 @@ from .checkpoint import OpticsSurrogate
 from ..dataset.layout import differing_keys, read_manifest
 from .data import load_arrays, psf_grid, psf_pitch_um
 from .train import predict_all
+from ..errors import InputError
 
 METRICS = ("psf_rel_l1", "psf_rel_l2", "strehl_rel_err", "ee_abs_err", "vignetting_abs_err")
 
 
-class SurrogateDataMismatch(ValueError):
+class SurrogateDataMismatch(InputError):
     """The dataset was made with other settings than the surrogate's training data."""
 
 
@@ -165,7 +166,7 @@ def evaluate(
     seconds = time.perf_counter() - t0
     bad = ~(torch.isfinite(psf).flatten(1).all(1) & torch.isfinite(vig).flatten(1).all(1))
     if bad.any():
-        raise ValueError(
+        raise InputError(
             f"the surrogate predicts non-finite PSFs or vignetting for {int(bad.sum())} of "
             f"{len(bad)} designs (damaged weights?); no metrics"
         )

@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass
 
 import torch
 from torch import nn
+from ..errors import InputError
 
 
 @dataclass(frozen=True)
@@ -42,7 +43,7 @@ def optics_loss_terms(
 ) -> dict[str, torch.Tensor]:
     """The four terms of Eq. 8 (scalars). psf, psf_true [B, C, S, S]; vignetting [B, C]."""
     if psf.shape != psf_true.shape or vignetting.shape != vignetting_true.shape:
-        raise ValueError(
+        raise InputError(
             f"shape mismatch: psf {list(psf.shape)} vs {list(psf_true.shape)}, "
             f"vignetting {list(vignetting.shape)} vs {list(vignetting_true.shape)}"
         )

@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass
 
 import torch
 from torch import nn
+from ..errors import InputError
 
 
 @dataclass(frozen=True)
@@ -37,9 +38,9 @@ class SurrogateConfig:
     def check(self) -> None:
         for name in ("n_params", "channels", "psf_size", "hidden", "depth", "base_channels"):
             if getattr(self, name) < 1:
-                raise ValueError(f"surrogate config: {name} must be >= 1, got {getattr(self, name)}")
+                raise InputError(f"surrogate config: {name} must be >= 1, got {getattr(self, name)}")
         if self.n_up < 0:
-            raise ValueError(f"surrogate config: n_up must be >= 0, got {self.n_up}")
+            raise InputError(f"surrogate config: n_up must be >= 0, got {self.n_up}")
 
     @property
     def start_size(self) -> int:
@@ -84,10 +85,10 @@ class SurrogateNet(nn.Module):
         """params [B, P] normalized, field [B] in [0, 1] -> (psf [B, C, S, S] unit sum, vignetting [B, C])."""
         cfg = self.cfg
         if params.dim() != 2 or params.shape[1] != cfg.n_params:
-            raise ValueError(f"params must be [B, {cfg.n_params}], got {list(params.shape)}")
+            raise InputError(f"params must be [B, {cfg.n_params}], got {list(params.shape)}")
         field = field.reshape(-1, 1).to(params)
         if field.shape[0] != params.shape[0]:
-            raise ValueError(f"field has {field.shape[0]} entries for {params.shape[0]} parameter rows")
+            raise InputError(f"field has {field.shape[0]} entries for {params.shape[0]} parameter rows")
         h = self.encoder(torch.cat([params, 2 * field - 1], dim=1))  # field centred like the params
         vignetting = self.vignetting_head(h)
         s0 = cfg.start_size

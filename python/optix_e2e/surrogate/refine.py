@@ -3,7 +3,7 @@ design (the exact optics of optics/exact.py, a few hundred designs in one parall
 a short fine-tune of the network on it with the training loss (Eq. 8). A trust-region
 surrogate: accurate where the optimizer is, whatever it has forgotten far away.
 
-The hybrid design runs (optimize/hybrid.py) call it when the surrogate's error at the current
+The hybrid design runs (camera_design/hybrid.py) call it when the surrogate's error at the current
 design passes a threshold.
 """
 
@@ -60,7 +60,7 @@ def refine_around(sur, engine, values, settings: RefineSettings = RefineSettings
     psf, vig, _ = engine._run(designs)
     ok = [i for i, p in enumerate(psf) if p is not None]
     if 0 not in ok:
-        from .exact import EngineRejectedDesign
+        from .ground_truth import EngineRejectedDesign
 
         raise EngineRejectedDesign("cannot refine the surrogate: the engine rejects the current design")
     params = torch.as_tensor(designs[ok], dtype=torch.float32)

@@ -34,6 +34,7 @@ from .checkpoint import OpticsSurrogate
 from .data import design_indices, load_arrays, psf_grid, psf_pitch_um, to_tensors
 from .loss import LossWeights, optics_loss_terms
 from .model import SurrogateConfig
+from ..errors import InputError
 
 # changing these makes a different model or different data: resuming refuses
 MAX_STEPS = 10_000_000  # the command line's maximum of --steps
@@ -127,7 +128,7 @@ def validate(model: OpticsSurrogate, t: dict) -> dict:
 
 def _split(designs: np.ndarray, n_val: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     if not 0 <= n_val < len(designs):
-        raise ValueError(f"val_designs {n_val} must leave training designs out of {len(designs)}")
+        raise InputError(f"val_designs {n_val} must leave training designs out of {len(designs)}")
     perm = np.random.default_rng(seed).permutation(len(designs))
     return np.sort(perm[n_val:]), np.sort(perm[:n_val])
 
@@ -140,7 +141,7 @@ def rank_designs(
     ... (ascending: the global batch's position p is rank p % world's row p // world)."""
     tr, va = _split(designs, val_designs, seed)
     if len(tr) < world:
-        raise ValueError(f"{len(tr)} training designs cannot be shared by {world} processes")
+        raise InputError(f"{len(tr)} training designs cannot be shared by {world} processes")
     return designs[tr], designs[va], designs[tr][rank::world]
 
 
@@ -193,7 +194,7 @@ def _start_from(model: OpticsSurrogate, spec: str) -> None:
         and src.pitch_um == model.pitch_um
     )
     if not same:
-        raise ValueError(
+        raise InputError(
             f"--init {spec}: its architecture, parameters, fields or PSF pitch differ from this run's "
             f"(its parameters must be the first of this space's)"
         )
@@ -246,12 +247,12 @@ def train(
     if state_path.exists():
         resumed = load_plain(state_path, "surrogate training state")
         if not isinstance(resumed, dict) or not isinstance(resumed.get("config"), dict):
-            raise ValueError(f"{state_path}: not a surrogate training state; use another --out")
+            raise InputError(f"{state_path}: not a surrogate training state; use another --out")
         old = resumed["config"]
         defaults = TrainConfig()
         diff = [k for k in _FIXED if old.get(k, getattr(defaults, k)) != getattr(cfg, k)]
         if diff:
-            raise ValueError(
+            raise InputError(
                 f"{state_path}: this run was started with other settings ({', '.join(diff)}); "
                 f"use the same options or another --out"
             )
@@ -261,11 +262,11 @@ def train(
     if resumed is not None:
         old_data = resumed.get("data")
         if not isinstance(old_data, dict) or "designs_csv_sha256" not in old_data:
-            raise ValueError(
+            raise InputError(
                 f"{state_path}: damaged surrogate training state (no data record); remove it to train from the start"
             )
         if old_data["designs_csv_sha256"] != man["designs_csv_sha256"]:
-            raise ValueError(f"{state_path}: that run trained on another dataset than {data_root}")
+            raise InputError(f"{state_path}: that run trained on another dataset than {data_root}")
     tr_designs, va_designs, mine = rank_designs(designs, cfg.val_designs, cfg.seed, ranks.rank, W)
     arrays, man = load_arrays(
         data_root, cfg.psf, cfg.bin, designs=np.concatenate([mine, va_designs]) if ranks.is_main else mine
@@ -298,9 +299,9 @@ def train(
             gen.set_state(resumed["generator"])
             step, seconds, history = int(resumed["step"]), float(resumed["seconds"]), list(resumed["history"])
             if not (0 <= step <= MAX_STEPS and math.isfinite(seconds) and seconds >= 0):
-                raise ValueError(f"step {step}, seconds {seconds}")
+                raise InputError(f"step {step}, seconds {seconds}")
         except DAMAGED_STATE_ERRORS as err:
-            raise ValueError(
+            raise InputError(
                 f"{state_path}: damaged surrogate training state ({type(err).__name__}: "
                 f"{' '.join(str(err).split())}); remove it to train from the start"
             ) from None

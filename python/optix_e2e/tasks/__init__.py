@@ -2,7 +2,8 @@
 
 from .detection import DETECTION, DetectionTask
 from .image_quality import TASKS as IMAGE_QUALITY_TASKS, ImageQualityTask, TaskLoss, task_loss
-from .scenes import HeldoutSample, SensorFrame, heldout_set, training_batch
+from .samples import HeldoutSample, SensorFrame, heldout_set, training_batch
+from ..errors import InputError
 
 #: every task of ``optix design``: the image-quality tasks and detection
 TASKS = {**IMAGE_QUALITY_TASKS, DETECTION.name: DETECTION}
@@ -10,7 +11,7 @@ TASKS = {**IMAGE_QUALITY_TASKS, DETECTION.name: DETECTION}
 
 def get_task(name: str) -> "ImageQualityTask | DetectionTask":
     if name not in TASKS:
-        raise ValueError(f"unknown task {name!r}: known tasks are {', '.join(TASKS)}")
+        raise InputError(f"unknown task {name!r}: known tasks are {', '.join(TASKS)}")
     return TASKS[name]
 
 

@@ -25,6 +25,7 @@ from ..parallel import check_finite_weights, stop_if_diverged
 from ..scenes.coco import CocoDetection
 from ..scenes.street import CATEGORIES
 from .detector import detect, in_the_dark, make_detector, mean_average_precision
+from ..errors import InputError
 
 FORMAT = "optix-detector/1"
 
@@ -35,17 +36,17 @@ def load_coco_folder(folder: "str | Path") -> tuple[torch.Tensor, list[dict], Co
     folder = Path(folder)
     ds = CocoDetection(folder / "images", folder / "annotations.json")
     if len(ds) == 0:
-        raise ValueError(f"{folder}: the annotation file lists no images")
+        raise InputError(f"{folder}: the annotation file lists no images")
     ours = {c["id"]: c["name"] for c in CATEGORIES}
     for cid, name in sorted(ds.categories.items()):  # the detector's classes are the street set's
         if ours.get(cid) != name:
-            raise ValueError(
+            raise InputError(
                 f"{folder / 'annotations.json'}: category {cid} {name!r} is not one the detector "
                 f"knows ({', '.join(f'{k} {v!r}' for k, v in ours.items())})"
             )
     sizes = {(im["height"], im["width"]) for im in ds.images}
     if len(sizes) != 1:
-        raise ValueError(
+        raise InputError(
             f"{folder}: images of several sizes ({', '.join(f'{h}x{w}' for h, w in sorted(sizes))}); "
             f"the detector trains on one size"
         )
@@ -75,7 +76,7 @@ def load_detector(path: "str | Path"):
         path = path / "detector.pt"
     ck = load_plain(path, "detector checkpoint")
     if not isinstance(ck, dict) or ck.get("format") != FORMAT:
-        raise ValueError(f"{path}: not a detector checkpoint ({FORMAT})")
+        raise InputError(f"{path}: not a detector checkpoint ({FORMAT})")
     _check_record(ck, path)
     cfg = ck.get("config")
     model = build_module(
@@ -97,7 +98,7 @@ def _check_record(ck: dict, path: Path) -> None:
     for key, ok in checks.items():
         if key not in ck or not ok(ck[key]):
             what = "missing" if key not in ck else f"{ck[key]}"[:40]
-            raise ValueError(f"{path}: damaged detector checkpoint ({key} {what}); remove it to train from the start")
+            raise InputError(f"{path}: damaged detector checkpoint ({key} {what}); remove it to train from the start")
 
 
 HISTORY_HEADER = ["step", "loss", "classification", "bbox_regression", "bbox_ctrness", "lr", "seconds"]
@@ -168,7 +169,7 @@ def train_detector(
             or ck.get("seed") != seed
             or ck.get("dim", 1.0) != dim
         ):
-            raise ValueError(
+            raise InputError(
                 f"{out} holds a detector trained with other settings (config {ck['config']}, data "
                 f"{ck.get('data')}, seed {ck.get('seed')}, dim {ck.get('dim', 1.0)}); use another --out"
             )
@@ -183,7 +184,7 @@ def train_detector(
         try:
             opt.load_state_dict(ck["optimizer"])
         except DAMAGED_STATE_ERRORS as err:
-            raise ValueError(
+            raise InputError(
                 f"{ck_path}: damaged detector checkpoint (optimizer: {type(err).__name__}: {err}); "
                 f"remove it to train from the start"
             ) from None
@@ -279,7 +280,7 @@ def evaluate_detector(model, data: "str | Path", batch: int = 8, dark: float = 0
     objects' boxes removed from both sides."""
     images, targets, ds = load_coco_folder(data)
     if not any(len(t["labels"]) for t in targets):
-        raise ValueError(f"{data}: no objects to score (the annotation file lists none that is not a crowd)")
+        raise InputError(f"{data}: no objects to score (the annotation file lists none that is not a crowd)")
     preds = detect(model, images.float() / 255, batch)
     res = mean_average_precision(preds, targets)
     if any(im["illumination"] for im in ds.images) and all(

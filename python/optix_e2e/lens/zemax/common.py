@@ -4,6 +4,7 @@ and the import report."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from ...errors import InputError
 
 #: Lens units -> millimetres (the UNIT line's first token).
 UNITS_MM = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0, "M": 1000.0}
@@ -116,7 +117,7 @@ N_ODDASPHE = 8  # PARM 1..8 = coefficients of r^1, r^2, ..., r^8
 MAX_SURFACES, MAX_FIELDS, MAX_WAVES, MAX_PARM = 100_000, 1000, 1000, 1000
 
 
-class ZemaxError(ValueError):
+class ZemaxError(InputError):
     """A .zmx file (or a lens to be written as one) this module cannot map faithfully."""
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 from typing import Sequence
+from ..errors import InputError
 
 
 def _pairs(wavelengths_nm: Sequence[float], weights: Sequence[float] | None) -> list[tuple[float, float]]:
@@ -57,7 +58,7 @@ def refocus_many(
     from .. import engine
 
     if mode not in ("best", "paraxial", "fixed"):
-        raise ValueError(f"focus must be 'best', 'paraxial' or 'fixed', got {mode!r}")
+        raise InputError(f"focus must be 'best', 'paraxial' or 'fixed', got {mode!r}")
     errors: list[str | None] = [None] * len(lenses)
     if mode == "paraxial":
         for k, lens in enumerate(lenses):

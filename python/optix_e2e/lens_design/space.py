@@ -31,6 +31,7 @@ import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Sequence
+from ..errors import InputError
 
 __all__ = [
     "Parameter",
@@ -69,7 +70,7 @@ UNITS = {
 _NAME = re.compile(r"^s_(\d+)_(radius|conic|thickness|(\d+)(?:st|nd|rd|th))$")
 
 
-class SpaceError(ValueError):
+class SpaceError(InputError):
     """Invalid parameter space or parameter name; the message names the file and entry."""
 
 
@@ -213,7 +214,7 @@ class ParameterSpace:
         self.lens_ref = lens_ref  # base lens named by the file (bundled name or path)
         self.description = description
         self.notes = dict(notes or {})  # parameter name -> note
-        self.constraints = dict(constraints or {})  # manufacturability limits (optix_e2e.design.sampling)
+        self.constraints = dict(constraints or {})  # manufacturability limits (optix_e2e.lens_design.sampling)
         names = [p.name for p in self.params]
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:

@@ -33,6 +33,7 @@ import numpy as np
 import torch
 
 from ..surrogate.refine import RefineSettings, refine_around
+from ..errors import InputError
 
 OPTICS_MODES = ("surrogate", "exact", "hybrid", "auto")
 REFINE_MODES = ("correction", "network")
@@ -51,7 +52,7 @@ def exact_gradient_steps(history: list[dict]) -> int:
     return sum(h.get("optics") == "exact" and h["block"] in ("optics", "all") for h in history)
 
 
-class OpticsModeMismatch(ValueError):
+class OpticsModeMismatch(InputError):
     """A run resumed under another optics model than it was started with (not damage)."""
 
 
@@ -71,11 +72,11 @@ class OpticsMonitor:
         log=None,
     ):
         if mode not in ("surrogate", "exact", "hybrid"):
-            raise ValueError(f"optics must be surrogate, exact or hybrid here, got {mode!r}")
+            raise InputError(f"optics must be surrogate, exact or hybrid here, got {mode!r}")
         if refine not in REFINE_MODES:
-            raise ValueError(f"refine must be one of {', '.join(REFINE_MODES)}, got {refine!r}")
+            raise InputError(f"refine must be one of {', '.join(REFINE_MODES)}, got {refine!r}")
         if every < 1 or not threshold > 0:
-            raise ValueError(f"check_every >= 1 and hybrid_threshold > 0 required (got {every}, {threshold})")
+            raise InputError(f"check_every >= 1 and hybrid_threshold > 0 required (got {every}, {threshold})")
         self.optics, self.mode, self.every, self.threshold = optics, mode, int(every), float(threshold)
         self.refine, self.refine_settings = refine, refine_settings
         self.writer, self.name, self.log = writer, name, log

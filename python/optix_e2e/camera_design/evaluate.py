@@ -1,6 +1,6 @@
 """Held-out evaluation of trained cameras, and the paired comparison of two of them.
 
-Every figure is measured on the fixed held-out set (tasks/scenes.py) with the camera's final
+Every figure is measured on the fixed held-out set (tasks/samples.py) with the camera's final
 processing (the reference ISP for a hardware ISP), sensor noise on with a fixed seed per
 sample (the same for every camera: paired), and the optics given: the exact engine's PSFs of
 the lens for the figures we report, the surrogate's for comparison.
@@ -18,6 +18,7 @@ import torch
 
 from ..metrics.image import haarpsi, psnr, ssim
 from ..metrics.lpips import lpips
+from ..errors import InputError
 
 METRICS = ("psnr_db", "ssim", "lpips", "haarpsi")
 
@@ -89,7 +90,7 @@ def paired(a_rows: list[dict], b_rows: list[dict], n_boot: int = 2000, seed: int
     for m in METRICS:
         a, b = per_image(a_rows, m), per_image(b_rows, m)
         if sorted(b) != images:
-            raise ValueError("paired comparison needs the same held-out images on both sides")
+            raise InputError("paired comparison needs the same held-out images on both sides")
         d = np.array([b[k] - a[k] for k in images])
         boots = d[idx].mean(1)
         lo, hi = np.percentile(boots, [2.5, 97.5])

@@ -14,7 +14,8 @@ from pathlib import Path
 
 from ..io import claim_out_dir, read_small_text, write_json_atomic
 from ..tasks import get_task
-from ..tasks.scenes import POSITIONS
+from ..tasks.samples import POSITIONS
+from ..errors import InputError
 
 try:
     import tomllib
@@ -70,11 +71,11 @@ def check_ranges(values: dict, ranges: dict = RANGES, what: str = "setting") -> 
             continue
         v = values[k]
         if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ValueError(f"{what} {k} must be a number, got {v!r}")
+            raise InputError(f"{what} {k} must be a number, got {v!r}")
         if isinstance(v, float) and not math.isfinite(v):
-            raise ValueError(f"{what} {k} must be a finite number, got {v}")
+            raise InputError(f"{what} {k} must be a finite number, got {v}")
         if v < lo or v > hi or (open_lo and v == lo):
-            raise ValueError(f"{what} {k} must be {'>' if open_lo else '>='} {lo} and <= {hi}, got {v}")
+            raise InputError(f"{what} {k} must be {'>' if open_lo else '>='} {lo} and <= {hi}, got {v}")
 
 
 @dataclass(frozen=True)
@@ -109,7 +110,7 @@ class DesignConfig:
     beta_detector: float = 0.0
     eval_scenes: int = 100  # detection: held-out street scenes (one position each)
     lr_vanilla: float = 1e-3  # the vanilla baseline's one learning rate
-    # the optics model in the loop (optimize/hybrid.py, docs/optics-in-the-loop.md)
+    # the optics model in the loop (camera_design/hybrid.py, docs/optics-in-the-loop.md)
     optics: str = "surrogate"  # surrogate | exact | hybrid | auto (from the measured trade-off)
     check_every: int = 10  # exact check of the current design every N steps (and after the last)
     hybrid_threshold: float = 0.02  # hybrid: refine when the worst field's PSF rel. L1 passes this
@@ -140,21 +141,21 @@ class DesignConfig:
         check_ranges(dataclasses.asdict(self))
         get_task(self.task)
         if self.optimizer not in ("alg1", "vanilla"):
-            raise ValueError(f"optimizer must be alg1 or vanilla, got {self.optimizer!r}")
+            raise InputError(f"optimizer must be alg1 or vanilla, got {self.optimizer!r}")
         if self.eval_positions not in POSITIONS:
-            raise ValueError(f"eval_positions must be one of {', '.join(POSITIONS)}, got {self.eval_positions!r}")
+            raise InputError(f"eval_positions must be one of {', '.join(POSITIONS)}, got {self.eval_positions!r}")
         from .hybrid import OPTICS_MODES, REFINE_MODES
 
         if self.optics not in OPTICS_MODES:
-            raise ValueError(f"optics must be one of {', '.join(OPTICS_MODES)}, got {self.optics!r}")
+            raise InputError(f"optics must be one of {', '.join(OPTICS_MODES)}, got {self.optics!r}")
         if self.refine not in REFINE_MODES:
-            raise ValueError(f"refine must be one of {', '.join(REFINE_MODES)}, got {self.refine!r}")
+            raise InputError(f"refine must be one of {', '.join(REFINE_MODES)}, got {self.refine!r}")
         if not self.hybrid_threshold > 0:
-            raise ValueError(f"hybrid_threshold must be > 0, got {self.hybrid_threshold}")
+            raise InputError(f"hybrid_threshold must be > 0, got {self.hybrid_threshold}")
         if self.fields < 0 or self.fields == 1:
-            raise ValueError(f"fields must be 0 (all) or at least 2, got {self.fields}")
+            raise InputError(f"fields must be 0 (all) or at least 2, got {self.fields}")
         if self.optics_init not in ("nominal", "uniform"):
-            raise ValueError(f"optics_init must be nominal or uniform, got {self.optics_init!r}")
+            raise InputError(f"optics_init must be nominal or uniform, got {self.optics_init!r}")
         for k in (
             "crop",
             "batch",
@@ -170,33 +171,33 @@ class DesignConfig:
             "refine_steps",
         ):
             if getattr(self, k) < 1:
-                raise ValueError(f"{k} must be >= 1, got {getattr(self, k)}")
+                raise InputError(f"{k} must be >= 1, got {getattr(self, k)}")
         if self.crop_width < 0 or self.crop_width % 16:
-            raise ValueError(f"crop_width must be 0 (square) or a positive multiple of 16, got {self.crop_width}")
+            raise InputError(f"crop_width must be 0 (square) or a positive multiple of 16, got {self.crop_width}")
         for k in ("crop", "eval_size", "patch"):
             if getattr(self, k) % 16 if k != "patch" else getattr(self, k) % 2:
-                raise ValueError(f"{k} must be a multiple of {16 if k != 'patch' else 2}, got {getattr(self, k)}")
+                raise InputError(f"{k} must be a multiple of {16 if k != 'patch' else 2}, got {getattr(self, k)}")
         for k in ("lr_optics", "lr_isp_net", "lr_isp_params", "lr_detector", "lr_vanilla", "eval_level"):
             if not getattr(self, k) > 0:
-                raise ValueError(f"{k} must be > 0, got {getattr(self, k)}")
+                raise InputError(f"{k} must be > 0, got {getattr(self, k)}")
         if self.n_cycles < 0 or self.n_finetune < 0 or self.eval_procedural < 0 or self.bootstrap < 100:
-            raise ValueError("n_cycles, n_finetune, eval_procedural must be >= 0 and bootstrap >= 100")
+            raise InputError("n_cycles, n_finetune, eval_procedural must be >= 0 and bootstrap >= 100")
         for k in ("beta_optics", "beta_isp", "beta_detector", "seed", "threads"):
             if getattr(self, k) < 0:
-                raise ValueError(f"{k} must be >= 0, got {getattr(self, k)}")
+                raise InputError(f"{k} must be >= 0, got {getattr(self, k)}")
         for k in ("crop", "crop_width", "eval_size"):
             if getattr(self, k) > 1024:
-                raise ValueError(
+                raise InputError(
                     f"{k} must be at most 1024 pixels (the sensor frame is 1920 x 1200), got {getattr(self, k)}"
                 )
         if self.images and not Path(self.images).is_dir():
-            raise ValueError(f"images: no such folder {self.images}")
+            raise InputError(f"images: no such folder {self.images}")
         if self.software_isp and not Path(self.software_isp).is_file():
-            raise ValueError(f"software_isp: no such file {self.software_isp}")
+            raise InputError(f"software_isp: no such file {self.software_isp}")
         if self.detector and not Path(self.detector).is_file():
-            raise ValueError(f"detector: no such file {self.detector}")
+            raise InputError(f"detector: no such file {self.detector}")
         if self.total_steps < 1:
-            raise ValueError("the schedule has no step (n_cycles and n_finetune both 0)")
+            raise InputError("the schedule has no step (n_cycles and n_finetune both 0)")
         return self
 
     def to_json(self) -> dict:
@@ -245,13 +246,13 @@ def read_config_file(path: Path) -> dict:
     try:
         data = tomllib.loads(read_small_text(path, what="config file"))
     except FileNotFoundError:
-        raise ValueError(f"config file not found: {path}") from None
+        raise InputError(f"config file not found: {path}") from None
     except OSError as err:
-        raise ValueError(f"{path}: cannot read the config file ({err.strerror})") from None
+        raise InputError(f"{path}: cannot read the config file ({err.strerror})") from None
     except tomllib.TOMLDecodeError as err:
-        raise ValueError(f"{path}: not valid TOML: {err}") from None
+        raise InputError(f"{path}: not valid TOML: {err}") from None
     except RecursionError:
-        raise ValueError(f"{path}: not a config file (nested too deeply to parse)") from None
+        raise InputError(f"{path}: not a config file (nested too deeply to parse)") from None
     for k in PATH_SETTINGS:
         v = data.get(k)
         if isinstance(v, str) and v and not Path(v).is_absolute():
@@ -262,7 +263,7 @@ def read_config_file(path: Path) -> dict:
 def make_config(budget: str = "quick", file: "str | Path | None" = None, **overrides) -> DesignConfig:
     """The budget's settings, then the TOML file's, then ``overrides`` (None values ignored)."""
     if budget not in BUDGETS:
-        raise ValueError(f"unknown budget {budget!r}: known budgets are {', '.join(BUDGETS)}")
+        raise InputError(f"unknown budget {budget!r}: known budgets are {', '.join(BUDGETS)}")
     fields = {f.name for f in dataclasses.fields(DesignConfig)}
     values = {"budget": budget, **BUDGETS[budget]}
     task = overrides.get("task")
@@ -274,18 +275,18 @@ def make_config(budget: str = "quick", file: "str | Path | None" = None, **overr
         data = read_config_file(path)
         unknown = sorted(set(data) - fields)
         if "budget" in data:
-            raise ValueError(f"{path}: the budget is chosen with --budget, not in the config file")
+            raise InputError(f"{path}: the budget is chosen with --budget, not in the config file")
         if unknown:
-            raise ValueError(f"{path}: unknown setting(s) {', '.join(unknown)} (known: {', '.join(sorted(fields))})")
+            raise InputError(f"{path}: unknown setting(s) {', '.join(unknown)} (known: {', '.join(sorted(fields))})")
         for k, v in data.items():
             want = type(getattr(DesignConfig, k))
             if want is float and isinstance(v, int) and not isinstance(v, bool):
                 v = float(v)
             if not isinstance(v, want) or isinstance(v, bool) != (want is bool):
-                raise ValueError(f"{path}: {k} must be a {want.__name__}, got {v!r}")
+                raise InputError(f"{path}: {k} must be a {want.__name__}, got {v!r}")
             values[k] = v
             if overrides.get(k) is not None and overrides[k] != v:  # the command line and the file disagree
-                raise ValueError(f"{path}: {k} = {v!r} here, {overrides[k]!r} on the command line; say it once")
+                raise InputError(f"{path}: {k} = {v!r} here, {overrides[k]!r} on the command line; say it once")
         check_ranges(data, what=f"{path}: setting")
     values.update({k: v for k, v in overrides.items() if v is not None})
     return DesignConfig(**values).check()
@@ -300,7 +301,7 @@ def check_run_dir(out: Path, cfg: DesignConfig) -> None:
         except (OSError, ValueError, RecursionError):  # unreadable, not UTF-8, not JSON, nested too deeply
             old = None
         if not isinstance(old, dict):
-            raise ValueError(f"{path} is damaged; remove the directory or choose another --out")
+            raise InputError(f"{path} is damaged; remove the directory or choose another --out")
         new = cfg.to_json()
         # a setting added since the run was made counts as its default there
         defaults = DesignConfig().to_json()
@@ -308,7 +309,7 @@ def check_run_dir(out: Path, cfg: DesignConfig) -> None:
         diff = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
         if diff:
             detail = ", ".join(f"{k}: {old.get(k)!r} -> {new.get(k)!r}" for k in diff)
-            raise ValueError(f"{out} was made with other settings ({detail}); use another --out or the same settings")
+            raise InputError(f"{out} was made with other settings ({detail}); use another --out or the same settings")
         return
     claim_out_dir(out, "design run", marker="config.json")
     out.mkdir(parents=True, exist_ok=True)

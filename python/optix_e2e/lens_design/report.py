@@ -16,6 +16,7 @@ from ..lens.footprint import ray_footprint
 from ..lens import Lens
 from ..lens.mtf import NYQUIST_5P86_UM, default_frequencies, field_mtf, mtf_at, psf_sampling
 from ..lens.surface import curvature, sag
+from ..errors import InputError
 
 __all__ = ["sag", "surface_geometry", "ray_fans", "spot_diagram", "hexapolar", "write_report", "DEFAULT_MTF_FREQS"]
 
@@ -76,7 +77,7 @@ def footprint(lens: Lens, fields: Sequence[float], aiming: str = "paraxial", n_e
     )
     if np.any(h <= 0):
         bad = [i + 1 for i in np.flatnonzero(h <= 0)]
-        raise ValueError(f"no ray reaches surface(s) {bad}: cannot size them (give semi_diameter)")
+        raise InputError(f"no ray reaches surface(s) {bad}: cannot size them (give semi_diameter)")
     return h
 
 
@@ -88,7 +89,7 @@ def ray_fans(
     surface where it failed; ``ok`` says which); ``direction`` (the beam's) lets the
     caller extend it back.  Rays that miss surface 1 are left out."""
     if n_rays < 1:
-        raise ValueError(f"rays per field must be at least 1, got {n_rays}")
+        raise InputError(f"rays per field must be at least 1, got {n_rays}")
     wl = lens.primary_wavelength_nm if wavelength_nm is None else wavelength_nm
     py = np.linspace(-1.0, 1.0, n_rays) if n_rays > 1 else np.zeros(1)
     fans = []
@@ -131,7 +132,7 @@ def spot_diagram(lens: Lens, field: float, rings: int = 12, aiming: str = "parax
         weights.append(np.full(int(ok.sum()), w))
     allp, allw = np.concatenate(pts), np.concatenate(weights)
     if allp.size == 0:
-        raise ValueError(f"no ray of field {field} deg reaches the image")
+        raise InputError(f"no ray of field {field} deg reaches the image")
     centroid = (allw[:, None] * allp).sum(axis=0) / allw.sum()
     s = lens.spot(field, aiming=aiming)
     return {
@@ -174,7 +175,7 @@ def write_report(
     top = max_freq if max_freq is not None else default_frequencies(lens.wavelengths_nm, samp["f_number"])[-1]
     asked = [top, *freqs]
     if min(asked) < 0 or max(asked) > samp["grid_nyquist_cyc_mm"]:
-        raise ValueError(
+        raise InputError(
             f"MTF frequencies must lie in 0..{samp['grid_nyquist_cyc_mm']:.1f} cycles/mm "
             f"(twice the diffraction cutoff), got {', '.join(f'{q:g}' for q in asked)}"
         )

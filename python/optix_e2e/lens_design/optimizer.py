@@ -49,6 +49,7 @@ from ..lens.pupil import pupil_quadrature
 from ..lens import Lens
 from .space import ParameterSpace
 from ..lens.surface import sag as _surface_sag
+from ..errors import InputError
 
 __all__ = ["Constraints", "LensProblem", "Merit", "OptimizeResult", "optimize", "polish", "sag", "element_geometry"]
 
@@ -190,7 +191,7 @@ class Constraints:
             ineq("back_focal_distance", float(lens["surfaces"][-1]["thickness"]), self.min_bfd)
         if self.min_image_height is not None:
             if chief_height is None:
-                raise ValueError("min_image_height needs the chief ray's image height")
+                raise InputError("min_image_height needs the chief ray's image height")
             ineq("image_height", chief_height, self.min_image_height)
         return rows
 
@@ -215,14 +216,14 @@ class Merit:
     ):
         base = Lens.load(base)
         if kind not in KINDS:
-            raise ValueError(f"merit must be one of {', '.join(KINDS)}, got {kind!r}")
+            raise InputError(f"merit must be one of {', '.join(KINDS)}, got {kind!r}")
         if tilt not in ("wavelength", "field"):
-            raise ValueError(f"tilt must be 'wavelength' or 'field', got {tilt!r}")
+            raise InputError(f"tilt must be 'wavelength' or 'field', got {tilt!r}")
         self.kind, self.tilt, self.unit = kind, tilt, UNITS[kind]
         self.fields = list(fields_deg) if fields_deg is not None else base.fields_deg
         fw = np.ones(len(self.fields)) if field_weights is None else np.asarray(field_weights, float)
         if len(fw) != len(self.fields) or np.any(fw < 0) or fw.sum() <= 0:
-            raise ValueError(
+            raise InputError(
                 f"field weights {list(fw)} do not match the {len(self.fields)} fields "
                 f"or are not >= 0 with a positive sum"
             )
@@ -234,7 +235,7 @@ class Merit:
         self.px, self.py, self.pw = pupil_quadrature(rings, arms)
         self.aiming = aiming
         if focus not in ("fixed", "paraxial"):
-            raise ValueError(f"focus must be 'fixed' or 'paraxial' (a BFL solve), got {focus!r}")
+            raise InputError(f"focus must be 'fixed' or 'paraxial' (a BFL solve), got {focus!r}")
         self.focus = focus
         self.constraints = constraints or Constraints()
         # footprint rays: pupil rim, half azimuths (the lens is symmetric in x)
@@ -425,7 +426,7 @@ class LensProblem:
         self.span = np.array([p.max for p in space.params], float) - self.lo
         bad = space.check_bounds(self.resolved)
         if bad:
-            raise ValueError("start point outside the parameter ranges: " + "; ".join(bad))
+            raise InputError("start point outside the parameter ranges: " + "; ".join(bad))
         self.u0 = (np.array(space.values(self.resolved)) - self.lo) / self.span
         self.n_res = len(self.report(self.u0)["residuals"])
 
@@ -450,7 +451,7 @@ class LensProblem:
             rep = self.report(u, footprint=None, full=False)
             r = rep["residuals"]
             if r.shape != (self.n_res,) or not np.all(np.isfinite(r)):
-                raise ValueError("non-finite residuals")
+                raise InputError("non-finite residuals")
             return r, rep
         except Exception as exc:
             if not _is_design_error(exc):
@@ -541,7 +542,7 @@ def optimize(
     x_scale="jac",
 ) -> OptimizeResult:
     """Minimize ``merit`` over ``space`` starting from ``lens`` (local: the minimum of the
-    start's basin; see :mod:`optix_e2e.design.global_search` for the global search).
+    start's basin; see :mod:`optix_e2e.lens_design.global_search` for the global search).
 
     Clear semi-diameters in ``lens`` are ignored while optimizing and kept as they are in
     the result (see :func:`set_semi_diameters` and ``OptimizeResult.after["semi_diameters_mm"]``).

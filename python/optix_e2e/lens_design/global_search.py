@@ -1,6 +1,6 @@
 """Global search for a nominal design (the role of Zemax's Global Search and Hammer).
 
-The local optimizer (:func:`optix_e2e.design.optimizer.polish`, damped least squares) finds
+The local optimizer (:func:`optix_e2e.lens_design.optimizer.polish`, damped least squares) finds
 the minimum of the basin it starts in.  This search visits many basins, in rounds:
 
 * **explore** (Global Search): scrambled Sobol' points over the variables' ranges
@@ -32,6 +32,7 @@ from typing import Callable
 import numpy as np
 
 from .optimizer import polish
+from ..errors import InputError, RunError
 
 __all__ = ["Basin", "GlobalResult", "basins_csv", "global_search"]
 
@@ -167,9 +168,9 @@ def global_search(
     from scipy.stats import qmc
 
     if minutes is None and rounds is None:
-        raise ValueError("global search: give a time budget (minutes) and/or a number of rounds")
+        raise InputError("global search: give a time budget (minutes) and/or a number of rounds")
     if batch < 1 or workers < 1 or screen < 1:
-        raise ValueError("global search: batch, workers and screen must be >= 1")
+        raise InputError("global search: batch, workers and screen must be >= 1")
     t0 = time.time()
     deadline = None if minutes is None else t0 + 60.0 * minutes
     rng = np.random.default_rng(seed)
@@ -264,7 +265,7 @@ def global_search(
             pool.shutdown(wait=True, cancel_futures=True)
     state.wall_s = time.time() - t0
     if state.best is None:
-        raise RuntimeError("global search: the time budget ended before the first polish")
+        raise RunError("global search: the time budget ended before the first polish")
     return state
 
 

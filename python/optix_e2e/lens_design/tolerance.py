@@ -1,7 +1,7 @@
 """Tolerance analysis over a parameter space: sensitivities, ranges from a budget, MC yield.
 
 Metric.  The polychromatic, centroid-referenced RMS spot radius of each field
-(:class:`optix_e2e.design.optimizer.Merit`, Gaussian pupil quadrature); the figure that is
+(:class:`optix_e2e.lens_design.optimizer.Merit`, Gaussian pupil quadrature); the figure that is
 budgeted is the worst field's.  By default designs are traced with free apertures (clear
 semi-diameters removed, as the optimizer does), so a perturbation changes the image and not
 which rays a rim stops.  ``apertures="fixed"`` keeps the nominal's clear semi-diameters
@@ -9,7 +9,7 @@ which rays a rim stops.  ``apertures="fixed"`` keeps the nominal's clear semi-di
 fixed`` does: a lens whose edge field is vignetted by design is then judged on the rays
 that pass, as Zemax's RMS spot of a vignetted field is (clipped rays are left out, lost
 rays still fail the design).  The manufacturability checks of the Monte Carlo draws use the
-nominal's clear semi-diameters (:func:`optix_e2e.design.sampling.apertures`).
+nominal's clear semi-diameters (:func:`optix_e2e.lens_design.sampling.apertures`).
 
 Sensitivity.  Each parameter alone is moved to nominal + k * step for k = -2, -1, +1, +2
 (the others at nominal) and the RMS spot of every field is traced.  Per field f a quadratic
@@ -56,6 +56,7 @@ import numpy as np
 from ..lens import Lens
 from .optimizer import Merit, _is_design_error
 from .space import APERTURE_KINDS, ASPHERE_KINDS, Parameter, ParameterSpace, SpaceError
+from ..errors import InputError
 
 __all__ = [
     "DEFAULT_STEPS",
@@ -150,10 +151,10 @@ def evaluate_fields(merit: Merit, design: dict, apertures: str = "free") -> np.n
     rep = merit.evaluate(traced_apertures(design, apertures), footprint=False)
     clipped = sum(f.get("clipped_rays", 0) for f in rep["fields"]) if apertures == "fixed" else 0
     if rep["failed_rays"] - clipped:
-        raise ValueError(f"{rep['failed_rays'] - clipped} rays lost (missed surface or total internal reflection)")
+        raise InputError(f"{rep['failed_rays'] - clipped} rays lost (missed surface or total internal reflection)")
     r = np.array([f["rms_spot_um"] for f in rep["fields"]], float)
     if not np.all(np.isfinite(r)):
-        raise ValueError("no rays reach the image")
+        raise InputError("no rays reach the image")
     return r
 
 
@@ -325,7 +326,7 @@ def sensitivity(
     (default: the lens's clear semi-diameters, else its ray footprint); ``apertures``: free
     or fixed (:func:`traced_apertures`)."""
     if not step_scale > 0:
-        raise ValueError(f"step scale must be > 0, got {step_scale}")
+        raise InputError(f"step scale must be > 0, got {step_scale}")
     check_apertures(apertures)
     lens = Lens.load(lens)
     base = lens.data
@@ -419,7 +420,7 @@ def allocate(
     analysed space) supplies the caps and the ranges the proposal is cut to.  With ``merit``
     and ``lens`` the two ends of each proposed range are traced (``growth_traced_um``)."""
     if not (isinstance(budget_um, (int, float)) and math.isfinite(budget_um) and budget_um > 0):
-        raise ValueError(f"budget must be a positive number of um, got {budget_um!r}")
+        raise InputError(f"budget must be a positive number of um, got {budget_um!r}")
     check_apertures(apertures)
     given = given or sens.space
     bounds = {p.name: p for p in given.params}
@@ -576,7 +577,7 @@ def monte_carlo(
 ) -> MonteCarlo:
     """``n`` manufacturable designs drawn uniformly from ``space`` (every parameter at once),
     traced; yield = fraction with worst-field RMS <= ``spec_um``.  ``limits``: a
-    :class:`optix_e2e.design.sampling.Limits` (default: the space's ``[constraints]``)."""
+    :class:`optix_e2e.lens_design.sampling.Limits` (default: the space's ``[constraints]``)."""
     from .sampling import Limits, sample_designs
 
     check_apertures(apertures)

@@ -35,6 +35,7 @@ from ..lens import Lens
 from .optimizer import Constraints
 from .space import ParameterSpace, SpaceError
 from ..lens.surface import sag
+from ..errors import InputError
 
 METHODS = ("uniform", "sobol", "lhs")
 REASONS = (
@@ -148,7 +149,7 @@ def _unit_block(method: str, d: int, m: int, seed: int, state: dict) -> np.ndarr
         elif method == "lhs":
             state["engine"] = qmc.LatinHypercube(d, seed=np.random.default_rng(seed))
         else:
-            raise ValueError(f"unknown sampling method {method!r} (one of {', '.join(METHODS)})")
+            raise InputError(f"unknown sampling method {method!r} (one of {', '.join(METHODS)})")
     eng = state["engine"]
     if method == "uniform":
         return eng.random((m, d))
@@ -196,9 +197,9 @@ def sample_designs(
 ) -> SampleResult:
     """``n`` manufacturable designs (parameter value rows) from ``space`` over ``base``."""
     if n < 1:
-        raise ValueError(f"n must be >= 1, got {n}")
+        raise InputError(f"n must be >= 1, got {n}")
     if method not in METHODS:
-        raise ValueError(f"unknown sampling method {method!r} (one of {', '.join(METHODS)})")
+        raise InputError(f"unknown sampling method {method!r} (one of {', '.join(METHODS)})")
     limits = limits or Limits()
     max_draws = max_draws or max(1000, 100 * n)
     lo = np.array([p.min for p in space.params])

@@ -10,9 +10,10 @@ import numpy as np
 from ..dataset.generate import compute_shard
 from ..dataset.manifest import refocused_designs, space_and_base
 from ..lens import Lens
+from ..errors import InputError
 
 
-class EngineRejectedDesign(ValueError):
+class EngineRejectedDesign(InputError):
     """The engine cannot compute the design (or a neighbour a derivative needs); the message
     names the parameter values (or the parameter) and the engine's reason."""
 
@@ -46,7 +47,7 @@ def exact_optics(surrogate, values, fallback: str | None = None) -> dict:
     methods = [surrogate.manifest["settings"].get("psf_method", "fft")] * len(values)
     if meta["n_failed"]:
         if fallback != "huygens":
-            raise ValueError(f"engine rejected the design: {meta['failures'][0]['reason']}")
+            raise InputError(f"engine rejected the design: {meta['failures'][0]['reason']}")
         failed = sorted(int(f["design"]) for f in meta["failures"])
         # the same sensor-pitch PSFs from point samples at 2 um where the dataset's are finer
         # (a quarter of the cost; the Huygens PSF is smooth where the FFT fails: aberrated)
@@ -57,7 +58,7 @@ def exact_optics(surrogate, values, fallback: str | None = None) -> dict:
         }
         redo, meta2 = exact_arrays(man, values[failed])
         if meta2["n_failed"]:
-            raise ValueError(f"engine rejected the design (Huygens too): {meta2['failures'][0]['reason']}")
+            raise InputError(f"engine rejected the design (Huygens too): {meta2['failures'][0]['reason']}")
         ok = [i for i in range(len(values)) if i not in failed]
         merged = {}
         for k in (surrogate.psf_kind, "relative_illumination", "image_distance", "energy_in_window"):
@@ -81,7 +82,7 @@ def rms_spot_um(manifest: dict, values, rings: int = 32) -> np.ndarray:
     weights) of each design [N, K] at the dataset's K fields, after the dataset's refocusing."""
     arrays, meta = exact_arrays(manifest, values)
     if meta["n_failed"]:
-        raise ValueError("engine rejected designs: " + "; ".join(f["reason"] for f in meta["failures"]))
+        raise InputError("engine rejected designs: " + "; ".join(f["reason"] for f in meta["failures"]))
     out = []
     for d in refocused_designs(manifest, arrays["params"], arrays["image_distance"]):
         lens = Lens(d)

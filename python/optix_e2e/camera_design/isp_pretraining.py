@@ -44,9 +44,10 @@ from ..optics.render import render
 from ..scenes.natural import natural_scene
 from ..sensor import simulate_raw
 from ..io import save_atomic
-from ..tasks.scenes import SensorFrame
+from ..tasks.samples import SensorFrame
 from ..torchfile import load_plain
-from .run import base_lens_f_number, load_surrogate, nominal_field_heights
+from .build import base_lens_f_number, load_surrogate, nominal_field_heights
+from ..errors import InputError
 
 FORMAT = "optix-isp-pretraining/1"
 LENS_KINDS = ("perfect", "nominal", "space")
@@ -216,7 +217,7 @@ def pretrain(
     if init is not None and not state_path.is_file():
         start = SoftwareISP.load(init)
         if start.config() != model.config():
-            raise ValueError(f"{init}: a {start.config()} network, not the {model.config()} this run trains")
+            raise InputError(f"{init}: a {start.config()} network, not the {model.config()} this run trains")
         model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in start.state_dict().items()})
         model.calibrate(calibrated_preset("imx249", f_number))
         meta0 = start.meta
@@ -225,9 +226,9 @@ def pretrain(
     if state_path.is_file():
         st = load_plain(state_path, "ISP pre-training state")
         if not isinstance(st, dict) or st.get("format") != FORMAT:
-            raise ValueError(f"{state_path}: not an ISP pre-training state ({FORMAT})")
+            raise InputError(f"{state_path}: not an ISP pre-training state ({FORMAT})")
         if st.get("config") != _resumable(cfg):
-            raise ValueError(f"{state_path}: made with other settings; use another --out or the same settings")
+            raise InputError(f"{state_path}: made with other settings; use another --out or the same settings")
         model.load_state_dict(st["model"])
         model.calibrate(calibrated_preset("imx249", f_number))  # the classical path: today's calibration
         opt.load_state_dict(st["optimizer"])

@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from .. import color, scenes
+from ..errors import InputError
 
 HELDOUT_SEED0 = 2_000_000_000  # procedural held-out scenes use seeds from here; training streams are [1, seed, step]
 HELDOUT_NOISE0 = 1 << 60  # held-out noise seeds (training noise: SeedSequence([4, seed, step]))
@@ -138,7 +139,7 @@ def heldout_set(
     quadrant j % 4); deterministic."""
     unknown = sorted(set(positions) - {"centre", "corner", "frame"})
     if unknown:
-        raise ValueError(f"unknown held-out position(s) {unknown}: centre, corner or frame")
+        raise InputError(f"unknown held-out position(s) {unknown}: centre, corner or frame")
     full = size + 2 * margin
     items = [
         (f"photo:{p}", scenes.load_photo(p, full)) for p in (scenes.bundled_photos() if photos is None else photos)

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from ..dataset.manifest import refocused_designs, space_and_base
-from ..design.sampling import Limits, apertures, check_design
+from ..lens_design.sampling import Limits, apertures, check_design
 from ..lens import Lens
 from ..lens.zemax.writer import write_zmx
 
@@ -48,7 +48,7 @@ def focus_check(manifest: dict, d: dict, tol_um: float = 2.0) -> dict:
     for (um) and whether that is within ``tol_um`` (the depth of focus at f/4.4 is about +-20 um)."""
     import json
 
-    from ..design.focus import best_focus_shift
+    from ..lens_design.focus import best_focus_shift
 
     wavelengths = sorted({float(wl) for c in manifest["channels"] for wl, _ in c})
     try:

@@ -33,6 +33,7 @@ from typing import Callable
 
 import torch
 from torch import nn
+from ..errors import InputError, RunError
 
 
 @dataclass
@@ -67,17 +68,17 @@ class ProximalCompositional:
 
     def __init__(self, blocks: list[Block], n_cycles: int, n_finetune: int):
         if not blocks:
-            raise ValueError("Alg. 1 needs at least one parameter block")
+            raise InputError("Alg. 1 needs at least one parameter block")
         names = [b.name for b in blocks]
         if len(set(names)) != len(names):
-            raise ValueError(f"block names must be unique, got {names}")
+            raise InputError(f"block names must be unique, got {names}")
         for b in blocks:
             if b.steps < 1 or b.lr <= 0 or b.beta < 0:
-                raise ValueError(
+                raise InputError(
                     f"block {b.name}: steps >= 1, lr > 0 and beta >= 0 required (got {b.steps}, {b.lr}, {b.beta})"
                 )
         if n_cycles < 0 or n_finetune < 0:
-            raise ValueError("n_cycles and n_finetune must be >= 0")
+            raise InputError("n_cycles and n_finetune must be >= 0")
         self.blocks, self.n_cycles, self.n_finetune = blocks, int(n_cycles), int(n_finetune)
         self.opts = {b.name: torch.optim.Adam(b.params, lr=b.lr) for b in blocks}
         self.t = 0
@@ -105,7 +106,7 @@ class ProximalCompositional:
 
     def step(self, loss_fn) -> dict:
         if self.t >= self.total_steps:
-            raise RuntimeError(f"Alg. 1 has run all its {self.total_steps} steps")
+            raise RunError(f"Alg. 1 has run all its {self.total_steps} steps")
         kind, block, first = self.phase()
         if kind == "cycle":
             if block.beta > 0 and (first or self.anchor is None):
@@ -150,11 +151,11 @@ class ProximalCompositional:
 
     def load_state_dict(self, st: dict) -> None:
         if not isinstance(st, dict) or st.get("kind") != self.kind:
-            raise ValueError(
+            raise InputError(
                 f"optimizer state is for {st.get('kind') if isinstance(st, dict) else st!r}, not {self.kind!r}"
             )
         if set(st.get("opts", {})) != set(self.opts):
-            raise ValueError(f"optimizer state has blocks {sorted(st.get('opts', {}))}, this run {sorted(self.opts)}")
+            raise InputError(f"optimizer state has blocks {sorted(st.get('opts', {}))}, this run {sorted(self.opts)}")
         self.t = int(st["t"])
         for k, o in self.opts.items():
             o.load_state_dict(st["opts"][k])
@@ -169,7 +170,7 @@ class Vanilla:
 
     def __init__(self, blocks: list[Block], lr: float, total_steps: int):
         if lr <= 0 or total_steps < 0:
-            raise ValueError("vanilla: lr > 0 and total_steps >= 0 required")
+            raise InputError("vanilla: lr > 0 and total_steps >= 0 required")
         self.blocks, self.lr, self._total = blocks, float(lr), int(total_steps)
         self.opt = torch.optim.Adam([p for b in blocks for p in b.params], lr=self.lr)
         self.t = 0
@@ -184,7 +185,7 @@ class Vanilla:
 
     def step(self, loss_fn) -> dict:
         if self.t >= self.total_steps:
-            raise RuntimeError(f"vanilla has run all its {self.total_steps} steps")
+            raise RunError(f"vanilla has run all its {self.total_steps} steps")
         _set_trainable(self.blocks, {b.name for b in self.blocks})
         self.opt.zero_grad(set_to_none=True)
         out = loss_fn()
@@ -201,7 +202,7 @@ class Vanilla:
 
     def load_state_dict(self, st: dict) -> None:
         if not isinstance(st, dict) or st.get("kind") != self.kind:
-            raise ValueError(
+            raise InputError(
                 f"optimizer state is for {st.get('kind') if isinstance(st, dict) else st!r}, not {self.kind!r}"
             )
         self.t = int(st["t"])

@@ -1,0 +1,168 @@
+"""What a design run is built from: the surrogate (checked to render at the sensor's pitch), the
+starting values of the lens and the ISP (Alg. 1's initialization), the camera, and Alg. 1 or
+vanilla over its parameter blocks. The same builder serves the end-to-end camera and the
+nominal baseline (its optics fixed)."""
+
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import parallel
+from ..camera import (
+    Camera,
+    FixedOptics,
+    HardwareISPStage,
+    SensorStage,
+    SoftwareISPStage,
+    calibrated_preset,
+)
+from ..camera.stages import image_height_fractions
+from ..dataset.manifest import space_and_base
+from ..errors import InputError
+from ..isp import params as hp
+from ..isp.proxy import ISPProxy
+from ..isp.software import SoftwareISP
+from ..optics import DifferentiableOptics
+from ..surrogate.checkpoint import OpticsSurrogate
+from ..tasks import SensorFrame, get_task
+from .alg1 import Block, ProximalCompositional, Vanilla
+from .config import DesignConfig
+from .guard import Manufacturable
+from .outputs import design_lens
+
+SOFTWARE_ISP = Path(__file__).resolve().parent.parent / "isp" / "bundled" / "software_isp.pt"
+
+
+def load_surrogate(spec: str, pixel_um: float | None = None) -> OpticsSurrogate:
+    """The optics surrogate, checked to render at the sensor's pitch (``pixel_um``)."""
+    sur = OpticsSurrogate.load(spec)
+    if pixel_um is not None:
+        pitch = float(sur.manifest.get("settings", {}).get("sensor_pixel_um", float("nan"))) * sur.bin
+        if sur.psf_kind != "psf_sensor" or not math.isclose(pitch, pixel_um, rel_tol=1e-6):
+            raise InputError(
+                f"surrogate {spec}: its PSFs are {sur.psf_kind} at {pitch} um per pixel; the camera "
+                f"renders at the sensor's {pixel_um} um (train it on psf_sensor, --bin 1)"
+            )
+    return sur
+
+
+def base_lens_f_number(sur: OpticsSurrogate) -> float:
+    _, base = space_and_base(sur.manifest)
+    return float(base.paraxial()["f_number"])
+
+
+def initial_optics_values(cfg: DesignConfig, optics: DifferentiableOptics) -> torch.Tensor:
+    """The nominal design, or a uniform draw inside the space's ranges (seeded), redrawn until
+    it is manufacturable (as the dataset's designs are)."""
+    if cfg.optics_init == "nominal":
+        return optics.base_values()
+    rng = np.random.default_rng([3, int(cfg.seed)])  # stream tag 3: optics init (1: batches, 2: ISP init)
+    guard = Manufacturable(optics.surrogate.manifest) if optics.surrogate.manifest else None
+    for _ in range(1000):
+        u = torch.as_tensor(rng.random(len(optics.lo)), dtype=torch.float32)
+        v = optics.lo + (optics.hi - optics.lo) * (0.02 + 0.96 * u)
+        if guard is None or not guard.problems(v.numpy()):
+            return v
+    raise InputError("no manufacturable design in 1000 uniform draws of the space")
+
+
+def design_field_heights(sur: OpticsSurrogate, values, image_distance: float) -> torch.Tensor:
+    """The surrogate's fields placed where the design ``values`` images them, its image plane
+    at ``image_distance`` (the chief rays' heights as fractions of the full field)."""
+    return image_height_fractions(design_lens(sur.manifest, values, image_distance), sur.fields_deg)
+
+
+def nominal_field_heights(sur: OpticsSurrogate) -> torch.Tensor:
+    """The surrogate's fields placed where the nominal lens images them (refocused as its
+    dataset was): the renderer's field positions in training."""
+    if not sur.manifest:
+        return sur.fields
+    space, base = space_and_base(sur.manifest)
+    return design_field_heights(sur, space.values(base.data), float(base.data["surfaces"][-1]["thickness"]))
+
+
+def initial_isp_unit(cfg: DesignConfig) -> torch.Tensor:
+    """Alg. 1's initialization of P_ISP: uniform random over the ranges (seeded)."""
+    rng = np.random.default_rng([2, int(cfg.seed)])
+    return torch.as_tensor(hp.to_unit(hp.sample(rng)), dtype=torch.float32)
+
+
+def build_camera(
+    cfg: DesignConfig,
+    sur: OpticsSurrogate,
+    *,
+    fixed_optics: FixedOptics | None = None,
+    frame: SensorFrame = SensorFrame(),
+    own_surrogate: bool = False,
+) -> Camera:
+    """The camera at its initialization: the same for Alg. 1, vanilla and the nominal baseline
+    (apart from the optics, fixed at the nominal for the latter). ``own_surrogate``: the optics
+    get a copy of the surrogate (a hybrid run refines its own)."""
+    task = get_task(cfg.task)
+    if fixed_optics is None:
+        optics = DifferentiableOptics(
+            copy.deepcopy(sur) if own_surrogate else sur, patch=cfg.patch, full_field_px=frame.full_field_px
+        )
+        optics.set_values(initial_optics_values(cfg, optics))
+        optics.render_fields = nominal_field_heights(sur)
+        optics.use_fields(cfg.fields)
+    else:
+        optics = fixed_optics
+    preset = calibrated_preset("imx249", base_lens_f_number(sur), task.exposure_factor, task.gain_factor)
+    sensor = SensorStage(preset)
+    if task.isp == "software":
+        path = Path(cfg.software_isp) if cfg.software_isp else SOFTWARE_ISP
+        if not path.is_file():
+            raise FileNotFoundError(f"the pre-trained software ISP is missing: {path}")
+        isp = SoftwareISPStage(SoftwareISP.load(path).train(), preset)
+    else:
+        isp = HardwareISPStage(ISPProxy.load(), initial_isp_unit(cfg), preset.cfa, preset.adc_bits)
+    return Camera(optics, sensor, isp)
+
+
+BLOCK_SETTINGS = {
+    "optics": ("lr_optics", "steps_optics", "beta_optics"),
+    "isp": (None, "steps_isp", "beta_isp"),
+    "detector": ("lr_detector", "steps_detector", "beta_detector"),
+}
+
+
+def make_optimizer(cfg: DesignConfig, camera, kind: str):
+    """Alg. 1 or vanilla over the camera's blocks (optics, ISP, and the detection task's
+    detector); the nominal baseline ("nominal") takes the same number of steps on its
+    processing blocks together (each with its own optimizer and learning rate)."""
+    task = get_task(cfg.task)
+    blocks = []
+    for name, params in camera.blocks().items():
+        lr_key, steps_key, beta_key = BLOCK_SETTINGS[name]
+        if name == "isp":
+            lr = cfg.lr_isp_net if task.isp == "software" else cfg.lr_isp_params
+        else:
+            lr = getattr(cfg, lr_key)
+        # the prox term in range-normalized units where the block is a sigmoid-reparameterized vector
+        coords = torch.sigmoid if name == "optics" or (name == "isp" and task.isp == "hardware") else None
+        blocks.append(Block(name, params, lr, getattr(cfg, steps_key), getattr(cfg, beta_key), coords))
+    if kind == "nominal":
+        return ProximalCompositional(
+            [Block(b.name, b.params, b.lr, 1, 0.0) for b in blocks], n_cycles=0, n_finetune=cfg.total_steps
+        )
+    if kind == "vanilla":
+        return Vanilla(blocks, cfg.lr_vanilla, cfg.total_steps)
+    return ProximalCompositional(blocks, cfg.n_cycles, cfg.n_finetune)
+
+
+def start_run(cfg: DesignConfig, out: "str | Path") -> tuple[Path, object, SensorFrame, OpticsSurrogate]:
+    """What every design run starts from: its folder, task, sensor frame and surrogate (checked
+    to render at the sensor's pitch), with the torch threads set."""
+    parallel.set_threads(cfg.threads)
+    return (
+        Path(out),
+        get_task(cfg.task),
+        SensorFrame(),
+        load_surrogate(cfg.surrogate, calibrated_preset("imx249").pixel_um),
+    )

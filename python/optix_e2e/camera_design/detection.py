@@ -1,0 +1,372 @@
+"""Detection in the design run (`optix design detection --out DIR`): paper Sec. 6.1 "Automotive
+object detection" (Eq. 12, Table 4) on our street scenes.
+
+As the image-quality tasks (image_quality.py), with the detector as a third block:
+
+* ``end_to_end``: lens (surrogate optics, the f-number among its parameters), the hardware
+  ISP's hyperparameters (through its proxy) and the detector's weights, by Alg. 1 or vanilla;
+* ``nominal``: the nominal lens (f/4.4) fixed, the ISP hyperparameters and the detector
+  fine-tuned together on the same loss, batches, noise and number of steps;
+
+both from the same pre-trained detector (trained on noise-free renderings of street scenes,
+``optix detect train``) and the same ISP initialization. Both cameras are then evaluated on
+held-out street scenes under the exact engine's PSFs and vignetting of their lens, at their
+lens's f-number (Eq. 3), through the true reference ISP, with the same noise draws: COCO
+mAP@0.5 and mAP@[.5:.95] for each, the same over the objects in the dark, and the paired
+differences with a 95 % bootstrap interval over scenes (each resample scored by mAP as a whole).
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from torchvision.utils import draw_bounding_boxes
+from tqdm import tqdm
+
+from .. import color, parallel
+from ..camera import Camera, FixedOptics
+from ..errors import InputError
+from ..metrics.map_bootstrap import MatchTable
+from ..scenes.street import CATEGORIES
+from ..tasks import SensorFrame, get_task
+from ..tasks.detection import DetectionCamera, heldout_streets, street_batch
+from ..tasks.detector import in_the_dark, make_detector, mean_average_precision
+from ..tasks.detector_train import load_detector
+from . import eval_cache
+from .build import build_camera
+from .config import DesignConfig
+from .outputs import save_panels
+from .task_hooks import TaskHooks
+
+BUNDLED_DETECTOR = Path(__file__).resolve().parent.parent / "tasks" / "bundled" / "street_detector.pt"
+PANEL_SCORE = 0.3  # detections drawn in the panels: score at least this
+
+
+def load_start_detector(cfg: DesignConfig, size: tuple[int, int]) -> torch.nn.Module:
+    """The pre-trained detector both trainings start from, built for crops of ``size``."""
+    path = Path(cfg.detector) if cfg.detector else BUNDLED_DETECTOR
+    if not path.is_file():
+        raise FileNotFoundError(f"the pre-trained detector is missing: {path}")
+    model, ck = load_detector(path)
+    det = make_detector(int(ck["config"]["width"]), int(ck["config"]["fpn"]), size)
+    det.load_state_dict(model.state_dict())
+    return det
+
+
+def build_detection_camera(
+    cfg: DesignConfig, sur, *, fixed_optics: FixedOptics | None = None, frame: SensorFrame = SensorFrame()
+) -> DetectionCamera:
+    return DetectionCamera(
+        build_camera(cfg, sur, fixed_optics=fixed_optics, frame=frame), load_start_detector(cfg, cfg.crop_hw)
+    )
+
+
+def _loss_at(cfg: DesignConfig, cam: DetectionCamera, frame: SensorFrame, ranks: parallel.Ranks = parallel.Ranks()):
+    task = get_task(cfg.task)
+    part = parallel.batch_slice(cfg.batch, ranks)  # this rank's scenes of each batch (torchrun)
+
+    def loss_at(t: int, gen: torch.Generator):
+        b = street_batch(cfg.seed, t, cfg.batch, cfg.crop_hw, cam.margin, (task.level_min, task.level_max), frame)
+        return cam(b.scene[part], b.offset_px, gen, b.targets[part])
+
+    return loss_at
+
+
+@torch.no_grad()
+def evaluate_detection(cam: DetectionCamera, samples, progress: bool = False, desc: str = "eval") -> list[dict]:
+    """Each held-out sample through the camera's final output (reference ISP, 8 bits, the
+    sample's noise seed) and the detector: {"boxes", "scores", "labels"} per sample."""
+    cam.eval()
+    preds = []
+    for s in tqdm(samples, desc=desc, unit="scene", disable=not progress, leave=False):
+        img = cam.final_image(s.scene[None], s.offset_px, torch.Generator().manual_seed(int(s.noise_seed)))
+        preds += cam.detect(img)
+    return [{k: v.detach().cpu() for k, v in p.items()} for p in preds]
+
+
+def detection_scores(preds: list[dict], samples, dark: float) -> dict:
+    targets = [s.target for s in samples]
+    res = mean_average_precision(preds, targets)
+    r = mean_average_precision(*in_the_dark(preds, targets, [s.object_light for s in samples], dark))
+    res["dark"] = {"threshold": dark, "map_50": r["map_50"], "map": r["map"], "n_objects": r["n_objects"]}
+    return res
+
+
+def paired_map(a: list[dict], b: list[dict], samples, n_boot: int, seed: int, dark: float) -> dict:
+    """mAP(b) - mAP(a) on the same scenes, with a 95 % percentile bootstrap interval over scenes
+    (each resample scored as a whole set, both cameras on the same resample; COCO matching
+    done once per image, metrics.map_bootstrap), for all objects and those in the dark."""
+    n = len(samples)
+    targets = [s.target for s in samples]
+    lights = [s.object_light for s in samples]
+    dark_a, dark_t = in_the_dark(a, targets, lights, dark)
+    dark_b, _ = in_the_dark(b, targets, lights, dark)
+    tables = {
+        "all": (MatchTable(a, targets), MatchTable(b, targets)),
+        "dark": (MatchTable(dark_a, dark_t), MatchTable(dark_b, dark_t)),
+    }
+    rng = np.random.default_rng(seed)
+    counts = np.stack([np.bincount(rng.integers(0, n, n), minlength=n) for _ in range(n_boot)])
+    out: dict = {"n_images": n, "n_boot": n_boot, "dark": {}}
+    for z, (ta, tb) in tables.items():
+        full_a, full_b = ta.scores(), tb.scores()
+        boots = [(ta.scores(w), tb.scores(w)) for w in counts]
+        for k in ("map_50", "map"):
+            d = np.array([sb[k] - sa[k] for sa, sb in boots])
+            lo, hi = np.percentile(d, [2.5, 97.5])
+            entry = {"mean": float(full_b[k] - full_a[k]), "ci95": [float(lo), float(hi)], "better": "higher"}
+            (out if z == "all" else out["dark"])[k] = entry
+    return out
+
+
+def _digest(psf, vig, fh, f_number, cam: DetectionCamera, n: int) -> str:
+    """What a held-out evaluation depends on besides the run's settings (eval_cache)."""
+    tensors = (psf, vig, fh, *cam.isp.state_dict().values(), *cam.detector.state_dict().values())
+    return eval_cache.digest(f"scenes={n} f={f_number!r}", tensors)
+
+
+def _preds_json(preds: list[dict]) -> list[dict]:
+    return [
+        {"boxes": p["boxes"].tolist(), "scores": p["scores"].tolist(), "labels": p["labels"].tolist()} for p in preds
+    ]
+
+
+def _preds_from_json(rows: list[dict]) -> list[dict]:
+    return [
+        {
+            "boxes": torch.tensor(r["boxes"], dtype=torch.float32).reshape(-1, 4),
+            "scores": torch.tensor(r["scores"], dtype=torch.float32),
+            "labels": torch.tensor(r["labels"], dtype=torch.int64),
+        }
+        for r in rows
+    ]
+
+
+WHO = ("nominal", "end_to_end")
+
+
+class DetectionHooks(TaskHooks):
+    loss_parts = DetectionCamera.LOSS_PARTS
+    # a fast lens whose FFT PSF the engine refuses gets the Huygens PSF (the reference), noted
+    exact_fallback = "huygens"
+
+    def check(self, sur, ranks):
+        c = self.cfg
+        if c.images:
+            raise InputError("--images is for the image-quality tasks; detection trains on street scenes")
+        if c.fields:
+            raise InputError("fields: the detection run renders from all the surrogate's field samples (fields = 0)")
+        if c.optics not in ("surrogate", "auto"):
+            raise InputError(
+                f"optics {c.optics}: the detection run trains through the surrogate (exact and hybrid "
+                f"optics are for the image-quality tasks)"
+            )
+        if "f_number" not in sur.param_names:
+            raise InputError(
+                f"surrogate {c.surrogate}: its space has no f_number parameter; the detection task "
+                f"learns the aperture (use paper-triplet-detect)"
+            )
+        self.f_index = sur.param_names.index("f_number")
+
+    def build_camera(self, sur, frame, *, fixed_optics=None, trained=False):
+        cam = build_camera(self.cfg, sur, fixed_optics=fixed_optics, frame=frame)
+        return DetectionCamera(cam, load_start_detector(self.cfg, self.cfg.crop_hw))
+
+    def loss_at(self, camera, frame, ranks):
+        return _loss_at(self.cfg, camera, frame, ranks)
+
+    def nominal_optics(self, camera, sur, nominal_values, surrogate_psfs, frame):
+        psf, vig = surrogate_psfs
+        return FixedOptics(
+            psf,
+            vig,
+            camera.optics.render_fields,
+            patch=self.cfg.patch,
+            full_field_px=frame.full_field_px,
+            f_number=self.f_number(nominal_values),
+        )
+
+    def f_number(self, values):
+        return float(values[self.f_index])
+
+    def evaluate(self, out, cams, optics, f_numbers, exact, frame, progress):
+        c, task = self.cfg, self.task
+        samples = heldout_streets(
+            c.eval_scenes, c.crop_hw, exact["psf"].shape[-1] // 2, (task.level_min, task.level_max), frame
+        )
+        preds: dict[str, dict[str, list]] = {}
+        reused_s = 0.0
+        for who in WHO:
+            preds[who] = {}
+            for kind in ("exact", "surrogate"):
+                path = out / f"detections_{who}_{kind}.json"
+                psf, vig, fh = optics[who][kind]
+                key = _digest(psf, vig, fh, f_numbers[who], cams[who], len(samples))
+                cached = eval_cache.read(path, key)
+                if cached is not None:
+                    try:  # a damaged cache (hand-edited, cut short) is detected again, not a traceback
+                        preds[who][kind] = _preds_from_json(cached["detections"])
+                        reused_s += float(cached.get("wall_s", 0.0))
+                        continue
+                    except (KeyError, TypeError, ValueError, RuntimeError):
+                        pass
+                t0 = time.perf_counter()
+                fo = FixedOptics(
+                    psf, vig, fh, patch=c.patch, full_field_px=frame.full_field_px, f_number=f_numbers[who]
+                )
+                ev_cam = DetectionCamera(Camera(fo, cams[who].sensor, cams[who].isp), cams[who].detector)
+                preds[who][kind] = evaluate_detection(ev_cam, samples, progress, f"eval {who} ({kind} optics)")
+                eval_cache.write(
+                    path,
+                    key,
+                    time.perf_counter() - t0,
+                    images=[s.name for s in samples],
+                    detections=_preds_json(preds[who][kind]),
+                )
+        scores = {
+            who: {kind: detection_scores(preds[who][kind], samples, task.dark) for kind in ("exact", "surrogate")}
+            for who in WHO
+        }
+        return {"samples": samples, "preds": preds, "scores": scores}, reused_s
+
+    def panels(self, path, evaluation, cams, optics, f_numbers, frame):
+        _detection_panels(
+            path, evaluation["samples"], evaluation["preds"], optics, cams, f_numbers, self.cfg.patch, frame
+        )
+
+    def summarize(self, evaluation, cams, reports, f_numbers):
+        scores, preds, c = evaluation["scores"], evaluation["preds"], self.cfg
+
+        def camera_summary(who: str) -> dict:
+            s = scores[who]["exact"]
+            rep = reports[who]
+            return {
+                "map_50": s["map_50"],
+                "map": s["map"],
+                "map_75": s["map_75"],
+                "n_objects": s["n_objects"],
+                "dark": s["dark"],
+                "f_number": f_numbers[who],
+                "f_number_paraxial": float(rep["paraxial"]["f_number"]),
+                "rms_spot_um": [float(r["rms_spot_um"]) for r in rep["fields"]],
+                "relative_illumination": [r["relative_illumination"] for r in rep["fields"]],
+                "report_fields_deg": [float(r["field_deg"]) for r in rep["fields"]],
+                "surrogate": {k: scores[who]["surrogate"][k] for k in ("map_50", "map", "dark")},
+            }
+
+        paired = paired_map(
+            preds["nominal"]["exact"],
+            preds["end_to_end"]["exact"],
+            evaluation["samples"],
+            c.bootstrap,
+            c.seed,
+            self.task.dark,
+        )
+        return {"nominal": camera_summary("nominal"), "end_to_end": camera_summary("end_to_end"), "paired": paired}
+
+    def held_out(self, evaluation):
+        s = evaluation["scores"]["nominal"]["exact"]
+        return {
+            "n_images": len(evaluation["samples"]),
+            "n_objects": s["n_objects"],
+            "n_objects_dark": s["dark"]["n_objects"],
+            "size_px": list(self.cfg.crop_hw),
+            "levels": [self.task.level_min, self.task.level_max],
+        }
+
+    def extra(self, cams, monitor, e2e):
+        return {"isp_hyperparameters": {who: cams[who].isp.hyperparameters() for who in WHO}}
+
+    def write_tables(self, out, evaluation):
+        _write_scenes(out / "metrics.csv", evaluation["samples"], evaluation["preds"])
+
+    def summary_lines(self, res):
+        n, e, p = res["nominal"], res["end_to_end"], res["paired"]
+        h = res["held_out"]
+        lines = [
+            f"held-out ({h['n_images']} street scenes, {h['n_objects']} objects, {h['n_objects_dark']} in the dark), "
+            f"exact optics, reference ISP:",
+            f"  f-number  nominal f/{n['f_number']:.2f}   end-to-end f/{e['f_number']:.2f}",
+        ]
+        for k, label in (("map_50", "mAP@0.5"), ("map", "mAP")):
+            lo, hi = p[k]["ci95"]
+            lines.append(
+                f"  {label:8s} nominal {n[k]:.4f}   end-to-end {e[k]:.4f}   diff {p[k]['mean']:+.4f} "
+                f"[{lo:+.4f}, {hi:+.4f}]"
+            )
+        return lines
+
+
+def _write_scenes(path: Path, samples, preds: dict) -> None:
+    """Per held-out scene: where it lies, its light, its objects, and each camera's detections
+    at score >= 0.3 under exact optics."""
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["image", "radius", "level", "n_objects", "n_dark", *(f"n_detections_{who}" for who in preds)])
+        for i, s in enumerate(samples):
+            w.writerow(
+                [
+                    s.name,
+                    f"{s.radius:.4f}",
+                    f"{s.level:.4f}",
+                    len(s.target["labels"]),
+                    int((s.object_light < 0.1).sum()),
+                    *(int((preds[who]["exact"][i]["scores"] >= PANEL_SCORE).sum()) for who in preds),
+                ]
+            )
+
+
+@torch.no_grad()
+def _detection_panels(
+    path: Path,
+    samples,
+    preds: dict,
+    optics: dict,
+    cams: dict,
+    f_numbers: dict,
+    patch: int,
+    frame: SensorFrame,
+    n_scenes: int = 3,
+) -> None:
+    """The held-out scenes with the most objects in the dark: the ideal image with its boxes,
+    then each camera's output (exact optics, reference ISP) with its detections (score >= 0.3)."""
+    names = {c["id"]: c["name"] for c in CATEGORIES}
+    order = sorted(range(len(samples)), key=lambda i: -int((samples[i].object_light < 0.1).sum()))[:n_scenes]
+
+    def boxed(img: torch.Tensor, boxes, labels, colour) -> torch.Tensor:
+        u8 = (img.clamp(0, 1) * 255).round().to(torch.uint8)
+        if len(boxes):
+            u8 = draw_bounding_boxes(
+                u8, boxes, [names.get(int(k), str(int(k))) for k in labels], colors=colour, width=1
+            )
+        return u8.float() / 255
+
+    rows = []
+    for i in order:
+        s = samples[i]
+        m = (s.scene.shape[-2] - s.size[0]) // 2
+        inner = s.scene[:, m : m + s.size[0], m : m + s.size[1]]
+        ideal = color.linear_to_srgb((inner / s.level).clamp(0, 1))
+        imgs = [boxed(ideal, s.target["boxes"], s.target["labels"], "yellow")]
+        for who in ("nominal", "end_to_end"):
+            psf, vig, fh = optics[who]["exact"]
+            fo = FixedOptics(psf, vig, fh, patch=patch, full_field_px=frame.full_field_px, f_number=f_numbers[who])
+            cam = DetectionCamera(Camera(fo, cams[who].sensor, cams[who].isp), cams[who].detector)
+            img = cam.final_image(s.scene[None], s.offset_px, torch.Generator().manual_seed(int(s.noise_seed)))[0]
+            p = preds[who]["exact"][i]
+            keep = p["scores"] >= PANEL_SCORE
+            imgs.append(boxed(img, p["boxes"][keep], p["labels"][keep], "cyan"))
+        rows.append((f"{s.name} (r {s.radius:.2f}, {int((s.object_light < 0.1).sum())} in the dark)", imgs))
+    save_panels(
+        path,
+        rows,
+        [
+            "scene (ideal, at sunlit exposure) + boxes",
+            f"nominal f/{f_numbers['nominal']:.2f} + fine-tuned",
+            f"end-to-end f/{f_numbers['end_to_end']:.2f}",
+        ],
+    )

@@ -1,0 +1,118 @@
+"""The manufacturability guard of a design run (paper Sec. 5.2: the limits hold for every lens
+the run visits): the dataset's limits (centre and edge thickness, air gaps, back focus; the
+space file's [constraints]) as a check and as margins on parameter values, and the rule that
+keeps each optimizer step inside them (project the step along the limits it leans across,
+then cut it back). A step the guard changed is counted in history.csv's ``cut``."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.optimize import nnls
+
+from ..dataset.manifest import space_and_base
+from ..lens import Lens
+from ..lens_design.optimizer import Constraints
+from ..lens_design.sampling import Limits, apertures, check_design
+from ..optics import DifferentiableOptics
+from .outputs import design_lens
+
+
+class Manufacturable:
+    """The dataset's manufacturability limits (centre and edge thickness, air gaps, BFD; the
+    space file's [constraints]) as a check on parameter values: ``problems(values)`` lists the
+    violated ones (empty: manufacturable). Edge thicknesses at the ray footprint, the image
+    plane at the base lens's distance (the BFD limit is far from binding in these spaces)."""
+
+    def __init__(self, manifest: dict):
+        self.manifest = manifest
+        self.limits = Limits.from_dict(manifest.get("sampling_summary", {}).get("limits"))
+        _, base = space_and_base(manifest)
+        self.image_distance = float(base.data["surfaces"][-1]["thickness"])
+        self.checks = 0
+
+    def problems(self, values) -> list[str]:
+        self.checks += 1
+        d = design_lens(self.manifest, np.asarray(values, np.float64), self.image_distance)
+        try:
+            return check_design(d, apertures(Lens(d, source="<design>")), self.limits)
+        except Exception as err:  # a design the engine cannot trace is not manufacturable either
+            return [f"untraceable: {' '.join(str(err).split())}"]
+
+    def margins(self, values) -> np.ndarray:
+        """Each limit's value minus its bound (mm; >= 0 where met), in a fixed order."""
+        self.checks += 1
+        d = design_lens(self.manifest, np.asarray(values, np.float64), self.image_distance)
+        lim = self.limits
+        rows = Constraints(
+            min_center=lim.min_center, min_edge=lim.min_edge, min_air_gap=lim.min_air_gap, min_bfd=lim.min_bfd
+        ).evaluate(d, {}, apertures(Lens(d, source="<design>")))
+        return np.array([r["value"] - r["limit"] for r in rows if "limit" in r])
+
+
+def _values(optics: DifferentiableOptics, u: torch.Tensor) -> np.ndarray:
+    return (optics.lo + (optics.hi - optics.lo) * torch.sigmoid(u)).detach().double().numpy()
+
+
+def project_step(
+    optics: DifferentiableOptics,
+    u_prev: torch.Tensor,
+    step: torch.Tensor,
+    guard: Manufacturable,
+    h: float = 1e-3,
+    near_mm: float = 0.05,
+) -> torch.Tensor:
+    """The step with its components across the limits it would break removed: the limits
+    within ``near_mm`` of their bound at u_prev, linearized by forward differences in u
+    (one margin evaluation per parameter), and the step projected onto {J d >= -m}
+    (least-distance projection, active set by nonnegative least squares). Where the engine
+    cannot trace one of those points, the step is returned unchanged and the caller cuts it
+    back along itself (``problems`` calls such a point unmanufacturable)."""
+    try:
+        m0 = guard.margins(_values(optics, u_prev))
+        m1 = guard.margins(_values(optics, u_prev + step))
+        active = np.flatnonzero((m0 < near_mm) | (m1 < 0))
+        if active.size == 0:
+            return step
+        jac = np.empty((active.size, u_prev.numel()))
+        for k in range(u_prev.numel()):
+            du = torch.zeros_like(u_prev)
+            du[k] = h
+            jac[:, k] = (guard.margins(_values(optics, u_prev + du))[active] - m0[active]) / h
+    except Exception:  # untraceable (a ray misses a surface, surfaces cross): no linearization here
+        return step
+    d = step.double().numpy()
+    # min |d' - d|^2 s.t. J d' >= -m0: d' = d + J^T lam, lam >= 0 minimizing |J J^T lam - (-m0 - J d)|
+    lam, _ = nnls(jac @ jac.T + 1e-12 * np.eye(active.size), np.maximum(-m0[active] - jac @ d, 0.0))
+    return torch.as_tensor(d + jac.T @ lam, dtype=step.dtype)
+
+
+def keep_manufacturable(
+    optics: DifferentiableOptics, u_prev: torch.Tensor, guard: Manufacturable, iters: int = 12, project: bool = True
+) -> bool:
+    """After an optimizer step: if the new lens parameters break a manufacturability limit,
+    the step is projected along the limits it leans across (``project_step``: the lens slides
+    along an active limit instead of stopping at it), then, if the projected step still
+    breaks one (the limits curve), cut back along it to the farthest manufacturable point
+    (bisection; the previous point is manufacturable). Returns True when the step changed."""
+    u_new = optics.u.detach().clone()
+    if not guard.problems(optics.values().detach().numpy()):
+        return False
+    if project:
+        u_new = u_prev + project_step(optics, u_prev, u_new - u_prev, guard)
+        with torch.no_grad():
+            optics.u.copy_(u_new)
+        if not guard.problems(optics.values().detach().numpy()):
+            return True
+    lo, hi = 0.0, 1.0
+    for _ in range(iters):
+        mid = 0.5 * (lo + hi)
+        with torch.no_grad():
+            optics.u.copy_(u_prev + mid * (u_new - u_prev))
+        if guard.problems(optics.values().detach().numpy()):
+            hi = mid
+        else:
+            lo = mid
+    with torch.no_grad():
+        optics.u.copy_(u_prev + lo * (u_new - u_prev))
+    return True

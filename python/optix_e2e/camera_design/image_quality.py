@@ -1,0 +1,273 @@
+"""The image-quality tasks in the design run (iq-software, iq-hardware, low-light; paper Sec. 6.1,
+Tables 2-3): a camera of optics, sensor and ISP (the software ISP f_NN, or the hardware ISP's
+hyperparameters through its proxy), the loss L1 + w LPIPS against the ideal rendering, the optics
+model in the loop checked against the engine (``--optics``: surrogate, exact, hybrid, auto), and
+the held-out evaluation: PSNR, SSIM, LPIPS, HaarPSI per image and position, both cameras under
+each lens's exact PSFs (and, for reference, the surrogate's), the nominal camera's processing
+behind a perfect lens, and paired bootstrap intervals (evaluate.py)."""
+
+from __future__ import annotations
+
+import csv
+import time
+from pathlib import Path
+
+import torch
+from tqdm import tqdm
+
+from ..camera import Camera, FixedOptics, PerfectOptics
+from ..errors import InputError
+from ..scenes import ImageFolder, bundled_photos
+from ..surrogate.refine import RefineSettings
+from ..tasks import heldout_set
+from ..tasks.samples import POSITIONS
+from . import eval_cache
+from . import evaluate as ev
+from .build import build_camera
+from .hybrid import OpticsMonitor, exact_gradient_steps, resolve_optics
+from .outputs import save_panels
+from .task_hooks import TaskHooks
+from .training import LOSS_PARTS
+
+WHO = ("nominal", "end_to_end")
+
+
+class ImageQualityHooks(TaskHooks):
+    loss_parts = LOSS_PARTS
+
+    def __init__(self, cfg):
+        super().__init__(cfg)
+        self.mode, self.choice = resolve_optics(cfg)
+        self.folder = ImageFolder(cfg.images) if cfg.images else None
+
+    def check(self, sur, ranks):
+        if ranks.distributed and self.mode != "surrogate":
+            raise InputError(
+                f"--optics {self.cfg.optics} ({self.mode}) runs the engine inside the training steps and is not "
+                f"split over processes; under torchrun use --optics surrogate"
+            )
+
+    def describe(self):
+        why = f" (auto: {self.choice['why']})" if self.cfg.optics == "auto" else ""
+        return f"{super().describe()}, optics {self.mode}{why}"
+
+    def build_camera(self, sur, frame, *, fixed_optics=None, trained=False):
+        # a hybrid run refines its own copy of the surrogate
+        own = trained and fixed_optics is None and self.mode == "hybrid"
+        return build_camera(self.cfg, sur, fixed_optics=fixed_optics, frame=frame, own_surrogate=own)
+
+    def monitor(self, camera, writer, log):
+        c = self.cfg
+        return OpticsMonitor(
+            camera.optics,
+            self.mode,
+            c.check_every,
+            c.hybrid_threshold,
+            self.choice["refine"],
+            RefineSettings(designs=c.refine_designs, steps=c.refine_steps, seed=c.seed),
+            writer=writer,
+            name="end_to_end",
+            log=log,
+        )
+
+    def loss_at(self, camera, frame, ranks):
+        return None  # training.train's default: the image-quality loss on training_batch (and --images)
+
+    def nominal_optics(self, camera, sur, nominal_values, surrogate_psfs, frame):
+        # the baseline trains through the same optics model as the run: the engine's PSFs of the
+        # nominal lens where the run trusts the engine, the surrogate's where it does not
+        psf, vig = surrogate_psfs
+        if self.mode != "surrogate":
+            psf, vig = (
+                torch.as_tensor(a, dtype=torch.float32)
+                for a in camera.optics.exact.psfs(nominal_values.double().numpy())
+            )
+        idx = camera.optics.field_index or list(range(len(sur.fields_deg)))
+        return FixedOptics(
+            psf[idx],
+            vig[idx],
+            camera.optics.render_fields[idx],
+            patch=self.cfg.patch,
+            full_field_px=frame.full_field_px,
+        )
+
+    def evaluate(self, out, cams, optics, f_numbers, exact, frame, progress):
+        c = self.cfg
+        samples = heldout_set(
+            c.eval_size,
+            exact["psf"].shape[-1] // 2,
+            c.eval_procedural,
+            c.eval_level,
+            frame,
+            positions=POSITIONS[c.eval_positions],
+        )
+        rows: dict[str, dict[str, list]] = {}
+        reused_s = 0.0
+        for who in WHO:
+            rows[who] = {}
+            for kind in ("exact", "surrogate"):
+                psf, vig, fh = optics[who][kind]
+                fo = FixedOptics(psf, vig, fh, patch=c.patch, full_field_px=frame.full_field_px)
+                rows[who][kind], s = _evaluate_cached(
+                    out / f"eval_{who}_{kind}.json",
+                    _camera_key(psf, vig, fh, cams[who].isp, len(samples)),
+                    Camera(fo, cams[who].sensor, cams[who].isp),
+                    samples,
+                    f"eval {who} ({kind} optics)",
+                    progress,
+                )
+                reused_s += s
+        # the room the lens has: the nominal camera's processing behind a perfect lens (the scene
+        # unchanged: no blur, no vignetting; camera/stages.py PerfectOptics), the same samples and
+        # noise draws
+        size = int(exact["psf"].shape[-1])
+        key = _camera_key(
+            torch.tensor([float(size)]),
+            torch.ones(1),
+            torch.zeros(1),
+            cams["nominal"].isp,
+            len(samples),
+            "perfect-optics",
+        )
+        po = PerfectOptics(size, full_field_px=frame.full_field_px)
+        perfect, s = _evaluate_cached(
+            out / "eval_perfect_lens_exact.json",
+            key,
+            Camera(po, cams["nominal"].sensor, cams["nominal"].isp),
+            samples,
+            "eval perfect lens",
+            progress,
+        )
+        return {"samples": samples, "rows": rows, "perfect": perfect, "window": size}, reused_s + s
+
+    @torch.no_grad()
+    def panels(self, path, evaluation, cams, optics, f_numbers, frame, n_images: int = 3):
+        """target / nominal / end-to-end for three photos, at each held-out position."""
+        c = self.cfg
+        samples = heldout_set(
+            c.eval_size, evaluation["window"] // 2, 0, c.eval_level, frame, photos=bundled_photos()[:3]
+        )
+        names = []
+        for s in samples:
+            if s.name not in names:
+                names.append(s.name)
+        rows = []
+        for s in samples:
+            if s.name not in names[:n_images]:
+                continue
+            imgs = [s.target]
+            for who in WHO:
+                psf, vig, fh = optics[who]["exact"]
+                cam = cams[who]
+                fo = FixedOptics(psf, vig, fh, patch=cam.optics.patch, full_field_px=cam.optics.full_field_px)
+                img, _ = Camera(fo, cam.sensor, cam.isp)(
+                    s.scene[None], s.offset_px, torch.Generator().manual_seed(int(s.noise_seed)), final=True
+                )
+                imgs.append(img[0])
+            rows.append((f"{s.name} ({s.position})", imgs))
+        save_panels(path, rows, ["target", "nominal + fine-tuned processing", "end-to-end"])
+
+    def summarize(self, evaluation, cams, reports, f_numbers):
+        rows, c = evaluation["rows"], self.cfg
+        a, b = rows["nominal"], rows["end_to_end"]
+        return {
+            **{
+                who: {**ev.summarize(rows[who]["exact"]), "surrogate": ev.summarize(rows[who]["surrogate"])}
+                for who in WHO
+            },
+            # the nominal camera's processing behind a perfect lens (PerfectOptics): the lens's room
+            "perfect_lens": ev.summarize(evaluation["perfect"]),
+            "paired": ev.paired(a["exact"], b["exact"], c.bootstrap, c.seed),
+            "paired_by_zone": ev.paired_by_zone(a["exact"], b["exact"], c.bootstrap, c.seed),
+            "paired_surrogate_optics": ev.paired(a["surrogate"], b["surrogate"], c.bootstrap, c.seed),
+        }
+
+    def held_out(self, evaluation):
+        samples, c = evaluation["samples"], self.cfg
+        return {
+            "n_images": len({s.name for s in samples}),
+            "n_samples": len(samples),
+            "positions": c.eval_positions,
+            "per_image": len(POSITIONS[c.eval_positions]),
+            "size_px": c.eval_size,
+        }
+
+    def extra(self, cams, monitor, e2e):
+        res = {
+            "optics_model": {
+                **monitor.summary(),
+                "requested": self.cfg.optics,
+                "choice": self.choice,
+                "exact_gradient_steps": exact_gradient_steps(e2e["history"]),
+            }
+        }
+        if self.task.isp == "hardware":
+            res["isp_hyperparameters"] = {who: cams[who].isp.hyperparameters() for who in WHO}
+        return res
+
+    def write_tables(self, out, evaluation):
+        with open(out / "metrics.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["camera", "optics", "image", "position", "radius", *ev.METRICS])
+            for who, kinds in evaluation["rows"].items():
+                for kind, rs in kinds.items():
+                    for r in rs:
+                        w.writerow(
+                            [who, kind, r["image"], r["position"], r.get("radius", ""), *(r[m] for m in ev.METRICS)]
+                        )
+
+    def summary_lines(self, res):
+        n, e, p = res["nominal"], res["end_to_end"], res["paired"]
+        lines = [
+            f"held-out ({res['held_out']['n_images']} images x {res['held_out']['per_image']} positions), exact optics:"
+        ]
+        for m, label in (("psnr_db", "PSNR dB"), ("ssim", "SSIM"), ("lpips", "LPIPS"), ("haarpsi", "HaarPSI")):
+            lo, hi = p[m]["ci95"]
+            lines.append(
+                f"  {label:8s} nominal {n[m]:.4f}   end-to-end {e[m]:.4f}   diff {p[m]['mean']:+.4f} "
+                f"[{lo:+.4f}, {hi:+.4f}]   perfect lens {res['perfect_lens'][m]:.4f}"
+            )
+        lines.append("  (perfect lens: the nominal camera's processing, the scene unblurred and unshaded)")
+        om = res["optics_model"]
+        lines.append(
+            f"optics model {om['mode']} ({om['choice']['why']}); PSF rel. L1 at the final design, worst field: "
+            f"the model the last steps used {max(om['final_error_per_field']):.4f}, the network "
+            f"{max(om['final_network_error_per_field']):.4f}; {om['n_refinements']} refinements, "
+            f"{om['exact_gradient_steps']} lens steps on exact gradients"
+        )
+        return lines
+
+
+def _camera_key(psf, vig, fh, isp, n_samples: int, tag: str = "") -> str:
+    """What a held-out evaluation depends on besides the run's settings: the camera's PSFs,
+    vignetting, field heights and processing weights, and the number of samples."""
+    return eval_cache.digest(f"samples={n_samples}{tag}", (psf, vig, fh, *isp.state_dict().values()))
+
+
+def _rows_ok(rows) -> bool:
+    """Every row as ``evaluate.evaluate`` writes it (a hand-edited or damaged file is evaluated again)."""
+    return isinstance(rows, list) and all(
+        isinstance(r, dict)
+        and isinstance(r.get("image"), str)
+        and isinstance(r.get("position"), str)
+        and all(isinstance(r.get(m), (int, float)) and not isinstance(r.get(m), bool) for m in ev.METRICS)
+        and isinstance(r.get("radius"), (int, float))
+        for r in rows
+    )
+
+
+def read_eval_cache(path: Path, key: str) -> dict | None:
+    """An earlier evaluation of the same camera (None: absent, stale or damaged: evaluate again)."""
+    cached = eval_cache.read(path, key)
+    return cached if cached is not None and _rows_ok(cached.get("rows")) else None
+
+
+def _evaluate_cached(path: Path, key: str, camera: Camera, samples, desc: str, progress: bool) -> tuple[list, float]:
+    """(rows, seconds reused): the cached rows of the same camera, or a fresh evaluation, saved."""
+    cached = read_eval_cache(path, key)
+    if cached is not None:
+        return cached["rows"], float(cached.get("wall_s", 0.0))
+    t0 = time.perf_counter()
+    rows = ev.evaluate(camera, tqdm(samples, desc=desc, unit="img", disable=not progress, leave=False))
+    eval_cache.write(path, key, time.perf_counter() - t0, rows=rows)
+    return rows, 0.0

@@ -1,0 +1,191 @@
+"""An end-to-end design run (`optix design TASK --out DIR`): the paper's Sec. 6.1 experiment,
+the same skeleton for every task (the task's part is a plugin: task_hooks.py).
+
+1. Check everything, then claim the run folder (config.json; a folder of another run or
+   other files is refused before a byte is written).
+2. Train two cameras with the same seed, batches, sensor-noise draws and number of steps
+   (training.py; checkpointed, a killed run resumes on the same path):
+   * ``end_to_end``: lens (surrogate or exact optics) and processing (and the task's network)
+     together, by Alg. 1 or vanilla Adam, the manufacturability guard after each lens step;
+   * ``nominal``: the lens fixed at the nominal design, the processing fine-tuned with the same
+     task loss (the paper's fair comparison).
+3. Compute both lenses' exact PSFs with the engine and evaluate both cameras on held-out data
+   under them (and, for reference, under the surrogate's); evaluations are cached (eval_cache.py).
+4. Write the outputs: both lenses (.zmx, .json, reports, PSF grids), panels, history.csv,
+   metrics.csv and results.json.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import torch
+from torch.utils.tensorboard import SummaryWriter
+
+from .. import parallel
+from ..io import write_json_atomic
+from ..lens import Lens
+from ..lens_design.report import write_report
+from ..surrogate.ground_truth import exact_optics
+from . import outputs
+from .build import design_field_heights, make_optimizer, start_run
+from .config import DesignConfig, check_run_dir
+from .detection import DetectionHooks
+from .image_quality import ImageQualityHooks
+from .task_hooks import TaskHooks
+from .training import train, write_history
+
+#: the task plugins by kind: detection, and the image-quality tasks (every other task)
+HOOKS: dict[str, type[TaskHooks]] = {"detection": DetectionHooks}
+
+WHO = ("nominal", "end_to_end")
+
+
+def hooks_for(cfg: DesignConfig) -> TaskHooks:
+    """The task's hooks (tasks.get_task refuses an unknown task)."""
+    return HOOKS.get(cfg.task, ImageQualityHooks)(cfg)
+
+
+def claim_run_dir(out: Path, cfg: DesignConfig, ranks: parallel.Ranks, progress: bool, log):
+    """Check that the batch splits over the ranks, then rank 0 checks or creates the run
+    directory (config.json) while the others wait. Returns this rank's (progress, log,
+    TensorBoard writer): rank 0's as given with a writer into out/tb, the others' silent
+    with none."""
+    parallel.batch_slice(cfg.batch, ranks)
+    if ranks.is_main:
+        check_run_dir(out, cfg)
+    parallel.barrier(ranks)
+    if not ranks.is_main:
+        return False, (lambda m: None), None
+    return progress, log, SummaryWriter(str(out / "tb"))
+
+
+def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, log=print) -> dict | None:
+    """The whole run; returns the results (also written to out/results.json). Under torchrun
+    (``torchrun --nproc_per_node N -m optix_e2e design ...``) the N processes share each
+    training batch (optix_e2e.parallel); rank 0 alone evaluates and writes, and the other
+    ranks return None once the trainings are done."""
+    ranks = parallel.setup("cpu")  # the design trainings run on the CPU: gloo
+    out, task, frame, sur = start_run(cfg, out)
+    hooks = hooks_for(cfg)
+    # everything the run needs is checked before the run directory is claimed
+    hooks.check(sur, ranks)
+    hooks.build_camera(sur, frame)
+    progress, log, writer = claim_run_dir(out, cfg, ranks, progress, log)
+    common = dict(progress=progress, writer=writer, frame=frame, log=log, ranks=ranks, parts=hooks.loss_parts)
+    try:
+        log(f"[1/4] {hooks.describe()}")
+        camera = hooks.build_camera(sur, frame, trained=True)
+        monitor = hooks.monitor(camera, writer, log)
+        e2e = train(
+            cfg,
+            camera,
+            make_optimizer(cfg, camera, cfg.optimizer),
+            out,
+            "end_to_end",
+            loss_at=hooks.loss_at(camera, frame, ranks),
+            folder=hooks.folder,
+            monitor=monitor if ranks.is_main else None,  # surrogate optics: it only measures
+            **common,
+        )
+        nominal_values = camera.optics.base_values()
+        with torch.no_grad():
+            psf_ns, vig_ns = sur.psfs(nominal_values, check=False)
+        fixed = hooks.nominal_optics(camera, sur, nominal_values, (psf_ns, vig_ns), frame)
+        log(f"[2/4] nominal lens + processing fine-tuned, the same {cfg.total_steps} steps")
+        nominal = hooks.build_camera(sur, frame, fixed_optics=fixed)
+        nom = train(
+            cfg,
+            nominal,
+            make_optimizer(cfg, nominal, "nominal"),
+            out,
+            "nominal",
+            loss_at=hooks.loss_at(nominal, frame, ranks),
+            folder=hooks.folder,
+            **common,
+        )
+    finally:
+        if writer is not None:
+            writer.close()
+    if not ranks.is_main:
+        return None
+
+    t_eval = time.perf_counter()
+    log("[3/4] exact PSFs of both lenses (engine) and held-out evaluation")
+    final_values = camera.optics.values().detach()
+    values = {"nominal": nominal_values, "end_to_end": final_values}
+    f_numbers = {who: hooks.f_number(v) for who, v in values.items()}
+    exact = exact_optics(
+        sur, torch.stack([nominal_values, final_values]).double().numpy(), fallback=hooks.exact_fallback
+    )
+    with torch.no_grad():  # the shipped surrogate at the final design (a hybrid run's refined model: optics_model)
+        psf_es, vig_es = sur.psfs(final_values, check=False)
+    # field positions: each design's own chief-ray heights under exact optics, the nominal's
+    # (what training used) under the surrogate's
+    h_train = camera.optics.render_fields
+    surrogate_psfs = {"nominal": (psf_ns, vig_ns), "end_to_end": (psf_es, vig_es)}
+    optics = {
+        who: {
+            "exact": (
+                exact["psf"][i],
+                exact["vignetting"][i],
+                design_field_heights(sur, values[who].numpy(), exact["image_distance"][i]),
+            ),
+            "surrogate": (*surrogate_psfs[who], h_train),
+        }
+        for i, who in enumerate(WHO)
+    }
+    cams = {"nominal": nominal, "end_to_end": camera}
+    evaluation, reused_s = hooks.evaluate(out, cams, optics, f_numbers, exact, frame, progress)
+
+    log("[4/4] lens export, checks, PSF grids, panels, reports")
+    fields_deg = [float(f) for f in sur.manifest["fields_deg"]]
+    exported, checks = outputs.write_design_outputs(out, cfg, sur, nominal_values.numpy(), final_values.numpy(), exact)
+    hooks.panels(out / "panels.png", evaluation, cams, optics, f_numbers, frame)
+    reports = {who: write_report(Lens.load(out / "lens" / f"{who}.json"), out / "report" / who) for who in WHO}
+    results = {
+        "task": cfg.task,
+        "description": task.description,
+        "optimizer": cfg.optimizer,
+        "budget": cfg.budget,
+        "seed": cfg.seed,
+        "optics_eval": "exact",
+        **hooks.summarize(evaluation, cams, reports, f_numbers),
+        "lens_zmx": str(Path(exported["zmx"]).relative_to(out)),
+        "lens_json": str(Path(exported["json"]).relative_to(out)),
+        "design": {
+            "parameters": sur.param_names,
+            "nominal": [float(v) for v in nominal_values],
+            "end_to_end": [float(v) for v in final_values],
+            "checks": checks,
+        },
+        "surrogate_psf_rel_l1_per_field": {
+            "fields_deg": fields_deg,
+            "nominal": outputs.psf_rel_l1_per_field(psf_ns, exact["psf"][0]),
+            "end_to_end": outputs.psf_rel_l1_per_field(psf_es, exact["psf"][1]),
+        },
+        "exact_psf_method": {"nominal": exact["methods"][0], "end_to_end": exact["methods"][1]},
+        # the exact PSFs are normalized over their window: how much of each field's flux that
+        # window holds (worst channel), for both lenses
+        "exact_psf_energy_in_window": {
+            "fields_deg": fields_deg,
+            "window_px": int(exact["psf"].shape[-1]),
+            "nominal": [float(e) for e in exact["energy_in_window"][0].min(axis=-1)],
+            "end_to_end": [float(e) for e in exact["energy_in_window"][1].min(axis=-1)],
+        },
+        "held_out": hooks.held_out(evaluation),
+        "training": {
+            k: {kk: v[kk] for kk in ("steps", "wall_s", "final_loss", "cut_steps")}
+            for k, v in (("end_to_end", e2e), ("nominal", nom))
+        },
+        "surrogate": cfg.surrogate,
+        **hooks.extra(cams, monitor, e2e),
+    }
+    write_history(out / "history.csv", {"end_to_end": e2e["history"], "nominal": nom["history"]}, hooks.loss_parts)
+    hooks.write_tables(out, evaluation)
+    # training (both runs, across resumes) + exact PSFs, evaluation and outputs of this call
+    # + the evaluations it reused from an earlier one
+    results["wall_s"] = e2e["wall_s"] + nom["wall_s"] + reused_s + (time.perf_counter() - t_eval)
+    write_json_atomic(out / "results.json", results)
+    return results

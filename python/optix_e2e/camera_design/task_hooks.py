@@ -1,0 +1,90 @@
+"""What a task adds to the design run (run.py, the skeleton: claim the folder, build, train the
+end-to-end camera and the nominal baseline with the same budget, checkpoint and resume, compute
+both lenses' exact PSFs, evaluate on held-out data, write the outputs). A task is a plugin: a
+``TaskHooks`` subclass that builds its camera and loss, evaluates and summarizes; run.py's
+``HOOKS`` finds it by the task's name. The image-quality tasks (iq-software, iq-hardware, low-light) are
+``image_quality.ImageQualityHooks``; detection is ``detection.DetectionHooks``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .. import parallel
+from ..camera import FixedOptics
+from ..surrogate.checkpoint import OpticsSurrogate
+from ..tasks import SensorFrame, get_task
+from .config import DesignConfig
+
+
+class TaskHooks:
+    """The hooks of one task, in the order the run calls them. ``cfg`` is the run's settings,
+    ``task`` the task's definition (tasks.get_task)."""
+
+    #: the loss terms the task reports besides the total (history.csv, TensorBoard)
+    loss_parts: tuple[str, ...] = ()
+    #: exact PSFs of a design the engine's FFT refuses: None (an error) or "huygens"
+    exact_fallback: str | None = None
+    #: the user's training images (``--images``: scenes.ImageFolder), where the task takes them
+    folder = None
+
+    def __init__(self, cfg: DesignConfig):
+        self.cfg = cfg
+        self.task = get_task(cfg.task)
+
+    def check(self, sur: OpticsSurrogate, ranks: parallel.Ranks) -> None:
+        """Refuse settings the task cannot run with, before the run folder is claimed."""
+
+    def describe(self) -> str:
+        """The end-to-end training's line in the log."""
+        c = self.cfg
+        return f"end-to-end training: {c.task}, {c.optimizer}, {c.total_steps} steps"
+
+    def build_camera(self, sur: OpticsSurrogate, frame: SensorFrame, *, fixed_optics: FixedOptics | None = None):
+        """The camera at its initialization; ``fixed_optics`` for the nominal baseline."""
+        raise NotImplementedError
+
+    def monitor(self, camera, writer, log):
+        """What checks the optics model along the end-to-end training (or None)."""
+        return None
+
+    def loss_at(self, camera, frame: SensorFrame, ranks: parallel.Ranks):
+        """``loss_at(t, generator) -> (loss, parts)``: step t's loss (None: the default of
+        training.train, the image-quality loss)."""
+        return None
+
+    def nominal_optics(self, camera, sur: OpticsSurrogate, nominal_values, surrogate_psfs, frame) -> FixedOptics:
+        """The optics the nominal baseline trains through (the nominal lens, fixed)."""
+        raise NotImplementedError
+
+    def f_number(self, values) -> float | None:
+        """The working f-number of a design where the task sets the photons by it (Eq. 3)."""
+        return None
+
+    def evaluate(self, out: Path, cams: dict, optics: dict, f_numbers: dict, exact: dict, frame, progress: bool):
+        """Both cameras on the held-out data under each optics ("exact", "surrogate"); returns
+        (the evaluation, the seconds of evaluations reused from an earlier call)."""
+        raise NotImplementedError
+
+    def panels(self, path: Path, evaluation, cams: dict, optics: dict, f_numbers: dict, frame) -> None:
+        """The image panels (panels.png)."""
+        raise NotImplementedError
+
+    def summarize(self, evaluation, cams: dict, reports: dict, f_numbers: dict) -> dict:
+        """The task's figures for results.json: ``nominal``, ``end_to_end``, ``paired``, ..."""
+        raise NotImplementedError
+
+    def held_out(self, evaluation) -> dict:
+        """What the held-out set was (results.json ``held_out``)."""
+        raise NotImplementedError
+
+    def extra(self, cams: dict, monitor, e2e: dict) -> dict:
+        """Further results.json entries (the optics model, the ISP's hyperparameters)."""
+        return {}
+
+    def write_tables(self, out: Path, evaluation) -> None:
+        """metrics.csv: the per-image (per-scene) figures."""
+        raise NotImplementedError
+
+    def summary_lines(self, results: dict) -> list[str]:
+        """What ``optix design`` prints about the results."""
+        raise NotImplementedError

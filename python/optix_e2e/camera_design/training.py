@@ -1,0 +1,195 @@
+"""One training of a design run: Alg. 1 or vanilla to its last step on the task loss, with the
+manufacturability guard after each lens step, the optics model's checks along the way, the
+step's sensor-noise stream, and an atomic checkpoint every ``checkpoint_every`` steps from
+which a killed run resumes on the same path (batches and noise are functions of (seed, step)).
+Under torchrun each rank computes its slice of each batch and the gradients are averaged."""
+
+from __future__ import annotations
+
+import csv
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from .. import parallel
+from ..camera import Camera
+from ..errors import InputError
+from ..io import save_atomic
+from ..optics import DifferentiableOptics
+from ..tasks import SensorFrame, TaskLoss, get_task, training_batch
+from ..torchfile import DAMAGED_STATE_ERRORS, load_plain
+from .config import DesignConfig
+from .guard import Manufacturable, keep_manufacturable
+from .hybrid import OpticsModeMismatch
+
+LOSS_PARTS = ("l1", "lpips")  # the image-quality tasks' loss terms, in history.csv
+
+
+def history_keys(parts: tuple[str, ...] = LOSS_PARTS) -> tuple[str, ...]:
+    return ("step", "phase", "block", "loss", "prox", *parts, "cut", "optics", "seconds")
+
+
+def _save_state(path: Path, camera: Camera, opt, wall_s: float, history: list, monitor=None) -> None:
+    save_atomic(
+        {
+            "format": "optix-design-state/1",
+            "camera": camera.state_dict(),
+            "optimizer": opt.state_dict(),
+            "wall_s": wall_s,
+            "history": history,
+            "monitor": monitor.state_dict() if monitor is not None else None,
+        },
+        path,
+    )
+
+
+def _load_state(path: Path, camera: Camera, opt, monitor=None) -> tuple[float, list]:
+    st = load_plain(path, "design checkpoint")
+    if not isinstance(st, dict) or st.get("format") != "optix-design-state/1":
+        raise InputError(f"{path}: not a design checkpoint (format optix-design-state/1)")
+    try:
+        camera.load_state_dict(st["camera"])
+        opt.load_state_dict(st["optimizer"])
+        wall_s, history = float(st["wall_s"]), list(st["history"])
+        if not 0 <= opt.t <= opt.total_steps:
+            raise InputError(f"step {opt.t} outside this run's 0..{opt.total_steps}")
+        if not (math.isfinite(wall_s) and wall_s >= 0):
+            raise InputError(f"wall_s {wall_s}")
+        if monitor is not None and st.get("monitor") is not None:
+            monitor.load_state_dict(st["monitor"])
+    except OpticsModeMismatch:
+        raise  # its own message: the run's optics model differs, the checkpoint is fine
+    except DAMAGED_STATE_ERRORS as err:
+        raise InputError(
+            f"{path}: damaged design checkpoint ({type(err).__name__}: {' '.join(str(err).split())}); "
+            f"remove it to restart that training"
+        ) from None
+    return wall_s, history
+
+
+def noise_generator(seed: int, t: int, ranks: parallel.Ranks = parallel.Ranks()) -> torch.Generator:
+    """Step t's sensor-noise stream (stream tag 4); under torchrun each rank draws its own."""
+    key = [4, int(seed), int(t)] + ([ranks.rank, ranks.world] if ranks.distributed else [])
+    return torch.Generator().manual_seed(int(np.random.SeedSequence(key).generate_state(1)[0]))
+
+
+def train(
+    cfg: DesignConfig,
+    camera: Camera,
+    opt,
+    out: Path,
+    name: str,
+    *,
+    progress: bool = True,
+    writer=None,
+    frame: SensorFrame = SensorFrame(),
+    folder=None,
+    on_step=None,
+    log=None,
+    loss_at=None,
+    parts: tuple[str, ...] = LOSS_PARTS,
+    monitor=None,
+    ranks: parallel.Ranks = parallel.Ranks(),
+) -> dict:
+    """Run ``opt`` to its last step on the task loss, checkpointing into out/{name}_state.pt.
+    ``loss_at(t, generator)`` -> (loss, {part: value}) is step t's loss (default: the
+    image-quality task's on ``training_batch``); ``parts`` name the values it reports.
+    ``monitor``: an camera_design.hybrid.OpticsMonitor checking the optics model along the way
+    (before the first step, every ``check_every`` steps and after the last).
+    ``ranks``: under torchrun, each rank computes its slice of every batch (a ``loss_at`` given
+    here must do so too), the gradients are averaged before each step, rank 0 writes."""
+    task = get_task(cfg.task)
+    state_path = out / f"{name}_state.pt"
+    wall_s, history = 0.0, []
+    if state_path.is_file():
+        wall_s, history = _load_state(state_path, camera, opt, monitor)
+        if log is not None and ranks.is_main:
+            log(f"{name}: resuming at step {opt.t} of {opt.total_steps} ({state_path.name})")
+    ran = opt.t < opt.total_steps
+    if ranks.distributed:
+        parallel.broadcast_params(camera.parameters(), ranks)  # one starting point, whatever each rank read
+        opt.reduce = lambda params, loss, info: parallel.average_step(ranks, params, loss, info)
+        progress = progress and ranks.is_main
+    if loss_at is None:
+        loss_mod = TaskLoss(task)
+        part = parallel.batch_slice(cfg.batch, ranks)
+
+        def loss_at(t, gen):
+            batch = training_batch(cfg.seed, t, cfg.batch, cfg.crop, m, (task.level_min, task.level_max), frame, folder)
+            out_img, _ = camera(batch.scene[part], batch.offset_px, gen)
+            return loss_mod(out_img, batch.target[part])
+
+    optics = camera.optics if isinstance(camera.optics, DifferentiableOptics) else None
+    guard = Manufacturable(optics.surrogate.manifest) if optics is not None and optics.surrogate.manifest else None
+    camera.train()
+    m = camera.margin
+    t_start = time.perf_counter()
+    bar = tqdm(
+        total=opt.total_steps,
+        initial=opt.t,
+        desc=f"{name} ({opt.kind})",
+        unit="step",
+        disable=not progress,
+        leave=False,
+    )
+    if monitor is not None and opt.t == 0 and not monitor.checks:
+        monitor.check(0)
+    while opt.t < opt.total_steps:
+        t = opt.t
+        gen = noise_generator(cfg.seed, t, ranks)
+
+        def loss_fn():
+            return loss_at(t, gen)
+
+        t0 = time.perf_counter()
+        u_prev = optics.u.detach().clone() if guard is not None else None
+        backend = optics.backend if optics is not None else "fixed"
+        info = opt.step(loss_fn)
+        hint = "lower the learning rates (lr_optics, lr_isp_net, lr_isp_params, lr_detector) in another --out"
+        parallel.stop_if_diverged(opt.t, state_path, hint, loss=info["loss"])
+        info["optics"] = backend
+        # the paper enforces its limits on every lens: a step that breaks one is cut back
+        info["cut"] = int(
+            guard is not None and info["block"] in ("optics", "all") and keep_manufacturable(optics, u_prev, guard)
+        )
+        info["seconds"] = time.perf_counter() - t0
+        history.append({k: info[k] for k in history_keys(parts)})
+        if writer is not None:
+            for k in ("loss", *parts):
+                writer.add_scalar(f"{name}/{k}", info[k], info["step"])
+            if info["prox"]:
+                writer.add_scalar(f"{name}/prox", info["prox"], info["step"])
+        if monitor is not None and monitor.due(opt.t, opt.total_steps):
+            monitor.check(opt.t, final=opt.t == opt.total_steps)
+        if on_step is not None:
+            on_step(info, camera)
+        bar.update(1)
+        bar.set_postfix(loss=f"{info['loss']:.4f}", block=info["block"])
+        if opt.t % cfg.checkpoint_every == 0 or opt.t == opt.total_steps:
+            parallel.stop_if_diverged(opt.t, state_path, hint, camera=camera)  # every rank: all stop together
+        if ranks.is_main and (opt.t % cfg.checkpoint_every == 0 or opt.t == opt.total_steps):
+            _save_state(state_path, camera, opt, wall_s + time.perf_counter() - t_start, history, monitor)
+    bar.close()
+    wall = wall_s + (time.perf_counter() - t_start if ran else 0.0)
+    camera.eval()
+    return {
+        "steps": opt.t,
+        "wall_s": wall,
+        "final_loss": history[-1]["loss"] if history else math.nan,
+        "cut_steps": int(sum(h.get("cut", 0) for h in history)),
+        "history": history,
+    }
+
+
+def write_history(path: Path, runs: dict, parts: tuple[str, ...] = LOSS_PARTS) -> None:
+    keys = history_keys(parts)
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["run", *keys])
+        for run, hist in runs.items():
+            for h in hist:
+                w.writerow([run] + [h.get(k, "") for k in keys])
