@@ -9,7 +9,7 @@ fi
 # shellcheck disable=SC1091
 . .venv/bin/activate
 python -m pip install --disable-pip-version-check -q ".[test]"
-echo "== lint: ruff, rustfmt, clippy (the stub check is tests/test_engine_stub.py)"
+echo "== lint: ruff, rustfmt, clippy (the stub check is tests/engine/test_engine_stub.py)"
 ruff check python tests benches scripts
 ruff format --check python tests benches scripts
 if cargo fmt --version >/dev/null 2>&1 && cargo clippy --version >/dev/null 2>&1; then

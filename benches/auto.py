@@ -7,7 +7,7 @@ in hindsight, on held-out random designs of the bundled spaces (docs/accuracy.md
 Every candidate is run and timed (median of ``--repeats`` runs when it is fast), and so is
 the auto call including its probe. Prints the summary of optix_e2e.accuracy.auto_check:
 met fraction, time ratios (of the means, per-case median and worst) and the same ratios in
-the engine's modelled costs. It measures; it asserts nothing (tests/test_auto.py asserts the
+the engine's modelled costs. It measures; it asserts nothing (tests/accuracy/test_auto.py asserts the
 met fraction and the modelled ratio, which do not depend on how busy the machine is).
 """
 

@@ -1,7 +1,7 @@
 """The Rust engine's one door (docs/architecture.md): every call into the compiled extension
 goes through these keyword-only wrappers, so what crosses into Rust is written in one place
 and every argument is named at the call. The units, keys and guarantees of each function are
-documented in ``_engine.pyi`` (checked against the built module by tests/test_engine_stub.py).
+documented in ``_engine.pyi`` (checked against the built module by tests/engine/test_engine_stub.py).
 
 The lens is always the resolved JSON prescription (``Lens.to_engine_json()``); arrays are
 float64 and C-contiguous (converted here); errors are the extension's own classes, re-exported

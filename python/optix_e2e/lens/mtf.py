@@ -21,7 +21,7 @@ PSF covers without wrap-around; P starts at 64 and doubles while the geometric s
 (from the chief ray) reaches beyond 85% of the half window or more than 1% of the
 energy falls outside.  With P = 64 the window holds 99.8% of a perfect lens's
 Airy pattern, and the MTF of a diffraction-limited f/50 lens matches the closed form to
-0.3% of unity (tests/test_mtf.py).  Engine warnings (wavefront under-sampled, energy
+0.3% of unity (tests/lens/test_mtf.py).  Engine warnings (wavefront under-sampled, energy
 outside the window) are passed on.
 
 Polychromatic MTF: the wavelengths' complex OTFs, each PSF normalized to unit energy and

@@ -14,7 +14,7 @@ averaged over space and summed over layers.
 
 Inputs: [B, 3, H, W] or [3, H, W], sRGB in [0, 1] like optix_e2e.metrics (mapped to the
 [-1, 1] LPIPS expects); no resizing.  Checked against the original's distances on its
-example images (tests/test_lpips.py: 0.722 and 0.138).
+example images (tests/metrics/test_lpips.py: 0.722 and 0.138).
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ fields and rotated to the patch's azimuth, and v the relative illumination at ea
 pixel. Every source pixel x thus spreads with sum_i w_i(x) h_i, a blend of the PSFs of the
 patches around it: the error against the exact per-pixel model shrinks as patches get
 smaller, at more FFTs. On the test's coma-like 9x9 stack (48x40 image) the relative L1 error
-is 2.4%, 1.3%, 0.49% and 0.24% for 32, 16, 8 and 4 px patches (tests/test_render.py). It is
+is 2.4%, 1.3%, 0.49% and 0.24% for 32, 16, 8 and 4 px patches (tests/optics/test_render.py). It is
 largest next to the axis, where the azimuth turns fastest. A 1920x1200 RGB frame with 13
 field PSFs of 33x33 takes 1.2 s (128 px patches) or 1.7 s (64 px) on 2 CPU threads. Everything is torch and differentiable with
 respect to the image, the PSFs and the relative illumination.

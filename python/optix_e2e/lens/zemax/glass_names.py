@@ -11,7 +11,7 @@ vendor's catalog and says so in its notes (docs/zemax.md).
 
 Schott's classic names (F1, SK16, BAF10, ...) were the industry's common names; Hikari
 still lists its equivalents of them under the same names, meant to match Schott's nd and
-vd (its F2, SF1 and SK16 do to 1e-4: tests/test_zemax_glasses.py).  For a Schott name
+vd (its F2, SF1 and SK16 do to 1e-4: tests/lens/test_zemax_glasses.py).  For a Schott name
 the database lacks, Hikari's glass of that name comes first, then Schott's N- successor.
 """
 

@@ -14,7 +14,7 @@ from optix_e2e.lens import Lens
 from optix_e2e.lens.prescription import PrescriptionError
 from optix_e2e.lens.zemax import ZemaxError
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[2]
 SAMPLES = REPO_ROOT.parent / "shared" / "zmx-samples"
 BROKEN = REPO_ROOT / "tests" / "data" / "zmx" / "broken"
 

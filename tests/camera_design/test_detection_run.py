@@ -13,6 +13,8 @@ import pytest
 
 from optix_e2e.lens import Lens
 
+pytestmark = pytest.mark.slow  # whole design runs in subprocesses
+
 
 def _design(out, *extra):
     return [

@@ -1,5 +1,5 @@
 """Seeded fuzz test of lens input files: mutants of the bundled lenses' JSON and
-.zmx (tests/fuzz_lens_inputs.py) give results without NaN or the project's own errors, and
+.zmx (tests/lens/fuzz_lens_inputs.py) give results without NaN or the project's own errors, and
 the process that runs them ends normally (an abort would show as a signal exit). The count
 bounds the run; 600 mutants take a few seconds here. Deeper runs: the script with --n."""
 
@@ -8,7 +8,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 
+
+@pytest.mark.slow
 def test_mutated_lens_files_give_our_errors_or_clean_results(tmp_path):
     out = tmp_path / "fuzz.json"
     script = Path(__file__).with_name("fuzz_lens_inputs.py")

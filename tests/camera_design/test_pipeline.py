@@ -153,7 +153,9 @@ def test_config_files_and_run_directories_are_checked(tmp_path):
     f.write_bytes(b"crop = 48 # \xff\xfe\n")
     with pytest.raises(ValueError, match="not UTF-8"):
         make_config("quick", f)
-    with pytest.raises(ValueError, match="not a regular file"):  # a folder (a pipe, a device: tests/test_bad_input.py)
+    with pytest.raises(
+        ValueError, match="not a regular file"
+    ):  # a folder (a pipe, a device: tests/cli/test_bad_input.py)
         make_config("quick", tmp_path)
     # a damaged run directory (config.json not UTF-8) and a damaged checkpoint: one error naming it
     from optix_e2e.camera_design.config import check_run_dir

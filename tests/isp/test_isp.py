@@ -177,6 +177,7 @@ def test_proxy_save_load_round_trip_and_bad_files(tmp_path):
         ISPProxy.load(tmp_path / "missing.pt")
 
 
+@pytest.mark.slow
 def test_software_isp_pretraining_learns_and_resumes(tmp_path):
     # tiny shapes: the mechanism (pools through lenses of the space, the loss falls, the
     # validation curve, state.pt continues the same run, the float16 export loads)
@@ -285,6 +286,7 @@ def test_shipped_proxy_imitates_the_reference_isp_on_held_out_photos():
     assert res["proxy_psnr_db"] > 30.0 and res["proxy_ssim"] > 0.9, res
 
 
+@pytest.mark.slow
 def test_tuning_through_the_proxy_improves_the_true_isp():
     from optix_e2e.isp.tune import true_isp_quality, tune_params
 

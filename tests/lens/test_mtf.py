@@ -130,7 +130,7 @@ def test_a_refused_fft_psf_falls_back_to_huygens():
 
     from optix_e2e.lens import Lens
 
-    lens = Lens.load(Path(__file__).parent / "data" / "distorted_pupil_triplet.json")
+    lens = Lens.load(Path(__file__).parents[1] / "data" / "distorted_pupil_triplet.json")
     m = field_mtf(lens, 14.9)
     used = {p["wavelength_nm"]: s["method"] for p, s in zip(m["per_wavelength"], m["sampling_per_wavelength"])}
     assert used[470.0] == "huygens" and "fft" in used.values()

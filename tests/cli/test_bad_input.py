@@ -290,7 +290,7 @@ def test_lens_survey_names_any_file_name_in_utf8_and_writes_its_files_whole(tmp_
 
     folder = tmp_path / "zmx"
     folder.mkdir()
-    text = (Path(__file__).parent / "data" / "zmx" / "cooke_utf8.zmx").read_text(encoding="utf-8")
+    text = (Path(__file__).parents[1] / "data" / "zmx" / "cooke_utf8.zmx").read_text(encoding="utf-8")
     (folder / "ok.zmx").write_text(text)
     odd = os.fsdecode(bytes(folder) + b"/odd\xff\x1b.zmx")  # not UTF-8, and an escape byte
     with open(odd, "w") as f:

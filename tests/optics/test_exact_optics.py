@@ -95,6 +95,7 @@ def test_autograd_function_returns_the_jacobian_contraction(nominal_jacobian, su
     assert eng.designs_computed == n + 1
 
 
+@pytest.mark.slow
 def test_exact_lens_gradient_agrees_with_the_surrogate_in_sign(sur):
     """A task-like loss (L1 of a textured image through the lens against the sharp image): the
     exact backend's gradient w.r.t. the optimizer's coordinates agrees in sign with the

@@ -17,8 +17,8 @@ from optix_e2e.lens import Lens
 from optix_e2e.lens.zemax import ZemaxError, parse_zmx, read_zmx
 from optix_e2e.lens.zemax.survey import nominal_focal_length, survey
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-DATA = Path(__file__).parent / "data" / "zmx"
+REPO_ROOT = Path(__file__).resolve().parents[2]
+DATA = Path(__file__).parents[1] / "data" / "zmx"
 
 
 @pytest.fixture(scope="module")

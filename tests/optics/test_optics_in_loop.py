@@ -31,6 +31,7 @@ def _optics(sur):
     return DifferentiableOptics(copy.deepcopy(sur))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("refine", ["correction", "network"])
 def test_hybrid_refinement_lowers_the_error_where_it_was_above_the_threshold(sur, refine):
     """At the nominal the network's worst field (14.9 deg) is off by 23 % (PSF rel. L1), far
@@ -60,6 +61,7 @@ def test_hybrid_refinement_lowers_the_error_where_it_was_above_the_threshold(sur
     assert max(again["model_error_per_field"]) == pytest.approx(max(ev["error_after"]), rel=1e-4, abs=1e-6)
 
 
+@pytest.mark.slow
 def test_hybrid_falls_back_to_exact_gradients_and_back(sur):
     o = _optics(sur)
     mon = OpticsMonitor(o, "hybrid", every=3, threshold=0.02)
@@ -133,6 +135,7 @@ def _train_exact(out, kill_at=None):
     return cam, mon, res
 
 
+@pytest.mark.slow
 def test_an_exact_optics_run_resumes_on_the_same_path(tmp_path):
     """Killed after the step sizes were chosen (step 1) and before the next Jacobians (steps 5,
     6): the resumed run reuses the saved steps, checks and counters, and lands on the
@@ -173,6 +176,7 @@ def _design(out, *extra):
     ]
 
 
+@pytest.mark.slow
 def test_design_runs_with_exact_and_hybrid_optics(tmp_path):
     res = {}
     for mode in ("exact", "hybrid"):

@@ -66,6 +66,7 @@ def test_reference_converges_by_doubling():
         )
 
 
+@pytest.mark.slow
 def test_bench_accuracy_quick_run(tmp_path):
     r = CliRunner().invoke(main, ["bench", "accuracy", "--quick", "--lens", "paper-triplet", "--out", str(tmp_path)])
     assert r.exit_code == 0, r.output

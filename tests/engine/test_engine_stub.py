@@ -11,7 +11,7 @@ from pathlib import Path
 import optix_e2e._engine as ext
 from optix_e2e import engine
 
-STUB = Path(__file__).resolve().parents[1] / "python" / "optix_e2e" / "_engine.pyi"
+STUB = Path(__file__).resolve().parents[2] / "python" / "optix_e2e" / "_engine.pyi"
 
 
 def _stub():

@@ -122,6 +122,7 @@ def test_a_worker_killed_mid_shard_loses_nothing(single, tmp_path, cluster):
     assert not [p for p in (root / "shards").iterdir() if p.name.startswith(".")]
 
 
+@pytest.mark.slow
 def test_task_failures_are_collected_and_a_second_run_redoes_them(single, tmp_path, cluster):
     root = tmp_path / "ds"
     generate("paper-triplet", N, SEED, root, SETTINGS, progress=False, shards="0")

@@ -20,6 +20,8 @@ from optix_e2e import parallel
 from optix_e2e.dataset import DatasetSettings, generate
 from optix_e2e.surrogate import OpticsSurrogate
 
+pytestmark = pytest.mark.slow  # whole design runs in subprocesses
+
 HERE = Path(__file__).resolve().parent
 TINY = [
     "--hidden",

@@ -2,10 +2,10 @@
 swapped for extreme values, lines dropped, repeated or swapped, truncation, stray bytes,
 keywords changed), load each mutant as a user would and run paraxial analysis, a spot, an
 FFT PSF and an RGB PSF on it. Every outcome must be a result without NaN or one of the
-project's own errors; anything else is listed. Run as a script (tests/test_fuzz.py runs it in
+project's own errors; anything else is listed. Run as a script (tests/lens/test_fuzz.py runs it in
 a child process, so that an abort of the process is seen as such):
 
-    python tests/fuzz_lens_inputs.py --n 400 --seed 0 --out fuzz.json
+    python tests/lens/fuzz_lens_inputs.py --n 400 --seed 0 --out fuzz.json
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ from optix_e2e.scenes.street import street_scene
 from optix_e2e.tasks.detector import detect, make_detector, mean_average_precision
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
-SIZE = (128, 192)
+SIZE = (96, 144)  # 23 objects in 4 scenes; 240 steps reach mAP@0.5 0.96 (128 x 192 needs 300, 2x the time)
 
 
 def test_map_of_hand_made_detections():
@@ -43,7 +43,7 @@ def overfit():
     model = make_detector(image_size=SIZE)
     opt = torch.optim.AdamW(model.parameters(), 2e-3)
     model.train()
-    for _ in range(300):
+    for _ in range(240):
         loss = sum(model(list(images), targets).values())
         opt.zero_grad()
         loss.backward()
@@ -51,12 +51,14 @@ def overfit():
     return model, images, targets
 
 
+@pytest.mark.slow
 def test_the_detector_learns_a_tiny_set(overfit):
     model, images, targets = overfit
     r = mean_average_precision(detect(model, images), targets)
     assert r["n_objects"] >= 20 and r["map_50"] >= 0.9, r
 
 
+@pytest.mark.slow
 def test_map_falls_as_blur_and_noise_grow(overfit):
     from torchvision.transforms.functional import gaussian_blur
 

@@ -14,7 +14,7 @@ from optix_e2e.cli import main
 from optix_e2e.lens import Lens
 from optix_e2e.lens.zemax import ZemaxError, parse_zmx, read_zmx, zmx_text
 
-DATA = Path(__file__).parent / "data" / "zmx"
+DATA = Path(__file__).parents[1] / "data" / "zmx"
 BROKEN = DATA / "broken"
 
 

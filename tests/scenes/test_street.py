@@ -36,6 +36,7 @@ def test_each_box_is_the_visible_extent_of_the_object_it_labels():
     assert n >= 20
 
 
+@pytest.mark.slow
 def test_scenes_are_seeded_and_have_the_sizes_classes_and_light_asked_for():
     a, b, c = street_scene(SIZE, 7), street_scene(SIZE, 7), street_scene(SIZE, 8)
     assert torch.equal(a.radiance, b.radiance) and torch.equal(a.boxes, b.boxes)

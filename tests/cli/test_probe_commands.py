@@ -12,7 +12,7 @@ what the issue asks of every command:
 * no NaN or infinity in any file the command wrote (JSON, CSV, text, .npy);
 * every file that existed before, byte-identical (inputs, other runs, unrelated files).
 
-tests/test_probe.py probes every numeric option; tests/test_bad_input.py holds targeted
+tests/cli/test_probe.py probes every numeric option; tests/cli/test_bad_input.py holds targeted
 cases (diverging training, damaged states).  ``OPTIX_PROBE_SEEDS=N`` runs more seeds.
 """
 
@@ -38,7 +38,7 @@ from optix_e2e.cli import main
 SEEDS = range(int(os.environ.get("OPTIX_PROBE_SEEDS", "3")))
 TIME_BOUND_S = 120
 HOSTILE = [float("nan"), float("inf"), -1e300, 1e300, "abc", [1, 2], {"a": 1}, True, -1]
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 # ----------------------------------------------------------------------------------- checks

@@ -261,7 +261,7 @@ def test_recentred_space_rules_reproduce_v1_and_contain_the_nominal(tmp_path):
     import sys
     from pathlib import Path
 
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]
     script = root / "scripts" / "recentre_space.py"
     out = tmp_path / "v1.toml"
     subprocess.run(

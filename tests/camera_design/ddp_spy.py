@@ -1,7 +1,7 @@
-"""Run an ``optix`` command (``python tests/ddp_spy.py ARGS...``, e.g. under torchrun) with an
+"""Run an ``optix`` command (``python tests/camera_design/ddp_spy.py ARGS...``, e.g. under torchrun) with an
 audit hook that records every file or directory this process creates, opens for writing,
 renames or removes under $OPTIX_SPY_OUT, and write the list to
-$OPTIX_SPY_DIR/rank<RANK>.json at the end: tests/test_distributed_training.py checks that
+$OPTIX_SPY_DIR/rank<RANK>.json at the end: tests/camera_design/test_distributed_training.py checks that
 rank 0 alone writes."""
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ from optix_e2e.metrics.lpips import WEIGHTS_SHA256, LPIPS, LPIPSWeightsError, lp
 
 from pathlib import Path
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[2]
 
 LPIPS_REF = REPO_ROOT.parent / "shared" / "lpips-reference"
 

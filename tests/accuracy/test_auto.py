@@ -28,6 +28,7 @@ def held_out():
     return held_out_cases(SPACES, 3, seed=2026)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("target", [0.02])
 def test_auto_meets_target_on_held_out_designs(held_out, target):
     rows = [check_case(c, target=target, repeats=1) for c in held_out]

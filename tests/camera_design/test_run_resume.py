@@ -15,6 +15,8 @@ import pytest
 
 from optix_e2e.lens import Lens
 
+pytestmark = pytest.mark.slow  # whole design runs in subprocesses
+
 
 def _design(out, *extra, env=None):
     return [

@@ -5,7 +5,7 @@ careless or hostile user might type (nan, inf, huge, negative, not a number), fi
 command line so click checks it before anything else, in a folder holding a file the command
 must not touch. It asserts what the issue "bad input" asks of every command: exit status 2
 (a usage error), one ``Error:`` line that names the option, no traceback, nothing written and
-every pre-existing file byte-identical. tests/test_bad_input.py holds the probes that need a
+every pre-existing file byte-identical. tests/cli/test_bad_input.py holds the probes that need a
 run to exist first (damaged states, diverging training, other runs' folders).
 """
 
@@ -75,6 +75,7 @@ def test_a_hostile_numeric_option_is_one_usage_error_and_touches_nothing(tmp_pat
     assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.txt"]  # nothing written, --out not made
 
 
+@pytest.mark.slow
 def test_whole_commands_under_a_time_bound_exit_with_one_line(tmp_path):
     # as a user runs them (a real process, so a hang, a crash or a traceback would show):
     # a pipe as a config file used to block forever, a huge thread count to segfault
