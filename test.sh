@@ -1,15 +1,19 @@
 #!/usr/bin/env bash
 # Every test: create/reuse .venv, install the project with its test extra (builds the Rust
-# extension in release mode), run the Rust core's tests, then the Python suite.
+# extension in release mode), lint (ruff, rustfmt, clippy), the Rust core's tests, then the
+# Python suite (all tiers; the quick tier alone: python -m pytest -m "not slow" tests).
 set -euo pipefail
 cd "$(dirname "$0")"
+start=$SECONDS
+stamp() { echo "== $1 (+$((SECONDS - start)) s)"; }
 if [ ! -x .venv/bin/python ]; then
   "${PYTHON:-python3}" -m venv .venv
 fi
 # shellcheck disable=SC1091
 . .venv/bin/activate
+stamp "install (.venv, pip install .[test]: builds the extension)"
 python -m pip install --disable-pip-version-check -q ".[test]"
-echo "== lint: ruff, rustfmt, clippy (the stub check is tests/engine/test_engine_stub.py)"
+stamp "lint: ruff, rustfmt, clippy (the stub check is tests/engine/test_engine_stub.py)"
 ruff check python tests benches scripts
 ruff format --check python tests benches scripts
 if cargo fmt --version >/dev/null 2>&1 && cargo clippy --version >/dev/null 2>&1; then
@@ -18,7 +22,8 @@ if cargo fmt --version >/dev/null 2>&1 && cargo clippy --version >/dev/null 2>&1
 else
   echo "!! rustfmt/clippy are not installed here: the Rust lint did NOT run (rustup component add rustfmt clippy)"
 fi
-echo "== cargo test --release (crates/psf-engine)"
-cargo test --release
-echo "== pytest"
-python -m pytest -q tests
+stamp "cargo test --profile ci (crates/psf-engine; release optimization without LTO)"
+cargo test --profile ci
+stamp "pytest (two workers, one test file per worker at a time)"
+python -m pytest -q -n "${OPTIX_TEST_WORKERS:-2}" --dist loadfile tests
+stamp "done"

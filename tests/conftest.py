@@ -64,3 +64,10 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(n)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Files with slow tests first: ./test.sh hands whole files to two workers in this order
+    (pytest-xdist --dist loadfile), so the long ones start early instead of ending the run."""
+    slow_files = {item.path for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.path not in slow_files)

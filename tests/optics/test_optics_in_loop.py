@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import csv
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -156,58 +154,6 @@ def test_an_exact_optics_run_resumes_on_the_same_path(tmp_path):
     # counted across the kill (give or take the design recomputed after it: the cache is not saved)
     assert abs(s2["engine_designs"] - s1["engine_designs"]) <= 2 and s1["engine_designs"] > 266
     json.dumps(s2, allow_nan=False)
-
-
-def _design(out, *extra):
-    return [
-        sys.executable,
-        "-m",
-        "optix_e2e",
-        "design",
-        "iq-software",
-        "--out",
-        str(out),
-        "--budget",
-        "smoke",
-        "--threads",
-        "1",
-        "--quiet",
-        *extra,
-    ]
-
-
-@pytest.mark.slow
-def test_design_runs_with_exact_and_hybrid_optics(tmp_path):
-    res = {}
-    for mode in ("exact", "hybrid"):
-        out = tmp_path / mode
-        r = subprocess.run(_design(out, "--optics", mode), capture_output=True, text=True, timeout=900)
-        assert r.returncode == 0, r.stdout + r.stderr
-        res[mode] = json.loads((out / "results.json").read_text())
-        om = res[mode]["optics_model"]
-        assert om["mode"] == mode and om["requested"] == mode
-        assert [c["step"] for c in om["checks"]] == [0, 3, 6]  # smoke: 6 steps, checks every 3
-        for c in om["checks"]:
-            assert len(c["network_error_per_field"]) == 13
-            assert all(np.isfinite(c["network_error_per_field"]))
-        rows = [row for row in csv.DictReader(open(out / "history.csv")) if row["run"] == "end_to_end"]
-        if mode == "exact":
-            assert {row["optics"] for row in rows} == {"exact"}
-            assert om["exact_gradient_steps"] == 4  # 2 optics steps + 2 joint steps
-            assert om["final_error_per_field"] == [0.0] * 13
-            assert om["step_choice"] is not None and len(om["step_choice"]["steps"]) == 19
-        else:
-            assert om["n_refinements"] >= 1  # the nominal's 23 % is over 2 %
-            assert om["events"][0]["event"] == "refine" and om["events"][0]["step"] == 0
-        assert {row["optics"] for row in csv.DictReader(open(out / "history.csv")) if row["run"] == "nominal"} == {
-            "fixed"
-        }
-        # the same command again resumes a finished run: the checks come back from the checkpoint
-        r = subprocess.run(_design(out, "--optics", mode), capture_output=True, text=True, timeout=900)
-        assert r.returncode == 0, r.stdout + r.stderr
-        again = json.loads((out / "results.json").read_text())
-        assert again["optics_model"]["checks"] == om["checks"]
-        assert again["design"]["end_to_end"] == res[mode]["design"]["end_to_end"]
 
 
 def test_auto_picks_the_fastest_model_not_measurably_worse_than_the_best(tmp_path):
