@@ -39,8 +39,16 @@ class TaskHooks:
         c = self.cfg
         return f"end-to-end training: {c.task}, {c.optimizer}, {c.total_steps} steps"
 
-    def build_camera(self, sur: OpticsSurrogate, frame: SensorFrame, *, fixed_optics: FixedOptics | None = None):
-        """The camera at its initialization; ``fixed_optics`` for the nominal baseline."""
+    def build_camera(
+        self,
+        sur: OpticsSurrogate,
+        frame: SensorFrame,
+        *,
+        fixed_optics: FixedOptics | None = None,
+        trained: bool = False,
+    ):
+        """The camera at its initialization; ``fixed_optics`` for the nominal baseline; ``trained``:
+        the end-to-end camera the run trains (a hybrid run's optics refine their own surrogate)."""
         raise NotImplementedError
 
     def monitor(self, camera, writer, log):
