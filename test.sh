@@ -11,8 +11,11 @@ if [ ! -x .venv/bin/python ]; then
 fi
 # shellcheck disable=SC1091
 . .venv/bin/activate
-stamp "install (.venv, pip install .[test]: builds the extension)"
-python -m pip install --disable-pip-version-check -q ".[test]"
+stamp "install (.venv, uv pip install .[test]: builds the extension)"
+# uv (pinned, installed by pip) installs what pip would, from its cache in seconds where pip
+# took minutes (torch and its CUDA libraries are 6 GB); the project itself is always rebuilt
+python -m pip install --disable-pip-version-check -q "uv==0.13.9"
+uv pip install -q --refresh-package optix-e2e --reinstall-package optix-e2e ".[test]"
 stamp "lint: ruff, rustfmt, clippy (the stub check is tests/engine/test_engine_stub.py)"
 ruff check python tests benches scripts
 ruff format --check python tests benches scripts

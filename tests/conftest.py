@@ -66,8 +66,24 @@ def one_torch_thread():
     torch.set_num_threads(n)
 
 
+#: the longest test files, longest first (worker-seconds measured with ./test.sh on the 2-core
+#: machine, 2026-11-26); used only to order them, so a stale entry costs time, never a result
+LONGEST_FIRST = (
+    "camera_design/test_distributed_training.py",
+    "optics/test_optics_in_loop_runs.py",
+    "camera_design/test_run_resume.py",
+    "accuracy/test_auto.py",
+    "optics/test_optics_in_loop.py",
+    "camera_design/test_detection_run.py",
+    "tasks/test_detector.py",
+)
+
+
 def pytest_collection_modifyitems(config, items):
-    """Files with slow tests first: ./test.sh hands whole files to two workers in this order
-    (pytest-xdist --dist loadfile), so the long ones start early instead of ending the run."""
+    """The longest files first, then the other files with slow tests, then the rest: ./test.sh
+    hands whole files to two workers in this order (pytest-xdist --dist loadfile), so the long
+    ones start early instead of ending the run on one worker."""
+    here = Path(__file__).resolve().parent
+    rank = {here / f: i for i, f in enumerate(LONGEST_FIRST)}
     slow_files = {item.path for item in items if item.get_closest_marker("slow")}
-    items.sort(key=lambda item: item.path not in slow_files)
+    items.sort(key=lambda item: (rank.get(item.path, len(rank)), item.path not in slow_files))

@@ -56,6 +56,8 @@ def test_design_runs_with_exact_and_hybrid_optics(tmp_path):
         assert {row["optics"] for row in csv.DictReader(open(out / "history.csv")) if row["run"] == "nominal"} == {
             "fixed"
         }
+        if mode == "exact":
+            continue  # tests/optics/test_optics_in_loop.py resumes a killed exact run
         # the same command again resumes a finished run: the checks come back from the checkpoint
         r = subprocess.run(_design(out, "--optics", mode), capture_output=True, text=True, timeout=900)
         assert r.returncode == 0, r.stdout + r.stderr
