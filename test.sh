@@ -28,5 +28,5 @@ fi
 stamp "cargo test --profile ci (crates/psf-engine; release optimization without LTO)"
 cargo test --profile ci
 stamp "pytest (two workers, one test file per worker at a time)"
-python -m pytest -q -n "${OPTIX_TEST_WORKERS:-2}" --dist loadfile tests
+python -m pytest -q -n "${OPTIX_TEST_WORKERS:-2}" --dist loadfile --no-loadscope-reorder --durations=15 tests
 stamp "done"
