@@ -284,7 +284,8 @@ class DetectionHooks(TaskHooks):
     def write_tables(self, out, evaluation):
         _write_scenes(out / "metrics.csv", evaluation["samples"], evaluation["preds"])
 
-    def summary_lines(self, res):
+    @staticmethod
+    def summary_lines(res):
         n, e, p = res["nominal"], res["end_to_end"], res["paired"]
         h = res["held_out"]
         lines = [

@@ -216,7 +216,8 @@ class ImageQualityHooks(TaskHooks):
                             [who, kind, r["image"], r["position"], r.get("radius", ""), *(r[m] for m in ev.METRICS)]
                         )
 
-    def summary_lines(self, res):
+    @staticmethod
+    def summary_lines(res):
         n, e, p = res["nominal"], res["end_to_end"], res["paired"]
         lines = [
             f"held-out ({res['held_out']['n_images']} images x {res['held_out']['per_image']} positions), exact optics:"

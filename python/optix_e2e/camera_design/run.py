@@ -47,6 +47,12 @@ def hooks_for(cfg: DesignConfig) -> TaskHooks:
     return HOOKS.get(cfg.task, ImageQualityHooks)(cfg)
 
 
+def summary_lines(cfg: DesignConfig, results: dict) -> list[str]:
+    """What ``optix design`` prints about a run's results: the task's lines, read from the
+    results alone (no second set of hooks: those resolve the optics model and scan --images)."""
+    return HOOKS.get(cfg.task, ImageQualityHooks).summary_lines(results)
+
+
 def claim_run_dir(out: Path, cfg: DesignConfig, ranks: parallel.Ranks, progress: bool, log):
     """Check that the batch splits over the ranks, then rank 0 checks or creates the run
     directory (config.json) while the others wait. Returns this rank's (progress, log,

@@ -93,6 +93,7 @@ class TaskHooks:
         """metrics.csv: the per-image (per-scene) figures."""
         raise NotImplementedError
 
-    def summary_lines(self, results: dict) -> list[str]:
-        """What ``optix design`` prints about the results."""
+    @staticmethod
+    def summary_lines(results: dict) -> list[str]:
+        """What ``optix design`` prints about the results (from results.json alone)."""
         raise NotImplementedError

@@ -71,7 +71,7 @@ def design(task, out, config_file, optimizer, budget, seed, surrogate, images, o
     processes (gloo; the batch must divide by N; docs/distributed.md)."""
     from .. import parallel
     from ..camera_design.config import make_config
-    from ..camera_design.run import hooks_for, run_design
+    from ..camera_design.run import run_design, summary_lines
 
     cfg = make_config(
         budget,
@@ -90,7 +90,7 @@ def design(task, out, config_file, optimizer, budget, seed, surrogate, images, o
         parallel.teardown()
     if res is None:  # not rank 0 of a torchrun run: rank 0 reports
         return
-    for line in hooks_for(cfg).summary_lines(res):
+    for line in summary_lines(cfg, res):
         click.echo(line)
     click.echo(
         f"results: {Path(out) / 'results.json'}  (lens: {Path(out) / res['lens_zmx']}, wall {res['wall_s']:.0f} s)"
