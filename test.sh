@@ -21,7 +21,7 @@ ruff check python tests benches scripts
 ruff format --check python tests benches scripts
 if cargo fmt --version >/dev/null 2>&1 && cargo clippy --version >/dev/null 2>&1; then
   cargo fmt --all --check
-  cargo clippy --release --all-targets -- -D warnings
+  cargo clippy --release -p psf-engine -p psf-engine-bench --all-targets -- -D warnings
 else
   echo "!! rustfmt/clippy are not installed here: the Rust lint did NOT run (rustup component add rustfmt clippy)"
 fi

@@ -8,7 +8,7 @@
 //! against the general FFT with 256 pupil samples (itself within ~0.2% of 512 samples);
 //! relative illumination within 1e-3 (seen: 0, the same computation).
 
-mod common;
+use crate::common;
 use psf_engine::psf::{psf, Method, PsfOptions};
 use psf_engine::rgb::{psf_batch, Channels};
 use psf_engine::Lens;

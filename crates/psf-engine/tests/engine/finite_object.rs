@@ -2,7 +2,7 @@
 //! limit of a far object against the object at infinity, the object-space NA, and the cos^4
 //! law of a thin lens at finite conjugates.
 
-mod common;
+use crate::common;
 use psf_engine::aim::Aiming;
 use psf_engine::spot::{relative_illumination_from, trace_spot};
 use psf_engine::{paraxial, Beam, End, Lens, System};

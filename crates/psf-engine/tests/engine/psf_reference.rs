@@ -1,7 +1,7 @@
 //! PSFs of the Cooke triplet: our FFT and Huygens PSFs against each other and the
 //! reference tool's Strehl ratios.
 
-mod common;
+use crate::common;
 use psf_engine::psf::{psf, Method, PsfOptions};
 
 fn rel_l2(a: &[f64], b: &[f64]) -> f64 {

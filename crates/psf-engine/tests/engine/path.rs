@@ -1,7 +1,7 @@
 //! Ray paths through every surface (`Beam::trace_path`): the last point is the ordinary
 //! image-plane trace bit for bit, every other point lies on its surface, and failed rays
 //! stop where they failed.
-mod common;
+use crate::common;
 use psf_engine::{surface::sag, Aiming, Beam, Lens, Status, System};
 
 /// A fan across the pupil plus a few skew rays, some outside the pupil (vignetted).

@@ -1,9 +1,9 @@
 //! Criterion benchmarks of the core: ray throughput through the Cooke triplet at full
 //! field, FFT PSF (64 pupil samples, 256 grid) and Huygens PSF (64 samples, 128x128), and
 //! the dataset batch (paper-triplet-v1, 13 fields x 3 channels, 128 x 128 at 1 um).
-//! Uses the reference Cooke triplet in ../shared/reference and the bundled paper-triplet-v1 (tests/common).
+//! Uses the reference Cooke triplet in ../shared/reference and the bundled paper-triplet-v1 (crates/psf-engine/tests/common).
 
-#[path = "../tests/common/mod.rs"]
+#[path = "../../psf-engine/tests/common/mod.rs"]
 mod common;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};

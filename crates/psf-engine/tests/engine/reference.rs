@@ -1,7 +1,7 @@
 //! The engine against independent reference data (optiland 0.6.3, cross-checked with
 //! rayoptics) for the classic Cooke triplet: indices, first-order data, golden rays.
 
-mod common;
+use crate::common;
 use glam::DVec3;
 use psf_engine::{paraxial, Aiming, Beam, End, System};
 

@@ -1,7 +1,7 @@
 //! The wavefront (OPD) of `wavefront::field_wavefront` against closed forms: a lens free of
 //! aberration on axis has none; a defocus dz has W20 = n' dz / (8 N^2) and, piston
 //! removed, RMS W20 / (2 sqrt 3) (Born & Wolf 9.4); and against the FFT PSF's pupil.
-mod common;
+use crate::common;
 
 use psf_engine::psf::pupil::sample_pupil;
 use psf_engine::wavefront::{field_wavefront, Tilt};

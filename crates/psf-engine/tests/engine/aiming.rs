@@ -1,6 +1,6 @@
 //! Real ray aiming: rays land on the stop where they were aimed, and for the Cooke triplet
 //! the paraxial pupil is already close to the real one.
-mod common;
+use crate::common;
 use glam::DVec2;
 use psf_engine::{Aiming, Beam, End, System};
 

@@ -1,7 +1,7 @@
 //! The vectorized block kernel (trace_many, trace_blocks) and the single-ray trace share
 //! their geometry code: they must agree to the last bit, statuses and failing surfaces
 //! included, for every surface kind and every way a ray can fail.
-mod common;
+use crate::common;
 use glam::DVec3;
 use psf_engine::{End, Lens, RayState, Status, System};
 use serde_json::json;

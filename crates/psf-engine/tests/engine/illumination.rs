@@ -1,7 +1,7 @@
 //! Relative illumination (spot.rs): the quadrature, and the cos^4 law of a thin lens at and
 //! off its paraxial focus (the Python suite adds brute-force ray counts and optiland's rays).
 
-mod common;
+use crate::common;
 use psf_engine::aim::Aiming;
 use psf_engine::spot::{gauss_pupil, irradiance, relative_illumination_from, PupilGrid};
 

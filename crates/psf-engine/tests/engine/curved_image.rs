@@ -1,7 +1,7 @@
 //! A curved image surface: the block kernel and the single-ray trace end each ray on the
 //! sphere, where its straight line from the flat image plane meets it; a field's
 //! wave-optics analyses use the plane through its chief ray's point (image::flat_at_field).
-mod common;
+use crate::common;
 use psf_engine::image::flat_at_field;
 use psf_engine::{Aiming, Beam, End, System};
 

@@ -8,7 +8,7 @@
 //! Errors are relative L1 between PSFs each normalized to unit sum (0 = equal, 2 = disjoint),
 //! as in fast_batch.rs, whose tolerance for the dataset path is 0.01.
 
-mod common;
+use crate::common;
 use psf_engine::psf::{psf, Method, Psf, PsfOptions};
 use psf_engine::Lens;
 use serde_json::{json, Value};
