@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import json
 import os
+import traceback
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -64,6 +66,52 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(n)
+
+
+@dataclass
+class CliRun:
+    """What an `optix` command gave: exit status, stdout, stderr (like subprocess.run's)."""
+
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+def _optix_in_process(*args: str) -> CliRun:
+    """`optix ARGS` in this process through click's test runner: what the command prints and
+    exits with, without a new interpreter importing torch again (10-15 s a design run). A bug
+    (an exception the CLI does not turn into one line) comes back as its traceback in stderr."""
+    import torch
+    from click.testing import CliRunner
+
+    from optix_e2e.cli import main
+
+    threads = torch.get_num_threads()  # --threads sets the process's torch threads
+    try:
+        res = CliRunner().invoke(main, [str(a) for a in args])
+    finally:
+        torch.set_num_threads(threads)
+    err = res.stderr
+    if res.exception is not None and not isinstance(res.exception, SystemExit):
+        err += "".join(traceback.format_exception(*res.exc_info))
+    return CliRun(res.exit_code, res.stdout, err)
+
+
+@pytest.fixture(scope="session")
+def optix():
+    """Run an `optix` command in this process: ``optix("design", "iq-software", ...)``."""
+    return _optix_in_process
+
+
+def design_args(task: str, out, *extra) -> list[str]:
+    """`optix design TASK` at the smoke budget, one torch thread, quiet."""
+    return ["design", task, "--out", str(out), "--budget", "smoke", "--threads", "1", "--quiet", *map(str, extra)]
+
+
+@pytest.fixture(scope="session")
+def smoke_design():
+    """The arguments of a smoke `optix design` run: ``smoke_design(task, out, *extra)``."""
+    return design_args
 
 
 #: the longest test files, longest first (worker-seconds measured with ./test.sh on the 2-core

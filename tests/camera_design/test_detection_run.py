@@ -6,37 +6,17 @@ from __future__ import annotations
 
 import csv
 import json
-import subprocess
-import sys
 
 import pytest
 
 from optix_e2e.lens import Lens
 
-pytestmark = pytest.mark.slow  # whole design runs in subprocesses
+pytestmark = pytest.mark.slow  # whole design runs
 
 
-def _design(out, *extra):
-    return [
-        sys.executable,
-        "-m",
-        "optix_e2e",
-        "design",
-        "detection",
-        "--out",
-        str(out),
-        "--budget",
-        "smoke",
-        "--threads",
-        "1",
-        "--quiet",
-        *extra,
-    ]
-
-
-def test_smoke_detection_design_writes_every_output(tmp_path):
+def test_smoke_detection_design_writes_every_output(tmp_path, optix, smoke_design):
     out = tmp_path / "run"
-    r = subprocess.run(_design(out), capture_output=True, text=True, timeout=900)
+    r = optix(*smoke_design("detection", out))
     assert r.returncode == 0, r.stdout + r.stderr
     assert "mAP@0.5" in r.stdout and "f-number" in r.stdout
     res = json.loads((out / "results.json").read_text())
@@ -78,15 +58,15 @@ def test_smoke_detection_design_writes_every_output(tmp_path):
     z, j = Lens.load(out / res["lens_zmx"]), Lens.load(out / res["lens_json"])
     assert z.paraxial()["f_number"] == pytest.approx(j.paraxial()["f_number"], rel=1e-9)
     # other settings are refused; the same command reuses everything it finished
-    r = subprocess.run(_design(out, "--seed", "1"), capture_output=True, text=True)
+    r = optix(*smoke_design("detection", out, "--seed", "1"))
     assert r.returncode == 1 and "other settings" in r.stdout + r.stderr
-    r = subprocess.run(_design(out), capture_output=True, text=True, timeout=900)
+    r = optix(*smoke_design("detection", out))
     assert r.returncode == 0, r.stdout + r.stderr
     again = json.loads((out / "results.json").read_text())
     assert again["paired"] == res["paired"] and again["end_to_end"]["map"] == res["end_to_end"]["map"]
 
 
-def test_detection_needs_a_space_with_the_f_number(tmp_path):
-    r = subprocess.run(_design(tmp_path / "r", "--surrogate", "paper-triplet-e2e"), capture_output=True, text=True)
+def test_detection_needs_a_space_with_the_f_number(tmp_path, optix, smoke_design):
+    r = optix(*smoke_design("detection", tmp_path / "r", "--surrogate", "paper-triplet-e2e"))
     assert r.returncode == 1 and "f_number" in r.stdout + r.stderr
     assert not (tmp_path / "r").exists()

@@ -15,37 +15,21 @@ import pytest
 
 from optix_e2e.lens import Lens
 
-pytestmark = pytest.mark.slow  # whole design runs in subprocesses
-
-
-def _design(out, *extra, env=None):
-    return [
-        sys.executable,
-        "-m",
-        "optix_e2e",
-        "design",
-        "iq-software",
-        "--out",
-        str(out),
-        "--budget",
-        "smoke",
-        "--threads",
-        "1",
-        "--quiet",
-        *extra,
-    ]
+pytestmark = pytest.mark.slow  # whole design runs
 
 
 N_STEPS = 14  # n_cycles 3: 3 x (2 + 2) + 2 steps, a checkpoint after each
 
 
 @pytest.fixture(scope="module")
-def killed_run(tmp_path_factory):
-    """A smoke run killed (SIGKILL) once its first checkpoint is on disk; what it left."""
+def killed_run(tmp_path_factory, smoke_design):
+    """A smoke run (its own process) killed with SIGKILL once its first checkpoint is on disk;
+    what it left."""
     tmp = tmp_path_factory.mktemp("design")
     out, cfg = tmp / "run", tmp / "c.toml"
     cfg.write_text("n_cycles = 3\ncheckpoint_every = 1\n")
-    p = subprocess.Popen(_design(out, "--config", str(cfg)), stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    cmd = [sys.executable, "-m", "optix_e2e", *smoke_design("iq-software", out, "--config", cfg)]
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     state = out / "end_to_end_state.pt"
     deadline = time.time() + 240
     while not state.is_file() and time.time() < deadline and p.poll() is None:
@@ -60,10 +44,10 @@ def killed_run(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def resumed_run(killed_run):
-    """The same command again: it resumes and finishes (stdout, results)."""
+def resumed_run(killed_run, optix, smoke_design):
+    """The same command again (in this process): it resumes and finishes (stdout, results)."""
     out = killed_run["out"]
-    r = subprocess.run(_design(out, "--config", str(killed_run["cfg"])), capture_output=True, text=True, timeout=600)
+    r = optix(*smoke_design("iq-software", out, "--config", killed_run["cfg"]))
     assert r.returncode == 0, r.stdout + r.stderr
     return {**killed_run, "stdout": r.stdout, "res": json.loads((out / "results.json").read_text())}
 
@@ -74,9 +58,9 @@ def test_kill_9_leaves_a_checkpoint_and_no_results(killed_run):
     assert not (killed_run["out"] / "results.json").exists()
 
 
-def test_other_settings_are_refused_in_a_killed_runs_folder(killed_run):
+def test_other_settings_are_refused_in_a_killed_runs_folder(killed_run, optix, smoke_design):
     out, cfg = killed_run["out"], killed_run["cfg"]
-    r = subprocess.run(_design(out, "--config", str(cfg), "--seed", "1"), capture_output=True, text=True)
+    r = optix(*smoke_design("iq-software", out, "--config", cfg, "--seed", "1"))
     assert r.returncode == 1 and "other settings" in r.stdout + r.stderr and "seed" in r.stdout + r.stderr
 
 
@@ -136,11 +120,9 @@ def test_the_exported_lens_reloads_to_the_same_design(resumed_run):
     assert checks["inside_space"] and checks["manufacturable"] and checks["refocused"], checks
 
 
-def test_an_uninterrupted_run_lands_on_the_same_lens(resumed_run):
+def test_an_uninterrupted_run_lands_on_the_same_lens(resumed_run, optix, smoke_design):
     tmp, res = resumed_run["tmp"], resumed_run["res"]
-    r = subprocess.run(
-        _design(tmp / "again", "--config", str(resumed_run["cfg"])), capture_output=True, text=True, timeout=600
-    )
+    r = optix(*smoke_design("iq-software", tmp / "again", "--config", resumed_run["cfg"]))
     assert r.returncode == 0, r.stdout + r.stderr
     again = json.loads((tmp / "again" / "results.json").read_text())
     assert again["design"]["end_to_end"] == res["design"]["end_to_end"]

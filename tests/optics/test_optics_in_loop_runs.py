@@ -1,41 +1,21 @@
-"""Whole `optix design` runs with exact and hybrid optics in the loop (subprocesses): the checks
+"""Whole `optix design` runs with exact and hybrid optics in the loop: the checks
 along the run, the lens steps on exact gradients, the refinements, and a finished run resumed."""
 
 from __future__ import annotations
 
 import csv
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 
-def _design(out, *extra):
-    return [
-        sys.executable,
-        "-m",
-        "optix_e2e",
-        "design",
-        "iq-software",
-        "--out",
-        str(out),
-        "--budget",
-        "smoke",
-        "--threads",
-        "1",
-        "--quiet",
-        *extra,
-    ]
-
-
 @pytest.mark.slow
-def test_design_runs_with_exact_and_hybrid_optics(tmp_path):
+def test_design_runs_with_exact_and_hybrid_optics(tmp_path, optix, smoke_design):
     res = {}
     for mode in ("exact", "hybrid"):
         out = tmp_path / mode
-        r = subprocess.run(_design(out, "--optics", mode), capture_output=True, text=True, timeout=900)
+        r = optix(*smoke_design("iq-software", out, "--optics", mode))
         assert r.returncode == 0, r.stdout + r.stderr
         res[mode] = json.loads((out / "results.json").read_text())
         om = res[mode]["optics_model"]
@@ -59,7 +39,7 @@ def test_design_runs_with_exact_and_hybrid_optics(tmp_path):
         if mode == "exact":
             continue  # tests/optics/test_optics_in_loop.py resumes a killed exact run
         # the same command again resumes a finished run: the checks come back from the checkpoint
-        r = subprocess.run(_design(out, "--optics", mode), capture_output=True, text=True, timeout=900)
+        r = optix(*smoke_design("iq-software", out, "--optics", mode))
         assert r.returncode == 0, r.stdout + r.stderr
         again = json.loads((out / "results.json").read_text())
         assert again["optics_model"]["checks"] == om["checks"]
