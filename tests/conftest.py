@@ -115,15 +115,15 @@ def smoke_design():
 
 
 #: the longest test files, longest first (worker-seconds measured with ./test.sh on the 2-core
-#: machine, 2026-11-26); used only to order them, so a stale entry costs time, never a result
+#: machine, 2026-11-27); used only to order them, so a stale entry costs time, never a result
 LONGEST_FIRST = (
     "camera_design/test_distributed_training.py",
     "optics/test_optics_in_loop_runs.py",
     "camera_design/test_run_resume.py",
+    "tasks/test_detector.py",
     "accuracy/test_auto.py",
     "optics/test_optics_in_loop.py",
     "camera_design/test_detection_run.py",
-    "tasks/test_detector.py",
 )
 
 

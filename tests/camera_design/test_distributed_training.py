@@ -1,7 +1,7 @@
 """Training on several processes started by torchrun (gloo on CPU; optix_e2e.parallel):
 2 processes follow the single process's path for the same global batch and seed, rank 0
 alone writes, a run resumes, the training designs are split over the ranks without
-duplicates."""
+duplicates. Each torchrun launch starts three interpreters, so the file keeps to four."""
 
 from __future__ import annotations
 
@@ -92,17 +92,25 @@ def _history(run: Path) -> list[dict]:
     return json.loads((run / "train.json").read_text())["history"]
 
 
-def test_two_processes_follow_the_single_process_and_rank_0_alone_writes(data, one_process, tmp_path):
+def test_two_processes_follow_the_single_process_resume_and_rank_0_alone_writes(data, one_process, tmp_path):
+    """20 steps on 2 processes, then the same command with --steps 40 resumes from state.pt
+    (the learning rate is still in its warm-up, 200 steps, so the path is the 40-step run's):
+    the losses are the single process's at steps 20 and 40, the two models predict the same
+    PSFs, and rank 0 alone wrote, in both launches."""
     out, spy = tmp_path / "two", tmp_path / "spy"
-    res = _torchrun(2, "surrogate", "train", str(data), "--out", str(out), "--steps", "40", *TINY, spy=spy, out=out)
-    summary = json.loads(res.stdout.strip().splitlines()[-1])  # rank 0 alone prints it
-    assert summary["processes"] == 2 and summary["steps_done"] == 40
+    args = ["surrogate", "train", str(data), "--out", str(out), *TINY]
+    res = _torchrun(2, *args, "--steps", "20", spy=spy / "first", out=out)
+    assert json.loads(res.stdout.strip().splitlines()[-1])["steps_done"] == 20  # rank 0 alone prints it
+    res = _torchrun(2, *args, "--steps", "40", spy=spy / "resumed", out=out)
+    summary = json.loads(res.stdout.strip().splitlines()[-1])
+    assert "resuming" in res.stderr and summary["processes"] == 2 and summary["steps_done"] == 40
     one, two = _history(one_process), _history(out)
     assert [h["step"] for h in two] == [h["step"] for h in one] == [20, 40]
     for a, b in zip(one, two):
         assert b["loss"] == pytest.approx(a["loss"], rel=REL_TOL)
         assert b["psf_rel_l1_median"] == pytest.approx(a["psf_rel_l1_median"], rel=REL_TOL)
-    assert one[0]["loss"] != pytest.approx(one[1]["loss"], rel=1e-3)  # the training moved
+    # the training moved by more than the tolerance (else agreeing would prove nothing)
+    assert one[0]["loss"] != pytest.approx(one[1]["loss"], rel=5 * REL_TOL)
     # the two models predict the same PSFs (weights are compared through what they do: the
     # last layer's bias is a direction the unit-sum PSF ignores, where Adam moves on noise)
     m1, m2 = OpticsSurrogate.load(one_process / "surrogate.pt"), OpticsSurrogate.load(out / "surrogate.pt")
@@ -112,25 +120,13 @@ def test_two_processes_follow_the_single_process_and_rank_0_alone_writes(data, o
     torch.testing.assert_close(p2, p1, rtol=1e-3, atol=1e-6)
     torch.testing.assert_close(v2, v1, rtol=1e-3, atol=1e-6)
     # rank 0 wrote the checkpoints, the summary and the TensorBoard log; rank 1 nothing
-    rank0 = json.loads((spy / "rank0.json").read_text())
-    rank1 = json.loads((spy / "rank1.json").read_text())
-    assert rank1 == []
-    for name in ("surrogate.pt", "state.pt", "train.json"):
-        assert any(e.endswith(name) for e in rank0), name
-    assert len(list((out / "tb").iterdir())) == 1
+    for launch in ("first", "resumed"):
+        rank0 = json.loads((spy / launch / "rank0.json").read_text())
+        assert json.loads((spy / launch / "rank1.json").read_text()) == [], launch
+        for name in ("surrogate.pt", "state.pt", "train.json"):
+            assert any(e.endswith(name) for e in rank0), (launch, name)
+    assert len(list((out / "tb").iterdir())) >= 1
     assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in one_process.iterdir())
-
-
-def test_a_two_process_run_resumes(data, one_process, tmp_path):
-    """20 steps, then the same command with --steps 40 resumes from state.pt; the learning
-    rate is still in its warm-up (200 steps), so the path is the 40-step run's."""
-    out = tmp_path / "two"
-    _torchrun(2, "surrogate", "train", str(data), "--out", str(out), "--steps", "20", *TINY)
-    res = _torchrun(2, "surrogate", "train", str(data), "--out", str(out), "--steps", "40", *TINY)
-    assert "resuming" in res.stderr and json.loads(res.stdout.strip().splitlines()[-1])["steps_done"] == 40
-    one, two = _history(one_process), _history(out)
-    assert [h["step"] for h in two] == [20, 40]
-    assert two[-1]["loss"] == pytest.approx(one[-1]["loss"], rel=REL_TOL)
 
 
 def test_training_designs_are_split_over_the_ranks_without_duplicates(data):
@@ -211,43 +207,53 @@ def _toy(kind: str):
     return [a, b, unused], opt, loss
 
 
-def _toy_worker(rank: int, world: int, port: int, out: str, kind: str) -> None:
+def _toy_worker(rank: int, world: int, port: int, out: str) -> None:
     os.environ.update(
         MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world), LOCAL_RANK=str(rank)
     )
     ranks = parallel.setup("cpu")
-    params, opt, loss = _toy(kind)
-    opt.reduce = lambda ps, task, info: parallel.average_step(ranks, ps, task, info)
-    part = parallel.batch_slice(8, ranks)
-    losses = [opt.step(lambda: loss(part))["loss"] for _ in range(opt.total_steps)]
-    Path(out, f"rank{rank}.json").write_text(json.dumps({"params": [p.tolist() for p in params], "loss": losses}))
+    for kind in KINDS:
+        params, opt, loss = _toy(kind)
+        opt.reduce = lambda ps, task, info: parallel.average_step(ranks, ps, task, info)
+        part = parallel.batch_slice(8, ranks)
+        losses = [opt.step(lambda: loss(part))["loss"] for _ in range(opt.total_steps)]
+        Path(out, f"{kind}-rank{rank}.json").write_text(
+            json.dumps({"params": [p.tolist() for p in params], "loss": losses})
+        )
     parallel.teardown()
 
 
-@pytest.mark.parametrize("kind", ["alg1", "vanilla"])
-def test_design_optimizers_average_gradients_over_processes(kind, tmp_path):
-    """Alg. 1 (block turns, prox terms, joint fine-tuning) and vanilla on 2 gloo processes,
-    each on half of every batch, land where 1 process on the whole batches does (float64:
-    to 1e-12), and report the whole batch's loss."""
+KINDS = ("alg1", "vanilla")
+
+
+def test_design_optimizers_average_gradients_over_processes(tmp_path):
+    """Alg. 1 (block turns, prox terms, joint fine-tuning) and vanilla on 2 gloo processes
+    (one spawn runs both), each on half of every batch, land where 1 process on the whole
+    batches does (float64: to 1e-12), and report the whole batch's loss."""
     import socket
 
     import torch.multiprocessing as mp
 
-    params, opt, loss = _toy(kind)
-    ref_losses = [opt.step(lambda: loss(slice(0, 8)))["loss"] for _ in range(opt.total_steps)]
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    mp.spawn(_toy_worker, args=(2, port, str(tmp_path), kind), nprocs=2)
-    for r in (0, 1):
-        got = json.loads((tmp_path / f"rank{r}.json").read_text())
-        for p, q in zip(params, got["params"]):
-            np.testing.assert_allclose(q, p.tolist(), rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(got["loss"], ref_losses, rtol=1e-6)  # float32 all-reduce of the loss
-    assert not np.allclose(params[0].tolist(), _toy(kind)[0][0].tolist())  # the parameters moved
+    mp.spawn(_toy_worker, args=(2, port, str(tmp_path)), nprocs=2)
+    for kind in KINDS:
+        params, opt, loss = _toy(kind)
+        ref_losses = [opt.step(lambda: loss(slice(0, 8)))["loss"] for _ in range(opt.total_steps)]
+        for r in (0, 1):
+            got = json.loads((tmp_path / f"{kind}-rank{r}.json").read_text())
+            for p, q in zip(params, got["params"]):
+                np.testing.assert_allclose(q, p.tolist(), rtol=1e-12, atol=1e-12, err_msg=kind)
+            np.testing.assert_allclose(got["loss"], ref_losses, rtol=1e-6, err_msg=kind)  # float32 all-reduce
+        assert not np.allclose(params[0].tolist(), _toy(kind)[0][0].tolist())  # the parameters moved
 
 
-def test_a_design_run_under_torchrun_writes_from_rank_0_and_resumes(tmp_path):
+def test_a_design_run_under_torchrun_writes_from_rank_0(tmp_path):
+    """A smoke design on 2 processes: rank 0 alone reports and writes, the trainings ran
+    their steps; a batch that does not split over the ranks is refused before anything is
+    written. (Resuming: tests/camera_design/test_run_resume.py on one process, and the
+    surrogate trainer's two-process resume above.)"""
     cfg = tmp_path / "b2.toml"
     cfg.write_text("batch = 2\n")
     out, spy = tmp_path / "run", tmp_path / "spy"
@@ -255,12 +261,9 @@ def test_a_design_run_under_torchrun_writes_from_rank_0_and_resumes(tmp_path):
     res = _torchrun(2, *args, spy=spy, out=out)
     assert res.stdout.count('"results"') == 1  # rank 0 alone reports
     assert json.loads((spy / "rank1.json").read_text()) == []  # and writes
+    assert any(e.endswith("results.json") for e in json.loads((spy / "rank0.json").read_text()))
     results = json.loads((out / "results.json").read_text())
     assert results["training"]["end_to_end"]["steps"] == 6 and np.isfinite(results["paired"]["psnr_db"]["mean"])
-    hist = (out / "history.csv").read_text()
-    res2 = _torchrun(2, *args)
-    assert "end_to_end: resuming at step 6 of 6" in res2.stdout
-    assert (out / "history.csv").read_text() == hist
     bad = tmp_path / "b3.toml"
     bad.write_text("batch = 3\n")
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
