@@ -236,7 +236,7 @@ def test_export_keeps_the_clear_apertures_of_a_fixed_aperture_dataset(tmp_path):
         manifest, space.values(base.data), float(base.data["surfaces"][-1]["thickness"]), tmp_path / "lens", "x", "test"
     )
     back = Lens.load(paths["json"])
-    from optix_e2e.lens_design.sampling import apertures
+    from optix_e2e.lens_design.constraints import apertures
 
     footprint = apertures(
         Lens(

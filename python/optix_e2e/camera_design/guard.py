@@ -11,43 +11,35 @@ import torch
 from scipy.optimize import nnls
 
 from ..dataset.manifest import space_and_base
-from ..lens import Lens
-from ..lens_design.optimizer import Constraints
-from ..lens_design.sampling import Limits, apertures, check_design
+from ..lens_design.constraints import Limits, Manufacturability
 from ..optics import DifferentiableOptics
 from .outputs import design_lens
 
 
 class Manufacturable:
-    """The dataset's manufacturability limits (centre and edge thickness, air gaps, BFD; the
-    space file's [constraints]) as a check on parameter values: ``problems(values)`` lists the
-    violated ones (empty: manufacturable). Edge thicknesses at the ray footprint, the image
-    plane at the base lens's distance (the BFD limit is far from binding in these spaces)."""
+    """The dataset's manufacturability limits (the space file's [constraints]) on parameter
+    values, by the one definition the sampler used (lens_design.constraints: each design at
+    its own clear apertures): ``problems(values)`` lists the violated ones (empty:
+    manufacturable), ``margins(values)`` each limit's slack. The image plane at the base
+    lens's distance, as the sampler checks (the BFD limit is far from binding here)."""
 
     def __init__(self, manifest: dict):
         self.manifest = manifest
-        self.limits = Limits.from_dict(manifest.get("sampling_summary", {}).get("limits"))
+        self.rule = Manufacturability(Limits.from_dict(manifest.get("sampling_summary", {}).get("limits")))
+        self.limits = self.rule.limits
         _, base = space_and_base(manifest)
         self.image_distance = float(base.data["surfaces"][-1]["thickness"])
-        self.checks = 0
+
+    @property
+    def checks(self) -> int:
+        return self.rule.checks
 
     def problems(self, values) -> list[str]:
-        self.checks += 1
-        d = design_lens(self.manifest, np.asarray(values, np.float64), self.image_distance)
-        try:
-            return check_design(d, apertures(Lens(d, source="<design>")), self.limits)
-        except Exception as err:  # a design the engine cannot trace is not manufacturable either
-            return [f"untraceable: {' '.join(str(err).split())}"]
+        return self.rule.problems(design_lens(self.manifest, np.asarray(values, np.float64), self.image_distance))
 
     def margins(self, values) -> np.ndarray:
         """Each limit's value minus its bound (mm; >= 0 where met), in a fixed order."""
-        self.checks += 1
-        d = design_lens(self.manifest, np.asarray(values, np.float64), self.image_distance)
-        lim = self.limits
-        rows = Constraints(
-            min_center=lim.min_center, min_edge=lim.min_edge, min_air_gap=lim.min_air_gap, min_bfd=lim.min_bfd
-        ).evaluate(d, {}, apertures(Lens(d, source="<design>")))
-        return np.array([r["value"] - r["limit"] for r in rows if "limit" in r])
+        return self.rule.margins(design_lens(self.manifest, np.asarray(values, np.float64), self.image_distance))
 
 
 def _values(optics: DifferentiableOptics, u: torch.Tensor) -> np.ndarray:

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from ..dataset.manifest import refocused_designs, space_and_base
-from ..lens_design.sampling import Limits, apertures, check_design
+from ..lens_design.constraints import Limits, Manufacturability, apertures
 from ..lens import Lens
 from ..lens.zemax.writer import write_zmx
 
@@ -26,9 +26,8 @@ def check_final_design(manifest: dict, values, image_distance: float) -> dict:
     space, _ = space_and_base(manifest)
     d = design_lens(manifest, values, image_distance)
     outside = space.check_bounds(d)
-    lens = Lens(d, source="<end-to-end design>")
     limits = Limits.from_dict(manifest.get("sampling_summary", {}).get("limits"))
-    reasons = check_design(d, apertures(lens), limits)
+    reasons = Manufacturability(limits).problems(d)  # the rule the sampler and the guard use
     return {
         "inside_space": not outside,
         "outside": outside,

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import click
 
-from ..lens_design.sampling import METHODS, Limits, sample_designs, write_designs_csv
+from ..lens_design.constraints import Limits
+from ..lens_design.sampling import APERTURE_RULES, METHODS, sample_designs, write_designs_csv
 from ..lens_design.space import load_space
 from ._common import FINITE, SEED, dumps, friendly_errors
 
@@ -38,9 +39,17 @@ def limit_options(fn):
     help="uniform (PCG64), scrambled Sobol' or Latin hypercube (scipy.stats.qmc).",
 )
 @click.option("--out", "out_path", type=click.Path(dir_okay=False), required=True, help="designs.csv")
+@click.option(
+    "--apertures",
+    type=click.Choice(APERTURE_RULES),
+    default="auto",
+    show_default=True,
+    help="How the designs will be traced (as `optix dataset generate --apertures`): each checked at its own "
+    "clear apertures; base-lens: the base lens's for every design (datasets made before 2026-11-27).",
+)
 @limit_options
 @friendly_errors
-def sample(space_spec, n, seed, method, out_path, min_air_gap, min_center, min_edge, min_bfd):
+def sample(space_spec, n, seed, method, out_path, apertures, min_air_gap, min_center, min_edge, min_bfd):
     """Draw N manufacturable designs from SPACE (a TOML space file or a bundled lens name).
 
     Candidates failing a check are counted by reason; the summary (printed as JSON and
@@ -59,7 +68,9 @@ def sample(space_spec, n, seed, method, out_path, min_air_gap, min_center, min_e
         bar.set_postfix(drawn=drawn, refresh=False)
 
     try:
-        res = sample_designs(space, base, n, seed=seed, method=method, limits=limits, progress=progress)
+        res = sample_designs(
+            space, base, n, seed=seed, method=method, limits=limits, progress=progress, apertures=apertures
+        )
     finally:
         bar.close()
     write_designs_csv(out_path, space.names, res.values)

@@ -270,7 +270,7 @@ def tolerance(
         "tolerance analysis",
         {"proposed.toml", "sensitivity.csv", "sensitivity.png", "yield.png", "tolerance.json"},
     )
-    from ..lens_design.sampling import Limits
+    from ..lens_design.constraints import Limits
 
     for opt, v in (("--budget-um", budget_um), ("--spec-um", spec_um)):
         if v is not None and not (math.isfinite(v) and v > 0):

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..lens import Lens
 from ..lens_design.focus import refocus_many
-from ..lens_design.sampling import apertures, geometry_problem
+from ..lens_design.constraints import ApertureError, apertures, geometry_problem, own_apertures
 from ..lens_design.space import ParameterSpace, load_space
 from ..io import fsync_dir, write_json_atomic
 from .layout import ARRAYS, FORMAT, DatasetError, aligned_empty, save_npy, shard_name, shards_dir
@@ -140,8 +140,8 @@ def compute_shard(
     """Arrays and metadata of shard ``k`` (nothing written).  ``psf_buffer``,
     ``sensor_buffer``: float32 arrays of at least shard_size x K x C x S x S (s x s) to hold
     the PSFs and their sensor-pixel versions (saves the page faults of fresh arrays per
-    shard).  ``checked``: the designs passed the sampler's geometry check already (same
-    apertures), so it is not repeated.  The engine computes both versions of each PSF."""
+    shard).  ``checked``: the designs passed the sampler's checks already (the same rule), so
+    the geometry check is not repeated.  The engine computes both versions of each PSF."""
     from .. import engine
 
     s = DatasetSettings(**man["settings"])
@@ -165,8 +165,20 @@ def compute_shard(
     # best focus from 7 of the K fields and a 4-ring polar pupil (96 rays per field and
     # wavelength; within 1 um of 8 rings, against a depth of focus of +-20 um at f/4.4)
     focus_fields = [fields[i] for i in np.unique(np.linspace(0, K - 1, min(K, 7)).round().astype(int))]
-    sd = apertures(base)
+    # the geometry check at the clear apertures the dataset's sampler used: each design's own
+    # (lens_design.constraints), or the base lens's for the datasets made before that rule
+    base_sd = apertures(base) if man.get("sampling_summary", {}).get("apertures", "base-lens") == "base-lens" else None
     traced = engine_base(base, s.apertures)
+
+    def geometry(d):
+        if base_sd is not None:
+            return geometry_problem(d, base_sd)
+        try:
+            return geometry_problem(d, own_apertures(d))
+        except ApertureError as err:
+            reason, _, message = str(err).partition(": ")
+            return (reason, message)
+
     t0 = time.perf_counter()
 
     def fail(i, reason):
@@ -177,7 +189,7 @@ def compute_shard(
         cand = []  # (design index, lens dict) past the geometry check
         for i in range(lo, hi):
             d = space.apply(traced, designs[i])
-            bad = None if checked else geometry_problem(d, sd)  # the engine would trace these
+            bad = None if checked else geometry(d)  # the engine would trace these
             if bad is not None:
                 fail(i, f"{bad[0]}: {bad[1]}")
             else:

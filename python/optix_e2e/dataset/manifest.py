@@ -13,7 +13,8 @@ from typing import Callable
 import numpy as np
 
 from ..lens import Lens
-from ..lens_design.sampling import Limits, read_designs_csv, sample_designs, write_designs_csv
+from ..lens_design.constraints import Limits
+from ..lens_design.sampling import read_designs_csv, sample_designs, write_designs_csv
 from ..lens_design.space import Parameter, ParameterSpace, SpaceError
 from ..io import claim_out_dir, write_json_atomic
 from .layout import FORMAT, DatasetError, differing_keys, read_json, sha256_file
@@ -128,7 +129,8 @@ def prepare(
         if want is None:  # an older manifest: the designs must be the ones the seed gives
             log(f"{mpath}: no designs_csv_sha256; checking designs.csv against the designs of seed {seed}")
             limits = Limits.from_dict(space.constraints, f"{space.source}: [constraints]")
-            again = sample_designs(space, base, n, seed=seed, method=s.sampling, limits=limits).values
+            rule = man.get("sampling_summary", {}).get("apertures", "base-lens")  # absent: made before the rule
+            again = sample_designs(space, base, n, seed=seed, method=s.sampling, limits=limits, apertures=rule).values
             if designs.shape != again.shape or not np.array_equal(designs, again):
                 raise DatasetError(
                     f"{dpath}: not the designs of seed {seed} (and the manifest has no "
@@ -139,7 +141,7 @@ def prepare(
     claim_out_dir(out, "dataset", {"designs.csv", "shards"}, marker="manifest.json")
     log(f"sampling {n} designs ({s.sampling}, seed {seed})")
     limits = Limits.from_dict(space.constraints, f"{space.source}: [constraints]")
-    res = sample_designs(space, base, n, seed=seed, method=s.sampling, limits=limits)
+    res = sample_designs(space, base, n, seed=seed, method=s.sampling, limits=limits, apertures=s.apertures)
     out.mkdir(parents=True, exist_ok=True)
     write_designs_csv(out / "designs.csv", space.names, res.values)
     man = {

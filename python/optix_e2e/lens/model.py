@@ -13,7 +13,7 @@ import numpy as np
 
 from .. import engine
 from .text import display_name
-from .prescription import PrescriptionError, resolve_prescription
+from .prescription import PrescriptionError, SurfacesCrossError, resolve_prescription
 from .pupil import pupil_quadrature
 from ..errors import InputError
 
@@ -109,7 +109,7 @@ class Lens:
         self.data = resolve_prescription(data, source)
         crossing = _surfaces_crossing_in_beam(self.data)
         if crossing:
-            raise PrescriptionError(f"{source}: {crossing}")
+            raise SurfacesCrossError(f"{source}: {crossing}")
         #: the prescription as given (catalog names unresolved): what save() writes
         self.raw = copy.deepcopy(data)
         #: for a lens read from .zmx: the :class:`optix_e2e.lens.zemax.ZemaxImport` report

@@ -51,6 +51,10 @@ class PrescriptionError(InputError):
     """Invalid lens prescription; the message names the source and the JSON location."""
 
 
+class SurfacesCrossError(PrescriptionError):
+    """Two consecutive surfaces cross inside the paraxial beam: the lens cannot exist."""
+
+
 class _Checker:
     def __init__(self, source: str):
         self.source = source

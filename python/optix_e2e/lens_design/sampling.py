@@ -5,22 +5,16 @@ sequence over the space's box (scipy.stats.qmc), checked, and the first ``n`` th
 kept in draw order, so a seed gives the same designs on every machine.  Rejected
 candidates are counted by reason (a candidate may fail several checks; each is counted).
 
-Checks (limits from the space file's ``[constraints]`` table, or arguments):
-
-* ``center_thickness`` / ``edge_thickness``: glass center and rim thickness >= limits,
-* ``air_gap``: air between optical surfaces at the center and at the rim >= limit, and a
-  separate stop plane clear of its neighbours' rims,
-* ``back_focal_distance``: last vertex to image >= limit,
-* ``surfaces_cross``: consecutive surfaces never cross anywhere inside their apertures,
-* ``aperture_outside_surface``: a clear semi-diameter beyond a conic's reach (or the
-  sphere's radius).
-
-Apertures are the base lens's clear semi-diameters (the physical parts keep their size),
-or, where it gives none, its ray footprint.
+Each candidate is checked as the engine will trace it (the base lens with the dataset's
+aperture setting, ``apertures``) at its own clear apertures, by the one definition of a
+manufacturable lens (:mod:`optix_e2e.lens_design.constraints`), which the design run's guard
+and final checks use too. ``apertures="base-lens"`` is the rule of the datasets made before
+that definition (the base lens's clear semi-diameters for every design), kept to reproduce them.
 """
 
 from __future__ import annotations
 
+import copy
 import csv
 import io
 import math
@@ -32,109 +26,14 @@ from typing import Sequence
 import numpy as np
 
 from ..lens import Lens
-from .optimizer import Constraints
+from ..lens.apertures import engine_base
+from .constraints import REASONS, Limits, Manufacturability, check_design
+from .constraints import apertures as clear_apertures
 from .space import ParameterSpace, SpaceError
-from ..lens.surface import sag
 from ..errors import InputError
 
 METHODS = ("uniform", "sobol", "lhs")
-REASONS = (
-    "center_thickness",
-    "edge_thickness",
-    "air_gap",
-    "back_focal_distance",
-    "surfaces_cross",
-    "aperture_outside_surface",
-)
-_ROW_REASON = {
-    "center_thickness": "center_thickness",
-    "edge_thickness": "edge_thickness",
-    "air_gap_center": "air_gap",
-    "air_gap_edge": "air_gap",
-    "stop_clearance": "air_gap",
-    "back_focal_distance": "back_focal_distance",
-}
-
-
-@dataclass
-class Limits:
-    """Manufacturability limits (mm); ``None`` = not checked."""
-
-    min_center: float | None = None
-    min_edge: float | None = None
-    min_air_gap: float | None = None
-    min_bfd: float | None = None
-
-    @classmethod
-    def from_dict(cls, d: dict | None, source: str = "constraints") -> "Limits":
-        d = dict(d or {})
-        unknown = sorted(set(d) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise SpaceError(
-                f"{source}: unknown constraint(s) {', '.join(unknown)} (known: {', '.join(cls.__dataclass_fields__)})"
-            )
-        for k, v in d.items():
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise SpaceError(f"{source}: {k} must be a finite number >= 0, got {v!r}")
-        return cls(**{k: float(v) for k, v in d.items()})
-
-    def merged(self, **override) -> "Limits":
-        return Limits(**{**asdict(self), **{k: v for k, v in override.items() if v is not None}})
-
-
-def apertures(lens: Lens) -> np.ndarray:
-    """Clear semi-diameters used for the checks: the prescription's, else the ray footprint."""
-    from .report import footprint
-
-    given = [s.get("semi_diameter") for s in lens.surfaces]
-    if all(g is not None for g in given):
-        return np.array(given, float)
-    fp = footprint(lens, lens.fields_deg)
-    return np.array([g if g is not None else h for g, h in zip(given, fp)], float)
-
-
-def geometry_problem(design: dict, semi_diameters: Sequence[float]) -> tuple[str, str] | None:
-    """(reason, message) if the lens cannot exist: a clear semi-diameter beyond a surface's
-    reach, or two consecutive surfaces crossing inside their apertures (checked at 17
-    heights up to the smaller one).  The engine traces such lenses without complaint, so
-    the sampler and the dataset generator check this themselves."""
-    surfs = design["surfaces"]
-    for i, (s, h) in enumerate(zip(surfs, semi_diameters)):
-        if not np.isfinite(sag(s, h)):
-            return (
-                "aperture_outside_surface",
-                f"surface {i + 1}: clear semi-diameter {h:.4g} mm lies beyond the surface (radius "
-                f"{s.get('radius')}, conic {s.get('conic', 0.0)})",
-            )
-    z = np.concatenate([[0.0], np.cumsum([float(s["thickness"]) for s in surfs])])
-    for i in range(len(surfs) - 1):
-        r = np.linspace(0.0, min(semi_diameters[i], semi_diameters[i + 1]), 17)
-        gap = (z[i + 1] + sag(surfs[i + 1], r)) - (z[i] + sag(surfs[i], r))
-        if np.any(gap < 0.0):
-            j = int(np.argmin(gap))
-            return (
-                "surfaces_cross",
-                f"surfaces {i + 1} and {i + 2} cross inside the clear aperture "
-                f"(gap {gap[j]:.4g} mm at r = {r[j]:.4g} mm)",
-            )
-    return None
-
-
-def check_design(design: dict, semi_diameters: Sequence[float], limits: Limits) -> list[str]:
-    """Reasons (from :data:`REASONS`) why the lens dict ``design`` is not manufacturable;
-    empty when it passes."""
-    bad = geometry_problem(design, semi_diameters)
-    if bad is not None and bad[0] == "aperture_outside_surface":
-        return [bad[0]]
-    reasons: list[str] = [bad[0]] if bad else []
-    rows = Constraints(
-        min_center=limits.min_center, min_edge=limits.min_edge, min_air_gap=limits.min_air_gap, min_bfd=limits.min_bfd
-    ).evaluate(design, {}, semi_diameters)
-    for row in rows:
-        reason = _ROW_REASON[row["name"].split("[")[0]]
-        if not row["ok"] and reason not in reasons:
-            reasons.append(reason)
-    return reasons
+APERTURE_RULES = ("auto", "fixed", "base-lens")
 
 
 def _unit_block(method: str, d: int, m: int, seed: int, state: dict) -> np.ndarray:
@@ -169,6 +68,7 @@ class SampleResult:
     limits: Limits
     method: str
     seed: int
+    apertures: str = "auto"
 
     def summary(self) -> dict:
         return {
@@ -180,6 +80,7 @@ class SampleResult:
             "method": self.method,
             "seed": self.seed,
             "limits": asdict(self.limits),
+            "apertures": self.apertures,
             "space": self.space.source,
             "parameters": self.space.names,
         }
@@ -194,18 +95,34 @@ def sample_designs(
     limits: Limits | None = None,
     max_draws: int | None = None,
     progress=None,
+    apertures: str = "auto",
 ) -> SampleResult:
-    """``n`` manufacturable designs (parameter value rows) from ``space`` over ``base``."""
+    """``n`` manufacturable designs (parameter value rows) from ``space`` over ``base``,
+    each checked as traced with the dataset's aperture setting ``apertures`` ("auto": no
+    clear apertures, "fixed": the base lens's but the stop's) at its own clear apertures."""
     if n < 1:
         raise InputError(f"n must be >= 1, got {n}")
     if method not in METHODS:
         raise InputError(f"unknown sampling method {method!r} (one of {', '.join(METHODS)})")
+    if apertures not in APERTURE_RULES:
+        raise InputError(f"unknown aperture rule {apertures!r} (one of {', '.join(APERTURE_RULES)})")
     limits = limits or Limits()
     max_draws = max_draws or max(1000, 100 * n)
     lo = np.array([p.min for p in space.params])
     span = np.array([p.max - p.min for p in space.params])
-    sd = apertures(base)
-    data = base.data
+    if apertures == "base-lens":  # the datasets made before the one definition
+        data, sd = base.data, clear_apertures(base)
+
+        def problems(d):
+            return check_design(d, sd, limits)
+    else:
+        data, problems = engine_base(base, apertures), Manufacturability(limits).problems
+        bad = [p for p in problems(copy.deepcopy(data)) if p.startswith("untraceable")]
+        if bad:  # e.g. a lens whose beam its clear apertures keep off crossing rims
+            raise SpaceError(
+                f"{space.source}: the base lens {base.name} cannot be traced with apertures={apertures!r} "
+                f"({bad[0]}); sample as its dataset traces it (apertures='fixed' keeps its clear apertures)"
+            )
     rejected = {r: 0 for r in REASONS}
     accepted: list[np.ndarray] = []
     drawn = n_rej = 0
@@ -224,16 +141,16 @@ def sample_designs(
                 break
             drawn += 1
             x = lo + u * span
-            reasons = check_design(space.apply(data, x), sd, limits)
+            reasons = problems(space.apply(data, x))
             if reasons:
                 n_rej += 1
-                for r in reasons:
+                for r in {r.split(":")[0] for r in reasons}:
                     rejected[r] += 1
             else:
                 accepted.append(x)
             if progress:
                 progress(drawn, len(accepted))
-    return SampleResult(space, np.array(accepted), drawn, rejected, n_rej, limits, method, seed)
+    return SampleResult(space, np.array(accepted), drawn, rejected, n_rej, limits, method, seed, apertures)
 
 
 def write_designs_csv(path: "str | Path", names: Sequence[str], values: np.ndarray) -> None:

@@ -332,7 +332,7 @@ def sensitivity(
     base = lens.data
     check_space_fits(space, base)
     if semi_diameters is None:
-        from .sampling import apertures as clear_semi_diameters
+        from .constraints import apertures as clear_semi_diameters
 
         semi_diameters = clear_semi_diameters(lens)
     nominal_fields = evaluate_fields(merit, base, apertures)
@@ -577,14 +577,17 @@ def monte_carlo(
 ) -> MonteCarlo:
     """``n`` manufacturable designs drawn uniformly from ``space`` (every parameter at once),
     traced; yield = fraction with worst-field RMS <= ``spec_um``.  ``limits``: a
-    :class:`optix_e2e.lens_design.sampling.Limits` (default: the space's ``[constraints]``)."""
-    from .sampling import Limits, sample_designs
+    :class:`optix_e2e.lens_design.constraints.Limits` (default: the space's ``[constraints]``)."""
+    from .constraints import Limits
+    from .sampling import sample_designs
 
     check_apertures(apertures)
     lens = Lens.load(lens)
     if limits is None:
         limits = Limits.from_dict(space.constraints, f"{space.source}: [constraints]")
-    res = sample_designs(space, lens, n, seed=seed, method="uniform", limits=limits)
+    # checked as traced (the one definition of lens_design.constraints)
+    rule = "auto" if apertures == "free" else "fixed"
+    res = sample_designs(space, lens, n, seed=seed, method="uniform", limits=limits, apertures=rule)
     fields = np.full((len(res.values), len(merit.fields)), math.nan)
     failures: dict = {}
     failed_index = []

@@ -1,0 +1,188 @@
+"""What makes a lens manufacturable: one definition, used by the design sampler (and so the
+datasets the surrogates learn from), the design run's guard at every step and its final checks.
+
+A design is checked as the engine traces it, at its own clear apertures: the clear
+semi-diameters the traced prescription gives, else its own ray footprint (the rim rays and
+the chief ray of each of its fields at its f-number, as Zemax sizes surfaces without a clear
+semi-diameter). A design that opens its aperture, bends a surface or moves an element has
+rims where its own rays pass, not where the base lens's did.
+
+Checks (limits in mm from the space file's ``[constraints]`` table, :class:`Limits`):
+
+* ``center_thickness`` / ``edge_thickness``: glass at the axis and at the rim >= limits,
+* ``air_gap``: air between optical surfaces at the axis and at the rim >= limit, and a
+  separate stop plane clear of its neighbours' rims,
+* ``back_focal_distance``: last vertex to image >= limit,
+* ``surfaces_cross``: consecutive surfaces never cross anywhere inside their apertures,
+* ``aperture_outside_surface``: a clear semi-diameter beyond a conic's reach (or the
+  sphere's radius),
+* ``untraceable``: no ray of the footprint reaches some surface (the design cannot be sized).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Sequence
+
+import numpy as np
+
+from ..errors import InputError
+from ..lens import Lens
+from ..lens.prescription import SurfacesCrossError
+from ..lens.surface import sag
+from .optimizer import Constraints
+from .space import SpaceError
+
+REASONS = (
+    "center_thickness",
+    "edge_thickness",
+    "air_gap",
+    "back_focal_distance",
+    "surfaces_cross",
+    "aperture_outside_surface",
+    "untraceable",
+)
+_ROW_REASON = {
+    "center_thickness": "center_thickness",
+    "edge_thickness": "edge_thickness",
+    "air_gap_center": "air_gap",
+    "air_gap_edge": "air_gap",
+    "stop_clearance": "air_gap",
+    "back_focal_distance": "back_focal_distance",
+}
+
+
+@dataclass
+class Limits:
+    """Manufacturability limits (mm); ``None`` = not checked."""
+
+    min_center: float | None = None
+    min_edge: float | None = None
+    min_air_gap: float | None = None
+    min_bfd: float | None = None
+
+    @classmethod
+    def from_dict(cls, d: dict | None, source: str = "constraints") -> "Limits":
+        d = dict(d or {})
+        unknown = sorted(set(d) - set(cls.__dataclass_fields__))
+        if unknown:
+            raise SpaceError(
+                f"{source}: unknown constraint(s) {', '.join(unknown)} (known: {', '.join(cls.__dataclass_fields__)})"
+            )
+        for k, v in d.items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise SpaceError(f"{source}: {k} must be a finite number >= 0, got {v!r}")
+        return cls(**{k: float(v) for k, v in d.items()})
+
+    def merged(self, **override) -> "Limits":
+        return Limits(**{**asdict(self), **{k: v for k, v in override.items() if v is not None}})
+
+
+def apertures(lens: Lens) -> np.ndarray:
+    """Clear semi-diameters of ``lens``: the prescription's, else its own ray footprint
+    (raises InputError when no ray reaches some surface)."""
+    from .report import footprint
+
+    given = [s.get("semi_diameter") for s in lens.surfaces]
+    if all(g is not None for g in given):
+        return np.array(given, float)
+    fp = footprint(lens, lens.fields_deg)
+    return np.array([g if g is not None else h for g, h in zip(given, fp)], float)
+
+
+def geometry_problem(design: dict, semi_diameters: Sequence[float]) -> tuple[str, str] | None:
+    """(reason, message) if the lens cannot exist: a clear semi-diameter beyond a surface's
+    reach, or two consecutive surfaces crossing inside their apertures (checked at 17
+    heights up to the smaller one).  The engine traces such lenses without complaint, so
+    the sampler and the dataset generator check this themselves."""
+    surfs = design["surfaces"]
+    for i, (s, h) in enumerate(zip(surfs, semi_diameters)):
+        if not np.isfinite(sag(s, h)):
+            return (
+                "aperture_outside_surface",
+                f"surface {i + 1}: clear semi-diameter {h:.4g} mm lies beyond the surface (radius "
+                f"{s.get('radius')}, conic {s.get('conic', 0.0)})",
+            )
+    z = np.concatenate([[0.0], np.cumsum([float(s["thickness"]) for s in surfs])])
+    for i in range(len(surfs) - 1):
+        r = np.linspace(0.0, min(semi_diameters[i], semi_diameters[i + 1]), 17)
+        gap = (z[i + 1] + sag(surfs[i + 1], r)) - (z[i] + sag(surfs[i], r))
+        if np.any(gap < 0.0):
+            j = int(np.argmin(gap))
+            return (
+                "surfaces_cross",
+                f"surfaces {i + 1} and {i + 2} cross inside the clear aperture "
+                f"(gap {gap[j]:.4g} mm at r = {r[j]:.4g} mm)",
+            )
+    return None
+
+
+def check_design(design: dict, semi_diameters: Sequence[float], limits: Limits) -> list[str]:
+    """Reasons (from :data:`REASONS`) why the lens dict ``design`` is not manufacturable at
+    the given clear semi-diameters; empty when it passes."""
+    bad = geometry_problem(design, semi_diameters)
+    if bad is not None and bad[0] == "aperture_outside_surface":
+        return [bad[0]]
+    reasons: list[str] = [bad[0]] if bad else []
+    for row in _rows(design, semi_diameters, limits):
+        reason = _ROW_REASON[row["name"].split("[")[0]]
+        if not row["ok"] and reason not in reasons:
+            reasons.append(reason)
+    return reasons
+
+
+def _rows(design: dict, semi_diameters: Sequence[float], limits: Limits) -> list[dict]:
+    return Constraints(
+        min_center=limits.min_center, min_edge=limits.min_edge, min_air_gap=limits.min_air_gap, min_bfd=limits.min_bfd
+    ).evaluate(design, {}, semi_diameters)
+
+
+class ApertureError(InputError):
+    """A design that cannot be sized; its message starts with the reason (:data:`REASONS`)."""
+
+
+def own_apertures(design: dict) -> np.ndarray:
+    """The clear semi-diameters a lens dict (as traced) is checked at: the ones it gives,
+    else its own ray footprint. Raises ApertureError("surfaces_cross: ..." where surfaces
+    cross inside the paraxial beam, "untraceable: ..." where no ray can size a surface)."""
+    try:
+        lens = Lens(design, source="<design>")
+    except SurfacesCrossError as err:
+        raise ApertureError(f"surfaces_cross: {' '.join(str(err).split())}") from None
+    try:
+        return apertures(lens)
+    except Exception as err:  # noqa: BLE001 - no ray reaches a surface, the engine refuses it
+        raise ApertureError(f"untraceable: {' '.join(str(err).split())}") from None
+
+
+class Manufacturability:
+    """The limits applied to designs at their own clear apertures (the module's rule).
+
+    ``problems(design)`` lists the reasons a lens dict (as traced) fails, empty when it is
+    manufacturable; ``margins(design)`` gives each limit's value minus its bound (mm, >= 0
+    where met, a fixed order for a given lens), what a guard needs to steer by.
+    ``checks`` counts the designs looked at."""
+
+    def __init__(self, limits: Limits):
+        self.limits = limits
+        self.checks = 0
+
+    def problems(self, design: dict) -> list[str]:
+        self.checks += 1
+        try:
+            sd = own_apertures(design)
+        except ApertureError as err:
+            return [str(err)]
+        return check_design(design, sd, self.limits)
+
+    def margins(self, design: dict) -> np.ndarray:
+        """Raises ApertureError where the design cannot be sized."""
+        self.checks += 1
+        sd = own_apertures(design)
+        return np.array([r["value"] - r["limit"] for r in _rows(design, sd, self.limits) if "limit" in r])
+
+
+def reason_of(problem: str) -> str:
+    """The :data:`REASONS` entry of one of ``problems``' strings."""
+    return problem.split(":")[0]

@@ -1,0 +1,88 @@
+"""One definition of a manufacturable lens (optix_e2e.lens_design.constraints): the design
+sampler, the design run's guard and its final checks give the same verdict on random designs,
+each checked at its own clear apertures; the rule of the older datasets (the base lens's
+apertures for every design) does not."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from optix_e2e.camera_design.guard import Manufacturable
+from optix_e2e.camera_design.outputs import check_final_design
+from optix_e2e.lens import Lens
+from optix_e2e.lens.apertures import engine_base
+from optix_e2e.lens_design.constraints import REASONS, ApertureError, Limits, Manufacturability, apertures
+from optix_e2e.lens_design.sampling import sample_designs
+from optix_e2e.surrogate import OpticsSurrogate
+
+M = 48  # random designs of the space, every one checked by each tool
+
+
+@pytest.fixture(scope="module")
+def e2e_space():
+    """The bundled end-to-end surrogate's manifest (what the guard reads), its space, base
+    lens, limits, and M uniform draws of the space (the sampler's stream for seed 11)."""
+    man = OpticsSurrogate.load("paper-triplet-e2e").manifest
+    from optix_e2e.dataset.manifest import space_and_base
+
+    space, base = space_and_base(man)
+    limits = Limits.from_dict(man["sampling_summary"]["limits"])
+    lo = np.array([p.min for p in space.params])
+    span = np.array([p.max - p.min for p in space.params])
+    draws = lo + np.random.Generator(np.random.PCG64(11)).random((M, len(space))) * span
+    return man, space, base, limits, draws
+
+
+def test_sampler_guard_and_final_checks_agree_on_random_designs(e2e_space):
+    man, space, base, limits, draws = e2e_space
+    guard = Manufacturable(man)
+    z = float(base.data["surfaces"][-1]["thickness"])  # the base's image plane, as the sampler and guard check
+    by_guard = [not guard.problems(x) for x in draws]
+    by_final = [check_final_design(man, x, z)["manufacturable"] for x in draws]
+    assert by_guard == by_final
+    assert 0 < sum(by_guard) < M  # the limits bind in this space: both verdicts occur
+    # the sampler, on the same stream: it accepts exactly the draws the guard accepts
+    k = sum(by_guard)
+    res = sample_designs(space, base, k, seed=11, method="uniform", limits=limits, apertures="auto")
+    last = int(np.flatnonzero(by_guard)[-1])
+    assert res.drawn == last + 1 and res.n_rejected == last + 1 - k
+    np.testing.assert_array_equal(res.values, draws[np.flatnonzero(by_guard)])
+
+
+def test_the_older_rule_accepts_designs_the_guard_refuses(e2e_space):
+    """The base lens's clear apertures for every design (the datasets made before the one
+    definition): designs whose own rims are wider pass it and fail the guard."""
+    man, space, base, limits, draws = e2e_space
+    guard = Manufacturable(man)
+    old = sample_designs(space, base, 20, seed=11, method="uniform", limits=limits, apertures="base-lens")
+    refused = [x for x in old.values if guard.problems(x)]
+    assert refused and all("edge_thickness" in guard.problems(x) for x in refused)
+
+
+def test_each_design_is_checked_at_its_own_clear_apertures():
+    """Opening the aperture widens the footprint at every element: the same glass that passes
+    at f/4.4 (its first element 0.001 mm above the 2 mm edge limit) fails it at f/3.5."""
+    lens = Lens.load("paper-triplet")
+    traced = engine_base(lens, "auto")
+    rule = Manufacturability(Limits(min_edge=2.0))
+    assert rule.problems(traced) == []
+    wide = engine_base(lens, "auto")
+    wide["aperture"] = {**wide["aperture"], "value": 3.5}
+    sd, sd_wide = apertures(Lens(traced, source="a")), apertures(Lens(wide, source="b"))
+    assert np.all(sd_wide[:2] > sd[:2] * 1.05)  # the first element's rims (7.15 -> 7.85 mm in front)
+    assert "edge_thickness" in rule.problems(wide)
+    assert rule.checks == 2 and set(REASONS) >= {"edge_thickness", "untraceable"}
+
+
+def test_a_design_that_cannot_be_sized_is_refused_with_its_reason():
+    """A 2 mm sphere in front of a 5.7 mm beam: its rim crosses the next surface inside the
+    beam, so there is no footprint to check; the reason says so, no exception escapes."""
+    lens = Lens.load("paper-triplet")
+    d = engine_base(lens, "auto")
+    d["surfaces"][0]["radius"] = 2.0
+    rule = Manufacturability(Limits())
+    problems = rule.problems(d)
+    assert len(problems) == 1 and problems[0].startswith("surfaces_cross: "), problems
+    with pytest.raises(ApertureError, match="^surfaces_cross: "):
+        rule.margins(d)
