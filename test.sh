@@ -11,11 +11,14 @@ if [ ! -x .venv/bin/python ]; then
 fi
 # shellcheck disable=SC1091
 . .venv/bin/activate
-stamp "install (.venv, uv pip install .[test]: builds the extension)"
+stamp "install (.venv, uv pip install .[test]: builds the extension, cargo profile ci)"
 # uv (pinned, installed by pip) installs what pip would, from its cache in seconds where pip
-# took minutes (torch and its CUDA libraries are 6 GB); the project itself is always rebuilt
+# took minutes (torch and its CUDA libraries are 6 GB); the project itself is always rebuilt,
+# here with cargo's `ci` profile (release optimization without LTO and one codegen unit, the
+# same floating-point code): 104 s against 114, and `cargo test --profile ci` below reuses its
+# dependencies (compile 76 s against 115). ./run.sh builds the release profile.
 python -m pip install --disable-pip-version-check -q "uv==0.13.9"
-uv pip install -q --refresh-package optix-e2e --reinstall-package optix-e2e ".[test]"
+MATURIN_PEP517_ARGS="--profile ci" uv pip install -q --refresh-package optix-e2e --reinstall-package optix-e2e ".[test]"
 stamp "lint: ruff, rustfmt, clippy (the stub check is tests/engine/test_engine_stub.py)"
 ruff check python tests benches scripts
 ruff format --check python tests benches scripts

@@ -24,6 +24,9 @@ step: ``state_dict`` holds the step counter, the Adam moments and the current an
 Data-parallel runs (torchrun) set ``reduce``: called after backward with the parameters
 about to step, the task loss and the loss's info, it averages the gradients over the
 processes (optix_e2e.parallel.average_step) and returns the averaged loss and info.
+``before_step``, when set, is called next with the same parameters and may change their
+gradients (the manufacturability barrier, camera_design/guard.py); the dict it returns joins
+the step's info.
 """
 
 from __future__ import annotations
@@ -84,6 +87,7 @@ class ProximalCompositional:
         self.t = 0
         self.anchor: list[torch.Tensor] | None = None
         self.reduce: Callable | None = None
+        self.before_step: Callable | None = None
 
     @property
     def cycle_len(self) -> int:
@@ -127,8 +131,11 @@ class ProximalCompositional:
             prox = block.beta * sum(((block.coord(p) - a) ** 2).sum() for p, a in zip(block.params, self.anchor))
             loss = task + prox
         loss.backward()
+        params = [p for o in opts for g in o.param_groups for p in g["params"]]
         if self.reduce is not None:
-            task, info = self.reduce([p for o in opts for g in o.param_groups for p in g["params"]], task, info)
+            task, info = self.reduce(params, task, info)
+        if self.before_step is not None:
+            info = {**info, **self.before_step(params)}
         for o in opts:
             o.step()
         self.t += 1
@@ -175,6 +182,7 @@ class Vanilla:
         self.opt = torch.optim.Adam([p for b in blocks for p in b.params], lr=self.lr)
         self.t = 0
         self.reduce: Callable | None = None
+        self.before_step: Callable | None = None
 
     @property
     def total_steps(self) -> int:
@@ -191,8 +199,11 @@ class Vanilla:
         out = loss_fn()
         task, info = out if isinstance(out, tuple) else (out, {})
         task.backward()
+        params = [p for g in self.opt.param_groups for p in g["params"]]
         if self.reduce is not None:
-            task, info = self.reduce([p for g in self.opt.param_groups for p in g["params"]], task, info)
+            task, info = self.reduce(params, task, info)
+        if self.before_step is not None:
+            info = {**info, **self.before_step(params)}
         self.opt.step()
         self.t += 1
         return {"step": self.t, "phase": "joint", "block": "all", "loss": float(task.detach()), "prox": 0.0, **info}

@@ -54,6 +54,8 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "fields": (0, 1000, False),
     "patch": (2, 1024, False),
     "checkpoint_every": (1, BIG, False),
+    "guard_band": (0.0, 100.0, True),
+    "guard_weight": (0.0, 1e6, True),
     "eval_size": (16, 1024, False),
     "eval_procedural": (0, 10_000, False),
     "eval_level": (0.0, 10.0, True),
@@ -120,6 +122,12 @@ class DesignConfig:
     fields: int = 0  # field samples K the renderer uses in training (0: all the surrogate's)
     patch: int = 64  # overlap-add patch of the renderer
     checkpoint_every: int = 20
+    # the lens's manufacturability limits at every step (camera_design/guard.py): project = the
+    # step projected along the limits it leans across, then cut back; barrier = that, after a
+    # log barrier on the margins within guard_band mm has steered the lens's gradient
+    guard: str = "project"
+    guard_band: float = 0.25  # mm
+    guard_weight: float = 1e-3  # the barrier's weight (loss units per log of a margin)
     # evaluation
     eval_size: int = 192
     eval_procedural: int = 13  # + the bundled photos (9) = 22 held-out images, each at eval_positions
@@ -150,6 +158,10 @@ class DesignConfig:
             raise InputError(f"optics must be one of {', '.join(OPTICS_MODES)}, got {self.optics!r}")
         if self.refine not in REFINE_MODES:
             raise InputError(f"refine must be one of {', '.join(REFINE_MODES)}, got {self.refine!r}")
+        from .guard import GUARD_MODES
+
+        if self.guard not in GUARD_MODES:
+            raise InputError(f"guard must be one of {', '.join(GUARD_MODES)}, got {self.guard!r}")
         if not self.hybrid_threshold > 0:
             raise InputError(f"hybrid_threshold must be > 0, got {self.hybrid_threshold}")
         if self.fields < 0 or self.fields == 1:

@@ -2,7 +2,13 @@
 the run visits): the dataset's limits (centre and edge thickness, air gaps, back focus; the
 space file's [constraints]) as a check and as margins on parameter values, and the rule that
 keeps each optimizer step inside them (project the step along the limits it leans across,
-then cut it back). A step the guard changed is counted in history.csv's ``cut``."""
+then cut it back). A step the guard changed is counted in history.csv's ``cut``.
+
+Two modes (``DesignConfig.guard``): ``project`` repairs a lens step after Adam has taken it;
+``barrier`` also steers before it: a log barrier on the margins closer than ``band`` mm to
+their bound adds its gradient to the lens's (the margins' slopes by forward differences, one
+margin evaluation per parameter), so Adam's moments carry the lens along or away from a limit
+instead of into it, step after step."""
 
 from __future__ import annotations
 
@@ -14,6 +20,9 @@ from ..dataset.manifest import space_and_base
 from ..lens_design.constraints import Limits, Manufacturability
 from ..optics import DifferentiableOptics
 from .outputs import design_lens
+
+
+GUARD_MODES = ("project", "barrier")
 
 
 class Manufacturable:
@@ -108,3 +117,35 @@ def keep_manufacturable(
     with torch.no_grad():
         optics.u.copy_(u_prev + lo * (u_new - u_prev))
     return True
+
+
+def barrier_gradient(
+    optics: DifferentiableOptics, guard: Manufacturable, band: float, weight: float, h: float = 1e-3
+) -> tuple[torch.Tensor, float]:
+    """The gradient in u of B = weight * sum over the margins m < band that the lens
+    parameters move of (m / band - 1 - log(m / band)) (zero with a zero slope at the band,
+    infinite at the bound), and B itself. A margin no parameter moves (a fixed element's
+    thickness) cannot be steered and is left out; one at or below zero (a point the cut-back
+    will repair) counts as 1e-6 mm. Zero where no margin is inside the band or the design
+    cannot be sized."""
+    u = optics.u.detach()
+    zero = (torch.zeros_like(u), 0.0)
+    try:
+        m0 = guard.margins(_values(optics, u))
+        near = np.flatnonzero(m0 < band)
+        if near.size == 0:
+            return zero
+        jac = np.empty((near.size, u.numel()))
+        for k in range(u.numel()):
+            du = torch.zeros_like(u)
+            du[k] = h
+            jac[:, k] = (guard.margins(_values(optics, u + du))[near] - m0[near]) / h
+    except Exception:  # noqa: BLE001 - cannot be sized here: the cut-back handles this step
+        return zero
+    moved = np.any(jac != 0.0, axis=1)
+    if not moved.any():
+        return zero
+    m, jac = np.maximum(m0[near][moved], 1e-6), jac[moved]
+    value = weight * float(np.sum(m / band - 1.0 - np.log(m / band)))
+    dB_dm = weight * (1.0 / band - 1.0 / m)  # < 0: the barrier falls as a margin grows
+    return torch.as_tensor(jac.T @ dB_dm, dtype=u.dtype), value

@@ -23,14 +23,14 @@ from ..optics import DifferentiableOptics
 from ..tasks import SensorFrame, TaskLoss, get_task, training_batch
 from ..torchfile import DAMAGED_STATE_ERRORS, load_plain
 from .config import DesignConfig
-from .guard import Manufacturable, keep_manufacturable
+from .guard import Manufacturable, barrier_gradient, keep_manufacturable
 from .hybrid import OpticsModeMismatch
 
 LOSS_PARTS = ("l1", "lpips")  # the image-quality tasks' loss terms, in history.csv
 
 
 def history_keys(parts: tuple[str, ...] = LOSS_PARTS) -> tuple[str, ...]:
-    return ("step", "phase", "block", "loss", "prox", *parts, "cut", "optics", "seconds")
+    return ("step", "phase", "block", "loss", "prox", *parts, "cut", "barrier", "optics", "seconds")
 
 
 def _save_state(path: Path, camera: Camera, opt, wall_s: float, history: list, monitor=None) -> None:
@@ -125,6 +125,19 @@ def train(
 
     optics = camera.optics if isinstance(camera.optics, DifferentiableOptics) else None
     guard = Manufacturable(optics.surrogate.manifest) if optics is not None and optics.surrogate.manifest else None
+    if guard is not None and cfg.guard == "barrier":
+
+        def steer(params) -> dict:
+            """The barrier's gradient joins the lens's before Adam steps (guard.barrier_gradient)."""
+            if not any(p is optics.u for p in params):
+                return {}
+            grad, value = barrier_gradient(optics, guard, cfg.guard_band, cfg.guard_weight)
+            if value:
+                with torch.no_grad():
+                    optics.u.grad = grad.to(optics.u) if optics.u.grad is None else optics.u.grad + grad.to(optics.u)
+            return {"barrier": value}
+
+        opt.before_step = steer
     camera.train()
     m = camera.margin
     t_start = time.perf_counter()
@@ -157,12 +170,15 @@ def train(
             guard is not None and info["block"] in ("optics", "all") and keep_manufacturable(optics, u_prev, guard)
         )
         info["seconds"] = time.perf_counter() - t0
+        info.setdefault("barrier", 0.0)  # the guard's barrier term (guard = barrier), not in the loss
         history.append({k: info[k] for k in history_keys(parts)})
         if writer is not None:
             for k in ("loss", *parts):
                 writer.add_scalar(f"{name}/{k}", info[k], info["step"])
             if info["prox"]:
                 writer.add_scalar(f"{name}/prox", info["prox"], info["step"])
+            if info.get("barrier"):
+                writer.add_scalar(f"{name}/barrier", info["barrier"], info["step"])
         if monitor is not None and monitor.due(opt.t, opt.total_steps):
             monitor.check(opt.t, final=opt.t == opt.total_steps)
         if on_step is not None:
@@ -181,6 +197,9 @@ def train(
         "wall_s": wall,
         "final_loss": history[-1]["loss"] if history else math.nan,
         "cut_steps": int(sum(h.get("cut", 0) for h in history)),
+        "lens_steps": int(sum(h.get("block") in ("optics", "all") for h in history)) if optics is not None else 0,
+        "guard": cfg.guard if guard is not None else None,
+        "barrier_steps": int(sum(bool(h.get("barrier")) for h in history)),
         "history": history,
     }
 
