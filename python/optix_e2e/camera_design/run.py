@@ -182,7 +182,10 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         },
         "held_out": hooks.held_out(evaluation),
         "training": {
-            k: {kk: v[kk] for kk in ("steps", "wall_s", "final_loss", "lens_steps", "cut_steps", "guard", "barrier_steps")}
+            k: {
+                kk: v[kk]
+                for kk in ("steps", "wall_s", "final_loss", "lens_steps", "cut_steps", "guard", "barrier_steps")
+            }
             for k, v in (("end_to_end", e2e), ("nominal", nom))
         },
         "surrogate": cfg.surrogate,
