@@ -55,6 +55,17 @@ def _values(optics: DifferentiableOptics, u: torch.Tensor) -> np.ndarray:
     return (optics.lo + (optics.hi - optics.lo) * torch.sigmoid(u)).detach().double().numpy()
 
 
+def _margin_slopes(optics, guard: Manufacturable, u: torch.Tensor, m0: np.ndarray, rows: np.ndarray, h: float):
+    """d margin / d u for the margins ``rows`` (m0: all margins at u), by forward differences:
+    one margin evaluation per parameter. Raises where a shifted point cannot be sized."""
+    jac = np.empty((rows.size, u.numel()))
+    for k in range(u.numel()):
+        du = torch.zeros_like(u)
+        du[k] = h
+        jac[:, k] = (guard.margins(_values(optics, u + du))[rows] - m0[rows]) / h
+    return jac
+
+
 def project_step(
     optics: DifferentiableOptics,
     u_prev: torch.Tensor,
@@ -75,11 +86,7 @@ def project_step(
         active = np.flatnonzero((m0 < near_mm) | (m1 < 0))
         if active.size == 0:
             return step
-        jac = np.empty((active.size, u_prev.numel()))
-        for k in range(u_prev.numel()):
-            du = torch.zeros_like(u_prev)
-            du[k] = h
-            jac[:, k] = (guard.margins(_values(optics, u_prev + du))[active] - m0[active]) / h
+        jac = _margin_slopes(optics, guard, u_prev, m0, active, h)
     except Exception:  # untraceable (a ray misses a surface, surfaces cross): no linearization here
         return step
     d = step.double().numpy()
@@ -135,11 +142,7 @@ def barrier_gradient(
         near = np.flatnonzero(m0 < band)
         if near.size == 0:
             return zero
-        jac = np.empty((near.size, u.numel()))
-        for k in range(u.numel()):
-            du = torch.zeros_like(u)
-            du[k] = h
-            jac[:, k] = (guard.margins(_values(optics, u + du))[near] - m0[near]) / h
+        jac = _margin_slopes(optics, guard, u, m0, near, h)
     except Exception:  # noqa: BLE001 - cannot be sized here: the cut-back handles this step
         return zero
     moved = np.any(jac != 0.0, axis=1)
