@@ -27,7 +27,7 @@ import numpy as np
 
 from ..lens import Lens
 from ..lens.apertures import engine_base
-from .constraints import REASONS, Limits, Manufacturability, check_design
+from .constraints import REASONS, Limits, Manufacturability, check_design, reason_of
 from .constraints import apertures as clear_apertures
 from .space import ParameterSpace, SpaceError
 from ..errors import InputError
@@ -144,7 +144,7 @@ def sample_designs(
             reasons = problems(space.apply(data, x))
             if reasons:
                 n_rej += 1
-                for r in {r.split(":")[0] for r in reasons}:
+                for r in {reason_of(r) for r in reasons}:
                     rejected[r] += 1
             else:
                 accepted.append(x)
