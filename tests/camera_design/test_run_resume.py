@@ -94,6 +94,47 @@ def test_results_hold_every_figure_under_exact_optics(resumed_run):
         assert res["exact_psf_method"][who] == "auto"  # the surrogate's dataset's method (no fallback)
 
 
+def test_results_pair_frame_centre_and_corner_apart_the_frame_the_headline(resumed_run):
+    # issue 34: each held-out image at the frame's 4 positions, the centre and the corner; the
+    # headline (``paired``) is the frame's comparison, stated once with its reason
+    res, out = resumed_run["res"], resumed_run["out"]
+    assert res["held_out"]["positions"] == "frame+centre+corner" and res["held_out"]["per_image"] == 6
+    assert res["held_out"]["per_image_by_position"] == {"frame": 4, "centre": 1, "corner": 1}
+    by = res["paired_by_position"]
+    assert list(by) == ["frame", "centre", "corner"]
+    for p in by.values():
+        for m in ("psnr_db", "ssim", "lpips", "haarpsi"):
+            lo, hi = p[m]["ci95"]
+            assert lo - 1e-9 <= p[m]["mean"] <= hi + 1e-9 and p[m]["n_images"] == res["held_out"]["n_images"]
+    assert res["paired"] == by["frame"]
+    assert res["headline_position"] == res["held_out"]["headline_position"] == "frame"
+    assert (
+        res["headline_position_why"].startswith("frame: 4 stratified uniform positions")
+        and "issue 34" in (res["headline_position_why"])
+    )
+    # the cameras' means are the frame samples'; every position is beside them
+    rows = [r for r in csv.DictReader(open(out / "metrics.csv")) if r["optics"] == "exact"]
+    frame = [float(r["psnr_db"]) for r in rows if r["camera"] == "nominal" and r["position"] == "frame"]
+    assert res["nominal"]["psnr_db"] == pytest.approx(sum(frame) / len(frame), rel=1e-12)
+    assert res["nominal"]["n_samples"] == 4 * res["held_out"]["n_images"]
+    assert set(res["nominal"]["by_position"]) == {"frame", "centre", "corner"}
+    # what the run prints: the frame headline, then a line each for the centre and the corner
+    stdout = resumed_run["stdout"]
+    assert "headline: 4 frame positions per image" in stdout
+    for pos in ("centre", "corner"):
+        lo, hi = by[pos]["psnr_db"]["ci95"]
+        assert f"diff {by[pos]['psnr_db']['mean']:+.4f} [{lo:+.4f}, {hi:+.4f}]" in stdout, pos
+
+
+def test_both_cameras_get_as_many_updates_per_processing_block(resumed_run):
+    # n_cycles 3 of (2 optics + 2 ISP steps) then 2 joint steps: every block 3 x 2 + 2 = 8 updates,
+    # counted by the optimizers across the kill and the resume
+    t = resumed_run["res"]["training"]
+    assert t["end_to_end"]["updates"] == {"optics": 8, "isp": 8}
+    assert t["nominal"]["updates"] == {"isp": 8} and t["nominal"]["steps"] == 3 * 2 + 2
+    assert "the end-to-end run's updates per processing block (isp 8)" in resumed_run["stdout"]
+
+
 def test_every_output_file_is_written(resumed_run):
     out = resumed_run["out"]
     for f in (

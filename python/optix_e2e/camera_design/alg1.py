@@ -55,6 +55,17 @@ class Block:
         return p if self.coords is None else self.coords(p)
 
 
+def _adam_steps(opt: torch.optim.Optimizer, params) -> int:
+    """How many steps ``opt`` has applied to the block of ``params``: its state's step count,
+    the most over the block's parameters (one that never had a gradient was never stepped)."""
+    n = 0
+    for p in params:
+        step = opt.state.get(p, {}).get("step")
+        if step is not None:
+            n = max(n, int(step))
+    return n
+
+
 def _set_trainable(blocks: list[Block], active: set[str]) -> None:
     """Only the active blocks' parameters need gradients: the others' weight gradients are
     not computed (the backward pass still runs through their stages)."""
@@ -107,6 +118,19 @@ class ProximalCompositional:
                     return "cycle", b, k == 0
                 k -= b.steps
         return "finetune", None, False
+
+    def block_at(self, t: int) -> str:
+        """The block step t (0-based) updates, "all" in the joint fine-tuning (history's ``block``)."""
+        _, block, _ = self.phase(t)
+        return block.name if block is not None else "all"
+
+    def scheduled_updates(self) -> dict[str, int]:
+        """The updates each block gets over the whole schedule: n_c n_i + n_f."""
+        return {b.name: self.n_cycles * b.steps + self.n_finetune for b in self.blocks}
+
+    def updates(self) -> dict[str, int]:
+        """The updates each block has had so far (its Adam's step count, across resumes)."""
+        return {b.name: _adam_steps(self.opts[b.name], b.params) for b in self.blocks}
 
     def step(self, loss_fn) -> dict:
         if self.t >= self.total_steps:
@@ -190,6 +214,16 @@ class Vanilla:
 
     def phase(self, t: int | None = None):
         return "joint", None, False
+
+    def block_at(self, t: int) -> str:
+        return "all"
+
+    def scheduled_updates(self) -> dict[str, int]:
+        """Every block at every step."""
+        return {b.name: self.total_steps for b in self.blocks}
+
+    def updates(self) -> dict[str, int]:
+        return {b.name: _adam_steps(self.opt, b.params) for b in self.blocks}
 
     def step(self, loss_fn) -> dict:
         if self.t >= self.total_steps:

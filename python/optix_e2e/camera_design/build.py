@@ -133,9 +133,13 @@ BLOCK_SETTINGS = {
 
 
 def make_optimizer(cfg: DesignConfig, camera, kind: str):
-    """Alg. 1 or vanilla over the camera's blocks (optics, ISP, and the detection task's
-    detector); the nominal baseline ("nominal") takes the same number of steps on its
-    processing blocks together (each with its own optimizer and learning rate)."""
+    """Alg. 1 ("alg1") or vanilla ("vanilla") over the camera's blocks (optics, ISP, and the
+    detection task's detector). The nominal baseline ("nominal": the lens fixed) gets exactly
+    as many updates per processing block as the end-to-end run of ``cfg.optimizer`` gives that
+    block (issue 34): under Alg. 1 the same schedule without the optics block (each processing
+    block's own n_i, learning rate and beta, the same n_c and n_f: n_c n_i + n_f updates);
+    under vanilla the vanilla optimizer over the processing blocks for ``cfg.total_steps``
+    steps (every block at every step)."""
     task = get_task(cfg.task)
     blocks = []
     for name, params in camera.blocks().items():
@@ -148,9 +152,8 @@ def make_optimizer(cfg: DesignConfig, camera, kind: str):
         coords = torch.sigmoid if name == "optics" or (name == "isp" and task.isp == "hardware") else None
         blocks.append(Block(name, params, lr, getattr(cfg, steps_key), getattr(cfg, beta_key), coords))
     if kind == "nominal":
-        return ProximalCompositional(
-            [Block(b.name, b.params, b.lr, 1, 0.0) for b in blocks], n_cycles=0, n_finetune=cfg.total_steps
-        )
+        kind = cfg.optimizer
+        blocks = [b for b in blocks if b.name != "optics"]  # (a fixed lens has no block anyway)
     if kind == "vanilla":
         return Vanilla(blocks, cfg.lr_vanilla, cfg.total_steps)
     return ProximalCompositional(blocks, cfg.n_cycles, cfg.n_finetune)

@@ -132,7 +132,9 @@ class DesignConfig:
     eval_size: int = 192
     eval_procedural: int = 13  # + the bundled photos (9) = 22 held-out images, each at eval_positions
     eval_level: float = 0.7
-    eval_positions: str = "frame"  # frame: 4 stratified uniform positions per image | centre-corner
+    # frame+centre+corner: 4 stratified uniform positions per image (the headline, evaluate.py),
+    # the centre and the corner, each paired apart | frame | centre-corner (tasks/samples.py)
+    eval_positions: str = "frame+centre+corner"
     bootstrap: int = 2000
     threads: int = 0  # torch CPU threads (0: torch's default)
 
@@ -302,6 +304,31 @@ def make_config(budget: str = "quick", file: "str | Path | None" = None, **overr
         check_ranges(data, what=f"{path}: setting")
     values.update({k: v for k, v in overrides.items() if v is not None})
     return DesignConfig(**values).check()
+
+
+#: settings whose default has changed, with the default they had before: a run directory made
+#: under the former default keeps it when the command leaves the setting at today's default, so
+#: the run resumes as it was made (eval_positions was "frame" until 2026-11-27, issue 34)
+FORMER_DEFAULTS: dict[str, object] = {"eval_positions": "frame"}
+
+
+def run_dir_settings(out: Path, cfg: DesignConfig) -> DesignConfig:
+    """``cfg`` with the settings an existing run directory ``out`` was made with under a former
+    default (``FORMER_DEFAULTS``) where ``cfg`` has today's default; ``cfg`` unchanged for a new,
+    unreadable or other directory (check_run_dir then decides). Read-only: every rank may call it."""
+    try:
+        old = json.loads((Path(out) / "config.json").read_text())
+    except (OSError, ValueError, RecursionError):
+        return cfg
+    if not isinstance(old, dict):
+        return cfg
+    today = DesignConfig()
+    keep = {
+        k: old[k]
+        for k, former in FORMER_DEFAULTS.items()
+        if old.get(k) == former and getattr(cfg, k) == getattr(today, k) != former
+    }
+    return dataclasses.replace(cfg, **keep).check() if keep else cfg
 
 
 def check_run_dir(out: Path, cfg: DesignConfig) -> None:

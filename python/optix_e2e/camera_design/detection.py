@@ -123,10 +123,17 @@ def paired_map(a: list[dict], b: list[dict], samples, n_boot: int, seed: int, da
     return out
 
 
-def _digest(psf, vig, fh, f_number, cam: DetectionCamera, n: int) -> str:
-    """What a held-out evaluation depends on besides the run's settings (eval_cache)."""
+def _digest(psf, vig, fh, f_number, cam: DetectionCamera, n: int, samples_key: str) -> str:
+    """What a held-out evaluation depends on besides the run's settings (eval_cache): the
+    camera's PSFs, vignetting, field heights, f-number, ISP, detector and sensor, the held-out
+    scenes (``samples_key``: eval_cache.samples_digest, once per evaluation) and the code."""
     tensors = (psf, vig, fh, *cam.isp.state_dict().values(), *cam.detector.state_dict().values())
-    return eval_cache.digest(f"scenes={n} f={f_number!r}", tensors)
+    return eval_cache.evaluation_key(
+        f"scenes={n} f={f_number!r}",
+        samples=samples_key,
+        sensor=eval_cache.sensor_digest(cam.sensor),
+        tensors=tensors,
+    )
 
 
 def _preds_json(preds: list[dict]) -> list[dict]:
@@ -198,6 +205,7 @@ class DetectionHooks(TaskHooks):
         samples = heldout_streets(
             c.eval_scenes, c.crop_hw, exact["psf"].shape[-1] // 2, (task.level_min, task.level_max), frame
         )
+        samples_key = eval_cache.samples_digest(samples)  # once per evaluation
         preds: dict[str, dict[str, list]] = {}
         reused_s = 0.0
         for who in WHO:
@@ -205,7 +213,7 @@ class DetectionHooks(TaskHooks):
             for kind in ("exact", "surrogate"):
                 path = out / f"detections_{who}_{kind}.json"
                 psf, vig, fh = optics[who][kind]
-                key = _digest(psf, vig, fh, f_numbers[who], cams[who], len(samples))
+                key = _digest(psf, vig, fh, f_numbers[who], cams[who], len(samples), samples_key)
                 cached = eval_cache.read(path, key)
                 if cached is not None:
                     try:  # a damaged cache (hand-edited, cut short) is detected again, not a traceback

@@ -5,10 +5,18 @@ processing (the reference ISP for a hardware ISP), sensor noise on with a fixed 
 sample (the same for every camera: paired), and the optics given: the exact engine's PSFs of
 the lens for the figures we report, the surrogate's for comparison.
 
-The paired comparison averages each image's metric over its positions, takes the differences
-(end-to-end minus nominal) per image, and gives their mean with a 95 % percentile bootstrap
-interval over images (resampled with a fixed seed). ``paired_by_zone`` does the same with
-only the samples whose crop centre lies in the inner or the outer half of the field.
+The headline (``HEADLINE_POSITION``, fixed 2026-11-27 before the wide-space runs, issue 34) is
+the "frame" positions: four stratified uniform positions per image. Where an evaluation holds
+frame samples, the means (``summarize``) and the paired comparison (``paired``) are over them
+alone; the centre and the corner are reported beside them (``by_position``,
+``paired_by_position``); an evaluation without frame samples (eval_positions = centre-corner)
+is summarized over all its samples.
+
+The paired comparison averages each image's metric over its (headline) positions, takes the
+differences (end-to-end minus nominal) per image, and gives their mean with a 95 % percentile
+bootstrap interval over images (resampled with a fixed seed). ``paired_by_position`` does the
+same with each position's samples alone, ``paired_by_zone`` with the headline samples whose
+crop centre lies in the inner or the outer half of the field.
 """
 
 from __future__ import annotations
@@ -21,6 +29,30 @@ from ..metrics.lpips import lpips
 from ..errors import InputError
 
 METRICS = ("psnr_db", "ssim", "lpips", "haarpsi")
+
+#: the held-out position whose samples give every headline figure, stated once (results.json
+#: records it with the reason)
+HEADLINE_POSITION = "frame"
+HEADLINE_WHY = (
+    "frame: 4 stratified uniform positions per image sample the whole sensor as a photo uses it; "
+    "fixed 2026-11-27 before the wide-space runs (issue 34); centre and corner are reported beside it"
+)
+POSITION_ORDER = ("frame", "centre", "corner")  # how results list the positions
+
+
+def at_position(rows: list[dict], position: str) -> list[dict]:
+    return [r for r in rows if r.get("position") == position]
+
+
+def headline(rows: list[dict]) -> list[dict]:
+    """The samples every headline figure is over: those at ``HEADLINE_POSITION`` where there
+    are any, else all (an evaluation without frame positions, or rows already of one position)."""
+    return at_position(rows, HEADLINE_POSITION) or rows
+
+
+def headline_position(rows: list[dict]) -> str:
+    """What ``headline(rows)`` keeps: ``HEADLINE_POSITION``, or "all" samples."""
+    return HEADLINE_POSITION if at_position(rows, HEADLINE_POSITION) else "all"
 
 
 @torch.no_grad()
@@ -57,11 +89,13 @@ def in_zone(rows: list[dict], zone: str) -> list[dict]:
 
 
 def summarize(rows: list[dict]) -> dict:
-    """Means over samples, 1 - LPIPS (the paper's perceptual score), per-position and
-    per-zone (inner / outer half of the field) means."""
-    out = {m: float(np.mean([r[m] for r in rows])) for m in METRICS}
+    """Means over the headline samples (``headline``: the frame positions where evaluated),
+    1 - LPIPS (the paper's perceptual score), their per-zone (inner / outer half of the field)
+    means, and the means at every position evaluated (``by_position``: all the samples)."""
+    head = headline(rows)
+    out = {m: float(np.mean([r[m] for r in head])) for m in METRICS}
     out["one_minus_lpips"] = 1.0 - out["lpips"]
-    out["n_samples"] = len(rows)
+    out["n_samples"] = len(head)
     out["by_position"] = {
         p: {m: float(np.mean([r[m] for r in rows if r["position"] == p])) for m in METRICS}
         for p in sorted({r["position"] for r in rows})
@@ -69,7 +103,7 @@ def summarize(rows: list[dict]) -> dict:
     out["by_zone"] = {
         z: {"n_samples": len(zr), **{m: float(np.mean([r[m] for r in zr])) for m in METRICS}}
         for z in ZONES
-        if (zr := in_zone(rows, z))
+        if (zr := in_zone(head, z))
     }
     return out
 
@@ -82,7 +116,12 @@ def per_image(rows: list[dict], metric: str) -> dict[str, float]:
 
 
 def paired(a_rows: list[dict], b_rows: list[dict], n_boot: int = 2000, seed: int = 0) -> dict:
-    """Mean of b - a per image and its 95 % bootstrap interval, for every metric."""
+    """Mean of b - a per image and its 95 % bootstrap interval, for every metric, over the
+    headline samples (``headline``: the frame positions where evaluated)."""
+    a_rows, b_rows = headline(a_rows), headline(b_rows)
+    where = [sorted((r["image"], r.get("position", "")) for r in rows) for rows in (a_rows, b_rows)]
+    if where[0] != where[1]:
+        raise InputError("paired comparison needs the same held-out images on both sides, at the same positions")
     out = {}
     rng = np.random.default_rng(seed)
     images = sorted(per_image(a_rows, METRICS[0]))
@@ -104,5 +143,14 @@ def paired(a_rows: list[dict], b_rows: list[dict], n_boot: int = 2000, seed: int
 
 
 def paired_by_zone(a_rows: list[dict], b_rows: list[dict], n_boot: int = 2000, seed: int = 0) -> dict:
-    """``paired`` restricted to each zone's samples (the same samples on both sides)."""
+    """``paired`` restricted to each zone's headline samples (the same samples on both sides)."""
+    a_rows, b_rows = headline(a_rows), headline(b_rows)
     return {z: paired(in_zone(a_rows, z), in_zone(b_rows, z), n_boot, seed) for z in ZONES if in_zone(a_rows, z)}
+
+
+def paired_by_position(a_rows: list[dict], b_rows: list[dict], n_boot: int = 2000, seed: int = 0) -> dict:
+    """``paired`` over each evaluated position's samples alone ("frame": each image's frame
+    samples averaged; "centre", "corner": one sample per image), from the same rows."""
+    present = {r["position"] for r in a_rows}
+    order = [p for p in POSITION_ORDER if p in present] + sorted(present - set(POSITION_ORDER))
+    return {p: paired(at_position(a_rows, p), at_position(b_rows, p), n_boot, seed) for p in order}

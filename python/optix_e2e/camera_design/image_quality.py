@@ -4,7 +4,8 @@ hyperparameters through its proxy), the loss L1 + w LPIPS against the ideal rend
 model in the loop checked against the engine (``--optics``: surrogate, exact, hybrid, auto), and
 the held-out evaluation: PSNR, SSIM, LPIPS, HaarPSI per image and position, both cameras under
 each lens's exact PSFs (and, for reference, the surrogate's), the nominal camera's processing
-behind a perfect lens, and paired bootstrap intervals (evaluate.py)."""
+behind a perfect lens, and paired bootstrap intervals (evaluate.py): the headline over the frame
+positions, the centre and the corner each apart (``paired_by_position``)."""
 
 from __future__ import annotations
 
@@ -101,6 +102,7 @@ class ImageQualityHooks(TaskHooks):
             frame,
             positions=POSITIONS[c.eval_positions],
         )
+        samples_key = eval_cache.samples_digest(samples)  # once per evaluation
         rows: dict[str, dict[str, list]] = {}
         reused_s = 0.0
         for who in WHO:
@@ -110,7 +112,7 @@ class ImageQualityHooks(TaskHooks):
                 fo = FixedOptics(psf, vig, fh, patch=c.patch, full_field_px=frame.full_field_px)
                 rows[who][kind], s = _evaluate_cached(
                     out / f"eval_{who}_{kind}.json",
-                    _camera_key(psf, vig, fh, cams[who].isp, len(samples)),
+                    _camera_key(psf, vig, fh, cams[who].isp, cams[who].sensor, samples, samples_key),
                     Camera(fo, cams[who].sensor, cams[who].isp),
                     samples,
                     f"eval {who} ({kind} optics)",
@@ -126,7 +128,9 @@ class ImageQualityHooks(TaskHooks):
             torch.ones(1),
             torch.zeros(1),
             cams["nominal"].isp,
-            len(samples),
+            cams["nominal"].sensor,
+            samples,
+            samples_key,
             "perfect-optics",
         )
         po = PerfectOptics(size, full_field_px=frame.full_field_px)
@@ -170,6 +174,9 @@ class ImageQualityHooks(TaskHooks):
     def summarize(self, evaluation, cams, reports, f_numbers):
         rows, c = evaluation["rows"], self.cfg
         a, b = rows["nominal"], rows["end_to_end"]
+        # each position paired apart, from the same rows; the headline (``paired``) is the frame's
+        by_position = ev.paired_by_position(a["exact"], b["exact"], c.bootstrap, c.seed)
+        head = ev.headline_position(a["exact"])
         return {
             **{
                 who: {**ev.summarize(rows[who]["exact"]), "surrogate": ev.summarize(rows[who]["surrogate"])}
@@ -177,18 +184,30 @@ class ImageQualityHooks(TaskHooks):
             },
             # the nominal camera's processing behind a perfect lens (PerfectOptics): the lens's room
             "perfect_lens": ev.summarize(evaluation["perfect"]),
-            "paired": ev.paired(a["exact"], b["exact"], c.bootstrap, c.seed),
+            "headline_position": head,
+            "headline_position_why": (
+                ev.HEADLINE_WHY
+                if head == ev.HEADLINE_POSITION
+                else f"eval_positions = {c.eval_positions} has no frame positions: the headline pairs all its samples"
+            ),
+            "paired": by_position[head]
+            if head in by_position
+            else ev.paired(a["exact"], b["exact"], c.bootstrap, c.seed),
+            "paired_by_position": by_position,
             "paired_by_zone": ev.paired_by_zone(a["exact"], b["exact"], c.bootstrap, c.seed),
             "paired_surrogate_optics": ev.paired(a["surrogate"], b["surrogate"], c.bootstrap, c.seed),
         }
 
     def held_out(self, evaluation):
         samples, c = evaluation["samples"], self.cfg
+        per_position = {p: POSITIONS[c.eval_positions].count(p) for p in dict.fromkeys(POSITIONS[c.eval_positions])}
         return {
             "n_images": len({s.name for s in samples}),
             "n_samples": len(samples),
             "positions": c.eval_positions,
             "per_image": len(POSITIONS[c.eval_positions]),
+            "per_image_by_position": per_position,
+            "headline_position": ev.HEADLINE_POSITION if ev.HEADLINE_POSITION in per_position else "all",
             "size_px": c.eval_size,
         }
 
@@ -218,10 +237,14 @@ class ImageQualityHooks(TaskHooks):
 
     @staticmethod
     def summary_lines(res):
-        n, e, p = res["nominal"], res["end_to_end"], res["paired"]
-        lines = [
-            f"held-out ({res['held_out']['n_images']} images x {res['held_out']['per_image']} positions), exact optics:"
-        ]
+        n, e, p, h = res["nominal"], res["end_to_end"], res["paired"], res["held_out"]
+        head = res.get("headline_position", "all")
+        where = (
+            f"{h['per_image_by_position'][head]} {head} positions per image"
+            if head in h.get("per_image_by_position", {})
+            else f"{h['per_image']} positions per image"
+        )
+        lines = [f"held-out ({h['n_images']} images; headline: {where}), exact optics:"]
         for m, label in (("psnr_db", "PSNR dB"), ("ssim", "SSIM"), ("lpips", "LPIPS"), ("haarpsi", "HaarPSI")):
             lo, hi = p[m]["ci95"]
             lines.append(
@@ -229,6 +252,13 @@ class ImageQualityHooks(TaskHooks):
                 f"[{lo:+.4f}, {hi:+.4f}]   perfect lens {res['perfect_lens'][m]:.4f}"
             )
         lines.append("  (perfect lens: the nominal camera's processing, the scene unblurred and unshaded)")
+        for pos, pp in res.get("paired_by_position", {}).items():
+            if pos != head:
+                lo, hi = pp["psnr_db"]["ci95"]
+                lines.append(
+                    f"  {pos:8s} PSNR dB nominal {n['by_position'][pos]['psnr_db']:.4f}   end-to-end "
+                    f"{e['by_position'][pos]['psnr_db']:.4f}   diff {pp['psnr_db']['mean']:+.4f} [{lo:+.4f}, {hi:+.4f}]"
+                )
         om = res["optics_model"]
         lines.append(
             f"optics model {om['mode']} ({om['choice']['why']}); PSF rel. L1 at the final design, worst field: "
@@ -239,10 +269,17 @@ class ImageQualityHooks(TaskHooks):
         return lines
 
 
-def _camera_key(psf, vig, fh, isp, n_samples: int, tag: str = "") -> str:
-    """What a held-out evaluation depends on besides the run's settings: the camera's PSFs,
-    vignetting, field heights and processing weights, and the number of samples."""
-    return eval_cache.digest(f"samples={n_samples}{tag}", (psf, vig, fh, *isp.state_dict().values()))
+def _camera_key(psf, vig, fh, isp, sensor, samples, samples_key: str, tag: str = "") -> str:
+    """What a held-out evaluation depends on besides the run's settings (eval_cache): the
+    camera's PSFs, vignetting, field heights, processing weights and sensor, the held-out
+    samples (``samples_key``: eval_cache.samples_digest of ``samples``, computed once per
+    evaluation) and the code."""
+    return eval_cache.evaluation_key(
+        f"samples={len(samples)}{tag}",
+        samples=samples_key,
+        sensor=eval_cache.sensor_digest(sensor),
+        tensors=(psf, vig, fh, *isp.state_dict().values()),
+    )
 
 
 def _rows_ok(rows) -> bool:

@@ -8,7 +8,8 @@ the same skeleton for every task (the task's part is a plugin: task_hooks.py).
    * ``end_to_end``: lens (surrogate or exact optics) and processing (and the task's network)
      together, by Alg. 1 or vanilla Adam, the manufacturability guard after each lens step;
    * ``nominal``: the lens fixed at the nominal design, the processing fine-tuned with the same
-     task loss (the paper's fair comparison).
+     task loss (the paper's fair comparison), each processing block updated as many times as
+     in the end-to-end run (build.make_optimizer).
 3. Compute both lenses' exact PSFs with the engine and evaluate both cameras on held-out data
    under them (and, for reference, under the surrogate's); evaluations are cached (eval_cache.py).
 4. Write the outputs: both lenses (.zmx, .json, reports, PSF grids), panels, history.csv,
@@ -30,7 +31,7 @@ from ..lens_design.report import write_report
 from ..surrogate.ground_truth import exact_optics
 from . import outputs
 from .build import design_field_heights, make_optimizer, start_run
-from .config import DesignConfig, check_run_dir
+from .config import DesignConfig, check_run_dir, run_dir_settings
 from .detection import DetectionHooks
 from .image_quality import ImageQualityHooks
 from .task_hooks import TaskHooks
@@ -73,6 +74,14 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     training batch (optix_e2e.parallel); rank 0 alone evaluates and writes, and the other
     ranks return None once the trainings are done."""
     ranks = parallel.setup("cpu")  # the design trainings run on the CPU: gloo
+    kept = run_dir_settings(Path(out), cfg)  # an old run keeps a former default (config.FORMER_DEFAULTS)
+    if kept != cfg and ranks.is_main:
+        log(
+            "this run was made with "
+            + ", ".join(f"{k} = {getattr(kept, k)!r}" for k in kept.to_json() if getattr(kept, k) != getattr(cfg, k))
+            + " (the default then); it keeps it"
+        )
+    cfg = kept
     out, task, frame, sur = start_run(cfg, out)
     hooks = hooks_for(cfg)
     # everything the run needs is checked before the run directory is claimed
@@ -99,12 +108,16 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         with torch.no_grad():
             psf_ns, vig_ns = sur.psfs(nominal_values, check=False)
         fixed = hooks.nominal_optics(camera, sur, nominal_values, (psf_ns, vig_ns), frame)
-        log(f"[2/4] nominal lens + processing fine-tuned, the same {cfg.total_steps} steps")
         nominal = hooks.build_camera(sur, frame, fixed_optics=fixed)
+        nom_opt = make_optimizer(cfg, nominal, "nominal")
+        updates = ", ".join(f"{k} {v}" for k, v in nom_opt.scheduled_updates().items())
+        log(
+            f"[2/4] nominal lens + processing fine-tuned, the end-to-end run's updates per processing block ({updates})"
+        )
         nom = train(
             cfg,
             nominal,
-            make_optimizer(cfg, nominal, "nominal"),
+            nom_opt,
             out,
             "nominal",
             loss_at=hooks.loss_at(nominal, frame, ranks),
@@ -184,7 +197,16 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         "training": {
             k: {
                 kk: v[kk]
-                for kk in ("steps", "wall_s", "final_loss", "lens_steps", "cut_steps", "guard", "barrier_steps")
+                for kk in (
+                    "steps",
+                    "updates",
+                    "wall_s",
+                    "final_loss",
+                    "lens_steps",
+                    "cut_steps",
+                    "guard",
+                    "barrier_steps",
+                )
             }
             for k, v in (("end_to_end", e2e), ("nominal", nom))
         },

@@ -52,6 +52,7 @@ def _load_state(path: Path, camera: Camera, opt, monitor=None) -> tuple[float, l
     if not isinstance(st, dict) or st.get("format") != "optix-design-state/1":
         raise InputError(f"{path}: not a design checkpoint (format optix-design-state/1)")
     try:
+        _check_schedule(path, st, opt)
         camera.load_state_dict(st["camera"])
         opt.load_state_dict(st["optimizer"])
         wall_s, history = float(st["wall_s"]), list(st["history"])
@@ -61,14 +62,46 @@ def _load_state(path: Path, camera: Camera, opt, monitor=None) -> tuple[float, l
             raise InputError(f"wall_s {wall_s}")
         if monitor is not None and st.get("monitor") is not None:
             monitor.load_state_dict(st["monitor"])
-    except OpticsModeMismatch:
-        raise  # its own message: the run's optics model differs, the checkpoint is fine
+    except (OpticsModeMismatch, OtherSchedule):
+        raise  # its own message: the run's optics model or schedule differs, the checkpoint is fine
     except DAMAGED_STATE_ERRORS as err:
         raise InputError(
             f"{path}: damaged design checkpoint ({type(err).__name__}: {' '.join(str(err).split())}); "
             f"remove it to restart that training"
         ) from None
     return wall_s, history
+
+
+class OtherSchedule(InputError):
+    """A checkpoint whose steps updated other blocks than this run's schedule would have."""
+
+
+def _check_schedule(path: Path, st: dict, opt) -> None:
+    """The checkpoint's steps were taken under this run's schedule: each recorded step updated
+    the block this optimizer's schedule updates at that step, and there are no more of them
+    than the schedule has. A checkpoint of another schedule (the nominal baseline's before it
+    got the end-to-end camera's updates per block, 2026-11-27, issue 34) is refused with an
+    error saying so, never resumed on a schedule it was not made with."""
+    ost, history = st.get("optimizer"), st.get("history")
+    t = ost.get("t") if isinstance(ost, dict) else None
+    if not (isinstance(t, int) and isinstance(history, list) and len(history) == t):
+        return  # damaged: _load_state says so
+    done = [h.get("block") if isinstance(h, dict) else None for h in history]
+    want = [opt.block_at(i) for i in range(min(t, opt.total_steps))]
+    first = next((i for i, (d, w) in enumerate(zip(done, want)) if d != w), None)
+    what = None
+    if ost.get("kind") != opt.kind:
+        what = f"by the {ost.get('kind')!r} optimizer, this run's is {opt.kind!r}"
+    elif first is not None:
+        what = f"step {first + 1} updated {done[first]!r} where this run's schedule updates {want[first]!r}"
+    elif t > opt.total_steps:
+        what = f"it is at step {t}, this run's schedule has {opt.total_steps}"
+    if what is not None:
+        raise OtherSchedule(
+            f"{path}: made under another schedule ({what}; the nominal baseline gets as many updates per "
+            f"processing block as the end-to-end camera since 2026-11-27); remove it to train that camera "
+            f"again, or use another --out"
+        )
 
 
 def noise_generator(seed: int, t: int, ranks: parallel.Ranks = parallel.Ranks()) -> torch.Generator:
@@ -200,6 +233,8 @@ def train(
         "lens_steps": int(sum(h.get("block") in ("optics", "all") for h in history)) if optics is not None else 0,
         "guard": cfg.guard if guard is not None else None,
         "barrier_steps": int(sum(bool(h.get("barrier")) for h in history)),
+        # the updates each block received (its Adam's step count, across resumes)
+        "updates": opt.updates(),
         "history": history,
     }
 

@@ -63,8 +63,9 @@ from ._common import SEED, THREADS, dumps, friendly_errors
 @friendly_errors
 def design(task, out, config_file, optimizer, budget, seed, surrogate, images, optics, threads, quiet):
     """Optimize lens and processing together for TASK, against the nominal lens with its
-    processing fine-tuned for the same budget, and evaluate both under the exact engine's PSFs
-    on held-out images. Running the same command again resumes an interrupted run.
+    processing fine-tuned with as many updates per block, and evaluate both under the exact
+    engine's PSFs on held-out images (the frame's positions the headline; centre, corner
+    apart). Running the same command again resumes an interrupted run.
     detection: lens (with its f-number), hardware ISP and detector, scored by mAP on held-out
     street scenes at dusk (docs/detection.md).
     `torchrun --nproc_per_node N -m optix_e2e design ...` shares each training batch over N

@@ -12,10 +12,11 @@ A sample is an sRGB scene crop, where it lies on the sensor, and how it is lit:
   function of (seed, step) alone, so a resumed run sees the batches it would have seen.
 * Evaluation (``heldout_set``): every bundled photo plus procedural scenes from seeds training
   never draws, fixed brightness and neutral light, each at fixed positions on the sensor:
-  "frame" (the default of a design run) is four positions per image drawn uniformly over the
-  frame, one per quadrant (stratified), so the mean is the frame's average image quality as
-  training's uniform crop positions weigh it; "centre" and "corner" are the two extremes (the
-  image panels show them). The sensor-noise seed is fixed per sample, so every method and
+  "frame" is four positions per image drawn uniformly over the frame, one per quadrant
+  (stratified), so the mean is the frame's average image quality as training's uniform crop
+  positions weigh it; "centre" and "corner" are the two extremes (the image panels show them).
+  A design run evaluates all three (``POSITIONS``), the frame its headline
+  (camera_design/evaluate.py). The sensor-noise seed is fixed per sample, so every method and
   optics sees the same noise (paired comparisons).
 
 Crops carry a margin of ``margin`` pixels on each side (the PSF half-width): light from just
@@ -35,7 +36,14 @@ from ..errors import InputError
 
 HELDOUT_SEED0 = 2_000_000_000  # procedural held-out scenes use seeds from here; training streams are [1, seed, step]
 HELDOUT_NOISE0 = 1 << 60  # held-out noise seeds (training noise: SeedSequence([4, seed, step]))
-POSITIONS = {"frame": ("frame",) * 4, "centre-corner": ("centre", "corner")}  # a design run's eval_positions
+#: a design run's eval_positions: the held-out positions of each image. "frame+centre+corner" (the
+#: default since 2026-11-27, issue 34) puts the frame's four first, so its frame samples (positions
+#: and noise seeds) are exactly those of "frame"; "frame" and "centre-corner" stay valid (old runs)
+POSITIONS = {
+    "frame+centre+corner": ("frame",) * 4 + ("centre", "corner"),
+    "frame": ("frame",) * 4,
+    "centre-corner": ("centre", "corner"),
+}
 
 
 @dataclass(frozen=True)
