@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 
 from optix_e2e.lens import Lens
-from optix_e2e.lens_design.space import ASPHERE_KINDS, Parameter, ParameterSpace, load_space
+from optix_e2e.lens_design.space import ASPHERE_KINDS, load_space
 
 
 def rule(p, v: float, lens: dict) -> tuple[float, float] | None:
@@ -51,22 +51,13 @@ def main() -> None:
     space, old = load_space(a.space)
     new = Lens.load(a.new_lens)
     v0, v1 = space.values(old.data), space.values(new.data)
-    params = []
+    ranges = []
     for p, a0, a1 in zip(space.params, v0, v1):
         lo, hi = rule(p, a1, new.data) or (a1 + p.min - a0, a1 + p.max - a0)
-        lo, hi = a1 - a.scale * (a1 - lo), a1 + a.scale * (hi - a1)
-        lo, hi = float(f"{lo:.6g}"), float(f"{hi:.6g}")
-        params.append(Parameter(p.name, p.kind, p.surface, min(lo, hi), max(lo, hi), p.unit))
-    out = ParameterSpace(
-        params,
-        source=a.out,
-        lens_ref=a.lens_ref or space.lens_ref,
-        description=space.description,
-        notes=space.notes,
-        constraints=space.constraints,
-    )
+        ranges.append((a1 - a.scale * (a1 - lo), a1 + a.scale * (hi - a1)))
+    out = space.with_ranges(ranges, source=a.out, lens_ref=a.lens_ref)
     out.save_toml(a.out)
-    for p, x in zip(params, v1):
+    for p, x in zip(out.params, v1):
         print(f"{p.name:>12}  {p.min:+.6g} .. {p.max:+.6g}  (nominal {x:+.6g})")
 
 

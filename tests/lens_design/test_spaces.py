@@ -4,15 +4,20 @@ and the aperture kinds."""
 from __future__ import annotations
 
 import pytest
+from pathlib import Path
 
 from optix_e2e.lens import Lens, bundled_lenses
 from optix_e2e.lens_design.space import ParameterSpace, SpaceError, bundled_spaces, load_space, parameter_from_name
 
 
 def test_every_bundled_lens_ships_a_space_containing_it():
-    # one space per lens, named after it; other spaces (paper-triplet-e2e, -detect) are around a bundled lens
+    # one space per lens, named after it; other spaces (paper-triplet-e2e, -detect, -wide) are around a bundled lens
     assert set(bundled_lenses()) <= set(bundled_spaces())
-    assert set(bundled_spaces()) - set(bundled_lenses()) == {"paper-triplet-e2e", "paper-triplet-detect"}
+    assert set(bundled_spaces()) - set(bundled_lenses()) == {
+        "paper-triplet-e2e",
+        "paper-triplet-detect",
+        "paper-triplet-wide",
+    }
     for name in bundled_spaces():
         space, lens = load_space(name)
         assert lens.name == (name if name in bundled_lenses() else "paper-triplet")
@@ -103,3 +108,41 @@ def test_aperture_kinds():
     fno = ParameterSpace([parameter_from_name("f_number", Lens.load("paper-triplet").data)])
     faster = Lens(fno.apply(Lens.load("paper-triplet").data, [3.2]))
     assert faster.paraxial()["f_number"] == pytest.approx(3.2, rel=1e-9)
+
+
+def test_wide_space_has_table_1s_relative_widths_and_is_what_its_script_makes(tmp_path):
+    import subprocess
+    import sys
+
+    space, lens = load_space("paper-triplet-wide")
+    e2e, _ = load_space("paper-triplet-e2e")
+    assert space.names == e2e.names and space.constraints == e2e.constraints
+    v = dict(zip(space.names, space.values(lens.data)))
+    p = {q.name: q for q in space.params}
+    # Table 1: s_1_radius 9.85 .. 14.98 mm is +-20.7 % of its mid-range value
+    for name, rel in (("s_1_radius", 2.565 / 12.415), ("s_2_radius", 2.685 / 12.135), ("s_7_radius", 1.775 / 13.275)):
+        half = (p[name].max - p[name].min) / 2
+        assert half / abs(v[name]) == pytest.approx(rel, rel=1e-4)
+    assert (p["s_1_conic"].max - p["s_1_conic"].min) / 2 == pytest.approx(0.39, rel=1e-4)
+    assert p["l_12"].max - v["l_12"] == pytest.approx(v["l_12"] * 2.765 / 7.345, rel=1e-4)
+    assert p["l_2STO"].min == 0.0  # +-80 % of max(0.14 mm, 1 mm), floored at 0
+    for q, e in zip(space.params, e2e.params):  # every range at least as wide as the end-to-end space's
+        assert q.min <= e.min and q.max >= e.max, q.name
+    out = tmp_path / "wide.toml"
+    subprocess.run(
+        [sys.executable, "scripts/paper_width_space.py", "--out", str(out)],
+        check=True,
+        capture_output=True,
+        cwd=Path(__file__).resolve().parents[2],
+    )
+    assert ParameterSpace.load(out).params == space.params
+
+
+def test_with_ranges_keeps_everything_but_the_ranges():
+    space, _ = load_space("paper-triplet-e2e")
+    wide = space.with_ranges([(p.min - 1, p.max + 1.23456789) for p in space.params], source="x.toml")
+    assert wide.names == space.names and wide.notes == space.notes and wide.constraints == space.constraints
+    assert wide.lens_ref == space.lens_ref and wide.source == "x.toml"
+    assert wide.params[0].max == float(f"{space.params[0].max + 1.23456789:.6g}")
+    with pytest.raises(SpaceError, match="2 ranges for 19 parameters"):
+        space.with_ranges([(0, 1), (0, 1)], source="x.toml")

@@ -73,6 +73,7 @@ def sample(space_spec, n, seed, method, out_path, apertures, min_air_gap, min_ce
         )
     finally:
         bar.close()
+    Path(out_path).parent.mkdir(parents=True, exist_ok=True)  # like the other commands' --out
     write_designs_csv(out_path, space.names, res.values)
     summary = {"out": str(out_path), "lens": base.name, **res.summary()}
     Path(out_path).with_suffix(".summary.json").write_text(dumps(summary, indent=2) + "\n", encoding="utf-8")

@@ -227,6 +227,31 @@ class ParameterSpace:
                 + ", ".join(f"surface {s} {k}" for s, k in clash)
             )
 
+    def with_ranges(
+        self,
+        ranges: Sequence[tuple[float, float]],
+        source: str,
+        lens_ref: str | None = None,
+        description: str | None = None,
+    ) -> "ParameterSpace":
+        """The same parameters, notes and limits over new (min, max) ranges, each end rounded
+        to 6 significant digits (what a space file keeps): how the space scripts make a space
+        from another (scripts/recentre_space.py, scripts/paper_width_space.py)."""
+        if len(ranges) != len(self.params):
+            raise SpaceError(f"{source}: {len(ranges)} ranges for {len(self.params)} parameters")
+        params = []
+        for p, (lo, hi) in zip(self.params, ranges):
+            lo, hi = float(f"{lo:.6g}"), float(f"{hi:.6g}")
+            params.append(Parameter(p.name, p.kind, p.surface, min(lo, hi), max(lo, hi), p.unit))
+        return ParameterSpace(
+            params,
+            source=source,
+            lens_ref=lens_ref or self.lens_ref,
+            description=description or self.description,
+            notes=self.notes,
+            constraints=self.constraints,
+        )
+
     # ----- construction ---------------------------------------------------------------
     @classmethod
     def from_names(
