@@ -195,3 +195,74 @@ def test_bad_optics_settings_are_named():
         make_config("smoke", hybrid_threshold=0.0)
     with pytest.raises(ValueError, match="fields must be 0"):
         make_config("smoke", fields=1)
+
+
+def test_a_wider_space_moves_every_bound_and_needs_exact_optics(sur):
+    """`space = "paper-triplet-wide"`: the surrogate's copy on the wide space's terms gives the
+    optics, the engine and the guard the wide ranges; the network is not asked to refuse them
+    (it extrapolates, so the run must use exact optics); the surrogate itself is unchanged."""
+    from optix_e2e.lens_design.space import load_space
+    from optix_e2e.optics.exact import ExactOptics
+
+    with pytest.raises(ValueError, match=r"space 'paper-triplet-wide' is not the surrogate's.*optics = \"exact\""):
+        make_config("smoke", space="paper-triplet-wide")
+    assert make_config("smoke", space="paper-triplet-wide", optics="exact").space == "paper-triplet-wide"
+    wide, base = load_space("paper-triplet-wide")
+    w = sur.in_space(wide, base, source="paper-triplet-wide")
+    lo = torch.tensor([p.min for p in wide.params], dtype=torch.float64)
+    hi = torch.tensor([p.max for p in wide.params], dtype=torch.float64)
+    assert torch.equal(w.param_min, lo) and torch.equal(w.param_max, hi)
+    assert not torch.equal(sur.param_min, lo) and sur.out_of_range == "error"  # the original keeps its own
+    assert w.manifest["trained_space"] == sur.manifest["space"]
+    assert [p["min"] for p in w.manifest["space"]["parameters"]] == lo.tolist()
+    optics = DifferentiableOptics(w)
+    assert torch.allclose(optics.lo.double(), lo.float().double()) and torch.allclose(optics.hi, hi.float())
+    ex = ExactOptics.from_surrogate(w)
+    assert np.array_equal(ex._range()[0], lo.numpy()) and np.array_equal(ex.lo, lo.numpy())
+    v = optics.base_values().clone()
+    v[0] = float(wide.params[0].max) * 0.999  # s_1_radius far outside the trained range
+    optics.set_values(v)
+    assert abs(float(optics.values().detach()[0]) - float(v[0])) < 1e-3 * float(v[0])
+    with pytest.raises(ValueError, match="outside its training range"):
+        sur.check_params(optics.values().detach()[None])
+    assert w.check_params(optics.values().detach()[None]) != []  # reported, not refused
+    detect, detect_base = load_space("paper-triplet-detect")
+    with pytest.raises(ValueError, match="its parameters .* are not the surrogate's"):
+        sur.in_space(detect, detect_base)
+    cooke, cooke_base = load_space("cooke-f50")
+    with pytest.raises(ValueError, match="not the surrogate's"):
+        sur.in_space(cooke, cooke_base)
+
+
+@pytest.mark.slow
+def test_a_uniform_start_in_the_wide_space_is_manufacturable_and_renderable():
+    """The paper's random start (Sec. 5.2) in a space the surrogate was not trained on: drawn
+    uniformly, redrawn until manufacturable and until the run's exact optics can render it (its
+    PSFs inside the window on the engine's FFT), the draws counted; the same seed, the same start."""
+    from optix_e2e.camera_design import build
+    from optix_e2e.lens_design.constraints import Manufacturability, Limits
+    from optix_e2e.optics.exact import unrenderable
+
+    cfg = make_config("smoke", optics="exact", space="paper-triplet-wide", optics_init="uniform", seed=1)
+    _, _, frame, wide = build.start_run(cfg, "unused")
+    optics = DifferentiableOptics(wide)
+    build._STARTS.clear()
+    v = build.initial_optics_values(cfg, optics)
+    rec = build.start_record(cfg)
+    assert rec["draws"] == 1 + rec["not_manufacturable"] + rec["not_renderable"] and rec["not_renderable"] > 0
+    assert torch.all(v >= optics.lo) and torch.all(v <= optics.hi)
+    assert not torch.equal(v, optics.base_values())
+    assert unrenderable(wide.manifest, v.double().numpy()) is None
+    from optix_e2e.camera_design.outputs import design_lens
+
+    d = design_lens(wide.manifest, v.double().numpy(), float(wide.manifest["base_lens"]["surfaces"][-1]["thickness"]))
+    assert Manufacturability(Limits.from_dict(wide.manifest["sampling_summary"]["limits"])).problems(d) == []
+    build._STARTS.clear()
+    assert torch.equal(build.initial_optics_values(cfg, optics), v)
+    # the nominal renders; the draws refused before it did not, each for a named reason
+    assert unrenderable(wide.manifest, optics.base_values().double().numpy()) is None
+    corner = (optics.lo + 0.97 * (optics.hi - optics.lo)).double().numpy()
+    assert unrenderable(wide.manifest, corner).startswith("not a lens (")  # surfaces 1 and 2 cross
+    far = optics.base_values().double().numpy()
+    far[0] = float(optics.hi[0]) * 0.995  # s_1_radius +21 %: far out of focus balance
+    assert "RMS spot" in unrenderable(wide.manifest, far)

@@ -27,6 +27,7 @@ from ..errors import InputError
 from ..isp import params as hp
 from ..isp.proxy import ISPProxy
 from ..isp.software import SoftwareISP
+from ..lens_design.space import load_space
 from ..optics import DifferentiableOptics
 from ..surrogate.checkpoint import OpticsSurrogate
 from ..tasks import SensorFrame, get_task
@@ -56,19 +57,60 @@ def base_lens_f_number(sur: OpticsSurrogate) -> float:
     return float(base.paraxial()["f_number"])
 
 
+_STARTS: dict = {}  # (surrogate, space, seed) -> (values, record): the draw is made once per process
+
+
 def initial_optics_values(cfg: DesignConfig, optics: DifferentiableOptics) -> torch.Tensor:
     """The nominal design, or a uniform draw inside the space's ranges (seeded), redrawn until
-    it is manufacturable (as the dataset's designs are)."""
+    it is manufacturable (as the dataset's designs are) and, in a space the surrogate was not
+    trained on (``space``), until the run's exact optics can render it (optics.exact.unrenderable:
+    its PSFs inside the window, on the engine's FFT). ``start_record`` says how many draws it took."""
     if cfg.optics_init == "nominal":
         return optics.base_values()
+    key = (cfg.surrogate, cfg.space, int(cfg.seed))
+    if key in _STARTS:
+        return _STARTS[key][0].clone()
+    from ..optics.exact import unrenderable
+
     rng = np.random.default_rng([3, int(cfg.seed)])  # stream tag 3: optics init (1: batches, 2: ISP init)
-    guard = Manufacturable(optics.surrogate.manifest) if optics.surrogate.manifest else None
-    for _ in range(1000):
+    man = optics.surrogate.manifest
+    guard = Manufacturable(man) if man else None
+    counts = {"draws": 0, "not_manufacturable": 0, "not_renderable": 0}
+    last = ""
+    for _ in range(MAX_START_DRAWS):
+        counts["draws"] += 1
         u = torch.as_tensor(rng.random(len(optics.lo)), dtype=torch.float32)
         v = optics.lo + (optics.hi - optics.lo) * (0.02 + 0.96 * u)
-        if guard is None or not guard.problems(v.numpy()):
-            return v
-    raise InputError("no manufacturable design in 1000 uniform draws of the space")
+        if guard is not None and guard.problems(v.numpy()):
+            counts["not_manufacturable"] += 1
+            continue
+        if cfg.space and (last := unrenderable(man, v.double().numpy())):
+            counts["not_renderable"] += 1
+            continue
+        _STARTS[key] = (v, counts)
+        return v.clone()
+    raise InputError(
+        f"no uniform start in {MAX_START_DRAWS} draws of the space that is manufacturable"
+        + (f" and renderable (the last refused: {last})" if cfg.space else "")
+        + f"; seed {cfg.seed}: {counts}"
+    )
+
+
+MAX_START_DRAWS = 20000
+
+
+def start_record(cfg: DesignConfig) -> dict:
+    """How the lens's start was drawn (results.json): the nominal, or the uniform draw's counts."""
+    if cfg.optics_init == "nominal":
+        return {"init": "nominal"}
+    rec = _STARTS.get((cfg.surrogate, cfg.space, int(cfg.seed)))
+    return {
+        "init": "uniform",
+        "seed": cfg.seed,
+        "condition": "manufacturable" + (" and renderable by the run's exact optics" if cfg.space else ""),
+        **(rec[1] if rec else {}),
+        **({"values": [float(x) for x in rec[0]]} if rec else {}),
+    }
 
 
 def design_field_heights(sur: OpticsSurrogate, values, image_distance: float) -> torch.Tensor:
@@ -163,9 +205,8 @@ def start_run(cfg: DesignConfig, out: "str | Path") -> tuple[Path, object, Senso
     """What every design run starts from: its folder, task, sensor frame and surrogate (checked
     to render at the sensor's pitch), with the torch threads set."""
     parallel.set_threads(cfg.threads)
-    return (
-        Path(out),
-        get_task(cfg.task),
-        SensorFrame(),
-        load_surrogate(cfg.surrogate, calibrated_preset("imx249").pixel_um),
-    )
+    sur = load_surrogate(cfg.surrogate, calibrated_preset("imx249").pixel_um)
+    if cfg.space:
+        space, base = load_space(cfg.space)
+        sur = sur.in_space(space, base, source=cfg.space)
+    return Path(out), get_task(cfg.task), SensorFrame(), sur

@@ -87,6 +87,9 @@ class DesignConfig:
     budget: str = "quick"
     seed: int = 0
     surrogate: str = "paper-triplet-e2e"  # bundled name, checkpoint or run directory
+    # the space the lens moves in ("": the surrogate's; else a bundled space's name or a TOML
+    # file over the same parameters and base lens, e.g. paper-triplet-wide: needs optics "exact")
+    space: str = ""
     optics_init: str = "nominal"  # nominal | uniform (random in the space, from the seed)
     images: str = ""  # a folder of the user's images, mixed into training (half the crops)
     software_isp: str = ""  # the pre-trained software ISP to start from ("": the bundled one)
@@ -168,6 +171,11 @@ class DesignConfig:
             raise InputError(f"hybrid_threshold must be > 0, got {self.hybrid_threshold}")
         if self.fields < 0 or self.fields == 1:
             raise InputError(f"fields must be 0 (all) or at least 2, got {self.fields}")
+        if self.space and self.optics != "exact":
+            raise InputError(
+                f"space {self.space!r} is not the surrogate's: the lens moves where the network was not "
+                f'trained, so its optics must be the engine\'s (optics = "exact"), got optics = {self.optics!r}'
+            )
         if self.optics_init not in ("nominal", "uniform"):
             raise InputError(f"optics_init must be nominal or uniform, got {self.optics_init!r}")
         for k in (

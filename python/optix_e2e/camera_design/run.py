@@ -30,7 +30,7 @@ from ..lens import Lens
 from ..lens_design.report import write_report
 from ..surrogate.ground_truth import exact_optics
 from . import outputs
-from .build import design_field_heights, make_optimizer, start_run
+from .build import design_field_heights, make_optimizer, start_record, start_run
 from .config import DesignConfig, check_run_dir, run_dir_settings
 from .detection import DetectionHooks
 from .image_quality import ImageQualityHooks
@@ -211,6 +211,13 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
             for k, v in (("end_to_end", e2e), ("nominal", nom))
         },
         "surrogate": cfg.surrogate,
+        "start": start_record(cfg),
+        # the space the lens moved in: its ranges, and whether the network was trained on it
+        "space": {
+            "source": sur.manifest["space"].get("source"),
+            "surrogates_own": "trained_space" not in sur.manifest,
+            "ranges": {p["name"]: [p["min"], p["max"]] for p in sur.manifest["space"]["parameters"]},
+        },
         **hooks.extra(cams, monitor, e2e),
     }
     write_history(out / "history.csv", {"end_to_end": e2e["history"], "nominal": nom["history"]}, hooks.loss_parts)

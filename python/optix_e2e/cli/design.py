@@ -58,10 +58,27 @@ from ._common import SEED, THREADS, dumps, friendly_errors
     "gradients, the surrogate checked and refined along the way, or auto (from the measured "
     "speed/accuracy trade-off; docs/optics-in-the-loop.md).",
 )
+@click.option(
+    "--space",
+    default=None,
+    help="The space the lens moves in: a bundled space (e.g. paper-triplet-wide, the paper's Table 1 "
+    "widths) or a TOML file over the surrogate's parameters and base lens (default: the surrogate's). "
+    "Needs --optics exact.",
+)
+@click.option(
+    "--start",
+    "optics_init",
+    type=click.Choice(["nominal", "uniform"]),
+    default=None,
+    help="The lens's start: the nominal (default) or uniform at random in the space, drawn from --seed "
+    "until manufacturable (the paper's Sec. 5.2).",
+)
 @click.option("--threads", type=THREADS, default=None, help="torch CPU threads (0: default).")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @friendly_errors
-def design(task, out, config_file, optimizer, budget, seed, surrogate, images, optics, threads, quiet):
+def design(
+    task, out, config_file, optimizer, budget, seed, surrogate, images, optics, space, optics_init, threads, quiet
+):
     """Optimize lens and processing together for TASK, against the nominal lens with its
     processing fine-tuned with as many updates per block, and evaluate both under the exact
     engine's PSFs on held-out images (the frame's positions the headline; centre, corner
@@ -84,6 +101,8 @@ def design(task, out, config_file, optimizer, budget, seed, surrogate, images, o
         images=images,
         threads=threads,
         optics=optics,
+        space=space,
+        optics_init=optics_init,
     )
     try:
         res = run_design(cfg, Path(out), progress=not quiet, log=click.echo)

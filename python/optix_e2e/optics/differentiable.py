@@ -112,9 +112,24 @@ class DifferentiableOptics(nn.Module):
 
     @torch.no_grad()
     def set_values(self, values) -> None:
-        """Set the parameters (raw units); values outside the ranges are an error naming them."""
+        """Set the parameters (raw units); values outside the ranges (the surrogate's, or the
+        space it was put in: OpticsSurrogate.in_space) are an error naming them."""
+        from ..surrogate.checkpoint import SurrogateRangeError
+
         v = torch.as_tensor(values, dtype=torch.float32).reshape(-1)
-        self.surrogate.check_params(v, mode="error")
+        if v.numel() != self.lo.numel():
+            raise InputError(f"{v.numel()} lens values for {self.lo.numel()} parameters")
+        lo, hi = self.lo.double(), self.hi.double()
+        tol, vd = 1e-6 * (hi - lo), v.double()
+        bad = ~torch.isfinite(vd) | (vd < lo - tol) | (vd > hi + tol)
+        if bad.any():
+            raise SurrogateRangeError(
+                "lens values outside the ranges: "
+                + "; ".join(
+                    f"{self.names[j]} = {float(v[j]):.6g} outside [{float(lo[j]):.6g}, {float(hi[j]):.6g}]"
+                    for j in torch.nonzero(bad).flatten().tolist()
+                )
+            )
         t = ((v - self.lo) / (self.hi - self.lo)).clamp(self.eps, 1 - self.eps)
         self.u.copy_(torch.log(t) - torch.log1p(-t))
 

@@ -79,6 +79,42 @@ class StepChoice:
         )
 
 
+def unrenderable(manifest: dict, values, min_energy: float = 0.9) -> str | None:
+    """Why the design ``values`` [P] cannot be rendered on the manifest's terms cheaply (None
+    if it can): its refocused RMS spot (3 sigma) wider than half the PSF window at some field;
+    the engine's FFT refusing it (its fast path; the ``auto`` method would fall back to the
+    Huygens PSF, about a minute a design: a design run's Jacobian takes 2P + 1); or less than
+    ``min_energy`` of the flux inside the window at some field and channel."""
+    from ..dataset.manifest import refocused_designs, space_and_base
+    from ..lens import Lens
+    from ..lens_design.focus import refocus_many
+    from ..surrogate.ground_truth import exact_arrays
+
+    v = np.asarray(values, np.float64).reshape(1, -1)
+    _, base = space_and_base(manifest)
+    d = refocused_designs(manifest, v, [float(base.data["surfaces"][-1]["thickness"])])[0]
+    err = refocus_many([d], "best", base.fields_deg, base.wavelengths_nm, base.wavelength_weights)[0]
+    if err:
+        return f"the engine cannot refocus it ({err})"
+    half = 0.5 * float(manifest["settings"]["window_um"])
+    try:
+        lens = Lens(d)
+    except InputError as err:  # e.g. surfaces crossing in the beam (no manufacturable design does)
+        return f"not a lens ({err})"
+    for f in (0.0, float(max(manifest["fields_deg"]))):
+        rms = float(lens.spot(f)["rms_um"])
+        if not 3 * rms <= half:
+            return f"RMS spot {rms:.1f} um at {f:g} deg: 3 sigma exceeds half the {2 * half:g} um PSF window"
+    fast = {**manifest, "settings": {**manifest["settings"], "psf_method": "fft"}}
+    arrays, meta = exact_arrays(fast, v)
+    if meta["n_failed"]:
+        return f"the engine's FFT refuses it ({meta['failures'][0]['reason'][:160]})"
+    e = float(np.min(arrays["energy_in_window"]))
+    if e < min_energy:
+        return f"only {e:.2f} of the flux inside the PSF window at its worst field"
+    return None
+
+
 @dataclass
 class ExactOptics:
     """The engine on a surrogate's (or a dataset manifest's) terms: ``psfs(values)`` and

@@ -107,7 +107,7 @@ class OpticsSurrogate(nn.Module):
         if mode not in ("error", "warn", "ignore"):
             raise InputError(f"out_of_range must be error, warn or ignore, got {mode!r}")
         p = torch.as_tensor(params).detach().to("cpu", torch.float64).reshape(-1, self.cfg.n_params)
-        lo, hi = self.param_min.cpu(), self.param_max.cpu()
+        lo, hi = self.trained_min.cpu(), self.trained_max.cpu()
         tol = 1e-6 * (hi - lo)
         problems = []
         if not torch.isfinite(p).all():
@@ -123,6 +123,16 @@ class OpticsSurrogate(nn.Module):
         self._complain(problems, mode, "(the network would extrapolate)")
         return problems
 
+    @property
+    def trained_min(self) -> torch.Tensor:
+        """The lower ends of the ranges the network learned (``param_min`` unless put in
+        another space by :meth:`in_space`)."""
+        return self._trained[0] if getattr(self, "_trained", None) else self.param_min
+
+    @property
+    def trained_max(self) -> torch.Tensor:
+        return self._trained[1] if getattr(self, "_trained", None) else self.param_max
+
     @staticmethod
     def _complain(problems: list[str], mode: str, why: str) -> None:
         if problems and mode != "ignore":
@@ -130,6 +140,54 @@ class OpticsSurrogate(nn.Module):
             if mode == "error":
                 raise SurrogateRangeError(msg)
             warnings.warn(msg, stacklevel=4)
+
+    def in_space(self, space, base, source: str | None = None) -> "OpticsSurrogate":
+        """This surrogate on the terms of a wider (or other) ``space`` over the same parameters
+        and base lens: a copy whose manifest records that space (its ranges become the design
+        ranges every design tool reads: the optics' sigmoid bounds, the exact engine's, the
+        guard's and the final checks') and the space it was trained on as ``trained_space``.
+        Outside its training ranges the network extrapolates: the copy does not refuse them
+        (``out_of_range = "ignore"``; ``check_params`` still lists them, against ``trained_min``
+        and ``trained_max``): use it with exact optics (camera_design's ``space``).
+        ``base``: the space's base lens (a Lens or dict), which must be the surrogate's."""
+        import copy
+
+        from ..dataset.manifest import space_and_base
+
+        if not self.manifest:
+            raise InputError("the surrogate has no dataset manifest: it cannot be put in another space")
+        trained, own_base = space_and_base(self.manifest)
+        where = source or space.source
+        if space.names != trained.names:
+            raise InputError(
+                f"{where}: its parameters ({', '.join(space.names)}) are not the surrogate's "
+                f"({', '.join(trained.names)}), in the same order"
+            )
+        kinds = [(p.kind, p.surface) for p in space.params]
+        if kinds != [(p.kind, p.surface) for p in trained.params]:
+            raise InputError(f"{where}: its parameters change other surfaces than the surrogate's of the same names")
+        if space.constraints and "sampling_summary" in self.manifest:
+            limits = self.manifest["sampling_summary"].get("limits") or {}
+            other = {k: v for k, v in space.constraints.items() if k in limits and float(limits[k]) != float(v)}
+            if other:
+                raise InputError(
+                    f"{where}: its limits {other} are not those of the surrogate's dataset {limits}; "
+                    "the guard and the final checks use one set"
+                )
+        man = copy.deepcopy(self.manifest)
+        man["trained_space"] = man["space"]
+        man["space"] = {**man["space"], "source": where, "parameters": space.to_json()}
+        if (base.data if hasattr(base, "data") else base) != own_base.data:
+            raise InputError(f"{where}: its base lens is not the surrogate's ({own_base.name})")
+        out = copy.copy(self)
+        out._buffers = dict(self._buffers)
+        lo = torch.tensor([p.min for p in space.params], dtype=torch.float64)
+        hi = torch.tensor([p.max for p in space.params], dtype=torch.float64)
+        out._trained = (self.trained_min, self.trained_max)  # what check_params reports against
+        out.param_min, out.param_max = lo, hi
+        out.manifest = man
+        out.out_of_range = "ignore"
+        return out
 
     # -- outputs ------------------------------------------------------------------------
     def forward(self, params: torch.Tensor, field: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
