@@ -266,3 +266,29 @@ def test_a_uniform_start_in_the_wide_space_is_manufacturable_and_renderable():
     far = optics.base_values().double().numpy()
     far[0] = float(optics.hi[0]) * 0.995  # s_1_radius +21 %: far out of focus balance
     assert "RMS spot" in unrenderable(wide.manifest, far)
+
+
+def test_a_wider_space_refocuses_on_the_final_checks_sampling(sur):
+    """Away from the nominal the dataset's coarse best-focus sampling (7 fields, 4 rings) leaves
+    a design 9 um from the focus the final check finds (8 rings, all fields; the main job's lens
+    in paper-triplet-wide, 2026-11-27); in_space refocuses on the check's sampling."""
+    from optix_e2e.camera_design.outputs import design_lens, focus_check
+    from optix_e2e.lens_design.space import load_space
+    from optix_e2e.surrogate.ground_truth import exact_arrays
+
+    v = np.array(
+        [30.3106, -0.0641951, -22.2789, 7.24090, 0.150357, 5.88002, 90.3512, -0.313299, -7.84091, 7.70751e-06]
+        + [-3.26139e-05, -7.06284e-07, 3.61166e-09, -2.11469e-11, 3.06313e-04, -4.46908e-04, 1.07159e-05]
+        + [-4.67475e-07, 5.91281e-09]
+    )
+    wide = sur.in_space(*load_space("paper-triplet-wide"))
+    assert wide.manifest["settings"]["focus_fields"] == 13 and wide.manifest["settings"]["focus_rings"] == 8
+    coarse = {
+        **wide.manifest,
+        "settings": {k: x for k, x in wide.manifest["settings"].items() if k not in ("focus_fields", "focus_rings")},
+    }
+    shifts = []
+    for man in (coarse, wide.manifest):
+        z = float(exact_arrays(man, v[None])[0]["image_distance"][0])
+        shifts.append(focus_check(man, design_lens(man, v, z))["focus_shift_um"])
+    assert abs(shifts[0]) > 5.0 and abs(shifts[1]) < 0.5

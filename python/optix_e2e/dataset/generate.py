@@ -162,9 +162,11 @@ def compute_shard(
     legend: dict[str, int] = {}
     methods: dict[str, list[int]] = {}
     wavelengths = sorted({wl for c in channels for wl, _ in c})
-    # best focus from 7 of the K fields and a 4-ring polar pupil (96 rays per field and
-    # wavelength; within 1 um of 8 rings, against a depth of focus of +-20 um at f/4.4)
-    focus_fields = [fields[i] for i in np.unique(np.linspace(0, K - 1, min(K, 7)).round().astype(int))]
+    # best focus from 7 of the K fields and a 4-ring polar pupil by default (96 rays per field
+    # and wavelength; within 1 um of 8 rings near the nominal, against a depth of focus of
+    # +-20 um at f/4.4); settings focus_fields, focus_rings
+    nf = min(K, s.focus_fields)
+    focus_fields = [fields[i] for i in np.unique(np.linspace(0, K - 1, nf).round().astype(int))]
     # the geometry check at the clear apertures the dataset's sampler used: each design's own
     # (lens_design.constraints), or the base lens's for the datasets made before that rule
     base_sd = apertures(base) if man.get("sampling_summary", {}).get("apertures", "base-lens") == "base-lens" else None
@@ -200,7 +202,7 @@ def compute_shard(
             focus_fields,
             wavelengths,
             primary_nm=base.primary_wavelength_nm,
-            rings=4,
+            rings=s.focus_rings,
             aiming=s.aiming,
         )
         todo, jsons = [], []

@@ -31,7 +31,12 @@ def _request(
         "format": FORMAT,
         "n_designs": n,
         "seed": seed,
-        "settings": asdict(s),
+        # the best-focus sampling only where it is not the default (manifests before it have none)
+        "settings": {
+            k: v
+            for k, v in asdict(s).items()
+            if not (k in ("focus_fields", "focus_rings") and v == getattr(DatasetSettings, k))
+        },
         "fields_deg": fields,
         "channels": [[list(p) for p in c] for c in channels],
         "channel_names": ["R", "G", "B"] if len(channels) == 3 else [f"C{i}" for i in range(len(channels))],

@@ -177,6 +177,10 @@ class OpticsSurrogate(nn.Module):
         man = copy.deepcopy(self.manifest)
         man["trained_space"] = man["space"]
         man["space"] = {**man["space"], "source": where, "parameters": space.to_json()}
+        # away from the nominal the dataset's coarse best-focus sampling (7 fields, 4 rings) is
+        # off by up to 10 um: refocus every design on all the fields with 8 rings (the final
+        # focus check's sampling)
+        man["settings"] = {**man["settings"], "focus_fields": len(man["fields_deg"]), "focus_rings": 8}
         if (base.data if hasattr(base, "data") else base) != own_base.data:
             raise InputError(f"{where}: its base lens is not the surrogate's ({own_base.name})")
         out = copy.copy(self)
