@@ -89,3 +89,28 @@ def test_the_barrier_steers_where_projection_keeps_cutting(e2e):
     assert cut_project >= 8, cut_project  # leaning across the limit: nearly every step repaired
     assert cut_barrier <= 3, cut_barrier
     assert moved_barrier > 0.02  # and the lens still moves
+
+
+def test_old_run_folders_keep_the_projection(tmp_path):
+    """guard's default became "barrier" (2026-11-27): a run folder made under "project", or
+    before the setting existed (its config.json has no guard), resumes with the projection."""
+    import json
+
+    from optix_e2e.camera_design.config import check_run_dir, make_config, run_dir_settings
+
+    today = make_config("smoke")
+    assert today.guard == "barrier"
+    check_run_dir(tmp_path / "a", make_config("smoke", guard="project"))
+    older = tmp_path / "b"
+    check_run_dir(older, make_config("smoke", guard="project"))
+    cfg = json.loads((older / "config.json").read_text())
+    del cfg["guard"]
+    (older / "config.json").write_text(json.dumps(cfg))
+    for run in (tmp_path / "a", older):
+        kept = run_dir_settings(run, today)
+        assert kept.guard == "project"
+        check_run_dir(run, kept)  # accepted: it resumes as it was made
+        with pytest.raises(ValueError, match="guard"):
+            check_run_dir(run, today)
+    check_run_dir(tmp_path / "c", today)
+    assert run_dir_settings(tmp_path / "c", today).guard == "barrier"

@@ -128,7 +128,7 @@ class DesignConfig:
     # the lens's manufacturability limits at every step (camera_design/guard.py): project = the
     # step projected along the limits it leans across, then cut back; barrier = that, after a
     # log barrier on the margins within guard_band mm has steered the lens's gradient
-    guard: str = "project"
+    guard: str = "barrier"  # "project" until 2026-11-27 (docs/e2e.md, "Constraints that steer")
     guard_band: float = 0.25  # mm
     guard_weight: float = 1e-3  # the barrier's weight (loss units per log of a margin)
     # evaluation
@@ -317,7 +317,10 @@ def make_config(budget: str = "quick", file: "str | Path | None" = None, **overr
 #: settings whose default has changed, with the default they had before: a run directory made
 #: under the former default keeps it when the command leaves the setting at today's default, so
 #: the run resumes as it was made (eval_positions was "frame" until 2026-11-27, issue 34)
-FORMER_DEFAULTS: dict[str, object] = {"eval_positions": "frame"}
+FORMER_DEFAULTS: dict[str, object] = {"eval_positions": "frame", "guard": "project"}
+#: settings a run directory made before they existed ran under: a config.json without the key
+#: keeps that behaviour (the guard was the projection until guard existed)
+BEFORE_SETTING: dict[str, object] = {"guard": "project"}
 
 
 def run_dir_settings(out: Path, cfg: DesignConfig) -> DesignConfig:
@@ -331,6 +334,7 @@ def run_dir_settings(out: Path, cfg: DesignConfig) -> DesignConfig:
     if not isinstance(old, dict):
         return cfg
     today = DesignConfig()
+    old = {**BEFORE_SETTING, **old}
     keep = {
         k: old[k]
         for k, former in FORMER_DEFAULTS.items()
@@ -352,7 +356,7 @@ def check_run_dir(out: Path, cfg: DesignConfig) -> None:
         new = cfg.to_json()
         # a setting added since the run was made counts as its default there
         defaults = DesignConfig().to_json()
-        old = {**{k: v for k, v in defaults.items() if k not in old}, **old}
+        old = {**{k: v for k, v in defaults.items() if k not in old}, **BEFORE_SETTING, **old}
         diff = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
         if diff:
             detail = ", ".join(f"{k}: {old.get(k)!r} -> {new.get(k)!r}" for k in diff)
