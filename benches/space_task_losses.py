@@ -28,19 +28,58 @@ import torch
 from tqdm import tqdm
 
 
+class FixedProcessing:
+    """Each task's processing held fixed: the shipped software ISP, or for a hardware-ISP task
+    the reference ISP at its default hyperparameters; the LPIPS network; the sensor preset at
+    the base lens's f-number."""
+
+    def __init__(self, f_number: float):
+        from optix_e2e.camera_design.build import SOFTWARE_ISP
+        from optix_e2e.isp.software import SoftwareISP
+        from optix_e2e.metrics.lpips import LPIPS
+
+        self.f_number, self.lp, self.isp_sw = f_number, LPIPS(), SoftwareISP.load(SOFTWARE_ISP)
+
+    def hardware(self):
+        from optix_e2e.isp import params as hp
+        from optix_e2e.isp.reference import ReferenceISP
+
+        ref = ReferenceISP()
+
+        class DefaultHW(torch.nn.Module):  # the reference ISP at its default hyperparameters
+            def forward(self, raw, *where):  # the crop's position is not used
+                return ref(raw, [hp.defaults()] * raw.shape[0])
+
+            final = forward
+
+        return DefaultHW()
+
+    @torch.no_grad()
+    def loss(self, optics, task_name: str, samples) -> float:
+        """The task loss (L1 + w LPIPS against the ideal rendering) of the camera with ``optics``
+        (a FixedOptics) over held-out ``samples``, sensor noise from each sample's seed."""
+        from optix_e2e.camera import Camera, SensorStage, SoftwareISPStage, calibrated_preset
+        from optix_e2e.tasks import get_task, task_loss
+
+        task = get_task(task_name)
+        preset = calibrated_preset("imx249", self.f_number, task.exposure_factor, task.gain_factor)
+        isp = SoftwareISPStage(self.isp_sw, preset) if task.isp == "software" else self.hardware()
+        cam = Camera(optics, SensorStage(preset), isp)
+        losses = []
+        for smp in samples:
+            o, _ = cam(smp.scene[None], smp.offset_px, torch.Generator().manual_seed(smp.noise_seed), final=True)
+            losses.append(float(task_loss(o.clamp(0, 1), smp.target[None], self.lp, task.lpips_weight)[0]))
+        return float(np.mean(losses))
+
+
 def main() -> None:
-    from optix_e2e.camera import Camera, FixedOptics, SensorStage, SoftwareISPStage, calibrated_preset
+    from optix_e2e.camera import FixedOptics
     from optix_e2e.camera.stages import image_height_fractions
     from optix_e2e.camera_design.outputs import design_lens
     from optix_e2e.dataset.layout import read_manifest
     from optix_e2e.dataset.manifest import space_and_base
-    from optix_e2e.isp import params as hp
-    from optix_e2e.isp.reference import ReferenceISP
-    from optix_e2e.isp.software import SoftwareISP
-    from optix_e2e.metrics.lpips import LPIPS
-    from optix_e2e.camera_design.build import SOFTWARE_ISP
     from optix_e2e.surrogate.ground_truth import exact_arrays
-    from optix_e2e.tasks import SensorFrame, get_task, heldout_set, task_loss
+    from optix_e2e.tasks import SensorFrame, heldout_set
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("data")
@@ -68,38 +107,17 @@ def main() -> None:
     psfs, vigs, values = psfs[: a.n + 1], vigs[: a.n + 1], np.asarray(values[: a.n + 1])
     fields = man["fields_deg"]
     frame = SensorFrame()
-    lp = LPIPS()
-    f_number = float(base.paraxial()["f_number"])
-    isp_sw = SoftwareISP.load(SOFTWARE_ISP)
-    ref = ReferenceISP()
-
-    class DefaultHW(torch.nn.Module):  # the reference ISP at its default hyperparameters
-        def forward(self, raw, *where):  # the crop's position is not used
-            return ref(raw, [hp.defaults()] * raw.shape[0])
-
-        final = forward
-
+    fixed = FixedProcessing(float(base.paraxial()["f_number"]))
     rows = []
-    with torch.no_grad():
-        for i in tqdm(range(len(values)), desc="designs", unit="design"):
-            psf = torch.as_tensor(psfs[i]).float()
-            vig = torch.as_tensor(vigs[i]).float()
-            # each design's fields where its chief rays land (its own distortion)
-            heights = image_height_fractions(design_lens(man, values[i], zs[i]), fields)
-            fo = FixedOptics(psf, vig, heights, full_field_px=frame.full_field_px)
-            samples = heldout_set(a.size, psf.shape[-1] // 2, a.scenes, photos=[])
-            for name in a.tasks:
-                task = get_task(name)
-                preset = calibrated_preset("imx249", f_number, task.exposure_factor, task.gain_factor)
-                isp = SoftwareISPStage(isp_sw, preset) if task.isp == "software" else DefaultHW()
-                cam = Camera(fo, SensorStage(preset), isp)
-                losses = []
-                for smp in samples:
-                    o, _ = cam(
-                        smp.scene[None], smp.offset_px, torch.Generator().manual_seed(smp.noise_seed), final=True
-                    )
-                    losses.append(float(task_loss(o.clamp(0, 1), smp.target[None], lp, task.lpips_weight)[0]))
-                rows.append({"design": i, "task": name, "loss": float(np.mean(losses))})
+    for i in tqdm(range(len(values)), desc="designs", unit="design"):
+        psf = torch.as_tensor(psfs[i]).float()
+        vig = torch.as_tensor(vigs[i]).float()
+        # each design's fields where its chief rays land (its own distortion)
+        heights = image_height_fractions(design_lens(man, values[i], zs[i]), fields)
+        fo = FixedOptics(psf, vig, heights, full_field_px=frame.full_field_px)
+        samples = heldout_set(a.size, psf.shape[-1] // 2, a.scenes, photos=[])
+        for name in a.tasks:
+            rows.append({"design": i, "task": name, "loss": fixed.loss(fo, name, samples)})
     with open(out / "losses.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=["design", "task", "loss"])
         w.writeheader()

@@ -51,17 +51,15 @@ def spots_um(man: dict, values: np.ndarray, fields: list[float]) -> np.ndarray:
 
 
 def main() -> None:
-    from optix_e2e.camera import Camera, FixedOptics, SensorStage, SoftwareISPStage, calibrated_preset
+    from optix_e2e.camera import FixedOptics
     from optix_e2e.camera.stages import image_height_fractions
-    from optix_e2e.camera_design.build import SOFTWARE_ISP, load_surrogate
+    from optix_e2e.camera_design.build import load_surrogate
     from optix_e2e.camera_design.outputs import design_lens
-    from optix_e2e.isp.software import SoftwareISP
     from optix_e2e.lens_design.constraints import Limits
     from optix_e2e.lens_design.sampling import sample_designs
     from optix_e2e.lens_design.space import load_space
-    from optix_e2e.metrics.lpips import LPIPS
     from optix_e2e.surrogate.ground_truth import exact_arrays
-    from optix_e2e.tasks import SensorFrame, get_task, heldout_set, task_loss
+    from optix_e2e.tasks import SensorFrame, heldout_set
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--space", default="paper-triplet-wide")
@@ -111,9 +109,10 @@ def main() -> None:
     print(json.dumps({"whole_space": summary["whole_space"]}))
 
     # 2. boxes about the nominal: exact PSFs, task losses with the processing fixed
-    frame, lp = SensorFrame(), LPIPS()
-    f_number = float(base.paraxial()["f_number"])
-    isp_sw = SoftwareISP.load(SOFTWARE_ISP)
+    from space_task_losses import FixedProcessing  # benches/: the same scoring as a dataset's
+
+    frame = SensorFrame()
+    fixed = FixedProcessing(float(base.paraxial()["f_number"]))
     half = np.array([(p.max - p.min) / 2 for p in space.params])
     lo, hi = np.array([p.min for p in space.params]), np.array([p.max for p in space.params])
     trained = {p["name"]: (p["min"], p["max"]) for p in man["trained_space"]["parameters"]}
@@ -134,16 +133,7 @@ def main() -> None:
             fo = FixedOptics(psf, vig, heights, full_field_px=frame.full_field_px)
             samples = heldout_set(a.size, psf.shape[-1] // 2, a.scenes, photos=[])
             row = {"design": int(i), "energy_in_window": float(arrays["energy_in_window"][j].min())}
-            with torch.no_grad():
-                for name in a.tasks:
-                    task = get_task(name)
-                    preset = calibrated_preset("imx249", f_number, task.exposure_factor, task.gain_factor)
-                    cam = Camera(fo, SensorStage(preset), SoftwareISPStage(isp_sw, preset))
-                    losses = []
-                    for s in samples:
-                        o, _ = cam(s.scene[None], s.offset_px, torch.Generator().manual_seed(s.noise_seed), final=True)
-                        losses.append(float(task_loss(o.clamp(0, 1), s.target[None], lp, task.lpips_weight)[0]))
-                    row[name] = float(np.mean(losses))
+            row.update({name: fixed.loss(fo, name, samples) for name in a.tasks})
             rows.append(row)
         return rows, {"n_refused": int(meta["n_failed"]), "engine_s": engine_s}
 
