@@ -425,3 +425,34 @@ def test_the_final_design_check_finds_a_lens_out_of_focus():
     assert at["refocused"] and abs(at["focus_shift_um"]) < 1.0
     assert not off["refocused"] and off["focus_shift_um"] == pytest.approx(at["focus_shift_um"] - 10.0, abs=0.5)
     assert at["inside_space"] and at["manufacturable"]
+
+
+def test_radius_training_positions_weigh_the_centre_and_the_corners():
+    """train_positions = "radius": the crop centre's field radius uniform (clamped into the
+    frame), so the axis and the corners are drawn far more often than uniform over the area;
+    crops stay inside the frame at even offsets; "frame" keeps its stream (the same batch as
+    before the option) and a bad name is refused."""
+    frame = SensorFrame()
+    size = 32
+
+    def radii(positions):
+        out = []
+        for t in range(300):
+            b = training_batch(3, t, 1, size, 0, (0.5, 0.5), frame, positions=positions)
+            oy, ox = b.offset_px
+            y0 = oy - (size - 1) / 2 + (frame.height - 1) / 2
+            x0 = ox - (size - 1) / 2 + (frame.width - 1) / 2
+            assert 0 <= y0 <= frame.height - size and 0 <= x0 <= frame.width - size
+            assert y0 % 2 == 0 and x0 % 2 == 0
+            out.append(float(np.hypot(oy, ox)) / frame.full_field_px)
+        return np.array(out)
+
+    area, rad = radii("frame"), radii("radius")
+    assert (rad < 0.2).mean() > 3 * (area < 0.2).mean()
+    assert (rad > 0.85).mean() > 1.5 * (area > 0.85).mean()
+    b0 = training_batch(3, 5, 1, size, 0, (0.5, 0.5), frame)
+    assert training_batch(3, 5, 1, size, 0, (0.5, 0.5), frame, positions="frame").offset_px == b0.offset_px
+    with pytest.raises(ValueError, match="training positions must be one of frame, radius"):
+        training_batch(3, 5, 1, size, 0, (0.5, 0.5), frame, positions="corner")
+    with pytest.raises(ValueError, match="train_positions"):
+        make_config("smoke", train_positions="corners")

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from ..io import claim_out_dir, read_small_text, write_json_atomic
 from ..tasks import get_task
-from ..tasks.samples import POSITIONS
+from ..tasks.samples import POSITIONS, TRAIN_POSITIONS
 from ..errors import InputError
 
 try:
@@ -95,6 +95,9 @@ class DesignConfig:
     software_isp: str = ""  # the pre-trained software ISP to start from ("": the bundled one)
     # training
     crop: int = 128  # sensor pixels per side of a training crop (its height)
+    # where a training batch's crop lies: "frame" (uniform over the area) or "radius" (its field
+    # radius uniform: the centre and the corners weigh as much as the mid-field; tasks/samples.py)
+    train_positions: str = "frame"
     crop_width: int = 0  # its width (0: square)
     batch: int = 4
     # the schedule (docs/e2e.md, "Choosing the schedule"): one cycle, then joint fine-tuning,
@@ -175,6 +178,10 @@ class DesignConfig:
             raise InputError(
                 f"space {self.space!r} is not the surrogate's: the lens moves where the network was not "
                 f'trained, so its optics must be the engine\'s (optics = "exact"), got optics = {self.optics!r}'
+            )
+        if self.train_positions not in TRAIN_POSITIONS:
+            raise InputError(
+                f"train_positions must be one of {', '.join(TRAIN_POSITIONS)}, got {self.train_positions!r}"
             )
         if self.optics_init not in ("nominal", "uniform"):
             raise InputError(f"optics_init must be nominal or uniform, got {self.optics_init!r}")

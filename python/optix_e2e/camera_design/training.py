@@ -152,7 +152,17 @@ def train(
         part = parallel.batch_slice(cfg.batch, ranks)
 
         def loss_at(t, gen):
-            batch = training_batch(cfg.seed, t, cfg.batch, cfg.crop, m, (task.level_min, task.level_max), frame, folder)
+            batch = training_batch(
+                cfg.seed,
+                t,
+                cfg.batch,
+                cfg.crop,
+                m,
+                (task.level_min, task.level_max),
+                frame,
+                folder,
+                positions=cfg.train_positions,
+            )
             out_img, _ = camera(batch.scene[part], batch.offset_px, gen)
             return loss_mod(out_img, batch.target[part])
 

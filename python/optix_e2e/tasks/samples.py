@@ -46,6 +46,9 @@ POSITIONS = {
 }
 
 
+TRAIN_POSITIONS = ("frame", "radius")  # training_batch's crop positions
+
+
 @dataclass(frozen=True)
 class SensorFrame:
     """The sensor's pixel grid: the optical axis at its centre, the full field at its corners."""
@@ -98,8 +101,14 @@ def training_batch(
     frame: SensorFrame = SensorFrame(),
     folder=None,
     tint: float = 0.0,
+    positions: str = "frame",
 ) -> Batch:
-    """Batch ``step`` of the training stream ``seed`` (see the module doc)."""
+    """Batch ``step`` of the training stream ``seed`` (see the module doc). ``positions``: where
+    the batch's crop lies, "frame" (uniform over the frame's area) or "radius" (its centre's
+    field radius uniform from the axis to the full field, the azimuth uniform, the crop kept
+    inside the frame: the centre and the corners weigh as much as the mid-field)."""
+    if positions not in TRAIN_POSITIONS:
+        raise InputError(f"training positions must be one of {', '.join(TRAIN_POSITIONS)}, got {positions!r}")
     rng = np.random.default_rng([1, int(seed), int(step)])  # stream tag 1: training batches
     full = size + 2 * margin
     imgs, names = [], []
@@ -114,8 +123,24 @@ def training_batch(
         else:
             imgs.append(training_scene(full, rng))
             names.append("procedural")
-    y0 = 2 * int(rng.integers(0, (frame.height - size) // 2 + 1))
-    x0 = 2 * int(rng.integers(0, (frame.width - size) // 2 + 1))
+    if positions == "frame":
+        y0 = 2 * int(rng.integers(0, (frame.height - size) // 2 + 1))
+        x0 = 2 * int(rng.integers(0, (frame.width - size) // 2 + 1))
+    else:
+        # the crop centre within a x b of the axis (the crop inside the frame); its distance rho
+        # uniform up to the farthest such centre, then the azimuth uniform over the arcs of that
+        # circle inside the rectangle (in a quadrant: cos >= ... from a, sin <= ... from b)
+        a, b = (frame.width - size) / 2, (frame.height - size) / 2
+        rho = rng.uniform(0.0, math.hypot(a, b))
+        lo_th = math.acos(min(1.0, a / rho)) if rho > 0 else 0.0
+        hi_th = math.asin(min(1.0, b / rho)) if rho > 0 else 0.0
+        th = rng.uniform(lo_th, max(lo_th, hi_th))
+        sx, sy = rng.choice([-1.0, 1.0], size=2)
+        cy = (frame.height - 1) / 2 + sy * rho * math.sin(th)
+        cx = (frame.width - 1) / 2 + sx * rho * math.cos(th)
+        # even offsets (the Bayer phase), the crop inside the frame
+        y0 = 2 * int(np.clip(round((cy - (size - 1) / 2) / 2), 0, (frame.height - size) // 2))
+        x0 = 2 * int(np.clip(round((cx - (size - 1) / 2) / 2), 0, (frame.width - size) // 2))
     lo, hi = level_range
     level = np.exp(rng.uniform(math.log(lo), math.log(hi), batch))
     tints = rng.uniform(1 - tint, 1 + tint, (batch, 3))
