@@ -92,8 +92,9 @@ def test_the_barrier_steers_where_projection_keeps_cutting(e2e):
 
 
 def test_old_run_folders_keep_the_projection(tmp_path):
-    """guard's default became "barrier" (2026-11-27): a run folder made under "project", or
-    before the setting existed (its config.json has no guard), resumes with the projection."""
+    """guard's default became "barrier" and train_positions' "radius" (2026-11-27): a run folder
+    made under "project", or before the settings existed (no key in its config.json), resumes
+    with the projection (and, without train_positions, with batches uniform over the frame)."""
     import json
 
     from optix_e2e.camera_design.config import check_run_dir, make_config, run_dir_settings
@@ -104,8 +105,10 @@ def test_old_run_folders_keep_the_projection(tmp_path):
     older = tmp_path / "b"
     check_run_dir(older, make_config("smoke", guard="project"))
     cfg = json.loads((older / "config.json").read_text())
-    del cfg["guard"]
+    del cfg["guard"], cfg["train_positions"]  # made before either setting existed
     (older / "config.json").write_text(json.dumps(cfg))
+    assert run_dir_settings(older, today).train_positions == "frame"  # its batches were drawn so
+    assert run_dir_settings(tmp_path / "a", today).train_positions == "radius"
     for run in (tmp_path / "a", older):
         kept = run_dir_settings(run, today)
         assert kept.guard == "project"

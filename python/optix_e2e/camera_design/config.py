@@ -95,9 +95,10 @@ class DesignConfig:
     software_isp: str = ""  # the pre-trained software ISP to start from ("": the bundled one)
     # training
     crop: int = 128  # sensor pixels per side of a training crop (its height)
-    # where a training batch's crop lies: "frame" (uniform over the area) or "radius" (its field
-    # radius uniform: the centre and the corners weigh as much as the mid-field; tasks/samples.py)
-    train_positions: str = "frame"
+    # where a training batch's crop lies: "radius" (its field radius uniform: the centre and the
+    # corners weigh as much as the mid-field; tasks/samples.py) or "frame" (uniform over the
+    # area, the default until 2026-11-27: the end-to-end camera then lost at centre and corner)
+    train_positions: str = "radius"
     crop_width: int = 0  # its width (0: square)
     batch: int = 4
     # the schedule (docs/e2e.md, "Choosing the schedule"): one cycle, then joint fine-tuning,
@@ -324,10 +325,10 @@ def make_config(budget: str = "quick", file: "str | Path | None" = None, **overr
 #: settings whose default has changed, with the default they had before: a run directory made
 #: under the former default keeps it when the command leaves the setting at today's default, so
 #: the run resumes as it was made (eval_positions was "frame" until 2026-11-27, issue 34)
-FORMER_DEFAULTS: dict[str, object] = {"eval_positions": "frame", "guard": "project"}
+FORMER_DEFAULTS: dict[str, object] = {"eval_positions": "frame", "guard": "project", "train_positions": "frame"}
 #: settings a run directory made before they existed ran under: a config.json without the key
 #: keeps that behaviour (the guard was the projection until guard existed)
-BEFORE_SETTING: dict[str, object] = {"guard": "project"}
+BEFORE_SETTING: dict[str, object] = {"guard": "project", "train_positions": "frame"}
 
 
 def run_dir_settings(out: Path, cfg: DesignConfig) -> DesignConfig:
