@@ -6,11 +6,15 @@ use psf_engine::Lens;
 use serde_json::{json, Value};
 use std::path::PathBuf;
 
+/// `OPTIX_REFERENCE_DIR` where set (as tests/conftest.py reads it), else `shared/reference`
+/// beside the repository.
 pub fn reference_dir() -> PathBuf {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/reference");
+    let p = std::env::var_os("OPTIX_REFERENCE_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/reference"));
     assert!(
         p.join("cooke_triplet.json").exists(),
-        "reference data missing: expected {} (shared/ beside the repo)",
+        "reference data missing: expected {} (shared/ beside the repo, or set OPTIX_REFERENCE_DIR)",
         p.display()
     );
     p
