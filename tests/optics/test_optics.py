@@ -49,6 +49,20 @@ def test_parameters_stay_inside_their_ranges_whatever_the_optimizer_does():
     torch.testing.assert_close(optics.values(), torch.tensor([0.5, 11.0, -1.9]))
     with pytest.raises(SurrogateRangeError, match="b = 13"):
         optics.set_values([0.0, 13.0, -1.0])
+    with pytest.raises(SurrogateRangeError, match="a = nan; b = 13"):  # non-finite named too
+        optics.set_values([float("nan"), 13.0, -1.0])
+    torch.testing.assert_close(optics.values(), torch.tensor([0.5, 11.0, -1.9]))  # refused: unchanged
+
+
+def test_the_surrogate_names_each_column_outside_its_training_range_once():
+    sur = tiny_surrogate()
+    rows = torch.tensor([[0.0, 10.0, -1.0], [0.0, 13.0, -1.0], [0.0, 14.0, float("nan")], [0.0, 10.0, -1.0]])
+    problems = sur.check_params(rows, mode="ignore")
+    assert problems[0] == "non-finite parameter values"
+    assert (
+        len(problems) == 2 and problems[1].startswith("b = 13 outside its training range") and "(2 rows)" in problems[1]
+    )
+    assert sur.check_params(rows[:1], mode="ignore") == []
 
 
 def test_gradients_reach_the_lens_parameters_and_only_them():

@@ -114,20 +114,21 @@ class DifferentiableOptics(nn.Module):
     def set_values(self, values) -> None:
         """Set the parameters (raw units); values outside the ranges (the surrogate's, or the
         space it was put in: OpticsSurrogate.in_space) are an error naming them."""
-        from ..surrogate.checkpoint import SurrogateRangeError
+        from ..surrogate.checkpoint import SurrogateRangeError, outside_ranges
 
         v = torch.as_tensor(values, dtype=torch.float32).reshape(-1)
         if v.numel() != self.lo.numel():
             raise InputError(f"{v.numel()} lens values for {self.lo.numel()} parameters")
-        lo, hi = self.lo.double(), self.hi.double()
-        tol, vd = 1e-6 * (hi - lo), v.double()
-        bad = ~torch.isfinite(vd) | (vd < lo - tol) | (vd > hi + tol)
-        if bad.any():
+        nonfinite, cols = outside_ranges(v, self.lo, self.hi)
+        if nonfinite or cols:
             raise SurrogateRangeError(
                 "lens values outside the ranges: "
                 + "; ".join(
-                    f"{self.names[j]} = {float(v[j]):.6g} outside [{float(lo[j]):.6g}, {float(hi[j]):.6g}]"
-                    for j in torch.nonzero(bad).flatten().tolist()
+                    [f"{self.names[j]} = {float(v[j]):.6g}" for j in nonfinite]
+                    + [
+                        f"{self.names[j]} = {x:.6g} outside [{float(self.lo[j]):.6g}, {float(self.hi[j]):.6g}]"
+                        for j, x, _ in cols
+                    ]
                 )
             )
         t = ((v - self.lo) / (self.hi - self.lo)).clamp(self.eps, 1 - self.eps)

@@ -53,6 +53,19 @@ def resolve(spec: "str | Path") -> Path:
     return p
 
 
+def outside_ranges(values, lo, hi) -> tuple[list[int], list[tuple[int, float, int]]]:
+    """Parameter values [N, P] (or [P]) against ranges ``lo`` .. ``hi`` [P], with a tolerance of
+    1e-6 of each range: (the columns holding a non-finite value, [(column, its first finite
+    value outside, how many rows are outside)])."""
+    lo, hi = torch.as_tensor(lo).cpu().double(), torch.as_tensor(hi).cpu().double()
+    p = torch.as_tensor(values).detach().to("cpu", torch.float64).reshape(-1, lo.numel())
+    tol = 1e-6 * (hi - lo)
+    bad = (p < lo - tol) | (p > hi + tol)  # [N, P]; False where non-finite
+    nonfinite = torch.nonzero((~torch.isfinite(p)).any(0)).flatten().tolist()
+    cols = [(j, float(p[bad[:, j], j][0]), int(bad[:, j].sum())) for j in torch.nonzero(bad.any(0)).flatten().tolist()]
+    return nonfinite, cols
+
+
 class OpticsSurrogate(nn.Module):
     """Raw lens parameters [B, P] + normalized field [B] -> (psf [B, C, S, S] unit sum,
     vignetting [B, C]). ``psfs(params)`` gives every trained field at once for the renderer."""
@@ -106,19 +119,14 @@ class OpticsSurrogate(nn.Module):
         mode = mode or self.out_of_range
         if mode not in ("error", "warn", "ignore"):
             raise InputError(f"out_of_range must be error, warn or ignore, got {mode!r}")
-        p = torch.as_tensor(params).detach().to("cpu", torch.float64).reshape(-1, self.cfg.n_params)
         lo, hi = self.trained_min.cpu(), self.trained_max.cpu()
-        tol = 1e-6 * (hi - lo)
-        problems = []
-        if not torch.isfinite(p).all():
-            problems.append("non-finite parameter values")
-        bad = (p < lo - tol) | (p > hi + tol)  # [N, P]
-        for j in torch.nonzero(bad.any(0)).flatten().tolist():
-            v = float(p[bad[:, j], j][0])
+        rows = torch.as_tensor(params).reshape(-1, self.cfg.n_params).shape[0]
+        nonfinite, cols = outside_ranges(params, lo, hi)
+        problems = ["non-finite parameter values"] if nonfinite else []
+        for j, v, n in cols:
             problems.append(
                 f"{self.param_names[j]} = {v:.6g} outside its training range "
-                f"[{float(lo[j]):.6g}, {float(hi[j]):.6g}]"
-                + (f" ({int(bad[:, j].sum())} rows)" if p.shape[0] > 1 else "")
+                f"[{float(lo[j]):.6g}, {float(hi[j]):.6g}]" + (f" ({n} rows)" if rows > 1 else "")
             )
         self._complain(problems, mode, "(the network would extrapolate)")
         return problems
@@ -174,6 +182,8 @@ class OpticsSurrogate(nn.Module):
                     f"{where}: its limits {other} are not those of the surrogate's dataset {limits}; "
                     "the guard and the final checks use one set"
                 )
+        if (base.data if hasattr(base, "data") else base) != own_base.data:
+            raise InputError(f"{where}: its base lens is not the surrogate's ({own_base.name})")
         man = copy.deepcopy(self.manifest)
         man["trained_space"] = man["space"]
         man["space"] = {**man["space"], "source": where, "parameters": space.to_json()}
@@ -181,8 +191,6 @@ class OpticsSurrogate(nn.Module):
         # off by up to 10 um: refocus every design on all the fields with 8 rings (the final
         # focus check's sampling)
         man["settings"] = {**man["settings"], "focus_fields": len(man["fields_deg"]), "focus_rings": 8}
-        if (base.data if hasattr(base, "data") else base) != own_base.data:
-            raise InputError(f"{where}: its base lens is not the surrogate's ({own_base.name})")
         out = copy.copy(self)
         out._buffers = dict(self._buffers)
         lo = torch.tensor([p.min for p in space.params], dtype=torch.float64)
