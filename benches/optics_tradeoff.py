@@ -5,7 +5,7 @@
                                       [--points all|optics] [--threads 2] [--bundle]
 
 Each point is the end-to-end training of runs (Alg. 1, the budget's schedule; per seed the same
-batches and noise for every point) with one dial changed from the default (surrogate optics, 64 px patches,
+batches and noise for every point) with one dial changed from the reference point (surrogate optics, 64 px patches,
 all 13 field samples):
 * optics: surrogate | exact | hybrid (refined by the additive correction) | hybrid_network
   (refined by fine-tuning the network on engine designs about the current one);
@@ -13,7 +13,7 @@ all 13 field samples):
 * the field samples K the renderer uses: 4 | 7 | 13 (surrogate optics).
 Every trained camera is then evaluated the same way: on the run's held-out images under the
 exact engine's PSFs of its final lens, all 13 fields, 32 px patches (the finest renderer), with
-its own trained ISP; paired 95 % bootstrap intervals over images against the default point and
+its own trained ISP; paired 95 % bootstrap intervals over images against the reference point and
 against the best point of the sweep; with several seeds (--seeds 0,1,2) a point's rows are pooled
 (per image: the mean over seeds and positions). The wall time is the training's (what the dial costs; the evaluation is the same for all).
 
@@ -36,14 +36,14 @@ import numpy as np
 import torch
 
 POINTS = {  # name: (sweep, overrides)
-    "surrogate": ("optics", {}),
+    "surrogate": ("optics", {"optics": "surrogate"}),
     "exact": ("optics", {"optics": "exact"}),
     "hybrid": ("optics", {"optics": "hybrid"}),
     "hybrid_network": ("optics", {"optics": "hybrid", "refine": "network"}),
-    "patch32": ("patch", {"patch": 32}),
-    "patch128": ("patch", {"patch": 128}),
-    "fields4": ("fields", {"fields": 4}),
-    "fields7": ("fields", {"fields": 7}),
+    "patch32": ("patch", {"patch": 32, "optics": "surrogate"}),
+    "patch128": ("patch", {"patch": 128, "optics": "surrogate"}),
+    "fields4": ("fields", {"fields": 4, "optics": "surrogate"}),
+    "fields7": ("fields", {"fields": 7, "optics": "surrogate"}),
 }
 EVAL_PATCH = 32
 
@@ -221,7 +221,7 @@ def main() -> None:
                 "engine_designs": mean("engine_designs"),
             }
         )
-    # the default point appears in every sweep
+    # the reference point (surrogate) appears in every sweep
     for sweep in ("patch", "fields"):
         if any(r["sweep"] == sweep for r in table):
             table.append({**next(r for r in table if r["point"] == "surrogate"), "sweep": sweep})
