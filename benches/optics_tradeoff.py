@@ -283,8 +283,8 @@ def main() -> None:
 
 def chart(path: Path, table: list[dict]) -> None:
     """Held-out PSNR and SSIM (exact optics) against training time, one marker per point; the
-    PSNR panel's bars: the paired 95 % interval against the default (surrogate) point, drawn
-    about the default's value."""
+    PSNR panel's bars: the paired 95 % interval against the reference (surrogate) point, drawn
+    about the reference point's value."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -314,7 +314,7 @@ def chart(path: Path, table: list[dict]) -> None:
         ax.grid(alpha=0.3)
     handles = [
         plt.Line2D([], [], marker="o", ls="", color=c, label=k)
-        for k, c in (("default (surrogate, 64 px, K = 13)", "black"), *((f"{k} dial", v) for k, v in colours.items()))
+        for k, c in (("reference (surrogate, 64 px, K = 13)", "black"), *((f"{k} dial", v) for k, v in colours.items()))
     ]
     axes[1].legend(handles=handles, fontsize=8)
     fig.suptitle(

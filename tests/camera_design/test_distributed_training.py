@@ -254,7 +254,7 @@ def test_a_design_run_under_torchrun_writes_from_rank_0(tmp_path):
     their steps. (Resuming: tests/camera_design/test_run_resume.py on one process, and the
     surrogate trainer's two-process resume above.)"""
     cfg = tmp_path / "b2.toml"
-    cfg.write_text("batch = 2\n")
+    cfg.write_text('batch = 2\noptics = "surrogate"\n')  # exact, the default, is one process's
     out, spy = tmp_path / "run", tmp_path / "spy"
     args = ["design", "iq-hardware", "--budget", "smoke", "--config", str(cfg), "--out", str(out), "--quiet"]
     res = _torchrun(2, *args, spy=spy, out=out)

@@ -117,3 +117,27 @@ def test_old_run_folders_keep_the_projection(tmp_path):
             check_run_dir(run, today)
     check_run_dir(tmp_path / "c", today)
     assert run_dir_settings(tmp_path / "c", today).guard == "barrier"
+
+
+def test_exact_optics_are_the_image_quality_default_and_a_surrogate_run_folder_resumes_as_made(tmp_path):
+    """optics' default became "exact" for the image-quality tasks (2026-11-27; detection keeps
+    its surrogate, whose fast designs the engine refuses): a run folder made under the
+    surrogate default resumes on the surrogate; one asked for exact keeps exact."""
+    from optix_e2e.camera_design.config import check_run_dir, make_config, run_dir_settings
+
+    for budget in ("smoke", "quick", "full"):
+        assert make_config(budget).optics == "exact"
+        assert make_config(budget, task="low-light").optics == "exact"
+        assert make_config(budget, task="detection").optics == "surrogate"
+    today = make_config("smoke")
+    check_run_dir(tmp_path / "old", make_config("smoke", optics="surrogate"))
+    kept = run_dir_settings(tmp_path / "old", today)
+    assert kept.optics == "surrogate"
+    check_run_dir(tmp_path / "old", kept)
+    with pytest.raises(ValueError, match="optics: 'surrogate' -> 'exact'"):
+        check_run_dir(tmp_path / "old", today)
+    check_run_dir(tmp_path / "new", today)
+    assert run_dir_settings(tmp_path / "new", today).optics == "exact"
+    det = make_config("smoke", task="detection")
+    check_run_dir(tmp_path / "det", det)
+    assert run_dir_settings(tmp_path / "det", det) == det

@@ -44,8 +44,8 @@ class ImageQualityHooks(TaskHooks):
     def check(self, sur, ranks):
         if ranks.distributed and self.mode != "surrogate":
             raise InputError(
-                f"--optics {self.cfg.optics} ({self.mode}) runs the engine inside the training steps and is not "
-                f"split over processes; under torchrun use --optics surrogate"
+                f"--optics {self.cfg.optics} ({self.mode}) runs the engine inside the training steps, which is not "
+                f"split over processes (exact is the image-quality tasks' default); under torchrun use --optics surrogate"
             )
 
     def describe(self):

@@ -54,9 +54,9 @@ from ._common import SEED, THREADS, dumps, friendly_errors
     "--optics",
     type=click.Choice(["surrogate", "exact", "hybrid", "auto"]),
     default=None,
-    help="The optics model in the loop: the surrogate (default), the exact engine with central-difference "
-    "gradients, the surrogate checked and refined along the way, or auto (from the measured "
-    "speed/accuracy trade-off; docs/optics-in-the-loop.md).",
+    help="The optics model in the loop: the exact engine with central-difference gradients (default; "
+    "detection: the surrogate), the surrogate, the surrogate checked and refined along the way, or auto "
+    "(from the measured speed/accuracy trade-off; docs/optics-in-the-loop.md).",
 )
 @click.option(
     "--space",
