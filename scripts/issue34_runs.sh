@@ -5,7 +5,7 @@
 #    starts (seeds 0 1 2), the quick budget (docs/e2e.md, "The paper-width space").
 # 2. The optics model in the loop with the new processing and crops: surrogate against exact, 3 seeds
 #    (step 4; benches/optics_tradeoff.py, docs/optics-in-the-loop.md).
-# then 1 from the nominal (seeds 0 1 2);
+# then the main job (iq-software, quick budget, the defaults) on 3 seeds, and 1 from the nominal (seeds 0 1 2);
 # 3. The three image-quality tasks at the full budget, 3 seeds each, on the defaults (step 7).
 # Run it from the project's environment (source .venv/bin/activate, as ./run.sh makes it).
 set -euo pipefail
@@ -19,6 +19,8 @@ fig12() {
 fig12 uniform
 python benches/optics_tradeoff.py --points surrogate,exact --seeds 0,1,2 --threads 2 --quiet \
   --out "$OUT/tradeoff" >> "$OUT/tradeoff.log" 2>&1
+python benches/e2e_tasks.py --tasks iq-software --budget quick --seeds 0 1 2 --out "$OUT/mainjob_quick" \
+  >> "$OUT/mainjob_quick.log" 2>&1
 fig12 nominal
 [ "${2:-}" = "--no-table" ] && exit 0
 python benches/e2e_tasks.py --budget full --seeds 0 1 2 --out "$OUT/table_full" >> "$OUT/table_full.log" 2>&1
