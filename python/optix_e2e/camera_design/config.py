@@ -260,28 +260,12 @@ BUDGETS: dict[str, dict] = {
 # the detection task's own defaults under each budget (applied before the config file): the
 # detection space's surrogate, also as its optics (the engine refuses many of its fast designs),
 # 3:2 crops, and held-out street scenes (>= 500 objects at quick)
+_DETECTION = dict(surrogate="paper-triplet-detect", optics="surrogate")
 TASK_BUDGETS: dict[str, dict[str, dict]] = {
     "detection": {
-        "smoke": dict(
-            surrogate="paper-triplet-detect",
-            optics="surrogate",
-            crop=64,
-            crop_width=96,
-            steps_detector=2,
-            eval_scenes=4,
-        ),
-        "quick": dict(
-            surrogate="paper-triplet-detect", optics="surrogate", crop=192, crop_width=288, batch=4, eval_scenes=100
-        ),
-        "full": dict(
-            surrogate="paper-triplet-detect",
-            optics="surrogate",
-            crop=192,
-            crop_width=288,
-            batch=4,
-            steps_detector=25,
-            eval_scenes=200,
-        ),
+        "smoke": dict(_DETECTION, crop=64, crop_width=96, steps_detector=2, eval_scenes=4),
+        "quick": dict(_DETECTION, crop=192, crop_width=288, batch=4, eval_scenes=100),
+        "full": dict(_DETECTION, crop=192, crop_width=288, batch=4, steps_detector=25, eval_scenes=200),
     },
 }
 
