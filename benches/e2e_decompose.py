@@ -6,7 +6,7 @@ cameras and measure the task loss on validation batches.
     python benches/e2e_decompose.py RUN_DIR --heldout [--json OUT.json]
 
 RUN_DIR is a finished `optix design` run. The lens is the nominal or the run's end-to-end
-lens (surrogate optics, as in training); the processing is the pre-trained one (Alg. 1's
+lens (through the surrogate, whatever optics the run trained on); the processing is the pre-trained one (Alg. 1's
 start), the nominal baseline's or the end-to-end run's. Validation batches are the training
 stream of another seed (procedural scenes, uniform positions over the frame, the task's light
 levels, fixed noise): neither the batches training saw nor the held-out set, so a schedule

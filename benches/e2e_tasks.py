@@ -6,7 +6,7 @@ lens with fine-tuned processing, same budget, held-out images, exact optics.
                                 [--seeds 0 1 2] [--optimizer alg1] [--config FILE.toml]
 
 Runs `optix design` per task and seed (resumable: OUT/TASK with one seed, OUT/TASK-seedS with
-several), then writes OUT/table.csv, OUT/table.json and OUT/table.md: per task and camera the
+several; a run with its results.json is not re-run), then writes OUT/table.csv, OUT/table.json and OUT/table.md: per task and camera the
 held-out PSNR, SSIM, 1 - LPIPS and HaarPSI, and the paired end-to-end minus nominal
 differences with their 95 % bootstrap intervals over images (the frame headline, and the
 centre and corner apart where the runs evaluated them); plus the surrogate's PSF error at the
@@ -61,8 +61,11 @@ def main() -> None:
                 "--optimizer",
                 a.optimizer,
             ] + (["--config", a.config] if a.config else [])
-            print(" ".join(cmd), flush=True)
-            subprocess.run(cmd, check=True)
+            if (run / "results.json").is_file():  # finished: not re-run (re-evaluated when the code changed)
+                print(f"{run}: finished already", flush=True)
+            else:
+                print(" ".join(cmd), flush=True)
+                subprocess.run(cmd, check=True)
             res = json.loads((run / "results.json").read_text())
             runs[(task, seed)] = run
             table.setdefault(task, {})[seed] = res
@@ -72,6 +75,8 @@ def main() -> None:
                         "task": task,
                         "seed": seed,
                         "camera": who,
+                        # the optics the run trained on (a resumed folder keeps its own: FORMER_DEFAULTS)
+                        "optics": (res.get("optics_model") or {}).get("mode", "surrogate"),
                         **{m: res[who][m] for m, _ in METRICS},
                         **{f"{m}_surrogate_optics": res[who]["surrogate"][m] for m, _ in METRICS},
                     }
@@ -93,13 +98,18 @@ def main() -> None:
         "lens_zmx",
         "start",
         "space",
+        "optics_model",
     )
     doc = {t: {str(sd): {k: r[k] for k in keys if k in r} for sd, r in per.items()} for t, per in table.items()}
     if len(seeds) > 1:
         for task in table:
             doc[task]["seeds"] = over_seeds(task, seeds, table[task], runs)
     (out / "table.json").write_text(json.dumps(doc, indent=2))
+    optics = sorted({r["optics"] for r in rows})
     lines = [
+        f"Optics in the loop: {', '.join(optics)}"
+        + (" (MIXED: some runs resumed folders made under another default)" if len(optics) > 1 else ""),
+        "",
         "| task | seed | camera | " + " | ".join(h for _, h in METRICS) + " |",
         "|---|---|---|" + "---|" * len(METRICS),
     ]

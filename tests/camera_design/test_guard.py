@@ -122,7 +122,10 @@ def test_old_run_folders_keep_the_projection(tmp_path):
 def test_exact_optics_are_the_image_quality_default_and_a_surrogate_run_folder_resumes_as_made(tmp_path):
     """optics' default became "exact" for the image-quality tasks (2026-11-27; detection keeps
     its surrogate, whose fast designs the engine refuses): a run folder made under the
-    surrogate default resumes on the surrogate; one asked for exact keeps exact."""
+    surrogate default, or before the setting existed, resumes on the surrogate; one made on
+    exact keeps exact."""
+    import json
+
     from optix_e2e.camera_design.config import check_run_dir, make_config, run_dir_settings
 
     for budget in ("smoke", "quick", "full"):
@@ -138,6 +141,13 @@ def test_exact_optics_are_the_image_quality_default_and_a_surrogate_run_folder_r
         check_run_dir(tmp_path / "old", today)
     check_run_dir(tmp_path / "new", today)
     assert run_dir_settings(tmp_path / "new", today).optics == "exact"
+    older = tmp_path / "older"  # made before the optics setting existed: it ran on the surrogate
+    check_run_dir(older, make_config("smoke", optics="surrogate"))
+    cfg = json.loads((older / "config.json").read_text())
+    del cfg["optics"]
+    (older / "config.json").write_text(json.dumps(cfg))
+    assert run_dir_settings(older, today).optics == "surrogate"
+    check_run_dir(older, run_dir_settings(older, today))
     det = make_config("smoke", task="detection")
     check_run_dir(tmp_path / "det", det)
     assert run_dir_settings(tmp_path / "det", det) == det

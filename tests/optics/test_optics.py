@@ -52,6 +52,8 @@ def test_parameters_stay_inside_their_ranges_whatever_the_optimizer_does():
     with pytest.raises(SurrogateRangeError, match="a = nan; b = 13"):  # non-finite named too
         optics.set_values([float("nan"), 13.0, -1.0])
     torch.testing.assert_close(optics.values(), torch.tensor([0.5, 11.0, -1.9]))  # refused: unchanged
+    with pytest.raises(SurrogateRangeError, match=r"outside the ranges: c = inf$"):  # named once
+        optics.set_values([0.0, 10.0, float("inf")])
 
 
 def test_the_surrogate_names_each_column_outside_its_training_range_once():

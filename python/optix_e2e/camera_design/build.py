@@ -57,17 +57,18 @@ def base_lens_f_number(sur: OpticsSurrogate) -> float:
     return float(base.paraxial()["f_number"])
 
 
-_STARTS: dict = {}  # (surrogate, space, seed) -> (values, record): the draw is made once per process
+_STARTS: dict = {}  # (surrogate, space, optics, seed) -> (values, record): the draw is made once per process
 
 
 def initial_optics_values(cfg: DesignConfig, optics: DifferentiableOptics) -> torch.Tensor:
     """The nominal design, or a uniform draw inside the space's ranges (seeded), redrawn until
-    it is manufacturable (as the dataset's designs are) and, in a space the surrogate was not
-    trained on (``space``), until the run's exact optics can render it (optics.exact.unrenderable:
+    it is manufacturable (as the dataset's designs are) and, where the run's optics are the
+    engine's (exact or hybrid optics, or a space the surrogate was not trained on: ``space``),
+    until the engine can render it (optics.exact.unrenderable:
     its PSFs inside the window, on the engine's FFT). ``start_record`` says how many draws it took."""
     if cfg.optics_init == "nominal":
         return optics.base_values()
-    key = (cfg.surrogate, cfg.space, int(cfg.seed))
+    key = (cfg.surrogate, cfg.space, cfg.optics, int(cfg.seed))
     if key in _STARTS:
         return _STARTS[key][0].clone()
     from ..optics.exact import unrenderable
@@ -84,14 +85,14 @@ def initial_optics_values(cfg: DesignConfig, optics: DifferentiableOptics) -> to
         if guard is not None and guard.problems(v.numpy()):
             counts["not_manufacturable"] += 1
             continue
-        if cfg.space and (last := unrenderable(man, v.double().numpy())):
+        if engine_start(cfg) and (last := unrenderable(man, v.double().numpy())):
             counts["not_renderable"] += 1
             continue
         _STARTS[key] = (v, counts)
         return v.clone()
     raise InputError(
         f"no uniform start in {MAX_START_DRAWS} draws of the space that is manufacturable"
-        + (f" and renderable (the last refused: {last})" if cfg.space else "")
+        + (f" and renderable (the last refused: {last})" if engine_start(cfg) else "")
         + f"; seed {cfg.seed}: {counts}"
     )
 
@@ -99,15 +100,21 @@ def initial_optics_values(cfg: DesignConfig, optics: DifferentiableOptics) -> to
 MAX_START_DRAWS = 20000
 
 
+def engine_start(cfg: DesignConfig) -> bool:
+    """Whether the run's lens steps go through the engine (a random start must then be one the
+    engine renders): exact or hybrid optics, or a space other than the surrogate's."""
+    return bool(cfg.space) or cfg.optics in ("exact", "hybrid")
+
+
 def start_record(cfg: DesignConfig) -> dict:
     """How the lens's start was drawn (results.json): the nominal, or the uniform draw's counts."""
     if cfg.optics_init == "nominal":
         return {"init": "nominal"}
-    rec = _STARTS.get((cfg.surrogate, cfg.space, int(cfg.seed)))
+    rec = _STARTS.get((cfg.surrogate, cfg.space, cfg.optics, int(cfg.seed)))
     return {
         "init": "uniform",
         "seed": cfg.seed,
-        "condition": "manufacturable" + (" and renderable by the run's exact optics" if cfg.space else ""),
+        "condition": "manufacturable" + (" and renderable by the run's exact optics" if engine_start(cfg) else ""),
         **(rec[1] if rec else {}),
         **({"values": [float(x) for x in rec[0]]} if rec else {}),
     }

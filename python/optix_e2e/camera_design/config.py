@@ -336,8 +336,9 @@ FORMER_DEFAULTS: dict[str, object] = {
     "optics": "surrogate",
 }
 #: settings a run directory made before they existed ran under: a config.json without the key
-#: keeps that behaviour (the guard was the projection until guard existed)
-BEFORE_SETTING: dict[str, object] = {"guard": "project", "train_positions": "frame"}
+#: keeps that behaviour (the guard was the projection until guard existed; the optics the surrogate
+#: until optics existed)
+BEFORE_SETTING: dict[str, object] = {"guard": "project", "train_positions": "frame", "optics": "surrogate"}
 
 
 def run_dir_settings(out: Path, cfg: DesignConfig) -> DesignConfig:

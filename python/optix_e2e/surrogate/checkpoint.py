@@ -60,7 +60,7 @@ def outside_ranges(values, lo, hi) -> tuple[list[int], list[tuple[int, float, in
     lo, hi = torch.as_tensor(lo).cpu().double(), torch.as_tensor(hi).cpu().double()
     p = torch.as_tensor(values).detach().to("cpu", torch.float64).reshape(-1, lo.numel())
     tol = 1e-6 * (hi - lo)
-    bad = (p < lo - tol) | (p > hi + tol)  # [N, P]; False where non-finite
+    bad = ((p < lo - tol) | (p > hi + tol)) & torch.isfinite(p)  # [N, P]; non-finite apart
     nonfinite = torch.nonzero((~torch.isfinite(p)).any(0)).flatten().tolist()
     cols = [(j, float(p[bad[:, j], j][0]), int(bad[:, j].sum())) for j in torch.nonzero(bad.any(0)).flatten().tolist()]
     return nonfinite, cols
