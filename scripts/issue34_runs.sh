@@ -5,8 +5,10 @@
 #    starts (seeds 0 1 2), the quick budget (docs/e2e.md, "The paper-width space").
 # 2. The optics model in the loop with the new processing and crops: surrogate against exact, 3 seeds
 #    (step 4; benches/optics_tradeoff.py, docs/optics-in-the-loop.md).
-# then the main job (iq-software, quick budget, the defaults) on 3 seeds, and 1 from the nominal (seeds 0 1 2);
-# 3. The three image-quality tasks at the full budget, 3 seeds each, on the defaults (step 7).
+# 3. The main job (iq-software, quick budget, the defaults) on 3 seeds.
+# 4. Fig. 12 as in 1, from the nominal lens (seeds 0 1 2).
+# 5. The three image-quality tasks at the full budget, 3 seeds each, on the defaults (step 7);
+#    --no-table stops before it.
 # Run it from the project's environment (source .venv/bin/activate, as ./run.sh makes it).
 set -euo pipefail
 OUT="${1:-runs/issue34}"
