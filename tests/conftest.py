@@ -1,8 +1,9 @@
-"""Shared fixtures: the bundled Cooke triplet and the reference data in ../shared/reference.
+"""Shared fixtures: the bundled Cooke triplet and the data in ../shared.
 
-The reference folder is looked up as <repo root>/../shared/reference (CI clones the repo
-with shared/ beside it) unless OPTIX_REFERENCE_DIR points elsewhere.  A missing folder is
-a test failure with a message, never a silent skip.
+The shared data (reference/, zmx-samples/, lpips-reference/) is looked up in <repo
+root>/../shared (CI clones the repo with shared/ beside it), or in $OPTIX_SHARED_DIR; one
+folder can be pointed elsewhere alone (OPTIX_REFERENCE_DIR, OPTIX_ZMX_SAMPLES_DIR).  A
+missing folder is a test failure with a message, never a silent skip.
 """
 
 from __future__ import annotations
@@ -18,9 +19,21 @@ import pytest
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
 
+def shared_dir(name: str, env: str | None = None) -> Path:
+    """The shared data folder ``name``: $``env`` if set, else $OPTIX_SHARED_DIR/``name``, else
+    <repo root>/../shared/``name``."""
+    if env and os.environ.get(env):
+        return Path(os.environ[env])
+    root = os.environ.get("OPTIX_SHARED_DIR")
+    return (Path(root) if root else REPO_ROOT.parent / "shared") / name
+
+
+#: how a missing shared folder is to be found (the failure message)
+WHERE_SHARED = "clone the repository with shared/ beside it or set OPTIX_SHARED_DIR"
+
+
 def reference_dir() -> Path:
-    env = os.environ.get("OPTIX_REFERENCE_DIR")
-    return Path(env) if env else REPO_ROOT.parent / "shared" / "reference"
+    return shared_dir("reference", "OPTIX_REFERENCE_DIR")
 
 
 @pytest.fixture(scope="session")
@@ -28,8 +41,7 @@ def ref_dir() -> Path:
     path = reference_dir()
     if not (path / "cooke_triplet_reference.json").is_file():
         pytest.fail(
-            f"reference data not found at {path}: clone the repository with shared/ beside it "
-            f"(../shared/reference) or set OPTIX_REFERENCE_DIR",
+            f"reference data not found at {path}: {WHERE_SHARED} (or OPTIX_REFERENCE_DIR)",
             pytrace=False,
         )
     return path

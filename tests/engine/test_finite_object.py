@@ -10,19 +10,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import WHERE_SHARED, shared_dir
 from optix_e2e.lens import Lens
 from optix_e2e.lens.prescription import PrescriptionError
 from optix_e2e.lens.zemax import ZemaxError
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
-SAMPLES = REPO_ROOT.parent / "shared" / "zmx-samples"
+SAMPLES = shared_dir("zmx-samples", "OPTIX_ZMX_SAMPLES_DIR")
 BROKEN = REPO_ROOT / "tests" / "data" / "zmx" / "broken"
 
 
 def sample(name: str) -> Path:
     path = SAMPLES / name
     if not path.is_file():
-        pytest.fail(f"missing {path}: clone with shared/ beside the repo", pytrace=False)
+        pytest.fail(f"missing {path}: {WHERE_SHARED}", pytrace=False)
     return path
 
 

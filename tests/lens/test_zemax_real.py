@@ -2,33 +2,29 @@
 
 The real files are the 640 samples in ../shared/zmx-samples (vendor catalogs and public
 repositories, unedited), found like the reference data (conftest.py): <repo>/../shared,
-or OPTIX_ZMX_SAMPLES_DIR.  A missing folder is a failure, never a skip.
+$OPTIX_SHARED_DIR or OPTIX_ZMX_SAMPLES_DIR.  A missing folder is a failure, never a skip.
 """
 
 import math
-import os
 from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
 
+from conftest import WHERE_SHARED, shared_dir
 from optix_e2e.cli import main
 from optix_e2e.lens import Lens
 from optix_e2e.lens.zemax import ZemaxError, parse_zmx, read_zmx
 from optix_e2e.lens.zemax.survey import nominal_focal_length, survey
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
 DATA = Path(__file__).parents[1] / "data" / "zmx"
 
 
 @pytest.fixture(scope="module")
 def samples() -> Path:
-    env = os.environ.get("OPTIX_ZMX_SAMPLES_DIR")
-    path = Path(env) if env else REPO_ROOT.parent / "shared" / "zmx-samples"
+    path = shared_dir("zmx-samples", "OPTIX_ZMX_SAMPLES_DIR")
     if not any(path.rglob("*.zmx")):
-        pytest.fail(
-            f"no .zmx samples at {path}: clone with shared/ beside the repo or set OPTIX_ZMX_SAMPLES_DIR", pytrace=False
-        )
+        pytest.fail(f"no .zmx samples at {path}: {WHERE_SHARED} (or OPTIX_ZMX_SAMPLES_DIR)", pytrace=False)
     return path
 
 

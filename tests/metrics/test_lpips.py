@@ -9,22 +9,20 @@ import torch
 from PIL import Image
 
 import optix_e2e
+from conftest import WHERE_SHARED, shared_dir
 from optix_e2e.metrics import lpips as lpips_module
 from optix_e2e.metrics.lpips import WEIGHTS_SHA256, LPIPS, LPIPSWeightsError, lpips, weights_digest, weights_path
 
 from pathlib import Path
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
 
-LPIPS_REF = REPO_ROOT.parent / "shared" / "lpips-reference"
+LPIPS_REF = shared_dir("lpips-reference")
 
 
 def _image(name: str) -> torch.Tensor:
     path = LPIPS_REF / name
     if not path.is_file():
-        pytest.fail(
-            f"{path}: the LPIPS reference images are missing (clone with shared/ beside the repo)", pytrace=False
-        )
+        pytest.fail(f"{path}: the LPIPS reference images are missing ({WHERE_SHARED})", pytrace=False)
     a = np.asarray(Image.open(path).convert("RGB"), dtype=np.float32) / 255.0
     return torch.from_numpy(a).permute(2, 0, 1)
 

@@ -186,6 +186,12 @@ def test_auto_picks_the_fastest_model_not_measurably_worse_than_the_best(tmp_pat
     mode, why = resolve_optics(make_config("smoke", task="iq-hardware", optics="auto"), path)
     assert mode == "surrogate" and "no measured trade-off" in why["why"]
     assert resolve_optics(make_config("smoke", optics="exact"), path)[0] == "exact"
+    # a set model says whether it is the task's default or was asked for
+    assert resolve_optics(make_config("smoke"), path)[1]["why"].startswith("the default for iq-software")
+    assert resolve_optics(make_config("smoke", task="detection"), path)[1]["why"].startswith(
+        "the default for detection"
+    )
+    assert resolve_optics(make_config("smoke", optics="surrogate"), path)[1]["why"] == "asked for"
 
 
 def test_bad_optics_settings_are_named():

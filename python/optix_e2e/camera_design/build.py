@@ -114,7 +114,8 @@ def start_record(cfg: DesignConfig) -> dict:
     return {
         "init": "uniform",
         "seed": cfg.seed,
-        "condition": "manufacturable" + (" and renderable by the run's exact optics" if engine_start(cfg) else ""),
+        "condition": "manufacturable"
+        + (" and renderable by the engine (the run's lens steps go through it)" if engine_start(cfg) else ""),
         **(rec[1] if rec else {}),
         **({"values": [float(x) for x in rec[0]]} if rec else {}),
     }

@@ -270,6 +270,13 @@ TASK_BUDGETS: dict[str, dict[str, dict]] = {
 }
 
 
+def task_default(task: str, budget: str, key: str):
+    """The value setting ``key`` takes for ``task`` at ``budget`` when neither a config file
+    nor the command line sets it."""
+    values = {**BUDGETS.get(budget, {}), **TASK_BUDGETS.get(task, {}).get(budget, {})}
+    return values.get(key, getattr(DesignConfig, key))
+
+
 PATH_SETTINGS = ("images", "software_isp", "detector")  # settings that name files or folders
 
 

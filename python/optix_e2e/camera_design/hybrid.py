@@ -34,6 +34,7 @@ import torch
 
 from ..surrogate.refine import RefineSettings, refine_around
 from ..errors import InputError
+from .config import task_default
 
 OPTICS_MODES = ("surrogate", "exact", "hybrid", "auto")
 REFINE_MODES = ("correction", "network")
@@ -310,7 +311,9 @@ def resolve_optics(cfg, path=None) -> tuple[str, dict]:
     paired over the same images against the best model's, has a 95 % interval reaching zero.
     The surrogate (the paper's way) where nothing was measured for the task."""
     if cfg.optics != "auto":
-        return cfg.optics, {"requested": cfg.optics, "chosen": cfg.optics, "refine": cfg.refine, "why": "asked for"}
+        default = task_default(cfg.task, cfg.budget, "optics") == cfg.optics
+        why = f"the default for {cfg.task} (docs/optics-in-the-loop.md)" if default else "asked for"
+        return cfg.optics, {"requested": cfg.optics, "chosen": cfg.optics, "refine": cfg.refine, "why": why}
     rows = [
         r
         for r in read_tradeoff(path)
