@@ -11,12 +11,14 @@ from optix_e2e.lens_design.space import ParameterSpace, SpaceError, bundled_spac
 
 
 def test_every_bundled_lens_ships_a_space_containing_it():
-    # one space per lens, named after it; other spaces (paper-triplet-e2e, -detect, -wide) are around a bundled lens
+    # one space per lens, named after it; other spaces (paper-triplet-e2e, -detect, -wide,
+    # -detect-wide) are around a bundled lens
     assert set(bundled_lenses()) <= set(bundled_spaces())
     assert set(bundled_spaces()) - set(bundled_lenses()) == {
         "paper-triplet-e2e",
         "paper-triplet-detect",
         "paper-triplet-wide",
+        "paper-triplet-detect-wide",
     }
     for name in bundled_spaces():
         space, lens = load_space(name)
@@ -136,6 +138,42 @@ def test_wide_space_has_table_1s_relative_widths_and_is_what_its_script_makes(tm
         cwd=Path(__file__).resolve().parents[2],
     )
     assert ParameterSpace.load(out).params == space.params
+
+
+def test_detection_wide_space_holds_a_manufacturable_f3_2_lens():
+    """The detection space (issue 35): the paper-width space plus lens 1's and lens 3's centre
+    thicknesses and the aperture, same limits. An f/3.2 lens found in it by
+    benches/fast_lens_search.py (tests/data/lenses/detect_wide_f3.2.json) lies inside its ranges
+    and passes the one constraint definition at its own clear apertures; the nominal opened to
+    f/3.2 as it is does not (its lens-2-to-stop gap crosses the wider beam)."""
+    import copy
+    import json
+
+    from optix_e2e.lens_design.constraints import Limits, check_design, own_apertures
+
+    space, base = load_space("paper-triplet-detect-wide")
+    wide, _ = load_space("paper-triplet-wide")
+    assert space.names == wide.names + ["s_1_thickness", "s_6_thickness", "f_number"]
+    assert space.params[: len(wide)] == wide.params and space.constraints == wide.constraints
+    kinds = {q.name: (q.kind, q.surface, q.min, q.max) for q in space.params}
+    assert kinds["s_1_thickness"] == ("thickness", 1, 2.0, 8.0) and kinds["s_6_thickness"] == ("thickness", 6, 2.0, 8.0)
+    assert kinds["f_number"] == ("f_number", 0, 2.8, 4.6)
+    assert space.check_bounds(base.data) == []  # the nominal is inside
+
+    raw = json.loads((Path(__file__).parents[1] / "data" / "lenses" / "detect_wide_f3.2.json").read_text())
+    fast = Lens(raw)
+    limits = Limits.from_dict(space.constraints)
+    assert fast.paraxial()["f_number"] == pytest.approx(3.2, rel=1e-3)
+    assert fast.paraxial()["efl_mm"] == pytest.approx(25.0, rel=1e-3)
+    assert space.check_bounds(fast.data) == []
+    assert check_design(fast.data, own_apertures(fast.data), limits) == []
+
+    opened = copy.deepcopy(base.data)
+    opened["aperture"] = {"type": "fno", "value": 3.2}
+    for s in opened["surfaces"]:
+        s.pop("semi_diameter", None)
+    with pytest.raises(Exception, match="cross"):
+        Lens(opened)
 
 
 def test_with_ranges_keeps_everything_but_the_ranges():
