@@ -74,3 +74,35 @@ def test_detection_needs_a_space_with_the_f_number(tmp_path, optix, smoke_design
     r = optix(*smoke_design("detection", tmp_path / "r", "--surrogate", "paper-triplet-e2e"))
     assert r.returncode == 1 and "f_number" in r.stdout + r.stderr
     assert not (tmp_path / "r").exists()
+
+
+def test_detection_in_the_wide_space_runs_on_exact_optics(tmp_path, optix, smoke_design):
+    """The detection space with free centre thicknesses (issue 35) has no network: the run's
+    lens steps go through the engine (its PSFs and central-difference Jacobian), the nominal
+    baseline trains on the engine's PSFs of the nominal lens, and results.json says so; the
+    surrogate's reference figures are absent, not made up."""
+    (tmp_path / "wide.toml").write_text('optics = "exact"\nspace = "paper-triplet-detect-wide"\n')
+    out = tmp_path / "run"
+    r = optix(*smoke_design("detection", out, "--config", tmp_path / "wide.toml"))
+    assert r.returncode == 0, r.stdout + r.stderr
+    res = json.loads((out / "results.json").read_text())
+    m = res["optics_model"]
+    assert m["mode"] == "exact" and m["network"] is False and "adds s_1_thickness, s_6_thickness" in m["no_network"]
+    # 4 lens steps, each a Jacobian of 2 P + 1 designs (P = 22), besides the step choice
+    assert m["engine"]["designs"] >= 4 * 45 and len(m["steps"]["steps"]) == 22
+    assert res["design"]["parameters"][-3:] == ["s_1_thickness", "s_6_thickness", "f_number"]
+    assert res["space"]["source"] == "paper-triplet-detect-wide" and not res["space"]["surrogates_own"]
+    assert res["surrogate_psf_rel_l1_per_field"]["end_to_end"] is None
+    for who in ("nominal", "end_to_end"):
+        assert res[who]["surrogate"] is None and 0.0 <= res[who]["map_50"] <= 1.0
+        assert res[who]["f_number_paraxial"] == pytest.approx(res[who]["f_number"], rel=1e-3)
+    c = res["design"]["checks"]
+    assert res["training"]["end_to_end"]["lens_steps"] == 4 and c["inside_space"] and c["manufacturable"]
+    assert not list(out.glob("detections_*_surrogate.json"))
+    # the lens moved in the new parameters too (their gradients come from the engine)
+    i = res["design"]["parameters"].index("s_1_thickness")
+    assert res["design"]["end_to_end"][i] != res["design"]["nominal"][i]
+    # hybrid optics (a network refined along the run) is for the image-quality tasks
+    (tmp_path / "hybrid.toml").write_text('optics = "hybrid"\n')
+    r = optix(*smoke_design("detection", tmp_path / "h", "--config", tmp_path / "hybrid.toml"))
+    assert r.returncode == 1 and "hybrid optics are for the image-quality tasks" in r.stdout + r.stderr

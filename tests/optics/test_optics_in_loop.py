@@ -240,6 +240,43 @@ def test_a_wider_space_moves_every_bound_and_needs_exact_optics(sur):
         sur.in_space(cooke, cooke_base)
 
 
+def test_a_space_of_other_parameters_gives_terms_without_a_network():
+    """The detection space with free centre thicknesses (issue 35) has parameters the detection
+    surrogate never saw: ``in_space(network=False)`` gives its terms for exact optics, with the
+    space's parameters and ranges, and no network (an error naming what the space adds)."""
+    from optix_e2e.errors import InputError
+    from optix_e2e.lens_design.space import load_space
+    from optix_e2e.optics.exact import ExactOptics
+
+    det = load_surrogate("paper-triplet-detect")
+    wide, base = load_space("paper-triplet-detect-wide")
+    with pytest.raises(ValueError, match="its parameters .* are not the surrogate's"):
+        det.in_space(wide, base)  # the default keeps the network, so refuses other parameters
+    t = det.in_space(wide, base, source="paper-triplet-detect-wide", network=False)
+    assert det.has_network and not t.has_network and t.param_names == wide.names != det.param_names
+    assert "adds s_1_thickness, s_6_thickness" in t.no_network_why
+    with pytest.raises(InputError, match="no optics network.*adds s_1_thickness"):
+        t.psfs(torch.tensor([p.min for p in wide.params]))
+    optics = DifferentiableOptics(t)
+    assert optics.backend == "exact" and optics.u.numel() == len(wide.names) == len(det.param_names) + 2
+    with pytest.raises(InputError, match="optics backend surrogate"):
+        optics.backend = "surrogate"
+    v = optics.base_values().double().numpy()
+    i = wide.names.index("s_1_thickness")
+    assert v[i] == pytest.approx(wide.values(base.data)[i]) and 3.0 < v[i] < 5.0  # lens 1, 3.87 mm
+    ex = ExactOptics.from_surrogate(t)
+    assert ex.names == wide.names and np.array_equal(ex._range()[1], [p.max for p in wide.params])
+    # the engine sees the thickness: a thicker lens 1 changes the PSFs
+    psf0, _ = ex.psfs(v)
+    v2 = v.copy()
+    v2[i] += 0.5
+    psf1, _ = ex.psfs(v2)
+    assert np.abs(psf1 - psf0).sum() > 0.05 * np.abs(psf0).sum()
+    cooke, cooke_base = load_space("cooke-f50")
+    with pytest.raises(ValueError, match="not (those of )?the surrogate's"):  # another lens: refused
+        det.in_space(cooke, cooke_base, network=False)
+
+
 @pytest.mark.slow
 def test_a_uniform_start_in_the_wide_space_is_manufacturable_and_renderable():
     """The paper's random start (Sec. 5.2) in a space the surrogate was not trained on: drawn

@@ -216,5 +216,7 @@ def start_run(cfg: DesignConfig, out: "str | Path") -> tuple[Path, object, Senso
     sur = load_surrogate(cfg.surrogate, calibrated_preset("imx249").pixel_um)
     if cfg.space:
         space, base = load_space(cfg.space)
-        sur = sur.in_space(space, base, source=cfg.space)
+        # a space over other parameters of the same lens: the surrogate gives only the terms
+        # (the run's optics are exact whenever a space is set: DesignConfig.check)
+        sur = sur.in_space(space, base, source=cfg.space, network=space.names == sur.param_names)
     return Path(out), get_task(cfg.task), SensorFrame(), sur

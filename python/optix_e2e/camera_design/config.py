@@ -123,6 +123,7 @@ class DesignConfig:
     # exact | surrogate | hybrid | auto (from the measured trade-off); exact, the engine with central-
     # difference gradients, for the image-quality tasks (docs/optics-in-the-loop.md: the surrogate is up
     # to 20 % off at the full field, exact costs nothing measurable on the whole run); detection: surrogate
+    # (exact in a space the network never learned, e.g. paper-triplet-detect-wide: docs/detection.md)
     optics: str = "exact"
     check_every: int = 10  # exact check of the current design every N steps (and after the last)
     hybrid_threshold: float = 0.02  # hybrid: refine when the worst field's PSF rel. L1 passes this

@@ -167,11 +167,18 @@ class DetectionHooks(TaskHooks):
             raise InputError("--images is for the image-quality tasks; detection trains on street scenes")
         if c.fields:
             raise InputError("fields: the detection run renders from all the surrogate's field samples (fields = 0)")
-        if c.optics not in ("surrogate", "auto"):
+        if c.optics not in ("surrogate", "exact", "auto"):
             raise InputError(
-                f"optics {c.optics}: the detection run trains through the surrogate (exact and hybrid "
-                f"optics are for the image-quality tasks)"
+                f"optics {c.optics}: the detection run trains through the surrogate or the engine (exact); "
+                f"hybrid optics are for the image-quality tasks"
             )
+        if c.optics == "exact" and ranks.distributed:
+            raise InputError(
+                "optics exact runs the engine inside the training steps, which is not shared between "
+                "torchrun processes: run it in one process"
+            )
+        if c.optics != "exact" and not sur.has_network:
+            raise InputError(f"optics {c.optics}: {sur.no_network_why}")
         if "f_number" not in sur.param_names:
             raise InputError(
                 f"surrogate {c.surrogate}: its space has no f_number parameter; the detection task "
@@ -181,13 +188,22 @@ class DetectionHooks(TaskHooks):
 
     def build_camera(self, sur, frame, *, fixed_optics=None, trained=False):
         cam = build_camera(self.cfg, sur, fixed_optics=fixed_optics, frame=frame)
+        if fixed_optics is None and self.cfg.optics == "exact":
+            cam.optics.backend = "exact"  # every lens step on the engine's PSFs and Jacobian
         return DetectionCamera(cam, load_start_detector(self.cfg, self.cfg.crop_hw))
 
     def loss_at(self, camera, frame, ranks):
         return _loss_at(self.cfg, camera, frame, ranks)
 
     def nominal_optics(self, camera, sur, nominal_values, surrogate_psfs, frame):
+        # the baseline trains through the run's optics model: the engine's PSFs of the nominal
+        # lens under exact optics (as the image-quality tasks), the surrogate's otherwise
         psf, vig = surrogate_psfs
+        if self.cfg.optics == "exact":
+            psf, vig = (
+                torch.as_tensor(a, dtype=torch.float32)
+                for a in camera.optics.exact.psfs(nominal_values.double().numpy())
+            )
         return FixedOptics(
             psf,
             vig,
@@ -211,6 +227,8 @@ class DetectionHooks(TaskHooks):
         for who in WHO:
             preds[who] = {}
             for kind in ("exact", "surrogate"):
+                if optics[who][kind] is None:  # no network on these terms (a space of other parameters)
+                    continue
                 path = out / f"detections_{who}_{kind}.json"
                 psf, vig, fh = optics[who][kind]
                 key = _digest(psf, vig, fh, f_numbers[who], cams[who], len(samples), samples_key)
@@ -235,10 +253,7 @@ class DetectionHooks(TaskHooks):
                     images=[s.name for s in samples],
                     detections=_preds_json(preds[who][kind]),
                 )
-        scores = {
-            who: {kind: detection_scores(preds[who][kind], samples, task.dark) for kind in ("exact", "surrogate")}
-            for who in WHO
-        }
+        scores = {who: {kind: detection_scores(p, samples, task.dark) for kind, p in preds[who].items()} for who in WHO}
         return {"samples": samples, "preds": preds, "scores": scores}, reused_s
 
     def panels(self, path, evaluation, cams, optics, f_numbers, frame):
@@ -263,7 +278,12 @@ class DetectionHooks(TaskHooks):
                 "rms_spot_um": [float(r["rms_spot_um"]) for r in rep["fields"]],
                 "relative_illumination": [r["relative_illumination"] for r in rep["fields"]],
                 "report_fields_deg": [float(r["field_deg"]) for r in rep["fields"]],
-                "surrogate": {k: scores[who]["surrogate"][k] for k in ("map_50", "map", "dark")},
+                # under the surrogate's PSFs, for reference (None: no network on these terms)
+                "surrogate": (
+                    {k: scores[who]["surrogate"][k] for k in ("map_50", "map", "dark")}
+                    if "surrogate" in scores[who]
+                    else None
+                ),
             }
 
         paired = paired_map(
@@ -287,7 +307,23 @@ class DetectionHooks(TaskHooks):
         }
 
     def extra(self, cams, monitor, e2e):
-        return {"isp_hyperparameters": {who: cams[who].isp.hyperparameters() for who in WHO}}
+        optics = cams["end_to_end"].optics
+        model = {
+            "mode": "exact" if self.cfg.optics == "exact" else "surrogate",
+            # the network's error is measured at the final design (surrogate_psf_rel_l1_per_field)
+            "network": optics.surrogate.has_network,
+        }
+        if not optics.surrogate.has_network:
+            model["no_network"] = optics.surrogate.no_network_why
+        if self.cfg.optics == "exact":
+            ex = optics.exact
+            model["engine"] = {"designs": ex.designs_computed, "seconds": ex.seconds}
+            if ex.step_choice is not None:
+                model["steps"] = ex.step_choice.to_json()
+        return {
+            "isp_hyperparameters": {who: cams[who].isp.hyperparameters() for who in WHO},
+            "optics_model": model,
+        }
 
     def write_tables(self, out, evaluation):
         _write_scenes(out / "metrics.csv", evaluation["samples"], evaluation["preds"])

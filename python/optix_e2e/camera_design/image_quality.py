@@ -42,6 +42,11 @@ class ImageQualityHooks(TaskHooks):
         self.folder = ImageFolder(cfg.images) if cfg.images else None
 
     def check(self, sur, ranks):
+        if not sur.has_network:  # the run measures the network along the way (OpticsMonitor)
+            raise InputError(
+                f"space {self.cfg.space}: {sur.no_network_why}; the image-quality runs need a space "
+                "over the surrogate's parameters"
+            )
         if ranks.distributed and self.mode != "surrogate":
             raise InputError(
                 f"--optics {self.cfg.optics} ({self.mode}) runs the engine inside the training steps, which is not "

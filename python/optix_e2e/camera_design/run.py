@@ -106,7 +106,13 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         )
         nominal_values = camera.optics.base_values()
         with torch.no_grad():
-            psf_ns, vig_ns = sur.psfs(nominal_values, check=False)
+            if sur.has_network:
+                psf_ns, vig_ns = sur.psfs(nominal_values, check=False)
+            else:  # no network on this space's terms: the engine's PSFs of the nominal lens
+                psf_ns, vig_ns = (
+                    torch.as_tensor(a, dtype=torch.float32)
+                    for a in camera.optics.exact.psfs(nominal_values.double().numpy())
+                )
         fixed = hooks.nominal_optics(camera, sur, nominal_values, (psf_ns, vig_ns), frame)
         nominal = hooks.build_camera(sur, frame, fixed_optics=fixed)
         nom_opt = make_optimizer(cfg, nominal, "nominal")
@@ -138,10 +144,12 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     exact = exact_optics(
         sur, torch.stack([nominal_values, final_values]).double().numpy(), fallback=hooks.exact_fallback
     )
-    with torch.no_grad():  # the shipped surrogate at the final design (a hybrid run's refined model: optics_model)
-        psf_es, vig_es = sur.psfs(final_values, check=False)
+    psf_es = vig_es = None
+    if sur.has_network:
+        with torch.no_grad():  # the shipped surrogate at the final design (a hybrid run's refined model: optics_model)
+            psf_es, vig_es = sur.psfs(final_values, check=False)
     # field positions: each design's own chief-ray heights under exact optics, the nominal's
-    # (what training used) under the surrogate's
+    # (what training used) under the surrogate's (None: no network on these terms)
     h_train = camera.optics.render_fields
     surrogate_psfs = {"nominal": (psf_ns, vig_ns), "end_to_end": (psf_es, vig_es)}
     optics = {
@@ -151,7 +159,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
                 exact["vignetting"][i],
                 design_field_heights(sur, values[who].numpy(), exact["image_distance"][i]),
             ),
-            "surrogate": (*surrogate_psfs[who], h_train),
+            "surrogate": (*surrogate_psfs[who], h_train) if sur.has_network else None,
         }
         for i, who in enumerate(WHO)
     }
@@ -183,7 +191,9 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
             "fields_deg": fields_deg,
             "nominal": outputs.psf_rel_l1_per_field(psf_ns, exact["psf"][0]),
             "end_to_end": outputs.psf_rel_l1_per_field(psf_es, exact["psf"][1]),
-        },
+        }
+        if sur.has_network
+        else {"fields_deg": fields_deg, "nominal": None, "end_to_end": None, "no_network": sur.no_network_why},
         "exact_psf_method": {"nominal": exact["methods"][0], "end_to_end": exact["methods"][1]},
         # the exact PSFs are normalized over their window: how much of each field's flux that
         # window holds (worst channel), for both lenses

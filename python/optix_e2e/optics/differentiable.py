@@ -47,7 +47,7 @@ class DifferentiableOptics(nn.Module):
         patch: int = 64,
         full_field_px: float | None = None,
         eps: float = 1e-4,
-        backend: str = "surrogate",
+        backend: str | None = None,
     ):
         super().__init__()
         if not isinstance(surrogate, OpticsSurrogate):
@@ -58,13 +58,14 @@ class DifferentiableOptics(nn.Module):
         self.patch, self.full_field_px, self.eps = patch, full_field_px, eps
         self.register_buffer("lo", surrogate.param_min.float().clone())
         self.register_buffer("hi", surrogate.param_max.float().clone())
-        self.u = nn.Parameter(torch.zeros(surrogate.cfg.n_params))
+        self.u = nn.Parameter(torch.zeros(len(surrogate.param_names)))
         self.set_values(self.base_values() if init is None else init)
         # where the K fields land on the sensor, as fractions of the full field's image height
         # (None: proportional to the field angle); see camera.stages.image_height_fractions
         self.render_fields: torch.Tensor | None = None
         self._exact = None
-        self.backend = backend
+        # default: the network where there is one (a copy on another space's terms has none)
+        self.backend = backend or ("surrogate" if surrogate.has_network else "exact")
         # an additive correction of the surrogate's output (psf [K, C, S, S], vignetting [K, C]):
         # exact minus surrogate at an anchor design (camera_design/hybrid.py); None: the network alone
         self.correction: tuple[torch.Tensor, torch.Tensor] | None = None
@@ -79,6 +80,8 @@ class DifferentiableOptics(nn.Module):
     def backend(self, name: str) -> None:
         if name not in ("surrogate", "exact"):
             raise InputError(f"optics backend must be surrogate or exact, got {name!r}")
+        if name == "surrogate" and not self.surrogate.has_network:
+            raise InputError(f"optics backend surrogate: {self.surrogate.no_network_why}")
         self._backend = name
 
     @property

@@ -108,6 +108,9 @@ class OpticsSurrogate(nn.Module):
         self.manifest = manifest or {}
         self.meta = meta or {}
         self.out_of_range = "error"
+        # False on a copy put in a space of other parameters (in_space(network=False)): terms only
+        self.has_network = True
+        self.no_network_why = ""
 
     # -- inputs -------------------------------------------------------------------------
     def normalize(self, params: torch.Tensor) -> torch.Tensor:
@@ -149,7 +152,7 @@ class OpticsSurrogate(nn.Module):
                 raise SurrogateRangeError(msg)
             warnings.warn(msg, stacklevel=4)
 
-    def in_space(self, space, base, source: str | None = None) -> "OpticsSurrogate":
+    def in_space(self, space, base, source: str | None = None, *, network: bool = True) -> "OpticsSurrogate":
         """This surrogate on the terms of a wider (or other) ``space`` over the same parameters
         and base lens: a copy whose manifest records that space (its ranges become the design
         ranges every design tool reads: the optics' sigmoid bounds, the exact engine's, the
@@ -157,7 +160,12 @@ class OpticsSurrogate(nn.Module):
         Outside its training ranges the network extrapolates: the copy does not refuse them
         (``out_of_range = "ignore"``; ``check_params`` still lists them, against ``trained_min``
         and ``trained_max``): use it with exact optics (camera_design's ``space``).
-        ``base``: the space's base lens (a Lens or dict), which must be the surrogate's."""
+        ``base``: the space's base lens (a Lens or dict), which must be the surrogate's.
+
+        ``network=False``: a space over other parameters of the same base lens (the detection
+        space with free centre thicknesses, issue 35): the copy gives only the terms (fields,
+        PSF window and sampling, sensor pitch, base lens, limits) for exact optics, and has no
+        network (``has_network`` False; ``psfs`` and ``forward`` are an error saying so)."""
         import copy
 
         from ..dataset.manifest import space_and_base
@@ -166,13 +174,14 @@ class OpticsSurrogate(nn.Module):
             raise InputError("the surrogate has no dataset manifest: it cannot be put in another space")
         trained, own_base = space_and_base(self.manifest)
         where = source or space.source
-        if space.names != trained.names:
+        same = space.names == trained.names
+        if not same and network:
             raise InputError(
                 f"{where}: its parameters ({', '.join(space.names)}) are not the surrogate's "
                 f"({', '.join(trained.names)}), in the same order"
             )
-        kinds = [(p.kind, p.surface) for p in space.params]
-        if kinds != [(p.kind, p.surface) for p in trained.params]:
+        mine = {p.name: (p.kind, p.surface) for p in space.params}
+        if any(mine.get(p.name, (p.kind, p.surface)) != (p.kind, p.surface) for p in trained.params):
             raise InputError(f"{where}: its parameters change other surfaces than the surrogate's of the same names")
         if space.constraints and "sampling_summary" in self.manifest:
             limits = self.manifest["sampling_summary"].get("limits") or {}
@@ -199,11 +208,34 @@ class OpticsSurrogate(nn.Module):
         out.param_min, out.param_max = lo, hi
         out.manifest = man
         out.out_of_range = "ignore"
+        if not same:
+            added = [n for n in space.names if n not in trained.names]
+            dropped = [n for n in trained.names if n not in space.names]
+            out.param_names = list(space.names)
+            out.has_network = False
+            out.no_network_why = (
+                f"the network learned the {len(trained.names)} parameters of {Path(str(trained.source)).stem}; {where} "
+                + ", ".join(
+                    x
+                    for x in (
+                        f"adds {', '.join(added)}" if added else "",
+                        f"drops {', '.join(dropped)}" if dropped else "",
+                        "orders them otherwise" if not (added or dropped) else "",
+                    )
+                    if x
+                )
+                + ": exact optics only"
+            )
         return out
+
+    def _need_network(self) -> None:
+        if not self.has_network:
+            raise InputError(f"no optics network on these terms: {self.no_network_why}")
 
     # -- outputs ------------------------------------------------------------------------
     def forward(self, params: torch.Tensor, field: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Raw params [B, P] (or [P]), normalized field [B] in [0, 1] -> (psf [B, C, S, S], vignetting [B, C])."""
+        self._need_network()
         params = torch.as_tensor(params)
         if params.dim() == 1:
             params = params.unsqueeze(0)
@@ -224,6 +256,7 @@ class OpticsSurrogate(nn.Module):
         unit sum per channel, vignetting [(B,) K, C]); the renderer's inputs (with ``fields``).
         ``check``: check the parameters against the training ranges (``out_of_range``).
         ``field_index``: only these of the K fields (a list of indices; the cost is per field)."""
+        self._need_network()
         params = torch.as_tensor(params)
         single = params.dim() == 1
         p = params.reshape(-1, self.cfg.n_params)
