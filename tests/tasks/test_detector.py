@@ -134,3 +134,26 @@ def test_map_in_the_dark_counts_the_dark_objects_only(tmp_path):
     assert full["dark"]["n_objects"] == n_dark
     blind = evaluate_detector(Oracle(True), tmp_path, batch=4)
     assert blind["dark"]["map_50"] == 0.0 and 0.0 < blind["map_50"] < 1.0
+
+
+def test_training_noise_is_the_sensors_photon_and_read_noise(monkeypatch):
+    """`optix detect train --noise`: on a uniform linear image the noise has the Poisson-Gaussian
+    mean and variance of Eq. 5 at the drawn exposure (here fixed: 0.2 of the calibrated white,
+    f/4.4: 5,527 e- for the sunlit white), and a batch is the same for the same (seed, step)."""
+    from optix_e2e.tasks import detector_train as dt
+
+    monkeypatch.setattr(dt, "NOISE_LEVELS", (0.2, 0.2))
+    monkeypatch.setattr(dt, "NOISE_APERTURE_GAIN", (1.0, 1.0))
+    w = dt.NOISE_FULL_WELL_E * dt.NOISE_WHITE * 0.2
+    x = 0.01  # 55 e-: photon noise 7.4 e-, read noise 7 e-
+    y = dt.sensor_noise(torch.full((3, 256, 256), x, dtype=torch.float64), np.random.default_rng(0))
+    assert float(y.mean()) == pytest.approx(x, rel=0.01)
+    assert float(y.std()) == pytest.approx(np.sqrt(x * w + dt.NOISE_READ_E**2) / w, rel=0.03)
+    # dark images (sRGB up to 40 of 255: linear up to 0.02, a few tens of electrons): noise shows
+    images = (torch.rand(3, 3, 24, 36, generator=torch.Generator().manual_seed(0)) * 40).to(torch.uint8)
+    targets = [{"boxes": torch.tensor([[2.0, 2, 10, 10]]), "labels": torch.tensor([1])}] * 3
+    clean, _ = dt._batch(images, targets, 0, 7, 3)
+    noisy, _ = dt._batch(images, targets, 0, 7, 3, noise=1.0)
+    again, _ = dt._batch(images, targets, 0, 7, 3, noise=1.0)
+    assert all(torch.equal(a, b) for a, b in zip(noisy, again))
+    assert all(float((a - b).abs().mean()) > 0.004 for a, b in zip(clean, noisy))

@@ -38,10 +38,18 @@ def detect():
     help="Darken each training image by a log-uniform factor in [DIM, 1] in linear light (dusk "
     "exposures; 1: as stored).",
 )
+@click.option(
+    "--noise",
+    type=FiniteFloatRange(min=0, max=1),
+    default=0.0,
+    show_default=True,
+    help="The fraction of training images given the design run's sensor noise at a dusk exposure "
+    "(photon and read noise of the IMX249; tasks/detector_train.py:sensor_noise).",
+)
 @click.option("--threads", type=THREADS, default=0, help="torch CPU threads (0: default).")
 @click.option("--quiet", is_flag=True)
 @friendly_errors
-def train(data, out, steps, minutes, batch, lr, seed, dim, threads, quiet):
+def train(data, out, steps, minutes, batch, lr, seed, dim, noise, threads, quiet):
     """Train the detector on DATA (images/ + annotations.json, e.g. from `optix scenes street`)."""
     from ..parallel import set_threads
     from ..tasks.detector_train import train_detector
@@ -58,6 +66,7 @@ def train(data, out, steps, minutes, batch, lr, seed, dim, threads, quiet):
                 lr=lr,
                 seed=seed,
                 dim=dim,
+                noise=noise,
                 progress=not quiet,
                 log=click.echo,
             )

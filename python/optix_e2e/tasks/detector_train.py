@@ -116,7 +116,29 @@ def _history_is_ours(out: Path) -> bool:
     return first in ([], [",".join(HISTORY_HEADER)])
 
 
-def _batch(images: torch.Tensor, targets: list[dict], seed: int, step: int, batch: int, dim: float = 1.0):
+# The noisy images (``noise``): the design run's sensor at dusk (tasks/detection.py): the IMX249's
+# full well and read noise, the stored image's white (the scene's sunlit white) at a log-uniform
+# 0.1-0.4 of the calibrated 85 % of the full well, through f/4.4 .. f/3.2 (1 .. 1.89 x the photons)
+NOISE_FULL_WELL_E, NOISE_READ_E, NOISE_WHITE = 32513.0, 7.0, 0.85
+NOISE_LEVELS, NOISE_APERTURE_GAIN = (0.1, 0.4), (1.0, (4.4 / 3.2) ** 2)
+
+
+def sensor_noise(x_lin: torch.Tensor, rng: np.random.Generator) -> torch.Tensor:
+    """Photon (Poisson) and read (Gaussian) noise on a linear image whose 1.0 is the scene's
+    sunlit white, at a random dusk exposure (the constants above); linear, clipped to [0, 1]."""
+    level = float(np.exp(rng.uniform(*np.log(NOISE_LEVELS)))) * float(rng.uniform(*NOISE_APERTURE_GAIN))
+    per_unit = NOISE_FULL_WELL_E * NOISE_WHITE * level  # electrons for linear 1.0
+    gen = torch.Generator().manual_seed(int(rng.integers(2**62)))
+    e = torch.poisson(x_lin.clamp_min(0.0) * per_unit, generator=gen)
+    e = e + NOISE_READ_E * torch.randn(x_lin.shape, generator=gen)
+    return (e / per_unit).clamp(0.0, 1.0)
+
+
+def _batch(
+    images: torch.Tensor, targets: list[dict], seed: int, step: int, batch: int, dim: float = 1.0, noise: float = 0.0
+):
+    """A training batch drawn from (seed, step): ``dim``: each image darkened by a log-uniform
+    factor in [dim, 1] in linear light; ``noise``: the fraction of images given sensor_noise."""
     rng = np.random.default_rng([5, int(seed), int(step)])  # stream tag 5: detector batches
     idx = rng.choice(len(images), size=min(batch, len(images)), replace=False)
     flip = rng.random(len(idx)) < 0.5
@@ -124,8 +146,14 @@ def _batch(images: torch.Tensor, targets: list[dict], seed: int, step: int, batc
     w = images.shape[-1]
     for i, f in zip(idx.tolist(), flip.tolist()):
         x, b = images[i].float() / 255, targets[i]["boxes"].clone()
-        if dim < 1.0:  # a dimmer exposure of the same scene: scaled in linear light
-            x = color.linear_to_srgb(color.srgb_to_linear(x) * float(np.exp(rng.uniform(np.log(dim), 0.0))))
+        noisy = noise > 0.0 and rng.random() < noise
+        if dim < 1.0 or noisy:  # a dimmer exposure of the same scene: scaled in linear light
+            lin = color.srgb_to_linear(x)
+            if dim < 1.0:
+                lin = lin * float(np.exp(rng.uniform(np.log(dim), 0.0)))
+            if noisy:
+                lin = sensor_noise(lin, rng)
+            x = color.linear_to_srgb(lin)
         if f:
             x = x.flip(-1)
             b[:, [0, 2]] = w - b[:, [2, 0]]
@@ -146,6 +174,7 @@ def train_detector(
     width: int = 32,
     fpn: int = 64,
     dim: float = 1.0,
+    noise: float = 0.0,
     checkpoint_every: int = 100,
     progress: bool = True,
     log=print,
@@ -168,10 +197,12 @@ def train_detector(
             or ck.get("data") != str(Path(data).resolve())
             or ck.get("seed") != seed
             or ck.get("dim", 1.0) != dim
+            or ck.get("noise", 0.0) != noise
         ):
             raise InputError(
                 f"{out} holds a detector trained with other settings (config {ck['config']}, data "
-                f"{ck.get('data')}, seed {ck.get('seed')}, dim {ck.get('dim', 1.0)}); use another --out"
+                f"{ck.get('data')}, seed {ck.get('seed')}, dim {ck.get('dim', 1.0)}, noise {ck.get('noise', 0.0)}); "
+                f"use another --out"
             )
         step, wall = ck["step"], float(ck["wall_s"])  # checked by load_detector; a larger --steps continues
         log(f"resuming at step {step} of {steps}")
@@ -218,6 +249,7 @@ def train_detector(
             steps=steps,
             seed=seed,
             dim=dim,
+            noise=noise,
             wall_s=wall + time.perf_counter() - t0,
             data=str(Path(data).resolve()),
         )
@@ -233,7 +265,7 @@ def train_detector(
             for g in opt.param_groups:
                 g["lr"] = lr_at(step, frac)
             ts = time.perf_counter()
-            xs, tg = _batch(images, targets, seed, step, batch, dim)
+            xs, tg = _batch(images, targets, seed, step, batch, dim, noise)
             losses = model(xs, tg)
             loss = sum(losses.values())
             stop_if_diverged(step + 1, ck_path, "lower --lr", loss=loss.detach())
