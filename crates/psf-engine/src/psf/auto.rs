@@ -19,7 +19,9 @@
 //!
 //!   e = a_m tail + b_m step_N^2 + c_m.
 //!
-//! The geometric PSF lacks diffraction: e = a_g lambda / (n na) / spot_rms (+ ray noise).
+//! The geometric PSF (interpolated, no ray noise) lacks diffraction: e = window share x
+//! a_g lambda / (n na) / spot_rms, its error over the window counted against the transmitted
+//! light (see GEO_A).
 //! The constants (`MODELS`) are fitted to the bundled lenses' measured errors
 //! (`optix bench auto --calibrate`) times a safety margin, and checked on random designs the
 //! fit never saw (tests/test_auto.py, docs/accuracy.md). Costs are op counts times constants

@@ -289,6 +289,16 @@ pub(crate) fn psf_path(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfO
                         auto::label(c.method.name(), c.fast, c.pupil_samples)
                     ));
                     failed.push(auto::label(c.method.name(), c.fast, c.pupil_samples));
+                    if c.fast && p.diagnostics.values.contains_key("fast_fallback") {
+                        // The fast path's fits fail for the pupil, not for the sampling: every
+                        // fast candidate would fall back the same way.
+                        for k in cands.iter().filter(|k| k.fast) {
+                            let name = k.name();
+                            if !failed.contains(&name) {
+                                failed.push(name);
+                            }
+                        }
+                    }
                     next = auto::escalate(&cands, &c, &failed);
                 }
                 Ok((mut p, clear)) => {
