@@ -180,7 +180,9 @@ def psf(
     ``integrate=False`` gives intensity at pixel centres x pixel area (a super-resolved
     PSF); ``True`` integrates over each pixel (what a detector pixel collects; geometric
     always integrates). ``exact`` makes Huygens evaluate every distance exactly.
-    ``pupil_samples`` is also the ray grid across the pupil for the geometric method.
+    ``pupil_samples`` is also the ray grid across the pupil for the geometric method, whose
+    cells are split into sub-points interpolated from the traced rays (no ray noise;
+    docs/accuracy.md, "Spots larger than the window").
 
     ``fast=True`` (method "fft"): the fast FFT path of :func:`psf_batch` (see there) where
     it applies, else the general FFT; diagnostics ``fft_mode`` ("direction_grid" or

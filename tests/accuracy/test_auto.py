@@ -69,21 +69,25 @@ def test_auto_avoids_the_fft_where_the_exit_pupil_is_too_distorted():
 
 
 def test_auto_takes_the_cheapest_candidate_predicted_to_meet_the_target():
-    """3 mm of defocus at f/5 (spot ~600 um, Airy radius 3 um) on 20 um pixels, 25% target:
-    the geometric PSF now qualifies (aberrations dwarf diffraction), but the fast FFT on
-    the coarse pixels is cheaper still, and auto takes the cheapest that qualifies."""
+    """3 mm of defocus at f/5 (RMS spot ~210 um, Airy radius 3.6 um) on 10 um pixels, a
+    160 um window (about 8% of the light), 25% target: the geometric PSF qualifies (its
+    model counts the window's error against the transmitted light, docs/accuracy.md), but
+    the fast FFT on the coarse pixels is cheaper still, and auto takes the cheapest that
+    qualifies.  (Over a 1280 um window holding all the light the geometric PSF is 17% off
+    Huygens here, measured; its model, fitted on caustic-laden designs where it is up to 4x
+    worse for the same spot, predicts more than 100% and does not offer it.)"""
     lens = Lens.load("cooke-f50")
     data = json.loads(lens.to_engine_json())
     data["surfaces"][-1]["thickness"] = float(data["surfaces"][-1]["thickness"]) + 3.0
     js = json.dumps(data)
-    cands = _engine.auto_candidates(js, 0.0, 550.0, 20.0, 64)["candidates"]
+    cands = _engine.auto_candidates(js, 0.0, 550.0, 10.0, 16)["candidates"]
     costs = [c["predicted_cost_s"] for c in cands]
     assert costs == sorted(costs)
     ok = [c for c in cands if c["predicted_rel_l1"] is not None and c["predicted_rel_l1"] <= 0.25]
     assert any(c["method"] == "geometric" for c in ok)
-    _, d = _engine.psf(js, 0.0, 550.0, "auto", 20.0, 64, 64, None, "paraxial", False, False, False, 0.25)
-    # auto's first try is the cheapest that qualifies; a PSF failing its own checks (here the
-    # coarse fast FFTs, whose FFT field is smaller than the 1280 um window) escalates
+    _, d = _engine.psf(js, 0.0, 550.0, "auto", 10.0, 16, 64, None, "paraxial", False, False, False, 0.25)
+    # auto's first try is the cheapest that qualifies; a PSF failing (or flagged by) its own
+    # checks escalates
     tried = d.get("auto_escalated_from", []) + [d["auto"]["choice"]]
     assert tried[0] == ok[0]["name"]
     assert all(t in [c["name"] for c in cands] for t in tried)

@@ -759,7 +759,7 @@ fn auto_candidates<'py>(
     let o = options("auto", pixel_um, size, 64, None, aiming, integrate, false, false, 0.02)?;
     let v = run(py, || {
         let lens = parse_lens(lens_json)?;
-        let pr = psf_engine::psf::auto::probe(&lens, field_deg, wavelength_nm, o.aiming)?;
+        let pr = psf_engine::psf::auto::probe(&lens, field_deg, wavelength_nm, o.aiming, o.size as f64 * o.pixel_mm)?;
         let c = psf_engine::psf::auto::candidates(&pr, &o, lens.surfaces.len());
         Ok(serde_json::json!({
             "probe": psf_engine::psf::auto::probe_json(&pr),

@@ -19,7 +19,7 @@ use num_complex::{Complex32, Complex64};
 use rayon::prelude::*;
 use std::f64::consts::PI;
 
-const CUBIC_TOL_RAD: f64 = 1e-2;
+pub const CUBIC_TOL_RAD: f64 = 1e-2;
 const CROSS_TOL_RAD: f64 = 1e-4;
 
 struct Wavelet {

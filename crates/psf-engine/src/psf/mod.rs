@@ -256,13 +256,14 @@ pub(crate) fn psf_path(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfO
     }
     if o.method == Method::Auto {
         let t0 = Instant::now();
-        let pr = auto::probe(lens, field_deg, wavelength_nm, o.aiming)?;
+        let pr = auto::probe(lens, field_deg, wavelength_nm, o.aiming, o.size as f64 * o.pixel_mm)?;
         let cands = auto::candidates(&pr, o, lens.surfaces.len());
         let (c, met) = auto::choose(&cands, o.accuracy);
         let probe_s = t0.elapsed().as_secs_f64();
         // A PSF that fails its own checks (a window holding more than the transmitted
         // energy) escalates to the next candidate predicted at least as accurate, in cost order.
         let mut failed: Vec<String> = vec![];
+        let mut flags: Vec<String> = vec![];
         let mut next = Some(c);
         while let Some(c) = next.take() {
             let chosen = PsfOptions {
@@ -272,8 +273,47 @@ pub(crate) fn psf_path(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfO
                 ..o.clone()
             };
             match psf_path(lens, field_deg, wavelength_nm, &chosen) {
+                // A result its own checks flag (auto::flagged: the fast path fell back, the
+                // FFT's field or Taylor expansion failed, the pupil far undersampled) is not
+                // what the model predicted: the next candidate, where there is one.
+                Ok((p, _))
+                    if auto::flagged(&p.diagnostics, &c).is_some() && {
+                        let mut tried = failed.clone();
+                        tried.push(auto::label(c.method.name(), c.fast, c.pupil_samples));
+                        auto::escalate(&cands, &c, &tried).is_some()
+                    } =>
+                {
+                    let why = auto::flagged(&p.diagnostics, &c).unwrap_or_default();
+                    flags.push(format!(
+                        "{}: {why}",
+                        auto::label(c.method.name(), c.fast, c.pupil_samples)
+                    ));
+                    failed.push(auto::label(c.method.name(), c.fast, c.pupil_samples));
+                    if c.fast && p.diagnostics.values.contains_key("fast_fallback") {
+                        // The fast path's fits fail for the pupil, not for the sampling: every
+                        // fast candidate would fall back the same way.
+                        for k in cands.iter().filter(|k| k.fast) {
+                            let name = k.name();
+                            if !failed.contains(&name) {
+                                failed.push(name);
+                            }
+                        }
+                    }
+                    next = auto::escalate(&cands, &c, &failed);
+                }
                 Ok((mut p, clear)) => {
                     auto::record(&mut p.diagnostics, &c, met, &pr, o.accuracy, probe_s);
+                    if let Some(why) = auto::flagged(&p.diagnostics, &c) {
+                        // Flagged, and no candidate left to escalate to: said, not hidden.
+                        p.diagnostics.warn(format!(
+                            "auto: {} is flagged by its own checks ({why}) and no candidate predicted as accurate is left; its error may exceed the target",
+                            c.name()
+                        ));
+                        flags.push(format!("{}: {why}", c.name()));
+                    }
+                    if !flags.is_empty() {
+                        p.diagnostics.set("auto_flagged", flags.clone());
+                    }
                     if !failed.is_empty() {
                         p.diagnostics.set("auto_escalated_from", failed.clone());
                         p.diagnostics.warn(format!(

@@ -8,6 +8,7 @@ mod curved_image;
 mod failure_modes;
 mod fast_batch;
 mod finite_object;
+mod geometric;
 mod illumination;
 mod kernel;
 mod odd_asphere;
