@@ -105,14 +105,10 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
             **common,
         )
         nominal_values = camera.optics.base_values()
-        with torch.no_grad():
-            if sur.has_network:
+        psf_ns = vig_ns = None  # no network on this space's terms: the hooks use the engine's (exact optics)
+        if sur.has_network:
+            with torch.no_grad():
                 psf_ns, vig_ns = sur.psfs(nominal_values, check=False)
-            else:  # no network on this space's terms: the engine's PSFs of the nominal lens
-                psf_ns, vig_ns = (
-                    torch.as_tensor(a, dtype=torch.float32)
-                    for a in camera.optics.exact.psfs(nominal_values.double().numpy())
-                )
         fixed = hooks.nominal_optics(camera, sur, nominal_values, (psf_ns, vig_ns), frame)
         nominal = hooks.build_camera(sur, frame, fixed_optics=fixed)
         nom_opt = make_optimizer(cfg, nominal, "nominal")
