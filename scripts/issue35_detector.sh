@@ -5,7 +5,7 @@
 # 4,000 street scenes of 192 x 288 (the design run's crop; regenerated from their seed each
 # time, data/ is not kept), each training image darkened by a log-uniform factor in [0.1, 1] in
 # linear light and half of them given the design run's sensor noise (--noise 0.5), batch 8,
-# AdamW with warm-up and a cosine decay over STEPS, two torch threads. A session's background
+# AdamW with warm-up and a cosine decay over STEPS, THREADS torch threads (default 2). A session's background
 # work does not outlive it: the run's checkpoint (detector.pt, with the optimizer's state) and
 # history.csv are kept in git under the default RUN_DIR (its .gitignore), so the next checkout
 # continues from the last one committed. Then the clean held-out mAP (150 scenes, seed 1).
@@ -15,6 +15,6 @@ STEPS="${2:-6000}"
 DATA=data/street192x288-4000
 [ -f "$DATA/annotations.json" ] || optix scenes street --out "$DATA" -n 4000 --size 192x288 --seed 0 --quiet
 [ -f "${DATA}_test/annotations.json" ] || optix scenes street --out "${DATA}_test" -n 150 --size 192x288 --seed 1 --quiet
-optix detect train "$DATA" --out "$RUN" --steps "$STEPS" --threads 2 --dim 0.1 --noise 0.5 --quiet
+optix detect train "$DATA" --out "$RUN" --steps "$STEPS" --threads "${THREADS:-2}" --dim 0.1 --noise 0.5 --quiet
 optix detect eval "$RUN" "${DATA}_test" > "$RUN/eval_clean.json"
 cat "$RUN/eval_clean.json"

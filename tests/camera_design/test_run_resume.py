@@ -151,6 +151,23 @@ def test_every_output_file_is_written(resumed_run):
     assert any((out / "tb").iterdir())
 
 
+def test_the_lens_path_holds_every_lens_step_across_the_kill(resumed_run):
+    res, out = resumed_run["res"], resumed_run["out"]
+    names = res["design"]["parameters"]
+    rows = list(csv.DictReader(open(out / "lens_path.csv")))
+    # step 0 (the start), then the 8 lens steps (3 cycles x 2 optics steps + 2 joint steps)
+    assert [int(r["step"]) for r in rows] == [0, 1, 2, 5, 6, 9, 10, 13, 14]
+    assert [r["block"] for r in rows] == ["start"] + ["optics"] * 6 + ["all"] * 2
+    assert [float(rows[0][n]) for n in names] == pytest.approx(res["design"]["start"], rel=1e-6)
+    assert [float(rows[-1][n]) for n in names] == pytest.approx(res["design"]["end_to_end"], rel=1e-6)
+    travel = res["design"]["travel"]
+    assert travel["lens_steps_recorded"] == res["training"]["end_to_end"]["lens_steps"] == 8
+    lo_hi = res["space"]["ranges"]
+    moved = [abs(float(rows[-1][n]) - float(rows[0][n])) / (lo_hi[n][1] - lo_hi[n][0]) for n in names]
+    assert travel["largest_final"] == pytest.approx(max(moved), rel=1e-4) and travel["largest_final"] > 0
+    assert travel["largest_farthest"] >= travel["largest_final"]
+
+
 def test_the_exported_lens_reloads_to_the_same_design(resumed_run):
     res, out = resumed_run["res"], resumed_run["out"]
     z, j = Lens.load(out / res["lens_zmx"]), Lens.load(out / res["lens_json"])

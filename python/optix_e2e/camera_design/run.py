@@ -13,7 +13,7 @@ the same skeleton for every task (the task's part is a plugin: task_hooks.py).
 3. Compute both lenses' exact PSFs with the engine and evaluate both cameras on held-out data
    under them (and, for reference, under the surrogate's); evaluations are cached (eval_cache.py).
 4. Write the outputs: both lenses (.zmx, .json, reports, PSF grids), panels, history.csv,
-   metrics.csv and results.json.
+   lens_path.csv (the lens after each lens step), metrics.csv and results.json.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from .config import DesignConfig, check_run_dir, run_dir_settings
 from .detection import DetectionHooks
 from .image_quality import ImageQualityHooks
 from .task_hooks import TaskHooks
-from .training import train, write_history
+from .training import lens_travel, train, write_history, write_lens_path
 
 #: the task plugins by kind: detection, and the image-quality tasks (every other task)
 HOOKS: dict[str, type[TaskHooks]] = {"detection": DetectionHooks}
@@ -92,6 +92,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     try:
         log(f"[1/4] {hooks.describe()}")
         camera = hooks.build_camera(sur, frame, trained=True)
+        start_values = camera.optics.values().detach().clone()  # before any step (a resume loads later)
         monitor = hooks.monitor(camera, writer, log)
         e2e = train(
             cfg,
@@ -180,7 +181,16 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         "design": {
             "parameters": sur.param_names,
             "nominal": [float(v) for v in nominal_values],
+            "start": [float(v) for v in start_values],
             "end_to_end": [float(v) for v in final_values],
+            # how far the lens moved from its start, as fractions of each range (lens_path.csv: each step)
+            "travel": lens_travel(
+                sur.param_names,
+                camera.optics.lo.tolist(),
+                camera.optics.hi.tolist(),
+                start_values.tolist(),
+                e2e["history"],
+            ),
             "checks": checks,
         },
         "surrogate_psf_rel_l1_per_field": {
@@ -227,6 +237,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         **hooks.extra(cams, monitor, e2e),
     }
     write_history(out / "history.csv", {"end_to_end": e2e["history"], "nominal": nom["history"]}, hooks.loss_parts)
+    write_lens_path(out / "lens_path.csv", e2e["history"], sur.param_names, start_values.tolist())
     hooks.write_tables(out, evaluation)
     # training (both runs, across resumes) + exact PSFs, evaluation and outputs of this call
     # + the evaluations it reused from an earlier one

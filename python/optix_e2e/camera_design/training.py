@@ -214,7 +214,10 @@ def train(
         )
         info["seconds"] = time.perf_counter() - t0
         info.setdefault("barrier", 0.0)  # the guard's barrier term (guard = barrier), not in the loss
-        history.append({k: info[k] for k in history_keys(parts)})
+        row = {k: info[k] for k in history_keys(parts)}
+        if optics is not None and info["block"] in ("optics", "all"):
+            row["lens"] = [float(v) for v in optics.values().detach()]  # where this step left the lens (lens_path.csv)
+        history.append(row)
         if writer is not None:
             for k in ("loss", *parts):
                 writer.add_scalar(f"{name}/{k}", info[k], info["step"])
@@ -246,6 +249,38 @@ def train(
         # the updates each block received (its Adam's step count, across resumes)
         "updates": opt.updates(),
         "history": history,
+    }
+
+
+def write_lens_path(path: Path, history: list[dict], names: list[str], start) -> None:
+    """The lens after each of a training's lens steps (its parameters in their units, step 0
+    the start), one row per step: what the run did to the lens, step by step."""
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["step", "block", "cut", *names])
+        w.writerow([0, "start", 0, *[float(v) for v in start]])
+        for h in history:
+            if "lens" in h:
+                w.writerow([h["step"], h["block"], h.get("cut", 0), *h["lens"]])
+
+
+def lens_travel(names: list[str], lo, hi, start, history: list[dict]) -> dict:
+    """How far the lens moved, as fractions of each parameter's range: ``final`` (final minus
+    start, signed) and ``farthest`` (the largest distance from the start along the way), per
+    parameter and the largest over them."""
+    lo, hi, start = (np.asarray(x, float) for x in (lo, hi, start))
+    path = np.array([h["lens"] for h in history if "lens" in h] or [start], float)
+    span = np.where(hi > lo, hi - lo, 1.0)
+    final = (path[-1] - start) / span
+    farthest = np.abs(path - start).max(axis=0) / span
+    return {
+        "lens_steps_recorded": int(sum("lens" in h for h in history)),
+        "largest_final": float(np.abs(final).max()),
+        "largest_farthest": float(farthest.max()),
+        "per_parameter": {
+            n: {"start": float(s), "final": float(p), "final_fraction": float(f), "farthest_fraction": float(m)}
+            for n, s, p, f, m in zip(names, start, path[-1], final, farthest)
+        },
     }
 
 
