@@ -121,9 +121,9 @@ def test_old_run_folders_keep_the_projection(tmp_path):
 
 def test_exact_optics_are_the_image_quality_default_and_a_surrogate_run_folder_resumes_as_made(tmp_path):
     """optics' default became "exact" for the image-quality tasks (2026-11-27; detection keeps
-    its surrogate, whose fast designs the engine refuses): a run folder made under the
-    surrogate default, or before the setting existed, resumes on the surrogate; one made on
-    exact keeps exact."""
+    its surrogate in smoke runs, and since issue 35 moves in the wide detection space on exact
+    optics at quick and full): a run folder made under the surrogate default, or before the
+    setting existed, resumes on the surrogate; one made on exact keeps exact."""
     import json
 
     from optix_e2e.camera_design.config import check_run_dir, make_config, run_dir_settings
@@ -131,7 +131,11 @@ def test_exact_optics_are_the_image_quality_default_and_a_surrogate_run_folder_r
     for budget in ("smoke", "quick", "full"):
         assert make_config(budget).optics == "exact"
         assert make_config(budget, task="low-light").optics == "exact"
-        assert make_config(budget, task="detection").optics == "surrogate"
+        det = make_config(budget, task="detection")
+        if budget == "smoke":
+            assert (det.optics, det.space) == ("surrogate", "")
+        else:
+            assert (det.optics, det.space) == ("exact", "paper-triplet-detect-wide")
     today = make_config("smoke")
     check_run_dir(tmp_path / "old", make_config("smoke", optics="surrogate"))
     kept = run_dir_settings(tmp_path / "old", today)

@@ -54,16 +54,16 @@ from ._common import SEED, THREADS, dumps, friendly_errors
     "--optics",
     type=click.Choice(["surrogate", "exact", "hybrid", "auto"]),
     default=None,
-    help="The optics model in the loop: the exact engine with central-difference gradients (default; "
-    "detection: the surrogate), the surrogate, the surrogate checked and refined along the way, or auto "
+    help="The optics model in the loop: the exact engine with central-difference gradients (default, "
+    "detection too but for its smoke budget), the surrogate, the surrogate checked and refined along the way, or auto "
     "(from the measured speed/accuracy trade-off; docs/optics-in-the-loop.md).",
 )
 @click.option(
     "--space",
     default=None,
     help="The space the lens moves in: a bundled space (e.g. paper-triplet-wide, the paper's Table 1 "
-    "widths) or a TOML file over the surrogate's parameters and base lens (default: the surrogate's). "
-    "Needs --optics exact.",
+    "widths) or a TOML file over the surrogate's parameters and base lens (default: the surrogate's; "
+    "detection at quick and full: paper-triplet-detect-wide). Needs --optics exact.",
 )
 @click.option(
     "--start",

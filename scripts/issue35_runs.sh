@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# Issue 35 item 5's design runs, resumable (run it again to continue; a finished run is not re-run):
+#   bash scripts/issue35_runs.sh [OUT [STAGE ...]]   (default OUT benches/results/issue35, every stage)
+# Every run starts from the item-4 detector (OUT/detector/detector.pt, scripts/issue35_detector.sh)
+# on the detection defaults: the wide space paper-triplet-detect-wide on exact optics
+# (camera_design/config.py TASK_BUDGETS), one torch thread each (THREADS to change).
+# Stages, in the order they run:
+#   quick          Alg. 1, quick budget, seed 0
+#   quick-vanilla  vanilla Adam, quick budget, seed 0 (the same steps, batches and noise)
+#   compare        the two end-to-end cameras on the same held-out scenes (benches/detection_compare.py)
+#   full           Alg. 1, full budget, seeds 0 1 2 (hours each on this CPU: checkpointed)
+# Each finished run's small files (results.json, metrics.csv, history.csv, lens_path.csv, the
+# lens .zmx, the end-to-end camera's detections) are kept in git under the default OUT (its
+# .gitignore); logs in OUT/*.log stay local.
+set -euo pipefail
+OUT="${1:-benches/results/issue35}"
+shift || true
+STAGES="${*:-quick quick-vanilla compare full}"
+[ -f "$OUT/detector/detector.pt" ] || { echo "no detector at $OUT/detector/detector.pt: run scripts/issue35_detector.sh first" >&2; exit 2; }
+printf 'detector = "detector/detector.pt"\nthreads = %s\n' "${THREADS:-1}" > "$OUT/detect.toml"
+design() {  # NAME BUDGET OPTIMIZER SEED
+  [ -f "$OUT/$1/results.json" ] && { echo "$OUT/$1: finished already"; return; }
+  optix design detection --budget "$2" --optimizer "$3" --seed "$4" --config "$OUT/detect.toml" --out "$OUT/$1" \
+    --quiet >> "$OUT/$1.log" 2>&1
+}
+for stage in $STAGES; do
+  echo "== $stage ($(date -u +%H:%M))"
+  case "$stage" in
+    quick) design detect_quick quick alg1 0 ;;
+    quick-vanilla) design detect_quick_vanilla quick vanilla 0 ;;
+    compare)
+      python benches/detection_compare.py "$OUT/detect_quick_vanilla" "$OUT/detect_quick" \
+        --out "$OUT/compare_quick_alg1_vs_vanilla.json" ;;
+    full) for s in 0 1 2; do design "detect_full_seed$s" full alg1 "$s"; done ;;
+    *) echo "unknown stage '$stage' (quick quick-vanilla compare full)" >&2; exit 2 ;;
+  esac
+done
