@@ -203,10 +203,10 @@ def pretrain(
     from ..io import claim_out_dir
 
     out = Path(out)
+    dev = resolve_device(cfg.device)  # a GPU that is not there is refused before the folder is claimed
     claim_out_dir(out, "ISP pre-training", {"tb"}, marker="state.pt")  # tb/: a start that stopped early
     out.mkdir(parents=True, exist_ok=True)
     set_threads(cfg.threads)
-    dev = resolve_device(cfg.device)
     sur = load_surrogate(cfg.surrogate, calibrated_preset("imx249").pixel_um)
     heights = nominal_field_heights(sur)
     space, base = space_and_base(sur.manifest)

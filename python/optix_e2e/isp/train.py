@@ -99,10 +99,10 @@ def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) ->
     from ..io import claim_out_dir
 
     out_dir = Path(out_dir)
+    dev = resolve_device(cfg.device)  # a GPU that is not there is refused before the folder is claimed
     claim_out_dir(out_dir, "ISP proxy training", {"proxy.pt", "train.json", "tb"})  # its own files: trained again
     out_dir.mkdir(parents=True, exist_ok=True)
     set_threads(cfg.threads)
-    dev = resolve_device(cfg.device)
     torch.manual_seed(cfg.seed)
     model.to(dev)
     meta = getattr(model, "meta", {})  # a continued proxy keeps the record of its earlier runs
