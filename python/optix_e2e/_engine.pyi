@@ -145,6 +145,13 @@ def spot(
     fraction of the pupil), relative_illumination (image irradiance relative to axis).
     """
 
+def field_fold(
+    lens_json: str, field_max_deg: float, wavelength_nm: float | None = None, aiming: str = "paraxial"
+) -> dict[str, float] | None:
+    """Where the image of the field folds between the axis and ``field_max_deg`` (a pupil point
+    whose meridional image height stops growing with the field; 15 x 15 pupil grid, 41 fields):
+    {field_deg, px, py, step_mm} of the worst step, None when the mapping is one-to-one."""
+
 def psf(
     lens_json: str,
     field_deg: float,

@@ -36,6 +36,7 @@ __all__ = [
     "paraxial",
     "predicted_psf_seconds",
     "extension_file",
+    "field_fold",
     "psf",
     "psf_batch",
     "psf_rgb",
@@ -151,6 +152,15 @@ def spot(
         None if weights is None else [float(w) for w in weights],
         int(rings),
         aiming,
+    )
+
+
+@_door
+def field_fold(
+    lens_json: str, *, field_max_deg: float, wavelength_nm: float | None = None, aiming: str = "paraxial"
+) -> dict[str, float] | None:
+    return _ext.field_fold(
+        lens_json, float(field_max_deg), None if wavelength_nm is None else float(wavelength_nm), aiming
     )
 
 

@@ -468,6 +468,31 @@ fn spot<'py>(
 }
 
 #[pyfunction]
+#[pyo3(signature = (lens_json, field_max_deg, wavelength_nm=None, aiming="paraxial"))]
+fn field_fold<'py>(
+    py: Python<'py>,
+    lens_json: &str,
+    field_max_deg: f64,
+    wavelength_nm: Option<f64>,
+    aiming: &str,
+) -> PyResult<Option<Bound<'py, PyDict>>> {
+    let aiming: Aiming = aiming.parse().map_err(to_py)?;
+    let f = run(py, move || {
+        let lens = parse_lens(lens_json)?;
+        psf_engine::spot::field_fold(&lens, field_max_deg, wavelength_nm.unwrap_or(lens.primary_nm), aiming)
+    })?;
+    f.map(|f| {
+        let d = PyDict::new(py);
+        d.set_item("field_deg", f.field_deg)?;
+        d.set_item("px", f.px)?;
+        d.set_item("py", f.py)?;
+        d.set_item("step_mm", f.step_mm)?;
+        Ok(d)
+    })
+    .transpose()
+}
+
+#[pyfunction]
 #[pyo3(signature = (lens_json, field_deg, wavelength_nm, method="fft", pixel_um=1.0, size=64, pupil_samples=64, fft_grid=None, aiming="paraxial", integrate=false, exact=false, fast=false, accuracy=0.02, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn psf<'py>(
@@ -833,6 +858,7 @@ fn _engine(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(trace_field, m)?)?;
     m.add_function(wrap_pyfunction!(trace_field_path, m)?)?;
     m.add_function(wrap_pyfunction!(spot, m)?)?;
+    m.add_function(wrap_pyfunction!(field_fold, m)?)?;
     m.add_function(wrap_pyfunction!(wavefront, m)?)?;
     m.add_function(wrap_pyfunction!(best_focus_batch, m)?)?;
     m.add_function(wrap_pyfunction!(psf, m)?)?;

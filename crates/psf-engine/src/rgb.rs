@@ -5,7 +5,7 @@
 use crate::error::{arg, Result};
 use crate::lens::Lens;
 use crate::psf::{fast, psf_path, Diagnostics, PsfOptions};
-use crate::spot::{irradiance_adaptive, relative_illumination_from, RI_MAX};
+use crate::spot::{field_fold, irradiance_adaptive, relative_illumination_from};
 use rayon::prelude::*;
 
 pub struct RgbPsf {
@@ -69,8 +69,9 @@ pub fn psf_rgb(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions)
 /// The channels of one field: `sink(c, psf, k)` receives channel c's PSF as `psf` times
 /// `k` (unit sum), `ri` its relative illumination; `diag` each wavelength's
 /// diagnostics. `axis[k]`: the on-axis irradiance of the k-th wavelength (channels
-/// flattened), where the caller has it. A relative illumination outside [0, RI_MAX] is an
-/// error: the design's field mapping folds or the design is broken.
+/// flattened), where the caller has it. A design whose image of the field folds
+/// (`spot::field_fold` over its fields and this one) is an error: its relative illumination
+/// cannot be computed per field (nor is any negative or non-finite one returned).
 #[allow(clippy::too_many_arguments)]
 fn rgb_core(
     lens: &Lens,
@@ -83,6 +84,20 @@ fn rgb_core(
     mut diag: impl FnMut(Diagnostics),
 ) -> Result<()> {
     let s = o.size;
+    let reach = lens.max_field_deg().max(field_deg.abs());
+    if let Some(f) = field_fold(lens, reach, lens.primary_nm, o.aiming)? {
+        return Err(crate::error::EngineError::Trace(format!(
+            "the image of the field folds: at pupil point ({:.2}, {:.2}) the image height falls by {:.4} mm \
+             from {:.3} to {:.3} deg ({} nm), so rays of different fields cross and the relative \
+             illumination (and the field's PSF) cannot be computed per field",
+            f.px,
+            f.py,
+            -f.step_mm,
+            f.field_deg - reach / crate::spot::FOLD_FIELDS as f64,
+            f.field_deg,
+            lens.primary_nm
+        )));
+    }
     let mut acc = vec![];
     let mut k = 0;
     for (c, list) in channels.iter().enumerate() {
@@ -115,9 +130,9 @@ fn rgb_core(
         if list.len() > 1 {
             sink(c, &acc, 1.0);
         }
-        if !(0.0..=RI_MAX).contains(&ri[c]) {
+        if !(ri[c] >= 0.0 && ri[c].is_finite()) {
             return Err(crate::error::EngineError::Trace(format!(
-                "relative illumination {:.4} in channel {c} lies outside [0, {RI_MAX}]: the image of the field folds back (a caustic of the chief rays) or the design is broken",
+                "relative illumination {:.4} in channel {c} at {field_deg} deg is not a finite value >= 0: the design is broken",
                 ri[c]
             )));
         }

@@ -66,14 +66,19 @@ def info(lens_spec, aiming, rings, as_json, lenient):
                 ),  # None: afocal
             }
         )
-    # the engine's range for a sane design (crates/psf-engine spot::RI_MAX)
-    warnings = [
-        f"relative illumination {r['relative_illumination']:.4g} at {r['field_deg']:g} deg lies outside "
-        f"[0, 1.05]: the image of the field folds back or the design is broken (a dataset would record "
-        f"it as failed)"
-        for r in fields
-        if r["relative_illumination"] is not None and not 0.0 <= r["relative_illumination"] <= 1.05
-    ]
+    # a lens whose image of the field folds: the engine refuses its relative illumination in RGB
+    # PSFs and datasets (spot::field_fold), and the per-field value above misses light
+    fold = lens_.field_fold(aiming=aiming) if lens_.max_field_deg > 0 else None
+    warnings = (
+        [
+            f"the image of the field folds: at pupil point ({fold['px']:.2f}, {fold['py']:.2f}) the image "
+            f"height falls by {-fold['step_mm']:.4g} mm near {fold['field_deg']:.3g} deg; rays of different "
+            f"fields cross, the relative illumination above is not the image's (a dataset would record the "
+            f"design as failed)"
+        ]
+        if fold
+        else []
+    )
     out = {
         "lens": lens_.name,
         "source": lens_.source,

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import hashlib
 from pathlib import Path
 from typing import Collection
@@ -101,9 +103,11 @@ def open_shard(root: Path, k: int, man: dict, check_hashes: "bool | Collection[s
 
 
 # The ranges the engine guarantees for a design it reports ok (crates/psf-engine:
-# spot::RI_MAX, psf::ENERGY_EXCESS_TOL); a stored value outside them is a damaged shard or
-# one written before the engine refused such designs.
-RANGES = {"relative_illumination": (0.0, 1.05), "energy_in_window": (0.0, 1.01)}
+# psf::ENERGY_EXCESS_TOL; relative illumination >= 0 with no upper bound, since a lens whose
+# image of the field does not fold may exceed 1 at the corner and one that folds is refused,
+# spot::field_fold); a stored value outside them is a damaged shard or one written before the
+# engine refused such designs.
+RANGES = {"relative_illumination": (0.0, math.inf), "energy_in_window": (0.0, 1.01)}
 # Each PSF channel sums to 1 (float32 sums of up to 128 x 128 values).
 SUM_TOL = 1e-3
 

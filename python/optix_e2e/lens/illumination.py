@@ -160,3 +160,49 @@ def relative_illumination_count(lens: Lens, field_deg: float, wavelength_nm: flo
         "sigma": float(np.sqrt(1 / max(here["count"], 1) + 1 / max(axis["count"], 1))),
         "counts": [here["count"], axis["count"]],
     }
+
+
+def relative_illumination_annulus(
+    lens: Lens,
+    heights_mm,
+    wavelength_nm: float,
+    *,
+    theta_max_deg: float,
+    n_rays: int = 2**21,
+    half_width_mm: float = 0.15,
+    axis_radius_mm: float = 0.5,
+    seed: int = 0,
+) -> dict:
+    """Brute-force relative illumination of a uniform Lambertian object that fills every
+    direction up to ``theta_max_deg``: rays with direction cosines uniform over that disc and
+    start points uniform over the paraxial entrance pupil (Sobol, ``seed``), each carrying
+    the same flux. By rotational symmetry the flux landing in the annulus |r - h| <
+    ``half_width_mm`` over its area is the irradiance at image height h (on the axis, the disc
+    r < ``axis_radius_mm``). Unlike `irradiance_count` (a small cone about one field) it counts
+    light from every field, so it sees what a fold of the field's image sends to a point from
+    far fields. Returns {"relative_illumination": [...], "counts": [...], "axis_count": n}."""
+    from scipy.stats import qmc
+
+    par = lens.paraxial(wavelength_nm)
+    ze = float(par["entrance_pupil_z_mm"]) if "entrance_pupil_z_mm" in par else 0.0
+    z_launch = min(ze, 0.0) - 20.0
+    u = qmc.Sobol(d=4, scramble=True, seed=seed).random(n_rays)
+    rho, phi = np.sqrt(u[:, 0]) * 0.5 * float(par["epd_mm"]), 2 * np.pi * u[:, 1]
+    qx, qy = rho * np.cos(phi), rho * np.sin(phi)
+    s_max = np.sin(np.radians(theta_max_deg))
+    sr, sp = np.sqrt(u[:, 2]) * s_max, 2 * np.pi * u[:, 3]
+    dl, dm = sr * np.cos(sp), sr * np.sin(sp)
+    dn = np.sqrt(1 - dl**2 - dm**2)
+    s = (z_launch - ze) / dn
+    origins = np.stack([qx + s * dl, qy + s * dm, np.full(n_rays, z_launch)], axis=1)
+    x, y, ok = _engine_tracer(lens, wavelength_nm)(origins, np.stack([dl, dm, dn], axis=1))
+    r = np.hypot(x[ok], y[ok])
+    axis_count = int(np.sum(r < axis_radius_mm))
+    e0 = axis_count / (np.pi * axis_radius_mm**2)
+    out, counts = [], []
+    for h in np.atleast_1d(np.asarray(heights_mm, float)):
+        lo, hi = max(0.0, h - half_width_mm), h + half_width_mm
+        c = int(np.sum((r >= lo) & (r < hi)))
+        counts.append(c)
+        out.append(c / (np.pi * (hi**2 - lo**2)) / e0)
+    return {"relative_illumination": out, "counts": counts, "axis_count": axis_count}

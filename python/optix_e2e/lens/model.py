@@ -318,6 +318,14 @@ class Lens:
             engine.spot, field_deg=field_deg, wavelengths_nm=wavelengths_nm, weights=weights, rings=rings, aiming=aiming
         )
 
+    def field_fold(self, field_max_deg: float | None = None, aiming: str = "paraxial") -> dict | None:
+        """Where the image of the field folds between the axis and ``field_max_deg`` (default:
+        the lens's largest field): a pupil point whose image height stops growing with the
+        field (engine spot::field_fold), None when the mapping is one-to-one. The engine
+        refuses the relative illumination and RGB PSFs of a lens that folds."""
+        f = self.max_field_deg if field_max_deg is None else field_max_deg
+        return self._engine_call(engine.field_fold, field_max_deg=f, aiming=aiming)
+
     def wavefront(
         self, field_deg: float, rings: int = 8, arms: int = 16, tilt: str = "wavelength", aiming: str = "paraxial"
     ) -> dict[str, Any]:

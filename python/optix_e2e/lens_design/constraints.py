@@ -16,7 +16,11 @@ Checks (limits in mm from the space file's ``[constraints]`` table, :class:`Limi
 * ``surfaces_cross``: consecutive surfaces never cross anywhere inside their apertures,
 * ``aperture_outside_surface``: a clear semi-diameter beyond a conic's reach (or the
   sphere's radius),
-* ``untraceable``: no ray of the footprint reaches some surface (the design cannot be sized).
+* ``untraceable``: no ray of the footprint reaches some surface (the design cannot be sized),
+* ``field_folds``: the image of the field folds (some pupil zone's image height stops growing
+  with the field: rays of different fields cross; engine ``spot::field_fold``). Such a lens
+  forms no image a per-field PSF can describe, and the engine refuses its relative
+  illumination; the check costs about 7,000 traced rays.
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ REASONS = (
     "surfaces_cross",
     "aperture_outside_surface",
     "untraceable",
+    "field_folds",
 )
 _ROW_REASON = {
     "center_thickness": "center_thickness",
@@ -138,6 +143,22 @@ def _rows(design: dict, semi_diameters: Sequence[float], limits: Limits) -> list
     ).evaluate(design, {}, semi_diameters)
 
 
+def field_folds(design: dict) -> str | None:
+    """``"field_folds: ..."`` where the image of the lens dict's field folds (see the module's
+    list), else None."""
+    lens = Lens(design, source="<design>")
+    try:
+        f = lens.field_fold()
+    except Exception as err:  # noqa: BLE001 - the engine cannot trace it: untraceable
+        return f"untraceable: {' '.join(str(err).split())}"
+    if f is None:
+        return None
+    return (
+        f"field_folds: at pupil point ({f['px']:.2f}, {f['py']:.2f}) the image height falls by "
+        f"{-f['step_mm']:.4g} mm near {f['field_deg']:.3g} deg"
+    )
+
+
 class ApertureError(InputError):
     """A design that cannot be sized; its message starts with the reason (:data:`REASONS`)."""
 
@@ -164,8 +185,9 @@ class Manufacturability:
     where met, a fixed order for a given lens), what a guard needs to steer by.
     ``checks`` counts the designs looked at."""
 
-    def __init__(self, limits: Limits):
+    def __init__(self, limits: Limits, field_fold: bool = True):
         self.limits = limits
+        self.field_fold = field_fold  # False: leave the fold check out (benches/ri_fold_check.py)
         self.checks = 0
 
     def problems(self, design: dict) -> list[str]:
@@ -174,7 +196,10 @@ class Manufacturability:
             sd = own_apertures(design)
         except ApertureError as err:
             return [str(err)]
-        return check_design(design, sd, self.limits)
+        reasons = check_design(design, sd, self.limits)
+        if reasons:
+            return reasons
+        return [fold] if self.field_fold and (fold := field_folds(design)) else []
 
     def margins(self, design: dict) -> np.ndarray:
         """Raises ApertureError where the design cannot be sized."""

@@ -96,10 +96,13 @@ def sample_designs(
     max_draws: int | None = None,
     progress=None,
     apertures: str = "auto",
+    field_fold: bool = True,
 ) -> SampleResult:
     """``n`` manufacturable designs (parameter value rows) from ``space`` over ``base``,
     each checked as traced with the dataset's aperture setting ``apertures`` ("auto": no
-    clear apertures, "fixed": the base lens's but the stop's) at its own clear apertures."""
+    clear apertures, "fixed": the base lens's but the stop's) at its own clear apertures.
+    ``field_fold=False`` leaves the check that the image of the field does not fold out (to
+    study such designs: benches/ri_fold_check.py)."""
     if n < 1:
         raise InputError(f"n must be >= 1, got {n}")
     if method not in METHODS:
@@ -116,7 +119,7 @@ def sample_designs(
         def problems(d):
             return check_design(d, sd, limits)
     else:
-        data, problems = engine_base(base, apertures), Manufacturability(limits).problems
+        data, problems = engine_base(base, apertures), Manufacturability(limits, field_fold).problems
         bad = [p for p in problems(copy.deepcopy(data)) if p.startswith("untraceable")]
         if bad:  # e.g. a lens whose beam its clear apertures keep off crossing rims
             raise SpaceError(

@@ -105,3 +105,10 @@ pub fn paper_triplet_json() -> Value {
 pub fn paper_triplet() -> Lens {
     Lens::from_json(&paper_triplet_json().to_string()).unwrap()
 }
+
+/// A lens of the Python suite's fixtures (tests/data/lenses/NAME.json).
+pub fn fixture_lens(name: &str) -> Lens {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(format!("../../tests/data/lenses/{name}.json"));
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    Lens::from_json(&text).unwrap()
+}

@@ -48,3 +48,34 @@ fn thin_lens_follows_cos4_at_and_off_focus() {
         }
     }
 }
+
+#[test]
+fn a_field_that_folds_is_found_and_its_rgb_psfs_refused() {
+    use psf_engine::rgb::psf_rgb;
+    use psf_engine::spot::field_fold;
+    // the Cooke triplet and a sampled design brighter at the corner than on the axis (1.23,
+    // a flux count agrees: tests/lens/test_relative_illumination.py) do not fold
+    assert_eq!(
+        field_fold(&common::cooke(), 20.0, 550.0, Aiming::Paraxial).unwrap(),
+        None
+    );
+    let bright = common::fixture_lens("detect_wide_bright_corner");
+    assert_eq!(field_fold(&bright, 14.9, 550.0, Aiming::Paraxial).unwrap(), None);
+    // a sampled design whose rim rays' image height falls near its 14.9 deg field
+    let folds = common::fixture_lens("detect_wide_folds");
+    let f = field_fold(&folds, 14.9, 550.0, Aiming::Paraxial)
+        .unwrap()
+        .expect("a fold");
+    assert!(f.step_mm < 0.0 && (f.field_deg - 14.9).abs() < 1e-9, "{f:?}");
+    // its RGB PSFs are refused at every field (light from the fold lands everywhere), the
+    // bright design's computed with its relative illumination above 1
+    let channels = vec![vec![(650.0, 1.0)], vec![(550.0, 1.0)], vec![(470.0, 1.0)]];
+    let o = psf_engine::psf::PsfOptions {
+        size: 16,
+        ..Default::default()
+    };
+    let err = psf_rgb(&folds, 5.0, &channels, &o).err().expect("refused").to_string();
+    assert!(err.contains("the image of the field folds"), "{err}");
+    let ri = psf_rgb(&bright, 14.9, &channels, &o).unwrap().relative_illumination;
+    assert!(ri.iter().all(|&v| v > 1.05 && v.is_finite()), "{ri:?}");
+}
