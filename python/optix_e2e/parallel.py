@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import torch
 import torch.distributed as dist
+from .device import resolve_device
 from .errors import InputError, RunError
 
 
@@ -99,13 +100,9 @@ def _env_int(name: str, default: int) -> int:
 
 
 def pick_device(name: str, local_rank: int = 0) -> torch.device:
-    """``auto``: CUDA when present (under torchrun, the process's own GPU), else CPU."""
-    if name == "auto":
-        name = "cuda" if torch.cuda.is_available() else "cpu"
-    dev = torch.device(name)
-    if dev.type == "cuda" and dev.index is None:
-        dev = torch.device("cuda", local_rank)
-    return dev
+    """``auto``: CUDA when present (under torchrun, the process's own GPU), else CPU
+    (device.resolve_device: a GPU that is not there is an error)."""
+    return resolve_device(name, local_rank=local_rank)
 
 
 def setup(device: str = "auto") -> Ranks:
@@ -113,7 +110,7 @@ def setup(device: str = "auto") -> Ranks:
     device. A single process (no WORLD_SIZE, or 1) gets ``Ranks(device=...)``."""
     world = _env_int("WORLD_SIZE", 1)
     rank, local = _env_int("RANK", 0), _env_int("LOCAL_RANK", 0)
-    if world > 1 and torch.device(device if device != "auto" else "cpu").index is not None:
+    if world > 1 and device.startswith("cuda:"):
         raise InputError(
             f"--device {device}: under torchrun each process takes its own GPU (cuda:LOCAL_RANK); "
             f"give --device cuda or auto"

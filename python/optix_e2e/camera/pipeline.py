@@ -34,6 +34,11 @@ class Camera(nn.Module):
     def margin(self) -> int:
         return int(self.optics.psf_size) // 2
 
+    @property
+    def device(self) -> torch.device:
+        """Where the camera's tensors live (``camera.to(device)``): a batch goes there once."""
+        return next(t.device for t in (*self.parameters(), *self.buffers()))
+
     def blocks(self) -> "OrderedDict[str, list[nn.Parameter]]":
         """The parameter blocks of the stages that have one, in pipeline order."""
         out: OrderedDict[str, list[nn.Parameter]] = OrderedDict()

@@ -80,7 +80,7 @@ class FixedOptics(nn.Module):
 
     def f_number(self) -> torch.Tensor | None:
         """The lens's f-number where the camera's photon count should follow it (None: the sensor preset's)."""
-        return None if self._f_number is None else torch.tensor(self._f_number)
+        return None if self._f_number is None else torch.tensor(self._f_number, device=self.psf.device)
 
     def block(self):
         return None
@@ -166,7 +166,8 @@ class SensorStage(nn.Module):
         follows it by Eq. 3's 1 / (1 + (2N)^2) relative to the preset's f-number, which the
         preset's radiance scale was calibrated at (None: the preset's)."""
         if f_number is not None:
-            radiance = radiance * aperture_gain(torch.as_tensor(f_number, dtype=radiance.dtype), self.preset.f_number)
+            f_number = torch.as_tensor(f_number, dtype=radiance.dtype, device=radiance.device)
+            radiance = radiance * aperture_gain(f_number, self.preset.f_number)
         return simulate_raw(
             radiance,
             self.preset,
@@ -238,4 +239,6 @@ class HardwareISPStage(nn.Module):
 
     @torch.no_grad()
     def final(self, raw: torch.Tensor, offset_px=None, full_field_px=None) -> torch.Tensor:
+        """The reference ISP (isp/reference.py, the "hardware" the proxy imitates) runs on the
+        CPU: the RAW goes there and its output comes back, once per call."""
         return self.reference(raw.detach().cpu(), [self.hyperparameters()] * raw.shape[0]).to(raw)

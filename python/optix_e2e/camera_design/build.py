@@ -149,10 +149,12 @@ def build_camera(
     fixed_optics: FixedOptics | None = None,
     frame: SensorFrame = SensorFrame(),
     own_surrogate: bool = False,
+    device: "torch.device | str" = "cpu",
 ) -> Camera:
     """The camera at its initialization: the same for Alg. 1, vanilla and the nominal baseline
     (apart from the optics, fixed at the nominal for the latter). ``own_surrogate``: the optics
-    get a copy of the surrogate (a hybrid run refines its own)."""
+    get a copy of the surrogate (a hybrid run refines its own). Built on the CPU (the seeded
+    starts are drawn there), then moved to ``device`` whole."""
     task = get_task(cfg.task)
     if fixed_optics is None:
         optics = DifferentiableOptics(
@@ -172,7 +174,7 @@ def build_camera(
         isp = SoftwareISPStage(SoftwareISP.load(path).train(), preset)
     else:
         isp = HardwareISPStage(ISPProxy.load(), initial_isp_unit(cfg), preset.cfa, preset.adc_bits)
-    return Camera(optics, sensor, isp)
+    return Camera(optics, sensor, isp).to(device)
 
 
 BLOCK_SETTINGS = {

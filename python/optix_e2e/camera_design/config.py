@@ -15,6 +15,7 @@ from pathlib import Path
 from ..io import claim_out_dir, read_small_text, write_json_atomic
 from ..tasks import get_task
 from ..tasks.samples import POSITIONS, TRAIN_POSITIONS
+from ..device import resolve_device
 from ..errors import InputError
 
 try:
@@ -148,6 +149,9 @@ class DesignConfig:
     eval_positions: str = "frame+centre+corner"
     bootstrap: int = 2000
     threads: int = 0  # torch CPU threads (0: torch's default)
+    # where the cameras run: auto (CUDA when present), cpu, cuda, cuda:K (optix_e2e.device); a run
+    # may resume on another device (RESUMES_ANYWHERE), results.json says where each call ran
+    device: str = "auto"
 
     @property
     def total_steps(self) -> int:
@@ -232,6 +236,7 @@ class DesignConfig:
             raise InputError(f"detector: no such file {self.detector}")
         if self.total_steps < 1:
             raise InputError("the schedule has no step (n_cycles and n_finetune both 0)")
+        resolve_device(self.device, option="device")
         return self
 
     def to_json(self) -> dict:
@@ -375,6 +380,10 @@ def run_dir_settings(out: Path, cfg: DesignConfig) -> DesignConfig:
     return dataclasses.replace(cfg, **keep).check() if keep else cfg
 
 
+#: settings a run directory does not hold its run to: a run made on one device resumes on another
+RESUMES_ANYWHERE = ("device",)
+
+
 def check_run_dir(out: Path, cfg: DesignConfig) -> None:
     """Write config.json in a new run directory; in an existing one, refuse other settings."""
     path = out / "config.json"
@@ -389,7 +398,7 @@ def check_run_dir(out: Path, cfg: DesignConfig) -> None:
         # a setting added since the run was made counts as its default there
         defaults = DesignConfig().to_json()
         old = {**{k: v for k, v in defaults.items() if k not in old}, **BEFORE_SETTING, **old}
-        diff = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+        diff = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k) and k not in RESUMES_ANYWHERE)
         if diff:
             detail = ", ".join(f"{k}: {old.get(k)!r} -> {new.get(k)!r}" for k in diff)
             raise InputError(f"{out} was made with other settings ({detail}); use another --out or the same settings")

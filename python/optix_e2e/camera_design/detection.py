@@ -58,11 +58,16 @@ def load_start_detector(cfg: DesignConfig, size: tuple[int, int]) -> torch.nn.Mo
 
 
 def build_detection_camera(
-    cfg: DesignConfig, sur, *, fixed_optics: FixedOptics | None = None, frame: SensorFrame = SensorFrame()
+    cfg: DesignConfig,
+    sur,
+    *,
+    fixed_optics: FixedOptics | None = None,
+    frame: SensorFrame = SensorFrame(),
+    device: "torch.device | str" = "cpu",
 ) -> DetectionCamera:
     return DetectionCamera(
         build_camera(cfg, sur, fixed_optics=fixed_optics, frame=frame), load_start_detector(cfg, cfg.crop_hw)
-    )
+    ).to(device)
 
 
 def _loss_at(cfg: DesignConfig, cam: DetectionCamera, frame: SensorFrame, ranks: parallel.Ranks = parallel.Ranks()):
@@ -71,7 +76,9 @@ def _loss_at(cfg: DesignConfig, cam: DetectionCamera, frame: SensorFrame, ranks:
 
     def loss_at(t: int, gen: torch.Generator):
         b = street_batch(cfg.seed, t, cfg.batch, cfg.crop_hw, cam.margin, (task.level_min, task.level_max), frame)
-        return cam(b.scene[part], b.offset_px, gen, b.targets[part])
+        dev = cam.device  # the batch is drawn on the CPU (seeded) and goes to the camera once
+        targets = [{k: v.to(dev) for k, v in tg.items()} for tg in b.targets[part]]
+        return cam(b.scene[part].to(dev), b.offset_px, gen, targets)
 
     return loss_at
 
@@ -83,7 +90,8 @@ def evaluate_detection(cam: DetectionCamera, samples, progress: bool = False, de
     cam.eval()
     preds = []
     for s in tqdm(samples, desc=desc, unit="scene", disable=not progress, leave=False):
-        img = cam.final_image(s.scene[None], s.offset_px, torch.Generator().manual_seed(int(s.noise_seed)))
+        gen = torch.Generator().manual_seed(int(s.noise_seed))
+        img = cam.final_image(s.scene[None].to(cam.device), s.offset_px, gen)
         preds += cam.detect(img)
     return [{k: v.detach().cpu() for k, v in p.items()} for p in preds]
 
@@ -190,7 +198,7 @@ class DetectionHooks(TaskHooks):
         cam = build_camera(self.cfg, sur, fixed_optics=fixed_optics, frame=frame)
         if fixed_optics is None and self.cfg.optics == "exact":
             cam.optics.backend = "exact"  # every lens step on the engine's PSFs and Jacobian
-        return DetectionCamera(cam, load_start_detector(self.cfg, self.cfg.crop_hw))
+        return DetectionCamera(cam, load_start_detector(self.cfg, self.cfg.crop_hw)).to(self.device)
 
     def loss_at(self, camera, frame, ranks):
         return _loss_at(self.cfg, camera, frame, ranks)
@@ -201,8 +209,8 @@ class DetectionHooks(TaskHooks):
         psf, vig = surrogate_psfs
         if self.cfg.optics == "exact":
             psf, vig = (
-                torch.as_tensor(a, dtype=torch.float32)
-                for a in camera.optics.exact.psfs(nominal_values.double().numpy())
+                torch.as_tensor(a, dtype=torch.float32, device=nominal_values.device)
+                for a in camera.optics.exact.psfs(nominal_values.double().cpu().numpy())
             )
         return FixedOptics(
             psf,
@@ -243,7 +251,7 @@ class DetectionHooks(TaskHooks):
                 t0 = time.perf_counter()
                 fo = FixedOptics(
                     psf, vig, fh, patch=c.patch, full_field_px=frame.full_field_px, f_number=f_numbers[who]
-                )
+                ).to(self.device)
                 ev_cam = DetectionCamera(Camera(fo, cams[who].sensor, cams[who].isp), cams[who].detector)
                 preds[who][kind] = evaluate_detection(ev_cam, samples, progress, f"eval {who} ({kind} optics)")
                 eval_cache.write(
@@ -400,8 +408,9 @@ def _detection_panels(
         for who in ("nominal", "end_to_end"):
             psf, vig, fh = optics[who]["exact"]
             fo = FixedOptics(psf, vig, fh, patch=patch, full_field_px=frame.full_field_px, f_number=f_numbers[who])
-            cam = DetectionCamera(Camera(fo, cams[who].sensor, cams[who].isp), cams[who].detector)
-            img = cam.final_image(s.scene[None], s.offset_px, torch.Generator().manual_seed(int(s.noise_seed)))[0]
+            cam = DetectionCamera(Camera(fo.to(cams[who].device), cams[who].sensor, cams[who].isp), cams[who].detector)
+            gen = torch.Generator().manual_seed(int(s.noise_seed))
+            img = cam.final_image(s.scene[None].to(cam.device), s.offset_px, gen)[0].cpu()
             p = preds[who]["exact"][i]
             keep = p["scores"] >= PANEL_SCORE
             imgs.append(boxed(img, p["boxes"][keep], p["labels"][keep], "cyan"))

@@ -63,8 +63,9 @@ def evaluate(camera, samples) -> list[dict]:
     rows = []
     for s in samples:
         gen = torch.Generator().manual_seed(int(s.noise_seed))
-        out, _ = camera(s.scene[None], s.offset_px, gen, final=True)
-        x, y = (out.clamp(0, 1) * 255).round() / 255, s.target[None]
+        dev = camera.device  # the sample goes to the camera's device; the metrics run there
+        out, _ = camera(s.scene[None].to(dev), s.offset_px, gen, final=True)
+        x, y = (out.clamp(0, 1) * 255).round() / 255, s.target[None].to(dev)
         radius = float(np.hypot(*s.offset_px)) / camera.optics.full_field_px if camera.optics.full_field_px else 0.0
         rows.append(
             {

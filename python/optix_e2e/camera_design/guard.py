@@ -52,7 +52,7 @@ class Manufacturable:
 
 
 def _values(optics: DifferentiableOptics, u: torch.Tensor) -> np.ndarray:
-    return (optics.lo + (optics.hi - optics.lo) * torch.sigmoid(u)).detach().double().numpy()
+    return (optics.lo + (optics.hi - optics.lo) * torch.sigmoid(u)).detach().double().cpu().numpy()
 
 
 def _margin_slopes(optics, guard: Manufacturable, u: torch.Tensor, m0: np.ndarray, rows: np.ndarray, h: float):
@@ -89,10 +89,10 @@ def project_step(
         jac = _margin_slopes(optics, guard, u_prev, m0, active, h)
     except Exception:  # untraceable (a ray misses a surface, surfaces cross): no linearization here
         return step
-    d = step.double().numpy()
+    d = step.double().cpu().numpy()
     # min |d' - d|^2 s.t. J d' >= -m0: d' = d + J^T lam, lam >= 0 minimizing |J J^T lam - (-m0 - J d)|
     lam, _ = nnls(jac @ jac.T + 1e-12 * np.eye(active.size), np.maximum(-m0[active] - jac @ d, 0.0))
-    return torch.as_tensor(d + jac.T @ lam, dtype=step.dtype)
+    return torch.as_tensor(d + jac.T @ lam, dtype=step.dtype, device=step.device)
 
 
 def keep_manufacturable(
@@ -104,20 +104,20 @@ def keep_manufacturable(
     breaks one (the limits curve), cut back along it to the farthest manufacturable point
     (bisection; the previous point is manufacturable). Returns True when the step changed."""
     u_new = optics.u.detach().clone()
-    if not guard.problems(optics.values().detach().numpy()):
+    if not guard.problems(optics.values().detach().cpu().numpy()):
         return False
     if project:
         u_new = u_prev + project_step(optics, u_prev, u_new - u_prev, guard)
         with torch.no_grad():
             optics.u.copy_(u_new)
-        if not guard.problems(optics.values().detach().numpy()):
+        if not guard.problems(optics.values().detach().cpu().numpy()):
             return True
     lo, hi = 0.0, 1.0
     for _ in range(iters):
         mid = 0.5 * (lo + hi)
         with torch.no_grad():
             optics.u.copy_(u_prev + mid * (u_new - u_prev))
-        if guard.problems(optics.values().detach().numpy()):
+        if guard.problems(optics.values().detach().cpu().numpy()):
             hi = mid
         else:
             lo = mid
@@ -151,4 +151,4 @@ def barrier_gradient(
     m, jac = np.maximum(m0[near][moved], 1e-6), jac[moved]
     value = weight * float(np.sum(m / band - 1.0 - np.log(m / band)))
     dB_dm = weight * (1.0 / band - 1.0 / m)  # < 0: the barrier falls as a margin grows
-    return torch.as_tensor(jac.T @ dB_dm, dtype=u.dtype), value
+    return torch.as_tensor(jac.T @ dB_dm, dtype=u.dtype, device=u.device), value

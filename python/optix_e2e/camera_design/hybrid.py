@@ -98,8 +98,9 @@ class OpticsMonitor:
     def check(self, step: int, final: bool = False) -> dict:
         t0 = time.perf_counter()
         optics = self.optics
-        values = optics.values().detach().double().numpy()
-        psf_x, vig_x = (torch.as_tensor(a) for a in optics.exact.psfs(values))
+        values = optics.values().detach().double().cpu().numpy()
+        # the engine's PSFs (CPU) go to the optics' device once per check
+        psf_x, vig_x = (torch.as_tensor(a, device=optics.lo.device) for a in optics.exact.psfs(values))
         with torch.no_grad():
             net_psf, _ = optics.surrogate.psfs(optics.values().detach(), check=False)
             model_psf, model_vig = self._model_psfs()
@@ -240,7 +241,8 @@ class OpticsMonitor:
         self.refined_at_last_check = bool(st["refined_at_last_check"])
         self.refine_seconds = float(st.get("refine_seconds", 0.0))
         c = st.get("correction")
-        self.optics.correction = None if c is None else (c[0], c[1])
+        dev = self.optics.lo.device
+        self.optics.correction = None if c is None else (c[0].to(dev), c[1].to(dev))
         eng = st.get("engine")
         if eng is not None:
             ex = self.optics.exact

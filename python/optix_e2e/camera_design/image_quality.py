@@ -36,8 +36,8 @@ WHO = ("nominal", "end_to_end")
 class ImageQualityHooks(TaskHooks):
     loss_parts = LOSS_PARTS
 
-    def __init__(self, cfg):
-        super().__init__(cfg)
+    def __init__(self, cfg, device="cpu"):
+        super().__init__(cfg, device)
         self.mode, self.choice = resolve_optics(cfg)
         self.folder = ImageFolder(cfg.images) if cfg.images else None
 
@@ -60,7 +60,9 @@ class ImageQualityHooks(TaskHooks):
     def build_camera(self, sur, frame, *, fixed_optics=None, trained=False):
         # a hybrid run refines its own copy of the surrogate
         own = trained and fixed_optics is None and self.mode == "hybrid"
-        return build_camera(self.cfg, sur, fixed_optics=fixed_optics, frame=frame, own_surrogate=own)
+        return build_camera(
+            self.cfg, sur, fixed_optics=fixed_optics, frame=frame, own_surrogate=own, device=self.device
+        )
 
     def monitor(self, camera, writer, log):
         c = self.cfg
@@ -85,8 +87,8 @@ class ImageQualityHooks(TaskHooks):
         psf, vig = surrogate_psfs
         if self.mode != "surrogate":
             psf, vig = (
-                torch.as_tensor(a, dtype=torch.float32)
-                for a in camera.optics.exact.psfs(nominal_values.double().numpy())
+                torch.as_tensor(a, dtype=torch.float32, device=nominal_values.device)
+                for a in camera.optics.exact.psfs(nominal_values.double().cpu().numpy())
             )
         idx = camera.optics.field_index or list(range(len(sur.fields_deg)))
         return FixedOptics(
@@ -114,7 +116,7 @@ class ImageQualityHooks(TaskHooks):
             rows[who] = {}
             for kind in ("exact", "surrogate"):
                 psf, vig, fh = optics[who][kind]
-                fo = FixedOptics(psf, vig, fh, patch=c.patch, full_field_px=frame.full_field_px)
+                fo = FixedOptics(psf, vig, fh, patch=c.patch, full_field_px=frame.full_field_px).to(self.device)
                 rows[who][kind], s = _evaluate_cached(
                     out / f"eval_{who}_{kind}.json",
                     _camera_key(psf, vig, fh, cams[who].isp, cams[who].sensor, samples, samples_key),
@@ -169,8 +171,11 @@ class ImageQualityHooks(TaskHooks):
                 psf, vig, fh = optics[who]["exact"]
                 cam = cams[who]
                 fo = FixedOptics(psf, vig, fh, patch=cam.optics.patch, full_field_px=cam.optics.full_field_px)
-                img, _ = Camera(fo, cam.sensor, cam.isp)(
-                    s.scene[None], s.offset_px, torch.Generator().manual_seed(int(s.noise_seed)), final=True
+                img, _ = Camera(fo.to(self.device), cam.sensor, cam.isp)(
+                    s.scene[None].to(self.device),
+                    s.offset_px,
+                    torch.Generator().manual_seed(int(s.noise_seed)),
+                    final=True,
                 )
                 imgs.append(img[0])
             rows.append((f"{s.name} ({s.position})", imgs))

@@ -34,6 +34,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from ..device import resolve_device
 from ..parallel import set_threads, stop_if_diverged
 from .. import color
 from ..camera import calibrated_preset
@@ -80,6 +81,7 @@ class PretrainConfig:
     checkpoint_every: int = 100
     seed: int = 0
     threads: int = 0
+    device: str = "auto"  # where the network trains (optix_e2e.device); the pools are made on the CPU
 
 
 def _lens_psfs(sur, kind: str, rng, nominal) -> tuple[torch.Tensor, torch.Tensor] | None:
@@ -155,10 +157,11 @@ def validate(model: SoftwareISP, pool: Pool, batch: int = 8) -> dict:
     model.eval()
     ps = []
     full = SensorFrame().full_field_px
+    dev = next(model.parameters()).device
     for i in range(0, pool.raw.shape[0], batch):
         sl = slice(i, i + batch)
-        out = model(pool.raw[sl], pool.offset[sl], full).clamp(0, 1)
-        ps.append(_psnr((out * 255).round() / 255, pool.ideal[sl].float() / 255))
+        out = model(pool.raw[sl].to(dev), pool.offset[sl], full).clamp(0, 1)
+        ps.append(_psnr((out * 255).round() / 255, pool.ideal[sl].to(dev).float() / 255).cpu())
     model.train()
     ps = torch.cat(ps)
     res = {"psnr_db": float(ps.mean())}
@@ -175,14 +178,14 @@ def _resumable(cfg: PretrainConfig) -> dict:
     return {
         k: list(v) if isinstance(v, tuple) else v
         for k, v in asdict(cfg).items()
-        if k not in ("steps", "minutes", "threads", "anneal_minutes")
+        if k not in ("steps", "minutes", "threads", "anneal_minutes", "device")
     }
 
 
 def export(model: SoftwareISP, path: Path, meta: dict) -> None:
     """The weights in float16 with their manifest (``meta``): the shipped form."""
     sd = {
-        k: (v.half() if v.is_floating_point() and not k.startswith("classical.") else v)
+        k: (v.half() if v.is_floating_point() and not k.startswith("classical.") else v).cpu()
         for k, v in model.state_dict().items()
     }
     save_atomic({"format": "optix-software-isp/2", "config": model.config(), "state_dict": sd, "meta": meta}, path)
@@ -200,6 +203,7 @@ def pretrain(
     from ..io import claim_out_dir
 
     out = Path(out)
+    dev = resolve_device(cfg.device)  # a GPU that is not there is refused before the folder is claimed
     claim_out_dir(out, "ISP pre-training", {"tb"}, marker="state.pt")  # tb/: a start that stopped early
     out.mkdir(parents=True, exist_ok=True)
     set_threads(cfg.threads)
@@ -211,6 +215,7 @@ def pretrain(
     torch.manual_seed(cfg.seed)
     model = SoftwareISP(arch=cfg.arch, base=cfg.width, depth=cfg.depth, blocks=cfg.blocks, position=cfg.position)
     model.calibrate(calibrated_preset("imx249", f_number))
+    model.to(dev)  # the pools stay on the CPU (seeded data); each batch goes to the device once
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     state_path = out / "state.pt"
     step, seconds, curve, earlier = 0, 0.0, [], []
@@ -283,8 +288,8 @@ def pretrain(
             pool = make_pool(cfg, cfg.pool, [6, cfg.seed, pool_id], sur, heights, nominal, f_number)
         rng = np.random.default_rng([8, cfg.seed, step])
         idx = torch.as_tensor(rng.integers(pool.raw.shape[0], size=cfg.batch))
-        pred = model(pool.raw[idx], pool.offset[idx], SensorFrame().full_field_px)
-        loss = (pred - pool.ideal[idx].float() / 255).abs().mean()
+        pred = model(pool.raw[idx].to(dev), pool.offset[idx], SensorFrame().full_field_px)
+        loss = (pred - pool.ideal[idx].to(dev).float() / 255).abs().mean()
         stop_if_diverged(step + 1, state_path, "lower --lr", loss=loss.detach())
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -316,6 +321,7 @@ def pretrain(
         "command": "optix " + " ".join(sys.argv[1:]) if Path(sys.argv[0]).name == "optix" else "pretrain()",
         "config": asdict(cfg),
         "steps": step,
+        "device": str(dev),  # where this call trained
         "minutes": round((time.time() - t0) / 60, 1),
         "parameters": n_params,
         "curve": curve,

@@ -116,6 +116,7 @@ def export_lens(manifest: dict, values, image_distance: float, stem: Path, name:
 
 def psf_rel_l1_per_field(a: torch.Tensor, b: torch.Tensor) -> list[float]:
     """Median over channels of sum|a - b| / sum|b| per field, PSFs [K, C, S, S]."""
+    b = b.to(a.device)  # the engine's PSFs (CPU) against a model's on its device
     err = (a - b).abs().sum((-2, -1)) / b.abs().sum((-2, -1)).clamp_min(1e-12)
     return [float(x) for x in err.median(dim=1).values]
 

@@ -43,9 +43,9 @@ HOOKS: dict[str, type[TaskHooks]] = {"detection": DetectionHooks}
 WHO = ("nominal", "end_to_end")
 
 
-def hooks_for(cfg: DesignConfig) -> TaskHooks:
-    """The task's hooks (tasks.get_task refuses an unknown task)."""
-    return HOOKS.get(cfg.task, ImageQualityHooks)(cfg)
+def hooks_for(cfg: DesignConfig, device: "torch.device | str" = "cpu") -> TaskHooks:
+    """The task's hooks (tasks.get_task refuses an unknown task), its cameras on ``device``."""
+    return HOOKS.get(cfg.task, ImageQualityHooks)(cfg, device)
 
 
 def summary_lines(cfg: DesignConfig, results: dict) -> list[str]:
@@ -73,7 +73,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     (``torchrun --nproc_per_node N -m optix_e2e design ...``) the N processes share each
     training batch (optix_e2e.parallel); rank 0 alone evaluates and writes, and the other
     ranks return None once the trainings are done."""
-    ranks = parallel.setup("cpu")  # the design trainings run on the CPU: gloo
+    ranks = parallel.setup(cfg.device)  # cfg.device: --device (torchrun: gloo on the CPU, NCCL on CUDA)
     kept = run_dir_settings(Path(out), cfg)  # an old run keeps a former default (config.FORMER_DEFAULTS)
     if kept != cfg and ranks.is_main:
         log(
@@ -83,7 +83,8 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         )
     cfg = kept
     out, task, frame, sur = start_run(cfg, out)
-    hooks = hooks_for(cfg)
+    sur.to(ranks.device)  # every camera's optics (and a hybrid run's copy) start from it there
+    hooks = hooks_for(cfg, ranks.device)
     # everything the run needs is checked before the run directory is claimed
     hooks.check(sur, ranks)
     hooks.build_camera(sur, frame)
@@ -139,7 +140,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     values = {"nominal": nominal_values, "end_to_end": final_values}
     f_numbers = {who: hooks.f_number(v) for who, v in values.items()}
     exact = exact_optics(
-        sur, torch.stack([nominal_values, final_values]).double().numpy(), fallback=hooks.exact_fallback
+        sur, torch.stack([nominal_values, final_values]).double().cpu().numpy(), fallback=hooks.exact_fallback
     )
     psf_es = vig_es = None
     if sur.has_network:
@@ -154,7 +155,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
             "exact": (
                 exact["psf"][i],
                 exact["vignetting"][i],
-                design_field_heights(sur, values[who].numpy(), exact["image_distance"][i]),
+                design_field_heights(sur, values[who].cpu().numpy(), exact["image_distance"][i]),
             ),
             "surrogate": (*surrogate_psfs[who], h_train) if sur.has_network else None,
         }
@@ -165,7 +166,9 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
 
     log("[4/4] lens export, checks, PSF grids, panels, reports")
     fields_deg = [float(f) for f in sur.manifest["fields_deg"]]
-    exported, checks = outputs.write_design_outputs(out, cfg, sur, nominal_values.numpy(), final_values.numpy(), exact)
+    exported, checks = outputs.write_design_outputs(
+        out, cfg, sur, nominal_values.cpu().numpy(), final_values.cpu().numpy(), exact
+    )
     hooks.panels(out / "panels.png", evaluation, cams, optics, f_numbers, frame)
     reports = {who: write_report(Lens.load(out / "lens" / f"{who}.json"), out / "report" / who) for who in WHO}
     results = {
@@ -174,6 +177,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         "optimizer": cfg.optimizer,
         "budget": cfg.budget,
         "seed": cfg.seed,
+        "device": str(ranks.device),  # where this call ran (a resumed run may have trained elsewhere)
         "optics_eval": "exact",
         **hooks.summarize(evaluation, cams, reports, f_numbers),
         "lens_zmx": str(Path(exported["zmx"]).relative_to(out)),

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import torch
+
 from .. import parallel
 from ..camera import FixedOptics
 from ..surrogate.checkpoint import OpticsSurrogate
@@ -18,7 +20,7 @@ from .config import DesignConfig
 
 class TaskHooks:
     """The hooks of one task, in the order the run calls them. ``cfg`` is the run's settings,
-    ``task`` the task's definition (tasks.get_task)."""
+    ``task`` the task's definition (tasks.get_task), ``device`` where the cameras run (--device)."""
 
     #: the loss terms the task reports besides the total (history.csv, TensorBoard)
     loss_parts: tuple[str, ...] = ()
@@ -27,9 +29,10 @@ class TaskHooks:
     #: the user's training images (``--images``: scenes.ImageFolder), where the task takes them
     folder = None
 
-    def __init__(self, cfg: DesignConfig):
+    def __init__(self, cfg: DesignConfig, device: "torch.device | str" = "cpu"):
         self.cfg = cfg
         self.task = get_task(cfg.task)
+        self.device = torch.device(device)
 
     def check(self, sur: OpticsSurrogate, ranks: parallel.Ranks) -> None:
         """Refuse settings the task cannot run with, before the run folder is claimed."""

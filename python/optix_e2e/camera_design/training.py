@@ -148,7 +148,8 @@ def train(
         opt.reduce = lambda params, loss, info: parallel.average_step(ranks, params, loss, info)
         progress = progress and ranks.is_main
     if loss_at is None:
-        loss_mod = TaskLoss(task)
+        dev = camera.device  # a batch is drawn on the CPU (seeded) and goes to the camera once
+        loss_mod = TaskLoss(task).to(dev)
         part = parallel.batch_slice(cfg.batch, ranks)
 
         def loss_at(t, gen):
@@ -163,8 +164,8 @@ def train(
                 folder,
                 positions=cfg.train_positions,
             )
-            out_img, _ = camera(batch.scene[part], batch.offset_px, gen)
-            return loss_mod(out_img, batch.target[part])
+            out_img, _ = camera(batch.scene[part].to(dev), batch.offset_px, gen)
+            return loss_mod(out_img, batch.target[part].to(dev))
 
     optics = camera.optics if isinstance(camera.optics, DifferentiableOptics) else None
     guard = Manufacturable(optics.surrogate.manifest) if optics is not None and optics.surrogate.manifest else None

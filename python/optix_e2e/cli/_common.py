@@ -33,6 +33,14 @@ SEED = click.IntRange(0, 2**63 - 1)  # what numpy and torch generators accept
 THREADS = click.IntRange(0, 1024)  # parallel.MAX_THREADS: torch aborts when asked for tens of thousands
 
 
+DEVICE_HELP = "Where the torch stages run: auto (CUDA when present), cpu, cuda, cuda:K."
+
+
+def device_option(fn):
+    """``--device auto|cpu|cuda|cuda:K`` (optix_e2e.device.resolve_device; auto: CUDA when present)."""
+    return click.option("--device", default="auto", show_default=True, help=DEVICE_HELP)(fn)
+
+
 def friendly_errors(fn):
     """Turn the package's own errors (``errors.OptixError``), the engine's (``EngineError``) and
     the operating system's (a file that cannot be read or written) into one ``Error: ...`` line

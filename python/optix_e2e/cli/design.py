@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ._common import SEED, THREADS, dumps, friendly_errors
+from ._common import DEVICE_HELP, SEED, THREADS, dumps, friendly_errors
 
 
 @click.command("design")
@@ -74,10 +74,24 @@ from ._common import SEED, THREADS, dumps, friendly_errors
     "until manufacturable (the paper's Sec. 5.2).",
 )
 @click.option("--threads", type=THREADS, default=None, help="torch CPU threads (0: default).")
+@click.option("--device", default=None, help=DEVICE_HELP + " [default: auto, or the config file's device]")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @friendly_errors
 def design(
-    task, out, config_file, optimizer, budget, seed, surrogate, images, optics, space, optics_init, threads, quiet
+    task,
+    out,
+    config_file,
+    optimizer,
+    budget,
+    seed,
+    surrogate,
+    images,
+    optics,
+    space,
+    optics_init,
+    threads,
+    device,
+    quiet,
 ):
     """Optimize lens and processing together for TASK, against the nominal lens with its
     processing fine-tuned with as many updates per block, and evaluate both under the exact
@@ -90,7 +104,10 @@ def design(
     from .. import parallel
     from ..camera_design.config import make_config
     from ..camera_design.run import run_design, summary_lines
+    from ..device import resolve_device
 
+    if device is not None:
+        resolve_device(device)  # a GPU that is not there: one error naming --device
     cfg = make_config(
         budget,
         config_file,
@@ -103,6 +120,7 @@ def design(
         optics=optics,
         space=space,
         optics_init=optics_init,
+        device=device,
     )
     try:
         res = run_design(cfg, Path(out), progress=not quiet, log=click.echo)

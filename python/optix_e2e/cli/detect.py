@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from ._common import FiniteFloatRange, SEED, THREADS, dumps, friendly_errors
+from ._common import FiniteFloatRange, SEED, THREADS, device_option, dumps, friendly_errors
 
 
 @click.group("detect")
@@ -47,9 +47,10 @@ def detect():
     "(photon and read noise of the IMX249; tasks/detector_train.py:sensor_noise).",
 )
 @click.option("--threads", type=THREADS, default=0, help="torch CPU threads (0: default).")
+@device_option
 @click.option("--quiet", is_flag=True)
 @friendly_errors
-def train(data, out, steps, minutes, batch, lr, seed, dim, noise, threads, quiet):
+def train(data, out, steps, minutes, batch, lr, seed, dim, noise, threads, device, quiet):
     """Train the detector on DATA (images/ + annotations.json, e.g. from `optix scenes street`)."""
     from ..parallel import set_threads
     from ..tasks.detector_train import train_detector
@@ -67,6 +68,7 @@ def train(data, out, steps, minutes, batch, lr, seed, dim, noise, threads, quiet
                 seed=seed,
                 dim=dim,
                 noise=noise,
+                device=device,
                 progress=not quiet,
                 log=click.echo,
             )
@@ -78,12 +80,16 @@ def train(data, out, steps, minutes, batch, lr, seed, dim, noise, threads, quiet
 @click.argument("run", type=click.Path(exists=True))
 @click.argument("data", type=click.Path(exists=True, file_okay=False))
 @click.option("--threads", type=THREADS, default=0, help="torch CPU threads (0: default).")
+@device_option
 @friendly_errors
-def evaluate(run, data, threads):
+def evaluate(run, data, threads, device):
     """mAP@[.5:.95] and mAP@0.5 of the detector in RUN on DATA (and in its dark regions). One JSON line."""
+    from ..device import resolve_device
     from ..parallel import set_threads
     from ..tasks.detector_train import evaluate_detector, load_detector
 
     set_threads(threads)
+    dev = resolve_device(device)
     model, ck = load_detector(run)
-    click.echo(dumps({**evaluate_detector(model, data), "steps": ck.get("step"), "train_wall_s": ck.get("wall_s")}))
+    res = evaluate_detector(model.to(dev), data)
+    click.echo(dumps({**res, "steps": ck.get("step"), "train_wall_s": ck.get("wall_s"), "device": str(dev)}))

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ._common import THREADS, SEED, FiniteFloatRange, dumps, friendly_errors
+from ._common import THREADS, SEED, FiniteFloatRange, device_option, dumps, friendly_errors
 
 DATA = click.Path(file_okay=False, exists=True, path_type=Path)
 
@@ -85,7 +85,7 @@ def surrogate():
 )
 @click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--threads", type=THREADS, default=0, help="torch CPU threads (0: default).")
-@click.option("--device", default="auto", show_default=True, help="auto (CUDA when present), cpu, cuda, cuda:1 ...")
+@device_option
 @click.option(
     "--init",
     default="",

@@ -47,7 +47,7 @@ class ISPProxy(nn.Module):
 
     def save(self, path, **meta) -> None:
         """Weights in float16 (the shipped proxy must stay small) plus everything to rebuild it."""
-        state = {k: v.half() if v.is_floating_point() else v for k, v in self.state_dict().items()}
+        state = {k: (v.half() if v.is_floating_point() else v).cpu() for k, v in self.state_dict().items()}
         save_atomic(
             {
                 "format": "optix-isp-proxy/1",

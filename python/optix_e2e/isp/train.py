@@ -21,6 +21,7 @@ import torch
 from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
+from ..device import resolve_device
 from ..parallel import set_threads, stop_if_diverged
 from ..metrics import image as metrics
 from . import data
@@ -45,6 +46,7 @@ class TrainConfig:
     val_every: int = 250
     val_size: int = 128
     threads: int = 0  # torch threads (0 = torch's default)
+    device: str = "auto"  # where the proxy trains (optix_e2e.device); the pools are made on the CPU
 
 
 def _crop(x: torch.Tensor, c: int) -> torch.Tensor:
@@ -63,8 +65,10 @@ def cosine_lr(
 
 
 def _predict(model, kind: str, pool: data.Pool, idx) -> tuple[torch.Tensor, torch.Tensor]:
-    """(prediction, target) of a batch: the proxy imitates the reference ISP."""
-    raw, u, target = pool.batch(idx)
+    """(prediction, target) of a batch: the proxy imitates the reference ISP. The pool lives on
+    the CPU (the reference ISP made it there); the batch goes to the model's device once."""
+    dev = next(model.parameters()).device
+    raw, u, target = (t.to(dev) for t in pool.batch(idx))
     return model(raw, u), target
 
 
@@ -95,15 +99,17 @@ def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) ->
     from ..io import claim_out_dir
 
     out_dir = Path(out_dir)
+    dev = resolve_device(cfg.device)  # a GPU that is not there is refused before the folder is claimed
     claim_out_dir(out_dir, "ISP proxy training", {"proxy.pt", "train.json", "tb"})  # its own files: trained again
     out_dir.mkdir(parents=True, exist_ok=True)
     set_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
+    model.to(dev)
     meta = getattr(model, "meta", {})  # a continued proxy keeps the record of its earlier runs
     earlier = list(meta.get("earlier_training", [])) + ([meta["training"]] if "training" in meta else [])
     model.train()
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-    loss_fn = metrics.L1PerceptualLoss(cfg.perceptual_weight)
+    loss_fn = metrics.L1PerceptualLoss(cfg.perceptual_weight).to(dev)
     writer = SummaryWriter(str(out_dir / "tb"))
     val_pool = data.make_pool(64, cfg.val_size, seed=10_000 + cfg.seed, progress=False)
     rng = np.random.default_rng(cfg.seed)
@@ -150,6 +156,7 @@ def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) ->
         "steps_done": step,
         "seconds": round(time.time() - t0, 1),
         "config": asdict(cfg),
+        "device": str(dev),
         "final_val": history[-1] if history else None,
         "history": history,
     }

@@ -61,8 +61,9 @@ class DifferentiableOptics(nn.Module):
         self.u = nn.Parameter(torch.zeros(len(surrogate.param_names)))
         self.set_values(self.base_values() if init is None else init)
         # where the K fields land on the sensor, as fractions of the full field's image height
-        # (None: proportional to the field angle); see camera.stages.image_height_fractions
-        self.render_fields: torch.Tensor | None = None
+        # (None: proportional to the field angle); see camera.stages.image_height_fractions. A
+        # buffer, so it moves with the module (not saved: the run sets it when it builds the camera)
+        self.register_buffer("render_fields", None, persistent=False)
         self._exact = None
         # default: the network where there is one (a copy on another space's terms has none)
         self.backend = backend or ("surrogate" if surrogate.has_network else "exact")
@@ -105,7 +106,7 @@ class DifferentiableOptics(nn.Module):
         if not man:
             return (self.lo + self.hi) / 2
         space, base = space_and_base(man)
-        v = torch.tensor(space.values(base.data), dtype=torch.float32)
+        v = torch.tensor(space.values(base.data), dtype=torch.float32, device=self.lo.device)
         inside = (v >= self.lo) & (v <= self.hi)
         return torch.where(inside, v, (self.lo + self.hi) / 2)
 
@@ -119,7 +120,7 @@ class DifferentiableOptics(nn.Module):
         space it was put in: OpticsSurrogate.in_space) are an error naming them."""
         from ..surrogate.checkpoint import SurrogateRangeError, outside_ranges
 
-        v = torch.as_tensor(values, dtype=torch.float32).reshape(-1)
+        v = torch.as_tensor(values, dtype=torch.float32).to(self.lo.device).reshape(-1)
         if v.numel() != self.lo.numel():
             raise InputError(f"{v.numel()} lens values for {self.lo.numel()} parameters")
         nonfinite, cols = outside_ranges(v, self.lo, self.hi)
@@ -204,5 +205,5 @@ class DifferentiableOptics(nn.Module):
         result against the real optics."""
         from ..surrogate.ground_truth import exact_optics
 
-        ex = exact_optics(self.surrogate, self.values().detach().double().numpy()[None])
+        ex = exact_optics(self.surrogate, self.values().detach().double().cpu().numpy()[None])
         return ex["psf"][0], ex["vignetting"][0]

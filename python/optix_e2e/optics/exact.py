@@ -287,7 +287,8 @@ class _ExactPSF(torch.autograd.Function):
         v = values.detach().double().cpu().numpy()
         if values.requires_grad:
             psf, vig, jp, jv = engine.jacobian(v)
-            ctx.save_for_backward(torch.as_tensor(jp), torch.as_tensor(jv))
+            # the Jacobian goes to the values' device with the PSFs: one copy per call
+            ctx.save_for_backward(torch.as_tensor(jp, device=values.device), torch.as_tensor(jv, device=values.device))
         else:
             psf, vig = engine.psfs(v)
         ctx.dtype = values.dtype
@@ -300,8 +301,8 @@ class _ExactPSF(torch.autograd.Function):
     @staticmethod
     def backward(ctx, g_psf, g_vig):
         jp, jv = ctx.saved_tensors
-        g = (jp * g_psf.double().cpu()).flatten(1).sum(1) + (jv * g_vig.double().cpu()).flatten(1).sum(1)
-        return g.to(dtype=ctx.dtype, device=g_psf.device), None
+        g = (jp * g_psf.double()).flatten(1).sum(1) + (jv * g_vig.double()).flatten(1).sum(1)
+        return g.to(dtype=ctx.dtype), None
 
 
 def exact_psfs(values: torch.Tensor, engine: ExactOptics) -> tuple[torch.Tensor, torch.Tensor]:

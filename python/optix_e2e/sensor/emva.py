@@ -137,7 +137,8 @@ def raw_from_electrons(
     comparisons): the uniform, normal and uniform fields of shot noise, dark noise and
     quantisation are drawn first, in float64 (their number does not depend on the signal), and
     the shot noise is the Poisson quantile of its uniform at the pixel's mean. Sampling
-    ``torch.poisson`` consumes a signal-dependent amount of the random stream instead.
+    ``torch.poisson`` consumes a signal-dependent amount of the random stream instead. This
+    path runs on the CPU (scipy's Poisson quantile) and returns to the signal's device.
     """
     if quantize not in QUANTIZE:
         raise InputError(f"quantize must be one of {', '.join(QUANTIZE)}, got {quantize!r}")
@@ -158,15 +159,24 @@ def raw_from_electrons(
             return y.clamp(0, p.adc_max_dn).to(photo_electrons)
     if noise:
         e = poisson_sample(mu_e, generator=generator)  # photo-electrons + n_I
-        e = e + p.dark_noise_e * torch.randn(e.shape, generator=generator, dtype=e.dtype, device=e.device)  # n_d
+        e = e + p.dark_noise_e * _drawn(torch.randn, e, generator)  # n_d
     else:
         e = mu_e
     y = p.black_level_dn + p.gain_dn_per_e * torch.clamp(e, max=p.full_well_e)  # Eq. 5 without n_q
     if quantize == "uniform" and noise:
-        y = y + torch.rand(y.shape, generator=generator, dtype=y.dtype, device=y.device) - 0.5
+        y = y + _drawn(torch.rand, y, generator) - 0.5
     elif quantize == "round":
         y = y + (torch.round(y) - y).detach()
     return y.clamp(0, p.adc_max_dn)
+
+
+def _drawn(draw, like: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
+    """``draw`` (torch.rand, torch.randn) of ``like``'s shape and dtype, made on the generator's
+    device and moved to ``like``'s: a CPU generator gives the CPU's draws on any device (the
+    seeded noise repeats across devices; a CUDA stream would not match the CPU's)."""
+    if generator is None:
+        return draw(like.shape, dtype=like.dtype, device=like.device)
+    return draw(like.shape, generator=generator, dtype=like.dtype, device=generator.device).to(like.device)
 
 
 def expected_signal(linear_rgb: torch.Tensor, preset="imx249", **overrides) -> torch.Tensor:

@@ -38,12 +38,16 @@ def poisson_sample(
 ) -> torch.Tensor:
     """k ~ Poisson(rate) elementwise (same shape and dtype), differentiable w.r.t. rate (see module doc).
 
-    Negative rates are treated as 0. The returned values are exactly the integer draws.
+    Negative rates are treated as 0. The returned values are exactly the integer draws. A
+    ``generator`` draws on its own device (a CPU one: the CPU's draws, whatever the rate's device).
     """
     if estimator not in ESTIMATORS:
         raise InputError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {estimator!r}")
     mu = rate.detach().clamp_min(0)
-    k = torch.poisson(mu, generator=generator)
+    if generator is None:
+        k = torch.poisson(mu)
+    else:
+        k = torch.poisson(mu.to(generator.device), generator=generator).to(mu.device)
     if not rate.requires_grad:
         return k
     if estimator == "straight_through":

@@ -43,8 +43,8 @@ def local_designs(
 def field_errors(sur, values: np.ndarray, psf_true: torch.Tensor) -> list[float]:
     """The surrogate's PSF relative L1 per field at ``values`` (median over channels)."""
     with torch.no_grad():
-        psf, _ = sur.psfs(torch.as_tensor(values, dtype=torch.float32), check=False)
-    err = (psf.double() - psf_true.double()).abs().sum((-2, -1))
+        psf, _ = sur.psfs(torch.as_tensor(values, dtype=torch.float32, device=sur.param_mean.device), check=False)
+    err = (psf.double() - psf_true.double().to(psf.device)).abs().sum((-2, -1))
     return [float(x) for x in err.median(dim=1).values]
 
 
@@ -63,9 +63,10 @@ def refine_around(sur, engine, values, settings: RefineSettings = RefineSettings
         from .ground_truth import EngineRejectedDesign
 
         raise EngineRejectedDesign("cannot refine the surrogate: the engine rejects the current design")
-    params = torch.as_tensor(designs[ok], dtype=torch.float32)
-    psf_t = torch.as_tensor(np.stack([psf[i] for i in ok]), dtype=torch.float32)  # [N, K, C, S, S]
-    vig_t = torch.as_tensor(np.stack([vig[i] for i in ok]), dtype=torch.float32)  # [N, K, C]
+    dev = sur.param_mean.device  # the engine's data go to the surrogate's device once
+    params = torch.as_tensor(designs[ok], dtype=torch.float32, device=dev)
+    psf_t = torch.as_tensor(np.stack([psf[i] for i in ok]), dtype=torch.float32, device=dev)  # [N, K, C, S, S]
+    vig_t = torch.as_tensor(np.stack([vig[i] for i in ok]), dtype=torch.float32, device=dev)  # [N, K, C]
     before = field_errors(sur, v, psf_t[0])
     net = sur.net
     was = [p.requires_grad for p in net.parameters()]
@@ -81,6 +82,7 @@ def refine_around(sur, engine, values, settings: RefineSettings = RefineSettings
             d = torch.randint(n, (settings.batch,), generator=gen)
             d[: settings.batch // 4] = 0  # the design itself, every step
             f = torch.randint(k, (settings.batch,), generator=gen)
+            d, f = d.to(dev), f.to(dev)  # drawn on the CPU: the same draws on any device
             p, g = net(sur.normalize(params[d]), sur.fields[f])
             loss = weights.total(optics_loss_terms(p, g, psf_t[d, f], vig_t[d, f]))
             opt.zero_grad(set_to_none=True)

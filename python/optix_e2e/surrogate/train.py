@@ -28,6 +28,7 @@ from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
 from .. import parallel
+from ..device import resolve_device
 from ..torchfile import DAMAGED_STATE_ERRORS, load_plain
 from ..io import claim_out_dir, save_atomic
 from .checkpoint import OpticsSurrogate
@@ -234,6 +235,7 @@ def train(
     the ranks other than 0 return None."""
     out_dir = Path(out_dir)
     parallel.set_threads(cfg.threads)
+    resolve_device(cfg.device)  # a GPU that is not there is refused before the folder is claimed
     state_path = out_dir / "state.pt"
     # another run's folder is not written into (checked by every rank before they meet, so
     # before rank 0 writes anything)

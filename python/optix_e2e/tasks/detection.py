@@ -177,6 +177,10 @@ class DetectionCamera(nn.Module):
     def margin(self) -> int:
         return self.camera.margin
 
+    @property
+    def device(self) -> torch.device:
+        return self.camera.device
+
     def blocks(self):
         out = self.camera.blocks()
         out["detector"] = list(self.detector.parameters())

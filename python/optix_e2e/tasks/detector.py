@@ -133,11 +133,13 @@ def in_the_dark(
 
 @torch.no_grad()
 def detect(model: nn.Module, images: torch.Tensor, batch: int = 8) -> list[dict]:
-    """The model's detections for images [N, 3, H, W] (eval mode, in batches)."""
+    """The model's detections for images [N, 3, H, W] (eval mode, in batches): each batch goes
+    to the model's device, the detections come back to the CPU (where mAP is scored)."""
     was = model.training
     model.eval()
+    dev = next(model.parameters(), images).device  # (a model without weights: the images' own)
     out = []
     for i in range(0, len(images), batch):
-        out += model(list(images[i : i + batch]))
+        out += [{k: v.cpu() for k, v in p.items()} for p in model(list(images[i : i + batch].to(dev)))]
     model.train(was)
     return out

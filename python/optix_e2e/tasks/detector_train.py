@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from .. import color
+from ..device import resolve_device
 from ..io import claim_out_dir
 from ..torchfile import DAMAGED_STATE_ERRORS
 from ..parallel import check_finite_weights, stop_if_diverged
@@ -176,13 +177,17 @@ def train_detector(
     dim: float = 1.0,
     noise: float = 0.0,
     checkpoint_every: int = 100,
+    device: str = "auto",
     progress: bool = True,
     log=print,
 ) -> dict:
-    """Train (or continue) a detector on the COCO folder ``data``; returns the run's summary."""
+    """Train (or continue) a detector on the COCO folder ``data``; returns the run's summary.
+    ``device``: where the detector trains (optix_e2e.device; a run may resume on another);
+    the batches are drawn on the CPU from (seed, step) and go there once per step."""
     from torch.utils.tensorboard import SummaryWriter
     from tqdm import tqdm
 
+    dev = resolve_device(device)
     out = Path(out)
     images, targets, _ = load_coco_folder(data)
     size = tuple(images.shape[-2:])
@@ -210,6 +215,7 @@ def train_detector(
         claim_out_dir(out, "detector run", {"history.csv", "tb"}, marker="detector.pt", own=_history_is_ours)
         out.mkdir(parents=True, exist_ok=True)
         model, ck, step, wall = make_detector(width, fpn, size), None, 0, 0.0
+    model.to(dev)
     opt = torch.optim.AdamW(model.parameters(), lr, weight_decay=1e-4)
     if ck is not None:
         try:
@@ -252,6 +258,7 @@ def train_detector(
             noise=noise,
             wall_s=wall + time.perf_counter() - t0,
             data=str(Path(data).resolve()),
+            device=str(dev),  # where the last call trained
         )
 
     bar = tqdm(total=steps, initial=step, desc="detector", unit="step", disable=not progress)
@@ -266,6 +273,7 @@ def train_detector(
                 g["lr"] = lr_at(step, frac)
             ts = time.perf_counter()
             xs, tg = _batch(images, targets, seed, step, batch, dim, noise)
+            xs, tg = [x.to(dev) for x in xs], [{k: v.to(dev) for k, v in t.items()} for t in tg]
             losses = model(xs, tg)
             loss = sum(losses.values())
             stop_if_diverged(step + 1, ck_path, "lower --lr", loss=loss.detach())
@@ -303,6 +311,7 @@ def train_detector(
         "n_images": len(images),
         "n_objects": int(sum(len(t["labels"]) for t in targets)),
         "image_size": list(size),
+        "device": str(dev),
     }
 
 

@@ -59,7 +59,11 @@ def task_loss(
     if crop:
         output, target = output[..., crop:-crop, crop:-crop], target[..., crop:-crop, crop:-crop]
     l1 = (output - target).abs().mean()
-    lp = lpips_module(output, target).mean() if lpips_weight else torch.zeros((), dtype=output.dtype)
+    lp = (
+        lpips_module(output, target).mean()
+        if lpips_weight
+        else torch.zeros((), dtype=output.dtype, device=output.device)
+    )
     return l1 + lpips_weight * lp, {"l1": float(l1.detach()), "lpips": float(lp.detach())}
 
 
