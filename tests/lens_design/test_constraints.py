@@ -86,3 +86,25 @@ def test_a_design_that_cannot_be_sized_is_refused_with_its_reason():
     assert len(problems) == 1 and problems[0].startswith("surfaces_cross: "), problems
     with pytest.raises(ApertureError, match="^surfaces_cross: "):
         rule.margins(d)
+
+
+def test_a_design_no_ray_of_some_field_reaches_is_refused_as_the_engine_would():
+    """A sampled design of paper-triplet-detect-wide that passes every limit, but at 14.9 deg,
+    470 nm no ray reaches the image (at 600 nm the chief ray misses): the engine refuses that
+    field's PSF, so the one
+    definition calls it untraceable and the sampler does not draw it (the datasets then hold no
+    refused design of this kind)."""
+    import json
+    from pathlib import Path
+
+    from optix_e2e import _engine
+    from optix_e2e.engine import TraceError
+
+    path = Path(__file__).parents[1] / "data" / "lenses" / "detect_wide_unreached.json"
+    d = json.loads(path.read_text())
+    problems = Manufacturability(Limits()).problems(d)
+    assert len(problems) == 1 and problems[0].startswith("untraceable: the chief ray at 14.9 deg"), problems
+    lens = Lens(d)
+    with pytest.raises(TraceError, match="chief ray at 14.9 deg"):
+        _engine.psf_rgb(lens.to_engine_json(), 14.9, lens.rgb_channels(), method="fft", size=16)
+    assert Manufacturability(Limits()).problems(engine_base(Lens.load("paper-triplet"), "auto")) == []

@@ -17,6 +17,8 @@ Checks (limits in mm from the space file's ``[constraints]`` table, :class:`Limi
 * ``aperture_outside_surface``: a clear semi-diameter beyond a conic's reach (or the
   sphere's radius),
 * ``untraceable``: no ray of the footprint reaches some surface (the design cannot be sized),
+  or at some field and wavelength (the lens's, the default RGB channels') the chief ray misses
+  the image (the engine could not compute that field's PSF),
 * ``field_folds``: the image of the field folds (some pupil zone's image height stops growing
   with the field: rays of different fields cross; engine ``spot::field_fold``). Such a lens
   forms no image a per-field PSF can describe, and the engine refuses its relative
@@ -143,6 +145,27 @@ def _rows(design: dict, semi_diameters: Sequence[float], limits: Limits) -> list
     ).evaluate(design, {}, semi_diameters)
 
 
+def unreached_field(design: dict) -> str | None:
+    """``"untraceable: ..."`` where at some field of the lens dict, at one of its wavelengths
+    or those of the default RGB channels (what the datasets compute), the chief ray misses
+    the image (the engine then refuses that field's PSF), else None. Paraxial aiming, as the
+    datasets trace."""
+    from ..lens.model import DEFAULT_RGB_CHANNELS
+
+    lens = Lens(design, source="<design>")
+    wavelengths = sorted({float(w) for w in lens.wavelengths_nm} | {w for c in DEFAULT_RGB_CHANNELS for w, _ in c})
+    zero = np.zeros(1)
+    for f in lens.fields_deg:
+        for wl in wavelengths:
+            try:
+                t = lens.trace_field(float(f), zero, zero, wavelength_nm=wl)
+            except Exception as err:  # noqa: BLE001 - the engine cannot launch the beam
+                return f"untraceable: {' '.join(str(err).split())}"
+            if not np.asarray(t["status"]).ravel()[0] == 0:
+                return f"untraceable: the chief ray at {f:g} deg, {wl:g} nm does not reach the image"
+    return None
+
+
 def field_folds(design: dict) -> str | None:
     """``"field_folds: ..."`` where the image of the lens dict's field folds (see the module's
     list), else None."""
@@ -199,6 +222,8 @@ class Manufacturability:
         reasons = check_design(design, sd, self.limits)
         if reasons:
             return reasons
+        if (unreached := unreached_field(design)) is not None:
+            return [unreached]
         return [fold] if self.field_fold and (fold := field_folds(design)) else []
 
     def margins(self, design: dict) -> np.ndarray:
