@@ -6,6 +6,8 @@ sensor, the renderer and the losses make stays float32; with fp32 nothing anywhe
 
 from __future__ import annotations
 
+import json
+
 import pytest
 import torch
 
@@ -199,3 +201,33 @@ def test_detect_train_records_its_precision(tmp_path):
     with pytest.raises(InputError, match="--precision must be"):
         train_detector(tmp_path / "street", tmp_path / "det2", steps=1, precision="tf32", progress=False)
     assert not (tmp_path / "det2").exists()
+
+
+@pytest.mark.slow
+def test_every_network_training_takes_precision_and_records_it(optix, tmp_path):
+    """``--precision bf16`` on the commands that train a network through the switch, in their
+    smallest forms (the design run at the smoke budget: its results.json)."""
+    runs = {
+        "proxy": [
+            *("isp", "train-proxy", "--out", tmp_path / "proxy", "--steps", "2", "--batch", "2", "--patch", "32"),
+            *("--pool", "16", "--base", "4", "--json"),
+        ],
+        "sw": [
+            *("isp", "train-software", "--out", tmp_path / "sw", "--steps", "2", "--batch", "1", "--crop", "32"),
+            *("--pool", "8", "--width", "4", "--depth", "1", "--val-every", "2", "--json"),
+        ],
+        "design": [
+            *("design", "iq-hardware", "--out", tmp_path / "design", "--budget", "smoke", "--threads", "1"),
+            "--quiet",
+        ],
+    }
+    for name, args in runs.items():
+        r = optix(*args, "--device", "cpu", "--precision", "bf16")
+        assert r.returncode == 0, f"{name}: {r.stdout}{r.stderr}"
+    assert json.loads((tmp_path / "proxy" / "train.json").read_text())["precision"] == "bf16"
+    assert json.loads((tmp_path / "sw" / "train.json").read_text())["precision"] == "bf16"
+    results = json.loads((tmp_path / "design" / "results.json").read_text())
+    assert results["precision"] == "bf16" and results["device"] == "cpu"
+    # the run is held to its precision: the same folder in fp32 is another run's
+    r = optix(*runs["design"], "--device", "cpu")
+    assert r.returncode == 1 and "precision: 'bf16' -> 'fp32'" in r.stderr, r.stderr

@@ -106,6 +106,26 @@ def grad_scaler(device: "torch.device | str", dtype: torch.dtype | None):
     return torch.amp.GradScaler(torch.device(device).type)
 
 
+def scaled_backward(loss: torch.Tensor, opt: torch.optim.Optimizer, scaler) -> None:
+    """``loss.backward()``, through fp16's scaler where there is one; the gradients come out
+    unscaled either way (ready to clip)."""
+    if scaler is None:
+        loss.backward()
+        return
+    scaler.scale(loss).backward()
+    scaler.unscale_(opt)
+
+
+def scaled_step(opt: torch.optim.Optimizer, scaler) -> None:
+    """``opt.step()``, through fp16's scaler where there is one (a step whose gradients
+    overflowed is skipped, and the scale lowered)."""
+    if scaler is None:
+        opt.step()
+        return
+    scaler.step(opt)
+    scaler.update()
+
+
 def name(dtype: torch.dtype | None) -> str:
     """The precision's name (results.json) for an autocast dtype."""
     return {v: k for k, v in PRECISIONS.items()}[dtype]
