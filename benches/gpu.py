@@ -26,8 +26,10 @@ For each device (CUDA when torch sees a GPU, and always the CPU) it times, after
 Each timing brackets its stage with ``torch.cuda.synchronize`` on CUDA (``perf_counter``), the
 median over the timed steps is reported; on CUDA each part's peak memory
 (``torch.cuda.max_memory_allocated``, the peak reset before the part). With ``--precision
-fp32,bf16`` (or fp16) each part is also timed with the networks under that autocast (the
-precision switch of ``optix design --precision``; optics, sensor and loss stay float32).
+fp32,bf16`` (or fp16) each part but the exact step is also timed on the GPU with the networks
+under that autocast (the precision switch of ``optix design --precision``; optics, sensor and
+loss stay float32); the CPU beside a GPU is timed at fp32 only (the ratios' denominator), the
+CPU alone (``--devices cpu``) at every precision asked for.
 
 Writes DIR/gpu.json (the machine: torch and CUDA versions, GPU name, CPU threads; per device and
 precision the parts' figures; the CPU / GPU ratios) and prints one line per figure. Each part
@@ -435,8 +437,8 @@ def main(argv: list[str] | None = None) -> dict:
         for prec in precisions:
             res["devices"][name][prec] = figures = {}
             for part in parts:
-                if prec != "fp32" and part not in NETWORK_PARTS:
-                    continue
+                if prec != "fp32" and (part not in NETWORK_PARTS or (dev.type == "cpu" and len(devices) > 1)):
+                    continue  # the CPU beside a GPU: fp32 only, the ratios' denominator (module doc)
                 try:
                     figures[part] = PARTS[part](dev, plan, prec)
                 except Exception as err:  # a part that cannot run here (fp16 on a CPU without it) is recorded

@@ -23,7 +23,7 @@ def _bench():
 @pytest.mark.slow
 def test_the_smallest_run_writes_every_figure(tmp_path, capsys):
     bench = _bench()
-    bench.main(["--out", str(tmp_path), "--smoke", "--devices", "cpu"])
+    bench.main(["--out", str(tmp_path), "--smoke", "--devices", "cpu", "--precision", "fp32,bf16"])
     res = json.loads((tmp_path / "gpu.json").read_text())
     assert res["format"] == "optix-gpu-bench/1"
     for k in ("torch", "cuda", "gpu", "cpu_count", "torch_threads"):
@@ -36,6 +36,8 @@ def test_the_smallest_run_writes_every_figure(tmp_path, capsys):
         assert "error" not in r, (name, r.get("error"))
         assert r["steps"] == 1 and r["steps_per_s"] > 0 and r["peak_mib"] is None  # no GPU memory on the CPU
         assert all(v >= 0 for v in r["median_ms"].values())
+    low = res["devices"]["cpu"]["bf16"]  # the CPU alone: timed at every precision asked for
+    assert set(low) == set(bench.NETWORK_PARTS) and not any("error" in r for r in low.values()), low
     assert res["ratios"] == {}  # no GPU here: nothing to compare
     printed = capsys.readouterr().out.splitlines()
     assert "cpu fp32 surrogate step" in "\n".join(printed) and printed[-1].startswith("wall ")
