@@ -16,6 +16,7 @@ LAYER = {
     "_engine": 0,
     "errors": 0,
     "device": 1,
+    "precision": 1,
     "engine": 2,
     "io": 2,
     "color": 2,

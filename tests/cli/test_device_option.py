@@ -47,6 +47,8 @@ def commands(street, tiny_data, out):
             *("surrogate", "train", tiny_data, "--out", out / "sur", "--steps", "2", "--batch", "8", "--hidden", "16"),
             *("--depth", "1", "--base-channels", "8", "--val-designs", "4", "--val-every", "2", "--json"),
         ],
+        # (after its training: the dict's order is the run's)
+        "surrogate eval": ["surrogate", "eval", out / "sur", tiny_data, "--out", out / "sur_eval"],
     }
 
 
@@ -63,6 +65,7 @@ def test_every_torch_command_runs_with_device_cpu(optix, street, tiny_data, tmp_
     assert json.loads((tmp_path / "proxy" / "train.json").read_text())["device"] == "cpu"
     assert json.loads((tmp_path / "sw" / "train.json").read_text())["device"] == "cpu"
     assert json.loads((tmp_path / "sur" / "train.json").read_text())["device"] == "cpu"
+    assert json.loads((tmp_path / "sur_eval" / "eval.json").read_text())["device"] == "cpu"
 
 
 @pytest.mark.parametrize("spec", ["cuda", "cuda:1"])

@@ -27,6 +27,11 @@ processes (optix_e2e.parallel.average_step) and returns the averaged loss and in
 ``before_step``, when set, is called next with the same parameters and may change their
 gradients (the manufacturability barrier, camera_design/guard.py); the dict it returns joins
 the step's info.
+
+``scaler`` (``--precision fp16``: a torch.amp.GradScaler; None otherwise) scales the loss before
+backward; the gradients are unscaled after ``reduce`` (so every process sees the same averaged
+gradients and skips alike) and before ``before_step``; a step whose gradients overflowed is
+skipped by the scaler (the step counter still moves: the schedule is in steps taken, not updates).
 """
 
 from __future__ import annotations
@@ -74,6 +79,37 @@ def _set_trainable(blocks: list[Block], active: set[str]) -> None:
             p.requires_grad_(b.name in active)
 
 
+def _backward(loss: torch.Tensor, scaler) -> None:
+    (loss if scaler is None else scaler.scale(loss)).backward()
+
+
+def _unscale(opts, scaler) -> None:
+    if scaler is not None:
+        for o in opts:
+            scaler.unscale_(o)
+
+
+def _step(opts, scaler) -> None:
+    """Each optimizer's step (through the scaler: skipped where its gradients overflowed)."""
+    for o in opts:
+        if scaler is None:
+            o.step()
+        else:
+            scaler.step(o)
+    if scaler is not None:
+        scaler.update()
+
+
+def _scaler_state(scaler) -> dict:
+    """The scaler's state for a checkpoint (nothing without one: fp32 checkpoints as before)."""
+    return {} if scaler is None else {"scaler": scaler.state_dict()}
+
+
+def _load_scaler(scaler, st: dict) -> None:
+    if scaler is not None and isinstance(st.get("scaler"), dict):
+        scaler.load_state_dict(st["scaler"])
+
+
 class ProximalCompositional:
     """Alg. 1. ``step(loss_fn)`` runs one optimizer step; ``loss_fn()`` returns the task loss
     (a 0-d tensor, or a (loss, info dict) pair). ``total_steps`` = n_c sum(n_i) + n_f."""
@@ -99,6 +135,7 @@ class ProximalCompositional:
         self.anchor: list[torch.Tensor] | None = None
         self.reduce: Callable | None = None
         self.before_step: Callable | None = None
+        self.scaler = None  # fp16's torch.amp.GradScaler (module doc)
 
     @property
     def cycle_len(self) -> int:
@@ -154,14 +191,14 @@ class ProximalCompositional:
         if kind == "cycle" and block.beta > 0:  # Eq. 15
             prox = block.beta * sum(((block.coord(p) - a) ** 2).sum() for p, a in zip(block.params, self.anchor))
             loss = task + prox
-        loss.backward()
+        _backward(loss, self.scaler)
         params = [p for o in opts for g in o.param_groups for p in g["params"]]
         if self.reduce is not None:
             task, info = self.reduce(params, task, info)
+        _unscale(opts, self.scaler)
         if self.before_step is not None:
             info = {**info, **self.before_step(params)}
-        for o in opts:
-            o.step()
+        _step(opts, self.scaler)
         self.t += 1
         return {
             "step": self.t,
@@ -178,6 +215,7 @@ class ProximalCompositional:
             "t": self.t,
             "opts": {k: o.state_dict() for k, o in self.opts.items()},
             "anchor": self.anchor,
+            **_scaler_state(self.scaler),
         }
 
     def load_state_dict(self, st: dict) -> None:
@@ -191,6 +229,7 @@ class ProximalCompositional:
         for k, o in self.opts.items():
             o.load_state_dict(st["opts"][k])
         self.anchor = st.get("anchor")
+        _load_scaler(self.scaler, st)
 
 
 class Vanilla:
@@ -207,6 +246,7 @@ class Vanilla:
         self.t = 0
         self.reduce: Callable | None = None
         self.before_step: Callable | None = None
+        self.scaler = None  # fp16's torch.amp.GradScaler (module doc)
 
     @property
     def total_steps(self) -> int:
@@ -232,18 +272,19 @@ class Vanilla:
         self.opt.zero_grad(set_to_none=True)
         out = loss_fn()
         task, info = out if isinstance(out, tuple) else (out, {})
-        task.backward()
+        _backward(task, self.scaler)
         params = [p for g in self.opt.param_groups for p in g["params"]]
         if self.reduce is not None:
             task, info = self.reduce(params, task, info)
+        _unscale([self.opt], self.scaler)
         if self.before_step is not None:
             info = {**info, **self.before_step(params)}
-        self.opt.step()
+        _step([self.opt], self.scaler)
         self.t += 1
         return {"step": self.t, "phase": "joint", "block": "all", "loss": float(task.detach()), "prox": 0.0, **info}
 
     def state_dict(self) -> dict:
-        return {"kind": self.kind, "t": self.t, "opt": self.opt.state_dict()}
+        return {"kind": self.kind, "t": self.t, "opt": self.opt.state_dict(), **_scaler_state(self.scaler)}
 
     def load_state_dict(self, st: dict) -> None:
         if not isinstance(st, dict) or st.get("kind") != self.kind:
@@ -252,3 +293,4 @@ class Vanilla:
             )
         self.t = int(st["t"])
         self.opt.load_state_dict(st["opt"])
+        _load_scaler(self.scaler, st)

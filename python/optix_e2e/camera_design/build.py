@@ -29,6 +29,7 @@ from ..isp.proxy import ISPProxy
 from ..isp.software import SoftwareISP
 from ..lens_design.space import load_space
 from ..optics import DifferentiableOptics
+from ..precision import apply_precision, grad_scaler, resolve_precision
 from ..surrogate.checkpoint import OpticsSurrogate
 from ..tasks import SensorFrame, get_task
 from .alg1 import Block, ProximalCompositional, Vanilla
@@ -174,7 +175,9 @@ def build_camera(
         isp = SoftwareISPStage(SoftwareISP.load(path).train(), preset)
     else:
         isp = HardwareISPStage(ISPProxy.load(), initial_isp_unit(cfg), preset.cfa, preset.adc_bits)
-    return Camera(optics, sensor, isp).to(device)
+    camera = Camera(optics, sensor, isp).to(device)
+    apply_precision(camera, resolve_precision(cfg.precision, device, option="precision"))  # the ISP's network
+    return camera
 
 
 BLOCK_SETTINGS = {
@@ -207,8 +210,12 @@ def make_optimizer(cfg: DesignConfig, camera, kind: str):
         kind = cfg.optimizer
         blocks = [b for b in blocks if b.name != "optics"]  # (a fixed lens has no block anyway)
     if kind == "vanilla":
-        return Vanilla(blocks, cfg.lr_vanilla, cfg.total_steps)
-    return ProximalCompositional(blocks, cfg.n_cycles, cfg.n_finetune)
+        opt = Vanilla(blocks, cfg.lr_vanilla, cfg.total_steps)
+    else:
+        opt = ProximalCompositional(blocks, cfg.n_cycles, cfg.n_finetune)
+    dev = camera.device
+    opt.scaler = grad_scaler(dev, resolve_precision(cfg.precision, dev, option="precision"))  # fp16 only
+    return opt
 
 
 def start_run(cfg: DesignConfig, out: "str | Path") -> tuple[Path, object, SensorFrame, OpticsSurrogate]:

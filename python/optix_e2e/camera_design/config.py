@@ -152,6 +152,9 @@ class DesignConfig:
     # where the cameras run: auto (CUDA when present), cpu, cuda, cuda:K (optix_e2e.device); a run
     # may resume on another device (RESUMES_ANYWHERE), results.json says where each call ran
     device: str = "auto"
+    # the networks' arithmetic (optix_e2e.precision): fp32, or bf16 / fp16 autocast for the ISP net,
+    # the hardware ISP's proxy and the detector (optics, sensor, losses and metrics stay float32)
+    precision: str = "fp32"
 
     @property
     def total_steps(self) -> int:
@@ -236,7 +239,9 @@ class DesignConfig:
             raise InputError(f"detector: no such file {self.detector}")
         if self.total_steps < 1:
             raise InputError("the schedule has no step (n_cycles and n_finetune both 0)")
-        resolve_device(self.device, option="device")
+        from ..precision import resolve_precision
+
+        resolve_precision(self.precision, resolve_device(self.device, option="device"), option="precision")
         return self
 
     def to_json(self) -> dict:
@@ -340,6 +345,14 @@ def make_config(budget: str = "quick", file: "str | Path | None" = None, **overr
             if overrides.get(k) is not None and overrides[k] != v:  # the command line and the file disagree
                 raise InputError(f"{path}: {k} = {v!r} here, {overrides[k]!r} on the command line; say it once")
         check_ranges(data, what=f"{path}: setting")
+        # a GPU the machine lacks, a precision it cannot run: the error names the file
+        if "device" in data:
+            resolve_device(data["device"], option=f"{path}: device")
+        if "precision" in data:
+            from ..precision import resolve_precision
+
+            where = overrides.get("device") or data.get("device") or DesignConfig.device
+            resolve_precision(data["precision"], resolve_device(where), option=f"{path}: precision")
     values.update({k: v for k, v in overrides.items() if v is not None})
     return DesignConfig(**values).check()
 

@@ -34,6 +34,7 @@ from ..metrics.map_bootstrap import MatchTable
 from ..scenes.street import CATEGORIES
 from ..tasks import SensorFrame, get_task
 from ..tasks.detection import DetectionCamera, heldout_streets, street_batch
+from ..precision import apply_precision, resolve_precision
 from ..tasks.detector import in_the_dark, make_detector, mean_average_precision
 from ..tasks.detector_train import load_detector
 from . import eval_cache
@@ -65,9 +66,12 @@ def build_detection_camera(
     frame: SensorFrame = SensorFrame(),
     device: "torch.device | str" = "cpu",
 ) -> DetectionCamera:
-    return DetectionCamera(
-        build_camera(cfg, sur, fixed_optics=fixed_optics, frame=frame), load_start_detector(cfg, cfg.crop_hw)
+    cam = DetectionCamera(
+        build_camera(cfg, sur, fixed_optics=fixed_optics, frame=frame, device=device),
+        load_start_detector(cfg, cfg.crop_hw),
     ).to(device)
+    apply_precision(cam, resolve_precision(cfg.precision, device, option="precision"))  # ISP net and detector
+    return cam
 
 
 def _loss_at(cfg: DesignConfig, cam: DetectionCamera, frame: SensorFrame, ranks: parallel.Ranks = parallel.Ranks()):
@@ -195,10 +199,12 @@ class DetectionHooks(TaskHooks):
         self.f_index = sur.param_names.index("f_number")
 
     def build_camera(self, sur, frame, *, fixed_optics=None, trained=False):
-        cam = build_camera(self.cfg, sur, fixed_optics=fixed_optics, frame=frame)
+        cam = build_camera(self.cfg, sur, fixed_optics=fixed_optics, frame=frame, device=self.device)
         if fixed_optics is None and self.cfg.optics == "exact":
             cam.optics.backend = "exact"  # every lens step on the engine's PSFs and Jacobian
-        return DetectionCamera(cam, load_start_detector(self.cfg, self.cfg.crop_hw)).to(self.device)
+        cam = DetectionCamera(cam, load_start_detector(self.cfg, self.cfg.crop_hw)).to(self.device)
+        apply_precision(cam, resolve_precision(self.cfg.precision, self.device, option="precision"))
+        return cam
 
     def loss_at(self, camera, frame, ranks):
         return _loss_at(self.cfg, camera, frame, ranks)

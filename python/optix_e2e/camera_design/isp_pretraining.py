@@ -35,6 +35,7 @@ import torch
 from tqdm import tqdm
 
 from ..device import resolve_device
+from ..precision import apply_precision, grad_scaler, resolve_precision, scaled_backward, scaled_step
 from ..parallel import set_threads, stop_if_diverged
 from .. import color
 from ..camera import calibrated_preset
@@ -82,6 +83,9 @@ class PretrainConfig:
     seed: int = 0
     threads: int = 0
     device: str = "auto"  # where the network trains (optix_e2e.device); the pools are made on the CPU
+    # fp32, or bf16 / fp16 autocast for the network's learned body (optix_e2e.precision); a run
+    # resumes only in the precision it was started in (fp32: as before the setting existed)
+    precision: str = "fp32"
 
 
 def _lens_psfs(sur, kind: str, rng, nominal) -> tuple[torch.Tensor, torch.Tensor] | None:
@@ -178,7 +182,7 @@ def _resumable(cfg: PretrainConfig) -> dict:
     return {
         k: list(v) if isinstance(v, tuple) else v
         for k, v in asdict(cfg).items()
-        if k not in ("steps", "minutes", "threads", "anneal_minutes", "device")
+        if k not in ("steps", "minutes", "threads", "anneal_minutes", "device") and (k, v) != ("precision", "fp32")
     }
 
 
@@ -204,6 +208,7 @@ def pretrain(
 
     out = Path(out)
     dev = resolve_device(cfg.device)  # a GPU that is not there is refused before the folder is claimed
+    amp = resolve_precision(cfg.precision, dev)
     claim_out_dir(out, "ISP pre-training", {"tb"}, marker="state.pt")  # tb/: a start that stopped early
     out.mkdir(parents=True, exist_ok=True)
     set_threads(cfg.threads)
@@ -216,6 +221,8 @@ def pretrain(
     model = SoftwareISP(arch=cfg.arch, base=cfg.width, depth=cfg.depth, blocks=cfg.blocks, position=cfg.position)
     model.calibrate(calibrated_preset("imx249", f_number))
     model.to(dev)  # the pools stay on the CPU (seeded data); each batch goes to the device once
+    apply_precision(model, amp)
+    scaler = grad_scaler(dev, amp)  # fp16 only (started afresh on a resume)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     state_path = out / "state.pt"
     step, seconds, curve, earlier = 0, 0.0, [], []
@@ -292,12 +299,12 @@ def pretrain(
         loss = (pred - pool.ideal[idx].to(dev).float() / 255).abs().mean()
         stop_if_diverged(step + 1, state_path, "lower --lr", loss=loss.detach())
         opt.zero_grad(set_to_none=True)
-        loss.backward()
+        scaled_backward(loss, opt, scaler)
         torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip_grad)
         lr = cosine_lr(cfg.lr, step, cfg.steps, (time.time() - t0) / 60, cfg.anneal_minutes, cfg.lr_final)
         for g in opt.param_groups:
             g["lr"] = lr
-        opt.step()
+        scaled_step(opt, scaler)
         step += 1
         writer.add_scalar("train/loss", loss.item(), step)
         bar.update(1)
@@ -322,6 +329,7 @@ def pretrain(
         "config": asdict(cfg),
         "steps": step,
         "device": str(dev),  # where this call trained
+        "precision": cfg.precision,
         "minutes": round((time.time() - t0) / 60, 1),
         "parameters": n_params,
         "curve": curve,

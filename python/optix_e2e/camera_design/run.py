@@ -178,6 +178,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         "budget": cfg.budget,
         "seed": cfg.seed,
         "device": str(ranks.device),  # where this call ran (a resumed run may have trained elsewhere)
+        "precision": cfg.precision,  # the networks' arithmetic (optix_e2e.precision)
         "optics_eval": "exact",
         **hooks.summarize(evaluation, cams, reports, f_numbers),
         "lens_zmx": str(Path(exported["zmx"]).relative_to(out)),

@@ -41,6 +41,23 @@ def device_option(fn):
     return click.option("--device", default="auto", show_default=True, help=DEVICE_HELP)(fn)
 
 
+PRECISION_HELP = (
+    "The networks' arithmetic: fp32 (default), or bf16 / fp16 autocast for the ISP net, the ISP proxy and the "
+    "detector; optics, sensor, losses and metrics stay float32 (fp16 with a gradient scaler)."
+)
+
+
+def precision_option(fn):
+    """``--precision fp32|bf16|fp16`` (optix_e2e.precision; the networks only)."""
+    return click.option(
+        "--precision",
+        type=click.Choice(["fp32", "bf16", "fp16"]),
+        default="fp32",
+        show_default=True,
+        help=PRECISION_HELP,
+    )(fn)
+
+
 def friendly_errors(fn):
     """Turn the package's own errors (``errors.OptixError``), the engine's (``EngineError``) and
     the operating system's (a file that cannot be read or written) into one ``Error: ...`` line

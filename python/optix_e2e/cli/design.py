@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ._common import DEVICE_HELP, SEED, THREADS, dumps, friendly_errors
+from ._common import DEVICE_HELP, PRECISION_HELP, SEED, THREADS, dumps, friendly_errors
 
 
 @click.command("design")
@@ -75,6 +75,7 @@ from ._common import DEVICE_HELP, SEED, THREADS, dumps, friendly_errors
 )
 @click.option("--threads", type=THREADS, default=None, help="torch CPU threads (0: default).")
 @click.option("--device", default=None, help=DEVICE_HELP + " [default: auto, or the config file's device]")
+@click.option("--precision", default=None, type=click.Choice(["fp32", "bf16", "fp16"]), help=PRECISION_HELP)
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @friendly_errors
 def design(
@@ -91,6 +92,7 @@ def design(
     optics_init,
     threads,
     device,
+    precision,
     quiet,
 ):
     """Optimize lens and processing together for TASK, against the nominal lens with its
@@ -121,6 +123,7 @@ def design(
         space=space,
         optics_init=optics_init,
         device=device,
+        precision=precision,
     )
     try:
         res = run_design(cfg, Path(out), progress=not quiet, log=click.echo)

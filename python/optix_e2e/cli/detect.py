@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from ._common import FiniteFloatRange, SEED, THREADS, device_option, dumps, friendly_errors
+from ._common import FiniteFloatRange, SEED, THREADS, device_option, dumps, friendly_errors, precision_option
 
 
 @click.group("detect")
@@ -48,9 +48,10 @@ def detect():
 )
 @click.option("--threads", type=THREADS, default=0, help="torch CPU threads (0: default).")
 @device_option
+@precision_option
 @click.option("--quiet", is_flag=True)
 @friendly_errors
-def train(data, out, steps, minutes, batch, lr, seed, dim, noise, threads, device, quiet):
+def train(data, out, steps, minutes, batch, lr, seed, dim, noise, threads, device, precision, quiet):
     """Train the detector on DATA (images/ + annotations.json, e.g. from `optix scenes street`)."""
     from ..parallel import set_threads
     from ..tasks.detector_train import train_detector
@@ -69,6 +70,7 @@ def train(data, out, steps, minutes, batch, lr, seed, dim, noise, threads, devic
                 dim=dim,
                 noise=noise,
                 device=device,
+                precision=precision,
                 progress=not quiet,
                 log=click.echo,
             )

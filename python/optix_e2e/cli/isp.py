@@ -14,7 +14,7 @@ from pathlib import Path
 
 import click
 
-from ._common import THREADS, SEED, FiniteFloatRange, device_option, dumps, friendly_errors
+from ._common import THREADS, SEED, FiniteFloatRange, device_option, dumps, friendly_errors, precision_option
 
 OUT = click.Path(file_okay=False, path_type=Path)
 
@@ -72,6 +72,7 @@ def _train_options(fn):
             click.option("--seed", type=SEED, default=0, show_default=True),
             click.option("--threads", type=THREADS, default=0, help="torch threads (0 = default)."),
             device_option,
+            precision_option,
             click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON."),
         ]
     ):
@@ -100,6 +101,7 @@ def _config(kw):
                 "seed",
                 "threads",
                 "device",
+                "precision",
             )
         }
     )
@@ -224,6 +226,7 @@ def train_proxy_cmd(out_dir, as_json, init, **kw):
 @click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--threads", type=THREADS, default=0, help="torch threads (0 = default).")
 @device_option
+@precision_option
 @click.option(
     "--init",
     type=click.Path(dir_okay=False, exists=True, path_type=Path),

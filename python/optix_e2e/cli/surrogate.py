@@ -144,20 +144,24 @@ def train_cmd(data, out_dir, bin_, as_json, **kw):
     default=None,
     help="Write eval.json and grid.png here.",
 )
+@device_option
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 @friendly_errors
-def eval_cmd(model, data, max_designs, png, out_dir, as_json):
+def eval_cmd(model, data, max_designs, png, out_dir, device, as_json):
     """Score MODEL (a checkpoint, a training directory, or `paper-triplet-v1` for the shipped
     surrogate) on DATA's held-out designs: PSF relative L1/L2, Strehl, encircled-energy and
     vignetting errors, per field and overall."""
+    from ..device import resolve_device
     from ..surrogate.checkpoint import OpticsSurrogate, resolve
     from ..surrogate.evaluate import evaluate
 
-    m = OpticsSurrogate.load(model)
+    dev = resolve_device(device)
+    m = OpticsSurrogate.load(model).to(dev)
     if png is None and out_dir is not None:
         png = out_dir / "grid.png"
     res = evaluate(m, data, max_designs=max_designs or None, png=png)
     res["model"] = str(resolve(model))
+    res["device"] = str(dev)  # where the network predicted (the metrics are computed on the CPU)
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
         (out_dir / "eval.json").write_text(dumps(res, indent=2))

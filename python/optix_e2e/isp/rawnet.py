@@ -16,9 +16,14 @@ from torch import nn
 from .demosaick import BilinearDemosaick
 from .unet import UNet, pad_to_multiple
 from ..errors import InputError
+from ..precision import network_autocast, to_float32
 
 
 class RawUNet(nn.Module):
+    #: --precision (optix_e2e.precision): the UNet's autocast dtype, None for float32; the fixed
+    #: demosaick in front of it stays float32
+    autocast_dtype: "torch.dtype | None" = None
+
     def __init__(
         self,
         n_cond: int = 0,
@@ -53,7 +58,8 @@ class RawUNet(nn.Module):
             feats = F.pixel_unshuffle(feats, 2)
         if self.n_cond:
             feats = torch.cat([feats, cond[:, :, None, None].to(feats).expand(-1, -1, *feats.shape[-2:])], 1)
-        out = self.unet(feats)
+        with network_autocast(feats, self.autocast_dtype):  # --precision: the UNet only
+            out = to_float32(self.unet(feats))
         if self.pack:
             out = F.pixel_shuffle(out, 2)
         return out[..., :h, :w]

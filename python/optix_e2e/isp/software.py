@@ -24,6 +24,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..precision import network_autocast, to_float32
 from ..torchfile import build_module, load_plain
 from .classical import ClassicalISP
 from .nafnet import NAFNet
@@ -56,6 +57,10 @@ class SoftwareISP(nn.Module):
     ``position``: the network sees the field position; ``residual``: the classical pipeline's
     output plus the network's correction (False with ``arch='unet'`` is the first version's
     net, RAW alone to RGB)."""
+
+    #: --precision (optix_e2e.precision): the learned body's autocast dtype, None for float32;
+    #: the classical pipeline and the position channels stay float32
+    autocast_dtype: "torch.dtype | None" = None
 
     def __init__(
         self,
@@ -137,7 +142,9 @@ class SoftwareISP(nn.Module):
         ph, pw = (-h) % step, (-w) % step
         if ph or pw:
             x = F.pad(x, (0, pw, 0, ph), mode="reflect")  # even pads keep the CFA phase
-        out = F.pixel_shuffle(self.body(F.pixel_unshuffle(x, 2)), 2)[..., :h, :w]
+        with network_autocast(x, self.autocast_dtype):  # --precision: the learned body only
+            body = to_float32(self.body(F.pixel_unshuffle(x, 2)))
+        out = F.pixel_shuffle(body, 2)[..., :h, :w]
         return base + out
 
     @classmethod

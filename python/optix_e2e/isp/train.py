@@ -22,6 +22,7 @@ from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
 from ..device import resolve_device
+from ..precision import apply_precision, grad_scaler, resolve_precision, scaled_backward, scaled_step
 from ..parallel import set_threads, stop_if_diverged
 from ..metrics import image as metrics
 from . import data
@@ -47,6 +48,7 @@ class TrainConfig:
     val_size: int = 128
     threads: int = 0  # torch threads (0 = torch's default)
     device: str = "auto"  # where the proxy trains (optix_e2e.device); the pools are made on the CPU
+    precision: str = "fp32"  # fp32, or bf16 / fp16 autocast for the proxy's UNet (optix_e2e.precision)
 
 
 def _crop(x: torch.Tensor, c: int) -> torch.Tensor:
@@ -100,11 +102,14 @@ def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) ->
 
     out_dir = Path(out_dir)
     dev = resolve_device(cfg.device)  # a GPU that is not there is refused before the folder is claimed
+    amp = resolve_precision(cfg.precision, dev)
     claim_out_dir(out_dir, "ISP proxy training", {"proxy.pt", "train.json", "tb"})  # its own files: trained again
     out_dir.mkdir(parents=True, exist_ok=True)
     set_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     model.to(dev)
+    apply_precision(model, amp)
+    scaler = grad_scaler(dev, amp)  # fp16 only
     meta = getattr(model, "meta", {})  # a continued proxy keeps the record of its earlier runs
     earlier = list(meta.get("earlier_training", [])) + ([meta["training"]] if "training" in meta else [])
     model.train()
@@ -122,11 +127,11 @@ def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) ->
         loss = loss_fn(_crop(pred, cfg.crop), _crop(target, cfg.crop))
         stop_if_diverged(step, out_dir / "proxy.pt", "lower --lr", loss=loss.detach())
         opt.zero_grad(set_to_none=True)
-        loss.backward()
+        scaled_backward(loss, opt, scaler)
         # The perceptual term's gradient has rare spikes (HaarPSI divides by local similarity
         # terms); without clipping one of them blew a run up at step ~475.
         torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip_grad)
-        opt.step()
+        scaled_step(opt, scaler)
         lr = cosine_lr(cfg.lr, step, cfg.steps, (time.time() - t0) / 60, cfg.minutes)
         for group in opt.param_groups:
             group["lr"] = lr
@@ -157,6 +162,7 @@ def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) ->
         "seconds": round(time.time() - t0, 1),
         "config": asdict(cfg),
         "device": str(dev),
+        "precision": cfg.precision,
         "final_val": history[-1] if history else None,
         "history": history,
     }

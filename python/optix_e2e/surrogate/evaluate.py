@@ -158,11 +158,15 @@ def evaluate(
     arrays, _ = load_arrays(
         data_root, model.psf_kind, model.bin, designs=designs, max_designs=None if designs is not None else max_designs
     )
+    # the designs go to the model's device (``optix surrogate eval --device``), the predictions
+    # come back to the CPU, where the dataset's PSFs are and the metrics are computed
+    dev = model.param_mean.device
     params = torch.as_tensor(arrays.params, dtype=torch.float32)
     problems = model.check_params(params, mode="ignore")
     model.eval()
     t0 = time.perf_counter()
-    psf, vig = predict_all(model, params)
+    psf, vig = predict_all(model, params.to(dev))
+    psf, vig = psf.cpu(), vig.cpu()  # (waits for the device: the time is the prediction's)
     seconds = time.perf_counter() - t0
     bad = ~(torch.isfinite(psf).flatten(1).all(1) & torch.isfinite(vig).flatten(1).all(1))
     if bad.any():

@@ -21,6 +21,7 @@ from collections import OrderedDict
 import torch
 from torch import nn
 
+from ..precision import network_autocast, to_float32
 from ..scenes.street import CATEGORIES
 
 #: FCOS counts the background as a class: COCO ids 1..4 -> 5 outputs
@@ -44,6 +45,10 @@ def _stage(cin: int, cout: int) -> nn.Sequential:
 class TinyBackbone(nn.Module):
     """[B, 3, H, W] -> FPN features at strides 4, 8, 16, 32, ``out_channels`` each."""
 
+    #: --precision (optix_e2e.precision): the autocast dtype, None for float32; the features
+    #: leave in float32
+    autocast_dtype: "torch.dtype | None" = None
+
     def __init__(self, width: int = 32, fpn: int = 64):
         super().__init__()
         from torchvision.ops import FeaturePyramidNetwork
@@ -55,12 +60,44 @@ class TinyBackbone(nn.Module):
         self.out_channels = fpn
 
     def forward(self, x: torch.Tensor) -> "OrderedDict[str, torch.Tensor]":
-        x = self.stem(x)
-        feats = OrderedDict()
-        for k, stage in enumerate(self.stages):
-            x = stage(x)
-            feats[f"p{k + 2}"] = x
-        return self.fpn(feats)
+        with network_autocast(x, self.autocast_dtype):
+            x = self.stem(x)
+            feats = OrderedDict()
+            for k, stage in enumerate(self.stages):
+                x = stage(x)
+                feats[f"p{k + 2}"] = x
+            return to_float32(self.fpn(feats))
+
+
+def _head_class():
+    """torchvision's FCOS head with the precision switch: its convolutions under autocast, its
+    outputs (logits, box regression, centre-ness) back in float32, so FCOS's losses (focal, GIoU,
+    centre-ness BCE), decoding and NMS stay float32. The same parameters and initialization as
+    the head FCOS builds itself (the same class underneath)."""
+    global _HEAD
+    if _HEAD is None:
+        from torchvision.models.detection.fcos import FCOSHead
+
+        class FCOSHeadWithPrecision(FCOSHead):
+            autocast_dtype: "torch.dtype | None" = None
+
+            def forward(self, x):
+                with network_autocast(x[0], self.autocast_dtype):
+                    return to_float32(super().forward(x))
+
+        FCOSHeadWithPrecision.__qualname__ = FCOSHeadWithPrecision.__name__  # found by pickle (__getattr__)
+        _HEAD = FCOSHeadWithPrecision
+    return _HEAD
+
+
+_HEAD = None
+
+
+def __getattr__(name: str):
+    """The head's class, made on first use (torchvision is imported late)."""
+    if name == "FCOSHeadWithPrecision":
+        return _head_class()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def make_detector(
@@ -75,14 +112,18 @@ def make_detector(
 
     h, w = image_size
     anchors = AnchorGenerator(sizes=((8,), (16,), (32,), (64,)), aspect_ratios=((1.0,),) * 4)
+    backbone = TinyBackbone(width, fpn)
+    # the head FCOS would build (same class, arguments and place in the seeded draws), with the switch
+    head = _head_class()(backbone.out_channels, anchors.num_anchors_per_location()[0], NUM_CLASSES)
     return FCOS(
-        TinyBackbone(width, fpn),
+        backbone,
         NUM_CLASSES,
         min_size=min(h, w),
         max_size=max(h, w),
         image_mean=[0.45, 0.45, 0.45],
         image_std=[0.25, 0.25, 0.25],
         anchor_generator=anchors,
+        head=head,
         score_thresh=score_thresh,
         detections_per_img=100,
     )

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from .. import color
+from ..precision import apply_precision, grad_scaler, resolve_precision
 from ..device import resolve_device
 from ..io import claim_out_dir
 from ..torchfile import DAMAGED_STATE_ERRORS
@@ -178,16 +179,20 @@ def train_detector(
     noise: float = 0.0,
     checkpoint_every: int = 100,
     device: str = "auto",
+    precision: str = "fp32",
     progress: bool = True,
     log=print,
 ) -> dict:
     """Train (or continue) a detector on the COCO folder ``data``; returns the run's summary.
     ``device``: where the detector trains (optix_e2e.device; a run may resume on another);
-    the batches are drawn on the CPU from (seed, step) and go there once per step."""
+    the batches are drawn on the CPU from (seed, step) and go there once per step.
+    ``precision``: fp32, or bf16 / fp16 autocast for the backbone and head (optix_e2e.precision;
+    the losses in float32; fp16 with a gradient scaler, started afresh on a resume)."""
     from torch.utils.tensorboard import SummaryWriter
     from tqdm import tqdm
 
     dev = resolve_device(device)
+    amp = resolve_precision(precision, dev)
     out = Path(out)
     images, targets, _ = load_coco_folder(data)
     size = tuple(images.shape[-2:])
@@ -216,6 +221,8 @@ def train_detector(
         out.mkdir(parents=True, exist_ok=True)
         model, ck, step, wall = make_detector(width, fpn, size), None, 0, 0.0
     model.to(dev)
+    apply_precision(model, amp)
+    scaler = grad_scaler(dev, amp)
     opt = torch.optim.AdamW(model.parameters(), lr, weight_decay=1e-4)
     if ck is not None:
         try:
@@ -259,6 +266,7 @@ def train_detector(
             wall_s=wall + time.perf_counter() - t0,
             data=str(Path(data).resolve()),
             device=str(dev),  # where the last call trained
+            precision=precision,  # and in what arithmetic
         )
 
     bar = tqdm(total=steps, initial=step, desc="detector", unit="step", disable=not progress)
@@ -278,8 +286,13 @@ def train_detector(
             loss = sum(losses.values())
             stop_if_diverged(step + 1, ck_path, "lower --lr", loss=loss.detach())
             opt.zero_grad()
-            loss.backward()
-            opt.step()
+            if scaler is None:
+                loss.backward()
+                opt.step()
+            else:
+                scaler.scale(loss).backward()
+                scaler.step(opt)  # skipped where the gradients overflowed
+                scaler.update()
             step += 1
             hw.writerow(
                 [
@@ -312,6 +325,7 @@ def train_detector(
         "n_objects": int(sum(len(t["labels"]) for t in targets)),
         "image_size": list(size),
         "device": str(dev),
+        "precision": precision,
     }
 
 
