@@ -49,6 +49,17 @@ def commands(street, tiny_data, out):
         ],
         # (after its training: the dict's order is the run's)
         "surrogate eval": ["surrogate", "eval", out / "sur", tiny_data, "--out", out / "sur_eval"],
+        "isp eval": [
+            *("isp", "eval", "--size", "32", "--param-sets", "0", "--photo", "astronaut"),
+            *("--out", out / "isp_eval"),
+        ],
+        "isp tune": ["isp", "tune", "--steps", "1", "--scenes", "2", "--size", "32", "--out", out / "tune"],
+        "metrics": [
+            "metrics",
+            street / "images" / "street_0_000000.png",
+            street / "images" / "street_0_000000.png",
+            "--json",
+        ],
     }
 
 
@@ -66,6 +77,8 @@ def test_every_torch_command_runs_with_device_cpu(optix, street, tiny_data, tmp_
     assert json.loads((tmp_path / "sw" / "train.json").read_text())["device"] == "cpu"
     assert json.loads((tmp_path / "sur" / "train.json").read_text())["device"] == "cpu"
     assert json.loads((tmp_path / "sur_eval" / "eval.json").read_text())["device"] == "cpu"
+    assert json.loads((tmp_path / "isp_eval" / "eval.json").read_text())["device"] == "cpu"
+    assert json.loads((tmp_path / "tune" / "tune.json").read_text())["device"] == "cpu"
 
 
 @pytest.mark.parametrize("spec", ["cuda", "cuda:1"])

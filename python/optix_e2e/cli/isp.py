@@ -264,19 +264,24 @@ def train_software_cmd(out_dir, as_json, crop, init, **kw):
 )
 @click.option("--photo", "photos", multiple=True, help="Restrict to these bundled photos (repeatable).")
 @click.option("--out", "out_dir", type=OUT, default=None, help="Write eval.json here.")
+@device_option
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 @friendly_errors
-def eval_cmd(proxy, size, param_sets, photos, out_dir, as_json):
+def eval_cmd(proxy, size, param_sets, photos, out_dir, device, as_json):
     """Proxy fidelity against the true ISP on held-out photos and hyperparameters.
 
-    PROXY defaults to the proxy shipped inside the package."""
+    PROXY defaults to the proxy shipped inside the package. The proxy runs on --device; the
+    reference ISP and the metrics on the CPU."""
+    from ..device import resolve_device
     from ..isp.evaluate import evaluate_proxy
     from ..isp.proxy import BUNDLED, ISPProxy
 
+    dev = resolve_device(device)
     _claim(out_dir, "eval.json")
-    model = ISPProxy.load(proxy)
+    model = ISPProxy.load(proxy).to(dev)
     res = evaluate_proxy(model, size=size, n_param_sets=param_sets, photos=list(photos) or None)
     res["proxy"] = str(proxy or BUNDLED)
+    res["device"] = str(dev)
     if _emit(res, out_dir, "eval.json", as_json):
         return
     click.echo(
@@ -312,18 +317,21 @@ def eval_cmd(proxy, size, param_sets, photos, out_dir, as_json):
 )
 @click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--out", "out_dir", type=OUT, default=None, help="Write tune.json here.")
+@device_option
 @click.option("--json", "as_json", is_flag=True)
 @friendly_errors
-def tune_cmd(proxy, steps, n_scenes, perceptual_weight, size, seed, out_dir, as_json):
+def tune_cmd(proxy, steps, n_scenes, perceptual_weight, size, seed, out_dir, device, as_json):
     """Optimize the ISP hyperparameters through the proxy for image quality (L1 + perceptual
     against the ideal rendering), then compare default and tuned settings on the TRUE ISP over
     held-out photos."""
+    from ..device import resolve_device
     from ..isp import params as hp
     from ..isp.proxy import ISPProxy
     from ..isp.tune import true_isp_quality, tune_params
 
+    dev = resolve_device(device)
     _claim(out_dir, "tune.json")
-    model = ISPProxy.load(proxy)
+    model = ISPProxy.load(proxy).to(dev)
     tuned, history = tune_params(model, steps=steps, n_scenes=n_scenes, perceptual_weight=perceptual_weight, seed=seed)
     before, after = true_isp_quality(hp.defaults(), size=size), true_isp_quality(tuned, size=size)
     res = {
@@ -336,6 +344,7 @@ def tune_cmd(proxy, steps, n_scenes, perceptual_weight, size, seed, out_dir, as_
         "loss_last": history[-1],
         "steps": steps,
         "seed": seed,
+        "device": str(dev),
     }
     if _emit(res, out_dir, "tune.json", as_json):
         return

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from ._common import dumps, friendly_errors
+from ._common import device_option, dumps, friendly_errors
 
 
 MAX_PIXELS = 64_000_000  # larger files are refused before they are decoded (a decompression bomb)
@@ -64,13 +64,18 @@ def _read(path: str):
     show_default=True,
     help="Pixels dropped from every border before scoring.",
 )
+@device_option
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 @friendly_errors
-def metrics(image, reference, crop, as_json):
+def metrics(image, reference, crop, device, as_json):
     """Quality of IMAGE against REFERENCE (8- or 16-bit sRGB files of one size): PSNR (dB), SSIM,
-    LPIPS (AlexNet, v0.1; lower is closer; the paper reports 1 - LPIPS) and HaarPSI."""
+    LPIPS (AlexNet, v0.1; lower is closer; the paper reports 1 - LPIPS) and HaarPSI, computed
+    on --device."""
+    from ..device import resolve_device
     from ..metrics.lpips import lpips
     from ..metrics.image import summarize
+
+    dev = resolve_device(device)
 
     x, y = _read(image), _read(reference)
     if x.shape != y.shape:
@@ -82,6 +87,7 @@ def metrics(image, reference, crop, as_json):
         raise click.ClickException(
             f"images of {x.shape[2]}x{x.shape[1]} with --crop {crop} leave less than 16x16 pixels (HaarPSI's minimum)"
         )
+    x, y = x.to(dev), y.to(dev)
     out = summarize(x[None], y[None], crop=crop)
     xc, yc = (
         x[:, crop : x.shape[1] - crop, crop : x.shape[2] - crop],
@@ -95,6 +101,7 @@ def metrics(image, reference, crop, as_json):
         "ssim": out["ssim"],
         "lpips": out["lpips"],
         "haarpsi": out["haarpsi"],
+        "device": str(dev),
     }
     if as_json:
         click.echo(dumps(out))

@@ -54,7 +54,8 @@ def evaluate_proxy(
             t0 = time.perf_counter()
             truth = isp(raw[i : i + 1], [p])
             t1 = time.perf_counter()
-            pred = proxy.render(raw[i : i + 1], p)
+            dev = next(proxy.parameters()).device  # the captures and truth stay on the CPU
+            pred = proxy.render(raw[i : i + 1].to(dev), p).cpu()
             if not torch.isfinite(pred).all():
                 raise InputError(
                     f"the ISP proxy's output is not finite on photo {name} ({label} hyperparameters); no metrics"

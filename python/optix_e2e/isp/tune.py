@@ -43,11 +43,13 @@ def tune_params(
     rng = np.random.default_rng(seed)
     scene = torch.stack([data.training_scene(size, rng) for _ in range(n_scenes)])
     raw, ideal = data.capture_raw(scene, rng, data.Capture(), torch.Generator().manual_seed(seed))
-    z = _logit(hp.to_unit(start or hp.defaults())).requires_grad_(True)
+    dev = next(proxy.parameters()).device  # drawn on the CPU (seeded), moved once
+    raw, ideal = raw.to(dev), ideal.to(dev)
+    z = _logit(hp.to_unit(start or hp.defaults())).to(dev).requires_grad_(True)
     opt = torch.optim.Adam([z], lr=lr)
     history = []
     for _ in tqdm(range(steps), desc="tune ISP", unit="step", disable=not progress):
-        idx = torch.as_tensor(rng.integers(n_scenes, size=8))
+        idx = torch.as_tensor(rng.integers(n_scenes, size=8), device=dev)
         out = proxy(raw[idx], torch.sigmoid(z))
         loss = (out - ideal[idx]).abs().mean() + perceptual_weight * metrics.perceptual_distance(
             out.clamp(0, 1), ideal[idx]
@@ -56,7 +58,7 @@ def tune_params(
         loss.backward()
         opt.step()
         history.append(loss.item())
-    return hp.from_unit(torch.sigmoid(z).detach().numpy()), history
+    return hp.from_unit(torch.sigmoid(z).detach().cpu().numpy()), history
 
 
 def true_isp_quality(params: dict, *, size: int = 256, photos=None, seed: int = evaluate.HELD_OUT_SEED) -> dict:
