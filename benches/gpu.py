@@ -240,16 +240,7 @@ def surrogate_train(dev: torch.device, plan: Plan, precision: str = "fp32") -> d
             psf, vig = net(model.normalize(params), field)
         terms = optics_loss_terms(psf.float(), vig.float(), psf_t, vig_t)
         loss = tc.weights.total(terms)
-        opt.zero_grad(set_to_none=True)
-        (scaler.scale(loss) if scaler is not None else loss).backward()
-        if scaler is not None:
-            scaler.unscale_(opt)
-        torch.nn.utils.clip_grad_norm_(net.parameters(), tc.clip_grad)
-        if scaler is not None:
-            scaler.step(opt)
-            scaler.update()
-        else:
-            opt.step()
+        _optimizer_step(opt, loss, scaler, net.parameters(), tc.clip_grad)
         _sync(dev)
         if timed:
             times["step"].append(time.perf_counter() - t0)
@@ -263,6 +254,22 @@ def surrogate_train(dev: torch.device, plan: Plan, precision: str = "fp32") -> d
         "steps_per_s": round(1e3 / med["step"], 3),
         "peak_mib": _peak_mib(dev),
     }
+
+
+def _optimizer_step(opt, loss, scaler, clip_params=None, clip: float | None = None) -> None:
+    """Backward and one optimizer step, through the fp16 gradient scaler where there is one
+    (unscaled before clipping ``clip_params`` to ``clip``)."""
+    opt.zero_grad(set_to_none=True)
+    (scaler.scale(loss) if scaler is not None else loss).backward()
+    if clip_params is not None:
+        if scaler is not None:
+            scaler.unscale_(opt)
+        torch.nn.utils.clip_grad_norm_(clip_params, clip)
+    if scaler is not None:
+        scaler.step(opt)
+        scaler.update()
+    else:
+        opt.step()
 
 
 # -- 4: detector training ------------------------------------------------------------------------
@@ -302,13 +309,7 @@ def detector_train(dev: torch.device, plan: Plan, precision: str = "fp32") -> di
         t0 = time.perf_counter()
         xs, ts = [x.to(dev) for x in xs], [{k: v.to(dev) for k, v in t.items()} for t in ts]
         loss = sum(model(xs, ts).values())
-        opt.zero_grad()
-        (scaler.scale(loss) if scaler is not None else loss).backward()
-        if scaler is not None:
-            scaler.step(opt)
-            scaler.update()
-        else:
-            opt.step()
+        _optimizer_step(opt, loss, scaler)
         _sync(dev)
         if timed:
             times["step"].append(time.perf_counter() - t0)
