@@ -107,7 +107,9 @@ def test_an_old_run_made_with_frame_positions_resumes_with_them(tmp_path):
 
 # ----- the same number of processing updates for both cameras ------------------------------------
 class _Camera:
-    """A stand-in camera: one small parameter vector per block."""
+    """A stand-in camera: one small parameter vector per block, on the CPU."""
+
+    device = torch.device("cpu")
 
     def __init__(self, names):
         self.params = {n: [nn.Parameter(torch.linspace(0.1, 0.9, 3) * (i + 1))] for i, n in enumerate(names)}

@@ -18,7 +18,8 @@ Checks (limits in mm from the space file's ``[constraints]`` table, :class:`Limi
   sphere's radius),
 * ``untraceable``: no ray of the footprint reaches some surface (the design cannot be sized),
   or at some field and wavelength (the lens's, the default RGB channels') the chief ray misses
-  the image (the engine could not compute that field's PSF),
+  a surface or is totally reflected (the engine could not compute that field's PSF; a clear
+  aperture clipping it is vignetting, and allowed),
 * ``field_folds``: the image of the field folds (some pupil zone's image height stops growing
   with the field: rays of different fields cross; engine ``spot::field_fold``). Such a lens
   forms no image a per-field PSF can describe, and the engine refuses its relative
@@ -161,7 +162,9 @@ def unreached_field(design: dict) -> str | None:
                 t = lens.trace_field(float(f), zero, zero, wavelength_nm=wl)
             except Exception as err:  # noqa: BLE001 - the engine cannot launch the beam
                 return f"untraceable: {' '.join(str(err).split())}"
-            if not np.asarray(t["status"]).ravel()[0] == 0:
+            # missed a surface, totally reflected or invalid (1, 3, 4); a clear aperture that
+            # clips it (2) is vignetting, which the engine computes
+            if int(np.asarray(t["status"]).ravel()[0]) in (1, 3, 4):
                 return f"untraceable: the chief ray at {f:g} deg, {wl:g} nm does not reach the image"
     return None
 
