@@ -189,12 +189,10 @@ def _design_config(budget: str, dev: torch.device, precision: str):
 
 
 def _apply_precision(cam, cfg, dev) -> None:
-    """The design run's precision switch on the camera's networks (where this version has one)."""
-    try:
-        from optix_e2e.precision import apply_precision, resolve_precision
-    except ImportError:
-        return
-    apply_precision(cam, resolve_precision(getattr(cfg, "precision", "fp32"), dev))
+    """The design run's precision switch on the camera's networks."""
+    from optix_e2e.precision import apply_precision, resolve_precision
+
+    apply_precision(cam, resolve_precision(cfg.precision, dev))
 
 
 def _scaler(dev: torch.device, precision: str):
@@ -281,13 +279,9 @@ def detector_train(dev: torch.device, plan: Plan, precision: str = "fp32") -> di
     h, w, batch = (64, 96, 2) if plan.smoke else (192, 288, 8)
     torch.manual_seed(0)
     model = make_detector(32, 64, (h, w)).to(dev).train()
-    try:
-        from optix_e2e.precision import apply_precision
+    from optix_e2e.precision import apply_precision
 
-        apply_precision(model, _dtype(precision))
-    except ImportError:
-        if precision != "fp32":
-            raise
+    apply_precision(model, _dtype(precision))
     g = torch.Generator().manual_seed(0)
     batches = []
     for _ in range(4):
