@@ -185,3 +185,28 @@ def test_an_uninterrupted_run_lands_on_the_same_lens(resumed_run, optix, smoke_d
     again = json.loads((tmp / "again" / "results.json").read_text())
     assert again["design"]["end_to_end"] == res["design"]["end_to_end"]
     assert again["end_to_end"]["psnr_db"] == res["end_to_end"]["psnr_db"]
+
+
+def test_the_lens_room_bench_repeats_the_baseline_behind_a_perfect_lens(resumed_run, tmp_path):
+    """benches/lens_room.py on a finished run: the baseline's schedule and held-out set again,
+    the lens replaced by a perfect one. Its nominal and end-to-end rows are the run's own."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "benches" / "lens_room.py"
+    spec = importlib.util.spec_from_file_location("lens_room", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    res = resumed_run["res"]
+    bench.main([str(resumed_run["out"]), "--out", str(tmp_path), "--threads", "1", "--quiet"])
+    (room,) = json.loads((tmp_path / "lens_room.json").read_text())
+    assert room["updates"] == res["training"]["nominal"]["updates"]  # the same budget as the baseline
+    for who in ("nominal", "end_to_end"):
+        assert room["means"][who]["psnr_db"] == pytest.approx(res[who]["psnr_db"], rel=1e-9)
+    e2e = room["end_to_end_minus_nominal"][res["headline_position"]]["psnr_db"]
+    assert e2e["mean"] == pytest.approx(res["paired"]["psnr_db"]["mean"], rel=1e-9)
+    # the fine-tuned processing behind the perfect lens is not the nominal camera's
+    assert room["means"]["perfect_finetuned"]["psnr_db"] != pytest.approx(res["perfect_lens"]["psnr_db"], abs=1e-6)
+    d = room["perfect_minus_nominal"]["frame"]["psnr_db"]
+    assert d["ci95"][0] <= d["mean"] <= d["ci95"][1]
+    assert "perfect minus nominal" in (tmp_path / "lens_room.md").read_text()

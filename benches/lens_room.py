@@ -1,0 +1,150 @@
+#!/usr/bin/env python3
+"""How much any lens could give a design run: its nominal baseline trained again behind a
+perfect lens, on the same budget, and evaluated on the run's own held-out set.
+
+    python benches/lens_room.py RUN_DIR [RUN_DIR ...] --out DIR [--threads N]
+
+RUN_DIR is a finished image-quality run (`optix design iq-software | iq-hardware | low-light`,
+its eval_*_exact.json cache present). The bench repeats the run's nominal baseline with one
+change: the lens is perfect (camera/stages.py PerfectOptics: every point images to a point, no
+vignetting). The processing starts where the baseline's started (the pre-trained software ISP,
+or the seeded hardware-ISP start), with the same schedule and updates per block
+(build.make_optimizer "nominal"), batches and sensor-noise draws (the run's seed). It is then
+evaluated on the run's held-out samples with their noise draws, rebuilt and checked against
+the run's cached rows.
+
+So "perfect + fine-tuned minus nominal + fine-tuned" bounds what a lens can add to the
+baseline under this processing and budget; "perfect + fine-tuned minus end-to-end" is what
+the end-to-end camera leaves. Both are paired intervals over the held-out images (frame, centre,
+corner: evaluate.paired_by_position).
+
+Writes DIR/RUN_NAME/{config.json, perfect_state.pt (resumable), eval_perfect_finetuned.json}
+and DIR/lens_room.{json,md}. It measures; it asserts nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from optix_e2e.camera import PerfectOptics
+from optix_e2e.camera_design import evaluate as ev
+from optix_e2e.camera_design.build import build_camera, make_optimizer, start_run
+from optix_e2e.camera_design.config import DesignConfig
+from optix_e2e.camera_design.training import train
+from optix_e2e.io import write_json_atomic
+from optix_e2e.tasks import heldout_set
+from optix_e2e.tasks.samples import POSITIONS
+
+METRIC_NAMES = {"psnr_db": "PSNR (dB)", "ssim": "SSIM", "lpips": "LPIPS", "haarpsi": "HaarPSI"}
+
+
+def cached_rows(run: Path, who: str) -> list[dict]:
+    path = run / f"eval_{who}_exact.json"
+    try:
+        return json.loads(path.read_text())["rows"]
+    except (OSError, ValueError, KeyError) as e:
+        raise SystemExit(f"{run}: no held-out rows in {path.name} ({e}); run the design to its end first") from None
+
+
+def room(run: Path, out: Path, threads: int | None, progress: bool) -> dict:
+    cfg = DesignConfig(**json.loads((run / "config.json").read_text())).check()
+    if cfg.task == "detection":
+        raise SystemExit(f"{run}: a detection run; this bench is for the image-quality tasks")
+    if threads is not None:
+        cfg = DesignConfig(**{**cfg.to_json(), "threads": threads}).check()
+    results = json.loads((run / "results.json").read_text())
+    window = int(results["exact_psf_energy_in_window"]["window_px"])
+    _, _, frame, sur = start_run(cfg, out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out / "config.json", {"run": str(run), "window_px": window, **cfg.to_json()})
+    camera = build_camera(cfg, sur, fixed_optics=PerfectOptics(window, full_field_px=frame.full_field_px), frame=frame)
+    opt = make_optimizer(cfg, camera, "nominal")
+    log = print if progress else None
+    trained = train(cfg, camera, opt, out, "perfect", progress=progress, frame=frame, log=log)
+
+    samples = heldout_set(
+        cfg.eval_size,
+        window // 2,
+        cfg.eval_procedural,
+        cfg.eval_level,
+        frame,
+        positions=POSITIONS[cfg.eval_positions],
+    )
+    nominal, e2e = cached_rows(run, "nominal"), cached_rows(run, "end_to_end")
+    if [(s.name, s.position) for s in samples] != [(r["image"], r["position"]) for r in nominal]:
+        raise SystemExit(f"{run}: the rebuilt held-out set is not the run's (another code version?)")
+    eval_path = out / "eval_perfect_finetuned.json"
+    try:
+        perfect = json.loads(eval_path.read_text())["rows"]
+    except (OSError, ValueError, KeyError):
+        perfect = ev.evaluate(camera, samples)
+        write_json_atomic(eval_path, {"rows": perfect})
+    n_boot, seed = cfg.bootstrap, cfg.seed
+    return {
+        "run": str(run),
+        "task": cfg.task,
+        "seed": cfg.seed,
+        "budget": cfg.budget,
+        "updates": trained["updates"],
+        "train_wall_s": trained["wall_s"],
+        "means": {
+            "nominal": ev.summarize(nominal),
+            "end_to_end": ev.summarize(e2e),
+            "perfect_finetuned": ev.summarize(perfect),
+            "perfect_nominal_processing": results.get("perfect_lens"),
+        },
+        # the most a lens could add to the baseline, and what the end-to-end camera leaves
+        "perfect_minus_nominal": ev.paired_by_position(nominal, perfect, n_boot, seed),
+        "perfect_minus_end_to_end": ev.paired_by_position(e2e, perfect, n_boot, seed),
+        "end_to_end_minus_nominal": ev.paired_by_position(nominal, e2e, n_boot, seed),
+    }
+
+
+def table(rows: list[dict]) -> str:
+    def cell(d: dict) -> str:
+        m = d["psnr_db"]
+        return f"{m['mean']:+.2f} [{m['ci95'][0]:+.2f}, {m['ci95'][1]:+.2f}]"
+
+    def corner(r: dict) -> str:
+        d = r["perfect_minus_nominal"].get("corner")
+        return cell(d) if d else "not evaluated"
+
+    lines = [
+        "| run | end-to-end minus nominal | perfect minus nominal (the lens's room) | perfect minus end-to-end | "
+        "perfect, corner minus nominal |",
+        "|---|---|---|---|---|",
+    ]
+    for r in rows:
+        name = Path(r["run"]).name
+        lines.append(
+            f"| {name} | {cell(r['end_to_end_minus_nominal']['frame'])} | {cell(r['perfect_minus_nominal']['frame'])} "
+            f"| {cell(r['perfect_minus_end_to_end']['frame'])} | {corner(r)} |"
+        )
+    return (
+        "\n".join(lines) + "\n\nFrame PSNR in dB unless marked; paired 95 % bootstrap intervals over held-out images.\n"
+    )
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("runs", nargs="+", type=Path)
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--threads", type=int, default=None, help="torch threads (default: the run's)")
+    ap.add_argument("--quiet", action="store_true")
+    args = ap.parse_args(argv)
+    rows = []
+    for run in args.runs:
+        print(f"== {run}", flush=True)
+        rows.append(room(run, args.out / run.name, args.threads, not args.quiet))
+        r = rows[-1]["perfect_minus_nominal"]["frame"]["psnr_db"]
+        print(f"   perfect + fine-tuned minus nominal + fine-tuned: {r['mean']:+.2f} dB {np.round(r['ci95'], 2)}")
+        write_json_atomic(args.out / "lens_room.json", rows)
+        (args.out / "lens_room.md").write_text(table(rows))
+
+
+if __name__ == "__main__":
+    main()
