@@ -146,14 +146,18 @@ def _rows(design: dict, semi_diameters: Sequence[float], limits: Limits) -> list
     ).evaluate(design, {}, semi_diameters)
 
 
-def unreached_field(design: dict) -> str | None:
-    """``"untraceable: ..."`` where at some field of the lens dict, at one of its wavelengths
+def _as_lens(design: dict | Lens) -> Lens:
+    return design if isinstance(design, Lens) else Lens(design, source="<design>")
+
+
+def unreached_field(design: dict | Lens) -> str | None:
+    """``"untraceable: ..."`` where at some field of the lens (a dict or a Lens), at one of its wavelengths
     or those of the default RGB channels (what the datasets compute), the chief ray misses
     the image (the engine then refuses that field's PSF), else None. Paraxial aiming, as the
     datasets trace."""
     from ..lens.model import DEFAULT_RGB_CHANNELS
 
-    lens = Lens(design, source="<design>")
+    lens = _as_lens(design)
     wavelengths = sorted({float(w) for w in lens.wavelengths_nm} | {w for c in DEFAULT_RGB_CHANNELS for w, _ in c})
     zero = np.zeros(1)
     for f in lens.fields_deg:
@@ -169,10 +173,10 @@ def unreached_field(design: dict) -> str | None:
     return None
 
 
-def field_folds(design: dict) -> str | None:
-    """``"field_folds: ..."`` where the image of the lens dict's field folds (see the module's
-    list), else None."""
-    lens = Lens(design, source="<design>")
+def field_folds(design: dict | Lens) -> str | None:
+    """``"field_folds: ..."`` where the image of the lens's field (a dict or a Lens) folds (see
+    the module's list), else None."""
+    lens = _as_lens(design)
     try:
         f = lens.field_fold()
     except Exception as err:  # noqa: BLE001 - the engine cannot trace it: untraceable
@@ -225,9 +229,10 @@ class Manufacturability:
         reasons = check_design(design, sd, self.limits)
         if reasons:
             return reasons
-        if (unreached := unreached_field(design)) is not None:
+        lens = _as_lens(design)  # one parse for both traced checks
+        if (unreached := unreached_field(lens)) is not None:
             return [unreached]
-        return [fold] if self.field_fold and (fold := field_folds(design)) else []
+        return [fold] if self.field_fold and (fold := field_folds(lens)) else []
 
     def margins(self, design: dict) -> np.ndarray:
         """Raises ApertureError where the design cannot be sized."""
