@@ -13,13 +13,17 @@ or the seeded hardware-ISP start), with the same schedule and updates per block
 evaluated on the run's held-out samples with their noise draws, rebuilt and checked against
 the run's cached rows.
 
+``--shading nominal`` keeps the nominal lens's relative illumination (its engine-computed
+vignetting, cos^4 falloff included, at each field) and removes only the blur: a sharp lens
+that shades as the nominal does. Its folders are named RUN_NAME-shaded.
+
 So "perfect + fine-tuned minus nominal + fine-tuned" bounds what a lens can add to the
 baseline under this processing and budget; "perfect + fine-tuned minus end-to-end" is what
 the end-to-end camera leaves. Both are paired intervals over the held-out images (frame, centre,
 corner: evaluate.paired_by_position).
 
 Writes DIR/RUN_NAME/{config.json, perfect_state.pt (resumable), eval_perfect_finetuned.json}
-and DIR/lens_room.{json,md}. It measures; it asserts nothing.
+and DIR/lens_room.{json,md} (lens_room-shaded.* with --shading nominal). It measures; it asserts nothing.
 """
 
 from __future__ import annotations
@@ -29,17 +33,36 @@ import json
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from optix_e2e.camera import PerfectOptics
 from optix_e2e.camera_design import evaluate as ev
-from optix_e2e.camera_design.build import build_camera, make_optimizer, start_run
+from optix_e2e.camera_design.build import build_camera, design_field_heights, make_optimizer, start_run
 from optix_e2e.camera_design.config import DesignConfig
 from optix_e2e.camera_design.training import train
 from optix_e2e.io import write_json_atomic
+from optix_e2e.optics.render import interpolate_fields, pixel_polar
+from optix_e2e.surrogate.ground_truth import exact_optics
 from optix_e2e.tasks import heldout_set
 from optix_e2e.tasks.samples import POSITIONS
 
 METRIC_NAMES = {"psnr_db": "PSNR (dB)", "ssim": "SSIM", "lpips": "LPIPS", "haarpsi": "HaarPSI"}
+
+
+class SharpShadedOptics(PerfectOptics):
+    """No blur, the given relative illumination [K, C] at field heights [K] (fractions of the
+    full field): the renderer's shading step (optics/render.py) without its PSFs."""
+
+    def __init__(self, psf_size: int, vignetting, fields, *, full_field_px: float):
+        super().__init__(psf_size, full_field_px=full_field_px)
+        self.register_buffer("vignetting", torch.as_tensor(vignetting, dtype=torch.float32))
+        self.register_buffer("fields", torch.as_tensor(fields, dtype=torch.float32))
+
+    def forward(self, image: torch.Tensor, offset_px=(0.0, 0.0)) -> torch.Tensor:
+        _, c, h, w = image.shape
+        r, _ = pixel_polar(h, w, self.full_field_px, device=image.device, dtype=image.dtype, offset_px=offset_px)
+        shade = interpolate_fields(self.vignetting.to(image), self.fields.to(image), r.reshape(-1))
+        return image * shade.T.reshape(1, c, h, w)
 
 
 def cached_rows(run: Path, who: str) -> list[dict]:
@@ -50,7 +73,7 @@ def cached_rows(run: Path, who: str) -> list[dict]:
         raise SystemExit(f"{run}: no held-out rows in {path.name} ({e}); run the design to its end first") from None
 
 
-def room(run: Path, out: Path, threads: int | None, progress: bool) -> dict:
+def room(run: Path, out: Path, threads: int | None, progress: bool, shading: str = "none") -> dict:
     cfg = DesignConfig(**json.loads((run / "config.json").read_text())).check()
     if cfg.task == "detection":
         raise SystemExit(f"{run}: a detection run; this bench is for the image-quality tasks")
@@ -60,8 +83,15 @@ def room(run: Path, out: Path, threads: int | None, progress: bool) -> dict:
     window = int(results["exact_psf_energy_in_window"]["window_px"])
     _, _, frame, sur = start_run(cfg, out)
     out.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(out / "config.json", {"run": str(run), "window_px": window, **cfg.to_json()})
-    camera = build_camera(cfg, sur, fixed_optics=PerfectOptics(window, full_field_px=frame.full_field_px), frame=frame)
+    write_json_atomic(out / "config.json", {"run": str(run), "window_px": window, "shading": shading, **cfg.to_json()})
+    if shading == "nominal":  # the nominal's engine vignetting where its chief rays land
+        nominal_values = np.asarray(results["design"]["nominal"], np.float64)
+        exact = exact_optics(sur, nominal_values[None])
+        heights = design_field_heights(sur, nominal_values, float(exact["image_distance"][0]))
+        lens = SharpShadedOptics(window, exact["vignetting"][0], heights, full_field_px=frame.full_field_px)
+    else:
+        lens = PerfectOptics(window, full_field_px=frame.full_field_px)
+    camera = build_camera(cfg, sur, fixed_optics=lens, frame=frame)
     opt = make_optimizer(cfg, camera, "nominal")
     log = print if progress else None
     trained = train(cfg, camera, opt, out, "perfect", progress=progress, frame=frame, log=log)
@@ -89,6 +119,7 @@ def room(run: Path, out: Path, threads: int | None, progress: bool) -> dict:
         "task": cfg.task,
         "seed": cfg.seed,
         "budget": cfg.budget,
+        "shading": shading,
         "updates": trained["updates"],
         "train_wall_s": trained["wall_s"],
         "means": {
@@ -119,7 +150,7 @@ def table(rows: list[dict]) -> str:
         "|---|---|---|---|---|",
     ]
     for r in rows:
-        name = Path(r["run"]).name
+        name = Path(r["run"]).name + (" (the nominal's shading)" if r.get("shading") == "nominal" else "")
         lines.append(
             f"| {name} | {cell(r['end_to_end_minus_nominal']['frame'])} | {cell(r['perfect_minus_nominal']['frame'])} "
             f"| {cell(r['perfect_minus_end_to_end']['frame'])} | {corner(r)} |"
@@ -134,16 +165,21 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("runs", nargs="+", type=Path)
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: the run's)")
+    ap.add_argument(
+        "--shading", choices=("none", "nominal"), default="none", help="the sharp lens's relative illumination"
+    )
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
     rows = []
     for run in args.runs:
         print(f"== {run}", flush=True)
-        rows.append(room(run, args.out / run.name, args.threads, not args.quiet))
+        name = run.name + ("-shaded" if args.shading == "nominal" else "")
+        rows.append(room(run, args.out / name, args.threads, not args.quiet, args.shading))
         r = rows[-1]["perfect_minus_nominal"]["frame"]["psnr_db"]
         print(f"   perfect + fine-tuned minus nominal + fine-tuned: {r['mean']:+.2f} dB {np.round(r['ci95'], 2)}")
-        write_json_atomic(args.out / "lens_room.json", rows)
-        (args.out / "lens_room.md").write_text(table(rows))
+        stem = "lens_room" + ("-shaded" if args.shading == "nominal" else "")
+        write_json_atomic(args.out / f"{stem}.json", rows)
+        (args.out / f"{stem}.md").write_text(table(rows))
 
 
 if __name__ == "__main__":
