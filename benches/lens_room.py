@@ -155,9 +155,32 @@ def table(rows: list[dict]) -> str:
             f"| {name} | {cell(r['end_to_end_minus_nominal']['frame'])} | {cell(r['perfect_minus_nominal']['frame'])} "
             f"| {cell(r['perfect_minus_end_to_end']['frame'])} | {corner(r)} |"
         )
+    by_task: dict[str, list[dict]] = {}
+    for r in rows:
+        by_task.setdefault(
+            r["task"] + (" (the nominal's shading)" if r.get("shading") == "nominal" else ""), []
+        ).append(r)
+    for task, rs in by_task.items():
+        if len(rs) < 2:
+            continue
+        cells = []
+        for key in ("end_to_end_minus_nominal", "perfect_minus_nominal", "perfect_minus_end_to_end"):
+            d = [r[key]["frame"]["psnr_db"]["mean"] for r in rs]
+            lo, hi = seeds_interval(d)
+            cells.append(f"**{np.mean(d):+.2f}** [{lo:+.2f}, {hi:+.2f}]")
+        lines.append(f"| {task}, mean of {len(rs)} seeds (t interval over seeds) | " + " | ".join(cells) + " | |")
     return (
         "\n".join(lines) + "\n\nFrame PSNR in dB unless marked; paired 95 % bootstrap intervals over held-out images.\n"
     )
+
+
+def seeds_interval(d: list[float], level: float = 0.95) -> tuple[float, float]:
+    """Student's t interval of the mean of per-seed values (at least 2)."""
+    from scipy import stats
+
+    m, se = float(np.mean(d)), float(np.std(d, ddof=1)) / np.sqrt(len(d))
+    h = float(stats.t.ppf(0.5 + level / 2, len(d) - 1)) * se
+    return m - h, m + h
 
 
 def main(argv: list[str] | None = None) -> None:
