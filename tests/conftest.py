@@ -126,6 +126,31 @@ def smoke_design():
     return design_args
 
 
+def _smoke_camera(task: str, precision: str = "fp32"):
+    """A design run's camera at the smoke settings on the CPU (surrogate optics, the shipped
+    processing), in training mode, and a seeded two-image batch with the camera's margin:
+    (camera, scene [2, 3, 32 + 2m, 32 + 2m], target [2, 3, 32, 32])."""
+    import torch
+
+    from optix_e2e.camera_design.build import build_camera, load_surrogate
+    from optix_e2e.camera_design.config import make_config
+    from optix_e2e.tasks import SensorFrame
+
+    cfg = make_config(
+        "smoke", surrogate="paper-triplet-v1", task=task, optics="surrogate", device="cpu", precision=precision
+    )
+    cam = build_camera(cfg, load_surrogate("paper-triplet-v1"), frame=SensorFrame()).train()
+    m, g = cam.margin, torch.Generator().manual_seed(0)
+    scene = torch.rand(2, 3, 32 + 2 * m, 32 + 2 * m, generator=g)
+    return cam, scene, torch.rand(2, 3, 32, 32, generator=g)
+
+
+@pytest.fixture(scope="session")
+def smoke_camera():
+    """``smoke_camera(task, precision="fp32")`` -> (camera, scene, target): see _smoke_camera."""
+    return _smoke_camera
+
+
 #: the longest test files, longest first (worker-seconds measured with ./test.sh on the 2-core
 #: machine, 2026-11-27); used only to order them, so a stale entry costs time, never a result
 LONGEST_FIRST = (

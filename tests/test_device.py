@@ -126,17 +126,8 @@ def _where(name: bool = False) -> str:
     return ours[-1].name if name else f"{ours[-1].filename.split('optix_e2e/')[-1]}:{ours[-1].lineno}"
 
 
-def _camera(task: str):
-    from optix_e2e.camera_design.build import build_camera, load_surrogate
-    from optix_e2e.camera_design.config import make_config
-    from optix_e2e.tasks import SensorFrame
-
-    cfg = make_config("smoke", surrogate="paper-triplet-v1", task=task, optics="surrogate", device="cpu")
-    return build_camera(cfg, load_surrogate("paper-triplet-v1"), frame=SensorFrame()).train()
-
-
 @pytest.mark.parametrize("task", ["iq-software", "iq-hardware"])
-def test_a_training_step_makes_every_tensor_on_its_inputs_device(task):
+def test_a_training_step_makes_every_tensor_on_its_inputs_device(task, smoke_camera):
     """A design run's training step (surrogate optics -> sensor with its seeded noise -> ISP ->
     L1 + LPIPS, forward and backward) under ``DeviceSpy``: every tensor it makes names its
     device (so on CUDA it is made there, not on the CPU) and nothing is copied to the host.
@@ -150,12 +141,8 @@ def test_a_training_step_makes_every_tensor_on_its_inputs_device(task):
     from optix_e2e.camera_design.training import noise_generator
     from optix_e2e.tasks import TaskLoss, get_task
 
-    cam = _camera(task)
+    cam, scene, target = smoke_camera(task)
     loss_mod = TaskLoss(get_task(task))
-    m = cam.margin
-    g = torch.Generator().manual_seed(0)
-    scene = torch.rand(2, 3, 32 + 2 * m, 32 + 2 * m, generator=g)
-    target = torch.rand(2, 3, 32, 32, generator=g)
     spy = DeviceSpy()
     with spy:
         out, _ = cam(scene, (120.0, -80.0), noise_generator(0, 0))
@@ -165,13 +152,11 @@ def test_a_training_step_makes_every_tensor_on_its_inputs_device(task):
     assert cam.optics.u.grad is not None and bool(torch.isfinite(loss))
 
 
-def test_the_spy_catches_a_stage_that_makes_a_tensor_on_the_cpu(monkeypatch):
+def test_the_spy_catches_a_stage_that_makes_a_tensor_on_the_cpu(monkeypatch, smoke_camera):
     """The test above can fail: a stage that makes a device-less tensor or copies to the host is caught."""
     from optix_e2e.camera import stages
 
-    cam = _camera("iq-hardware")
-    m = cam.margin
-    scene = torch.rand(1, 3, 32 + 2 * m, 32 + 2 * m)
+    cam, scene, _ = smoke_camera("iq-hardware")
     for plant in (lambda raw: raw + torch.zeros(raw.shape), lambda raw: raw.cpu()):
         forward = stages.HardwareISPStage.forward
         monkeypatch.setattr(
@@ -184,7 +169,7 @@ def test_the_spy_catches_a_stage_that_makes_a_tensor_on_the_cpu(monkeypatch):
         monkeypatch.undo()
 
 
-def test_the_networks_and_metrics_run_on_the_meta_device():
+def test_the_networks_and_metrics_run_on_the_meta_device(smoke_camera):
     """The ISP stages (software ISP, the hardware ISP's proxy at its hyperparameters), LPIPS and the
     detector's backbone on the meta device with meta inputs: an op that mixed in a CPU tensor (not a
     0-dim scalar) or copied to the host would raise, so their outputs on meta mean nothing inside
@@ -194,7 +179,7 @@ def test_the_networks_and_metrics_run_on_the_meta_device():
 
     meta = torch.device("meta")
     for task in ("iq-software", "iq-hardware"):
-        isp = _camera(task).isp.to(meta)
+        isp = smoke_camera(task)[0].isp.to(meta)
         out = isp(torch.rand(2, 1, 32, 32, device=meta), (120.0, -80.0), 1100.0)
         assert out.device == meta and out.shape == (2, 3, 32, 32)
     x = torch.rand(2, 3, 32, 32, device=meta)

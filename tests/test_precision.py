@@ -61,19 +61,8 @@ def test_a_device_without_the_dtype_is_one_clear_error(monkeypatch):
         resolve_precision("bf16", "cpu")
 
 
-def _camera(task: str, precision: str):
-    from optix_e2e.camera_design.build import build_camera, load_surrogate
-    from optix_e2e.camera_design.config import make_config
-    from optix_e2e.tasks import SensorFrame
-
-    cfg = make_config(
-        "smoke", surrogate="paper-triplet-v1", task=task, optics="surrogate", device="cpu", precision=precision
-    )
-    return build_camera(cfg, load_surrogate("paper-triplet-v1"), frame=SensorFrame()).train()
-
-
 @pytest.mark.parametrize("task", ["iq-software", "iq-hardware"])
-def test_bf16_reaches_the_isp_network_only(task):
+def test_bf16_reaches_the_isp_network_only(task, smoke_camera):
     """A design run's training step (surrogate optics, sensor with noise, ISP, L1 + LPIPS,
     backward) with --precision bf16: bfloat16 tensors appear inside the ISP's network and
     nowhere else; each stage's output is float32; with fp32, no bfloat16 anywhere."""
@@ -83,12 +72,9 @@ def test_bf16_reaches_the_isp_network_only(task):
     low_where = {}
     for precision in ("bf16", "fp32"):
         torch.manual_seed(0)
-        cam = _camera(task, precision)
+        cam, scene, target = smoke_camera(task, precision)
         loss_mod = TaskLoss(get_task(task))
         m = cam.margin
-        g = torch.Generator().manual_seed(0)
-        scene = torch.rand(2, 3, 32 + 2 * m, 32 + 2 * m, generator=g)
-        target = torch.rand(2, 3, 32, 32, generator=g)
         spy = DtypeSpy()
         with spy:
             psf, vig = cam.optics.psfs()
@@ -127,10 +113,10 @@ def test_bf16_detector_computes_low_inside_and_its_losses_in_float32():
     assert spy.low == {}
 
 
-def test_the_precision_switch_leaves_the_weights_and_the_fp32_output_alone():
+def test_the_precision_switch_leaves_the_weights_and_the_fp32_output_alone(smoke_camera):
     """The switch is no state: the state dict is the same with it set, and the fp32 output is
     the same as a camera built before the switch is touched."""
-    a, b = _camera("iq-software", "fp32"), _camera("iq-software", "bf16")
+    a, b = smoke_camera("iq-software", "fp32")[0], smoke_camera("iq-software", "bf16")[0]
     sa, sb = a.state_dict(), b.state_dict()
     assert list(sa) == list(sb) and all(torch.equal(sa[k], sb[k]) for k in sa)
     raw = 800.0 + 200.0 * torch.rand(1, 1, 32, 32, generator=torch.Generator().manual_seed(1))
@@ -143,7 +129,7 @@ def test_the_precision_switch_leaves_the_weights_and_the_fp32_output_alone():
     assert not torch.equal(fp32, bf16) and (fp32 - bf16).abs().max() < 0.05  # bf16 rounds, a little
 
 
-def test_fp16_steps_through_a_gradient_scaler_and_keeps_its_state():
+def test_fp16_steps_through_a_gradient_scaler_and_keeps_its_state(smoke_camera):
     """fp16 (here on the CPU, where this torch autocasts it): Alg. 1's step scales the loss,
     unscales before the step and saves the scaler's state with the optimizer's."""
     from optix_e2e.camera_design.build import make_optimizer
@@ -155,12 +141,11 @@ def test_fp16_steps_through_a_gradient_scaler_and_keeps_its_state():
     except InputError:
         pytest.skip("this torch has no fp16 autocast on the CPU")
     cfg = make_config("smoke", surrogate="paper-triplet-v1", task="iq-hardware", optics="surrogate", precision="fp16")
-    cam = _camera("iq-hardware", "fp16")
+    cam, scene, _ = smoke_camera("iq-hardware", "fp16")
     opt = make_optimizer(cfg, cam, "alg1")
     assert isinstance(opt.scaler, torch.amp.GradScaler) and grad_scaler("cpu", None) is None
     loss_mod = TaskLoss(get_task("iq-hardware"))
     m = cam.margin
-    scene = torch.rand(1, 3, 32 + 2 * m, 32 + 2 * m, generator=torch.Generator().manual_seed(0))
     before = cam.optics.u.detach().clone()
     info = opt.step(
         lambda: loss_mod(cam(scene, (0.0, 0.0), torch.Generator().manual_seed(0))[0], scene[..., m:-m, m:-m])
