@@ -8,7 +8,8 @@
 #   quick          Alg. 1, quick budget, seed 0
 #   quick-vanilla  vanilla Adam, quick budget, seed 0 (the same steps, batches and noise)
 #   compare        the two end-to-end cameras on the same held-out scenes (benches/detection_compare.py)
-#   full           Alg. 1, full budget, seeds 0 1 2 (hours each on this CPU: checkpointed)
+#   full           Alg. 1, full budget, seeds 0 1 2 (35-60 min each on this CPU: checkpointed), then
+#                  their table over seeds (benches/detection_seeds.py -> OUT/full_table.{json,md})
 # Each finished run's small files (results.json, metrics.csv, history.csv, lens_path.csv, the
 # lens .zmx, the end-to-end camera's detections) are kept in git under the default OUT (its
 # .gitignore); logs in OUT/*.log stay local.
@@ -31,7 +32,9 @@ for stage in $STAGES; do
     compare)
       python benches/detection_compare.py "$OUT/detect_quick_vanilla" "$OUT/detect_quick" \
         --out "$OUT/compare_quick_alg1_vs_vanilla.json" ;;
-    full) for s in 0 1 2; do design "detect_full_seed$s" full alg1 "$s"; done ;;
+    full)
+      for s in 0 1 2; do design "detect_full_seed$s" full alg1 "$s"; done
+      python benches/detection_seeds.py "$OUT"/detect_full_seed{0,1,2} --out "$OUT/full_table" ;;
     *) echo "unknown stage '$stage' (quick quick-vanilla compare full)" >&2; exit 2 ;;
   esac
 done
