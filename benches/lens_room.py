@@ -1,29 +1,37 @@
 #!/usr/bin/env python3
-"""How much any lens could give a design run: its nominal baseline trained again behind a
-perfect lens, on the same budget, and evaluated on the run's own held-out set.
+"""How much any lens could give a design run: its nominal baseline trained again behind an
+ideal lens, on the same budget, and evaluated on the run's own held-out set.
 
-    python benches/lens_room.py RUN_DIR [RUN_DIR ...] --out DIR [--threads N]
+    python benches/lens_room.py RUN_DIR [RUN_DIR ...] --out DIR [--lens perfect|sharp|delta] [--threads N]
 
 RUN_DIR is a finished image-quality run (`optix design iq-software | iq-hardware | low-light`,
-its eval_*_exact.json cache present). The bench repeats the run's nominal baseline with one
-change: the lens is perfect (camera/stages.py PerfectOptics: every point images to a point, no
-vignetting). The processing starts where the baseline's started (the pre-trained software ISP,
-or the seeded hardware-ISP start), with the same schedule and updates per block
-(build.make_optimizer "nominal"), batches and sensor-noise draws (the run's seed). It is then
-evaluated on the run's held-out samples with their noise draws, rebuilt and checked against
-the run's cached rows.
+its eval_*_exact.json cache and nominal_state.pt present). The bench repeats the run's
+nominal baseline with one change: the lens is ideal. The processing starts where the
+baseline's started (the pre-trained software ISP, or the seeded hardware-ISP start), with the
+same schedule and updates per block (build.make_optimizer "nominal"), batches (the run's
+training images too) and sensor-noise draws (the run's seed). It is then evaluated on the
+run's held-out samples with their noise draws, rebuilt and checked against the run's rows.
 
-``--shading nominal`` keeps the nominal lens's relative illumination (its engine-computed
-vignetting, cos^4 falloff included, at each field) and removes only the blur: a sharp lens
-that shades as the nominal does. Its folders are named RUN_NAME-shaded.
+``--lens`` says which ideal lens:
 
-So "perfect + fine-tuned minus nominal + fine-tuned" bounds what a lens can add to the
-baseline under this processing and budget; "perfect + fine-tuned minus end-to-end" is what
-the end-to-end camera leaves. Both are paired intervals over the held-out images (frame, centre,
-corner: evaluate.paired_by_position).
+* ``perfect`` (default): camera/stages.py PerfectOptics, every point images to a point, no
+  vignetting, the renderer bypassed. A loose bound: it also escapes the nominal's shading
+  (cos^4 falloff included) and the renderer's own resampling of each PSF to its azimuth.
+* ``sharp``: no blur, the nominal's relative illumination (engine-computed, at each field),
+  the renderer bypassed (SharpShadedOptics). Folders RUN_NAME-sharp.
+* ``delta``: a one-pixel PSF and the nominal's relative illumination through the renderer
+  (FixedOptics), as the simulator renders a lens that blurs nothing: the bound for a real
+  lens in this simulator. Folders RUN_NAME-delta.
 
-Writes DIR/RUN_NAME/{config.json, perfect_state.pt (resumable), eval_perfect_finetuned.json}
-and DIR/lens_room.{json,md} (lens_room-shaded.* with --shading nominal). It measures; it asserts nothing.
+So "ideal + fine-tuned minus nominal + fine-tuned" bounds what a lens can add to the
+baseline under this processing and budget; "ideal + fine-tuned minus end-to-end" is what
+the end-to-end camera leaves. Both are paired intervals over the held-out images (frame,
+centre, corner: evaluate.paired_by_position); with several seeds of a task, Student's t
+interval over the seeds too.
+
+Writes DIR/RUN_NAME[-KIND]/{config.json, perfect_state.pt (resumable),
+eval_perfect_finetuned.json} and DIR/lens_room[-KIND].{json,md} over the runs of the call. It
+measures; it asserts nothing.
 """
 
 from __future__ import annotations
@@ -35,14 +43,17 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from optix_e2e.camera import PerfectOptics
+from optix_e2e.camera import FixedOptics, PerfectOptics
 from optix_e2e.camera_design import evaluate as ev
 from optix_e2e.camera_design.build import build_camera, design_field_heights, make_optimizer, start_run
-from optix_e2e.camera_design.config import DesignConfig
+from optix_e2e.camera_design import eval_cache
+from optix_e2e.camera_design.config import BEFORE_SETTING, DesignConfig
 from optix_e2e.camera_design.training import train
 from optix_e2e.io import write_json_atomic
 from optix_e2e.optics.render import interpolate_fields, pixel_polar
 from optix_e2e.surrogate.ground_truth import exact_optics
+from optix_e2e.torchfile import load_plain
+from optix_e2e.scenes import ImageFolder
 from optix_e2e.tasks import heldout_set
 from optix_e2e.tasks.samples import POSITIONS
 
@@ -73,29 +84,54 @@ def cached_rows(run: Path, who: str) -> list[dict]:
         raise SystemExit(f"{run}: no held-out rows in {path.name} ({e}); run the design to its end first") from None
 
 
-def room(run: Path, out: Path, threads: int | None, progress: bool, shading: str = "none") -> dict:
-    cfg = DesignConfig(**json.loads((run / "config.json").read_text())).check()
+#: the ideal lens of each --lens kind: its folder suffix and its label in the tables
+LENS_KINDS = {
+    "perfect": ("", "no blur, no shading, the renderer bypassed"),
+    "sharp": ("-sharp", "no blur, the nominal's shading, the renderer bypassed"),
+    "delta": ("-delta", "a point PSF and the nominal's shading through the renderer"),
+}
+
+
+def held_out_matches(samples, rows: list[dict], full_field_px: float) -> bool:
+    """The rebuilt samples are the run's: the same images, positions and crop radii, in order."""
+    if len(samples) != len(rows):
+        return False
+    return all(
+        (s.name, s.position) == (r["image"], r["position"])
+        and abs(float(np.hypot(*s.offset_px)) / full_field_px - r["radius"]) <= 1e-9
+        for s, r in zip(samples, rows)
+    )
+
+
+def ideal_lens(kind: str, sur, results: dict, window: int, cfg: DesignConfig, frame):
+    """The lens that replaces the nominal in the baseline (``LENS_KINDS``)."""
+    if kind == "perfect":
+        return PerfectOptics(window, full_field_px=frame.full_field_px)
+    # the nominal's engine vignetting where its chief rays land (as the run's evaluation places them)
+    nominal_values = np.asarray(results["design"]["nominal"], np.float64)
+    exact = exact_optics(sur, nominal_values[None])
+    vignetting = torch.as_tensor(exact["vignetting"][0], dtype=torch.float32)
+    heights = design_field_heights(sur, nominal_values, float(exact["image_distance"][0]))
+    if kind == "sharp":
+        return SharpShadedOptics(window, vignetting, heights, full_field_px=frame.full_field_px)
+    delta = torch.zeros(len(heights), vignetting.shape[1], window, window)
+    delta[..., window // 2, window // 2] = 1.0
+    return FixedOptics(delta, vignetting, heights, patch=cfg.patch, full_field_px=frame.full_field_px)
+
+
+def room(run: Path, out: Path, threads: int | None, progress: bool, kind: str = "perfect") -> dict:
+    # a setting the run's config.json lacks ran under its behaviour before it existed
+    cfg = DesignConfig(**{**BEFORE_SETTING, **json.loads((run / "config.json").read_text())}).check()
     if cfg.task == "detection":
         raise SystemExit(f"{run}: a detection run; this bench is for the image-quality tasks")
     if threads is not None:
         cfg = DesignConfig(**{**cfg.to_json(), "threads": threads}).check()
     results = json.loads((run / "results.json").read_text())
     window = int(results["exact_psf_energy_in_window"]["window_px"])
+    trained_window = load_plain(run / "nominal_state.pt", "design checkpoint")["camera"]["optics.psf"].shape[-1]
+    if trained_window != window:  # the camera's margin, so the training crops, follow the PSF window
+        raise SystemExit(f"{run}: its baseline trained on {trained_window}-pixel PSFs, its evaluation on {window}")
     _, _, frame, sur = start_run(cfg, out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(out / "config.json", {"run": str(run), "window_px": window, "shading": shading, **cfg.to_json()})
-    if shading == "nominal":  # the nominal's engine vignetting where its chief rays land
-        nominal_values = np.asarray(results["design"]["nominal"], np.float64)
-        exact = exact_optics(sur, nominal_values[None])
-        heights = design_field_heights(sur, nominal_values, float(exact["image_distance"][0]))
-        lens = SharpShadedOptics(window, exact["vignetting"][0], heights, full_field_px=frame.full_field_px)
-    else:
-        lens = PerfectOptics(window, full_field_px=frame.full_field_px)
-    camera = build_camera(cfg, sur, fixed_optics=lens, frame=frame)
-    opt = make_optimizer(cfg, camera, "nominal")
-    log = print if progress else None
-    trained = train(cfg, camera, opt, out, "perfect", progress=progress, frame=frame, log=log)
-
     samples = heldout_set(
         cfg.eval_size,
         window // 2,
@@ -105,21 +141,36 @@ def room(run: Path, out: Path, threads: int | None, progress: bool, shading: str
         positions=POSITIONS[cfg.eval_positions],
     )
     nominal, e2e = cached_rows(run, "nominal"), cached_rows(run, "end_to_end")
-    if [(s.name, s.position) for s in samples] != [(r["image"], r["position"]) for r in nominal]:
+    if not held_out_matches(samples, nominal, frame.full_field_px):
         raise SystemExit(f"{run}: the rebuilt held-out set is not the run's (another code version?)")
-    eval_path = out / "eval_perfect_finetuned.json"
+    settings = {"run": str(run.resolve()), "window_px": window, "lens": kind, **cfg.to_json()}
+    if (out / "config.json").is_file() and json.loads((out / "config.json").read_text()) != settings:
+        raise SystemExit(f"{out} was made for another run or settings; use another --out")
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out / "config.json", settings)
+    lens = ideal_lens(kind, sur, results, window, cfg, frame)
+    camera = build_camera(cfg, sur, fixed_optics=lens, frame=frame)
+    opt = make_optimizer(cfg, camera, "nominal")
+    log = print if progress else None
+    folder = ImageFolder(cfg.images) if cfg.images else None  # the run's own training images
+    trained = train(cfg, camera, opt, out, "perfect", progress=progress, frame=frame, log=log, folder=folder)
+
+    eval_path, code = out / "eval_perfect_finetuned.json", eval_cache.code_digest()
     try:
-        perfect = json.loads(eval_path.read_text())["rows"]
+        cached = json.loads(eval_path.read_text())
+        perfect = cached["rows"] if cached.get("code") == code else None
     except (OSError, ValueError, KeyError):
+        perfect = None
+    if perfect is None:
         perfect = ev.evaluate(camera, samples)
-        write_json_atomic(eval_path, {"rows": perfect})
+        write_json_atomic(eval_path, {"code": code, "rows": perfect})
     n_boot, seed = cfg.bootstrap, cfg.seed
     return {
         "run": str(run),
         "task": cfg.task,
         "seed": cfg.seed,
         "budget": cfg.budget,
-        "shading": shading,
+        "lens": kind,
         "updates": trained["updates"],
         "train_wall_s": trained["wall_s"],
         "means": {
@@ -129,10 +180,16 @@ def room(run: Path, out: Path, threads: int | None, progress: bool, shading: str
             "perfect_nominal_processing": results.get("perfect_lens"),
         },
         # the most a lens could add to the baseline, and what the end-to-end camera leaves
+        # ("perfect": the ideal lens of this --lens kind)
         "perfect_minus_nominal": ev.paired_by_position(nominal, perfect, n_boot, seed),
         "perfect_minus_end_to_end": ev.paired_by_position(e2e, perfect, n_boot, seed),
         "end_to_end_minus_nominal": ev.paired_by_position(nominal, e2e, n_boot, seed),
     }
+
+
+def label(row: dict) -> str:
+    kind = row.get("lens", "perfect")
+    return "" if kind == "perfect" else f" ({LENS_KINDS[kind][1]})"
 
 
 def table(rows: list[dict]) -> str:
@@ -145,21 +202,19 @@ def table(rows: list[dict]) -> str:
         return cell(d) if d else "not evaluated"
 
     lines = [
-        "| run | end-to-end minus nominal | perfect minus nominal (the lens's room) | perfect minus end-to-end | "
-        "perfect, corner minus nominal |",
+        "| run | end-to-end minus nominal | ideal minus nominal (the lens's room) | ideal minus end-to-end | "
+        "ideal minus nominal, corner |",
         "|---|---|---|---|---|",
     ]
     for r in rows:
-        name = Path(r["run"]).name + (" (the nominal's shading)" if r.get("shading") == "nominal" else "")
+        name = Path(r["run"]).name + label(r)
         lines.append(
             f"| {name} | {cell(r['end_to_end_minus_nominal']['frame'])} | {cell(r['perfect_minus_nominal']['frame'])} "
             f"| {cell(r['perfect_minus_end_to_end']['frame'])} | {corner(r)} |"
         )
     by_task: dict[str, list[dict]] = {}
     for r in rows:
-        by_task.setdefault(
-            r["task"] + (" (the nominal's shading)" if r.get("shading") == "nominal" else ""), []
-        ).append(r)
+        by_task.setdefault(r["task"] + label(r), []).append(r)
     for task, rs in by_task.items():
         if len(rs) < 2:
             continue
@@ -189,18 +244,21 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: the run's)")
     ap.add_argument(
-        "--shading", choices=("none", "nominal"), default="none", help="the sharp lens's relative illumination"
+        "--lens",
+        choices=tuple(LENS_KINDS),
+        default="perfect",
+        help="the ideal lens: " + "; ".join(f"{k}: {v[1]}" for k, v in LENS_KINDS.items()),
     )
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
     rows = []
     for run in args.runs:
         print(f"== {run}", flush=True)
-        name = run.name + ("-shaded" if args.shading == "nominal" else "")
-        rows.append(room(run, args.out / name, args.threads, not args.quiet, args.shading))
+        suffix = LENS_KINDS[args.lens][0]
+        rows.append(room(run, args.out / (run.name + suffix), args.threads, not args.quiet, args.lens))
         r = rows[-1]["perfect_minus_nominal"]["frame"]["psnr_db"]
-        print(f"   perfect + fine-tuned minus nominal + fine-tuned: {r['mean']:+.2f} dB {np.round(r['ci95'], 2)}")
-        stem = "lens_room" + ("-shaded" if args.shading == "nominal" else "")
+        print(f"   ideal ({args.lens}) + fine-tuned minus nominal + fine-tuned: {r['mean']:+.2f} dB {np.round(r['ci95'], 2)}")
+        stem = "lens_room" + LENS_KINDS[args.lens][0]
         write_json_atomic(args.out / f"{stem}.json", rows)
         (args.out / f"{stem}.md").write_text(table(rows))
 

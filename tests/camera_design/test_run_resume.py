@@ -209,4 +209,4 @@ def test_the_lens_room_bench_repeats_the_baseline_behind_a_perfect_lens(resumed_
     assert room["means"]["perfect_finetuned"]["psnr_db"] != pytest.approx(res["perfect_lens"]["psnr_db"], abs=1e-6)
     d = room["perfect_minus_nominal"]["frame"]["psnr_db"]
     assert d["ci95"][0] <= d["mean"] <= d["ci95"][1]
-    assert "perfect minus nominal" in (tmp_path / "lens_room.md").read_text()
+    assert "ideal minus nominal" in (tmp_path / "lens_room.md").read_text()
