@@ -88,7 +88,7 @@ def table(rows: list[dict], summ: dict) -> str:
     fields = rows[0]["report_fields_deg"]
     lines = [
         "| seed | f-number, nominal -> end-to-end | mAP@0.5, nominal -> end-to-end | "
-        + " | ".join(f"{label} (95 % over scenes)" for _, label in DIFFS)
+        + " | ".join(f"{label}, end-to-end minus nominal (95 % over scenes)" for _, label in DIFFS)
         + f" | RMS spot (um) at {' / '.join(f'{x:g}' for x in fields)} deg, end-to-end | lens steps cut |",
         "|---|---|---|" + "---|" * len(DIFFS) + "---|---|",
     ]
@@ -125,11 +125,10 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     rows = [run_row(r) for r in args.runs]
     summ = summary(rows)
-    out = args.out.with_suffix("")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps({"runs": rows, "over_seeds": summ}, indent=1))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    Path(f"{args.out}.json").write_text(json.dumps({"runs": rows, "over_seeds": summ}, indent=1))
     md = table(rows, summ)
-    out.with_suffix(".md").write_text(md)
+    Path(f"{args.out}.md").write_text(md)
     print(md)
 
 
