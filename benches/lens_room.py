@@ -257,7 +257,9 @@ def main(argv: list[str] | None = None) -> None:
         suffix = LENS_KINDS[args.lens][0]
         rows.append(room(run, args.out / (run.name + suffix), args.threads, not args.quiet, args.lens))
         r = rows[-1]["perfect_minus_nominal"]["frame"]["psnr_db"]
-        print(f"   ideal ({args.lens}) + fine-tuned minus nominal + fine-tuned: {r['mean']:+.2f} dB {np.round(r['ci95'], 2)}")
+        print(
+            f"   ideal ({args.lens}) + fine-tuned minus nominal + fine-tuned: {r['mean']:+.2f} dB {np.round(r['ci95'], 2)}"
+        )
         stem = "lens_room" + LENS_KINDS[args.lens][0]
         write_json_atomic(args.out / f"{stem}.json", rows)
         (args.out / f"{stem}.md").write_text(table(rows))
