@@ -8,6 +8,7 @@ missing folder is a test failure with a message, never a silent skip.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import traceback
@@ -149,6 +150,21 @@ def _smoke_camera(task: str, precision: str = "fp32"):
 def smoke_camera():
     """``smoke_camera(task, precision="fp32")`` -> (camera, scene, target): see _smoke_camera."""
     return _smoke_camera
+
+
+def _load_bench(name: str):
+    """benches/NAME.py as a module (the benches are scripts, not a package)."""
+    path = Path(__file__).resolve().parents[1] / "benches" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="session")
+def load_bench():
+    """``load_bench("gpu")``: benches/gpu.py as a module."""
+    return _load_bench
 
 
 #: the longest test files, longest first (worker-seconds measured with ./test.sh on the 2-core

@@ -3,20 +3,9 @@ seeds is Student's t of the per-seed differences (checked on two hand-made resul
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
-
-BENCH = Path(__file__).resolve().parents[2] / "benches" / "detection_seeds.py"
-
-
-def _bench():
-    spec = importlib.util.spec_from_file_location("detection_seeds", BENCH)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def _results(seed: int, gain: float) -> dict:
@@ -43,7 +32,7 @@ def _results(seed: int, gain: float) -> dict:
     }
 
 
-def test_the_seed_interval_is_students_t_over_the_per_seed_differences(tmp_path):
+def test_the_seed_interval_is_students_t_over_the_per_seed_differences(tmp_path, load_bench):
     gains = [0.074, 0.020, 0.050]
     runs = []
     for s, g in enumerate(gains):
@@ -51,7 +40,7 @@ def test_the_seed_interval_is_students_t_over_the_per_seed_differences(tmp_path)
         run.mkdir()
         (run / "results.json").write_text(json.dumps(_results(s, g)))
         runs.append(str(run))
-    _bench().main([*runs, "--out", str(tmp_path / "table")])
+    load_bench("detection_seeds").main([*runs, "--out", str(tmp_path / "table")])
     out = json.loads((tmp_path / "table.json").read_text())
     s = out["over_seeds"]["mAP@0.5"]
     assert s["per_seed"] == gains and s["mean"] == pytest.approx(sum(gains) / 3)
@@ -62,7 +51,7 @@ def test_the_seed_interval_is_students_t_over_the_per_seed_differences(tmp_path)
     assert "4.40 -> 3.90" in md and "+0.074 [+0.064, +0.084]" in md and "mean of 3" in md
 
 
-def test_a_run_of_another_task_is_refused(tmp_path):
+def test_a_run_of_another_task_is_refused(tmp_path, load_bench):
     (tmp_path / "results.json").write_text(json.dumps({**_results(0, 0.1), "task": "iq-software"}))
     with pytest.raises(SystemExit, match="not a detection run"):
-        _bench().main([str(tmp_path), "--out", str(tmp_path / "t")])
+        load_bench("detection_seeds").main([str(tmp_path), "--out", str(tmp_path / "t")])

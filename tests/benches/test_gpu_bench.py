@@ -4,25 +4,14 @@ the machine is shared)."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
 
-BENCH = Path(__file__).resolve().parents[2] / "benches" / "gpu.py"
-
-
-def _bench():
-    spec = importlib.util.spec_from_file_location("gpu_bench", BENCH)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
 
 @pytest.mark.slow
-def test_the_smallest_run_writes_every_figure(tmp_path, capsys):
-    bench = _bench()
+def test_the_smallest_run_writes_every_figure(tmp_path, capsys, load_bench):
+    bench = load_bench("gpu")
     bench.main(["--out", str(tmp_path), "--smoke", "--devices", "cpu", "--precision", "fp32,bf16"])
     res = json.loads((tmp_path / "gpu.json").read_text())
     assert res["format"] == "optix-gpu-bench/1"
@@ -43,8 +32,8 @@ def test_the_smallest_run_writes_every_figure(tmp_path, capsys):
     assert "cpu fp32 surrogate step" in "\n".join(printed) and printed[-1].startswith("wall ")
 
 
-def test_ratios_are_cpu_time_over_gpu_time_per_stage():
-    bench = _bench()
+def test_ratios_are_cpu_time_over_gpu_time_per_stage(load_bench):
+    bench = load_bench("gpu")
     devices = {
         "cpu": {"fp32": {"design": {"median_ms": {"step": 100.0, "isp": 30.0}}, "detector": {"error": "x"}}},
         "cuda": {

@@ -3,25 +3,14 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
 
 import torch
 
 from optix_e2e.optics.render import _prepare
 
-BENCH = Path(__file__).resolve().parents[2] / "benches" / "lens_room.py"
 
-
-def _bench():
-    spec = importlib.util.spec_from_file_location("lens_room", BENCH)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def test_the_sharp_lens_is_the_renderers_shading_without_its_psfs():
-    bench = _bench()
+def test_the_sharp_lens_is_the_renderers_shading_without_its_psfs(load_bench):
+    bench = load_bench("lens_room")
     g = torch.Generator().manual_seed(0)
     fields = torch.tensor([0.0, 0.4, 0.7, 1.0])
     vig = torch.tensor([[1.0, 1.0, 1.0], [0.95, 0.96, 0.94], [0.8, 0.82, 0.79], [0.6, 0.61, 0.58]])

@@ -187,16 +187,10 @@ def test_an_uninterrupted_run_lands_on_the_same_lens(resumed_run, optix, smoke_d
     assert again["end_to_end"]["psnr_db"] == res["end_to_end"]["psnr_db"]
 
 
-def test_the_lens_room_bench_repeats_the_baseline_behind_a_perfect_lens(resumed_run, tmp_path):
+def test_the_lens_room_bench_repeats_the_baseline_behind_a_perfect_lens(resumed_run, tmp_path, load_bench):
     """benches/lens_room.py on a finished run: the baseline's schedule and held-out set again,
     the lens replaced by a perfect one. Its nominal and end-to-end rows are the run's own."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[2] / "benches" / "lens_room.py"
-    spec = importlib.util.spec_from_file_location("lens_room", path)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = load_bench("lens_room")
     res = resumed_run["res"]
     bench.main([str(resumed_run["out"]), "--out", str(tmp_path), "--threads", "1", "--quiet"])
     (room,) = json.loads((tmp_path / "lens_room.json").read_text())
