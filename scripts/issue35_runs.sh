@@ -10,13 +10,16 @@
 #   compare        the two end-to-end cameras on the same held-out scenes (benches/detection_compare.py)
 #   full           Alg. 1, full budget, seeds 0 1 2 (35-60 min each on this CPU: checkpointed), then
 #                  their table over seeds (benches/detection_seeds.py -> OUT/full_table.{json,md})
+#   full-vanilla   vanilla Adam, full budget, seeds 0 1 2 (the same starts, batches and noise), each
+#                  seed's end-to-end camera against Alg. 1's (OUT/compare_full_seedS_alg1_vs_vanilla.json)
+#                  and their table over seeds (OUT/full_vanilla_table.{json,md})
 # Each finished run's small files (results.json, metrics.csv, history.csv, lens_path.csv, the
 # lens .zmx, the end-to-end camera's detections) are kept in git under the default OUT (its
 # .gitignore); logs in OUT/*.log stay local.
 set -euo pipefail
 OUT="${1:-benches/results/issue35}"
 shift || true
-STAGES="${*:-quick quick-vanilla compare full}"
+STAGES="${*:-quick quick-vanilla compare full full-vanilla}"
 [ -f "$OUT/detector/detector.pt" ] || { echo "no detector at $OUT/detector/detector.pt: run scripts/issue35_detector.sh first" >&2; exit 2; }
 printf 'detector = "detector/detector.pt"\nthreads = %s\n' "${THREADS:-1}" > "$OUT/detect.toml"
 design() {  # NAME BUDGET OPTIMIZER SEED
@@ -35,6 +38,13 @@ for stage in $STAGES; do
     full)
       for s in 0 1 2; do design "detect_full_seed$s" full alg1 "$s"; done
       python benches/detection_seeds.py "$OUT"/detect_full_seed{0,1,2} --out "$OUT/full_table" ;;
-    *) echo "unknown stage '$stage' (quick quick-vanilla compare full)" >&2; exit 2 ;;
+    full-vanilla)
+      for s in 0 1 2; do
+        design "detect_full_vanilla_seed$s" full vanilla "$s"
+        [ -f "$OUT/detect_full_seed$s/results.json" ] && python benches/detection_compare.py \
+          "$OUT/detect_full_vanilla_seed$s" "$OUT/detect_full_seed$s" --out "$OUT/compare_full_seed${s}_alg1_vs_vanilla.json"
+      done
+      python benches/detection_seeds.py "$OUT"/detect_full_vanilla_seed{0,1,2} --out "$OUT/full_vanilla_table" ;;
+    *) echo "unknown stage '$stage' (quick quick-vanilla compare full full-vanilla)" >&2; exit 2 ;;
   esac
 done
