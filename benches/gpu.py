@@ -44,6 +44,7 @@ test that checks the JSON's structure.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -89,6 +90,18 @@ class Plan:
             if timed and i > self.warmup and time.perf_counter() - t0 > self.part_seconds:
                 return
             yield i, timed
+
+
+@contextlib.contextmanager
+def _step_timer(dev: torch.device, times: dict[str, list[float]], timed: bool):
+    """Times the body as one step, the device synchronized on both sides, into times["step"]
+    where ``timed`` (a warm-up step runs the same way, untimed)."""
+    _sync(dev)
+    t0 = time.perf_counter()
+    yield
+    _sync(dev)
+    if timed:
+        times["step"].append(time.perf_counter() - t0)
 
 
 def _median_ms(times: dict[str, list[float]]) -> dict[str, float]:
@@ -232,16 +245,12 @@ def surrogate_train(dev: torch.device, plan: Plan, precision: str = "fp32") -> d
     _reset_peak(dev)
     for i, timed in plan.loop():
         params, field, psf_t, vig_t = (x.to(dev) for x in batches[i % len(batches)])
-        _sync(dev)
-        t0 = time.perf_counter()
-        with torch.autocast(dev.type, dtype=dtype, enabled=dtype is not None):
-            psf, vig = net(model.normalize(params), field)
-        terms = optics_loss_terms(psf.float(), vig.float(), psf_t, vig_t)
-        loss = tc.weights.total(terms)
-        _optimizer_step(opt, loss, scaler, net.parameters(), tc.clip_grad)
-        _sync(dev)
-        if timed:
-            times["step"].append(time.perf_counter() - t0)
+        with _step_timer(dev, times, timed):
+            with torch.autocast(dev.type, dtype=dtype, enabled=dtype is not None):
+                psf, vig = net(model.normalize(params), field)
+            terms = optics_loss_terms(psf.float(), vig.float(), psf_t, vig_t)
+            loss = tc.weights.total(terms)
+            _optimizer_step(opt, loss, scaler, net.parameters(), tc.clip_grad)
     med = _median_ms(times)
     return {
         "what": "optix surrogate train's step (paper-triplet-e2e's network, Eq. 8, clip, Adam), synthetic batch",
@@ -299,14 +308,10 @@ def detector_train(dev: torch.device, plan: Plan, precision: str = "fp32") -> di
     _reset_peak(dev)
     for i, timed in plan.loop():
         xs, ts = batches[i % len(batches)]
-        _sync(dev)
-        t0 = time.perf_counter()
-        xs, ts = [x.to(dev) for x in xs], [{k: v.to(dev) for k, v in t.items()} for t in ts]
-        loss = sum(model(xs, ts).values())
-        _optimizer_step(opt, loss, scaler)
-        _sync(dev)
-        if timed:
-            times["step"].append(time.perf_counter() - t0)
+        with _step_timer(dev, times, timed):
+            xs, ts = [x.to(dev) for x in xs], [{k: v.to(dev) for k, v in t.items()} for t in ts]
+            loss = sum(model(xs, ts).values())
+            _optimizer_step(opt, loss, scaler)
     med = _median_ms(times)
     return {
         "what": "optix detect train's step (FCOS on TinyBackbone, AdamW), synthetic images and boxes",
