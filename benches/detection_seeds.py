@@ -29,17 +29,6 @@ DIFFS = (
 )
 
 
-def seeds_interval(d: list[float], level: float = 0.95) -> list[float] | None:
-    """Student's t interval of the mean of per-seed values (None with fewer than 2)."""
-    from scipy import stats
-
-    if len(d) < 2:
-        return None
-    m, se = float(np.mean(d)), float(np.std(d, ddof=1)) / np.sqrt(len(d))
-    h = float(stats.t.ppf(0.5 + level / 2, len(d) - 1)) * se
-    return [m - h, m + h]
-
-
 def _get(d: dict, path: tuple[str, ...]):
     for k in path:
         d = d[k]
@@ -72,6 +61,8 @@ def run_row(run: Path) -> dict:
 
 
 def summary(rows: list[dict]) -> dict:
+    from alg1_vs_vanilla import seeds_interval
+
     out = {}
     for _, label in DIFFS:
         d = [r["paired"][label]["mean"] for r in rows]

@@ -193,6 +193,8 @@ def label(row: dict) -> str:
 
 
 def table(rows: list[dict]) -> str:
+    from alg1_vs_vanilla import seeds_interval
+
     def cell(d: dict) -> str:
         m = d["psnr_db"]
         return f"{m['mean']:+.2f} [{m['ci95'][0]:+.2f}, {m['ci95'][1]:+.2f}]"
@@ -227,15 +229,6 @@ def table(rows: list[dict]) -> str:
     return (
         "\n".join(lines) + "\n\nFrame PSNR in dB unless marked; paired 95 % bootstrap intervals over held-out images.\n"
     )
-
-
-def seeds_interval(d: list[float], level: float = 0.95) -> tuple[float, float]:
-    """Student's t interval of the mean of per-seed values (at least 2)."""
-    from scipy import stats
-
-    m, se = float(np.mean(d)), float(np.std(d, ddof=1)) / np.sqrt(len(d))
-    h = float(stats.t.ppf(0.5 + level / 2, len(d) - 1)) * se
-    return m - h, m + h
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -153,8 +153,14 @@ def smoke_camera():
 
 
 def _load_bench(name: str):
-    """benches/NAME.py as a module (the benches are scripts, not a package)."""
-    path = Path(__file__).resolve().parents[1] / "benches" / f"{name}.py"
+    """benches/NAME.py as a module (the benches are scripts, not a package), with benches/ on
+    sys.path as when Python runs one: they import their siblings (``from alg1_vs_vanilla ...``)."""
+    import sys
+
+    benches = Path(__file__).resolve().parents[1] / "benches"
+    if str(benches) not in sys.path:
+        sys.path.insert(0, str(benches))
+    path = benches / f"{name}.py"
     spec = importlib.util.spec_from_file_location(f"bench_{name}", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
