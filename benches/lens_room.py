@@ -50,7 +50,7 @@ from optix_e2e.camera_design import eval_cache
 from optix_e2e.camera_design.config import BEFORE_SETTING, DesignConfig
 from optix_e2e.camera_design.training import train
 from optix_e2e.io import write_json_atomic
-from optix_e2e.optics.render import interpolate_fields, pixel_polar
+from optix_e2e.optics.render import shade
 from optix_e2e.surrogate.ground_truth import exact_optics
 from optix_e2e.torchfile import load_plain
 from optix_e2e.scenes import ImageFolder
@@ -70,10 +70,7 @@ class SharpShadedOptics(PerfectOptics):
         self.register_buffer("fields", torch.as_tensor(fields, dtype=torch.float32))
 
     def forward(self, image: torch.Tensor, offset_px=(0.0, 0.0)) -> torch.Tensor:
-        _, c, h, w = image.shape
-        r, _ = pixel_polar(h, w, self.full_field_px, device=image.device, dtype=image.dtype, offset_px=offset_px)
-        shade = interpolate_fields(self.vignetting.to(image), self.fields.to(image), r.reshape(-1))
-        return image * shade.T.reshape(1, c, h, w)
+        return shade(image, self.vignetting, self.fields, self.full_field_px, offset_px)
 
 
 def cached_rows(run: Path, who: str) -> list[dict]:

@@ -130,9 +130,24 @@ def _prepare(
     if offset_px != (0.0, 0.0) and full_field_px is None:
         raise InputError("a crop (offset_px) needs the frame's full_field_px")
     if vignetting is not None:
-        r, _ = pixel_polar(h, w, full_field_px, device=image.device, dtype=image.dtype, offset_px=offset_px)
-        image = image * interpolate_fields(vignetting.to(image), fields, r.reshape(-1)).T.reshape(1, c, h, w)
+        image = shade(image, vignetting, fields, full_field_px, offset_px)
     return image, fields, _full_field(h, w, full_field_px)
+
+
+def shade(
+    image: torch.Tensor,
+    vignetting: torch.Tensor,
+    fields: torch.Tensor,
+    full_field_px: float | None = None,
+    offset_px=(0.0, 0.0),
+) -> torch.Tensor:
+    """image [B, C, H, W] times the relative illumination at each source pixel: vignetting
+    [K, C] at field radii ``fields`` [K], interpolated at the pixel's radius (the renderer's
+    first step, before the PSFs)."""
+    _, c, h, w = image.shape
+    r, _ = pixel_polar(h, w, full_field_px, device=image.device, dtype=image.dtype, offset_px=offset_px)
+    fields = torch.as_tensor(fields, dtype=image.dtype, device=image.device)
+    return image * interpolate_fields(vignetting.to(image), fields, r.reshape(-1)).T.reshape(1, c, h, w)
 
 
 def render(
