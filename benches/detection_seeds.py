@@ -36,7 +36,10 @@ def _get(d: dict, path: tuple[str, ...]):
 
 
 def run_row(run: Path) -> dict:
-    res = json.loads((run / "results.json").read_text())
+    try:
+        res = json.loads((run / "results.json").read_text())
+    except (OSError, ValueError) as e:
+        raise SystemExit(f"{run}: not a finished design run (results.json: {e})") from None
     if res.get("task") != "detection":
         raise SystemExit(f"{run}: not a detection run ({res.get('task')!r})")
     cams = {

@@ -73,6 +73,14 @@ class SharpShadedOptics(PerfectOptics):
         return shade(image, self.vignetting, self.fields, self.full_field_px, offset_px)
 
 
+def run_json(run: Path, name: str) -> dict:
+    """A finished run's config.json or results.json; one line where it has none."""
+    try:
+        return json.loads((run / name).read_text())
+    except (OSError, ValueError) as e:
+        raise SystemExit(f"{run}: not a finished design run ({name}: {e})") from None
+
+
 def cached_rows(run: Path, who: str) -> list[dict]:
     path = run / f"eval_{who}_exact.json"
     try:
@@ -118,12 +126,12 @@ def ideal_lens(kind: str, sur, results: dict, window: int, cfg: DesignConfig, fr
 
 def room(run: Path, out: Path, threads: int | None, progress: bool, kind: str = "perfect") -> dict:
     # a setting the run's config.json lacks ran under its behaviour before it existed
-    cfg = DesignConfig(**{**BEFORE_SETTING, **json.loads((run / "config.json").read_text())}).check()
+    cfg = DesignConfig(**{**BEFORE_SETTING, **run_json(run, "config.json")}).check()
     if cfg.task == "detection":
         raise SystemExit(f"{run}: a detection run; this bench is for the image-quality tasks")
     if threads is not None:
         cfg = DesignConfig(**{**cfg.to_json(), "threads": threads}).check()
-    results = json.loads((run / "results.json").read_text())
+    results = run_json(run, "results.json")
     window = int(results["exact_psf_energy_in_window"]["window_px"])
     trained_window = load_plain(run / "nominal_state.pt", "design checkpoint")["camera"]["optics.psf"].shape[-1]
     if trained_window != window:  # the camera's margin, so the training crops, follow the PSF window

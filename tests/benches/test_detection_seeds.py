@@ -55,3 +55,8 @@ def test_a_run_of_another_task_is_refused(tmp_path, load_bench):
     (tmp_path / "results.json").write_text(json.dumps({**_results(0, 0.1), "task": "iq-software"}))
     with pytest.raises(SystemExit, match="not a detection run"):
         load_bench("detection_seeds").main([str(tmp_path), "--out", str(tmp_path / "t")])
+
+
+def test_a_folder_without_results_is_one_line(tmp_path, load_bench):
+    with pytest.raises(SystemExit, match="not a finished design run"):
+        load_bench("detection_seeds").main([str(tmp_path), "--out", str(tmp_path / "t")])
