@@ -445,6 +445,8 @@ def main(argv: list[str] | None = None) -> dict:
                     figures[part] = {"error": f"{type(err).__name__}: {err}"}
                 print(*[ln for ln in lines({"devices": {name: {prec: {part: figures[part]}}}, "ratios": {}})], sep="\n")
                 sys.stdout.flush()
+                # written after each part: a call cut off at its time limit still leaves the parts done
+                (out / "gpu.json").write_text(json.dumps(res, indent=2))
     res["ratios"] = ratios(res["devices"])
     for key, x in res["ratios"].items():
         print(f"ratio {key} {x}x")
