@@ -230,7 +230,8 @@ def surrogate_train(dev: torch.device, plan: Plan, precision: str = "fp32") -> d
     batch = 16 if plan.smoke else tc.batch
     mc = net.cfg
     g = torch.Generator().manual_seed(0)
-    lo, hi = (torch.as_tensor(x, dtype=torch.float32) for x in (model.param_min, model.param_max))
+    # the ranges as float32 on the CPU, where the synthetic batches are drawn (the model is on dev)
+    lo, hi = (x.detach().to("cpu", torch.float32) for x in (model.param_min, model.param_max))
     batches = []
     for _ in range(4):  # a few synthetic batches, made on the CPU, cycled
         params = lo + (hi - lo) * torch.rand(batch, mc.n_params, generator=g)
