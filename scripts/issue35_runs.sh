@@ -13,13 +13,15 @@
 #   full-vanilla   vanilla Adam, full budget, seeds 0 1 2 (the same starts, batches and noise), each
 #                  seed's end-to-end camera against Alg. 1's (OUT/compare_full_seedS_alg1_vs_vanilla.json)
 #                  and their table over seeds (OUT/full_vanilla_table.{json,md})
+#   swap           per seed with both full runs finished: lens x processing + detector between the
+#                  nominal, Alg. 1's and vanilla's cameras (benches/detection_swap.py -> OUT/swap_full_seedS/)
 # Each finished run's small files (results.json, metrics.csv, history.csv, lens_path.csv, the
 # lens .zmx, the end-to-end camera's detections) are kept in git under the default OUT (its
 # .gitignore); logs in OUT/*.log stay local.
 set -euo pipefail
 OUT="${1:-benches/results/issue35}"
 shift || true
-STAGES="${*:-quick quick-vanilla compare full full-vanilla}"
+STAGES="${*:-quick quick-vanilla compare full full-vanilla swap}"
 [ -f "$OUT/detector/detector.pt" ] || { echo "no detector at $OUT/detector/detector.pt: run scripts/issue35_detector.sh first" >&2; exit 2; }
 printf 'detector = "detector/detector.pt"\nthreads = %s\n' "${THREADS:-1}" > "$OUT/detect.toml"
 design() {  # NAME BUDGET OPTIMIZER SEED
@@ -45,6 +47,13 @@ for stage in $STAGES; do
           "$OUT/detect_full_vanilla_seed$s" "$OUT/detect_full_seed$s" --out "$OUT/compare_full_seed${s}_alg1_vs_vanilla.json"
       done
       python benches/detection_seeds.py "$OUT"/detect_full_vanilla_seed{0,1,2} --out "$OUT/full_vanilla_table" ;;
-    *) echo "unknown stage '$stage' (quick quick-vanilla compare full full-vanilla)" >&2; exit 2 ;;
+    swap)
+      for s in 0 1 2; do
+        [ -f "$OUT/detect_full_seed$s/results.json" ] && [ -f "$OUT/detect_full_vanilla_seed$s/results.json" ] \
+          && [ ! -f "$OUT/swap_full_seed$s/detection_swap.json" ] && python benches/detection_swap.py \
+          "$OUT/detect_full_seed$s" "$OUT/detect_full_vanilla_seed$s" --out "$OUT/swap_full_seed$s" --threads "${THREADS:-1}" \
+          >> "$OUT/swap_full_seed$s.log" 2>&1
+      done ;;
+    *) echo "unknown stage '$stage' (quick quick-vanilla compare full full-vanilla swap)" >&2; exit 2 ;;
   esac
 done

@@ -108,31 +108,47 @@ def detection_scores(preds: list[dict], samples, dark: float) -> dict:
     return res
 
 
+def map_resamples(preds: list[dict], samples, n_boot: int, seed: int, dark: float) -> dict:
+    """One camera's mAP@0.5 and mAP on ``samples`` and on each of ``n_boot`` bootstrap
+    resamples of the scenes (drawn from ``seed``: every camera scored with the same seed is
+    scored on the same resamples), for all objects and for those in the dark:
+    {"all" | "dark": {"full": {k: x}, "boots": {k: [n_boot]}}} (k: map_50, map). COCO
+    matching is done once per image (metrics.map_bootstrap); ``paired_resamples`` pairs two."""
+    n = len(samples)
+    targets = [s.target for s in samples]
+    dark_p, dark_t = in_the_dark(preds, targets, [s.object_light for s in samples], dark)
+    rng = np.random.default_rng(seed)
+    counts = np.stack([np.bincount(rng.integers(0, n, n), minlength=n) for _ in range(n_boot)])
+    out = {}
+    for zone, table in (("all", MatchTable(preds, targets)), ("dark", MatchTable(dark_p, dark_t))):
+        full, boots = table.scores(), [table.scores(w) for w in counts]
+        out[zone] = {
+            "full": {k: full[k] for k in ("map_50", "map")},
+            "boots": {k: np.array([b[k] for b in boots]) for k in ("map_50", "map")},
+        }
+    return out
+
+
+def paired_resamples(a: dict, b: dict) -> dict:
+    """mAP(b) - mAP(a) from two cameras' ``map_resamples`` of the same scenes and seed, with
+    the 95 % percentile interval of the resampled differences."""
+    n_boot = len(a["all"]["boots"]["map"])
+    out: dict = {"n_boot": n_boot, "dark": {}}
+    for zone in ("all", "dark"):
+        za, zb = a[zone], b[zone]
+        for k in ("map_50", "map"):
+            lo, hi = np.percentile(zb["boots"][k] - za["boots"][k], [2.5, 97.5])
+            entry = {"mean": float(zb["full"][k] - za["full"][k]), "ci95": [float(lo), float(hi)], "better": "higher"}
+            (out if zone == "all" else out["dark"])[k] = entry
+    return out
+
+
 def paired_map(a: list[dict], b: list[dict], samples, n_boot: int, seed: int, dark: float) -> dict:
     """mAP(b) - mAP(a) on the same scenes, with a 95 % percentile bootstrap interval over scenes
     (each resample scored as a whole set, both cameras on the same resample; COCO matching
     done once per image, metrics.map_bootstrap), for all objects and those in the dark."""
-    n = len(samples)
-    targets = [s.target for s in samples]
-    lights = [s.object_light for s in samples]
-    dark_a, dark_t = in_the_dark(a, targets, lights, dark)
-    dark_b, _ = in_the_dark(b, targets, lights, dark)
-    tables = {
-        "all": (MatchTable(a, targets), MatchTable(b, targets)),
-        "dark": (MatchTable(dark_a, dark_t), MatchTable(dark_b, dark_t)),
-    }
-    rng = np.random.default_rng(seed)
-    counts = np.stack([np.bincount(rng.integers(0, n, n), minlength=n) for _ in range(n_boot)])
-    out: dict = {"n_images": n, "n_boot": n_boot, "dark": {}}
-    for z, (ta, tb) in tables.items():
-        full_a, full_b = ta.scores(), tb.scores()
-        boots = [(ta.scores(w), tb.scores(w)) for w in counts]
-        for k in ("map_50", "map"):
-            d = np.array([sb[k] - sa[k] for sa, sb in boots])
-            lo, hi = np.percentile(d, [2.5, 97.5])
-            entry = {"mean": float(full_b[k] - full_a[k]), "ci95": [float(lo), float(hi)], "better": "higher"}
-            (out if z == "all" else out["dark"])[k] = entry
-    return out
+    ra, rb = (map_resamples(p, samples, n_boot, seed, dark) for p in (a, b))
+    return {"n_images": len(samples), **paired_resamples(ra, rb)}
 
 
 def _digest(psf, vig, fh, f_number, cam: DetectionCamera, n: int, samples_key: str) -> str:

@@ -1,0 +1,231 @@
+#!/usr/bin/env python3
+"""Is a detection run's gain the lens or the training? Cross lenses with processing + detector
+on the run's held-out street scenes, under the engine's exact PSFs (issue 35).
+
+    python benches/detection_swap.py RUN [RUN_B] --out DIR [--threads N]
+
+RUN is a finished `optix design detection` run; RUN_B (optional) another one on the same
+held-out scenes and nominal lens, e.g. the vanilla run of the same seed. The lenses are the
+nominal and each run's end-to-end lens (each at its own f-number); the "processing" of a
+camera is its hardware ISP (through the reference ISP at its hyperparameters, as the run
+evaluates) with its detector, and the sensor: the run's nominal baseline's and each run's
+end-to-end camera's. Every lens is evaluated behind every processing; the diagonal is the
+runs' own cameras (their saved detections are reused where their scenes match, else
+evaluated again). It reports mAP@0.5, mAP and dark-object mAP@0.5 of each cell, and paired
+differences with 95 % bootstrap intervals over scenes (the run's own bootstrap settings):
+
+* the lens's effect with the processing held: each end-to-end lens against the nominal
+  lens, and end-to-end lens A against B, behind each processing;
+* the processing's effect with the lens held.
+
+Writes DIR/detection_swap.json and DIR/detection_swap.md. It measures; it asserts nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+from optix_e2e.camera import FixedOptics
+from optix_e2e.camera_design.build import design_field_heights, start_run
+from optix_e2e.camera_design.config import DesignConfig
+from optix_e2e.camera_design.detection import (
+    _preds_from_json,
+    detection_scores,
+    evaluate_detection,
+    map_resamples,
+    paired_resamples,
+)
+from optix_e2e.camera_design.run import hooks_for
+from optix_e2e.parallel import Ranks
+from optix_e2e.surrogate.ground_truth import exact_optics
+from optix_e2e.tasks.detection import DetectionCamera, heldout_streets
+from optix_e2e.torchfile import load_plain
+
+RUN_FILES = ("config.json", "results.json", "nominal_state.pt", "end_to_end_state.pt")
+
+
+def finished_run(run: Path) -> tuple[DesignConfig, dict]:
+    """(config, results) of a finished detection run, or one line on what it is not."""
+    missing = [f for f in RUN_FILES if not (run / f).is_file()]
+    if missing:
+        raise SystemExit(f"{run}: not a finished design run (no {', '.join(missing)})")
+    cfg = DesignConfig(**json.loads((run / "config.json").read_text())).check()
+    if cfg.task != "detection":
+        raise SystemExit(f"{run}: a {cfg.task} run; this bench crosses detection runs")
+    return cfg, json.loads((run / "results.json").read_text())
+
+
+def load_processing(hooks, sur, frame, state_path: Path, optics: FixedOptics) -> DetectionCamera:
+    """A detection camera with ``optics`` and the ISP and detector saved in ``state_path``."""
+    cam = hooks.build_camera(sur, frame, fixed_optics=optics)
+    st = load_plain(state_path, "design checkpoint")["camera"]
+    for prefix, module in (("camera.isp.", cam.isp), ("detector.", cam.detector)):
+        module.load_state_dict({k[len(prefix) :]: v for k, v in st.items() if k.startswith(prefix)})
+    return cam.eval()
+
+
+def cached_preds(run: Path, who: str, samples):
+    """The run's saved exact-optics detections of its ``who`` camera, if they are of ``samples``."""
+    path = run / f"detections_{who}_exact.json"
+    if not path.is_file():
+        return None
+    d = json.loads(path.read_text())
+    if d.get("images") != [s.name for s in samples]:
+        return None
+    return _preds_from_json(d["detections"])
+
+
+def effect(name: str, a: dict, b: dict) -> dict:
+    """Cell b minus cell a, from their bootstrap resamples (the same scenes and seed)."""
+    p = paired_resamples(a, b)
+    return {"name": name, "map_50": p["map_50"], "map": p["map"], "dark_map_50": p["dark"]["map_50"]}
+
+
+def cell(x: dict) -> str:
+    lo, hi = x["ci95"]
+    return f"{x['mean']:+.3f} [{lo:+.3f}, {hi:+.3f}]"
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("run", type=Path)
+    ap.add_argument("run_b", type=Path, nargs="?")
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--threads", type=int, default=None, help="torch threads (default: the run's)")
+    ap.add_argument(
+        "--recheck", action="store_true", help="evaluate the diagonal again and compare it with the saved detections"
+    )
+    a = ap.parse_args(argv)
+    runs = {"A": a.run} | ({"B": a.run_b} if a.run_b else {})
+    loaded = {k: finished_run(r) for k, r in runs.items()}
+    cfg, res = loaded["A"]
+    if a.threads is not None:
+        cfg = DesignConfig(**{**cfg.to_json(), "threads": a.threads}).check()
+    if "B" in loaded:
+        cb, rb = loaded["B"]
+        same = (cb.eval_scenes, cb.crop_hw, cb.seed, cb.space, cb.surrogate) == (
+            cfg.eval_scenes,
+            cfg.crop_hw,
+            cfg.seed,
+            cfg.space,
+            cfg.surrogate,
+        )
+        if not same or rb["design"]["nominal"] != res["design"]["nominal"]:
+            raise SystemExit(
+                f"{a.run_b}: another held-out set or nominal lens than {a.run} (eval_scenes, crop, seed, space)"
+            )
+    _, task, frame, sur = start_run(cfg, a.out)
+    hooks = hooks_for(cfg, "cpu")
+    hooks.check(sur, Ranks())
+
+    # the lenses: nominal, then each run's end-to-end lens, exact PSFs at each one's focus
+    lens_values = {"nominal": res["design"]["nominal"]} | {
+        f"e2e {k}": loaded[k][1]["design"]["end_to_end"] for k in runs
+    }
+    names = list(lens_values)
+    values = torch.tensor([lens_values[n] for n in names], dtype=torch.float64)
+    t0 = time.perf_counter()
+    exact = exact_optics(sur, values.numpy(), fallback=hooks.exact_fallback)
+    print(f"exact PSFs of {len(names)} lenses: {time.perf_counter() - t0:.0f} s", flush=True)
+    optics = {
+        n: FixedOptics(
+            exact["psf"][i],
+            exact["vignetting"][i],
+            design_field_heights(sur, values[i].numpy(), exact["image_distance"][i]),
+            patch=cfg.patch,
+            full_field_px=frame.full_field_px,
+            f_number=hooks.f_number(values[i]),
+        )
+        for i, n in enumerate(names)
+    }
+    samples = heldout_streets(
+        cfg.eval_scenes, cfg.crop_hw, exact["psf"].shape[-1] // 2, (task.level_min, task.level_max), frame
+    )
+    # the processing: the nominal baseline's (of RUN) and each run's end-to-end camera's
+    procs = {"nominal": (a.run, "nominal")} | {f"e2e {k}": (r, "end_to_end") for k, r in runs.items()}
+    preds: dict[tuple[str, str], list] = {}
+    recheck: dict[str, dict] = {}
+    for pname, (run, who) in procs.items():
+        for lname in names:
+            saved = cached_preds(run, who, samples) if lname == pname else None  # the run's own camera
+            if saved is None or a.recheck:
+                t0 = time.perf_counter()
+                cam = load_processing(hooks, sur, frame, run / f"{who}_state.pt", optics[lname])
+                preds[(lname, pname)] = evaluate_detection(cam, samples)
+                print(f"lens {lname} behind processing {pname}: {time.perf_counter() - t0:.0f} s", flush=True)
+            if saved is not None:
+                if a.recheck:  # the saved and the fresh evaluation of the same camera
+                    was, now = (detection_scores(p, samples, task.dark) for p in (saved, preds[(lname, pname)]))
+                    recheck[lname] = {k: {"saved": was[k], "again": now[k]} for k in ("map_50", "map")}
+                preds[(lname, pname)] = saved
+    scores = {k: detection_scores(p, samples, task.dark) for k, p in preds.items()}
+    t0 = time.perf_counter()  # every cell's bootstrap resamples once (the same resamples for all)
+    boots = {k: map_resamples(p, samples, cfg.bootstrap, cfg.seed, task.dark) for k, p in preds.items()}
+    print(f"bootstrap ({cfg.bootstrap} resamples) of {len(boots)} cells: {time.perf_counter() - t0:.0f} s", flush=True)
+    effects = []
+    for pname in procs:  # the lens's effect, processing held
+        for lname in names[1:]:
+            name = f"lens {lname} - nominal, processing {pname}"
+            effects.append(effect(name, boots[("nominal", pname)], boots[(lname, pname)]))
+        if "e2e B" in names:
+            name = f"lens e2e A - e2e B, processing {pname}"
+            effects.append(effect(name, boots[("e2e B", pname)], boots[("e2e A", pname)]))
+    for lname in names:  # the processing's effect, lens held
+        for pname in list(procs)[1:]:
+            name = f"processing {pname} - nominal, lens {lname}"
+            effects.append(effect(name, boots[(lname, "nominal")], boots[(lname, pname)]))
+    out = {
+        "runs": {k: str(r) for k, r in runs.items()},
+        "n_scenes": len(samples),
+        "f_numbers": {n: float(optics[n].f_number()) for n in names},
+        "cells": [
+            {"lens": ln, "processing": pn, "map_50": s["map_50"], "map": s["map"], "dark_map_50": s["dark"]["map_50"]}
+            for (ln, pn), s in scores.items()
+        ],
+        "effects": effects,
+        "recheck": recheck,
+    }
+    a.out.mkdir(parents=True, exist_ok=True)
+    (a.out / "detection_swap.json").write_text(json.dumps(out, indent=2))
+    md = [
+        f"# Lens x processing, {len(samples)} held-out street scenes, exact optics",
+        "",
+        "Runs: "
+        + ", ".join(f"{k} = `{r}`" for k, r in runs.items())
+        + ". f-numbers: "
+        + ", ".join(f"{n} f/{f:.2f}" for n, f in out["f_numbers"].items())
+        + ".",
+        "",
+        "| lens \\ processing | " + " | ".join(procs) + " |",
+        "|---|" + "---|" * len(procs),
+    ]
+    for ln in names:
+        md.append(
+            f"| {ln} | "
+            + " | ".join(
+                f"{scores[(ln, pn)]['map_50']:.3f} / {scores[(ln, pn)]['map']:.3f} / {scores[(ln, pn)]['dark']['map_50']:.3f}"
+                for pn in procs
+            )
+            + " |"
+        )
+    md += [
+        "",
+        "Cells: mAP@0.5 / mAP / dark mAP@0.5.",
+        "",
+        "| effect | mAP@0.5 | mAP | dark mAP@0.5 |",
+        "|---|---|---|---|",
+    ]
+    md += [f"| {e['name']} | {cell(e['map_50'])} | {cell(e['map'])} | {cell(e['dark_map_50'])} |" for e in effects]
+    (a.out / "detection_swap.md").write_text("\n".join(md) + "\n")
+    print("\n".join(md))
+    return out
+
+
+if __name__ == "__main__":
+    sys.exit(main() and 0)

@@ -1,0 +1,42 @@
+"""benches/detection_swap.py: lens x processing on a detection run's held-out scenes. Its
+diagonal must be the run's own cameras (evaluated again from the saved ISP and detector, the
+same detections as the run saved), and each effect the difference of its two cells."""
+
+import json
+
+import pytest
+
+
+@pytest.mark.slow
+def test_the_swap_bench_rebuilds_the_runs_cameras(tmp_path, optix, smoke_design, load_bench):
+    run = tmp_path / "det"
+    r = optix(*smoke_design("detection", run))
+    assert r.returncode == 0, r.stdout + r.stderr
+    bench = load_bench("detection_swap")
+    out = bench.main([str(run), "--out", str(tmp_path / "swap"), "--recheck", "--threads", "1"])
+    res = json.loads((run / "results.json").read_text())
+
+    # the saved detections of both cameras, and the same cameras rebuilt from their checkpoints
+    for lens, who in (("nominal", "nominal"), ("e2e A", "end_to_end")):
+        for k in ("map_50", "map"):
+            again = out["recheck"][lens][k]
+            assert again["again"] == pytest.approx(again["saved"], abs=1e-9)
+            assert again["saved"] == pytest.approx(res[who][k], abs=1e-9)
+    cells = {(c["lens"], c["processing"]): c for c in out["cells"]}
+    assert set(cells) == {(ln, pn) for ln in ("nominal", "e2e A") for pn in ("nominal", "e2e A")}
+    assert out["f_numbers"]["e2e A"] == pytest.approx(res["end_to_end"]["f_number"], abs=1e-5)
+
+    effects = {e["name"]: e for e in out["effects"]}
+    lens = effects["lens e2e A - nominal, processing nominal"]
+    diff = cells[("e2e A", "nominal")]["map_50"] - cells[("nominal", "nominal")]["map_50"]
+    assert lens["map_50"]["mean"] == pytest.approx(diff, abs=1e-9)
+    proc = effects["processing e2e A - nominal, lens e2e A"]
+    diff = cells[("e2e A", "e2e A")]["map"] - cells[("e2e A", "nominal")]["map"]
+    assert proc["map"]["mean"] == pytest.approx(diff, abs=1e-9)
+    assert (tmp_path / "swap" / "detection_swap.md").read_text().count("\n| lens e2e A - nominal") == 2
+
+
+def test_the_swap_bench_refuses_a_folder_that_is_not_a_finished_run(tmp_path, load_bench):
+    bench = load_bench("detection_swap")
+    with pytest.raises(SystemExit, match="not a finished design run"):
+        bench.main([str(tmp_path), "--out", str(tmp_path / "o")])
