@@ -19,6 +19,11 @@ differences with 95 % bootstrap intervals over scenes (the run's own bootstrap s
 * the processing's effect with the lens held.
 
 Writes DIR/detection_swap.json and DIR/detection_swap.md. It measures; it asserts nothing.
+
+    python benches/detection_swap.py --seeds SWAP_DIR ... --out DIR
+
+tabulates finished swaps of several seeds (the same effects in each): every effect per seed,
+its mean and Student's t interval over seeds -> DIR/swap_seeds.{json,md}.
 """
 
 from __future__ import annotations
@@ -92,8 +97,56 @@ def cell(x: dict) -> str:
     return f"{x['mean']:+.3f} [{lo:+.3f}, {hi:+.3f}]"
 
 
+def seeds_table(swaps: list[Path], out_dir: Path) -> dict:
+    """Each effect of several seeds' swaps: per seed, mean and t interval over the seeds."""
+    from alg1_vs_vanilla import seeds_interval
+
+    res = []
+    for d in swaps:
+        f = d / "detection_swap.json"
+        if not f.is_file():
+            raise SystemExit(f"{d}: no detection_swap.json (run this bench on the seed's runs first)")
+        res.append(json.loads(f.read_text()))
+    names = [e["name"] for e in res[0]["effects"]]
+    if any([e["name"] for e in r["effects"]] != names for r in res):
+        raise SystemExit("the swaps hold different effects (one of them without a second run?)")
+    rows = []
+    for i, name in enumerate(names):
+        row = {"name": name}
+        for k in ("map_50", "map", "dark_map_50"):
+            d = [r["effects"][i][k]["mean"] for r in res]
+            row[k] = {"per_seed": d, "mean": sum(d) / len(d), "seeds_ci95": seeds_interval(d)}
+        rows.append(row)
+    out = {"swaps": [str(d) for d in swaps], "f_numbers": [r["f_numbers"] for r in res], "effects": rows}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "swap_seeds.json").write_text(json.dumps(out, indent=2))
+
+    def fmt(x: dict) -> str:
+        ci = x["seeds_ci95"]
+        per = " / ".join(f"{v:+.3f}" for v in x["per_seed"])
+        return f"{per}; **{x['mean']:+.3f}**" + (f" [{ci[0]:+.3f}, {ci[1]:+.3f}]" if ci else "")
+
+    md = [
+        f"# Lens x processing over {len(res)} seeds: each effect per seed; mean [t interval over seeds]",
+        "",
+        "Swaps: " + ", ".join(f"`{d}`" for d in swaps) + ".",
+        "",
+        "| effect | mAP@0.5 | mAP | dark mAP@0.5 |",
+        "|---|---|---|---|",
+    ]
+    md += [f"| {r['name']} | {fmt(r['map_50'])} | {fmt(r['map'])} | {fmt(r['dark_map_50'])} |" for r in rows]
+    (out_dir / "swap_seeds.md").write_text("\n".join(md) + "\n")
+    print("\n".join(md))
+    return out
+
+
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    if "--seeds" in (sys.argv[1:] if argv is None else argv):
+        ap.add_argument("--seeds", type=Path, nargs="+", required=True)
+        ap.add_argument("--out", type=Path, required=True)
+        a = ap.parse_args(argv)
+        return seeds_table(a.seeds, a.out)
     ap.add_argument("run", type=Path)
     ap.add_argument("run_b", type=Path, nargs="?")
     ap.add_argument("--out", type=Path, required=True)

@@ -35,8 +35,17 @@ def test_the_swap_bench_rebuilds_the_runs_cameras(tmp_path, optix, smoke_design,
     assert proc["map"]["mean"] == pytest.approx(diff, abs=1e-9)
     assert (tmp_path / "swap" / "detection_swap.md").read_text().count("\n| lens e2e A - nominal") == 2
 
+    # the table over seeds: one swap twice gives its own effects, an interval of zero width
+    tab = bench.main(["--seeds", str(tmp_path / "swap"), str(tmp_path / "swap"), "--out", str(tmp_path / "t")])
+    row = next(r for r in tab["effects"] if r["name"] == lens["name"])
+    assert row["map_50"]["mean"] == pytest.approx(lens["map_50"]["mean"], abs=1e-12)
+    assert row["map_50"]["seeds_ci95"] == pytest.approx([lens["map_50"]["mean"]] * 2, abs=1e-12)
+    assert (tmp_path / "t" / "swap_seeds.md").is_file()
+
 
 def test_the_swap_bench_refuses_a_folder_that_is_not_a_finished_run(tmp_path, load_bench):
     bench = load_bench("detection_swap")
     with pytest.raises(SystemExit, match="not a finished design run"):
         bench.main([str(tmp_path), "--out", str(tmp_path / "o")])
+    with pytest.raises(SystemExit, match="no detection_swap.json"):
+        bench.main(["--seeds", str(tmp_path), "--out", str(tmp_path / "o")])
