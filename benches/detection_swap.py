@@ -29,7 +29,9 @@ its mean and Student's t interval over seeds -> DIR/swap_seeds.{json,md}.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -41,6 +43,7 @@ from optix_e2e.camera_design.build import design_field_heights, start_run
 from optix_e2e.camera_design.config import DesignConfig
 from optix_e2e.camera_design.detection import (
     _preds_from_json,
+    _preds_json,
     detection_scores,
     evaluate_detection,
     map_resamples,
@@ -73,6 +76,34 @@ def load_processing(hooks, sur, frame, state_path: Path, optics: FixedOptics) ->
     for prefix, module in (("camera.isp.", cam.isp), ("detector.", cam.detector)):
         module.load_state_dict({k[len(prefix) :]: v for k, v in st.items() if k.startswith(prefix)})
     return cam.eval()
+
+
+CELL_CACHE = "cells_cache.json"  # this bench's evaluated cells, so a second call (another lens added) reuses them
+
+
+def cell_key(optics: FixedOptics, state: Path, samples) -> str:
+    """What a cell's detections depend on: the lens's PSFs, vignetting, field heights and
+    f-number, the processing's checkpoint (path, size, time) and the scenes."""
+    h = hashlib.sha256()
+    for t in (optics.psf, optics.vignetting, optics.fields):
+        h.update(t.detach().cpu().contiguous().numpy().tobytes())
+    st = state.stat()
+    h.update(f"{float(optics.f_number())}|{state.resolve()}|{st.st_size}|{st.st_mtime_ns}".encode())
+    h.update("|".join(s.name for s in samples).encode())
+    return h.hexdigest()
+
+
+def gaussian_blur(psf: torch.Tensor, sigma_px: float) -> torch.Tensor:
+    """Each PSF [..., S, S] convolved with a normalized Gaussian of ``sigma_px`` pixels
+    (zero outside the window), then scaled back to its own sum: more blur, the same light."""
+    r = max(1, int(math.ceil(4 * sigma_px)))
+    x = torch.arange(-r, r + 1, dtype=psf.dtype)
+    g = torch.exp(-0.5 * (x / sigma_px) ** 2)
+    g = g / g.sum()
+    flat = psf.reshape(-1, 1, *psf.shape[-2:])
+    out = torch.nn.functional.conv2d(flat, g.view(1, 1, 1, -1), padding=(0, r))
+    out = torch.nn.functional.conv2d(out, g.view(1, 1, -1, 1), padding=(r, 0)).reshape(psf.shape)
+    return out * (psf.sum((-2, -1), keepdim=True) / out.sum((-2, -1), keepdim=True).clamp_min(1e-30))
 
 
 def cached_preds(run: Path, who: str, samples):
@@ -152,6 +183,12 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: the run's)")
     ap.add_argument(
+        "--blur-um",
+        type=float,
+        default=None,
+        help="also a control lens: the nominal's PSFs blurred by a Gaussian of this sigma (um, on the sensor)",
+    )
+    ap.add_argument(
         "--recheck", action="store_true", help="evaluate the diagonal again and compare it with the saved detections"
     )
     a = ap.parse_args(argv)
@@ -197,6 +234,18 @@ def main(argv: list[str] | None = None) -> dict:
         )
         for i, n in enumerate(names)
     }
+    if a.blur_um is not None:  # the control: the nominal lens, only blurred (no more light)
+        name = f"nominal blur {a.blur_um:g} um"
+        nom = optics["nominal"]
+        optics[name] = FixedOptics(
+            gaussian_blur(nom.psf, a.blur_um / sur.pitch_um),
+            nom.vignetting,
+            nom.fields,
+            patch=cfg.patch,
+            full_field_px=frame.full_field_px,
+            f_number=nom.f_number(),
+        )
+        names.append(name)
     samples = heldout_streets(
         cfg.eval_scenes, cfg.crop_hw, exact["psf"].shape[-1] // 2, (task.level_min, task.level_max), frame
     )
@@ -204,13 +253,23 @@ def main(argv: list[str] | None = None) -> dict:
     procs = {"nominal": (a.run, "nominal")} | {f"e2e {k}": (r, "end_to_end") for k, r in runs.items()}
     preds: dict[tuple[str, str], list] = {}
     recheck: dict[str, dict] = {}
+    a.out.mkdir(parents=True, exist_ok=True)
+    cell_cache = json.loads((a.out / CELL_CACHE).read_text()) if (a.out / CELL_CACHE).is_file() else {}
     for pname, (run, who) in procs.items():
         for lname in names:
             saved = cached_preds(run, who, samples) if lname == pname else None  # the run's own camera
             if saved is None or a.recheck:
                 t0 = time.perf_counter()
-                cam = load_processing(hooks, sur, frame, run / f"{who}_state.pt", optics[lname])
-                preds[(lname, pname)] = evaluate_detection(cam, samples)
+                state = run / f"{who}_state.pt"
+                key = cell_key(optics[lname], state, samples)
+                hit = cell_cache.get(key) if not a.recheck else None
+                if hit is not None:  # this bench's own earlier evaluation of the same cell
+                    preds[(lname, pname)] = _preds_from_json(hit)
+                else:
+                    cam = load_processing(hooks, sur, frame, state, optics[lname])
+                    preds[(lname, pname)] = evaluate_detection(cam, samples)
+                    cell_cache[key] = _preds_json(preds[(lname, pname)])
+                    (a.out / CELL_CACHE).write_text(json.dumps(cell_cache))
                 print(f"lens {lname} behind processing {pname}: {time.perf_counter() - t0:.0f} s", flush=True)
             if saved is not None:
                 if a.recheck:  # the saved and the fresh evaluation of the same camera

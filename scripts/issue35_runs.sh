@@ -14,7 +14,8 @@
 #                  seed's end-to-end camera against Alg. 1's (OUT/compare_full_seedS_alg1_vs_vanilla.json)
 #                  and their table over seeds (OUT/full_vanilla_table.{json,md})
 #   swap           per seed with both full runs finished: lens x processing + detector between the
-#                  nominal, Alg. 1's and vanilla's cameras (benches/detection_swap.py -> OUT/swap_full_seedS/),
+#                  nominal, Alg. 1's and vanilla's cameras and the nominal lens blurred by 4 um (a control)
+#                  (benches/detection_swap.py -> OUT/swap_full_seedS/),
 #                  then the effects over seeds (OUT/swap_table/swap_seeds.{json,md})
 # Each finished run's small files (results.json, metrics.csv, history.csv, lens_path.csv, the
 # lens .zmx, the end-to-end camera's detections) are kept in git under the default OUT (its
@@ -52,7 +53,7 @@ for stage in $STAGES; do
       for s in 0 1 2; do
         [ -f "$OUT/detect_full_seed$s/results.json" ] && [ -f "$OUT/detect_full_vanilla_seed$s/results.json" ] \
           && [ ! -f "$OUT/swap_full_seed$s/detection_swap.json" ] && python benches/detection_swap.py \
-          "$OUT/detect_full_seed$s" "$OUT/detect_full_vanilla_seed$s" --out "$OUT/swap_full_seed$s" --threads "${THREADS:-1}" \
+          "$OUT/detect_full_seed$s" "$OUT/detect_full_vanilla_seed$s" --out "$OUT/swap_full_seed$s" --blur-um 4 --threads "${THREADS:-1}" \
           >> "$OUT/swap_full_seed$s.log" 2>&1
       done
       python benches/detection_swap.py --seeds "$OUT"/swap_full_seed{0,1,2} --out "$OUT/swap_table" ;;

@@ -35,6 +35,13 @@ def test_the_swap_bench_rebuilds_the_runs_cameras(tmp_path, optix, smoke_design,
     assert proc["map"]["mean"] == pytest.approx(diff, abs=1e-9)
     assert (tmp_path / "swap" / "detection_swap.md").read_text().count("\n| lens e2e A - nominal") == 2
 
+    # a blurred nominal lens as a control: the cells already evaluated come from the bench's cache
+    again = bench.main([str(run), "--out", str(tmp_path / "swap"), "--blur-um", "6", "--threads", "1"])
+    blur = {(c["lens"], c["processing"]): c for c in again["cells"]}
+    assert ("nominal blur 6 um", "nominal") in blur
+    for k, c in cells.items():
+        assert blur[k] == c
+
     # the table over seeds: one swap twice gives its own effects, an interval of zero width
     tab = bench.main(["--seeds", str(tmp_path / "swap"), str(tmp_path / "swap"), "--out", str(tmp_path / "t")])
     row = next(r for r in tab["effects"] if r["name"] == lens["name"])
@@ -49,3 +56,18 @@ def test_the_swap_bench_refuses_a_folder_that_is_not_a_finished_run(tmp_path, lo
         bench.main([str(tmp_path), "--out", str(tmp_path / "o")])
     with pytest.raises(SystemExit, match="no detection_swap.json"):
         bench.main(["--seeds", str(tmp_path), "--out", str(tmp_path / "o")])
+
+
+def test_the_control_blur_is_a_gaussian_of_the_asked_width_and_keeps_the_light(load_bench):
+    import torch
+
+    bench = load_bench("detection_swap")
+    psf = torch.zeros(2, 3, 41, 41)
+    psf[..., 20, 20] = torch.tensor([1.0, 0.5, 0.25])  # a point on the pixel grid, three channels
+    out = bench.gaussian_blur(psf, 2.0)
+    assert torch.allclose(out.sum((-2, -1)), psf.sum((-2, -1)), rtol=1e-6)
+    x = torch.arange(41.0) - 20
+    w = out[0, 0] / out[0, 0].sum()
+    var_x = float((w.sum(0) * x**2).sum())
+    assert var_x == pytest.approx(4.0, rel=1e-3)  # sigma^2, the sampled Gaussian's variance
+    assert bench.gaussian_blur(psf, 2.0)[1, 2].sum() == pytest.approx(0.25, rel=1e-6)
