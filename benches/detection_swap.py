@@ -16,7 +16,8 @@ differences with 95 % bootstrap intervals over scenes (the run's own bootstrap s
 
 * the lens's effect with the processing held: each end-to-end lens against the nominal
   lens, and end-to-end lens A against B, behind each processing;
-* the processing's effect with the lens held.
+* the processing's effect with the lens held;
+* the whole cameras: each end-to-end camera against the nominal one, and A against B.
 
 Writes DIR/detection_swap.json and DIR/detection_swap.md. It measures; it asserts nothing.
 
@@ -292,6 +293,11 @@ def main(argv: list[str] | None = None) -> dict:
         for pname in list(procs)[1:]:
             name = f"processing {pname} - nominal, lens {lname}"
             effects.append(effect(name, boots[(lname, "nominal")], boots[(lname, pname)]))
+    # the whole cameras, each its own lens and processing (the runs' results.json / detection_compare.py)
+    for k in runs:
+        effects.append(effect(f"camera e2e {k} - nominal", boots[("nominal", "nominal")], boots[(f"e2e {k}",) * 2]))
+    if "B" in runs:
+        effects.append(effect("camera e2e A - e2e B", boots[("e2e B", "e2e B")], boots[("e2e A", "e2e A")]))
     out = {
         "runs": {k: str(r) for k, r in runs.items()},
         "n_scenes": len(samples),

@@ -30,6 +30,9 @@ def test_the_swap_bench_rebuilds_the_runs_cameras(tmp_path, optix, smoke_design,
     lens = effects["lens e2e A - nominal, processing nominal"]
     diff = cells[("e2e A", "nominal")]["map_50"] - cells[("nominal", "nominal")]["map_50"]
     assert lens["map_50"]["mean"] == pytest.approx(diff, abs=1e-9)
+    whole = effects["camera e2e A - nominal"]  # the run's own paired figure
+    assert whole["map_50"]["mean"] == pytest.approx(res["paired"]["map_50"]["mean"], abs=1e-9)
+    assert whole["map_50"]["ci95"] == pytest.approx(res["paired"]["map_50"]["ci95"], abs=1e-9)
     proc = effects["processing e2e A - nominal, lens e2e A"]
     diff = cells[("e2e A", "e2e A")]["map"] - cells[("e2e A", "nominal")]["map"]
     assert proc["map"]["mean"] == pytest.approx(diff, abs=1e-9)
