@@ -2,7 +2,7 @@
 """Is a detection run's gain the lens or the training? Cross lenses with processing + detector
 on the run's held-out street scenes, under the engine's exact PSFs (issue 35).
 
-    python benches/detection_swap.py RUN [RUN_B] --out DIR [--threads N]
+    python benches/detection_swap.py RUN [RUN_B] --out DIR [--blur-um S] [--recheck] [--threads N]
 
 RUN is a finished `optix design detection` run; RUN_B (optional) another one on the same
 held-out scenes and nominal lens, e.g. the vanilla run of the same seed. The lenses are the
@@ -10,8 +10,12 @@ nominal and each run's end-to-end lens (each at its own f-number); the "processi
 camera is its hardware ISP (through the reference ISP at its hyperparameters, as the run
 evaluates) with its detector, and the sensor: the run's nominal baseline's and each run's
 end-to-end camera's. Every lens is evaluated behind every processing; the diagonal is the
-runs' own cameras (their saved detections are reused where their scenes match, else
-evaluated again). It reports mAP@0.5, mAP and dark-object mAP@0.5 of each cell, and paired
+runs' own cameras: their saved detections are reused where the design run's own cache key
+matches (the code, sensor, lens, processing and scenes), else evaluated again; every cell
+this bench evaluates is kept under the same kind of key in DIR/cells/, so a second call (a
+lens added) evaluates only what is new. ``--blur-um S`` adds a control lens, the nominal's PSFs
+blurred by a Gaussian of S um (the same light). The bench evaluates on the CPU at fp32 and
+refuses runs made otherwise. It reports mAP@0.5, mAP and dark-object mAP@0.5 of each cell, and paired
 differences with 95 % bootstrap intervals over scenes (the run's own bootstrap settings):
 
 * the lens's effect with the processing held: each end-to-end lens against the nominal
@@ -30,7 +34,6 @@ its mean and Student's t interval over seeds -> DIR/swap_seeds.{json,md}.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import math
 import sys
@@ -40,9 +43,12 @@ from pathlib import Path
 import torch
 
 from optix_e2e.camera import FixedOptics
+from optix_e2e.errors import InputError
 from optix_e2e.camera_design.build import design_field_heights, start_run
 from optix_e2e.camera_design.config import DesignConfig
+from optix_e2e.camera_design import eval_cache
 from optix_e2e.camera_design.detection import (
+    _digest,
     _preds_from_json,
     _preds_json,
     detection_scores,
@@ -64,34 +70,30 @@ def finished_run(run: Path) -> tuple[DesignConfig, dict]:
     missing = [f for f in RUN_FILES if not (run / f).is_file()]
     if missing:
         raise SystemExit(f"{run}: not a finished design run (no {', '.join(missing)})")
-    cfg = DesignConfig(**json.loads((run / "config.json").read_text())).check()
+    try:
+        cfg = DesignConfig(**json.loads((run / "config.json").read_text())).check()
+        res = json.loads((run / "results.json").read_text())
+    except (TypeError, ValueError, InputError) as err:  # damaged or hand-edited files
+        raise SystemExit(f"{run}: not a readable design run ({err})") from None
     if cfg.task != "detection":
         raise SystemExit(f"{run}: a {cfg.task} run; this bench crosses detection runs")
-    return cfg, json.loads((run / "results.json").read_text())
+    if (res.get("device", "cpu"), res.get("precision", "fp32")) != ("cpu", "fp32"):
+        raise SystemExit(
+            f"{run}: ran on {res.get('device')} at {res.get('precision')}; this bench evaluates on the CPU at fp32"
+        )
+    return cfg, res
 
 
 def load_processing(hooks, sur, frame, state_path: Path, optics: FixedOptics) -> DetectionCamera:
     """A detection camera with ``optics`` and the ISP and detector saved in ``state_path``."""
     cam = hooks.build_camera(sur, frame, fixed_optics=optics)
-    st = load_plain(state_path, "design checkpoint")["camera"]
+    try:
+        st = load_plain(state_path, "design checkpoint")["camera"]
+    except (InputError, KeyError, TypeError) as err:
+        raise SystemExit(f"{state_path}: not a readable design checkpoint ({err})") from None
     for prefix, module in (("camera.isp.", cam.isp), ("detector.", cam.detector)):
         module.load_state_dict({k[len(prefix) :]: v for k, v in st.items() if k.startswith(prefix)})
     return cam.eval()
-
-
-CELL_CACHE = "cells_cache.json"  # this bench's evaluated cells, so a second call (another lens added) reuses them
-
-
-def cell_key(optics: FixedOptics, state: Path, samples) -> str:
-    """What a cell's detections depend on: the lens's PSFs, vignetting, field heights and
-    f-number, the processing's checkpoint (path, size, time) and the scenes."""
-    h = hashlib.sha256()
-    for t in (optics.psf, optics.vignetting, optics.fields):
-        h.update(t.detach().cpu().contiguous().numpy().tobytes())
-    st = state.stat()
-    h.update(f"{float(optics.f_number())}|{state.resolve()}|{st.st_size}|{st.st_mtime_ns}".encode())
-    h.update("|".join(s.name for s in samples).encode())
-    return h.hexdigest()
 
 
 def gaussian_blur(psf: torch.Tensor, sigma_px: float) -> torch.Tensor:
@@ -138,7 +140,10 @@ def seeds_table(swaps: list[Path], out_dir: Path) -> dict:
         f = d / "detection_swap.json"
         if not f.is_file():
             raise SystemExit(f"{d}: no detection_swap.json (run this bench on the seed's runs first)")
-        res.append(json.loads(f.read_text()))
+        try:
+            res.append(json.loads(f.read_text()))
+        except ValueError as err:
+            raise SystemExit(f"{f}: not a readable swap ({err})") from None
     names = [e["name"] for e in res[0]["effects"]]
     if any([e["name"] for e in r["effects"]] != names for r in res):
         raise SystemExit("the swaps hold different effects (one of them without a second run?)")
@@ -193,6 +198,8 @@ def main(argv: list[str] | None = None) -> dict:
         "--recheck", action="store_true", help="evaluate the diagonal again and compare it with the saved detections"
     )
     a = ap.parse_args(argv)
+    if a.blur_um is not None and not a.blur_um > 0:
+        ap.error(f"--blur-um must be > 0 um, got {a.blur_um}")
     runs = {"A": a.run} | ({"B": a.run_b} if a.run_b else {})
     loaded = {k: finished_run(r) for k, r in runs.items()}
     cfg, res = loaded["A"]
@@ -200,16 +207,11 @@ def main(argv: list[str] | None = None) -> dict:
         cfg = DesignConfig(**{**cfg.to_json(), "threads": a.threads}).check()
     if "B" in loaded:
         cb, rb = loaded["B"]
-        same = (cb.eval_scenes, cb.crop_hw, cb.seed, cb.space, cb.surrogate) == (
-            cfg.eval_scenes,
-            cfg.crop_hw,
-            cfg.seed,
-            cfg.space,
-            cfg.surrogate,
-        )
+        keys = ("eval_scenes", "crop_hw", "seed", "space", "surrogate", "detector", "patch", "precision")
+        same = all(getattr(cb, k) == getattr(cfg, k) for k in keys)
         if not same or rb["design"]["nominal"] != res["design"]["nominal"]:
             raise SystemExit(
-                f"{a.run_b}: another held-out set or nominal lens than {a.run} (eval_scenes, crop, seed, space)"
+                f"{a.run_b}: another held-out set, nominal lens or detector than {a.run} ({', '.join(keys)})"
             )
     _, task, frame, sur = start_run(cfg, a.out)
     hooks = hooks_for(cfg, "cpu")
@@ -224,27 +226,27 @@ def main(argv: list[str] | None = None) -> dict:
     t0 = time.perf_counter()
     exact = exact_optics(sur, values.numpy(), fallback=hooks.exact_fallback)
     print(f"exact PSFs of {len(names)} lenses: {time.perf_counter() - t0:.0f} s", flush=True)
-    optics = {
-        n: FixedOptics(
+    # each lens's (PSFs, vignetting, field heights) as the design run passes them (its cache keys)
+    raw = {
+        n: (
             exact["psf"][i],
             exact["vignetting"][i],
             design_field_heights(sur, values[i].numpy(), exact["image_distance"][i]),
-            patch=cfg.patch,
-            full_field_px=frame.full_field_px,
-            f_number=hooks.f_number(values[i]),
         )
         for i, n in enumerate(names)
     }
+    f_numbers = {n: hooks.f_number(values[i]) for i, n in enumerate(names)}
+    optics = {
+        n: FixedOptics(*raw[n], patch=cfg.patch, full_field_px=frame.full_field_px, f_number=f_numbers[n])
+        for n in names
+    }
     if a.blur_um is not None:  # the control: the nominal lens, only blurred (no more light)
         name = f"nominal blur {a.blur_um:g} um"
-        nom = optics["nominal"]
+        psf, vig, fh = raw["nominal"]
+        raw[name] = (gaussian_blur(torch.as_tensor(psf), a.blur_um / sur.pitch_um), vig, fh)
+        f_numbers[name] = f_numbers["nominal"]
         optics[name] = FixedOptics(
-            gaussian_blur(nom.psf, a.blur_um / sur.pitch_um),
-            nom.vignetting,
-            nom.fields,
-            patch=cfg.patch,
-            full_field_px=frame.full_field_px,
-            f_number=nom.f_number(),
+            *raw[name], patch=cfg.patch, full_field_px=frame.full_field_px, f_number=f_numbers[name]
         )
         names.append(name)
     samples = heldout_streets(
@@ -254,29 +256,36 @@ def main(argv: list[str] | None = None) -> dict:
     procs = {"nominal": (a.run, "nominal")} | {f"e2e {k}": (r, "end_to_end") for k, r in runs.items()}
     preds: dict[tuple[str, str], list] = {}
     recheck: dict[str, dict] = {}
-    a.out.mkdir(parents=True, exist_ok=True)
-    cell_cache = json.loads((a.out / CELL_CACHE).read_text()) if (a.out / CELL_CACHE).is_file() else {}
+    samples_key = eval_cache.samples_digest(samples)
+    (a.out / "cells").mkdir(parents=True, exist_ok=True)
     for pname, (run, who) in procs.items():
         for lname in names:
-            saved = cached_preds(run, who, samples) if lname == pname else None  # the run's own camera
-            if saved is None or a.recheck:
+            cam = load_processing(hooks, sur, frame, run / f"{who}_state.pt", optics[lname])
+            # what the detections depend on, as the design run keys its own (code, sensor, lens,
+            # processing, scenes): the run's saved detections count only under the same key
+            key = _digest(*raw[lname], f_numbers[lname], cam, len(samples), samples_key)
+            own = run / f"detections_{who}_exact.json" if lname == pname else None
+            path = a.out / "cells" / f"{lname}__{pname}.json".replace(" ", "_")
+            hit = None if a.recheck else eval_cache.read(own, key) if own else eval_cache.read(path, key)
+            try:
+                preds[(lname, pname)] = _preds_from_json(hit["detections"]) if hit else None
+            except (KeyError, TypeError, ValueError, RuntimeError):  # a damaged file: evaluate again
+                preds[(lname, pname)] = None
+            if preds[(lname, pname)] is None:
                 t0 = time.perf_counter()
-                state = run / f"{who}_state.pt"
-                key = cell_key(optics[lname], state, samples)
-                hit = cell_cache.get(key) if not a.recheck else None
-                if hit is not None:  # this bench's own earlier evaluation of the same cell
-                    preds[(lname, pname)] = _preds_from_json(hit)
-                else:
-                    cam = load_processing(hooks, sur, frame, state, optics[lname])
-                    preds[(lname, pname)] = evaluate_detection(cam, samples)
-                    cell_cache[key] = _preds_json(preds[(lname, pname)])
-                    (a.out / CELL_CACHE).write_text(json.dumps(cell_cache))
+                preds[(lname, pname)] = evaluate_detection(cam, samples)
+                eval_cache.write(
+                    path,
+                    key,
+                    time.perf_counter() - t0,
+                    images=[s.name for s in samples],
+                    detections=_preds_json(preds[(lname, pname)]),
+                )
                 print(f"lens {lname} behind processing {pname}: {time.perf_counter() - t0:.0f} s", flush=True)
-            if saved is not None:
-                if a.recheck:  # the saved and the fresh evaluation of the same camera
-                    was, now = (detection_scores(p, samples, task.dark) for p in (saved, preds[(lname, pname)]))
-                    recheck[lname] = {k: {"saved": was[k], "again": now[k]} for k in ("map_50", "map")}
-                preds[(lname, pname)] = saved
+            saved = cached_preds(run, who, samples) if own and a.recheck else None
+            if saved is not None:  # the run's saved and this fresh evaluation of the same camera
+                was, now = (detection_scores(p, samples, task.dark) for p in (saved, preds[(lname, pname)]))
+                recheck[lname] = {k: {"saved": was[k], "again": now[k]} for k in ("map_50", "map")}
     scores = {k: detection_scores(p, samples, task.dark) for k, p in preds.items()}
     t0 = time.perf_counter()  # every cell's bootstrap resamples once (the same resamples for all)
     boots = {k: map_resamples(p, samples, cfg.bootstrap, cfg.seed, task.dark) for k, p in preds.items()}

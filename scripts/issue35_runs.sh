@@ -51,10 +51,12 @@ for stage in $STAGES; do
       python benches/detection_seeds.py "$OUT"/detect_full_vanilla_seed{0,1,2} --out "$OUT/full_vanilla_table" ;;
     swap)
       for s in 0 1 2; do
-        [ -f "$OUT/detect_full_seed$s/results.json" ] && [ -f "$OUT/detect_full_vanilla_seed$s/results.json" ] \
-          && [ ! -f "$OUT/swap_full_seed$s/detection_swap.json" ] && python benches/detection_swap.py \
-          "$OUT/detect_full_seed$s" "$OUT/detect_full_vanilla_seed$s" --out "$OUT/swap_full_seed$s" --blur-um 4 --threads "${THREADS:-1}" \
-          >> "$OUT/swap_full_seed$s.log" 2>&1
+        if [ -f "$OUT/detect_full_seed$s/results.json" ] && [ -f "$OUT/detect_full_vanilla_seed$s/results.json" ] \
+          && [ ! -f "$OUT/swap_full_seed$s/detection_swap.json" ]; then
+          python benches/detection_swap.py "$OUT/detect_full_seed$s" "$OUT/detect_full_vanilla_seed$s" \
+            --out "$OUT/swap_full_seed$s" --blur-um 4 --threads "${THREADS:-1}" >> "$OUT/swap_full_seed$s.log" 2>&1 \
+            || { echo "swap of seed $s failed: see $OUT/swap_full_seed$s.log" >&2; exit 1; }
+        fi
       done
       python benches/detection_swap.py --seeds "$OUT"/swap_full_seed{0,1,2} --out "$OUT/swap_table" ;;
     *) echo "unknown stage '$stage' (quick quick-vanilla compare full full-vanilla swap)" >&2; exit 2 ;;

@@ -13,6 +13,11 @@ def test_the_swap_bench_rebuilds_the_runs_cameras(tmp_path, optix, smoke_design,
     r = optix(*smoke_design("detection", run))
     assert r.returncode == 0, r.stdout + r.stderr
     bench = load_bench("detection_swap")
+    # the run's own cameras come from its saved detections (the same cache key: code, sensor,
+    # lens, processing, scenes); only the crossed cells are evaluated and kept in cells/
+    bench.main([str(run), "--out", str(tmp_path / "first"), "--threads", "1"])
+    kept = {f.name for f in (tmp_path / "first" / "cells").iterdir()}
+    assert kept == {"e2e_A__nominal.json", "nominal__e2e_A.json"}
     out = bench.main([str(run), "--out", str(tmp_path / "swap"), "--recheck", "--threads", "1"])
     res = json.loads((run / "results.json").read_text())
 
@@ -59,6 +64,16 @@ def test_the_swap_bench_refuses_a_folder_that_is_not_a_finished_run(tmp_path, lo
         bench.main([str(tmp_path), "--out", str(tmp_path / "o")])
     with pytest.raises(SystemExit, match="no detection_swap.json"):
         bench.main(["--seeds", str(tmp_path), "--out", str(tmp_path / "o")])
+    (tmp_path / "detection_swap.json").write_text("{not json")
+    with pytest.raises(SystemExit, match="not a readable swap"):
+        bench.main(["--seeds", str(tmp_path), "--out", str(tmp_path / "o")])
+    for f in ("config.json", "results.json", "nominal_state.pt", "end_to_end_state.pt"):
+        (tmp_path / f).write_text("{}")
+    (tmp_path / "config.json").write_text('{"no_such_setting": 1}')
+    with pytest.raises(SystemExit, match="not a readable design run"):
+        bench.main([str(tmp_path), "--out", str(tmp_path / "o")])
+    with pytest.raises(SystemExit):  # argparse: one line on stderr
+        bench.main([str(tmp_path), "--out", str(tmp_path / "o"), "--blur-um", "0"])
 
 
 def test_the_control_blur_is_a_gaussian_of_the_asked_width_and_keeps_the_light(load_bench):
