@@ -15,7 +15,7 @@ import json
 from pathlib import Path
 
 from optix_e2e.camera_design.config import DesignConfig
-from optix_e2e.camera_design.detection import _preds_from_json, detection_scores, paired_map
+from optix_e2e.camera_design.detection import detection_scores, paired_map, saved_detections
 from optix_e2e.tasks import SensorFrame, get_task
 from optix_e2e.tasks.detection import heldout_streets
 
@@ -37,10 +37,10 @@ def main() -> None:
     samples = heldout_streets(a.eval_scenes, a.crop_hw, margin, (task.level_min, task.level_max), SensorFrame())
     preds = []
     for run in (args.run_a, args.run_b):
-        d = json.loads((run / f"detections_{args.camera}_exact.json").read_text())
-        if d["images"] != [s.name for s in samples]:
-            raise SystemExit(f"{run}: its detections are for other scenes")
-        preds.append(_preds_from_json(d["detections"]))
+        saved = saved_detections(run / f"detections_{args.camera}_exact.json", samples)
+        if saved is None:
+            raise SystemExit(f"{run}: no readable detections of its {args.camera} camera for these scenes")
+        preds.append(saved)
     out = {
         "a": str(args.run_a),
         "b": str(args.run_b),

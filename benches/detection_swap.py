@@ -49,12 +49,13 @@ from optix_e2e.camera_design.config import DesignConfig
 from optix_e2e.camera_design import eval_cache
 from optix_e2e.camera_design.detection import (
     _digest,
-    _preds_from_json,
-    _preds_json,
     detection_scores,
     evaluate_detection,
     map_resamples,
     paired_resamples,
+    read_detections,
+    saved_detections,
+    write_detections,
 )
 from optix_e2e.camera_design.run import hooks_for
 from optix_e2e.parallel import Ranks
@@ -84,13 +85,17 @@ def finished_run(run: Path) -> tuple[DesignConfig, dict]:
     return cfg, res
 
 
-def load_processing(hooks, sur, frame, state_path: Path, optics: FixedOptics) -> DetectionCamera:
-    """A detection camera with ``optics`` and the ISP and detector saved in ``state_path``."""
-    cam = hooks.build_camera(sur, frame, fixed_optics=optics)
+def camera_state(state_path: Path) -> dict:
+    """The camera's state dict saved in a design checkpoint, or one line on what is wrong."""
     try:
-        st = load_plain(state_path, "design checkpoint")["camera"]
+        return load_plain(state_path, "design checkpoint")["camera"]
     except (InputError, KeyError, TypeError) as err:
         raise SystemExit(f"{state_path}: not a readable design checkpoint ({err})") from None
+
+
+def load_processing(hooks, sur, frame, st: dict, optics: FixedOptics) -> DetectionCamera:
+    """A detection camera with ``optics`` and the ISP and detector of the camera state ``st``."""
+    cam = hooks.build_camera(sur, frame, fixed_optics=optics)
     for prefix, module in (("camera.isp.", cam.isp), ("detector.", cam.detector)):
         module.load_state_dict({k[len(prefix) :]: v for k, v in st.items() if k.startswith(prefix)})
     return cam.eval()
@@ -107,17 +112,6 @@ def gaussian_blur(psf: torch.Tensor, sigma_px: float) -> torch.Tensor:
     out = torch.nn.functional.conv2d(flat, g.view(1, 1, 1, -1), padding=(0, r))
     out = torch.nn.functional.conv2d(out, g.view(1, 1, -1, 1), padding=(r, 0)).reshape(psf.shape)
     return out * (psf.sum((-2, -1), keepdim=True) / out.sum((-2, -1), keepdim=True).clamp_min(1e-30))
-
-
-def cached_preds(run: Path, who: str, samples):
-    """The run's saved exact-optics detections of its ``who`` camera, if they are of ``samples``."""
-    path = run / f"detections_{who}_exact.json"
-    if not path.is_file():
-        return None
-    d = json.loads(path.read_text())
-    if d.get("images") != [s.name for s in samples]:
-        return None
-    return _preds_from_json(d["detections"])
 
 
 def effect(name: str, a: dict, b: dict) -> dict:
@@ -259,30 +253,23 @@ def main(argv: list[str] | None = None) -> dict:
     samples_key = eval_cache.samples_digest(samples)
     (a.out / "cells").mkdir(parents=True, exist_ok=True)
     for pname, (run, who) in procs.items():
+        state = camera_state(run / f"{who}_state.pt")  # once per processing, for every lens
         for lname in names:
-            cam = load_processing(hooks, sur, frame, run / f"{who}_state.pt", optics[lname])
+            cam = load_processing(hooks, sur, frame, state, optics[lname])
             # what the detections depend on, as the design run keys its own (code, sensor, lens,
             # processing, scenes): the run's saved detections count only under the same key
             key = _digest(*raw[lname], f_numbers[lname], cam, len(samples), samples_key)
             own = run / f"detections_{who}_exact.json" if lname == pname else None
             path = a.out / "cells" / f"{lname}__{pname}.json".replace(" ", "_")
-            hit = None if a.recheck else eval_cache.read(own, key) if own else eval_cache.read(path, key)
-            try:
-                preds[(lname, pname)] = _preds_from_json(hit["detections"]) if hit else None
-            except (KeyError, TypeError, ValueError, RuntimeError):  # a damaged file: evaluate again
-                preds[(lname, pname)] = None
-            if preds[(lname, pname)] is None:
+            hit = None if a.recheck else read_detections(own or path, key)
+            if hit is not None:
+                preds[(lname, pname)] = hit[0]
+            else:
                 t0 = time.perf_counter()
                 preds[(lname, pname)] = evaluate_detection(cam, samples)
-                eval_cache.write(
-                    path,
-                    key,
-                    time.perf_counter() - t0,
-                    images=[s.name for s in samples],
-                    detections=_preds_json(preds[(lname, pname)]),
-                )
+                write_detections(path, key, time.perf_counter() - t0, samples, preds[(lname, pname)])
                 print(f"lens {lname} behind processing {pname}: {time.perf_counter() - t0:.0f} s", flush=True)
-            saved = cached_preds(run, who, samples) if own and a.recheck else None
+            saved = saved_detections(own, samples) if own and a.recheck else None
             if saved is not None:  # the run's saved and this fresh evaluation of the same camera
                 was, now = (detection_scores(p, samples, task.dark) for p in (saved, preds[(lname, pname)]))
                 recheck[lname] = {k: {"saved": was[k], "again": now[k]} for k in ("map_50", "map")}

@@ -19,6 +19,7 @@ differences with a 95 % bootstrap interval over scenes (each resample scored by 
 from __future__ import annotations
 
 import csv
+import json
 import time
 from pathlib import Path
 
@@ -181,6 +182,35 @@ def _preds_from_json(rows: list[dict]) -> list[dict]:
     ]
 
 
+def read_detections(path: Path, key: str) -> tuple[list[dict], float] | None:
+    """(detections, seconds they took) of an earlier evaluation saved at ``path`` under ``key``
+    (eval_cache); None where absent, stale or damaged (hand-edited, cut short): evaluate again."""
+    cached = eval_cache.read(path, key)
+    if cached is None:
+        return None
+    try:
+        return _preds_from_json(cached["detections"]), float(cached.get("wall_s", 0.0))
+    except (KeyError, TypeError, ValueError, RuntimeError):
+        return None
+
+
+def write_detections(path: Path, key: str, wall_s: float, samples, preds: list[dict]) -> None:
+    """An evaluation's detections of ``samples`` at ``path`` under ``key`` (read_detections)."""
+    eval_cache.write(path, key, wall_s, images=[s.name for s in samples], detections=_preds_json(preds))
+
+
+def saved_detections(path: Path, samples) -> list[dict] | None:
+    """The detections a run saved at ``path``, whatever its key, if they are of ``samples`` (None:
+    absent, unreadable or of other scenes): for comparing runs' saved cameras."""
+    try:
+        d = json.loads(Path(path).read_text())
+        if d.get("images") != [s.name for s in samples]:
+            return None
+        return _preds_from_json(d["detections"])
+    except (OSError, KeyError, TypeError, ValueError, RuntimeError, AttributeError):
+        return None
+
+
 WHO = ("nominal", "end_to_end")
 
 
@@ -262,27 +292,18 @@ class DetectionHooks(TaskHooks):
                 path = out / f"detections_{who}_{kind}.json"
                 psf, vig, fh = optics[who][kind]
                 key = _digest(psf, vig, fh, f_numbers[who], cams[who], len(samples), samples_key)
-                cached = eval_cache.read(path, key)
+                cached = read_detections(path, key)
                 if cached is not None:
-                    try:  # a damaged cache (hand-edited, cut short) is detected again, not a traceback
-                        preds[who][kind] = _preds_from_json(cached["detections"])
-                        reused_s += float(cached.get("wall_s", 0.0))
-                        continue
-                    except (KeyError, TypeError, ValueError, RuntimeError):
-                        pass
+                    preds[who][kind], wall_s = cached
+                    reused_s += wall_s
+                    continue
                 t0 = time.perf_counter()
                 fo = FixedOptics(
                     psf, vig, fh, patch=c.patch, full_field_px=frame.full_field_px, f_number=f_numbers[who]
                 ).to(self.device)
                 ev_cam = DetectionCamera(Camera(fo, cams[who].sensor, cams[who].isp), cams[who].detector)
                 preds[who][kind] = evaluate_detection(ev_cam, samples, progress, f"eval {who} ({kind} optics)")
-                eval_cache.write(
-                    path,
-                    key,
-                    time.perf_counter() - t0,
-                    images=[s.name for s in samples],
-                    detections=_preds_json(preds[who][kind]),
-                )
+                write_detections(path, key, time.perf_counter() - t0, samples, preds[who][kind])
         scores = {who: {kind: detection_scores(p, samples, task.dark) for kind, p in preds[who].items()} for who in WHO}
         return {"samples": samples, "preds": preds, "scores": scores}, reused_s
 
