@@ -27,6 +27,9 @@ def main() -> None:
     ap.add_argument("--camera", default="end_to_end", choices=["end_to_end", "nominal"])
     ap.add_argument("--out", type=Path)
     args = ap.parse_args()
+    for r in (args.run_a, args.run_b):
+        if not ((r / "config.json").is_file() and (r / "results.json").is_file()):
+            raise SystemExit(f"{r}: not a finished design run (no config.json or results.json)")
     cfgs = [DesignConfig(**json.loads((r / "config.json").read_text())) for r in (args.run_a, args.run_b)]
     a, b = cfgs
     if (a.eval_scenes, a.crop_hw, a.seed) != (b.eval_scenes, b.crop_hw, b.seed):
