@@ -449,7 +449,7 @@ fn horner<const L: usize>(c: &[f64], x: f64) -> f64 {
 /// (cells) from the cell centre to the edge (> 0 inside), (gx, gy) the gradient of r in
 /// cells (n = g / |g|), r the pupil radius at the centre.
 #[inline(always)]
-fn cover_cell(r: f64, gx: f64, gy: f64) -> f64 {
+pub(crate) fn cover_cell(r: f64, gx: f64, gy: f64) -> f64 {
     let gn = (gx * gx + gy * gy).sqrt();
     let d = (1.0 - r) / gn;
     let (ax, ay) = (gx.abs() / gn, gy.abs() / gn);
@@ -739,6 +739,18 @@ pub fn fast_psf(
     o: &PsfOptions,
     d: &mut Diagnostics,
 ) -> Result<std::result::Result<Vec<f64>, &'static str>> {
+    fast_psf_pupil(sys, field_deg, o, d, false)
+}
+
+/// `fast_psf`, with the pupil traced cell by cell (psf/traced.rs) where `traced` is true even
+/// if the polynomial fits hold (for tests: the two ways to the same pupil must agree).
+pub(crate) fn fast_psf_pupil(
+    sys: &System,
+    field_deg: f64,
+    o: &PsfOptions,
+    d: &mut Diagnostics,
+    force_traced: bool,
+) -> Result<std::result::Result<Vec<f64>, &'static str>> {
     let beam = Beam::new(sys, field_deg, Aiming::Paraxial)?;
     if beam.object.is_some() {
         return Ok(Err(
@@ -807,9 +819,16 @@ pub fn fast_psf(
             break;
         }
     }
-    let Some((deg, te, to, ce, co)) = fit else {
-        return Ok(Err("the pupil polynomial fits miss their tolerance"));
-    };
+    // Where no polynomial is within tolerance, each cell gets its own ray (psf/traced.rs).
+    if force_traced {
+        fit = None;
+    }
+    let traced = fit.is_none();
+    if traced {
+        let (dx, dy) = super::traced::extent(&beam, chief.p);
+        ex = ex.max(dx);
+        ey = ey.max(dy);
+    }
     // Affine fits (degree 1) guard against the polynomials' excursions far outside the pupil.
     // (px = pxu u, py = py0 + pyv v by least squares: the degree-1 fits in closed form.)
     let pxu = u.iter().zip(&s.px).map(|(a, b)| a * b).sum::<f64>() / u.iter().map(|a| a * a).sum::<f64>();
@@ -864,39 +883,76 @@ pub fn fast_psf(
     let scratch_len = fft.get_inplace_scratch_len();
     let mut rows_v = buffer::<f32>(nrow * g);
     let rows = &mut rows_v[..nrow * g];
-    let (tw, ty, tx) = (
-        Table::new(&ce[0], &te, 0, deg),
-        Table::new(&ce[1], &te, 0, deg),
-        Table::new(&co[0], &to, 1, deg),
-    );
-    let nq = deg / 2 + 1;
     let (mut area, mut amp_sum, mut energy) = (0.0f64, 0.0f64, 0.0f64);
     let mut cw_ = CELL_WORK.with(|c| std::mem::take(&mut *c.borrow_mut()));
-    cw_.s.clear();
-    cw_.s.extend((0..=t_hi).map(|t| (t as f64 * sc) * (t as f64 * sc)));
-    // The pupil radius changes by at most about sc |d(px, py)/d(u, v)| per cell (the affine
-    // scale, within the map's ~1% distortion), and a cell is partly covered only within
-    // 0.71 of that from the edge: delta = one cell's change bounds the rim zone.
-    let delta = sc * pxu.abs().max(pyv.abs());
-    for (ri, row) in rows.chunks_exact_mut(g).enumerate() {
-        let vb = ((b_lo + ri) as f64 - half) * sc;
-        // Cells t = 0..n: within GUARD pupil radii of the affine map (x grows with t).
-        let pya = py0 + pyv * vb;
-        let room = GUARD * GUARD - pya * pya;
-        if room <= 0.0 {
-            zero_fill(row);
-            continue;
+    let (mut rays_traced, mut newton_iterations) = (nr, 0usize);
+    if let Some((deg, te, to, ce, co)) = &fit {
+        let (deg, te, to, ce, co) = (*deg, te, to, ce, co);
+        let (tw, ty, tx) = (
+            Table::new(&ce[0], te, 0, deg),
+            Table::new(&ce[1], te, 0, deg),
+            Table::new(&co[0], to, 1, deg),
+        );
+        let nq = deg / 2 + 1;
+        cw_.s.clear();
+        cw_.s.extend((0..=t_hi).map(|t| (t as f64 * sc) * (t as f64 * sc)));
+        // The pupil radius changes by at most about sc |d(px, py)/d(u, v)| per cell (the affine
+        // scale, within the map's ~1% distortion), and a cell is partly covered only within
+        // 0.71 of that from the edge: delta = one cell's change bounds the rim zone.
+        let delta = sc * pxu.abs().max(pyv.abs());
+        for (ri, row) in rows.chunks_exact_mut(g).enumerate() {
+            let vb = ((b_lo + ri) as f64 - half) * sc;
+            // Cells t = 0..n: within GUARD pupil radii of the affine map (x grows with t).
+            let pya = py0 + pyv * vb;
+            let room = GUARD * GUARD - pya * pya;
+            if room <= 0.0 {
+                zero_fill(row);
+                continue;
+            }
+            let n = ((room.sqrt() / (pxu.abs() * sc)).floor() as usize + 1).min(t_hi + 1);
+            let (a, am, e) = cw_.row(row, [&tw, &tx, &ty], vb, nq, n, sc, delta);
+            area += a;
+            amp_sum += am;
+            energy += e;
         }
-        let n = ((room.sqrt() / (pxu.abs() * sc)).floor() as usize + 1).min(t_hi + 1);
-        let (a, am, e) = cw_.row(row, [&tw, &tx, &ty], vb, nq, n, sc, delta);
-        area += a;
-        amp_sum += am;
-        energy += e;
+    } else {
+        let mut open = System::new(sys.lens, sys.wavelength_nm)?;
+        open.clip = false;
+        let open_beam = Beam::new(&open, field_deg, Aiming::Paraxial)?;
+        let sphere = super::traced::Sphere {
+            chief: chief.p,
+            radius,
+            n_img,
+            chief_sphere_opl,
+            wl_mm,
+            rho,
+            mc,
+        };
+        match super::traced::fill_rows(&open_beam, &sphere, (pxu, py0, pyv), sc, g, b_lo, t_hi, rows) {
+            Ok(f) => {
+                area = f.area;
+                amp_sum = f.amp_sum;
+                energy = f.energy;
+                rays_traced += f.rays;
+                newton_iterations = f.iterations;
+                ex = ex.max(f.extent.0);
+                ey = ey.max(f.extent.1);
+            }
+            Err(why) => {
+                CELL_WORK.with(|c| *c.borrow_mut() = cw_);
+                recycle(rows_v);
+                return Ok(Err(why));
+            }
+        }
     }
     if !((area / PI - 1.0).abs() <= AREA_TOL) {
         CELL_WORK.with(|c| *c.borrow_mut() = cw_);
         recycle(rows_v);
-        return Ok(Err("the fitted pupil's area differs from the unit circle's"));
+        return Ok(Err(if traced {
+            "the traced pupil's area differs from the unit circle's"
+        } else {
+            "the fitted pupil's area differs from the unit circle's"
+        }));
     }
     let mut scratch_v = buffer::<f32>(scratch_len);
     let scratch = &mut scratch_v[..scratch_len];
@@ -974,11 +1030,16 @@ pub fn fast_psf(
     d.set("transmitted_fraction", 1.0);
     d.set("max_phase_step_waves", step);
     d.set("reference_sphere_radius_mm", radius);
-    d.set("rays_traced", nr as f64);
+    d.set("rays_traced", rays_traced as f64);
     d.set("rays_missed", 0.0);
     d.set("rays_clipped", 0.0);
     d.set("rays_tir", 0.0);
-    d.set("pupil_fit_degree", deg as f64);
+    d.set("pupil_eval", if traced { "traced" } else { "fit" });
+    if let Some((deg, ..)) = &fit {
+        d.set("pupil_fit_degree", *deg as f64);
+    } else {
+        d.set("pupil_newton_iterations", newton_iterations as f64);
+    }
     d.set("pupil_fit_residual_waves", last_resid.0);
     d.set("pupil_fit_residual_coord", last_resid.1);
     d.set("pupil_samples_across", min_extent / dl);

@@ -11,6 +11,7 @@ pub mod geometric;
 pub mod huygens;
 pub mod pupil;
 pub mod resample;
+pub mod traced;
 
 use crate::aim::Aiming;
 use crate::error::{arg, EngineError, Result};

@@ -15,4 +15,5 @@ mod odd_asphere;
 mod path;
 mod psf_reference;
 mod reference;
+mod traced;
 mod wavefront;
