@@ -10,6 +10,9 @@
 #   mainjob        The main job (iq-software, quick budget, the defaults) on 3 seeds.
 #   fig12-nominal  Fig. 12 as fig12-uniform, from the nominal lens (seeds 0 1 2).
 #   table          The three image-quality tasks at the full budget, 3 seeds each, on the defaults.
+#   uniform-full   Alg. 1 from the 3 uniform random starts of fig12-uniform at the full budget
+#                  (400 steps), exact optics in the paper-width space: do they reach the nominal
+#                  camera with 4x the steps? (docs/e2e.md, "The paper-width space").
 # A session's background work does not outlive it, so each finished run's small files
 # (results.json, metrics.csv, history.csv, the lens .zmx, the summaries) are kept in git under
 # the default OUT (its .gitignore leaves checkpoints, TensorBoard and images out); a later
@@ -18,7 +21,7 @@
 set -euo pipefail
 OUT="${1:-benches/results/issue34}"
 shift || true
-STAGES="${*:-fig12-uniform tradeoff mainjob fig12-nominal table}"
+STAGES="${*:-fig12-uniform tradeoff mainjob fig12-nominal table uniform-full}"
 mkdir -p "$OUT"
 printf 'optics = "exact"\nspace = "paper-triplet-wide"\nthreads = 2\n' > "$OUT/wide.toml"
 fig12() {
@@ -39,6 +42,12 @@ for stage in $STAGES; do
     table)
       python benches/e2e_tasks.py --budget full --seeds 0 1 2 --out "$OUT/table_full" \
         >> "$OUT/table_full.log" 2>&1 ;;
-    *) echo "unknown stage '$stage' (fig12-uniform tradeoff mainjob fig12-nominal table)" >&2; exit 2 ;;
+    uniform-full)
+      for seed in 0 1 2; do
+        optix design iq-software --budget full --start uniform --seed "$seed" \
+          --config "$OUT/wide.toml" --out "$OUT/uniform_full/seed$seed" \
+          >> "$OUT/uniform_full_seed$seed.log" 2>&1
+      done ;;
+    *) echo "unknown stage '$stage' (fig12-uniform tradeoff mainjob fig12-nominal table uniform-full)" >&2; exit 2 ;;
   esac
 done
