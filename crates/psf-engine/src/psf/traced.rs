@@ -35,6 +35,8 @@ const NEWTON_MAX_IT: usize = 12;
 const FD_STEP: f64 = 1e-6;
 /// Largest Newton step (pupil radii): keeps the first steps from far-off guesses sane.
 const MAX_STEP: f64 = 0.25;
+/// Cells traced per engine call (three rays each).
+const CHUNK_CELLS: usize = 1 << 16;
 /// Cells whose affine guess is beyond this pupil radius are not traced.
 const SKIP_RADIUS: f64 = 1.25;
 /// Halvings of a step whose rays were lost before the cell is given up.
@@ -144,72 +146,76 @@ pub(crate) fn fill_rows(
     // Per cell, once converged: W, d(px, py)/d(u, v) (row-major).
     let mut w = vec![0.0; n];
     let mut jinv = vec![[0.0f64; 4]; n];
-    let mut state = vec![0u8; n]; // 0 pending, 1 converged, 2 failed
-                                  // Cells whose affine guess lies far outside the pupil are dark: not traced (a pupil whose
-                                  // map departs from affine by more shows in the area check).
+    // 0 pending, 1 converged, 2 given up.
+    let mut state = vec![0u8; n];
+    // Cells whose affine guess lies far outside the pupil are dark: not traced (a pupil whose
+    // map departs from affine by more shows in the area check).
     let mut pending: Vec<usize> = (0..n).filter(|&k| px[k].hypot(py[k]) <= SKIP_RADIUS).collect();
     let (mut rays, mut iterations) = (0usize, 0usize);
     let mut extent = (0.0f64, 0.0f64);
     let mut image = vec![(0.0f64, 0.0f64); n];
-    let (mut xs, mut ys) = (Vec::with_capacity(3 * n), Vec::with_capacity(3 * n));
+    let (mut xs, mut ys) = (Vec::with_capacity(3 * CHUNK_CELLS), Vec::with_capacity(3 * CHUNK_CELLS));
     for it in 0..NEWTON_MAX_IT {
         if pending.is_empty() {
             break;
         }
         iterations = it + 1;
-        xs.clear();
-        ys.clear();
-        for &k in &pending {
-            xs.extend([px[k], px[k] + FD_STEP, px[k]]);
-            ys.extend([py[k], py[k], py[k] + FD_STEP]);
-        }
-        let r = trace(open, s, &xs, &ys);
-        rays += xs.len();
         let mut still = Vec::with_capacity(pending.len());
-        for (i, &k) in pending.iter().enumerate() {
-            let (a, b, c) = (3 * i, 3 * i + 1, 3 * i + 2);
-            let j = [
-                (r.u[b] - r.u[a]) / FD_STEP,
-                (r.u[c] - r.u[a]) / FD_STEP,
-                (r.v[b] - r.v[a]) / FD_STEP,
-                (r.v[c] - r.v[a]) / FD_STEP,
-            ];
-            let det = j[0] * j[3] - j[1] * j[2];
-            if !(r.ok[a] && r.ok[b] && r.ok[c] && det * sign > 1e-12 && det.is_finite()) {
-                // Rays lost here (beyond the lens's reach, a miss or TIR), or past a fold of
-                // the map (the Jacobian's sign turned): back half way towards the last point
-                // on this side, a few times, then give the cell up.
-                match last_ok[k] {
-                    Some((x0, y0)) if halvings[k] < MAX_HALVINGS => {
-                        halvings[k] += 1;
-                        px[k] = 0.5 * (x0 + px[k]);
-                        py[k] = 0.5 * (y0 + py[k]);
-                        still.push(k);
+        // By chunks of cells: the traced arrays stay small whatever the grid.
+        for chunk in pending.chunks(CHUNK_CELLS) {
+            xs.clear();
+            ys.clear();
+            for &k in chunk {
+                xs.extend([px[k], px[k] + FD_STEP, px[k]]);
+                ys.extend([py[k], py[k], py[k] + FD_STEP]);
+            }
+            let r = trace(open, s, &xs, &ys);
+            rays += xs.len();
+            for (i, &k) in chunk.iter().enumerate() {
+                let (a, b, c) = (3 * i, 3 * i + 1, 3 * i + 2);
+                let j = [
+                    (r.u[b] - r.u[a]) / FD_STEP,
+                    (r.u[c] - r.u[a]) / FD_STEP,
+                    (r.v[b] - r.v[a]) / FD_STEP,
+                    (r.v[c] - r.v[a]) / FD_STEP,
+                ];
+                let det = j[0] * j[3] - j[1] * j[2];
+                if !(r.ok[a] && r.ok[b] && r.ok[c] && det * sign > 1e-12 && det.is_finite()) {
+                    // Rays lost here (beyond the lens's reach, a miss or TIR), or past a fold of
+                    // the map (the Jacobian's sign turned): back half way towards the last point
+                    // on this side, a few times, then give the cell up.
+                    match last_ok[k] {
+                        Some((x0, y0)) if halvings[k] < MAX_HALVINGS => {
+                            halvings[k] += 1;
+                            px[k] = 0.5 * (x0 + px[k]);
+                            py[k] = 0.5 * (y0 + py[k]);
+                            still.push(k);
+                        }
+                        _ => state[k] = 2,
                     }
-                    _ => state[k] = 2,
+                    continue;
                 }
-                continue;
+                last_ok[k] = Some((px[k], py[k]));
+                let inv = [j[3] / det, -j[1] / det, -j[2] / det, j[0] / det];
+                let (ut, vt) = target(k);
+                let (eu, ev) = (ut - r.u[a], vt - r.v[a]);
+                if eu.abs().max(ev.abs()) <= NEWTON_TOL {
+                    state[k] = 1;
+                    w[k] = r.w[a];
+                    jinv[k] = inv;
+                    image[k] = (r.x[a], r.y[a]);
+                    continue;
+                }
+                let (mut dx, mut dy) = (inv[0] * eu + inv[1] * ev, inv[2] * eu + inv[3] * ev);
+                let len = dx.hypot(dy);
+                if len > MAX_STEP {
+                    dx *= MAX_STEP / len;
+                    dy *= MAX_STEP / len;
+                }
+                px[k] += dx;
+                py[k] += dy;
+                still.push(k);
             }
-            last_ok[k] = Some((px[k], py[k]));
-            let inv = [j[3] / det, -j[1] / det, -j[2] / det, j[0] / det];
-            let (ut, vt) = target(k);
-            let (eu, ev) = (ut - r.u[a], vt - r.v[a]);
-            if eu.abs().max(ev.abs()) <= NEWTON_TOL {
-                state[k] = 1;
-                w[k] = r.w[a];
-                jinv[k] = inv;
-                image[k] = (r.x[a], r.y[a]);
-                continue;
-            }
-            let (mut dx, mut dy) = (inv[0] * eu + inv[1] * ev, inv[2] * eu + inv[3] * ev);
-            let len = dx.hypot(dy);
-            if len > MAX_STEP {
-                dx *= MAX_STEP / len;
-                dy *= MAX_STEP / len;
-            }
-            px[k] += dx;
-            py[k] += dy;
-            still.push(k);
         }
         pending = still;
     }
