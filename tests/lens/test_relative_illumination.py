@@ -140,7 +140,8 @@ def test_batch_values_are_in_range_or_the_design_fails():
 def test_dataset_window_energy_within_one_and_verify_flags_out_of_range(tmp_path):
     """The default `optix dataset paper-triplet -n 64 --seed 1` (the space now bundled as
     paper-triplet-v1) stored 1.262 for design 59 at
-    14.9 deg, 470 nm (an aliased FFT N=64 fallback) with ok=True: auto now escalates such a PSF.
+    14.9 deg, 470 nm (an aliased FFT N=64 fallback) with ok=True: the fast path now traces such
+    a pupil, and auto escalates past a fallback.
     A shard edited to hold out-of-range values (checksums updated) fails verify."""
     import json
 
@@ -165,7 +166,12 @@ def test_dataset_window_energy_within_one_and_verify_flags_out_of_range(tmp_path
     man = json.loads((root / "manifest.json").read_text())
     arrays, meta = compute_shard(0, man, old, space, base)
     assert arrays["energy_in_window"].max() <= 1.01
-    assert any("escalated" in w for w in meta["warnings"]["59"]), meta["warnings"].get("59")
+    # That PSF is no aliased fallback now: the fast path traces its pupil (psf/traced.rs),
+    # or auto escalates past the fallback (the stored method of the last field's bluest PSF).
+    codes = meta["psf_methods"]["codes"]["59"]
+    last = meta["psf_methods"]["legend"][codes[-1]]
+    escalated = any("escalated" in w for w in meta["warnings"].get("59", []))
+    assert last.startswith("fft-fast") or escalated, (last, meta["warnings"].get("59"))
 
     for name, value in [("energy_in_window", 1.262), ("relative_illumination", -49.7), ("psf", 2.0)]:
         damaged = tmp_path / f"damaged_{name}"

@@ -59,7 +59,7 @@ const MAX_DEGREE: usize = 12;
 /// Largest fit residual accepted at the traced rays: wavefront (waves) and pupil coordinates.
 pub const W_TOL_WAVES: f64 = 1e-3;
 pub const P_TOL: f64 = 1e-4;
-const MAX_GRID: usize = 8192;
+pub(crate) const MAX_GRID: usize = 8192;
 /// Cells are evaluated out to this radius of the affine approximation of the pupil map
 /// (its distortion is far smaller: within 1% at the paper-triplet's corner; a cut pupil
 /// fails the area test and falls back).
@@ -948,11 +948,16 @@ pub(crate) fn fast_psf_pupil(
     if !((area / PI - 1.0).abs() <= AREA_TOL) {
         CELL_WORK.with(|c| *c.borrow_mut() = cw_);
         recycle(rows_v);
-        return Ok(Err(if traced {
-            "the traced pupil's area differs from the unit circle's"
-        } else {
-            "the fitted pupil's area differs from the unit circle's"
-        }));
+        if traced {
+            return Ok(Err("the traced pupil's area differs from the unit circle's"));
+        }
+        // Fits within tolerance at their rays that stray between them: the same pupil traced
+        // cell by cell.
+        d.set(
+            "pupil_traced_because",
+            "the fitted pupil's area differs from the unit circle's",
+        );
+        return fast_psf_pupil(sys, field_deg, o, d, true);
     }
     let mut scratch_v = buffer::<f32>(scratch_len);
     let scratch = &mut scratch_v[..scratch_len];
@@ -1035,6 +1040,16 @@ pub(crate) fn fast_psf_pupil(
     d.set("rays_clipped", 0.0);
     d.set("rays_tir", 0.0);
     d.set("pupil_eval", if traced { "traced" } else { "fit" });
+    if traced && !d.values.contains_key("pupil_traced_because") {
+        d.set(
+            "pupil_traced_because",
+            if force_traced {
+                "asked for"
+            } else {
+                "the pupil polynomial fits miss their tolerance"
+            },
+        );
+    }
     if let Some((deg, ..)) = &fit {
         d.set("pupil_fit_degree", *deg as f64);
     } else {

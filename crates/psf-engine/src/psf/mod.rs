@@ -259,7 +259,7 @@ pub(crate) fn psf_path(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfO
         let t0 = Instant::now();
         let pr = auto::probe(lens, field_deg, wavelength_nm, o.aiming, o.size as f64 * o.pixel_mm)?;
         let cands = auto::candidates(&pr, o, lens.surfaces.len());
-        let (c, met) = auto::choose(&cands, o.accuracy);
+        let (c, _) = auto::choose(&cands, o.accuracy);
         let probe_s = t0.elapsed().as_secs_f64();
         // A PSF that fails its own checks (a window holding more than the transmitted
         // energy) escalates to the next candidate predicted at least as accurate, in cost order.
@@ -303,6 +303,8 @@ pub(crate) fn psf_path(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfO
                     next = auto::escalate(&cands, &c, &failed);
                 }
                 Ok((mut p, clear)) => {
+                    // Predicted to meet the target: the candidate used, after any escalation.
+                    let met = c.predicted_error <= o.accuracy;
                     auto::record(&mut p.diagnostics, &c, met, &pr, o.accuracy, probe_s);
                     if let Some(why) = auto::flagged(&p.diagnostics, &c) {
                         // Flagged, and no candidate left to escalate to: said, not hidden.
@@ -328,6 +330,17 @@ pub(crate) fn psf_path(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfO
                 }
                 Err(EngineError::Psf(why)) => {
                     failed.push(auto::label(c.method.name(), c.fast, c.pupil_samples));
+                    if c.fast {
+                        // The fast path fell back (its pupil, fitted or traced, fails whatever
+                        // the sampling) and the general FFT at that N refused: so would every
+                        // other fast candidate.
+                        for k in cands.iter().filter(|k| k.fast) {
+                            let name = k.name();
+                            if !failed.contains(&name) {
+                                failed.push(name);
+                            }
+                        }
+                    }
                     next = auto::escalate(&cands, &c, &failed);
                     if next.is_none() {
                         return Err(EngineError::Psf(format!(
