@@ -215,9 +215,10 @@ const COST_GEO: (f64, f64) = (2.1e-4, 8.4e-9);
 
 /// The fast path's fewest cells across the pupil. Above 256 they matter where the spot sizes
 /// the grid (its period holds twice the spot): more cells make the steps of a wavefront of
-/// tens of waves finer (benches/auto_flagged.py: 2.7 % at the spot-sized grid, 0.14 % at
-/// 2048 cells, on a 16 %-of-the-light window).
-const FAST_N: [usize; 6] = [64, 128, 256, 512, 1024, 2048];
+/// tens of waves finer (benches/auto_flagged.py: 2.7 % at the spot-sized grid, 0.71 % at 512
+/// cells, on a 16 %-of-the-light window). 1024 at most: a traced pupil keeps about 100 bytes
+/// a cell.
+const FAST_N: [usize; 5] = [64, 128, 256, 512, 1024];
 const FFT_N: [usize; 4] = [32, 64, 128, 256];
 const HUYGENS_N: [usize; 3] = [64, 128, 256];
 const GEO_N: [usize; 3] = [64, 128, 256];

@@ -60,6 +60,18 @@ const MAX_DEGREE: usize = 12;
 pub const W_TOL_WAVES: f64 = 1e-3;
 pub const P_TOL: f64 = 1e-4;
 pub(crate) const MAX_GRID: usize = 8192;
+/// Where the fast path does not apply, the general FFT takes over at most at these pupil
+/// samples (mod.rs).
+pub(crate) const FALLBACK_SAMPLES: usize = 256;
+/// How a refusal of that general FFT names the fast path's reason (auto reads it).
+pub(crate) const FELL_BACK: &str = "the fast path had fallen back: ";
+
+/// Whether the fast path's reason to fall back lies in the pupil (its fits, the traced
+/// pupil's area, the coarse rays), which no sampling changes, rather than in the grid that
+/// this sampling asked for.
+pub(crate) fn fallback_is_the_pupils(why: &str) -> bool {
+    !(why.contains("grid would exceed") || why.contains("does not fit in the direction grid"))
+}
 /// Cells are evaluated out to this radius of the affine approximation of the pupil map
 /// (its distortion is far smaller: within 1% at the paper-triplet's corner; a cut pupil
 /// fails the area test and falls back).
@@ -916,9 +928,18 @@ pub(crate) fn fast_psf_pupil(
             energy += e;
         }
     } else {
-        let mut open = System::new(sys.lens, sys.wavelength_nm)?;
+        // (An engine error here is this path's failure, not the PSF's: the caller falls back.)
+        let Ok(mut open) = System::new(sys.lens, sys.wavelength_nm) else {
+            CELL_WORK.with(|c| *c.borrow_mut() = cw_);
+            recycle(rows_v);
+            return Ok(Err("the unclipped system for the traced pupil could not be built"));
+        };
         open.clip = false;
-        let open_beam = Beam::new(&open, field_deg, Aiming::Paraxial)?;
+        let Ok(open_beam) = Beam::new(&open, field_deg, Aiming::Paraxial) else {
+            CELL_WORK.with(|c| *c.borrow_mut() = cw_);
+            recycle(rows_v);
+            return Ok(Err("the unclipped system for the traced pupil could not be built"));
+        };
         let sphere = super::traced::Sphere {
             chief: chief.p,
             radius,

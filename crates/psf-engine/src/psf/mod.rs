@@ -131,17 +131,32 @@ impl PsfOptions {
     /// at least 4 x pupil_samples across) and the sampled pupil.
     pub fn memory(&self) -> crate::budget::Need {
         let out = (self.size * self.size) as f64 * 8.0 * 3.0;
-        let g = self.fft_grid.unwrap_or(4 * self.pupil_samples) as f64;
+        let fast = self.fast && self.method == Method::Fft && self.fft_grid.is_none();
+        // The fast path's fallback runs the general FFT at most at FALLBACK_SAMPLES.
+        let n = if fast {
+            self.pupil_samples.min(fast::FALLBACK_SAMPLES)
+        } else {
+            self.pupil_samples
+        };
+        let g = self.fft_grid.unwrap_or(4 * n) as f64;
         let fft = if self.method == Method::Fft {
             g * g * 16.0 * 2.0
         } else {
             0.0
         };
-        let pupil = (self.pupil_samples as f64).powi(2) * 96.0;
+        let pupil = (n as f64).powi(2) * 96.0;
+        // The fast path's direction cells (single-precision rows, and a traced pupil's
+        // per-cell state: about 100 bytes a cell over the pupil's N^2 cells).
+        let cells = if fast {
+            (self.pupil_samples as f64).powi(2) * 100.0
+        } else {
+            0.0
+        };
         crate::budget::Need(vec![
             ("output".into(), out),
             (format!("FFT grid {g}^2"), fft),
             ("pupil".into(), pupil),
+            ("direction cells".into(), cells),
         ])
     }
 
@@ -265,6 +280,43 @@ pub(crate) fn psf_path(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfO
         // energy) escalates to the next candidate predicted at least as accurate, in cost order.
         let mut failed: Vec<String> = vec![];
         let mut flags: Vec<String> = vec![];
+        // The PSF of candidate `c` as auto's answer: its choice, flags and escalations recorded.
+        let answer = |mut p: Psf, c: &auto::Candidate, flags: &mut Vec<String>, failed: &[String]| -> Psf {
+            // Predicted to meet the target: the candidate used, after any escalation.
+            let met = c.predicted_error <= o.accuracy;
+            auto::record(&mut p.diagnostics, c, met, &pr, o.accuracy, probe_s);
+            if let Some(why) = auto::flagged(&p.diagnostics, c) {
+                // Flagged, and no candidate left to escalate to: said, not hidden.
+                p.diagnostics.warn(format!(
+                    "auto: {} is flagged by its own checks ({why}) and no candidate predicted as accurate is left; its error may exceed the target",
+                    c.name()
+                ));
+                flags.push(format!("{}: {why}", c.name()));
+            }
+            if !flags.is_empty() {
+                p.diagnostics.set("auto_flagged", flags.clone());
+            }
+            if !failed.is_empty() {
+                p.diagnostics.set("auto_escalated_from", failed.to_vec());
+                p.diagnostics.warn(format!(
+                    "auto: {} failed its checks; escalated to {}",
+                    failed.join(", "),
+                    c.name()
+                ));
+            }
+            p.diagnostics.set("time_s", t0.elapsed().as_secs_f64());
+            p
+        };
+        // Every fast candidate given up at once where the fast path fell back for its pupil
+        // (fits, traced area, rays of the coarse set), which no sampling changes.
+        let rule_out_fast = |failed: &mut Vec<String>| {
+            for k in cands.iter().filter(|k| k.fast) {
+                let name = k.name();
+                if !failed.contains(&name) {
+                    failed.push(name);
+                }
+            }
+        };
         let mut next = Some(c);
         while let Some(c) = next.take() {
             let chosen = PsfOptions {
@@ -277,69 +329,40 @@ pub(crate) fn psf_path(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfO
                 // A result its own checks flag (auto::flagged: the fast path fell back, the
                 // FFT's field or Taylor expansion failed, the pupil far undersampled) is not
                 // what the model predicted: the next candidate, where there is one.
-                Ok((p, _))
-                    if auto::flagged(&p.diagnostics, &c).is_some() && {
-                        let mut tried = failed.clone();
-                        tried.push(auto::label(c.method.name(), c.fast, c.pupil_samples));
-                        auto::escalate(&cands, &c, &tried).is_some()
-                    } =>
-                {
-                    let why = auto::flagged(&p.diagnostics, &c).unwrap_or_default();
-                    flags.push(format!(
-                        "{}: {why}",
-                        auto::label(c.method.name(), c.fast, c.pupil_samples)
-                    ));
-                    failed.push(auto::label(c.method.name(), c.fast, c.pupil_samples));
-                    if c.fast && p.diagnostics.values.contains_key("fast_fallback") {
-                        // The fast path's fits fail for the pupil, not for the sampling: every
-                        // fast candidate would fall back the same way.
-                        for k in cands.iter().filter(|k| k.fast) {
-                            let name = k.name();
-                            if !failed.contains(&name) {
-                                failed.push(name);
-                            }
+                Ok((p, clear)) if auto::flagged(&p.diagnostics, &c).is_some() => {
+                    let mut tried = failed.clone();
+                    tried.push(c.name());
+                    let pupil_fell_back = c.fast
+                        && p.diagnostics
+                            .values
+                            .get("fast_fallback")
+                            .and_then(Value::as_str)
+                            .is_some_and(fast::fallback_is_the_pupils);
+                    if pupil_fell_back {
+                        rule_out_fast(&mut tried);
+                    }
+                    match auto::escalate(&cands, &c, &tried) {
+                        Some(k) => {
+                            let why = auto::flagged(&p.diagnostics, &c).unwrap_or_default();
+                            flags.push(format!("{}: {why}", c.name()));
+                            failed = tried;
+                            next = Some(k);
                         }
+                        // Nothing left to escalate to: this PSF, with its flag said.
+                        None => return Ok((answer(p, &c, &mut flags, &failed), clear)),
                     }
-                    next = auto::escalate(&cands, &c, &failed);
                 }
-                Ok((mut p, clear)) => {
-                    // Predicted to meet the target: the candidate used, after any escalation.
-                    let met = c.predicted_error <= o.accuracy;
-                    auto::record(&mut p.diagnostics, &c, met, &pr, o.accuracy, probe_s);
-                    if let Some(why) = auto::flagged(&p.diagnostics, &c) {
-                        // Flagged, and no candidate left to escalate to: said, not hidden.
-                        p.diagnostics.warn(format!(
-                            "auto: {} is flagged by its own checks ({why}) and no candidate predicted as accurate is left; its error may exceed the target",
-                            c.name()
-                        ));
-                        flags.push(format!("{}: {why}", c.name()));
-                    }
-                    if !flags.is_empty() {
-                        p.diagnostics.set("auto_flagged", flags.clone());
-                    }
-                    if !failed.is_empty() {
-                        p.diagnostics.set("auto_escalated_from", failed.clone());
-                        p.diagnostics.warn(format!(
-                            "auto: {} failed its checks; escalated to {}",
-                            failed.join(", "),
-                            auto::label(c.method.name(), c.fast, c.pupil_samples)
-                        ));
-                    }
-                    p.diagnostics.set("time_s", t0.elapsed().as_secs_f64());
-                    return Ok((p, clear));
-                }
-                Err(EngineError::Psf(why)) => {
-                    failed.push(auto::label(c.method.name(), c.fast, c.pupil_samples));
-                    if c.fast {
-                        // The fast path fell back (its pupil, fitted or traced, fails whatever
-                        // the sampling) and the general FFT at that N refused: so would every
-                        // other fast candidate.
-                        for k in cands.iter().filter(|k| k.fast) {
-                            let name = k.name();
-                            if !failed.contains(&name) {
-                                failed.push(name);
-                            }
-                        }
+                Ok((p, clear)) => return Ok((answer(p, &c, &mut flags, &failed), clear)),
+                // A PSF its own checks refuse, or one this machine cannot hold (a candidate's
+                // memory need above what is available): the next candidate.
+                Err(EngineError::Psf(why)) | Err(EngineError::Argument(why)) => {
+                    failed.push(c.name());
+                    if c.fast
+                        && why
+                            .split_once(fast::FELL_BACK)
+                            .is_some_and(|(_, r)| fast::fallback_is_the_pupils(r))
+                    {
+                        rule_out_fast(&mut failed);
                     }
                     next = auto::escalate(&cands, &c, &failed);
                     if next.is_none() {
@@ -363,7 +386,18 @@ pub(crate) fn psf_path(lens: &Lens, field_deg: f64, wavelength_nm: f64, o: &PsfO
         match fast::fast_psf(&sys, field_deg, o, &mut d)? {
             Ok(data) => return finish(d, data, None, 1.0, o, field_deg, wavelength_nm, t0).map(|p| (p, true)),
             Err(why) => {
-                let mut p = rayon::scope(|_| psf_in_pool(lens, field_deg, wavelength_nm, o))?;
+                // The general FFT takes over, at most at FALLBACK_SAMPLES: the fast path's N
+                // counts direction cells across the pupil (up to 1024), which as the general
+                // FFT's pupil samples would be grids of 4N points.
+                let general = PsfOptions {
+                    pupil_samples: o.pupil_samples.min(fast::FALLBACK_SAMPLES),
+                    ..o.clone()
+                };
+                let mut p = match rayon::scope(|_| psf_in_pool(lens, field_deg, wavelength_nm, &general)) {
+                    Ok(p) => p,
+                    Err(EngineError::Psf(m)) => return Err(EngineError::Psf(format!("{m}; {}{why}", fast::FELL_BACK))),
+                    Err(e) => return Err(e),
+                };
                 p.diagnostics.set("fft_mode", "general");
                 p.diagnostics.set("fast_fallback", why);
                 return Ok((p, false));

@@ -30,7 +30,7 @@ use num_complex::Complex32;
 /// Newton stops where the cell's direction is within this of its centre (normalized
 /// coordinates u = L / rho, |u| <= 1).
 const NEWTON_TOL: f64 = 1e-10;
-const NEWTON_MAX_IT: usize = 12;
+const NEWTON_MAX_IT: usize = 20;
 /// Finite-difference step in entrance-pupil coordinates.
 const FD_STEP: f64 = 1e-6;
 /// Largest Newton step (pupil radii): keeps the first steps from far-off guesses sane.
@@ -40,7 +40,10 @@ const CHUNK_CELLS: usize = 1 << 16;
 /// Cells whose affine guess is beyond this pupil radius are not traced.
 const SKIP_RADIUS: f64 = 1.25;
 /// Halvings of a step whose rays were lost before the cell is given up.
-const MAX_HALVINGS: u8 = 12;
+const MAX_HALVINGS: u8 = 8;
+/// From this iteration on, a cell whose point lies beyond SKIP_RADIUS is given up: its
+/// direction is outside the pupil's image (unreachable targets oscillate out there).
+const GIVE_UP_IT: usize = 3;
 
 /// What the rays of the cells need to know of the reference sphere and the direction grid.
 pub(crate) struct Sphere {
@@ -214,6 +217,10 @@ pub(crate) fn fill_rows(
                 }
                 px[k] += dx;
                 py[k] += dy;
+                if it >= GIVE_UP_IT && px[k].hypot(py[k]) > SKIP_RADIUS {
+                    state[k] = 2;
+                    continue;
+                }
                 still.push(k);
             }
         }
@@ -222,24 +229,10 @@ pub(crate) fn fill_rows(
     for &k in &pending {
         state[k] = 2;
     }
-    // A cell given up is one whose direction no ray of the open system reaches: beyond the
-    // fold of the direction map or the lens's reach, outside the pupil where that fold lies
-    // outside it. Inside it, the map must not fold (one ray per direction, the same sign of
-    // the Jacobian throughout); cells left out inside it show in the area check (fast.rs).
-    let (mut pos, mut neg) = (0usize, 0usize);
-    for k in 0..n {
-        if state[k] == 1 && px[k].hypot(py[k]) < 1.0 {
-            let m = &jinv[k];
-            if (m[0] * m[3] - m[1] * m[2]) * sign > 0.0 {
-                pos += 1;
-            } else {
-                neg += 1;
-            }
-        }
-    }
-    if pos > 0 && neg > 0 {
-        return Err("the pupil's map to the image-space directions folds inside the pupil");
-    }
+    // A cell given up is one whose direction no ray of the open system reaches on the branch
+    // of the map that holds the pupil: beyond a fold of the map or the lens's reach. Where the
+    // fold lies outside the pupil, such cells are outside it too. Where it lies inside, the
+    // cells beyond it are missing from the pupil, and the area check (fast.rs) sees them.
     let (mut area, mut energy, mut amp_sum) = (0.0, 0.0, 0.0);
     for (ri, row) in rows.chunks_exact_mut(g).enumerate() {
         super::fft::zero_fill(row);
