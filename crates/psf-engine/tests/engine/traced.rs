@@ -78,3 +78,23 @@ fn a_pupil_whose_direction_map_folds_falls_back_instead_of_losing_light() {
         Err(e) => assert!(e.to_string().contains("PSF"), "{e}"),
     }
 }
+
+/// auto's largest fast candidate (1024 cells across the pupil) is budgeted as what it
+/// allocates, not as a general FFT on a 4096-point grid (2 GiB): below the size at which the
+/// engine reads the memory available, so a loaded machine never refuses it. The general FFT
+/// at 1024 samples still is budgeted at its size.
+#[test]
+fn the_fast_paths_memory_need_is_its_own() {
+    let fast = PsfOptions {
+        pupil_samples: 1024,
+        size: 246,
+        ..fast()
+    };
+    assert!(
+        fast.memory().total() <= 256.0 * 1024.0 * 1024.0,
+        "{}",
+        fast.memory().total()
+    );
+    let general = PsfOptions { fast: false, ..fast };
+    assert!(general.memory().total() >= 512.0 * 1024.0 * 1024.0);
+}
