@@ -94,25 +94,33 @@ struct Samples {
 fn samples() -> &'static Samples {
     static S: OnceLock<Samples> = OnceLock::new();
     S.get_or_init(|| {
-        let coord = |i: usize| -1.0 + (2.0 * i as f64 + 1.0) / NT as f64;
-        let (mut px, mut py) = (vec![], vec![]);
-        for b in 0..NT {
-            for a in NT / 2..NT {
-                let (x, y) = (coord(a), coord(b));
-                if x * x + y * y <= 1.0 {
-                    px.push(x);
-                    py.push(y);
-                }
-            }
-        }
-        for k in 0..N_RIM {
-            let phi = -FRAC_PI_2 + PI * k as f64 / (N_RIM - 1) as f64;
-            let x = if k == 0 || k == N_RIM - 1 { 0.0 } else { phi.cos() };
-            px.push(R_RIM * x);
-            py.push(R_RIM * phi.sin());
-        }
+        let (px, py) = half_pupil(NT, N_RIM, R_RIM);
         Samples { px, py }
     })
+}
+
+/// Entrance-pupil points of the half pupil px >= 0 (a field along y images it mirror
+/// symmetric): the cell centres of an nt x nt grid over [-1, 1]^2 inside the unit circle, then
+/// `n_rim` points on the half circle of radius `r_rim` from py = -r_rim to py = r_rim.
+pub(crate) fn half_pupil(nt: usize, n_rim: usize, r_rim: f64) -> (Vec<f64>, Vec<f64>) {
+    let coord = |i: usize| -1.0 + (2.0 * i as f64 + 1.0) / nt as f64;
+    let (mut px, mut py) = (vec![], vec![]);
+    for b in 0..nt {
+        for a in nt / 2..nt {
+            let (x, y) = (coord(a), coord(b));
+            if x * x + y * y <= 1.0 {
+                px.push(x);
+                py.push(y);
+            }
+        }
+    }
+    for k in 0..n_rim {
+        let phi = -FRAC_PI_2 + PI * k as f64 / (n_rim - 1) as f64;
+        let x = if k == 0 || k == n_rim - 1 { 0.0 } else { phi.cos() };
+        px.push(r_rim * x);
+        py.push(r_rim * phi.sin());
+    }
+    (px, py)
 }
 
 /// Legendre polynomials P_0..=P_deg at x, and their derivatives.

@@ -286,23 +286,7 @@ const EXTENT_SAMPLES: usize = 48;
 /// set under-reports the spot of a pupil that no polynomial follows, and the grid is sized
 /// from it.
 pub(crate) fn extent(beam: &Beam, chief: DVec3) -> (f64, f64) {
-    let m = EXTENT_SAMPLES;
-    let c = |i: usize| -1.0 + (2.0 * i as f64 + 1.0) / m as f64;
-    let (mut px, mut py) = (vec![], vec![]);
-    for b in 0..m {
-        for a in m / 2..m {
-            let (x, y) = (c(a), c(b));
-            if x * x + y * y <= 1.0 {
-                px.push(x);
-                py.push(y);
-            }
-        }
-    }
-    for k in 0..=m {
-        let phi = -std::f64::consts::FRAC_PI_2 + std::f64::consts::PI * k as f64 / m as f64;
-        px.push(0.999 * phi.cos().max(0.0));
-        py.push(0.999 * phi.sin());
-    }
+    let (px, py) = super::fast::half_pupil(EXTENT_SAMPLES, EXTENT_SAMPLES + 1, 0.999);
     let t = beam.trace_pupil_soa(&px, &py);
     let (mut ex, mut ey) = (0.0f64, 0.0f64);
     for k in 0..px.len() {
