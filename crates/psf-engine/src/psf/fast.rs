@@ -901,6 +901,27 @@ pub(crate) fn fast_psf_pupil(
     // Pupil function rows (f32), transformed along x; bins 0..=h kept per row.
     let fft = plan::<f32>(g);
     let scratch_len = fft.get_inplace_scratch_len();
+    // A traced pupil's rays go through an unclipped copy of the system, built before the pooled
+    // buffers are taken (an engine error here is this path's failure, not the PSF's: the
+    // caller falls back).
+    let open = if traced {
+        match System::new(sys.lens, sys.wavelength_nm) {
+            Ok(mut open) => {
+                open.clip = false;
+                Some(open)
+            }
+            Err(_) => return Ok(Err("the unclipped system for the traced pupil could not be built")),
+        }
+    } else {
+        None
+    };
+    let open_beam = match &open {
+        Some(open) => match Beam::new(open, field_deg, Aiming::Paraxial) {
+            Ok(b) => Some(b),
+            Err(_) => return Ok(Err("the unclipped system for the traced pupil could not be built")),
+        },
+        None => None,
+    };
     let mut rows_v = buffer::<f32>(nrow * g);
     let rows = &mut rows_v[..nrow * g];
     let (mut area, mut amp_sum, mut energy) = (0.0f64, 0.0f64, 0.0f64);
@@ -935,19 +956,7 @@ pub(crate) fn fast_psf_pupil(
             amp_sum += am;
             energy += e;
         }
-    } else {
-        // (An engine error here is this path's failure, not the PSF's: the caller falls back.)
-        let Ok(mut open) = System::new(sys.lens, sys.wavelength_nm) else {
-            CELL_WORK.with(|c| *c.borrow_mut() = cw_);
-            recycle(rows_v);
-            return Ok(Err("the unclipped system for the traced pupil could not be built"));
-        };
-        open.clip = false;
-        let Ok(open_beam) = Beam::new(&open, field_deg, Aiming::Paraxial) else {
-            CELL_WORK.with(|c| *c.borrow_mut() = cw_);
-            recycle(rows_v);
-            return Ok(Err("the unclipped system for the traced pupil could not be built"));
-        };
+    } else if let Some(open_beam) = &open_beam {
         let sphere = super::traced::Sphere {
             chief: chief.p,
             radius,
@@ -957,7 +966,7 @@ pub(crate) fn fast_psf_pupil(
             rho,
             mc,
         };
-        match super::traced::fill_rows(&open_beam, &sphere, (pxu, py0, pyv), sc, g, b_lo, t_hi, rows) {
+        match super::traced::fill_rows(open_beam, &sphere, (pxu, py0, pyv), sc, g, b_lo, t_hi, rows) {
             Ok(f) => {
                 area = f.area;
                 amp_sum = f.amp_sum;
