@@ -17,6 +17,9 @@
 #                  nominal, Alg. 1's and vanilla's cameras and the nominal lens blurred by 4 um (a control)
 #                  (benches/detection_swap.py -> OUT/swap_full_seedS/),
 #                  then the effects over seeds (OUT/swap_table/swap_seeds.{json,md})
+# SUFFIX (default empty) is appended to every run's and table's name: SUFFIX=_range holds the runs
+# made after lens_steps = "range" became the detection default (2026-11-28); the names without it
+# are the runs made before, on Adam's steps in the sigmoid's argument (a finished run is kept as made).
 # Each finished run's small files (results.json, metrics.csv, history.csv, lens_path.csv, the
 # lens .zmx, the end-to-end camera's detections) are kept in git under the default OUT (its
 # .gitignore); logs in OUT/*.log stay local.
@@ -26,7 +29,9 @@ shift || true
 STAGES="${*:-quick quick-vanilla compare full full-vanilla swap}"
 [ -f "$OUT/detector/detector.pt" ] || { echo "no detector at $OUT/detector/detector.pt: run scripts/issue35_detector.sh first" >&2; exit 2; }
 printf 'detector = "detector/detector.pt"\nthreads = %s\n' "${THREADS:-1}" > "$OUT/detect.toml"
+S="${SUFFIX:-}"
 design() {  # NAME BUDGET OPTIMIZER SEED
+  set -- "$1$S" "$2" "$3" "$4"
   [ -f "$OUT/$1/results.json" ] && { echo "$OUT/$1: finished already"; return; }
   optix design detection --budget "$2" --optimizer "$3" --seed "$4" --config "$OUT/detect.toml" --out "$OUT/$1" \
     --quiet >> "$OUT/$1.log" 2>&1
@@ -37,28 +42,29 @@ for stage in $STAGES; do
     quick) design detect_quick quick alg1 0 ;;
     quick-vanilla) design detect_quick_vanilla quick vanilla 0 ;;
     compare)
-      python benches/detection_compare.py "$OUT/detect_quick_vanilla" "$OUT/detect_quick" \
-        --out "$OUT/compare_quick_alg1_vs_vanilla.json" ;;
+      python benches/detection_compare.py "$OUT/detect_quick_vanilla$S" "$OUT/detect_quick$S" \
+        --out "$OUT/compare_quick_alg1_vs_vanilla$S.json" ;;
     full)
       for s in 0 1 2; do design "detect_full_seed$s" full alg1 "$s"; done
-      python benches/detection_seeds.py "$OUT"/detect_full_seed{0,1,2} --out "$OUT/full_table" ;;
+      python benches/detection_seeds.py "$OUT"/detect_full_seed{0,1,2}"$S" --out "$OUT/full_table$S" ;;
     full-vanilla)
       for s in 0 1 2; do
         design "detect_full_vanilla_seed$s" full vanilla "$s"
-        [ -f "$OUT/detect_full_seed$s/results.json" ] && python benches/detection_compare.py \
-          "$OUT/detect_full_vanilla_seed$s" "$OUT/detect_full_seed$s" --out "$OUT/compare_full_seed${s}_alg1_vs_vanilla.json"
+        [ -f "$OUT/detect_full_seed$s$S/results.json" ] && python benches/detection_compare.py \
+          "$OUT/detect_full_vanilla_seed$s$S" "$OUT/detect_full_seed$s$S" \
+          --out "$OUT/compare_full_seed${s}_alg1_vs_vanilla$S.json"
       done
-      python benches/detection_seeds.py "$OUT"/detect_full_vanilla_seed{0,1,2} --out "$OUT/full_vanilla_table" ;;
+      python benches/detection_seeds.py "$OUT"/detect_full_vanilla_seed{0,1,2}"$S" --out "$OUT/full_vanilla_table$S" ;;
     swap)
       for s in 0 1 2; do
-        if [ -f "$OUT/detect_full_seed$s/results.json" ] && [ -f "$OUT/detect_full_vanilla_seed$s/results.json" ] \
-          && [ ! -f "$OUT/swap_full_seed$s/detection_swap.json" ]; then
-          python benches/detection_swap.py "$OUT/detect_full_seed$s" "$OUT/detect_full_vanilla_seed$s" \
-            --out "$OUT/swap_full_seed$s" --blur-um 4 --threads "${THREADS:-1}" >> "$OUT/swap_full_seed$s.log" 2>&1 \
-            || { echo "swap of seed $s failed: see $OUT/swap_full_seed$s.log" >&2; exit 1; }
+        if [ -f "$OUT/detect_full_seed$s$S/results.json" ] && [ -f "$OUT/detect_full_vanilla_seed$s$S/results.json" ] \
+          && [ ! -f "$OUT/swap_full_seed$s$S/detection_swap.json" ]; then
+          python benches/detection_swap.py "$OUT/detect_full_seed$s$S" "$OUT/detect_full_vanilla_seed$s$S" \
+            --out "$OUT/swap_full_seed$s$S" --blur-um 4 --threads "${THREADS:-1}" >> "$OUT/swap_full_seed$s$S.log" 2>&1 \
+            || { echo "swap of seed $s failed: see $OUT/swap_full_seed$s$S.log" >&2; exit 1; }
         fi
       done
-      python benches/detection_swap.py --seeds "$OUT"/swap_full_seed{0,1,2} --out "$OUT/swap_table" ;;
+      python benches/detection_swap.py --seeds "$OUT"/swap_full_seed{0,1,2}"$S" --out "$OUT/swap_table$S" ;;
     *) echo "unknown stage '$stage' (quick quick-vanilla compare full full-vanilla swap)" >&2; exit 2 ;;
   esac
 done

@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import json
 
+import numpy as np
 import pytest
 
 from optix_e2e.lens import Lens
@@ -102,6 +103,18 @@ def test_detection_in_the_wide_space_runs_on_exact_optics(tmp_path, optix, smoke
     # the lens moved in the new parameters too (their gradients come from the engine)
     i = res["design"]["parameters"].index("s_1_thickness")
     assert res["design"]["end_to_end"][i] != res["design"]["nominal"][i]
+    # lens_steps = "range" (the detection default): Adam's first step, lr in u for every parameter
+    # it moves, becomes lr / 4 of each range wherever the start sits. The f-number starts at 0.89
+    # of its range, where the sigmoid alone gives 0.4 of that; the radii start mid-range
+    names, scale = res["design"]["parameters"], res["design"]["step_scale"]
+    assert scale[-1] == pytest.approx(1 / (4 * 0.8889 * 0.1111), rel=1e-3) and scale[0] == pytest.approx(1.0, abs=1e-3)
+    path = list(csv.reader(open(out / "lens_path.csv")))
+    assert path[2][1] == "optics" and path[2][2] == "0"  # the first lens step, not cut back
+    span = np.array([np.subtract(*res["space"]["ranges"][n][::-1]) for n in names])
+    moved = np.abs(np.array(path[2][3:], float) - np.array(path[1][3:], float)) / span
+    lr = json.loads((out / "config.json").read_text())["lr_optics"]
+    assert moved[-1] == pytest.approx(lr / 4, rel=0.03)  # 0.4 lr / 4 without the scale
+    assert np.count_nonzero(moved > 0) >= 20 and moved.max() == pytest.approx(lr / 4, rel=0.03)
     # hybrid optics (a network refined along the run) is for the image-quality tasks
     (tmp_path / "hybrid.toml").write_text('optics = "hybrid"\n')
     r = optix(*smoke_design("detection", tmp_path / "h", "--config", tmp_path / "hybrid.toml"))

@@ -155,3 +155,31 @@ def test_exact_optics_are_the_image_quality_default_and_a_surrogate_run_folder_r
     det = make_config("smoke", task="detection")
     check_run_dir(tmp_path / "det", det)
     assert run_dir_settings(tmp_path / "det", det) == det
+
+
+def test_a_detection_run_folder_made_before_lens_steps_resumes_on_adams_own_steps(tmp_path):
+    """lens_steps = "range" became the detection budgets' default on 2026-11-28: a detection run
+    folder made before (no lens_steps in its config.json) resumes as it ran, on Adam's steps in
+    u ("sigmoid"); a new one gets "range"; the image-quality tasks keep "sigmoid"."""
+    import json
+
+    from optix_e2e.camera_design.config import check_run_dir, make_config, run_dir_settings
+
+    for budget in ("smoke", "quick", "full"):
+        assert make_config(budget, task="detection").lens_steps == "range"
+        assert make_config(budget).lens_steps == "sigmoid"
+    today = make_config("smoke", task="detection")
+    older = tmp_path / "older"
+    check_run_dir(older, today)
+    cfg = json.loads((older / "config.json").read_text())
+    del cfg["lens_steps"]
+    (older / "config.json").write_text(json.dumps(cfg))
+    kept = run_dir_settings(older, today)
+    assert kept.lens_steps == "sigmoid"
+    check_run_dir(older, kept)  # accepted: it resumes as it was made
+    with pytest.raises(ValueError, match="lens_steps: 'sigmoid' -> 'range'"):
+        check_run_dir(older, today)
+    check_run_dir(tmp_path / "new", today)
+    assert run_dir_settings(tmp_path / "new", today).lens_steps == "range"
+    with pytest.raises(ValueError, match="lens_steps must be one of sigmoid, range"):
+        make_config("smoke", lens_steps="adam")

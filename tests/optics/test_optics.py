@@ -56,6 +56,28 @@ def test_parameters_stay_inside_their_ranges_whatever_the_optimizer_does():
         optics.set_values([0.0, 10.0, float("inf")])
 
 
+def test_the_range_step_scale_makes_adams_first_step_the_same_share_of_every_range():
+    """lens_steps = "range": Adam's first step is lr in u for every parameter it moves; times
+    range_step_scale it moves each value lr / 4 of its range wherever the value sits (a value
+    at 0.89 of its range moves 0.4 of that on Adam's own step), capped at 4x near a bound."""
+    optics = DifferentiableOptics(tiny_surrogate())
+    optics.set_values([0.0, 11.6, -1.99])  # mid-range, 0.9 of the range, 0.005 of it
+    k = optics.range_step_scale()
+    assert k.tolist() == pytest.approx([1.0, 1 / (4 * 0.9 * 0.1), 4.0], rel=1e-4)
+    lr, span = 1e-3, optics.hi - optics.lo
+    for scale, share in ((None, [0.25, 0.09, 0.005 * 0.995]), (k, [0.25, 0.25, 4 * 0.005 * 0.995])):
+        optics.set_values([0.0, 11.6, -1.99])
+        adam = torch.optim.Adam([optics.u], lr=lr)
+        before, u0 = optics.values().detach(), optics.u.detach().clone()
+        optics.values().sum().backward()
+        adam.step()
+        if scale is not None:
+            with torch.no_grad():
+                optics.u.copy_(u0 + scale * (optics.u - u0))
+        moved = (optics.values().detach() - before).abs() / span
+        assert moved.tolist() == pytest.approx([lr * x for x in share], rel=0.01)
+
+
 def test_the_surrogate_names_each_column_outside_its_training_range_once():
     sur = tiny_surrogate()
     rows = torch.tensor([[0.0, 10.0, -1.0], [0.0, 13.0, -1.0], [0.0, 14.0, float("nan")], [0.0, 10.0, -1.0]])

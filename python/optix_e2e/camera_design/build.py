@@ -187,6 +187,15 @@ BLOCK_SETTINGS = {
 }
 
 
+def lens_step_scale(cfg: DesignConfig, camera, start) -> torch.Tensor | None:
+    """The per-parameter factors on the lens's steps (``cfg.lens_steps = "range"``:
+    DifferentiableOptics.range_step_scale at the run's ``start`` values), None for Adam's own
+    steps in u ("sigmoid") or a camera without a lens to move."""
+    if cfg.lens_steps != "range" or not isinstance(camera.optics, DifferentiableOptics):
+        return None
+    return camera.optics.range_step_scale(start)
+
+
 def make_optimizer(cfg: DesignConfig, camera, kind: str):
     """Alg. 1 ("alg1") or vanilla ("vanilla") over the camera's blocks (optics, ISP, and the
     detection task's detector). The nominal baseline ("nominal": the lens fixed) gets exactly

@@ -26,6 +26,7 @@ except ImportError:  # Python 3.10
 
 MAX_THREADS = 1024  # torch aborts (a segmentation fault) when asked for tens of thousands
 BIG = 10**7  # steps and counts: far above any real run, far below what overflows
+LENS_STEPS = ("sigmoid", "range")  # DesignConfig.lens_steps
 
 # Every numeric setting's range, checked in one place (DesignConfig.check): (low, high, low
 # excluded). Floats must also be finite. A new numeric setting without a range is a test failure.
@@ -140,6 +141,12 @@ class DesignConfig:
     guard: str = "barrier"  # "project" until 2026-11-27 (docs/e2e.md, "Constraints that steer")
     guard_band: float = 0.25  # mm
     guard_weight: float = 1e-3  # the barrier's weight (loss units per log of a margin)
+    # how a lens step is sized: "sigmoid" (Adam on the sigmoid's argument u: a step in the
+    # parameter's units shrinks with its start's distance to a bound) or "range" (each
+    # parameter's step in u scaled so that the first one is the same fraction of every range,
+    # wherever its start sits: optics/differentiable.py range_step_scale; the detection task's
+    # budgets, whose nominal f/4.4 sits at 0.89 of its range)
+    lens_steps: str = "sigmoid"
     # evaluation
     eval_size: int = 192
     eval_procedural: int = 13  # + the bundled photos (9) = 22 held-out images, each at eval_positions
@@ -182,6 +189,8 @@ class DesignConfig:
 
         if self.guard not in GUARD_MODES:
             raise InputError(f"guard must be one of {', '.join(GUARD_MODES)}, got {self.guard!r}")
+        if self.lens_steps not in LENS_STEPS:
+            raise InputError(f"lens_steps must be one of {', '.join(LENS_STEPS)}, got {self.lens_steps!r}")
         if not self.hybrid_threshold > 0:
             raise InputError(f"hybrid_threshold must be > 0, got {self.hybrid_threshold}")
         if self.fields < 0 or self.fields == 1:
@@ -275,9 +284,14 @@ BUDGETS: dict[str, dict] = {
 # surrogate. At quick the lens learns at 3e-2: Adam moves a sigmoid-parameterized value about lr
 # per step, so from the nominal f/4.4 (at 0.89 of its range) 90 lens steps that all ask for a
 # faster lens reach f/4.15 at the paper's 1e-2, f/3.6 at 0.022 and f/3.28 at 3e-2; the full
-# budget's 350 lens steps at 1e-2 reach f/3.07 (test_detection_parts.py).
-_DETECTION = dict(surrogate="paper-triplet-detect", optics="surrogate")
-_DETECTION_WIDE = dict(surrogate="paper-triplet-detect", space="paper-triplet-detect-wide", optics="exact")
+# budget's 350 lens steps at 1e-2 reach f/3.07 (test_detection_parts.py). Those runs moved the
+# aperture at 0.22-0.58 of Adam's full step, and the sigmoid alone gave the aperture 0.4 of
+# the first step a mid-range parameter gets: since 2026-11-28 every detection budget evens the
+# steps out (lens_steps = "range", 2.53x for the aperture at f/4.4; docs/detection.md).
+_DETECTION = dict(surrogate="paper-triplet-detect", optics="surrogate", lens_steps="range")
+_DETECTION_WIDE = dict(
+    surrogate="paper-triplet-detect", space="paper-triplet-detect-wide", optics="exact", lens_steps="range"
+)
 TASK_BUDGETS: dict[str, dict[str, dict]] = {
     "detection": {
         "smoke": dict(_DETECTION, crop=64, crop_width=96, steps_detector=2, eval_scenes=4),
@@ -370,7 +384,12 @@ FORMER_DEFAULTS: dict[str, object] = {
 #: settings a run directory made before they existed ran under: a config.json without the key
 #: keeps that behaviour (the guard was the projection until guard existed; the optics the surrogate
 #: until optics existed)
-BEFORE_SETTING: dict[str, object] = {"guard": "project", "train_positions": "frame", "optics": "surrogate"}
+BEFORE_SETTING: dict[str, object] = {
+    "guard": "project",
+    "train_positions": "frame",
+    "optics": "surrogate",
+    "lens_steps": "sigmoid",
+}
 
 
 def run_dir_settings(out: Path, cfg: DesignConfig) -> DesignConfig:
@@ -384,12 +403,21 @@ def run_dir_settings(out: Path, cfg: DesignConfig) -> DesignConfig:
     if not isinstance(old, dict):
         return cfg
     today = DesignConfig()
-    old = {**BEFORE_SETTING, **old}
+    raw, old = old, {**BEFORE_SETTING, **old}
     keep = {
         k: old[k]
         for k, former in FORMER_DEFAULTS.items()
         if old.get(k) == former and getattr(cfg, k) == getattr(today, k) != former
     }
+    # a setting made after the run was: the run keeps how it ran where the command leaves the
+    # setting at what the task's budget would give it today (detection's lens_steps, 2026-11-28)
+    keep.update(
+        {
+            k: before
+            for k, before in BEFORE_SETTING.items()
+            if k not in raw and k not in keep and getattr(cfg, k) == task_default(cfg.task, cfg.budget, k) != before
+        }
+    )
     return dataclasses.replace(cfg, **keep).check() if keep else cfg
 
 

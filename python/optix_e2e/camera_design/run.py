@@ -30,7 +30,7 @@ from ..lens import Lens
 from ..lens_design.report import write_report
 from ..surrogate.ground_truth import exact_optics
 from . import outputs
-from .build import design_field_heights, make_optimizer, start_record, start_run
+from .build import design_field_heights, lens_step_scale, make_optimizer, start_record, start_run
 from .config import DesignConfig, check_run_dir, run_dir_settings
 from .detection import DetectionHooks
 from .image_quality import ImageQualityHooks
@@ -104,6 +104,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
             loss_at=hooks.loss_at(camera, frame, ranks),
             folder=hooks.folder,
             monitor=monitor if ranks.is_main else None,  # surrogate optics: it only measures
+            lens_scale=lens_step_scale(cfg, camera, start_values),
             **common,
         )
         nominal_values = camera.optics.base_values()
@@ -187,6 +188,8 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
             "parameters": sur.param_names,
             "nominal": [float(v) for v in nominal_values],
             "start": [float(v) for v in start_values],
+            # each parameter's factor on Adam's steps in u (lens_steps = "range"), null: none
+            "step_scale": None if (k := lens_step_scale(cfg, camera, start_values)) is None else k.tolist(),
             "end_to_end": [float(v) for v in final_values],
             # how far the lens moved from its start, as fractions of each range (lens_path.csv: each step)
             "travel": lens_travel(

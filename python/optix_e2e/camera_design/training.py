@@ -127,6 +127,7 @@ def train(
     parts: tuple[str, ...] = LOSS_PARTS,
     monitor=None,
     ranks: parallel.Ranks = parallel.Ranks(),
+    lens_scale: torch.Tensor | None = None,
 ) -> dict:
     """Run ``opt`` to its last step on the task loss, checkpointing into out/{name}_state.pt.
     ``loss_at(t, generator)`` -> (loss, {part: value}) is step t's loss (default: the
@@ -134,7 +135,10 @@ def train(
     ``monitor``: an camera_design.hybrid.OpticsMonitor checking the optics model along the way
     (before the first step, every ``check_every`` steps and after the last).
     ``ranks``: under torchrun, each rank computes its slice of every batch (a ``loss_at`` given
-    here must do so too), the gradients are averaged before each step, rank 0 writes."""
+    here must do so too), the gradients are averaged before each step, rank 0 writes.
+    ``lens_scale`` [P]: factors on each lens step's change of ``optics.u``, per parameter, before
+    the guard sees the step (``lens_steps = "range"``: DifferentiableOptics.range_step_scale of
+    the run's start, so a resumed run scales as it began)."""
     task = get_task(cfg.task)
     state_path = out / f"{name}_state.pt"
     wall_s, history = 0.0, []
@@ -203,9 +207,12 @@ def train(
             return loss_at(t, gen)
 
         t0 = time.perf_counter()
-        u_prev = optics.u.detach().clone() if guard is not None else None
+        u_prev = optics.u.detach().clone() if optics is not None else None
         backend = optics.backend if optics is not None else "fixed"
         info = opt.step(loss_fn)
+        if lens_scale is not None and optics is not None and info["block"] in ("optics", "all"):
+            with torch.no_grad():  # per-parameter step sizes (Adam's step is one lr for the whole tensor u)
+                optics.u.copy_(u_prev + lens_scale.to(optics.u) * (optics.u - u_prev))
         hint = "lower the learning rates (lr_optics, lr_isp_net, lr_isp_params, lr_detector) in another --out"
         parallel.stop_if_diverged(opt.t, state_path, hint, loss=info["loss"])
         info["optics"] = backend

@@ -144,6 +144,23 @@ class DifferentiableOptics(nn.Module):
         names = self.surrogate.param_names
         return self.values()[names.index("f_number")] if "f_number" in names else None
 
+    @torch.no_grad()
+    def range_step_scale(self, values=None) -> torch.Tensor:
+        """Per-parameter factors [P] on an optimizer's step in ``u`` that make the step the
+        same fraction of every range at ``values`` (raw units; default: the current lens),
+        wherever in its range each value sits (``DesignConfig.lens_steps = "range"``).
+
+        Adam moves u by about lr per step; the value then moves (hi - lo) s (1 - s) lr, with
+        s = sigmoid(u): a quarter of lr of the range at mid-range, less towards a bound. A start
+        at 0.89 of its range (the detection space's f/4.4 in f/2.8-4.6) moves 2.5x slower than
+        one in the middle, in both directions. The factor 1 / (4 s (1 - s)) evens that out at
+        ``values``, capped at ``cap`` (a start within 7 % of a bound moves at most 4x its
+        sigmoid pace); as the lens travels the sigmoid still slows it towards a bound."""
+        cap = 4.0
+        v = self.values() if values is None else torch.as_tensor(values, dtype=self.lo.dtype).to(self.lo.device)
+        s = ((v - self.lo) / (self.hi - self.lo)).clamp(self.eps, 1 - self.eps)
+        return (1.0 / (4.0 * s * (1.0 - s))).clamp(max=cap)
+
     def psfs(self) -> tuple[torch.Tensor, torch.Tensor]:
         """(psf [K, C, S, S] unit sum per channel, vignetting [K, C]) at the current parameters,
         from the backend (exact: the engine, gradients by central differences)."""
