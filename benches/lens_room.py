@@ -149,7 +149,10 @@ def room(run: Path, out: Path, threads: int | None, progress: bool, kind: str = 
     if not held_out_matches(samples, nominal, frame.full_field_px):
         raise SystemExit(f"{run}: the rebuilt held-out set is not the run's (another code version?)")
     settings = {"run": str(run.resolve()), "window_px": window, "lens": kind, **cfg.to_json()}
-    if (out / "config.json").is_file() and json.loads((out / "config.json").read_text()) != settings:
+    made = json.loads((out / "config.json").read_text()) if (out / "config.json").is_file() else None
+    if made is not None:  # a setting made after the folder was: its behaviour before it existed
+        made = {**{k: v for k, v in BEFORE_SETTING.items() if k not in made}, **made}
+    if made is not None and made != settings:
         raise SystemExit(f"{out} was made for another run or settings; use another --out")
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out / "config.json", settings)

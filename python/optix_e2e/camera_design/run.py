@@ -79,7 +79,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         log(
             "this run was made with "
             + ", ".join(f"{k} = {getattr(kept, k)!r}" for k in kept.to_json() if getattr(kept, k) != getattr(cfg, k))
-            + " (the default then); it keeps it"
+            + " (the default then, or how it ran before the setting existed); it keeps it"
         )
     cfg = kept
     out, task, frame, sur = start_run(cfg, out)
