@@ -19,6 +19,9 @@ from pathlib import Path
 
 
 def aperture_share(run: Path) -> dict:
+    missing = [f for f in ("config.json", "results.json", "lens_path.csv") if not (run / f).is_file()]
+    if missing:
+        raise SystemExit(f"{run}: not a finished design run (no {', '.join(missing)})")
     cfg = json.loads((run / "config.json").read_text())
     res = json.loads((run / "results.json").read_text())
     names = res["design"]["parameters"]
@@ -51,11 +54,11 @@ def aperture_share(run: Path) -> dict:
     }
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> list[dict]:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="+", type=Path)
     ap.add_argument("--out", type=Path, help="write the rows as JSON here")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     rows = [aperture_share(r) for r in args.runs]
     print("| run | lens steps | lr x scale | f-number | steps opening | share of Adam's full step |")
     print("|---|---|---|---|---|---|")
@@ -67,6 +70,7 @@ def main() -> None:
         )
     if args.out:
         args.out.write_text(json.dumps(rows, indent=1) + "\n")
+    return rows
 
 
 if __name__ == "__main__":
