@@ -95,7 +95,6 @@ def test_old_run_folders_keep_the_projection(tmp_path):
     """guard's default became "barrier" and train_positions' "radius" (2026-11-27): a run folder
     made under "project", or before the settings existed (no key in its config.json), resumes
     with the projection (and, without train_positions, with batches uniform over the frame)."""
-    import json
 
     from optix_e2e.camera_design.config import check_run_dir, make_config, run_dir_settings
 
@@ -103,10 +102,7 @@ def test_old_run_folders_keep_the_projection(tmp_path):
     assert today.guard == "barrier"
     check_run_dir(tmp_path / "a", make_config("smoke", guard="project"))
     older = tmp_path / "b"
-    check_run_dir(older, make_config("smoke", guard="project"))
-    cfg = json.loads((older / "config.json").read_text())
-    del cfg["guard"], cfg["train_positions"]  # made before either setting existed
-    (older / "config.json").write_text(json.dumps(cfg))
+    _made_before(older, make_config("smoke", guard="project"), "guard", "train_positions")
     assert run_dir_settings(older, today).train_positions == "frame"  # its batches were drawn so
     assert run_dir_settings(tmp_path / "a", today).train_positions == "radius"
     for run in (tmp_path / "a", older):
@@ -124,7 +120,6 @@ def test_exact_optics_are_the_image_quality_default_and_a_surrogate_run_folder_r
     its surrogate in smoke runs, and since issue 35 moves in the wide detection space on exact
     optics at quick and full): a run folder made under the surrogate default, or before the
     setting existed, resumes on the surrogate; one made on exact keeps exact."""
-    import json
 
     from optix_e2e.camera_design.config import check_run_dir, make_config, run_dir_settings
 
@@ -146,10 +141,7 @@ def test_exact_optics_are_the_image_quality_default_and_a_surrogate_run_folder_r
     check_run_dir(tmp_path / "new", today)
     assert run_dir_settings(tmp_path / "new", today).optics == "exact"
     older = tmp_path / "older"  # made before the optics setting existed: it ran on the surrogate
-    check_run_dir(older, make_config("smoke", optics="surrogate"))
-    cfg = json.loads((older / "config.json").read_text())
-    del cfg["optics"]
-    (older / "config.json").write_text(json.dumps(cfg))
+    _made_before(older, make_config("smoke", optics="surrogate"), "optics")
     assert run_dir_settings(older, today).optics == "surrogate"
     check_run_dir(older, run_dir_settings(older, today))
     det = make_config("smoke", task="detection")
@@ -161,7 +153,6 @@ def test_a_detection_run_folder_made_before_lens_steps_resumes_on_adams_own_step
     """lens_steps = "range" became the detection budgets' default on 2026-11-28: a detection run
     folder made before (no lens_steps in its config.json) resumes as it ran, on Adam's steps in
     u ("sigmoid"); a new one gets "range"; the image-quality tasks keep "sigmoid"."""
-    import json
 
     from optix_e2e.camera_design.config import check_run_dir, make_config, run_dir_settings
 
@@ -170,10 +161,7 @@ def test_a_detection_run_folder_made_before_lens_steps_resumes_on_adams_own_step
         assert make_config(budget).lens_steps == "sigmoid"
     today = make_config("smoke", task="detection")
     older = tmp_path / "older"
-    check_run_dir(older, today)
-    cfg = json.loads((older / "config.json").read_text())
-    del cfg["lens_steps"]
-    (older / "config.json").write_text(json.dumps(cfg))
+    _made_before(older, today, "lens_steps")
     kept = run_dir_settings(older, today)
     assert kept.lens_steps == "sigmoid"
     check_run_dir(older, kept)  # accepted: it resumes as it was made
@@ -183,3 +171,16 @@ def test_a_detection_run_folder_made_before_lens_steps_resumes_on_adams_own_step
     assert run_dir_settings(tmp_path / "new", today).lens_steps == "range"
     with pytest.raises(ValueError, match="lens_steps must be one of sigmoid, range"):
         make_config("smoke", lens_steps="adam")
+
+
+def _made_before(folder, cfg, *settings: str) -> None:
+    """A run folder of ``cfg`` as made before ``settings`` existed: its config.json without them."""
+    import json
+
+    from optix_e2e.camera_design.config import check_run_dir
+
+    check_run_dir(folder, cfg)
+    made = json.loads((folder / "config.json").read_text())
+    for k in settings:
+        del made[k]
+    (folder / "config.json").write_text(json.dumps(made))

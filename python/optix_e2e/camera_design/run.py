@@ -94,6 +94,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         log(f"[1/4] {hooks.describe()}")
         camera = hooks.build_camera(sur, frame, trained=True)
         start_values = camera.optics.values().detach().clone()  # before any step (a resume loads later)
+        lens_scale = lens_step_scale(cfg, camera, start_values)  # from the start: a resume scales alike
         monitor = hooks.monitor(camera, writer, log)
         e2e = train(
             cfg,
@@ -104,7 +105,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
             loss_at=hooks.loss_at(camera, frame, ranks),
             folder=hooks.folder,
             monitor=monitor if ranks.is_main else None,  # surrogate optics: it only measures
-            lens_scale=lens_step_scale(cfg, camera, start_values),
+            lens_scale=lens_scale,
             **common,
         )
         nominal_values = camera.optics.base_values()
@@ -189,7 +190,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
             "nominal": [float(v) for v in nominal_values],
             "start": [float(v) for v in start_values],
             # each parameter's factor on Adam's steps in u (lens_steps = "range"), null: none
-            "step_scale": None if (k := lens_step_scale(cfg, camera, start_values)) is None else k.tolist(),
+            "step_scale": None if lens_scale is None else lens_scale.tolist(),
             "end_to_end": [float(v) for v in final_values],
             # how far the lens moved from its start, as fractions of each range (lens_path.csv: each step)
             "travel": lens_travel(
