@@ -184,6 +184,23 @@ def test_other_arguments_refuse_the_directory(reference, tmp_path):
         generate("paper-triplet", 8, 12, root, SMALL_SETTINGS, progress=False)
 
 
+def test_a_space_read_from_elsewhere_resumes_and_a_changed_one_is_refused(reference, tmp_path):
+    """Where the space was read from (its TOML's path: another install's bundled copy, a copy
+    of the file) is not what the data depends on: the dataset resumes. A changed range is."""
+    root = tmp_path / "ds"
+    shutil.copytree(reference, root)
+    mpath = root / "manifest.json"
+    man = json.loads(mpath.read_text())
+    man["space"]["source"] = "/another/venv/optix_e2e/bundled/spaces/paper-triplet.toml"
+    mpath.write_text(json.dumps(man))
+    rep = generate("paper-triplet", 8, 11, root, SMALL_SETTINGS, progress=False)
+    assert rep.shards_written == [] and len(rep.shards_skipped) == man["n_shards"]
+    man["space"]["parameters"][0]["max"] += 1.0
+    mpath.write_text(json.dumps(man))
+    with pytest.raises(DatasetError, match=r"a different dataset \(differs in: space\)"):
+        generate("paper-triplet", 8, 11, root, SMALL_SETTINGS, progress=False)
+
+
 def test_corruption_is_detected(reference, tmp_path):
     root = tmp_path / "ds"
     shutil.copytree(reference, root)

@@ -168,10 +168,23 @@ def _save_direct(path: Path, header: bytes, data: memoryview) -> None:
         os.close(fd)
 
 
+# Entries that say where a manifest's inputs were read from, not what they are: the path of
+# the space's TOML differs between installs (a bundled space under another venv) and copies
+# of the same file, so a dataset resumes, merges and compares across them.
+_WHERE_FROM = {"space": ("source",)}
+
+
+def _comparable(man: dict, key: str) -> str:
+    v = man.get(key)
+    if isinstance(v, dict) and key in _WHERE_FROM:
+        v = {k: x for k, x in v.items() if k not in _WHERE_FROM[key]}
+    return json.dumps(v, sort_keys=True)
+
+
 def differing_keys(a: dict, b: dict, keys) -> list[str]:
     """The keys among ``keys`` whose values differ between two manifests (JSON-equal
-    values are equal)."""
-    return sorted(k for k in keys if json.dumps(a.get(k), sort_keys=True) != json.dumps(b.get(k), sort_keys=True))
+    values are equal; where a space was read from is not compared, only what it holds)."""
+    return sorted(k for k in keys if _comparable(a, k) != _comparable(b, k))
 
 
 def read_manifest(root: "str | Path") -> dict:
