@@ -456,3 +456,32 @@ def test_radius_training_positions_weigh_the_centre_and_the_corners():
         training_batch(3, 5, 1, size, 0, (0.5, 0.5), frame, positions="corner")
     with pytest.raises(ValueError, match="train_positions"):
         make_config("smoke", train_positions="corners")
+
+
+def test_a_run_folder_copied_with_its_inputs_resumes_where_they_now_lie(tmp_path):
+    """config.json names the detector by absolute path; the run folder and the detector copied
+    to another place (another machine's copy of the tree) name another path for the same file:
+    the run resumes. Another file at that path is refused, naming the setting; so is a run made
+    before inputs.json whose old detector is gone (nothing to compare with)."""
+    import shutil
+
+    from optix_e2e.camera_design.config import check_run_dir, make_config
+
+    here, there = tmp_path / "here", tmp_path / "there"
+    for d in (here, there):
+        d.mkdir()
+    (here / "detector.pt").write_bytes(b"weights A")
+    check_run_dir(here / "run", make_config("smoke", detector=str(here / "detector.pt")))
+    assert (here / "run" / "inputs.json").is_file()
+    shutil.copytree(here / "run", there / "run")
+    shutil.copy(here / "detector.pt", there / "detector.pt")
+    shutil.rmtree(here)  # the old path no longer exists: the recorded fingerprint decides
+    moved = make_config("smoke", detector=str(there / "detector.pt"))
+    check_run_dir(there / "run", moved)  # accepted
+    (there / "detector.pt").write_bytes(b"weights B")
+    with pytest.raises(ValueError, match="other settings.*detector"):
+        check_run_dir(there / "run", moved)
+    (there / "detector.pt").write_bytes(b"weights A")
+    (there / "run" / "inputs.json").unlink()  # a run made before inputs.json
+    with pytest.raises(ValueError, match="other settings.*detector"):
+        check_run_dir(there / "run", moved)

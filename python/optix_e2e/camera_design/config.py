@@ -431,7 +431,10 @@ RESUMES_ANYWHERE = ("device",)
 
 
 def check_run_dir(out: Path, cfg: DesignConfig) -> None:
-    """Write config.json in a new run directory; in an existing one, refuse other settings."""
+    """Write config.json (and inputs.json, what its file settings hold) in a new run directory;
+    in an existing one, refuse other settings."""
+    from .inputs import record as record_inputs, same_content
+
     path = out / "config.json"
     if path.is_file():
         try:
@@ -445,6 +448,9 @@ def check_run_dir(out: Path, cfg: DesignConfig) -> None:
         defaults = DesignConfig().to_json()
         old = {**{k: v for k, v in defaults.items() if k not in old}, **BEFORE_SETTING, **old}
         diff = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k) and k not in RESUMES_ANYWHERE)
+        # a file setting at another path that holds the same content (the run folder and its
+        # inputs copied to another machine): the same run (camera_design/inputs.py)
+        diff = [k for k in diff if not (k in PATH_SETTINGS and same_content(out, k, old.get(k), new.get(k)))]
         if diff:
             detail = ", ".join(f"{k}: {old.get(k)!r} -> {new.get(k)!r}" for k in diff)
             raise InputError(f"{out} was made with other settings ({detail}); use another --out or the same settings")
@@ -452,3 +458,4 @@ def check_run_dir(out: Path, cfg: DesignConfig) -> None:
     claim_out_dir(out, "design run", marker="config.json")
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(path, cfg.to_json())
+    record_inputs(out, cfg.to_json(), PATH_SETTINGS)
