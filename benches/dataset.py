@@ -39,7 +39,7 @@ def engine_only(root: str) -> float:
     from optix_e2e.dataset.manifest import refocused_designs
 
     man = read_manifest(root)
-    s = DatasetSettings(**man["settings"])
+    s = DatasetSettings.of_manifest(man["settings"])
     jsons = []
     for d in sorted((Path(root) / "shards").iterdir()):
         designs = refocused_designs(man, np.load(d / "params.npy"), np.load(d / "image_distance.npy"))

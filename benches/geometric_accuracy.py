@@ -41,7 +41,7 @@ FIELD_WL = re.compile(r"at ([0-9.e+-]+) deg, ([0-9.]+) nm")
 def refused_cases(root: Path) -> list[tuple[int, dict, float, float]]:
     """(design, lens dict, field, wavelength) of each design the run refused in the PSF."""
     man = json.loads((root / "manifest.json").read_text())
-    s = DatasetSettings(**man["settings"])
+    s = DatasetSettings.of_manifest(man["settings"])
     space, base = load_space(man["space"]["source"])
     fields = man["fields_deg"]
     wavelengths = sorted({wl for c in man["channels"] for wl, _ in c})

@@ -66,7 +66,7 @@ def main() -> None:
     model = OpticsSurrogate.load(a.model).to(dev)
     k = len(model.fields_deg)
     man = model.manifest
-    s = DatasetSettings(**man["settings"])
+    s = DatasetSettings.of_manifest(man["settings"])
     with tempfile.TemporaryDirectory() as tmp:
         space_spec = man["space"]["lens"] or "paper-triplet"
         generate(space_spec, a.n, 123, tmp, s, progress=False)

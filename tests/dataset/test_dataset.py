@@ -201,6 +201,75 @@ def test_a_space_read_from_elsewhere_resumes_and_a_changed_one_is_refused(refere
         generate("paper-triplet", 8, 11, root, SMALL_SETTINGS, progress=False)
 
 
+# A design of paper-triplet-detect-wide (its dataset of 2026-11-28, design 48) whose least-RMS
+# plane over the fields lies inside its last surface: the outer fields' aberrations pull it
+# there, though its paraxial focus is 16.7 mm behind
+FOCUS_INSIDE = {
+    "s_1_radius": 25.51714382, "s_1_conic": 0.1935969225, "s_2_radius": -26.95442499, "l_12": 8.157901782,
+    "l_2STO": 0.7741728076, "l_STO3": 5.504150279, "s_6_radius": 79.17561969, "s_6_conic": 0.04272611014,
+    "s_7_radius": -7.734217466, "s_1_2nd": 8.712138201e-06, "s_1_4th": -4.791839226e-05,
+    "s_1_6th": -7.113181809e-07, "s_1_8th": 7.654656152e-09, "s_1_10th": 7.904009161e-11,
+    "s_6_2nd": 0.0004856321904, "s_6_4th": -0.0006700533432, "s_6_6th": 9.445920416e-06,
+    "s_6_8th": -6.064830671e-07, "s_6_10th": -3.69162529e-10, "s_1_thickness": 7.595919563,
+    "s_6_thickness": 2.093591766, "f_number": 3.514639631,
+}  # fmt: skip
+
+
+def test_a_focus_short_of_the_back_focus_limit_images_at_the_limit(tmp_path):
+    """focus_within "bfd": a design whose best focus falls short of the space's min_bfd (here
+    inside the last surface) is imaged at the limit, its shard's warnings say so, its PSFs are
+    finite, and the limit is the best plane allowed. "none", the datasets' rule before, fails
+    it naming the focus."""
+    from optix_e2e.dataset.manifest import refocused_designs
+    from optix_e2e.lens_design.focus import best_focus_shift
+    from optix_e2e.surrogate.ground_truth import exact_arrays
+
+    s = DatasetSettings(n_fields=3, window_um=32.0, pupil_samples=32, shard_size=1, focus_within="bfd")
+    generate("paper-triplet-detect-wide", 1, 0, tmp_path / "ds", s, progress=False)
+    man = json.loads((tmp_path / "ds" / "manifest.json").read_text())
+    assert man["settings"]["focus_within"] == "bfd" and man["space"]["constraints"]["min_bfd"] == 10.0
+    v = np.array([[FOCUS_INSIDE[p["name"]] for p in man["space"]["parameters"]]])
+    arrays, meta = exact_arrays(man, v)
+    assert meta["n_failed"] == 0 and arrays["image_distance"].tolist() == [10.0]
+    assert "inside the last surface" in meta["warnings"]["0"][0] and "at the limit, 10 mm" in meta["warnings"]["0"][0]
+    assert np.isfinite(arrays["psf"]).all() and np.isfinite(arrays["energy_in_window"]).all()
+    # the best plane allowed: from the limit, the free best focus (the mean square spot over
+    # the fields, a quadratic in the plane's position) lies nearer still, where the plane cannot go
+    d = refocused_designs(man, v, [10.0])[0]
+    wl = sorted({w for c in man["channels"] for w, _ in c})
+    shift = best_focus_shift(json.dumps(d), man["fields_deg"], wl, rings=4)
+    assert shift == pytest.approx(-13.77, abs=0.05)
+    # and a design run's final check calls that plane refocused, at the limit
+    from optix_e2e.camera_design.outputs import focus_check
+
+    check = focus_check(man, d)
+    assert check["refocused"] and check["at_back_focus_limit"] and check["focus_shift_um"] < -13_000
+    assert not focus_check({**man, "settings": {**man["settings"], "focus_within": "none"}}, d)["refocused"]
+    arrays, meta = exact_arrays({**man, "settings": {**man["settings"], "focus_within": "none"}}, v)
+    assert meta["n_failed"] == 1 and meta["failures"][0]["reason"].startswith("focus: the best focus lies 3.")
+    assert "inside the last surface" in meta["failures"][0]["reason"]
+
+
+def test_the_cli_makes_new_datasets_within_the_back_focus_limit_and_resumes_old_ones_as_made(tmp_path):
+    root = tmp_path / "ds"
+    args = ("generate", "paper-triplet", "-n", 2, "--seed", 3, "--out", root, *SMALL)
+    p = _cli(*args)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 0, err.decode()
+    man = json.loads((root / "manifest.json").read_text())
+    assert man["settings"]["focus_within"] == "bfd"
+    # a dataset made before the setting (its manifest has no key): the same command resumes it
+    # on its own rule, and only an explicit other rule is refused
+    del man["settings"]["focus_within"]
+    (root / "manifest.json").write_text(json.dumps(man))
+    p = _cli(*args)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 0, err.decode()
+    p = _cli(*args, "--focus-within", "bfd")
+    _, err = p.communicate(timeout=300)
+    assert p.returncode != 0 and b"differs in: settings" in err
+
+
 def test_corruption_is_detected(reference, tmp_path):
     root = tmp_path / "ds"
     shutil.copytree(reference, root)

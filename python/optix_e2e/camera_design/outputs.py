@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..dataset.manifest import refocused_designs, space_and_base
+from ..dataset.manifest import nearest_image_plane, refocused_designs, space_and_base
 from ..lens_design.constraints import Limits, Manufacturability, apertures
 from ..lens import Lens
 from ..lens.zemax.writer import write_zmx
@@ -60,7 +60,11 @@ def focus_check(manifest: dict, d: dict, tol_um: float = 2.0) -> dict:
         )
     except Exception as err:  # noqa: BLE001 - an untraceable lens is not refocused; say why
         return {"refocused": False, "focus_shift_um": None, "focus_error": " ".join(str(err).split())}
-    return {"refocused": bool(abs(shift_um) <= tol_um), "focus_shift_um": shift_um}
+    # a plane at the dataset's back-focus limit asking to come nearer is the best one allowed
+    nearest = nearest_image_plane(manifest)
+    at_limit = nearest is not None and abs(float(d["surfaces"][-1]["thickness"]) - nearest) <= 1e-9 and shift_um < 0
+    out = {"refocused": bool(abs(shift_um) <= tol_um or at_limit), "focus_shift_um": shift_um}
+    return {**out, "at_back_focus_limit": True} if at_limit else out
 
 
 def catalog_material(material):

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import click
 
@@ -101,6 +102,15 @@ def dataset():
     show_default=True,
     help="Image plane of each design: best (least RMS spot over the fields), paraxial, or fixed (the base lens's).",
 )
+@click.option(
+    "--focus-within",
+    type=click.Choice(["bfd", "none"]),
+    default=None,
+    help="bfd: the focus puts no image plane nearer the last surface than the space's back-focus "
+    "limit (its [constraints] min_bfd; such a design is imaged at the limit, said in the shard's "
+    "warnings); none: wherever it falls (a plane inside the last surface fails the design). "
+    "Default: bfd for a new dataset, the dataset's own rule when DIR holds one (none before 2026-11-28).",
+)
 @click.option("--shard-size", type=click.IntRange(1, 100_000), default=64, show_default=True)
 @click.option("--sampling", type=click.Choice(["sobol", "uniform", "lhs"]), default="sobol", show_default=True)
 @click.option(
@@ -135,6 +145,7 @@ def generate_cmd(
     channels,
     apertures,
     focus,
+    focus_within,
     shard_size,
     sampling,
     shard_range,
@@ -143,7 +154,13 @@ def generate_cmd(
     """Sample N designs from SPACE (a TOML space or a bundled lens's name) and write their
     RGB PSFs at K fields, shard by shard, into DIR.  Running the same command again resumes."""
     from ..dataset import DatasetSettings, generate
+    from ..dataset.layout import read_json
 
+    if focus_within is None:  # a new dataset's rule, or the one DIR's dataset was made with
+        man = Path(out_dir) / "manifest.json"
+        held = read_json(man, "manifest") if man.is_file() else None
+        settings = held.get("settings") if isinstance(held, dict) else None
+        focus_within = DatasetSettings.of_manifest(settings).focus_within if isinstance(settings, dict) else "bfd"
     s = DatasetSettings(
         n_fields=n_fields,
         window_um=window_um,
@@ -156,6 +173,7 @@ def generate_cmd(
         channels=channels,
         apertures=apertures,
         focus=focus,
+        focus_within=focus_within,
         shard_size=shard_size,
         sampling=sampling,
     )

@@ -30,7 +30,7 @@ from ..lens_design.constraints import ApertureError, apertures, geometry_problem
 from ..lens_design.space import ParameterSpace, load_space
 from ..io import fsync_dir, write_json_atomic
 from .layout import ARRAYS, FORMAT, DatasetError, aligned_empty, save_npy, shard_name, shards_dir
-from .manifest import prepare
+from .manifest import nearest_image_plane, prepare
 from ..lens.apertures import engine_base
 from .settings import DatasetSettings
 from .verify import check_shard
@@ -144,7 +144,7 @@ def compute_shard(
     the geometry check is not repeated.  The engine computes both versions of each PSF."""
     from .. import engine
 
-    s = DatasetSettings(**man["settings"])
+    s = DatasetSettings.of_manifest(man["settings"])
     a = k * s.shard_size
     b = min(man["n_designs"], a + s.shard_size)
     fields, channels = man["fields_deg"], [[tuple(p) for p in c] for c in man["channels"]]
@@ -171,6 +171,9 @@ def compute_shard(
     # (lens_design.constraints), or the base lens's for the datasets made before that rule
     base_sd = apertures(base) if man.get("sampling_summary", {}).get("apertures", "base-lens") == "base-lens" else None
     traced = engine_base(base, s.apertures)
+    # the nearest image plane the focus may choose (focus_within "bfd": the space's min_bfd)
+    nearest = nearest_image_plane(man)
+    focus_notes: dict[str, list[str]] = {}
 
     def geometry(d):
         if base_sd is not None:
@@ -210,6 +213,17 @@ def compute_shard(
             if err:
                 fail(i, f"focus: {err}")
                 continue
+            image_mm = float(d["surfaces"][-1]["thickness"])
+            if nearest is not None and image_mm < nearest:
+                # the sensor cannot sit nearer: the image plane at the limit. For "best" that is
+                # the best plane allowed (the spot's mean square is a quadratic in the plane's
+                # position, so the feasible minimum is the bound nearest the free one)
+                where = f"{-image_mm:.4g} mm inside" if image_mm < 0 else f"{image_mm:.4g} mm behind"
+                focus_notes[str(i)] = [
+                    f"focus: the {s.focus} focus lies {where} the last surface, short of the space's "
+                    f"back-focus limit; the image plane is at the limit, {nearest:g} mm"
+                ]
+                d["surfaces"][-1]["thickness"] = nearest
             if not float(d["surfaces"][-1]["thickness"]) > 0.0:
                 fail(
                     i,
@@ -251,8 +265,9 @@ def compute_shard(
                 ri.append(r["relative_illumination"][j])
                 energy.append(r["energy_in_window"][j])
                 image.append(image_mm)
-                if r["warnings"][j]:
-                    warnings[str(i)] = r["warnings"][j]
+                said = focus_notes.get(str(i), []) + list(r["warnings"][j] or [])
+                if said:
+                    warnings[str(i)] = said
                 # method and sampling of each PSF (fields x wavelengths), as codes into a legend
                 per = r["methods"][j * K * n_wl : (j + 1) * K * n_wl]
                 methods[str(i)] = [legend.setdefault(m, len(legend)) for m in per]

@@ -19,7 +19,7 @@ from ..lens_design.space import Parameter, ParameterSpace, SpaceError
 from ..io import claim_out_dir, write_json_atomic
 from .layout import FORMAT, DatasetError, differing_keys, read_json, sha256_file
 from ..lens.apertures import engine_base
-from .settings import DatasetSettings, field_positions
+from .settings import BEFORE_KEY, DatasetSettings, field_positions
 from ..errors import InputError
 
 
@@ -31,11 +31,12 @@ def _request(
         "format": FORMAT,
         "n_designs": n,
         "seed": seed,
-        # the best-focus sampling only where it is not the default (manifests before it have none)
+        # the best-focus sampling and its limit only where not the default (manifests before them have none)
         "settings": {
             k: v
             for k, v in asdict(s).items()
             if not (k in ("focus_fields", "focus_rings") and v == getattr(DatasetSettings, k))
+            and not (k in BEFORE_KEY and v == BEFORE_KEY[k])
         },
         "fields_deg": fields,
         "channels": [[list(p) for p in c] for c in channels],
@@ -183,6 +184,15 @@ def space_and_base(manifest: dict) -> tuple[ParameterSpace, Lens]:
     except TypeError as err:
         raise InputError(f"the manifest's parameter space is damaged ({err})") from None
     return space, Lens(manifest["base_lens"], source="<manifest base lens>")
+
+
+def nearest_image_plane(manifest: dict) -> float | None:
+    """The nearest distance behind the last surface where the dataset's focus may put the
+    image plane (mm): the space's back-focus limit under ``focus_within = "bfd"`` (a focus
+    "best" or "paraxial"), else None (no limit)."""
+    s = DatasetSettings.of_manifest(manifest["settings"])
+    limit = (manifest.get("space", {}).get("constraints") or {}).get("min_bfd")
+    return float(limit) if limit is not None and s.focus_within == "bfd" and s.focus != "fixed" else None
 
 
 def refocused_designs(manifest: dict, values, image_distance) -> list[dict]:

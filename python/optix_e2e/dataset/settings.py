@@ -20,6 +20,12 @@ def human(b: float) -> str:
     return f"{b / 2**40:.1f} TiB" if b >= 2**40 else f"{b / 2**30:.1f} GiB"
 
 
+FOCUS_WITHIN = ("bfd", "none")
+# what a manifest made before a setting existed did, where that is not today's default: such a
+# manifest has no key (_request leaves it out when it has this value)
+BEFORE_KEY = {"focus_within": "none"}
+
+
 @dataclass(frozen=True)
 class DatasetSettings:
     """What each design's record holds and how it is computed."""
@@ -44,6 +50,16 @@ class DatasetSettings:
     # sampling (OpticsSurrogate.in_space sets 13 and 8: camera_design/outputs.focus_check's)
     focus_fields: int = 7
     focus_rings: int = 4
+    # where the focus may put the image plane: "bfd", no nearer the last surface than the
+    # space's back-focus limit (its [constraints] min_bfd: the sensor sits behind it), or
+    # "none", wherever it falls (a plane inside the last surface fails the design): every
+    # dataset's rule before 2026-11-28, whose manifests have no key (``of_manifest``)
+    focus_within: str = "bfd"
+
+    @classmethod
+    def of_manifest(cls, settings: dict) -> "DatasetSettings":
+        """The settings a manifest records (a key it lacks: the rule before the key existed)."""
+        return cls(**{**BEFORE_KEY, **settings})
 
     def check(self) -> None:
         if self.n_fields < 0:
@@ -65,6 +81,8 @@ class DatasetSettings:
             raise InputError(f"apertures must be 'auto' or 'fixed', got {self.apertures!r}")
         if self.focus not in ("best", "paraxial", "fixed"):
             raise InputError(f"focus must be 'best', 'paraxial' or 'fixed', got {self.focus!r}")
+        if self.focus_within not in FOCUS_WITHIN:
+            raise InputError(f"focus_within must be one of {', '.join(FOCUS_WITHIN)}, got {self.focus_within!r}")
         if self.focus_fields < 1 or self.focus_rings < 1:
             raise InputError(f"focus_fields and focus_rings must be >= 1, got {self.focus_fields}, {self.focus_rings}")
         if self.psf_method not in ("auto", "fft", "huygens", "geometric"):
