@@ -263,7 +263,7 @@ def test_shipped_surrogate_meets_the_per_field_target_on_unseen_designs(tmp_path
     sur = OpticsSurrogate.load("apo-gauss-8e-mv")
     st = sur.manifest["settings"]
     assert st["apertures"] == "fixed"
-    settings = DatasetSettings(**{**st, "shard_size": 16})
+    settings = DatasetSettings.of_manifest({**st, "shard_size": 16})
     generate("apo-gauss-8e-mv", 16, 11, tmp_path / "d", settings, progress=False)
     rep = evaluate(sur, tmp_path / "d")
     assert rep["held_out"].startswith("every design") and rep["n_designs"] == 16

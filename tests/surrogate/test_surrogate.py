@@ -4,6 +4,7 @@ resume, evaluation, and the shipped paper-triplet-v1 model against the exact eng
 from __future__ import annotations
 
 import json
+import shutil
 import warnings
 
 import numpy as np
@@ -170,6 +171,25 @@ def test_eval_refuses_data_of_other_settings(tiny_data, tmp_path):
     train(tiny_data, tmp_path / "run", _cfg(steps=5), progress=False)
     with pytest.raises(SurrogateDataMismatch, match="sensor_pixel_um|grid"):
         evaluate(OpticsSurrogate.load(tmp_path / "run"), other)
+
+
+def test_eval_takes_data_of_the_other_focus_rule_where_it_moved_no_plane(tiny_data, tmp_path):
+    """The shipped surrogate's data put each image plane wherever the focus fell (focus_within
+    "none", before 2026-11-28); today's data keeps it behind the back-focus limit ("bfd"). The
+    records differ only where a plane sits at or short of the limit: data with none such is
+    evaluated, data with one is refused, naming both rules."""
+    shipped = OpticsSurrogate.load("paper-triplet-v1")
+    man = json.loads((tiny_data / "manifest.json").read_text())
+    assert man["settings"]["focus_within"] == "bfd" and "focus_within" not in shipped.manifest["settings"]
+    assert evaluate(shipped, tiny_data)["n_designs"] == 24
+    moved = tmp_path / "moved"
+    shutil.copytree(tiny_data, moved)
+    f = moved / "shards" / "00000" / "image_distance.npy"
+    z = np.load(f)
+    z[0] = man["space"]["constraints"]["min_bfd"]  # a design the limit held back
+    np.save(f, z)
+    with pytest.raises(SurrogateDataMismatch, match="focus_within: 'bfd' here, 'none' in its training data"):
+        evaluate(shipped, moved)
 
 
 def test_exact_engine_reproduces_the_dataset_record(tiny_data):

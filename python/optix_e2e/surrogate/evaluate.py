@@ -25,6 +25,7 @@ import torch
 
 from .checkpoint import OpticsSurrogate
 from ..dataset.layout import differing_keys, read_manifest
+from ..dataset.settings import BEFORE_KEY, DatasetSettings
 from .data import load_arrays, psf_grid, psf_pitch_um
 from .train import predict_all
 from ..errors import InputError
@@ -60,10 +61,31 @@ def check_compatible(model: OpticsSurrogate, man: dict, root) -> None:
     if trained:
         a, b = man.get("settings", {}), trained.get("settings", {})
         diff = differing_keys(a, b, (set(a) | set(b)) - {"shard_size"})
+        if "focus_within" in diff and _focus_rules_agree(root, man):
+            diff.remove("focus_within")
         if diff:
-            problems.append(f"dataset settings differ ({', '.join(diff)})")
+            detail = ", ".join(f"{k}: {_setting(a, k)!r} here, {_setting(b, k)!r} in its training data" for k in diff)
+            problems.append(f"dataset settings differ ({detail})")
     if problems:
         raise SurrogateDataMismatch(f"{root}: not data of this surrogate: " + "; ".join(problems))
+
+
+def _setting(settings: dict, k: str):
+    """A manifest's setting ``k``: as recorded, or what a manifest without it means."""
+    return settings.get(k, BEFORE_KEY.get(k, getattr(DatasetSettings, k, None)))
+
+
+def _focus_rules_agree(root, man: dict) -> bool:
+    """Whether the focus rules ``focus_within`` "bfd" and "none" give this dataset's records
+    alike: no design's image plane at or short of the space's back-focus limit (the only
+    designs the rules treat differently)."""
+    limit = (man.get("space", {}).get("constraints") or {}).get("min_bfd")
+    if limit is None:
+        return True
+    for f in sorted(Path(root).glob("shards/*/image_distance.npy")):
+        if np.any(np.load(f) <= float(limit) + 1e-9):
+            return False
+    return True
 
 
 def _ee_curves(p: torch.Tensor) -> torch.Tensor:
