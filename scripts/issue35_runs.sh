@@ -8,6 +8,8 @@
 #   quick          Alg. 1, quick budget, seed 0
 #   quick-vanilla  vanilla Adam, quick budget, seed 0 (the same steps, batches and noise)
 #   compare        the two end-to-end cameras on the same held-out scenes (benches/detection_compare.py)
+#   quick-seeds    Alg. 1, quick budget, seeds 1 and 2 (10 min each), then the table over seeds 0-2
+#                  (benches/detection_seeds.py -> OUT/quick_table.{json,md})
 #   full           Alg. 1, full budget, seeds 0 1 2 (35-60 min each on this CPU: checkpointed), then
 #                  their table over seeds (benches/detection_seeds.py -> OUT/full_table.{json,md})
 #   full-vanilla   vanilla Adam, full budget, seeds 0 1 2 (the same starts, batches and noise), each
@@ -26,7 +28,7 @@
 set -euo pipefail
 OUT="${1:-benches/results/issue35}"
 shift || true
-STAGES="${*:-quick quick-vanilla compare full full-vanilla swap}"
+STAGES="${*:-quick quick-vanilla compare quick-seeds full full-vanilla swap}"
 [ -f "$OUT/detector/detector.pt" ] || { echo "no detector at $OUT/detector/detector.pt: run scripts/issue35_detector.sh first" >&2; exit 2; }
 printf 'detector = "detector/detector.pt"\nthreads = %s\n' "${THREADS:-1}" > "$OUT/detect.toml"
 S="${SUFFIX:-}"
@@ -44,6 +46,9 @@ for stage in $STAGES; do
     compare)
       python benches/detection_compare.py "$OUT/detect_quick_vanilla$S" "$OUT/detect_quick$S" \
         --out "$OUT/compare_quick_alg1_vs_vanilla$S.json" ;;
+    quick-seeds)
+      for s in 1 2; do design "detect_quick_seed$s" quick alg1 "$s"; done
+      python benches/detection_seeds.py "$OUT/detect_quick$S" "$OUT"/detect_quick_seed{1,2}"$S" --out "$OUT/quick_table$S" ;;
     full)
       for s in 0 1 2; do design "detect_full_seed$s" full alg1 "$s"; done
       python benches/detection_seeds.py "$OUT"/detect_full_seed{0,1,2}"$S" --out "$OUT/full_table$S" ;;
@@ -65,6 +70,6 @@ for stage in $STAGES; do
         fi
       done
       python benches/detection_swap.py --seeds "$OUT"/swap_full_seed{0,1,2}"$S" --out "$OUT/swap_table$S" ;;
-    *) echo "unknown stage '$stage' (quick quick-vanilla compare full full-vanilla swap)" >&2; exit 2 ;;
+    *) echo "unknown stage '$stage' (quick quick-vanilla compare quick-seeds full full-vanilla swap)" >&2; exit 2 ;;
   esac
 done
