@@ -8,8 +8,9 @@
 #   quick          Alg. 1, quick budget, seed 0
 #   quick-vanilla  vanilla Adam, quick budget, seed 0 (the same steps, batches and noise)
 #   compare        the two end-to-end cameras on the same held-out scenes (benches/detection_compare.py)
-#   quick-seeds    Alg. 1, quick budget, seeds 1 and 2 (10 min each), then the table over seeds 0-2
-#                  (benches/detection_seeds.py -> OUT/quick_table.{json,md})
+#   quick-seeds    (named only, not in the default list) Alg. 1, quick budget, seeds 1 and 2 (10 min
+#                  each), then the table over seeds 0-2 with the quick stage's seed 0, made on the
+#                  same code (benches/detection_seeds.py -> OUT/quick_table.{json,md})
 #   full           Alg. 1, full budget, seeds 0 1 2 (35-60 min each on this CPU: checkpointed), then
 #                  their table over seeds (benches/detection_seeds.py -> OUT/full_table.{json,md})
 #   full-vanilla   vanilla Adam, full budget, seeds 0 1 2 (the same starts, batches and noise), each
@@ -21,14 +22,17 @@
 #                  then the effects over seeds (OUT/swap_table/swap_seeds.{json,md})
 # SUFFIX (default empty) is appended to every run's and table's name: SUFFIX=_range holds the runs
 # made after lens_steps = "range" became the detection default (2026-11-28); the names without it
-# are the runs made before, on Adam's steps in the sigmoid's argument (a finished run is kept as made).
+# are the runs made before, on Adam's steps in the sigmoid's argument (a finished run is kept as made);
+# SUFFIX=_lr5 the quick runs after the quick budget's lr_optics became 5e-2 (2026-11-28, stages quick
+# and quick-seeds; its comparison with vanilla used detect_quick_vanilla_range, vanilla not using
+# lr_optics: docs/detection.md, "The quick budget at lr 5e-2").
 # Each finished run's small files (results.json, metrics.csv, history.csv, lens_path.csv, the
 # lens .zmx, the end-to-end camera's detections) are kept in git under the default OUT (its
 # .gitignore); logs in OUT/*.log stay local.
 set -euo pipefail
 OUT="${1:-benches/results/issue35}"
 shift || true
-STAGES="${*:-quick quick-vanilla compare quick-seeds full full-vanilla swap}"
+STAGES="${*:-quick quick-vanilla compare full full-vanilla swap}"
 [ -f "$OUT/detector/detector.pt" ] || { echo "no detector at $OUT/detector/detector.pt: run scripts/issue35_detector.sh first" >&2; exit 2; }
 printf 'detector = "detector/detector.pt"\nthreads = %s\n' "${THREADS:-1}" > "$OUT/detect.toml"
 S="${SUFFIX:-}"

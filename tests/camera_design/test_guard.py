@@ -184,3 +184,22 @@ def _made_before(folder, cfg, *settings: str) -> None:
     for k in settings:
         del made[k]
     (folder / "config.json").write_text(json.dumps(made))
+
+
+def test_a_quick_detection_run_folder_made_at_the_former_lens_rate_resumes_at_it(tmp_path):
+    """The detection quick budget's lr_optics went from 3e-2 to 5e-2 (2026-11-28): a run folder
+    made at 3e-2 resumes at 3e-2 when the command leaves the rate at the budget's; one made at
+    another rate is still held to it, and a new folder gets 5e-2."""
+    from optix_e2e.camera_design.config import check_run_dir, make_config, run_dir_settings
+
+    today = make_config("quick", task="detection")
+    assert today.lr_optics == 5e-2
+    check_run_dir(tmp_path / "a", make_config("quick", task="detection", lr_optics=3e-2))
+    kept = run_dir_settings(tmp_path / "a", today)
+    assert kept.lr_optics == 3e-2
+    check_run_dir(tmp_path / "a", kept)  # accepted: it resumes as it was made
+    with pytest.raises(ValueError, match="lr_optics"):
+        check_run_dir(tmp_path / "a", today)
+    check_run_dir(tmp_path / "b", make_config("quick", task="detection", lr_optics=2e-2))
+    assert run_dir_settings(tmp_path / "b", today).lr_optics == 5e-2  # not a former default: refused
+    assert run_dir_settings(tmp_path / "c", today).lr_optics == 5e-2

@@ -267,7 +267,7 @@ def test_the_cli_makes_new_datasets_within_the_back_focus_limit_and_resumes_old_
     assert p.returncode == 0, err.decode()
     p = _cli(*args, "--focus-within", "bfd")
     _, err = p.communicate(timeout=300)
-    assert p.returncode != 0 and b"differs in: settings" in err
+    assert p.returncode != 0 and b"differs in: settings (focus_within: 'none' there, 'bfd' asked)" in err
 
 
 def test_corruption_is_detected(reference, tmp_path):

@@ -184,6 +184,11 @@ def test_eval_takes_data_of_the_other_focus_rule_where_it_moved_no_plane(tiny_da
     assert evaluate(shipped, tiny_data)["n_designs"] == 24
     moved = tmp_path / "moved"
     shutil.copytree(tiny_data, moved)
+    # a writer's temporary shard folder (a stopped run's) is not read
+    tmp = moved / "shards" / ".00000.tmp-123"
+    tmp.mkdir()
+    (tmp / "image_distance.npy").write_bytes(b"half-written")
+    assert evaluate(shipped, moved)["n_designs"] == 24
     f = moved / "shards" / "00000" / "image_distance.npy"
     z = np.load(f)
     z[0] = man["space"]["constraints"]["min_bfd"]  # a design the limit held back

@@ -386,6 +386,12 @@ FORMER_DEFAULTS: dict[str, object] = {
     "train_positions": "frame",
     "optics": "surrogate",
 }
+#: a task's budget values that have changed, with the value they had before, by (task, budget,
+#: setting): a run directory made with the former value keeps it when the command leaves the
+#: setting at the task budget's value today (detection's quick lr_optics was 3e-2 until 2026-11-28)
+FORMER_TASK_DEFAULTS: dict[tuple[str, str, str], object] = {
+    ("detection", "quick", "lr_optics"): 3e-2,
+}
 #: settings a run directory made before they existed ran under: a config.json without the key
 #: keeps that behaviour (the guard was the projection until guard existed; the optics the surrogate
 #: until optics existed)
@@ -421,6 +427,16 @@ def run_dir_settings(out: Path, cfg: DesignConfig) -> DesignConfig:
             k: before
             for k, before in BEFORE_SETTING.items()
             if k not in raw and k not in keep and getattr(cfg, k) == task_default(cfg.task, cfg.budget, k) != before
+        }
+    )
+    keep.update(
+        {
+            k: former
+            for (task, budget, k), former in FORMER_TASK_DEFAULTS.items()
+            if (task, budget) == (cfg.task, cfg.budget)
+            and k not in keep
+            and old.get(k) == former
+            and getattr(cfg, k) == task_default(task, budget, k) != former
         }
     )
     return dataclasses.replace(cfg, **keep).check() if keep else cfg

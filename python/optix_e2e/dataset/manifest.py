@@ -120,9 +120,14 @@ def prepare(
         man = read_json(mpath, "manifest")
         diff = differing_keys(man, req, req)
         if diff:
+            detail = ", ".join(diff)
+            if "settings" in diff:  # which ones, as made and as asked (a key absent: its rule before)
+                held, asked = {**BEFORE_KEY, **man.get("settings", {})}, {**BEFORE_KEY, **req["settings"]}
+                keys = sorted(k for k in set(held) | set(asked) if held.get(k) != asked.get(k))
+                detail += " (" + ", ".join(f"{k}: {held.get(k)!r} there, {asked.get(k)!r} asked" for k in keys) + ")"
             raise DatasetError(
                 f"{mpath}: this directory holds a different dataset (differs in: "
-                f"{', '.join(diff)}); use another --out or the same arguments"
+                f"{detail}); use another --out or the same arguments"
             )
         dpath = out / "designs.csv"
         want = man.get("designs_csv_sha256")

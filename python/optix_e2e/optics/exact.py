@@ -85,7 +85,7 @@ def unrenderable(manifest: dict, values, min_energy: float = 0.9) -> str | None:
     the engine's FFT refusing it (its fast path; the ``auto`` method would fall back to the
     Huygens PSF, about a minute a design: a design run's Jacobian takes 2P + 1); or less than
     ``min_energy`` of the flux inside the window at some field and channel."""
-    from ..dataset.manifest import refocused_designs, space_and_base
+    from ..dataset.manifest import nearest_image_plane, refocused_designs, space_and_base
     from ..lens import Lens
     from ..lens_design.focus import refocus_many
     from ..surrogate.ground_truth import exact_arrays
@@ -96,6 +96,9 @@ def unrenderable(manifest: dict, values, min_energy: float = 0.9) -> str | None:
     err = refocus_many([d], "best", base.fields_deg, base.wavelengths_nm, base.wavelength_weights)[0]
     if err:
         return f"the engine cannot refocus it ({err})"
+    nearest = nearest_image_plane(manifest)  # the dataset's focus rule (focus_within)
+    if nearest is not None and nearest > 0 and float(d["surfaces"][-1]["thickness"]) < nearest:
+        d["surfaces"][-1]["thickness"] = nearest
     half = 0.5 * float(manifest["settings"]["window_um"])
     try:
         lens = Lens(d)

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from .checkpoint import OpticsSurrogate
-from ..dataset.layout import differing_keys, read_manifest
+from ..dataset.layout import differing_keys, read_manifest, shard_name, shards_dir
 from ..dataset.settings import BEFORE_KEY, DatasetSettings
 from .data import load_arrays, psf_grid, psf_pitch_um
 from .train import predict_all
@@ -82,8 +82,15 @@ def _focus_rules_agree(root, man: dict) -> bool:
     limit = (man.get("space", {}).get("constraints") or {}).get("min_bfd")
     if limit is None:
         return True
-    for f in sorted(Path(root).glob("shards/*/image_distance.npy")):
-        if np.any(np.load(f) <= float(limit) + 1e-9):
+    for k in range(int(man.get("n_shards", 0))):  # the shards' own folders, not a writer's temporaries
+        f = shards_dir(Path(root)) / shard_name(k) / "image_distance.npy"
+        if not f.is_file():
+            continue
+        try:
+            z = np.load(f, allow_pickle=False)
+        except (OSError, ValueError):
+            return False  # unreadable: not shown to agree (load_arrays names the damage)
+        if np.any(z <= float(limit) + 1e-9):
             return False
     return True
 
