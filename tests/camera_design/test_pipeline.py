@@ -4,6 +4,7 @@ optimizer, the low-light setting and calibration, the held-out set, the run sett
 from __future__ import annotations
 
 
+import json
 import math
 
 import numpy as np
@@ -485,3 +486,9 @@ def test_a_run_folder_copied_with_its_inputs_resumes_where_they_now_lie(tmp_path
     (there / "run" / "inputs.json").unlink()  # a run made before inputs.json
     with pytest.raises(ValueError, match="other settings.*detector"):
         check_run_dir(there / "run", moved)
+    # resumed on its own paths, such a run gets its inputs.json then
+    old = make_config("smoke", detector=str(there / "detector.pt"))
+    (there / "run2").mkdir()
+    (there / "run2" / "config.json").write_text(json.dumps(old.to_json()))
+    check_run_dir(there / "run2", old)
+    assert json.loads((there / "run2" / "inputs.json").read_text())["detector"]["fingerprint"].startswith("sha256:")

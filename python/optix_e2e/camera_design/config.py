@@ -470,6 +470,8 @@ def check_run_dir(out: Path, cfg: DesignConfig) -> None:
         if diff:
             detail = ", ".join(f"{k}: {old.get(k)!r} -> {new.get(k)!r}" for k in diff)
             raise InputError(f"{out} was made with other settings ({detail}); use another --out or the same settings")
+        if not (out / "inputs.json").exists():  # a run made before inputs.json: recorded now, as resumed
+            record_inputs(out, new, PATH_SETTINGS)
         return
     claim_out_dir(out, "design run", marker="config.json")
     out.mkdir(parents=True, exist_ok=True)
