@@ -281,9 +281,10 @@ BUDGETS: dict[str, dict] = {
 # crops and held-out street scenes (>= 500 objects at quick). The lens moves in the wide
 # detection space (f/2.8-4.6, free centre thicknesses; docs/detection.md) on the engine's exact
 # PSFs and gradients: no network has learned that space. Smoke (tests) keeps the narrow space's
-# surrogate. At quick the lens learned at 3e-2 (until 2026-11-28): Adam moves a sigmoid-parameterized value about lr
-# per step, so from the nominal f/4.4 (at 0.89 of its range) 90 lens steps that all ask for a
-# faster lens reach f/4.15 at the paper's 1e-2, f/3.6 at 0.022 and f/3.28 at 3e-2; the full
+# surrogate. At quick the lens learned at 3e-2 (until 2026-11-28): Adam moves a
+# sigmoid-parameterized value about lr per step, so from the nominal f/4.4 (at 0.89 of its
+# range) 90 lens steps that all ask for a faster lens reach f/4.15 at the paper's 1e-2, f/3.6
+# at 0.022 and f/3.28 at 3e-2; the full
 # budget's 350 lens steps at 1e-2 reach f/3.07 (test_detection_parts.py). Those runs moved the
 # aperture at 0.22-0.58 of Adam's full step, and the sigmoid alone gave the aperture 0.4 of
 # the first step a mid-range parameter gets: since 2026-11-28 every detection budget evens the
@@ -475,5 +476,6 @@ def check_run_dir(out: Path, cfg: DesignConfig) -> None:
         return
     claim_out_dir(out, "design run", marker="config.json")
     out.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(path, cfg.to_json())
-    record_inputs(out, cfg.to_json(), PATH_SETTINGS)
+    settings = cfg.to_json()
+    write_json_atomic(path, settings)
+    record_inputs(out, settings, PATH_SETTINGS)

@@ -155,13 +155,12 @@ def generate_cmd(
     RGB PSFs at K fields, shard by shard, into DIR.  Running the same command again resumes."""
     from ..dataset import DatasetSettings, generate
     from ..dataset.layout import read_json
-    from ..dataset.settings import BEFORE_KEY
 
     if focus_within is None:  # a new dataset's rule, or the one DIR's dataset was made with
         man = Path(out_dir) / "manifest.json"
         held = read_json(man, "manifest") if man.is_file() else None
         settings = held.get("settings") if isinstance(held, dict) else None
-        focus_within = settings.get("focus_within", BEFORE_KEY["focus_within"]) if isinstance(settings, dict) else "bfd"
+        focus_within = DatasetSettings.recorded(settings, "focus_within") if isinstance(settings, dict) else "bfd"
     s = DatasetSettings(
         n_fields=n_fields,
         window_um=window_um,

@@ -214,7 +214,7 @@ def compute_shard(
                 fail(i, f"focus: {err}")
                 continue
             image_mm = float(d["surfaces"][-1]["thickness"])
-            if nearest is not None and nearest > 0.0 and image_mm < nearest:
+            if nearest is not None and image_mm < nearest:
                 # the sensor cannot sit nearer: the image plane at the limit. For "best" that is
                 # the best plane allowed (the spot's mean square is a quadratic in the plane's
                 # position, so the feasible minimum is the bound nearest the free one)

@@ -122,9 +122,10 @@ def prepare(
         if diff:
             detail = ", ".join(diff)
             if "settings" in diff:  # which ones, as made and as asked (a key absent: its rule before)
-                held, asked = {**BEFORE_KEY, **man.get("settings", {})}, {**BEFORE_KEY, **req["settings"]}
-                keys = sorted(k for k in set(held) | set(asked) if held.get(k) != asked.get(k))
-                detail += " (" + ", ".join(f"{k}: {held.get(k)!r} there, {asked.get(k)!r} asked" for k in keys) + ")"
+                held, asked = man.get("settings", {}), req["settings"]
+                at = DatasetSettings.recorded
+                keys = sorted(k for k in set(held) | set(asked) if at(held, k) != at(asked, k))
+                detail += " (" + ", ".join(f"{k}: {at(held, k)!r} there, {at(asked, k)!r} asked" for k in keys) + ")"
             raise DatasetError(
                 f"{mpath}: this directory holds a different dataset (differs in: "
                 f"{detail}); use another --out or the same arguments"
@@ -191,13 +192,19 @@ def space_and_base(manifest: dict) -> tuple[ParameterSpace, Lens]:
     return space, Lens(manifest["base_lens"], source="<manifest base lens>")
 
 
+def back_focus_limit(manifest: dict) -> float | None:
+    """The space's back-focus limit (its [constraints] min_bfd, mm), None where it has none."""
+    limit = (manifest.get("space", {}).get("constraints") or {}).get("min_bfd")
+    return None if limit is None else float(limit)
+
+
 def nearest_image_plane(manifest: dict) -> float | None:
     """The nearest distance behind the last surface where the dataset's focus may put the
-    image plane (mm): the space's back-focus limit under ``focus_within = "bfd"`` (a focus
-    "best" or "paraxial"), else None (no limit)."""
+    image plane (mm): the space's back-focus limit, where it is above 0, under ``focus_within
+    = "bfd"`` (a focus "best" or "paraxial"), else None (no limit)."""
     s = DatasetSettings.of_manifest(manifest["settings"])
-    limit = (manifest.get("space", {}).get("constraints") or {}).get("min_bfd")
-    return float(limit) if limit is not None and s.focus_within == "bfd" and s.focus != "fixed" else None
+    limit = back_focus_limit(manifest)
+    return limit if limit is not None and limit > 0 and s.focus_within == "bfd" and s.focus != "fixed" else None
 
 
 def refocused_designs(manifest: dict, values, image_distance) -> list[dict]:

@@ -61,6 +61,11 @@ class DatasetSettings:
         """The settings a manifest records (a key it lacks: the rule before the key existed)."""
         return cls(**{**BEFORE_KEY, **settings})
 
+    @classmethod
+    def recorded(cls, settings: dict, k: str):
+        """A manifest's setting ``k`` as ``of_manifest`` reads it, without checking the others."""
+        return settings.get(k, BEFORE_KEY.get(k, getattr(cls, k, None)))
+
     def check(self) -> None:
         if self.n_fields < 0:
             raise InputError(f"n_fields must be >= 1 (or 0: auto), got {self.n_fields}")

@@ -97,7 +97,7 @@ def unrenderable(manifest: dict, values, min_energy: float = 0.9) -> str | None:
     if err:
         return f"the engine cannot refocus it ({err})"
     nearest = nearest_image_plane(manifest)  # the dataset's focus rule (focus_within)
-    if nearest is not None and nearest > 0 and float(d["surfaces"][-1]["thickness"]) < nearest:
+    if nearest is not None and float(d["surfaces"][-1]["thickness"]) < nearest:
         d["surfaces"][-1]["thickness"] = nearest
     half = 0.5 * float(manifest["settings"]["window_um"])
     try:

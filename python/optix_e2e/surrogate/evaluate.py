@@ -25,7 +25,8 @@ import torch
 
 from .checkpoint import OpticsSurrogate
 from ..dataset.layout import differing_keys, read_manifest, shard_name, shards_dir
-from ..dataset.settings import BEFORE_KEY, DatasetSettings
+from ..dataset.manifest import back_focus_limit
+from ..dataset.settings import DatasetSettings
 from .data import load_arrays, psf_grid, psf_pitch_um
 from .train import predict_all
 from ..errors import InputError
@@ -64,22 +65,18 @@ def check_compatible(model: OpticsSurrogate, man: dict, root) -> None:
         if "focus_within" in diff and _focus_rules_agree(root, man):
             diff.remove("focus_within")
         if diff:
-            detail = ", ".join(f"{k}: {_setting(a, k)!r} here, {_setting(b, k)!r} in its training data" for k in diff)
+            at = DatasetSettings.recorded
+            detail = ", ".join(f"{k}: {at(a, k)!r} here, {at(b, k)!r} in its training data" for k in diff)
             problems.append(f"dataset settings differ ({detail})")
     if problems:
         raise SurrogateDataMismatch(f"{root}: not data of this surrogate: " + "; ".join(problems))
-
-
-def _setting(settings: dict, k: str):
-    """A manifest's setting ``k``: as recorded, or what a manifest without it means."""
-    return settings.get(k, BEFORE_KEY.get(k, getattr(DatasetSettings, k, None)))
 
 
 def _focus_rules_agree(root, man: dict) -> bool:
     """Whether the focus rules ``focus_within`` "bfd" and "none" give this dataset's records
     alike: no design's image plane at or short of the space's back-focus limit (the only
     designs the rules treat differently)."""
-    limit = (man.get("space", {}).get("constraints") or {}).get("min_bfd")
+    limit = back_focus_limit(man)
     if limit is None:
         return True
     for k in range(int(man.get("n_shards", 0))):  # the shards' own folders, not a writer's temporaries
@@ -90,7 +87,7 @@ def _focus_rules_agree(root, man: dict) -> bool:
             z = np.load(f, allow_pickle=False)
         except (OSError, ValueError):
             return False  # unreadable: not shown to agree (load_arrays names the damage)
-        if np.any(z <= float(limit) + 1e-9):
+        if np.any(z <= limit + 1e-9):
             return False
     return True
 
