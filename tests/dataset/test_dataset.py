@@ -270,6 +270,20 @@ def test_the_cli_makes_new_datasets_within_the_back_focus_limit_and_resumes_old_
     assert p.returncode != 0 and b"differs in: settings (focus_within: 'none' there, 'bfd' asked)" in err
 
 
+def test_a_damaged_manifest_is_refused_in_one_error_and_left_as_it_is(tmp_path):
+    for text, words in (
+        ("[1]", "not a dataset manifest"),
+        ('{"settings": "x"}', "a different dataset"),
+        ('{"settings": {"focus_within": "bfd"}}', "a different dataset"),
+    ):
+        root = tmp_path / f"ds{len(text)}"
+        root.mkdir()
+        (root / "manifest.json").write_text(text)
+        with pytest.raises(DatasetError, match=words):
+            generate("paper-triplet", 2, 0, root, SMALL_SETTINGS, progress=False)
+        assert (root / "manifest.json").read_text() == text and [p.name for p in root.iterdir()] == ["manifest.json"]
+
+
 def test_corruption_is_detected(reference, tmp_path):
     root = tmp_path / "ds"
     shutil.copytree(reference, root)

@@ -118,13 +118,19 @@ def prepare(
     mpath = out / "manifest.json"
     if mpath.exists():
         man = read_json(mpath, "manifest")
+        if not isinstance(man, dict):
+            raise DatasetError(f"{mpath}: not a dataset manifest (a JSON object); use another --out")
         diff = differing_keys(man, req, req)
         if diff:
             detail = ", ".join(diff)
-            if "settings" in diff:  # which ones, as made and as asked (a key absent: its rule before)
-                held, asked = man.get("settings", {}), req["settings"]
-                at = DatasetSettings.recorded
-                keys = sorted(k for k in set(held) | set(asked) if at(held, k) != at(asked, k))
+            held, asked = man.get("settings"), req["settings"]
+            at = DatasetSettings.recorded
+            keys = (
+                sorted(k for k in set(held) | set(asked) if at(held, k) != at(asked, k))
+                if isinstance(held, dict)
+                else []
+            )
+            if "settings" in diff and keys:  # which ones, as made and as asked
                 detail += " (" + ", ".join(f"{k}: {at(held, k)!r} there, {at(asked, k)!r} asked" for k in keys) + ")"
             raise DatasetError(
                 f"{mpath}: this directory holds a different dataset (differs in: "
