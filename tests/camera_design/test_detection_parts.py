@@ -14,7 +14,7 @@ from optix_e2e.camera import Camera, FixedOptics, SensorStage, calibrated_preset
 from optix_e2e.sensor.emva import expected_electrons
 from optix_e2e.sensor.spectral import aperture_factor, aperture_gain
 from optix_e2e.tasks import SensorFrame
-from optix_e2e.tasks.detection import heldout_streets, street_batch
+from optix_e2e.tasks.detection import VALIDATION_STREETS, heldout_streets, street_batch
 
 
 def test_photon_count_follows_eq3_f_number_form():
@@ -126,6 +126,18 @@ def test_heldout_streets_cover_the_frame_and_repeat():
     assert len(quadrants) == 4
     assert len({x.noise_seed for x in s}) == 8
     assert all(0.1 <= x.level <= 0.4 for x in s)
+
+
+def test_validation_streets_are_other_scenes_than_the_held_out_ones():
+    frame = SensorFrame()
+    held = heldout_streets(8, (64, 96), 4, (0.1, 0.4), frame)
+    val = heldout_streets(8, (64, 96), 4, (0.1, 0.4), frame, start=VALIDATION_STREETS)
+    again = heldout_streets(8, (64, 96), 4, (0.1, 0.4), frame, start=VALIDATION_STREETS)
+    assert all(torch.equal(x.scene, y.scene) and x.noise_seed == y.noise_seed for x, y in zip(val, again))
+    assert not {x.name for x in val} & {x.name for x in held}
+    assert not {x.noise_seed for x in val} & {x.noise_seed for x in held}
+    assert not any(torch.equal(x.scene, y.scene) for x in val for y in held)
+    assert len({(x.offset_px[0] > 0, x.offset_px[1] > 0) for x in val}) == 4  # every quadrant, as held out
 
 
 def test_paired_map_interval():

@@ -37,6 +37,7 @@ from ..scenes.street import street_scene
 
 HELDOUT_STREET0 = 2_100_000_000  # held-out street scenes: seeds from here (training: [6, seed, step])
 HELDOUT_NOISE0 = (1 << 60) + (1 << 40)
+VALIDATION_STREETS = 1_000_000  # heldout_streets(start=...): scenes for benches, not the held-out ones
 
 
 @dataclass(frozen=True)
@@ -118,13 +119,15 @@ def street_batch(
 
 
 def heldout_streets(
-    n: int, size: tuple[int, int], margin: int, levels: tuple[float, float], frame
+    n: int, size: tuple[int, int], margin: int, levels: tuple[float, float], frame, start: int = 0
 ) -> list[DetectionSample]:
     """The held-out set: ``n`` street scenes (seeds training never draws), scene i in quadrant
-    i mod 4 of the frame at a uniform position inside it, at a log-uniform light level."""
+    i mod 4 of the frame at a uniform position inside it, at a log-uniform light level.
+    ``start``: the first scene's index (the held-out set is 0.., a validation set
+    ``VALIDATION_STREETS``..: the same kind of scenes, none of them held out)."""
     h, w = size
     out = []
-    for i in range(n):
+    for i in range(start, start + n):
         rng = np.random.default_rng([HELDOUT_STREET0, i])
         level = float(np.exp(rng.uniform(np.log(levels[0]), np.log(levels[1]))))
         qy, qx = divmod(i % 4, 2)
