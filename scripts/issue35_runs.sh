@@ -11,6 +11,12 @@
 #   quick-seeds    (named only, not in the default list) Alg. 1, quick budget, seeds 1 and 2 (10 min
 #                  each), then the table over seeds 0-2 with the quick stage's seed 0, made on the
 #                  same code (benches/detection_seeds.py -> OUT/quick_table.{json,md})
+#   tune           (named only) the item-4 detector and the hardware ISP (from its default settings)
+#                  trained 2,000 steps behind the nominal lens at dusk (`optix detect tune`; THREADS=2:
+#                  27 min) -> OUT/tuned_detector/ (detector.pt with the tuned ISP, tune.json)
+#   quick-tuned    (named only) Alg. 1, quick budget, seeds 0 1 2, both cameras starting from the tuned
+#                  detector and ISP (isp_init = "detector", OUT/detect_tuned.toml) instead of the
+#                  item-4 detector and a random ISP draw; then their table (OUT/quick_tuned_table.{json,md})
 #   full           Alg. 1, full budget, seeds 0 1 2 (35-60 min each on this CPU: checkpointed), then
 #                  their table over seeds (benches/detection_seeds.py -> OUT/full_table.{json,md})
 #   full-vanilla   vanilla Adam, full budget, seeds 0 1 2 (the same starts, batches and noise), each
@@ -35,11 +41,13 @@ shift || true
 STAGES="${*:-quick quick-vanilla compare full full-vanilla swap}"
 [ -f "$OUT/detector/detector.pt" ] || { echo "no detector at $OUT/detector/detector.pt: run scripts/issue35_detector.sh first" >&2; exit 2; }
 printf 'detector = "detector/detector.pt"\nthreads = %s\n' "${THREADS:-1}" > "$OUT/detect.toml"
+printf 'detector = "tuned_detector/detector.pt"\nisp_init = "detector"\nthreads = %s\n' "${THREADS:-1}" \
+  > "$OUT/detect_tuned.toml"
 S="${SUFFIX:-}"
-design() {  # NAME BUDGET OPTIMIZER SEED
-  set -- "$1$S" "$2" "$3" "$4"
+design() {  # NAME BUDGET OPTIMIZER SEED [CONFIG]
+  set -- "$1$S" "$2" "$3" "$4" "${5:-$OUT/detect.toml}"
   [ -f "$OUT/$1/results.json" ] && { echo "$OUT/$1: finished already"; return; }
-  optix design detection --budget "$2" --optimizer "$3" --seed "$4" --config "$OUT/detect.toml" --out "$OUT/$1" \
+  optix design detection --budget "$2" --optimizer "$3" --seed "$4" --config "$5" --out "$OUT/$1" \
     --quiet >> "$OUT/$1.log" 2>&1
 }
 for stage in $STAGES; do
@@ -53,6 +61,15 @@ for stage in $STAGES; do
     quick-seeds)
       for s in 1 2; do design "detect_quick_seed$s" quick alg1 "$s"; done
       python benches/detection_seeds.py "$OUT/detect_quick$S" "$OUT"/detect_quick_seed{1,2}"$S" --out "$OUT/quick_table$S" ;;
+    tune)
+      [ -f "$OUT/tuned_detector/tune.json" ] && grep -q '"tuned"' "$OUT/tuned_detector/tune.json" \
+        && { echo "$OUT/tuned_detector: finished already"; continue; }
+      optix detect tune --config "$OUT/detect.toml" --out "$OUT/tuned_detector" --steps 2000 \
+        --quiet >> "$OUT/tuned_detector.log" 2>&1 ;;
+    quick-tuned)
+      [ -f "$OUT/tuned_detector/detector.pt" ] || { echo "no tuned detector: run the stage tune first" >&2; exit 2; }
+      for s in 0 1 2; do design "detect_quick_tuned_seed$s" quick alg1 "$s" "$OUT/detect_tuned.toml"; done
+      python benches/detection_seeds.py "$OUT"/detect_quick_tuned_seed{0,1,2}"$S" --out "$OUT/quick_tuned_table$S" ;;
     full)
       for s in 0 1 2; do design "detect_full_seed$s" full alg1 "$s"; done
       python benches/detection_seeds.py "$OUT"/detect_full_seed{0,1,2}"$S" --out "$OUT/full_table$S" ;;
@@ -74,6 +91,6 @@ for stage in $STAGES; do
         fi
       done
       python benches/detection_swap.py --seeds "$OUT"/swap_full_seed{0,1,2}"$S" --out "$OUT/swap_table$S" ;;
-    *) echo "unknown stage '$stage' (quick quick-vanilla compare quick-seeds full full-vanilla swap)" >&2; exit 2 ;;
+    *) echo "unknown stage '$stage' (quick quick-vanilla compare quick-seeds tune quick-tuned full full-vanilla swap)" >&2; exit 2 ;;
   esac
 done

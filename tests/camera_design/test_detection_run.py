@@ -119,3 +119,65 @@ def test_detection_in_the_wide_space_runs_on_exact_optics(tmp_path, optix, smoke
     (tmp_path / "hybrid.toml").write_text('optics = "hybrid"\n')
     r = optix(*smoke_design("detection", tmp_path / "h", "--config", tmp_path / "hybrid.toml"))
     assert r.returncode == 1 and "hybrid optics are for the image-quality tasks" in r.stdout + r.stderr
+
+
+def test_the_start_detector_tuned_behind_the_nominal_camera_starts_a_design_run(tmp_path):
+    """`optix detect tune` (camera_design/detector_tuning.py) at the smoke settings: the
+    detector and the hardware ISP train behind the fixed nominal lens, the checkpoint loads as
+    a design run's start detector and ISP, and a second call resumes with nothing to do."""
+    import torch
+
+    from optix_e2e.camera_design.config import make_config
+    from optix_e2e.camera_design.detection import BUNDLED_DETECTOR, load_start_detector
+    from optix_e2e.camera_design.detector_tuning import tune_start_detector
+    from optix_e2e.tasks.detector_train import load_detector
+
+    cfg = make_config("smoke", task="detection", threads=1).check()
+    rec = tune_start_detector(cfg, tmp_path / "tune", 2, scenes=2, progress=False, log=lambda *_: None)
+    assert rec["tuned_from"]["steps"] == 2 and rec["nominal_f_number"] == pytest.approx(4.4, abs=1e-3)
+    for k in ("start", "tuned"):
+        assert 0.0 <= rec[k]["map_50"] <= 1.0
+    _, ck = load_detector(tmp_path / "tune" / "detector.pt")
+    assert ck["step"] == 2 and ck["tuned"]["detector"] == BUNDLED_DETECTOR.name
+    tuned = load_start_detector(
+        make_config("smoke", task="detection", detector=str(tmp_path / "tune" / "detector.pt")), cfg.crop_hw
+    )
+    bundled = load_start_detector(cfg, cfg.crop_hw)
+    moved = [not torch.equal(a, b) for a, b in zip(tuned.state_dict().values(), bundled.state_dict().values())]
+    assert any(moved)
+    # the ISP trained from its default settings, and a run with isp_init = detector starts there
+    from optix_e2e.camera_design.build import initial_isp_unit
+    from optix_e2e.isp import params as hp
+
+    start = torch.as_tensor(hp.to_unit(hp.defaults()), dtype=torch.float32)
+    unit = torch.tensor(ck["isp_unit"])
+    assert unit.shape == start.shape and not torch.allclose(unit, start, atol=1e-6)
+    run_cfg = make_config(
+        "smoke", task="detection", detector=str(tmp_path / "tune" / "detector.pt"), isp_init="detector"
+    )
+    assert torch.equal(initial_isp_unit(run_cfg.check()), unit)
+    assert not torch.equal(initial_isp_unit(cfg), unit)  # the default: Alg. 1's random draw
+    rows = (tmp_path / "tune" / "history.csv").read_text().splitlines()
+    assert len(rows) == 3  # the header and two steps
+    again = tune_start_detector(cfg, tmp_path / "tune", 2, scenes=2, progress=False, log=lambda *_: None)
+    assert again["start"] == rec["start"] and (tmp_path / "tune" / "history.csv").read_text().splitlines() == rows
+    # other settings in the same folder, or a folder of something else: refused, nothing written
+    with pytest.raises(ValueError, match=r"tuned with other settings \(steps: 2 -> 3\)"):
+        tune_start_detector(cfg, tmp_path / "tune", 3, scenes=2, progress=False, log=lambda *_: None)
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "notes.txt").write_text("mine")
+    with pytest.raises(ValueError, match="holds no detector tuning"):
+        tune_start_detector(cfg, tmp_path / "other", 2, scenes=0, progress=False, log=lambda *_: None)
+    assert [p.name for p in (tmp_path / "other").iterdir()] == ["notes.txt"]
+
+
+def test_isp_init_from_the_detector_is_refused_where_it_cannot_hold(tmp_path):
+    from optix_e2e.camera_design.config import make_config
+
+    with pytest.raises(ValueError, match="isp_init must be random or detector"):
+        make_config("smoke", task="detection", isp_init="tuned").check()
+    with pytest.raises(ValueError, match="needs the detection task and a tuned checkpoint"):
+        make_config("smoke", task="detection", isp_init="detector").check()  # the bundled detector holds no ISP
+    (tmp_path / "d.pt").write_bytes(b"")
+    with pytest.raises(ValueError, match="needs the detection task"):
+        make_config("smoke", task="iq-hardware", isp_init="detector", detector=str(tmp_path / "d.pt")).check()

@@ -138,7 +138,12 @@ def nominal_field_heights(sur: OpticsSurrogate) -> torch.Tensor:
 
 
 def initial_isp_unit(cfg: DesignConfig) -> torch.Tensor:
-    """Alg. 1's initialization of P_ISP: uniform random over the ranges (seeded)."""
+    """Alg. 1's initialization of P_ISP: uniform random over the ranges (seeded); with
+    ``isp_init = "detector"``, the hyperparameters tuned with the start detector."""
+    if cfg.isp_init == "detector":
+        from .detector_tuning import tuned_isp_unit
+
+        return tuned_isp_unit(cfg.detector)
     rng = np.random.default_rng([2, int(cfg.seed)])
     return torch.as_tensor(hp.to_unit(hp.sample(rng)), dtype=torch.float32)
 

@@ -116,6 +116,10 @@ class DesignConfig:
     beta_isp: float = 0.0
     # the detection task's third block, the detector (tasks/detection.py)
     detector: str = ""  # the pre-trained detector to start from ("": the bundled one)
+    # where the hardware ISP's hyperparameters start: "random" (Alg. 1: uniform over their
+    # ranges, drawn from the seed) or "detector" (the ones tuned with the start detector behind
+    # the nominal camera, stored in its checkpoint by `optix detect tune`)
+    isp_init: str = "random"
     steps_detector: int = 10  # n_i of the detector block
     lr_detector: float = 2e-4  # AdamW-free Adam on its weights
     beta_detector: float = 0.0
@@ -203,6 +207,13 @@ class DesignConfig:
         if self.train_positions not in TRAIN_POSITIONS:
             raise InputError(
                 f"train_positions must be one of {', '.join(TRAIN_POSITIONS)}, got {self.train_positions!r}"
+            )
+        if self.isp_init not in ("random", "detector"):
+            raise InputError(f"isp_init must be random or detector, got {self.isp_init!r}")
+        if self.isp_init == "detector" and (self.task != "detection" or not self.detector):
+            raise InputError(
+                "isp_init = detector starts the hardware ISP where `optix detect tune` left it: it needs "
+                "the detection task and a tuned checkpoint as its detector setting"
             )
         if self.optics_init not in ("nominal", "uniform"):
             raise InputError(f"optics_init must be nominal or uniform, got {self.optics_init!r}")

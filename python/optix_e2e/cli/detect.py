@@ -95,3 +95,41 @@ def evaluate(run, data, threads, device):
     model, ck = load_detector(run)
     res = evaluate_detector(model.to(dev), data)
     click.echo(dumps({**res, "steps": ck.get("step"), "train_wall_s": ck.get("wall_s"), "device": str(dev)}))
+
+
+@detect.command("tune")
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False),
+    required=True,
+    help="Folder: detector.pt, tune.json, history.csv, tune_state.pt (resumable).",
+)
+@click.option("--steps", type=click.IntRange(1, 1_000_000), default=1500, show_default=True)
+@click.option(
+    "--budget",
+    type=click.Choice(["quick", "full"]),
+    default="quick",
+    show_default=True,
+    help="The design budget whose detection settings (space, crop, batch, detector rate) it uses.",
+)
+@click.option(
+    "--config",
+    "config_file",
+    type=click.Path(exists=True, dir_okay=False),
+    default=None,
+    help="A design config file (TOML): its detection settings, e.g. the start detector.",
+)
+@click.option("--scenes", type=click.IntRange(0, 10_000), default=100, show_default=True, help="Validation scenes.")
+@click.option("--threads", type=THREADS, default=None, help="torch CPU threads (0: default; else the config file's).")
+@click.option("--quiet", is_flag=True)
+@friendly_errors
+def tune(out, steps, budget, config_file, scenes, threads, quiet):
+    """Tune the start detector behind the nominal camera at dusk (the paper's fine-tuned
+    pipeline): the nominal lens's engine PSFs, the sensor and the hardware ISP at its start,
+    fixed; the detector trained on the task's loss. Writes OUT/detector.pt for a design run's
+    `detector` setting."""
+    from ..camera_design.config import make_config
+    from ..camera_design.detector_tuning import tune_start_detector
+
+    cfg = make_config(budget, config_file, task="detection", threads=threads).check()
+    click.echo(dumps(tune_start_detector(cfg, out, steps, scenes=scenes, progress=not quiet, log=click.echo)))

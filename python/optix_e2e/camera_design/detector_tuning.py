@@ -1,0 +1,167 @@
+"""The start detector tuned to the camera it starts in (``optix detect tune``).
+
+The bundled detector learned street scenes as images (clean, and darkened with sensor noise:
+``optix detect train``), not as the design run's camera delivers them at dusk: through the
+nominal lens's PSFs, the sensor and the hardware ISP at its starting hyperparameters. Behind
+that camera it finds little (mAP@0.5 0.19 on the held-out scenes, 0.00 in the dark), so a
+design run's first updates teach the detector the camera while the lens already moves on its
+gradient. The paper starts from a detector fine-tuned "for the pipeline using the nominal
+optics on images simulated with the same nominal optics" (Sec. 6.1). This does that: the
+nominal lens (the engine's PSFs, fixed), the sensor and the hardware ISP at its start (fixed),
+the detector trained on the task's loss for ``steps`` steps of the task's training batches
+(their own seed, apart from the design runs' 0, 1, 2), Adam at the design run's detector rate.
+
+The folder holds ``tune_state.pt`` (resumable: the same command continues), ``history.csv``,
+``detector.pt`` (a detector checkpoint: ``detector = "DIR/detector.pt"`` in a design run's
+config file starts both its cameras from it) and ``tune.json``: the validation mAP of the
+nominal camera with the start and the tuned detector (``tasks.detection.VALIDATION_STREETS``,
+not the held-out scenes).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import time
+from pathlib import Path
+
+import torch
+
+from .. import parallel
+from ..errors import InputError
+from ..io import claim_out_dir, write_json_atomic
+from ..isp import params as hp
+from ..tasks.detection import VALIDATION_STREETS, heldout_streets
+from ..tasks.detector_train import load_detector, save_detector
+from .build import make_optimizer, start_run
+from .config import DesignConfig
+from .detection import BUNDLED_DETECTOR, detection_scores, evaluate_detection
+from .run import hooks_for
+from .training import train, write_history
+
+TUNE_SEED = 100  # the tuning's training stream (design runs use 0, 1, 2 by default)
+
+
+def _read_record(path: Path) -> dict:
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, ValueError, RecursionError):
+        record = None
+    if not isinstance(record, dict):
+        raise InputError(f"{path} is damaged; remove the folder or choose another --out")
+    return record
+
+
+def _validation(cam, samples, task) -> dict:
+    s = detection_scores(evaluate_detection(cam, samples), samples, task.dark)
+    return {"map_50": s["map_50"], "map": s["map"], "dark_map_50": s["dark"]["map_50"]}
+
+
+def tune_start_detector(
+    cfg: DesignConfig, out: "str | Path", steps: int, *, scenes: int = 100, progress: bool = True, log=print
+) -> dict:
+    """Train the start detector of ``cfg`` (its ``detector``, else the bundled one) behind the
+    nominal camera of ``cfg``'s space for ``steps`` steps; see the module's docstring."""
+    if cfg.task != "detection":
+        raise InputError(f"the start detector is tuned for the detection task, not {cfg.task}")
+    cfg = dataclasses.replace(cfg, seed=TUNE_SEED)
+    out, task, frame, sur = start_run(cfg, out)
+    hooks = hooks_for(cfg, "cpu")
+    hooks.check(sur, parallel.Ranks())
+    start_detector = Path(cfg.detector) if cfg.detector else BUNDLED_DETECTOR
+    _, start_ck = load_detector(start_detector)
+    settings = {
+        "detector": start_detector.name,
+        "detector_sha256": hashlib.sha256(start_detector.read_bytes()).hexdigest(),
+        "space": cfg.space,
+        "steps": steps,
+        "seed": TUNE_SEED,
+        "lr_detector": cfg.lr_detector,
+        "lr_isp_params": cfg.lr_isp_params,
+        "isp_start": "defaults",
+        "batch": cfg.batch,
+        "crop": list(cfg.crop_hw),
+        "validation_scenes": scenes,
+    }
+    record_path = out / "tune.json"
+    if claim_out_dir(out, "detector tuning", marker=record_path.name):
+        record = _read_record(record_path)
+        if record.get("tuned_from") != settings:
+            was = record.get("tuned_from") or {}
+            detail = ", ".join(f"{k}: {was.get(k)!r} -> {v!r}" for k, v in settings.items() if was.get(k) != v)
+            raise InputError(f"{out} was tuned with other settings ({detail}); use another --out or the same settings")
+    else:
+        record = {"tuned_from": settings}
+        out.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(record_path, record)
+    nominal_values = hooks.build_camera(sur, frame, trained=True).optics.base_values()
+    probe = hooks.build_camera(sur, frame)
+    surrogate_psfs = (None, None)  # exact optics: the engine's PSFs of the nominal lens
+    if cfg.optics != "exact":
+        with torch.no_grad():
+            surrogate_psfs = sur.psfs(nominal_values, check=False)
+    fixed = hooks.nominal_optics(probe, sur, nominal_values, surrogate_psfs, frame)
+    cam = hooks.build_camera(sur, frame, fixed_optics=fixed)
+    with torch.no_grad():  # the ISP starts at its default settings (a vendor's tuning), not a random draw
+        cam.isp.logit.copy_(torch.logit(torch.as_tensor(hp.to_unit(hp.defaults()), dtype=torch.float32), eps=1e-6))
+    samples = heldout_streets(
+        scenes, cfg.crop_hw, fixed.psf.shape[-1] // 2, (task.level_min, task.level_max), frame, start=VALIDATION_STREETS
+    )
+    if "start" not in record and scenes and not (out / "tune_state.pt").is_file():
+        t0 = time.perf_counter()
+        record["start"] = _validation(cam, samples, task)
+        write_json_atomic(record_path, record)
+        log(
+            f"start detector behind the nominal camera: validation mAP@0.5 {record['start']['map_50']:.3f} "
+            f"({time.perf_counter() - t0:.0f} s)"
+        )
+    # joint steps of the ISP's and the detector's Adam, each at the design run's rate
+    opt = make_optimizer(dataclasses.replace(cfg, n_cycles=0, n_finetune=steps), cam, "nominal")
+    res = train(
+        cfg,
+        cam,
+        opt,
+        out,
+        "tune",
+        loss_at=hooks.loss_at(cam, frame, parallel.Ranks()),
+        parts=hooks.loss_parts,
+        progress=progress,
+        log=log,
+        frame=frame,
+    )
+    write_history(out / "history.csv", {"tune": res["history"]}, hooks.loss_parts)
+    if scenes:
+        record["tuned"] = _validation(cam, samples, task)
+    config = {**start_ck["config"], "image_size": list(cfg.crop_hw)}
+    tuned_from = {**settings, "nominal_f_number": hooks.f_number(nominal_values)}
+    isp_unit = [float(v) for v in cam.isp.unit().detach().cpu()]
+    save_detector(
+        out / "detector.pt",
+        cam.detector,
+        config,
+        step=res["steps"],
+        wall_s=res["wall_s"],
+        tuned=tuned_from,
+        isp_unit=isp_unit,
+    )
+    record["isp_hyperparameters"] = cam.isp.hyperparameters()
+    record |= {"nominal_f_number": tuned_from["nominal_f_number"], "wall_s": res["wall_s"]}
+    write_json_atomic(record_path, record)
+    if scenes:
+        log(f"tuned detector behind the nominal camera: validation mAP@0.5 {record['tuned']['map_50']:.3f}")
+    return record
+
+
+def tuned_isp_unit(path: "str | Path") -> torch.Tensor:
+    """The hardware ISP's hyperparameters (range-normalized, in (0, 1)) tuned with the detector
+    checkpoint at ``path``; one error naming the file if it holds none."""
+    _, ck = load_detector(path)
+    u = ck.get("isp_unit")
+    n = len(hp.NAMES)
+    if not (isinstance(u, list) and len(u) == n and all(isinstance(v, float) and 0.0 < v < 1.0 for v in u)):
+        raise InputError(
+            f"{path}: no tuned ISP hyperparameters ({n} values in (0, 1)) in this detector checkpoint: "
+            f"make it with `optix detect tune`, or set isp_init = random"
+        )
+    return torch.tensor(u, dtype=torch.float32)
