@@ -84,25 +84,17 @@ def chart(path: Path, rows: list[dict], own: float) -> None:
 
     f = [r["f_number"] for r in rows]
     fig, ax = plt.subplots(1, 2, figsize=(10, 4))
-    d = [r["loss_minus_own"]["mean"] for r in rows]
-    err = np.array(
-        [
-            [r["loss_minus_own"]["mean"] - r["loss_minus_own"]["ci95"][0] for r in rows],
-            [r["loss_minus_own"]["ci95"][1] - r["loss_minus_own"]["mean"] for r in rows],
-        ]
-    )
-    ax[0].errorbar(f, d, yerr=err, marker="o", capsize=3)
-    ax[0].set_ylabel("validation loss - at the run's aperture")
+
+    def errorbars(axis, key: str, label: str) -> None:
+        x = [r[key] for r in rows]
+        lo = [v["mean"] - v["ci95"][0] for v in x]
+        hi = [v["ci95"][1] - v["mean"] for v in x]
+        axis.errorbar(f, [v["mean"] for v in x], yerr=np.array([lo, hi]), marker="o", capsize=3)
+        axis.set_ylabel(f"validation {label} - at the run's aperture")
+
+    errorbars(ax[0], "loss_minus_own", "loss")
     if rows[0].get("map_50_minus_own"):
-        m = [r["map_50_minus_own"]["mean"] for r in rows]
-        e = np.array(
-            [
-                [r["map_50_minus_own"]["mean"] - r["map_50_minus_own"]["ci95"][0] for r in rows],
-                [r["map_50_minus_own"]["ci95"][1] - r["map_50_minus_own"]["mean"] for r in rows],
-            ]
-        )
-        ax[1].errorbar(f, m, yerr=e, marker="o", capsize=3)
-        ax[1].set_ylabel("validation mAP@0.5 - at the run's aperture")
+        errorbars(ax[1], "map_50_minus_own", "mAP@0.5")
     for a in ax:
         a.axhline(0, color="grey", lw=0.8)
         a.axvline(own, color="red", lw=0.8, ls="--")
