@@ -16,7 +16,8 @@
 #                  27 min) -> OUT/tuned_detector/ (detector.pt with the tuned ISP, tune.json)
 #   quick-tuned    (named only) Alg. 1, quick budget, seeds 0 1 2, both cameras starting from the tuned
 #                  detector and ISP (isp_init = "detector", OUT/detect_tuned.toml) instead of the
-#                  item-4 detector and a random ISP draw; then their table (OUT/quick_tuned_table.{json,md})
+#                  item-4 detector and a random ISP draw; then their table (OUT/quick_tuned_table.{json,md}),
+#                  vanilla on seed 0 from the same start and Alg. 1 against it (compare_quick_tuned_*.json)
 #   full           Alg. 1, full budget, seeds 0 1 2 (35-60 min each on this CPU: checkpointed), then
 #                  their table over seeds (benches/detection_seeds.py -> OUT/full_table.{json,md})
 #   full-vanilla   vanilla Adam, full budget, seeds 0 1 2 (the same starts, batches and noise), each
@@ -69,7 +70,10 @@ for stage in $STAGES; do
     quick-tuned)
       [ -f "$OUT/tuned_detector/detector.pt" ] || { echo "no tuned detector: run the stage tune first" >&2; exit 2; }
       for s in 0 1 2; do design "detect_quick_tuned_seed$s" quick alg1 "$s" "$OUT/detect_tuned.toml"; done
-      python benches/detection_seeds.py "$OUT"/detect_quick_tuned_seed{0,1,2}"$S" --out "$OUT/quick_tuned_table$S" ;;
+      python benches/detection_seeds.py "$OUT"/detect_quick_tuned_seed{0,1,2}"$S" --out "$OUT/quick_tuned_table$S"
+      design detect_quick_tuned_vanilla_seed0 quick vanilla 0 "$OUT/detect_tuned.toml"
+      python benches/detection_compare.py "$OUT/detect_quick_tuned_vanilla_seed0$S" "$OUT/detect_quick_tuned_seed0$S" \
+        --out "$OUT/compare_quick_tuned_alg1_vs_vanilla$S.json" ;;
     full)
       for s in 0 1 2; do design "detect_full_seed$s" full alg1 "$s"; done
       python benches/detection_seeds.py "$OUT"/detect_full_seed{0,1,2}"$S" --out "$OUT/full_table$S" ;;
