@@ -87,8 +87,9 @@ def chart(path: Path, rows: list[dict], own: float) -> None:
 
     def errorbars(axis, key: str, label: str) -> None:
         x = [r[key] for r in rows]
-        lo = [v["mean"] - v["ci95"][0] for v in x]
-        hi = [v["ci95"][1] - v["mean"] for v in x]
+        # a bootstrap percentile interval need not hold the full sample's mean: no negative bars
+        lo = [max(0.0, v["mean"] - v["ci95"][0]) for v in x]
+        hi = [max(0.0, v["ci95"][1] - v["mean"]) for v in x]
         axis.errorbar(f, [v["mean"] for v in x], yerr=np.array([lo, hi]), marker="o", capsize=3)
         axis.set_ylabel(f"validation {label} - at the run's aperture")
 
@@ -119,7 +120,10 @@ def main(argv: list[str] | None = None) -> dict:
         ap.error("--batches must be >= 2 and --scenes >= 0")
     cfg, res = finished_run(a.run)
     if a.threads is not None:
-        cfg = DesignConfig(**{**cfg.to_json(), "threads": a.threads}).check()
+        try:
+            cfg = DesignConfig(**{**cfg.to_json(), "threads": a.threads}).check()
+        except InputError as err:
+            ap.error(str(err))
     _, task, frame, sur = start_run(cfg, a.out)
     hooks = hooks_for(cfg, "cpu")
     hooks.check(sur, Ranks())

@@ -120,14 +120,20 @@ def evaluate(run, data, threads, device):
     help="A design config file (TOML): its detection settings, e.g. the start detector.",
 )
 @click.option("--scenes", type=click.IntRange(0, 10_000), default=100, show_default=True, help="Validation scenes.")
-@click.option("--threads", type=THREADS, default=None, help="torch CPU threads (0: default; else the config file's).")
+@click.option(
+    "--threads",
+    type=THREADS,
+    default=None,
+    help="torch CPU threads (0: default). Set it here or in the config file, not both.",
+)
 @click.option("--quiet", is_flag=True)
 @friendly_errors
 def tune(out, steps, budget, config_file, scenes, threads, quiet):
-    """Tune the start detector behind the nominal camera at dusk (the paper's fine-tuned
-    pipeline): the nominal lens's engine PSFs, the sensor and the hardware ISP at its start,
-    fixed; the detector trained on the task's loss. Writes OUT/detector.pt for a design run's
-    `detector` setting."""
+    """Tune the start detector and the hardware ISP behind the nominal camera at dusk (the
+    paper's fine-tuned pipeline): the nominal lens's engine PSFs and the sensor fixed; the ISP,
+    from its default settings, and the detector trained jointly on the task's loss, on the CPU.
+    Writes OUT/detector.pt (with the tuned ISP) for a design run's `detector` setting and
+    isp_init = "detector"."""
     from ..camera_design.config import make_config
     from ..camera_design.detector_tuning import tune_start_detector
 
