@@ -97,8 +97,8 @@ def tune_start_detector(
         record = {"tuned_from": settings}
         out.mkdir(parents=True, exist_ok=True)
         write_json_atomic(record_path, record)
-    nominal_values = hooks.build_camera(sur, frame, trained=True).optics.base_values()
-    probe = hooks.build_camera(sur, frame)
+    probe = hooks.build_camera(sur, frame)  # a design run's camera: its nominal lens and exact optics
+    nominal_values = probe.optics.base_values()
     surrogate_psfs = (None, None)  # exact optics: the engine's PSFs of the nominal lens
     if cfg.optics != "exact":
         with torch.no_grad():
