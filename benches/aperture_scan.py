@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from alg1_vs_vanilla import seeds_interval  # Student's t interval of a mean of paired differences
 from detection_swap import camera_state, finished_run, load_processing
 from optix_e2e.camera import FixedOptics
 from optix_e2e.camera_design.build import design_field_heights, start_run
@@ -52,13 +53,6 @@ from optix_e2e.surrogate.ground_truth import exact_optics
 from optix_e2e.tasks.detection import VALIDATION_STREETS, heldout_streets, street_batch
 
 VALIDATION_SEED = 7  # the validation stream's seed (benches/e2e_gradient_line.py's too); runs use 0, 1, 2
-
-
-def t_interval(d: np.ndarray) -> list[float]:
-    from scipy import stats
-
-    h = float(stats.t.ppf(0.975, len(d) - 1)) * float(np.std(d, ddof=1)) / np.sqrt(len(d))
-    return [float(d.mean() - h), float(d.mean() + h)]
 
 
 def validation_losses(cam, cfg: DesignConfig, task, frame, n: int) -> np.ndarray:
@@ -182,7 +176,7 @@ def main(argv: list[str] | None = None) -> dict:
             "psf_method": exact["methods"][i],
             "image_distance_mm": float(exact["image_distance"][i]),
             "loss": float(losses[f].mean()),
-            "loss_minus_own": {"mean": float(d.mean()), "ci95": t_interval(d) if f != own else [0.0, 0.0]},
+            "loss_minus_own": {"mean": float(d.mean()), "ci95": seeds_interval(list(d)) if f != own else [0.0, 0.0]},
         }
         if samples:
             p = paired_resamples(boots[own], boots[f])
