@@ -47,11 +47,13 @@ from optix_e2e.camera_design.detection import detection_scores, evaluate_detecti
 from optix_e2e.camera_design.guard import Manufacturable
 from optix_e2e.camera_design.run import hooks_for
 from optix_e2e.errors import InputError
+from optix_e2e.io import claim_out_dir
 from optix_e2e.camera_design.training import noise_generator
 from optix_e2e.parallel import Ranks
 from optix_e2e.surrogate.ground_truth import exact_optics
 from optix_e2e.tasks.detection import VALIDATION_STREETS, heldout_streets, street_batch
 
+OUT_FILES = ("aperture_scan.json", "aperture_scan.csv", "aperture_scan.png")
 VALIDATION_SEED = 7  # the validation stream's seed (benches/e2e_gradient_line.py's too); runs use 0, 1, 2
 
 
@@ -112,6 +114,10 @@ def main(argv: list[str] | None = None) -> dict:
     a = ap.parse_args(argv)
     if a.batches < 2 or a.scenes < 0:
         ap.error("--batches must be >= 2 and --scenes >= 0")
+    try:  # its own files only: a folder holding anything else is refused before the work
+        claim_out_dir(a.out, "aperture scan", writes=OUT_FILES, marker=OUT_FILES[0])
+    except InputError as err:
+        ap.error(str(err))
     cfg, res = finished_run(a.run)
     if a.threads is not None:
         try:

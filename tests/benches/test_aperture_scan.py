@@ -46,3 +46,11 @@ def test_the_aperture_scan_crosses_the_runs_lens_with_other_apertures(tmp_path, 
     assert rows[4.1]["loss"] != rows[4.6]["loss"]
     for f in ("aperture_scan.json", "aperture_scan.csv", "aperture_scan.png"):
         assert (tmp_path / "scan" / f).is_file()
+
+
+def test_the_aperture_scan_leaves_a_folder_of_other_files_alone(tmp_path, load_bench):
+    bench = load_bench("aperture_scan")
+    (tmp_path / "notes.txt").write_text("mine")
+    with pytest.raises(SystemExit):
+        bench.main([str(tmp_path / "no_run"), "--out", str(tmp_path)])
+    assert [p.name for p in tmp_path.iterdir()] == ["notes.txt"]
