@@ -1,4 +1,6 @@
-"""``optix scenes street --out DIR -n N``: labelled street scenes as a COCO set (issue 19)."""
+"""``optix scenes street --out DIR -n N``: labelled street scenes as a COCO set (issue 19);
+``optix scenes photos prepare SOURCE --from CHECKOUT --out DIR``: a corpus of real photographs
+with its manifest (scenes/corpus.py)."""
 
 from __future__ import annotations
 
@@ -11,7 +13,7 @@ from ._common import SEED, dumps, friendly_errors
 
 @click.group("scenes")
 def scenes():
-    """Scenes that work offline: labelled street scenes for detection."""
+    """Scenes that work offline: labelled street scenes for detection, corpora of photographs."""
 
 
 MAX_SIDE = 4096  # a scene is drawn in memory at float32: 4096 x 4096 x 3 is 200 MB per buffer
@@ -64,3 +66,51 @@ def street(out, n, size, seed, quiet):
             }
         )
     )
+
+
+@scenes.group("photos")
+def photos():
+    """Corpora of real photographs: the ISP's training photographs and the untouched test split."""
+
+
+@photos.command("sources")
+@friendly_errors
+def photo_sources():
+    """The named sources: where each is published, its licence and its role (one JSON line each)."""
+    from ..scenes.corpus import SOURCES
+
+    for name, src in sorted(SOURCES.items()):
+        click.echo(dumps({"source": name, **src.__dict__}))
+
+
+@photos.command("prepare")
+@click.argument("source")
+@click.option(
+    "--from",
+    "checkout",
+    type=click.Path(file_okay=False),
+    required=True,
+    help="A local checkout of the source (`optix scenes photos sources` says where each is published).",
+)
+@click.option("--out", type=click.Path(file_okay=False), required=True, help="Folder: images/ and manifest.json.")
+@click.option("--licence", default=None, help="SOURCE folder only: the terms your photographs may be used under.")
+@click.option(
+    "--role", type=click.Choice(["train", "test"]), default=None, help="SOURCE folder only: train (default) or test."
+)
+@click.option(
+    "--val-fraction",
+    type=click.FloatRange(0, 0.9),
+    default=0.1,
+    show_default=True,
+    help="Share of a training corpus held back for validation (chosen by each file's sha256).",
+)
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@friendly_errors
+def photo_prepare(source, checkout, out, licence, role, val_fraction, quiet):
+    """Copy SOURCE's photographs (a name of `optix scenes photos sources`, or `folder` for your
+    own) into --out with a manifest of each file's origin, size, sha256 and split, and the
+    source's licence. Prints one JSON line."""
+    from ..scenes.corpus import prepare_corpus
+
+    m = prepare_corpus(source, checkout, out, licence=licence, role=role, val_fraction=val_fraction, progress=not quiet)
+    click.echo(dumps({"out": out, **{k: m[k] for k in ("source", "role", "counts", "digest", "licence")}}))

@@ -10,6 +10,9 @@ stream; the held-out set never draws from these):
 * ``texture_scene``: the greyscale texture and document photos scikit-image ships (brick,
   grass, gravel, text, page, coins, camera, moon), tinted between two random colours.
 * ``photo_crop``: a random crop of a training photograph at a random scale, flip and rotation.
+* ``corpus_photo``: a crop at native scale of a photograph of a prepared corpus
+  (scenes/corpus.py), with flips and 90-degree turns; drawn only when a corpus is given, and
+  then the mix is :data:`PHOTO_MIX` (photographs the majority, the procedural kinds a minority).
 
 Which photographs train and which are held out (docs/isp.md): the 9 colour photos of
 scikit-image (``photos.bundled_photos``) are the held-out set and are never used here; the
@@ -216,12 +219,26 @@ NATURAL_MIX = {
 }
 
 
-def natural_scene(size, seed=None, mix: dict[str, float] | None = None) -> torch.Tensor:
-    """One training scene drawn from ``mix`` (default :data:`NATURAL_MIX`)."""
+# the mix when a corpus of photographs is given: its crops the majority, the procedural kinds a
+# minority kept for what photographs rarely hold (fine text, hard edges, saturated charts)
+PHOTO_MIX = {
+    "corpus_photo": 0.7,
+    "natural_dead_leaves": 0.1,
+    "text_scene": 0.08,
+    "texture_scene": 0.04,
+    "gradient_scene": 0.02,
+    "slanted_edge": 0.03,
+    "color_chart": 0.03,
+}
+
+
+def natural_scene(size, seed=None, mix: dict[str, float] | None = None, corpus=None) -> torch.Tensor:
+    """One training scene drawn from ``mix`` (default :data:`NATURAL_MIX`, or :data:`PHOTO_MIX`
+    with a ``corpus``: a scenes.corpus.PhotoCorpus)."""
     from . import procedural
 
     rng = _rng(seed)
-    mix = mix or NATURAL_MIX
+    mix = mix or (NATURAL_MIX if corpus is None else PHOTO_MIX)
     kinds = list(mix)
     p = np.array([mix[k] for k in kinds], float)
     kind = kinds[rng.choice(len(kinds), p=p / p.sum())]
@@ -230,6 +247,10 @@ def natural_scene(size, seed=None, mix: dict[str, float] | None = None) -> torch
         return procedural.slanted_edge(size, angle, float(rng.uniform(2, 10)), rng, light=float(rng.uniform(0.3, 0.9)))
     if kind == "color_chart":
         return procedural.color_chart(size, surround=float(rng.uniform(0.2, 0.8)))
+    if kind == "corpus_photo":
+        if corpus is None:
+            raise InputError("scene kind corpus_photo needs a corpus of photographs")
+        return corpus.view(*_hw(size), rng)
     fn = {
         "natural_dead_leaves": natural_dead_leaves,
         "photo_crop": photo_crop,
@@ -238,5 +259,5 @@ def natural_scene(size, seed=None, mix: dict[str, float] | None = None) -> torch
         "gradient_scene": gradient_scene,
     }.get(kind)
     if fn is None:
-        raise InputError(f"unknown scene kind {kind!r}; use {', '.join(NATURAL_MIX)}")
+        raise InputError(f"unknown scene kind {kind!r}; use {', '.join(PHOTO_MIX)}, photo_crop")
     return fn(size, rng)
