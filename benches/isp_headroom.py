@@ -21,6 +21,12 @@ Two bounds split the error budget of the perfect lens (rows ``LIGHT/bound/...``)
   demosaicking alone costs.
 
     python benches/isp_headroom.py --out runs/isp_headroom [--isp runs/isp/software_isp.pt ...]
+    python benches/isp_headroom.py --photos DIR [--photos DIR] --split test|val --out ...
+
+With ``--photos`` the samples are photographs of prepared corpora at native scale instead
+(tasks/samples.py photo_test_set, docs/test-split.md: the frame positions, level 0.7, the
+split's own noise seeds): ``--split val`` a training corpus's validation photographs (for
+decisions), ``--split test`` the untouched test split (to report only).
 
 Writes headroom.json (means, per image kind) and prints one line per figure.
 """
@@ -46,7 +52,8 @@ from optix_e2e.sensor.emva import expected_electrons, raw_from_electrons, simula
 from optix_e2e.camera_design.build import SOFTWARE_ISP, base_lens_f_number, design_field_heights, load_surrogate
 from optix_e2e.surrogate.ground_truth import exact_optics
 from optix_e2e.tasks import SensorFrame, heldout_set
-from optix_e2e.tasks.samples import POSITIONS
+from optix_e2e.scenes.corpus import PhotoCorpus
+from optix_e2e.tasks.samples import POSITIONS, photo_test_set
 
 
 class _Classical(torch.nn.Module):
@@ -69,18 +76,18 @@ def _no_cfa(scene: torch.Tensor, preset, to_linear: torch.Tensor, seed: int) -> 
 
 
 def _score(rows: list, key: str, res: dict) -> None:
-    photo = [r for r in rows if r[0].startswith("photo:")]
-    proc = [r for r in rows if not r[0].startswith("photo:")]
+    photo = [r for r in rows if not r[0].startswith("procedural:")]
+    proc = [r for r in rows if r[0].startswith("procedural:")]
     res[key] = {
         "psnr_db": float(np.mean([r[1] for r in rows])),
         "ssim": float(np.mean([r[2] for r in rows])),
-        "psnr_db_photos": float(np.mean([r[1] for r in photo])),
-        "psnr_db_procedural": float(np.mean([r[1] for r in proc])),
+        "psnr_db_photos": float(np.mean([r[1] for r in photo])) if photo else None,
+        "psnr_db_procedural": float(np.mean([r[1] for r in proc])) if proc else None,
         "n_samples": len(rows),
     }
+    parts = ", ".join(f"{k} {res[key][f'psnr_db_{k}']:.2f}" for k in ("photos", "procedural") if proc and photo)
     print(
-        f"{key}: PSNR {res[key]['psnr_db']:.2f} dB (photos {res[key]['psnr_db_photos']:.2f}, "
-        f"procedural {res[key]['psnr_db_procedural']:.2f}), SSIM {res[key]['ssim']:.3f}",
+        f"{key}: PSNR {res[key]['psnr_db']:.2f} dB{f' ({parts})' if parts else ''}, SSIM {res[key]['ssim']:.3f}",
         flush=True,
     )
 
@@ -97,6 +104,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--surrogate", default="paper-triplet-e2e")
     ap.add_argument("--size", type=int, default=192, help="held-out crop (the quick budget's)")
     ap.add_argument("--procedural", type=int, default=13)
+    ap.add_argument("--photos", action="append", default=None, help="prepared photo corpus folder(s)")
+    ap.add_argument("--split", choices=("val", "test"), default="val", help="with --photos: which split")
     ap.add_argument("--threads", type=int, default=0)
     a = ap.parse_args(argv)
     if a.threads:
@@ -117,7 +126,11 @@ def main(argv=None) -> dict:
         "perfect": PerfectOptics(s, full_field_px=frame.full_field_px),
         "nominal": FixedOptics(psf, vig, heights, full_field_px=frame.full_field_px),
     }
-    samples = heldout_set(a.size, s // 2, a.procedural, 0.7, frame, positions=POSITIONS["frame"])
+    if a.photos:
+        corpus = PhotoCorpus(a.photos, a.split)
+        samples = photo_test_set(corpus, a.size, s // 2, 0.7, frame, positions=POSITIONS["frame"])
+    else:
+        samples = heldout_set(a.size, s // 2, a.procedural, 0.7, frame, positions=POSITIONS["frame"])
     isps = {"classical": None} | {str(p): Path(p) for p in (a.isp or [SOFTWARE_ISP])}
     res, t0 = {}, time.time()
     m = s // 2
@@ -149,6 +162,7 @@ def main(argv=None) -> dict:
                 _score(rows, f"{light}/{Path(name).name if path else name}/{lens}", res)
     out = {
         "held_out": {
+            "set": corpus.record() if a.photos else "the design runs' held-out set (development set)",
             "n_images": len({s.name for s in samples}),
             "n_samples": len(samples),
             "size_px": a.size,

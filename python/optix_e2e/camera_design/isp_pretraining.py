@@ -3,7 +3,9 @@ pre-train the software ISPs on synthetic training data"), resumable, with a vali
 
 A training sample is made the way a design run makes one, with the lens drawn at random:
 
-* a scene from the natural training mix (scenes/natural.py), lit at a white level
+* a scene from the natural training mix (scenes/natural.py; with ``photos``, corpora of real
+  photographs prepared by ``optix scenes photos prepare``: their crops at native scale the
+  majority, scenes/natural.py's PHOTO_MIX), lit at a white level
   log-uniform in [0.35, 1] of the calibrated white, under the neutral illuminant the camera is
   calibrated for (docs/e2e.md, "Illuminant");
 * a lens: the perfect one (a delta PSF, no vignetting), the space's nominal, or a design drawn
@@ -15,8 +17,9 @@ A training sample is made the way a design run makes one, with the lens drawn at
 * the target: the ideal rendering of the scene at its level (the tasks' target).
 
 Samples come in pools made ahead of the steps that use them (a pool is a function of the
-seed and its index alone); the loss is L1 in sRGB, Adam with cosine decay over the steps or
-the wall-time budget, whichever ends first. ``state.pt`` (weights, optimizer, step, curve)
+seed and its index alone); the loss is L1 in sRGB (plus ``lpips_weight`` x LPIPS, the design
+runs' fine-tuning loss with weight 1), Adam with cosine decay over the steps or the wall-time
+budget, whichever ends first. With photos, validation draws from the corpora's ``val`` split. ``state.pt`` (weights, optimizer, step, curve)
 is written every ``checkpoint_every`` steps and atomically, so the same command continues
 after any stop, on the same curve.
 """
@@ -78,6 +81,8 @@ class PretrainConfig:
     level_min: float = 0.35
     level_max: float = 1.0
     val_size: int = 48
+    photos: tuple = ()  # prepared photo corpus folders (scenes/corpus.py); () = the natural mix alone
+    lpips_weight: float = 0.0  # loss = L1 + lpips_weight * LPIPS (the design runs fine-tune at 1)
     val_every: int = 500
     checkpoint_every: int = 100
     seed: int = 0
@@ -110,10 +115,21 @@ class Pool:
 
 
 def make_pool(
-    cfg: PretrainConfig, n: int, seed, sur, heights, nominal, f_number: float, *, progress: bool = False
+    cfg: PretrainConfig,
+    n: int,
+    seed,
+    sur,
+    heights,
+    nominal,
+    f_number: float,
+    *,
+    corpus=None,
+    mix: dict | None = None,
+    progress: bool = False,
 ) -> Pool:
     """``n`` samples (module doc); deterministic in ``seed``. The sensor is calibrated for the
-    space's nominal ``f_number``, as in the design runs."""
+    space's nominal ``f_number``, as in the design runs. ``corpus`` and ``mix``: the scenes
+    (scenes.natural.natural_scene)."""
     rng = np.random.default_rng(seed)
     gen = torch.Generator().manual_seed(int(np.random.SeedSequence(seed).generate_state(1)[0]))
     frame = SensorFrame()
@@ -124,7 +140,7 @@ def make_pool(
     raws, ideals, offs, kinds, lows = [], [], [], [], []
     for _ in tqdm(range(n), desc="ISP pre-training pool", unit="img", disable=not progress, leave=False):
         kind = LENS_KINDS[rng.choice(3, p=p_lens)]
-        scene = natural_scene(s + 2 * m, rng)
+        scene = natural_scene(s + 2 * m, rng, mix, corpus)
         level = float(np.exp(rng.uniform(math.log(cfg.level_min), math.log(cfg.level_max))))
         lin = color.srgb_to_linear(scene)[None] * level
         y0 = 2 * int(rng.integers(0, (frame.height - s) // 2 + 1))
@@ -177,13 +193,18 @@ def validate(model: SoftwareISP, pool: Pool, batch: int = 8) -> dict:
     return res
 
 
-def _resumable(cfg: PretrainConfig) -> dict:
-    """The settings a resumed run must share with the run it continues (JSON-like)."""
-    return {
+def _resumable(cfg: PretrainConfig, photos_digest: str | None = None) -> dict:
+    """The settings a resumed run must share with the run it continues (JSON-like): the
+    photographs by their corpora's digest, not their folders' paths."""
+    out = {
         k: list(v) if isinstance(v, tuple) else v
         for k, v in asdict(cfg).items()
-        if k not in ("steps", "minutes", "threads", "anneal_minutes", "device") and (k, v) != ("precision", "fp32")
+        if k not in ("steps", "minutes", "threads", "anneal_minutes", "device", "photos")
+        and (k, v) not in (("precision", "fp32"), ("lpips_weight", 0.0))
     }
+    if photos_digest:
+        out["photos_digest"] = photos_digest
+    return out
 
 
 def export(model: SoftwareISP, path: Path, meta: dict) -> None:
@@ -212,6 +233,16 @@ def pretrain(
     claim_out_dir(out, "ISP pre-training", {"tb"}, marker="state.pt")  # tb/: a start that stopped early
     out.mkdir(parents=True, exist_ok=True)
     set_threads(cfg.threads)
+    from ..scenes.corpus import PhotoCorpus
+
+    corpus = PhotoCorpus(cfg.photos, "train") if cfg.photos else None
+    val_corpus = PhotoCorpus(cfg.photos, "val") if cfg.photos else None
+    digest = corpus.digest if corpus is not None else None
+    lpips = None
+    if cfg.lpips_weight:
+        from ..metrics.lpips import LPIPS
+
+        lpips = LPIPS().to(dev)
     sur = load_surrogate(cfg.surrogate, calibrated_preset("imx249").pixel_um)
     heights = nominal_field_heights(sur)
     space, base = space_and_base(sur.manifest)
@@ -239,7 +270,7 @@ def pretrain(
         st = load_plain(state_path, "ISP pre-training state")
         if not isinstance(st, dict) or st.get("format") != FORMAT:
             raise InputError(f"{state_path}: not an ISP pre-training state ({FORMAT})")
-        if st.get("config") != _resumable(cfg):
+        if st.get("config") != _resumable(cfg, digest):
             raise InputError(f"{state_path}: made with other settings; use another --out or the same settings")
         model.load_state_dict(st["model"])
         model.calibrate(calibrated_preset("imx249", f_number))  # the classical path: today's calibration
@@ -248,7 +279,17 @@ def pretrain(
         earlier = list(st.get("earlier_training", []))
         log(f"resuming ISP pre-training at step {step} ({seconds / 60:.1f} min done)")
     n_params = sum(p.numel() for p in model.parameters())
-    val = make_pool(cfg, cfg.val_size, [7, cfg.seed, 0], sur, heights, nominal, f_number)
+    val = make_pool(
+        cfg,
+        cfg.val_size,
+        [7, cfg.seed, 0],
+        sur,
+        heights,
+        nominal,
+        f_number,
+        corpus=val_corpus,
+        mix={"corpus_photo": 1.0} if val_corpus is not None else None,
+    )
     writer = SummaryWriter(str(out / "tb"))
     model.train()
     t0, pool, pool_id = time.time() - seconds, None, None
@@ -260,7 +301,7 @@ def pretrain(
         save_atomic(
             {
                 "format": FORMAT,
-                "config": _resumable(cfg),
+                "config": _resumable(cfg, digest),
                 "model": model.state_dict(),
                 "optimizer": opt.state_dict(),
                 "step": step,
@@ -292,11 +333,14 @@ def pretrain(
             break
         if pool_id != step // cfg.pool_steps:
             pool_id = step // cfg.pool_steps
-            pool = make_pool(cfg, cfg.pool, [6, cfg.seed, pool_id], sur, heights, nominal, f_number)
+            pool = make_pool(cfg, cfg.pool, [6, cfg.seed, pool_id], sur, heights, nominal, f_number, corpus=corpus)
         rng = np.random.default_rng([8, cfg.seed, step])
         idx = torch.as_tensor(rng.integers(pool.raw.shape[0], size=cfg.batch))
         pred = model(pool.raw[idx].to(dev), pool.offset[idx], SensorFrame().full_field_px)
-        loss = (pred - pool.ideal[idx].to(dev).float() / 255).abs().mean()
+        target = pool.ideal[idx].to(dev).float() / 255
+        loss = (pred - target).abs().mean()
+        if lpips is not None:
+            loss = loss + cfg.lpips_weight * lpips(pred, target).mean()
         stop_if_diverged(step + 1, state_path, "lower --lr", loss=loss.detach())
         opt.zero_grad(set_to_none=True)
         scaled_backward(loss, opt, scaler)
@@ -334,8 +378,15 @@ def pretrain(
         "parameters": n_params,
         "curve": curve,
         "earlier_training": earlier,
-        "data": "natural training scenes through the perfect lens, the nominal and lenses drawn from "
-        f"{cfg.surrogate} (its surrogate's PSFs), normal and low light, crops all over the frame",
+        "data": (
+            "photographs of the corpora below and a minority of procedural scenes"
+            if corpus
+            else "natural training scenes"
+        )
+        + f" through the perfect lens, the nominal and lenses drawn from {cfg.surrogate} (its surrogate's PSFs), "
+        "normal and low light, crops all over the frame",
+        "photos": corpus.record() if corpus is not None else None,
+        "validation": val_corpus.record() if val_corpus is not None else "the natural mix, its own seed",
     }
     export(model, out / "software_isp.pt", meta)
     with open(out / "curve.csv", "w") as f:

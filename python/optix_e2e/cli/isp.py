@@ -223,6 +223,21 @@ def train_proxy_cmd(out_dir, as_json, init, **kw):
     help="Fraction of samples at low light (exposure / 100, gain x 100).",
 )
 @click.option("--val-every", type=click.IntRange(1, 1_000_000), default=500, show_default=True)
+@click.option("--val-size", type=click.IntRange(1, 100_000), default=48, show_default=True, help="Validation samples.")
+@click.option(
+    "--photos",
+    type=click.Path(file_okay=False, exists=True),
+    multiple=True,
+    help="A photo corpus folder (`optix scenes photos prepare`; repeatable): its train split trains, its val "
+    "split validates, and its crops are most of the scenes.",
+)
+@click.option(
+    "--lpips-weight",
+    type=FiniteFloatRange(min=0, max=100),
+    default=0.0,
+    show_default=True,
+    help="Loss = L1 + this x LPIPS (the design runs fine-tune with 1).",
+)
 @click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--threads", type=THREADS, default=0, help="torch threads (0 = default).")
 @device_option
@@ -241,6 +256,7 @@ def train_software_cmd(out_dir, as_json, crop, init, **kw):
 
     if crop % 16:
         raise click.BadParameter(f"must be a multiple of 16, got {crop}", param_hint="--crop")
+    kw["photos"] = tuple(kw["photos"])
     meta = pretrain(PretrainConfig(crop=crop, **kw), out_dir, init=init)
     if as_json:
         click.echo(dumps({k: v for k, v in meta.items() if k != "config"}))

@@ -36,6 +36,7 @@ from ..errors import InputError
 
 HELDOUT_SEED0 = 2_000_000_000  # procedural held-out scenes use seeds from here; training streams are [1, seed, step]
 HELDOUT_NOISE0 = 1 << 60  # held-out noise seeds (training noise: SeedSequence([4, seed, step]))
+TEST_NOISE0 = 1 << 61  # the test split's noise seeds (docs/test-split.md)
 #: a design run's eval_positions: the held-out positions of each image. "frame+centre+corner" (the
 #: default since 2026-11-27, issue 34) puts the frame's four first, so its frame samples (positions
 #: and noise seeds) are exactly those of "frame"; "frame" and "centre-corner" stay valid (old runs)
@@ -180,21 +181,61 @@ def heldout_set(
     items += [
         (f"procedural:{HELDOUT_SEED0 + i}", scenes.mixed_scene(full, HELDOUT_SEED0 + i)) for i in range(n_procedural)
     ]
-    cy, cx = (frame.height - size) // 2 & ~1, (frame.width - size) // 2 & ~1
-    where = {"centre": (cy, cx), "corner": frame.corner(size)}
     out = []
     for k, (name, img) in enumerate(items):
         lin, ideal = _light(img[None], np.array([level]), np.ones((1, 3)), margin)
         for j, pos in enumerate(positions):
-            if pos == "frame":  # top-left pixel uniform in quadrant j % 4 of the valid range, on the CFA phase
-                rng = np.random.default_rng([5, k, j])  # stream tag 5: held-out positions
-                qy, qx = divmod(j % 4, 2)
-                hy, hx = (frame.height - size) // 4, (frame.width - size) // 4  # half the range, in 2-px steps
-                y0 = 2 * (qy * hy + int(rng.integers(0, hy + 1)))
-                x0 = 2 * (qx * hx + int(rng.integers(0, hx + 1)))
-            else:
-                y0, x0 = where[pos]
+            y0, x0 = _sensor_position(pos, 5, k, j, size, frame)  # stream tag 5: held-out positions
             out.append(
                 HeldoutSample(name, pos, lin[0], ideal[0], frame.offset(y0, x0, size), HELDOUT_NOISE0 + 1000 * k + j)
+            )
+    return out
+
+
+def _sensor_position(pos: str, stream: int, k: int, j: int, size: int, frame: SensorFrame) -> tuple[int, int]:
+    """Top-left pixel of image k's j-th evaluation crop: "centre", "corner", or "frame" (uniform
+    in quadrant j % 4 of the valid range, on the CFA phase, drawn from stream [stream, k, j])."""
+    if pos == "centre":
+        return (frame.height - size) // 2 & ~1, (frame.width - size) // 2 & ~1
+    if pos == "corner":
+        return frame.corner(size)
+    rng = np.random.default_rng([stream, k, j])
+    qy, qx = divmod(j % 4, 2)
+    hy, hx = (frame.height - size) // 4, (frame.width - size) // 4  # half the range, in 2-px steps
+    return 2 * (qy * hy + int(rng.integers(0, hy + 1))), 2 * (qx * hx + int(rng.integers(0, hx + 1)))
+
+
+def photo_test_set(
+    corpus,
+    size: int,
+    margin: int,
+    level: float = 0.7,
+    frame: SensorFrame = SensorFrame(),
+    positions: tuple[str, ...] = POSITIONS["frame+centre+corner"],
+) -> list[HeldoutSample]:
+    """Samples of photographs at native scale (docs/test-split.md): each photograph of
+    ``corpus`` (a scenes.corpus.PhotoCorpus, in its order) at ``positions`` on the sensor
+    (frame positions from stream 9), the crop taken where that position lies in the photograph
+    as if it filled the frame; noise seeds ``TEST_NOISE0 + 1000 k + j``."""
+    unknown = sorted(set(positions) - {"centre", "corner", "frame"})
+    if unknown:
+        raise InputError(f"unknown position(s) {unknown}: centre, corner or frame")
+    full = size + 2 * margin
+    out = []
+    for k in range(len(corpus)):
+        img = corpus[k]
+        h, w = img.shape[-2:]
+        if h < full or w < full:
+            raise InputError(f"{corpus.names[k]}: {h} x {w} pixels, under the {full} x {full} crop at native scale")
+        for j, pos in enumerate(positions):
+            y0, x0 = _sensor_position(pos, 9, k, j, size, frame)
+            py = round(y0 / (frame.height - size) * (h - full))
+            px = round(x0 / (frame.width - size) * (w - full))
+            crop = img[:, py : py + full, px : px + full]
+            lin, ideal = _light(crop[None], np.array([level]), np.ones((1, 3)), margin)
+            out.append(
+                HeldoutSample(
+                    corpus.names[k], pos, lin[0], ideal[0], frame.offset(y0, x0, size), TEST_NOISE0 + 1000 * k + j
+                )
             )
     return out
