@@ -21,7 +21,9 @@ run's held-out samples with their noise draws, rebuilt and checked against the r
   the renderer bypassed (SharpShadedOptics). Folders RUN_NAME-sharp.
 * ``delta``: a one-pixel PSF and the nominal's relative illumination through the renderer
   (FixedOptics), as the simulator renders a lens that blurs nothing: the bound for a real
-  lens in this simulator. Folders RUN_NAME-delta.
+  lens in this simulator. Folders RUN_NAME-delta. Since issue 54 a design run trains and
+  evaluates this one itself (results.json ``ideal_lens``, the same camera_design.build.delta_lens
+  and budget): the bench repeats it for runs made before, and checks a newer run's figures.
 
 So "ideal + fine-tuned minus nominal + fine-tuned" bounds what a lens can add to the
 baseline under this processing and budget; "ideal + fine-tuned minus end-to-end" is what
@@ -43,15 +45,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from optix_e2e.camera import FixedOptics, PerfectOptics
+from optix_e2e.camera import PerfectOptics
 from optix_e2e.camera_design import evaluate as ev
-from optix_e2e.camera_design.build import build_camera, design_field_heights, make_optimizer, start_run
+from optix_e2e.camera_design.build import build_camera, delta_lens, make_optimizer, nominal_shading, start_run
 from optix_e2e.camera_design import eval_cache
 from optix_e2e.camera_design.config import BEFORE_SETTING, DesignConfig
 from optix_e2e.camera_design.training import train
 from optix_e2e.io import write_json_atomic
 from optix_e2e.optics.render import shade
-from optix_e2e.surrogate.ground_truth import exact_optics
 from optix_e2e.torchfile import load_plain
 from optix_e2e.scenes import ImageFolder
 from optix_e2e.tasks import heldout_set
@@ -112,16 +113,15 @@ def ideal_lens(kind: str, sur, results: dict, window: int, cfg: DesignConfig, fr
     """The lens that replaces the nominal in the baseline (``LENS_KINDS``)."""
     if kind == "perfect":
         return PerfectOptics(window, full_field_px=frame.full_field_px)
-    # the nominal's engine vignetting where its chief rays land (as the run's evaluation places them)
     nominal_values = np.asarray(results["design"]["nominal"], np.float64)
-    exact = exact_optics(sur, nominal_values[None])
-    vignetting = torch.as_tensor(exact["vignetting"][0], dtype=torch.float32)
-    heights = design_field_heights(sur, nominal_values, float(exact["image_distance"][0]))
-    if kind == "sharp":
-        return SharpShadedOptics(window, vignetting, heights, full_field_px=frame.full_field_px)
-    delta = torch.zeros(len(heights), vignetting.shape[1], window, window)
-    delta[..., window // 2, window // 2] = 1.0
-    return FixedOptics(delta, vignetting, heights, patch=cfg.patch, full_field_px=frame.full_field_px)
+    if kind == "delta":  # the design run's own ideal lens (results.json ideal_lens): one definition
+        lens = delta_lens(sur, nominal_values, patch=cfg.patch, full_field_px=frame.full_field_px)
+        if lens.psf_size != window:
+            raise SystemExit(f"the delta lens's window is {lens.psf_size} pixels, the run's {window}")
+        return lens
+    # the nominal's engine vignetting where its chief rays land (as the run's evaluation places them)
+    vignetting, heights, _ = nominal_shading(sur, nominal_values)
+    return SharpShadedOptics(window, vignetting, heights, full_field_px=frame.full_field_px)
 
 
 def room(run: Path, out: Path, threads: int | None, progress: bool, kind: str = "perfect") -> dict:
@@ -185,7 +185,10 @@ def room(run: Path, out: Path, threads: int | None, progress: bool, kind: str = 
             "nominal": ev.summarize(nominal),
             "end_to_end": ev.summarize(e2e),
             "perfect_finetuned": ev.summarize(perfect),
+            # what the run itself recorded (results.json): the nominal's processing behind a perfect
+            # lens (runs made before issue 54), the run's own delta lens (runs made since)
             "perfect_nominal_processing": results.get("perfect_lens"),
+            "run_ideal_lens": results.get("ideal_lens"),
         },
         # the most a lens could add to the baseline, and what the end-to-end camera leaves
         # ("perfect": the ideal lens of this --lens kind)

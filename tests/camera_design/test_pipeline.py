@@ -84,6 +84,23 @@ def test_every_optimizer_and_the_nominal_baseline_start_from_the_same_camera(tmp
     )
 
 
+def test_the_untuned_baselines_processing_is_the_start_before_any_fine_tuning():
+    # issue 54's nominal_untuned: the hardware ISP at its default hyperparameters (the
+    # out-of-the-box tuning), not the run's seeded random start; the software ISP as pre-trained
+    from optix_e2e.isp import params as hp
+
+    sur = load_surrogate("paper-triplet-v1")
+    cfg = make_config("smoke", surrogate="paper-triplet-v1", task="iq-hardware", seed=3)
+    untuned = build_camera(cfg, sur, untuned=True).isp.hyperparameters()
+    for p in hp.SPACE:
+        assert untuned[p.name] == pytest.approx(hp.defaults()[p.name], abs=2e-6 * (p.high - p.low)), p.name
+    start = build_camera(cfg, sur).isp.hyperparameters()
+    assert max(abs(start[k] - untuned[k]) / (p.high - p.low) for k, p in zip(hp.NAMES, hp.SPACE)) > 0.05
+    sw = make_config("smoke", surrogate="paper-triplet-v1")
+    a, b = build_camera(sw, sur).isp.state_dict(), build_camera(sw, sur, untuned=True).isp.state_dict()
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
 def test_low_light_is_the_same_mean_signal_from_a_hundred_times_fewer_photons():
     base = calibrated_preset("imx249", 4.4)
     low = calibrated_preset("imx249", 4.4, get_task("low-light").exposure_factor, get_task("low-light").gain_factor)

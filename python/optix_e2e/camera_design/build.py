@@ -31,6 +31,7 @@ from ..lens_design.space import load_space
 from ..optics import DifferentiableOptics
 from ..precision import apply_precision, grad_scaler, resolve_precision
 from ..surrogate.checkpoint import OpticsSurrogate
+from ..surrogate.ground_truth import exact_optics
 from ..tasks import SensorFrame, get_task
 from .alg1 import Block, ProximalCompositional, Vanilla
 from .config import DesignConfig
@@ -137,6 +138,42 @@ def nominal_field_heights(sur: OpticsSurrogate) -> torch.Tensor:
     return design_field_heights(sur, space.values(base.data), float(base.data["surfaces"][-1]["thickness"]))
 
 
+def nominal_shading(sur: OpticsSurrogate, nominal_values, fallback: str | None = None):
+    """The nominal lens's exact relative illumination [K, C] (the engine's, as the run's
+    evaluation computes it: surrogate.ground_truth.exact_optics), the heights [K] where its chief
+    rays land (fractions of the full field) and the exact PSFs' window (pixels)."""
+    values = np.asarray(torch.as_tensor(nominal_values).detach().cpu().double().numpy(), np.float64)
+    exact = exact_optics(sur, values[None], fallback=fallback)
+    vignetting = torch.as_tensor(exact["vignetting"][0], dtype=torch.float32)
+    heights = design_field_heights(sur, values, float(exact["image_distance"][0]))
+    return vignetting, heights, int(exact["psf"].shape[-1])
+
+
+def delta_lens(
+    sur: OpticsSurrogate,
+    nominal_values,
+    *,
+    patch: int,
+    full_field_px: float,
+    fallback: str | None = None,
+) -> FixedOptics:
+    """The ideal lens of a design run (results.json ``ideal_lens``; benches/lens_room.py
+    ``--lens delta``): a one-pixel PSF at every field and the nominal's relative illumination,
+    through the renderer (FixedOptics) at the nominal's chief-ray heights, in the exact PSFs'
+    window: what the simulator makes of a lens that blurs nothing and shades as the nominal
+    does. The one definition of it."""
+    vignetting, heights, window = nominal_shading(sur, nominal_values, fallback)
+    delta = torch.zeros(len(heights), vignetting.shape[1], window, window)
+    delta[..., window // 2, window // 2] = 1.0
+    return FixedOptics(delta, vignetting, heights, patch=patch, full_field_px=full_field_px)
+
+
+#: the hardware ISP's start for the untuned baseline: its default hyperparameters (isp.params,
+#: the out-of-the-box tuning), held this close to a bound where a default sits on one (the
+#: stage's sigmoid never reaches it)
+UNTUNED_EPS = 1e-6
+
+
 def initial_isp_unit(cfg: DesignConfig) -> torch.Tensor:
     """Alg. 1's initialization of P_ISP: uniform random over the ranges (seeded); with
     ``isp_init = "detector"``, the hyperparameters tuned with the start detector."""
@@ -156,11 +193,15 @@ def build_camera(
     frame: SensorFrame = SensorFrame(),
     own_surrogate: bool = False,
     device: "torch.device | str" = "cpu",
+    untuned: bool = False,
 ) -> Camera:
     """The camera at its initialization: the same for Alg. 1, vanilla and the nominal baseline
     (apart from the optics, fixed at the nominal for the latter). ``own_surrogate``: the optics
-    get a copy of the surrogate (a hybrid run refines its own). Built on the CPU (the seeded
-    starts are drawn there), then moved to ``device`` whole."""
+    get a copy of the surrogate (a hybrid run refines its own). ``untuned``: the processing as
+    it is before any fine-tuning, for the untuned baseline (results.json ``nominal_untuned``):
+    the pre-trained software ISP (as always), the hardware ISP at its default hyperparameters
+    instead of the run's seeded draw. Built on the CPU (the seeded starts are drawn there), then
+    moved to ``device`` whole."""
     task = get_task(cfg.task)
     if fixed_optics is None:
         optics = DifferentiableOptics(
@@ -179,7 +220,11 @@ def build_camera(
             raise FileNotFoundError(f"the pre-trained software ISP is missing: {path}")
         isp = SoftwareISPStage(SoftwareISP.load(path).train(), preset)
     else:
-        isp = HardwareISPStage(ISPProxy.load(), initial_isp_unit(cfg), preset.cfa, preset.adc_bits)
+        if untuned:
+            unit, eps = torch.as_tensor(hp.to_unit(hp.defaults()), dtype=torch.float32), UNTUNED_EPS
+        else:
+            unit, eps = initial_isp_unit(cfg), 1e-3
+        isp = HardwareISPStage(ISPProxy.load(), unit, preset.cfa, preset.adc_bits, eps=eps)
     camera = Camera(optics, sensor, isp).to(device)
     apply_precision(camera, resolve_precision(cfg.precision, device, option="precision"))  # the ISP's network
     return camera
