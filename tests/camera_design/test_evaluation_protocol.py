@@ -57,20 +57,26 @@ def test_the_default_evaluation_holds_frame_centre_and_corner_with_the_frame_the
         ev.paired(a, [r for r in b if r["position"] != "centre"] + ev.at_position(b, "frame")[:1], 200, 0)
 
 
-def test_summary_lines_give_the_frame_headline_and_a_line_each_for_centre_and_corner():
-    from optix_e2e.camera_design.image_quality import ImageQualityHooks
+def _summary_results(untuned_shift: float) -> dict:
+    """results.json's image-quality entries for three images: nominal +0, end-to-end +1, the
+    untuned baseline +untuned_shift, the ideal lens +4 dB (summarize as ImageQualityHooks does)."""
+    from optix_e2e.camera_design.image_quality import headline_baseline
 
-    a, b = _rows(0.0), _rows(1.0)
-    by = ev.paired_by_position(a, b, 200, 0)
-    res = {
-        "nominal": ev.summarize(a),
-        "end_to_end": ev.summarize(b),
-        "perfect_lens": ev.summarize(b),
-        "paired": by["frame"],
-        "paired_by_position": by,
-        "headline_position": "frame",
-        "held_out": {"n_images": 3, "per_image": 6, "per_image_by_position": {"frame": 4, "centre": 1, "corner": 1}},
-        "optics_model": {
+    rows = {"nominal": _rows(0.0), "end_to_end": _rows(1.0), "nominal_untuned": _rows(untuned_shift)}
+    rows["ideal_lens"] = _rows(4.0)
+    res = {who: ev.summarize(r) for who, r in rows.items()}
+    res["paired_against"] = {}
+    for who in ("nominal", "nominal_untuned", "ideal_lens"):
+        by = ev.paired_by_position(rows[who], rows["end_to_end"], 200, 0)
+        res["paired_against"][who] = {"paired": by["frame"], "paired_by_position": by}
+    base = headline_baseline(res)
+    res.update(
+        baseline={**base, "paired": res["paired_against"][base["camera"]]["paired"]},
+        paired=res["paired_against"]["nominal"]["paired"],
+        paired_by_position=res["paired_against"]["nominal"]["paired_by_position"],
+        headline_position="frame",
+        held_out={"n_images": 3, "per_image": 6, "per_image_by_position": {"frame": 4, "centre": 1, "corner": 1}},
+        optics_model={
             "mode": "surrogate",
             "choice": {"why": "x"},
             "final_error_per_field": [0.01],
@@ -78,13 +84,47 @@ def test_summary_lines_give_the_frame_headline_and_a_line_each_for_centre_and_co
             "n_refinements": 0,
             "exact_gradient_steps": 0,
         },
-    }
+    )
+    return res
+
+
+def test_the_headline_baseline_is_the_better_of_the_fine_tuned_and_the_untuned_processing():
+    from optix_e2e.camera_design.image_quality import headline_baseline
+
+    def means(n, u):
+        return {"nominal": {"psnr_db": n}, "nominal_untuned": {"psnr_db": u}}
+
+    got = headline_baseline(means(25.6, 26.4))
+    assert got["camera"] == "nominal_untuned" and got["psnr_db"] == {"nominal": 25.6, "nominal_untuned": 26.4}
+    assert "26.4000 dB > nominal 25.6000 dB" in got["why"] and "lowered" in got["why"]
+    assert headline_baseline(means(26.4, 25.6))["camera"] == "nominal"
+    assert headline_baseline(means(25.6, 25.6))["camera"] == "nominal"  # a tie: the paper's fair comparison
+
+
+@pytest.mark.parametrize("untuned_shift", [-0.5, 0.5])
+def test_summary_lines_give_the_headline_against_the_better_baseline_and_the_centre_and_corner(untuned_shift):
+    from optix_e2e.camera_design.image_quality import ImageQualityHooks
+
+    res = _summary_results(untuned_shift)
+    name = "nominal_untuned" if untuned_shift > 0 else "nominal"
+    assert res["baseline"]["camera"] == name
     lines = ImageQualityHooks.summary_lines(res)
     assert "headline: 4 frame positions per image" in lines[0]
-    assert any(line.strip().startswith("PSNR dB") and "diff +1.0000" in line for line in lines)
+    assert lines[1].strip().startswith(f"headline baseline: {name} (") and f"minus {name}" in lines[1]
+    # the headline diff is end-to-end minus the chosen baseline; the other comparisons beside it
+    want = 1.0 - max(untuned_shift, 0.0)
+    assert any(line.strip().startswith("PSNR dB") and f"diff {want:+.4f}" in line for line in lines), lines
+    other = "nominal" if name == "nominal_untuned" else "nominal_untuned"
+    assert any(
+        f"end-to-end minus {other} {1.0 - (untuned_shift if other != 'nominal' else 0):+.4f}" in x for x in lines
+    )
+    ideal = [line for line in lines if "end-to-end minus ideal_lens -3.0000" in line]
+    assert len(ideal) == 1 and "ceiling" in ideal[0]
     centre = [line for line in lines if line.strip().startswith("centre")]
     corner = [line for line in lines if line.strip().startswith("corner")]
-    assert len(centre) == len(corner) == 1 and "diff +3.0000 [" in corner[0] and "PSNR" in corner[0]
+    # the corner: end-to-end +3 over nominal (_rows), so +3 - 3 * shift over the untuned (its corner moves 3x)
+    at_corner = 3.0 if name == "nominal" else 3.0 - 3 * untuned_shift
+    assert len(centre) == len(corner) == 1 and f"diff {at_corner:+.4f} [" in corner[0] and name in corner[0]
 
 
 def test_an_old_run_made_with_frame_positions_resumes_with_them(tmp_path):

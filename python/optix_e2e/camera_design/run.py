@@ -9,9 +9,13 @@ the same skeleton for every task (the task's part is a plugin: task_hooks.py).
      together, by Alg. 1 or vanilla Adam, the manufacturability guard after each lens step;
    * ``nominal``: the lens fixed at the nominal design, the processing fine-tuned with the same
      task loss (the paper's fair comparison), each processing block updated as many times as
-     in the end-to-end run (build.make_optimizer).
+     in the end-to-end run (build.make_optimizer);
+   * ``ideal_lens`` (the image-quality tasks: TaskHooks.ideal_optics): the same as ``nominal``
+     behind a lens that blurs nothing (build.delta_lens): the ceiling.
 3. Compute both lenses' exact PSFs with the engine and evaluate both cameras on held-out data
-   under them (and, for reference, under the surrogate's); evaluations are cached (eval_cache.py).
+   under them (and, for reference, under the surrogate's), and the task's further baselines
+   (the ideal lens; ``nominal_untuned``, the nominal lens behind the processing before any
+   fine-tuning: TaskHooks.untuned_camera); evaluations are cached (eval_cache.py).
 4. Write the outputs: both lenses (.zmx, .json, reports, PSF grids), panels, history.csv,
    lens_path.csv (the lens after each lens step), metrics.csv and results.json.
 """
@@ -130,6 +134,24 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
             folder=hooks.folder,
             **common,
         )
+        # the ceiling (image-quality tasks): the baseline's processing fine-tuned on the same budget
+        # behind a lens that blurs nothing; a run folder made before it trains it on its next call
+        ideal = ideal_run = None
+        ideal_optics = hooks.ideal_optics(sur, nominal_values, frame)
+        if ideal_optics is not None:
+            ideal = hooks.build_camera(sur, frame, fixed_optics=ideal_optics)
+            ideal_opt = make_optimizer(cfg, ideal, "nominal")
+            log(f"[2/4] ideal lens (a one-pixel PSF, the nominal's shading) + processing fine-tuned ({updates})")
+            ideal_run = train(
+                cfg,
+                ideal,
+                ideal_opt,
+                out,
+                "ideal_lens",
+                loss_at=hooks.loss_at(ideal, frame, ranks),
+                folder=hooks.folder,
+                **common,
+            )
     finally:
         if writer is not None:
             writer.close()
@@ -164,6 +186,11 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         for i, who in enumerate(WHO)
     }
     cams = {"nominal": nominal, "end_to_end": camera}
+    untuned = hooks.untuned_camera(sur, frame, fixed)  # the processing before any fine-tuning
+    if untuned is not None:
+        cams["nominal_untuned"] = untuned
+    if ideal is not None:
+        cams["ideal_lens"] = ideal
     evaluation, reused_s = hooks.evaluate(out, cams, optics, f_numbers, exact, frame, progress)
 
     log("[4/4] lens export, checks, PSF grids, panels, reports")
@@ -233,7 +260,8 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
                     "barrier_steps",
                 )
             }
-            for k, v in (("end_to_end", e2e), ("nominal", nom))
+            for k, v in (("end_to_end", e2e), ("nominal", nom), ("ideal_lens", ideal_run))
+            if v is not None
         },
         "surrogate": cfg.surrogate,
         "start": start_record(cfg),
@@ -245,11 +273,13 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         },
         **hooks.extra(cams, monitor, e2e),
     }
-    write_history(out / "history.csv", {"end_to_end": e2e["history"], "nominal": nom["history"]}, hooks.loss_parts)
+    runs = {"end_to_end": e2e, "nominal": nom, "ideal_lens": ideal_run}
+    write_history(out / "history.csv", {k: v["history"] for k, v in runs.items() if v is not None}, hooks.loss_parts)
     write_lens_path(out / "lens_path.csv", e2e["history"], sur.param_names, start_values.tolist())
     hooks.write_tables(out, evaluation)
     # training (both runs, across resumes) + exact PSFs, evaluation and outputs of this call
     # + the evaluations it reused from an earlier one
-    results["wall_s"] = e2e["wall_s"] + nom["wall_s"] + reused_s + (time.perf_counter() - t_eval)
+    trained_s = sum(v["wall_s"] for v in runs.values() if v is not None)
+    results["wall_s"] = trained_s + reused_s + (time.perf_counter() - t_eval)
     write_json_atomic(out / "results.json", results)
     return results

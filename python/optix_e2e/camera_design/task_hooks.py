@@ -67,12 +67,23 @@ class TaskHooks:
         """The optics the nominal baseline trains through (the nominal lens, fixed)."""
         raise NotImplementedError
 
+    def ideal_optics(self, sur: OpticsSurrogate, nominal_values, frame) -> FixedOptics | None:
+        """The ideal lens the baseline's processing is also fine-tuned behind, on the same budget
+        (results.json ``ideal_lens``: the ceiling of what a lens could add); None: the task has none."""
+        return None
+
+    def untuned_camera(self, sur: OpticsSurrogate, frame: SensorFrame, nominal_optics: FixedOptics):
+        """The nominal lens behind the processing as it is before any fine-tuning (results.json
+        ``nominal_untuned``); None: the task has no such baseline."""
+        return None
+
     def f_number(self, values) -> float | None:
         """The working f-number of a design where the task sets the photons by it (Eq. 3)."""
         return None
 
     def evaluate(self, out: Path, cams: dict, optics: dict, f_numbers: dict, exact: dict, frame, progress: bool):
-        """Both cameras on the held-out data under each optics ("exact", "surrogate"); returns
+        """Both cameras on the held-out data under each optics ("exact", "surrogate"), and the
+        task's further baselines in ``cams`` (``ideal_optics``, ``untuned_camera``); returns
         (the evaluation, the seconds of evaluations reused from an earlier call)."""
         raise NotImplementedError
 
