@@ -277,7 +277,7 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
     write_history(out / "history.csv", {k: v["history"] for k, v in runs.items() if v is not None}, hooks.loss_parts)
     write_lens_path(out / "lens_path.csv", e2e["history"], sur.param_names, start_values.tolist())
     hooks.write_tables(out, evaluation)
-    # training (both runs, across resumes) + exact PSFs, evaluation and outputs of this call
+    # training (every camera trained, across resumes) + exact PSFs, evaluation and outputs of this call
     # + the evaluations it reused from an earlier one
     trained_s = sum(v["wall_s"] for v in runs.values() if v is not None)
     results["wall_s"] = trained_s + reused_s + (time.perf_counter() - t_eval)
