@@ -373,3 +373,54 @@ def test_the_lens_room_benchs_delta_lens_is_the_runs_ideal_lens(resumed_run, tmp
             assert got["by_position"][pos][m] == pytest.approx(ideal["by_position"][pos][m], rel=1e-6), (pos, m)
     d = room["perfect_minus_end_to_end"]["frame"]["psnr_db"]["mean"]
     assert d == pytest.approx(-res["paired_against"]["ideal_lens"]["paired"]["psnr_db"]["mean"], rel=1e-6)
+
+
+def test_a_finished_run_is_evaluated_on_the_test_split_without_training_again(
+    resumed_run, tmp_path, optix, smoke_design
+):
+    """--test-photos on a finished run: every camera on the test split's photographs at native
+    scale (docs/test-split.md), paired against the end-to-end camera, the held-out set's
+    baseline kept; nothing trains again, and a training corpus is refused as a test split."""
+    import shutil
+
+    import imageio.v3 as iio
+    import numpy as np
+
+    from optix_e2e.scenes.corpus import prepare_corpus
+
+    rng = np.random.default_rng(0)
+    src = tmp_path / "photos"
+    src.mkdir()
+    for i in range(3):
+        iio.imwrite(src / f"p{i}.png", rng.integers(0, 256, (170, 200, 3), dtype=np.uint8))
+    prepare_corpus("folder", src, tmp_path / "test", licence="made by the test", role="test")
+    prepare_corpus("folder", src, tmp_path / "train", licence="made by the test")
+    run = tmp_path / "run"
+    shutil.copytree(resumed_run["out"], run)
+    args = smoke_design("iq-software", run, "--config", resumed_run["cfg"])
+    r = optix(*args, "--test-photos", tmp_path / "train")
+    assert r.returncode == 1 and "a training corpus" in r.stderr and r.stderr.count("\n") == 1
+    r = optix(*args, "--test-photos", tmp_path / "test")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert (
+        f"end_to_end: resuming at step {N_STEPS} of {N_STEPS}" in r.stdout and "test split (3 photographs" in r.stdout
+    )
+    res = json.loads((run / "results.json").read_text())
+    t = res["test_split"]
+    assert t["n_images"] == 3 and t["n_samples"] == 3 * 6 and t["photos"]["split"] == "test"
+    assert t["baseline"] == res["baseline"]["camera"]
+    assert set(t["means"]) == {"nominal", "end_to_end", "nominal_untuned", "ideal_lens"}
+    assert set(t["paired_against"]) == {"nominal", "nominal_untuned", "ideal_lens"}
+    rows = {who: json.loads((run / f"test_{who}.json").read_text())["rows"] for who in t["means"]}
+    head = [x for x in rows["end_to_end"] if x["position"] == "frame"]
+    assert t["means"]["end_to_end"]["psnr_db"] == pytest.approx(np.mean([x["psnr_db"] for x in head]))
+    d = {
+        img: np.mean([x["psnr_db"] for x in rows["end_to_end"] if x["image"] == img and x["position"] == "frame"])
+        - np.mean([x["psnr_db"] for x in rows["nominal"] if x["image"] == img and x["position"] == "frame"])
+        for img in {x["image"] for x in head}
+    }
+    assert t["paired_against"]["nominal"]["paired"]["psnr_db"]["mean"] == pytest.approx(np.mean(list(d.values())))
+    # the held-out figures are those of the run, untouched
+    for k in ("nominal", "end_to_end", "nominal_untuned", "ideal_lens", "baseline"):
+        assert res[k] == resumed_run["res"][k], k
+    assert (run / "test_metrics.csv").read_text().count("\n") == 1 + 4 * 18

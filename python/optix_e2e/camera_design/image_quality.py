@@ -29,7 +29,7 @@ from ..errors import InputError
 from ..scenes import ImageFolder, bundled_photos
 from ..surrogate.refine import RefineSettings
 from ..tasks import heldout_set
-from ..tasks.samples import POSITIONS
+from ..tasks.samples import POSITIONS, photo_test_set
 from . import eval_cache
 from . import evaluate as ev
 from .build import build_camera, delta_lens
@@ -39,6 +39,7 @@ from .task_hooks import TaskHooks
 from .training import LOSS_PARTS
 
 WHO = ("nominal", "end_to_end")
+TEST_PROTOCOL = "docs/test-split.md, written 2026-11-28 before the split's first use"
 #: the two baselines the headline chooses between (``headline_baseline``)
 BASELINES = ("nominal", "nominal_untuned")
 #: what each camera of results.json is, in the printed summary
@@ -196,15 +197,8 @@ class ImageQualityHooks(TaskHooks):
                     progress,
                 )
                 reused_s += s
-        # the further baselines, on the same samples and noise draws: the nominal lens's exact
-        # optics behind the processing before any fine-tuning; the ideal lens behind its own
-        # fine-tuned processing (under its own optics: no other lens's PSFs apply to it)
-        extra = {}
-        if "nominal_untuned" in cams:
-            extra["nominal_untuned"] = ("exact", optics["nominal"]["exact"])
-        if "ideal_lens" in cams:
-            fo = cams["ideal_lens"].optics
-            extra["ideal_lens"] = ("delta", (fo.psf, fo.vignetting, fo.fields))
+        # the further baselines, on the same samples and noise draws (``_own_optics``)
+        extra = {who: v for who, v in _own_optics(cams, optics).items() if who not in WHO}
         for who, (kind, (psf, vig, fh)) in extra.items():
             fo = FixedOptics(psf, vig, fh, patch=c.patch, full_field_px=frame.full_field_px).to(self.device)
             rows[who] = {}
@@ -218,6 +212,50 @@ class ImageQualityHooks(TaskHooks):
             )
             reused_s += s
         return {"samples": samples, "rows": rows, "window": int(exact["psf"].shape[-1])}, reused_s
+
+    def test_split(self, out, cams, optics, evaluation, corpus, frame, baseline, progress):
+        c = self.cfg
+        samples = photo_test_set(
+            corpus, c.eval_size, evaluation["window"] // 2, c.eval_level, frame, positions=POSITIONS[c.eval_positions]
+        )
+        samples_key = eval_cache.samples_digest(samples)
+        rows = {}
+        for who, (kind, (psf, vig, fh)) in _own_optics(cams, optics).items():
+            fo = FixedOptics(psf, vig, fh, patch=c.patch, full_field_px=frame.full_field_px).to(self.device)
+            rows[who], _ = _evaluate_cached(
+                out / f"test_{who}.json",
+                _camera_key(psf, vig, fh, cams[who].isp, cams[who].sensor, samples, samples_key, f"/test/{who}"),
+                Camera(fo, cams[who].sensor, cams[who].isp),
+                samples,
+                f"test split: {who} ({kind} optics)",
+                progress,
+            )
+        with open(out / "test_metrics.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["camera", "image", "position", "radius", *ev.METRICS])
+            for who, rs in rows.items():
+                w.writerows([who, r["image"], r["position"], r["radius"], *(r[m] for m in ev.METRICS)] for r in rs)
+        paired = {}
+        for who in rows:
+            if who != "end_to_end":
+                by = ev.paired_by_position(rows[who], rows["end_to_end"], c.bootstrap, c.seed)
+                head = ev.headline_position(rows[who])
+                paired[who] = {
+                    "paired": by.get(head) or ev.paired(rows[who], rows["end_to_end"]),
+                    "paired_by_position": by,
+                }
+        return {
+            "protocol": TEST_PROTOCOL,
+            "photos": corpus.record(),
+            "n_images": len(corpus),
+            "n_samples": len(samples),
+            "positions": c.eval_positions,
+            "headline_position": ev.headline_position(rows["end_to_end"]),
+            "baseline": baseline,
+            "baseline_why": "the headline baseline the held-out (development) set chose; no choice is made here",
+            "means": {who: ev.summarize(rs) for who, rs in rows.items()},
+            "paired_against": paired,  # end-to-end minus each camera, paired over the photographs
+        }
 
     @torch.no_grad()
     def panels(self, path, evaluation, cams, optics, f_numbers, frame, n_images: int = 3):
@@ -374,6 +412,18 @@ class ImageQualityHooks(TaskHooks):
                     f"  {pos:8s} PSNR dB {name} {res[name]['by_position'][pos]['psnr_db']:.4f}   end-to-end "
                     f"{e['by_position'][pos]['psnr_db']:.4f}   diff {pp['psnr_db']['mean']:+.4f} [{lo:+.4f}, {hi:+.4f}]"
                 )
+        t = res.get("test_split")
+        if t:
+            tb, tp = t["baseline"], t["paired_against"][t["baseline"]]["paired"]["psnr_db"]
+            ti = t["paired_against"].get("ideal_lens", {}).get("paired", {}).get("psnr_db")
+            lines.append(
+                f"test split ({t['n_images']} photographs at native scale, {t['protocol']}): PSNR dB "
+                + "   ".join(f"{who} {m['psnr_db']:.4f}" for who, m in t["means"].items())
+            )
+            lines.append(
+                f"  end-to-end minus {tb} {tp['mean']:+.4f} [{tp['ci95'][0]:+.4f}, {tp['ci95'][1]:+.4f}]"
+                + (f"; minus ideal_lens {ti['mean']:+.4f} [{ti['ci95'][0]:+.4f}, {ti['ci95'][1]:+.4f}]" if ti else "")
+            )
         om = res["optics_model"]
         lines.append(
             f"optics model {om['mode']} ({om['choice']['why']}); PSF rel. L1 at the final design, worst field: "
@@ -382,6 +432,19 @@ class ImageQualityHooks(TaskHooks):
             f"{om['exact_gradient_steps']} lens steps on exact gradients"
         )
         return lines
+
+
+def _own_optics(cams: dict, optics: dict) -> dict:
+    """Each camera's optics for the evaluation: (kind, (psf, vignetting, field heights)). The two
+    trained lenses and the nominal behind the untuned processing: their exact optics; the ideal
+    lens: its own (a delta PSF; no other lens's PSFs apply to it)."""
+    own = {who: ("exact", optics[who]["exact"]) for who in WHO}
+    if "nominal_untuned" in cams:
+        own["nominal_untuned"] = ("exact", optics["nominal"]["exact"])
+    if "ideal_lens" in cams:
+        fo = cams["ideal_lens"].optics
+        own["ideal_lens"] = ("delta", (fo.psf, fo.vignetting, fo.fields))
+    return own
 
 
 def _camera_key(psf, vig, fh, isp, sensor, samples, samples_key: str, tag: str = "") -> str:

@@ -32,6 +32,7 @@ from .. import parallel
 from ..io import write_json_atomic
 from ..lens import Lens
 from ..lens_design.report import write_report
+from ..scenes.corpus import PhotoCorpus
 from ..surrogate.ground_truth import exact_optics
 from . import outputs
 from .build import design_field_heights, lens_step_scale, make_optimizer, start_record, start_run
@@ -72,7 +73,9 @@ def claim_run_dir(out: Path, cfg: DesignConfig, ranks: parallel.Ranks, progress:
     return progress, log, SummaryWriter(str(out / "tb"))
 
 
-def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, log=print) -> dict | None:
+def run_design(
+    cfg: DesignConfig, out: "str | Path", *, progress: bool = True, log=print, test_photos=()
+) -> dict | None:
     """The whole run; returns the results (also written to out/results.json). Under torchrun
     (``torchrun --nproc_per_node N -m optix_e2e design ...``) the N processes share each
     training batch (optix_e2e.parallel); rank 0 alone evaluates and writes, and the other
@@ -86,6 +89,9 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
             + " (the default then, or how it ran before the setting existed); it keeps it"
         )
     cfg = kept
+    # the untouched test split (docs/test-split.md), checked before anything runs; not a setting of
+    # the run: evaluated when asked for, on a finished run too (its trainings and evaluations reused)
+    test_corpus = PhotoCorpus(test_photos, "test") if test_photos and ranks.is_main else None
     out, task, frame, sur = start_run(cfg, out)
     sur.to(ranks.device)  # every camera's optics (and a hybrid run's copy) start from it there
     hooks = hooks_for(cfg, ranks.device)
@@ -273,6 +279,9 @@ def run_design(cfg: DesignConfig, out: "str | Path", *, progress: bool = True, l
         },
         **hooks.extra(cams, monitor, e2e),
     }
+    if test_corpus is not None:
+        baseline = results.get("baseline", {}).get("camera", "nominal")
+        results["test_split"] = hooks.test_split(out, cams, optics, evaluation, test_corpus, frame, baseline, progress)
     runs = {"end_to_end": e2e, "nominal": nom, "ideal_lens": ideal_run}
     write_history(out / "history.csv", {k: v["history"] for k, v in runs.items() if v is not None}, hooks.loss_parts)
     write_lens_path(out / "lens_path.csv", e2e["history"], sur.param_names, start_values.tolist())

@@ -15,6 +15,7 @@ from .. import parallel
 from ..camera import FixedOptics
 from ..surrogate.checkpoint import OpticsSurrogate
 from ..tasks import SensorFrame, get_task
+from ..errors import InputError
 from .config import DesignConfig
 
 
@@ -86,6 +87,12 @@ class TaskHooks:
         task's further baselines in ``cams`` (``ideal_optics``, ``untuned_camera``); returns
         (the evaluation, the seconds of evaluations reused from an earlier call)."""
         raise NotImplementedError
+
+    def test_split(self, out: Path, cams: dict, optics: dict, evaluation, corpus, frame, baseline: str, progress: bool):
+        """Every camera on the untouched test split (``corpus``: a scenes.corpus.PhotoCorpus of
+        role test; docs/test-split.md), the end-to-end camera paired against each other camera;
+        ``baseline``: the headline baseline the held-out set chose (results.json ``test_split``)."""
+        raise InputError(f"task {self.cfg.task}: the test split of photographs is for the image-quality tasks")
 
     def panels(self, path: Path, evaluation, cams: dict, optics: dict, f_numbers: dict, frame) -> None:
         """The image panels (panels.png)."""

@@ -73,6 +73,14 @@ from ._common import DEVICE_HELP, PRECISION_HELP, SEED, THREADS, dumps, friendly
     help="The lens's start: the nominal (default) or uniform at random in the space, drawn from --seed "
     "until manufacturable (the paper's Sec. 5.2).",
 )
+@click.option(
+    "--test-photos",
+    type=click.Path(exists=True, file_okay=False),
+    multiple=True,
+    help="A prepared test-split corpus (`optix scenes photos prepare kodak24 ...`; repeatable): every camera is "
+    "also evaluated on it under docs/test-split.md's protocol (results.json test_split); a finished run is "
+    "evaluated without training again.",
+)
 @click.option("--threads", type=THREADS, default=None, help="torch CPU threads (0: default).")
 @click.option("--device", default=None, help=DEVICE_HELP + " [default: auto, or the config file's device]")
 @click.option("--precision", default=None, type=click.Choice(["fp32", "bf16", "fp16"]), help=PRECISION_HELP)
@@ -90,6 +98,7 @@ def design(
     optics,
     space,
     optics_init,
+    test_photos,
     threads,
     device,
     precision,
@@ -126,7 +135,7 @@ def design(
         precision=precision,
     )
     try:
-        res = run_design(cfg, Path(out), progress=not quiet, log=click.echo)
+        res = run_design(cfg, Path(out), progress=not quiet, log=click.echo, test_photos=tuple(test_photos))
     finally:
         parallel.teardown()
     if res is None:  # not rank 0 of a torchrun run: rank 0 reports
