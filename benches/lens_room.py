@@ -55,6 +55,7 @@ from optix_e2e.io import write_json_atomic
 from optix_e2e.optics.render import shade
 from optix_e2e.torchfile import load_plain
 from optix_e2e.scenes import ImageFolder
+from optix_e2e.scenes.corpus import PhotoCorpus
 from optix_e2e.tasks import heldout_set
 from optix_e2e.tasks.samples import POSITIONS
 
@@ -161,7 +162,10 @@ def room(run: Path, out: Path, threads: int | None, progress: bool, kind: str = 
     opt = make_optimizer(cfg, camera, "nominal")
     log = print if progress else None
     folder = ImageFolder(cfg.images) if cfg.images else None  # the run's own training images
-    trained = train(cfg, camera, opt, out, "perfect", progress=progress, frame=frame, log=log, folder=folder)
+    corpus = PhotoCorpus(cfg.photos, "train") if cfg.photos else None  # the run's training photographs
+    trained = train(
+        cfg, camera, opt, out, "perfect", progress=progress, frame=frame, log=log, folder=folder, corpus=corpus
+    )
 
     eval_path, code = out / "eval_perfect_finetuned.json", eval_cache.code_digest()
     try:

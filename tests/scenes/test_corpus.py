@@ -228,3 +228,33 @@ def test_isp_pretraining_on_photographs_records_the_corpus(bsds_checkout, tmp_pa
     prepare_corpus("folder", images, tmp_path / "c2", licence="CC0", val_fraction=0.5)
     with pytest.raises(InputError, match="other settings"):
         pretrain(dataclasses.replace(cfg, steps=4, photos=(str(tmp_path / "c2"),)), tmp_path / "run", progress=False)
+
+
+def test_design_runs_train_on_a_corpus_when_given_one(bsds_checkout, tmp_path):
+    from optix_e2e.camera_design.config import make_config
+    from optix_e2e.tasks import training_batch
+
+    prepare_corpus("bsds500", bsds_checkout, tmp_path / "c", val_fraction=0.0)
+    corpus = PhotoCorpus(tmp_path / "c", "train")
+    args = (3, 5, 4, 32, 8, (0.35, 1.0))
+    plain, with_photos = training_batch(*args), training_batch(*args, corpus=corpus)
+    again = training_batch(*args, corpus=corpus)
+    torch.testing.assert_close(with_photos.scene, again.scene)  # a function of (seed, step) alone
+    assert not torch.equal(plain.scene, with_photos.scene)
+    cfg = make_config("smoke", task="iq-software", photos=str(tmp_path / "c"))
+    assert cfg.photos == str(tmp_path / "c")
+    with pytest.raises(InputError, match="photos: no such folder"):
+        make_config("smoke", photos=str(tmp_path / "missing"))
+
+
+@pytest.mark.slow
+def test_a_smoke_design_run_trains_on_photographs(bsds_checkout, tmp_path, optix, smoke_design):
+    prepare_corpus("bsds500", bsds_checkout, tmp_path / "c", val_fraction=0.0)
+    r = optix(*smoke_design("iq-software", tmp_path / "run", "--photos", tmp_path / "c"))
+    assert r.returncode == 0, r.stdout + r.stderr
+    inputs = json.loads((tmp_path / "run" / "inputs.json").read_text())
+    assert inputs["photos"]["fingerprint"].startswith("folder-sha256:")
+    cfg = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert cfg["photos"] == str(tmp_path / "c")
+    r = optix(*smoke_design("detection", tmp_path / "det", "--photos", tmp_path / "c"))
+    assert r.returncode == 1 and "photos is for the image-quality tasks" in r.stderr

@@ -94,6 +94,9 @@ class DesignConfig:
     space: str = ""
     optics_init: str = "nominal"  # nominal | uniform (random in the space, from the seed)
     images: str = ""  # a folder of the user's images, mixed into training (half the crops)
+    # a prepared photo corpus (`optix scenes photos prepare`): its train split becomes most of the
+    # training scenes (scenes/natural.py PHOTO_MIX), as in the ISP's pre-training on photographs
+    photos: str = ""
     software_isp: str = ""  # the pre-trained software ISP to start from ("": the bundled one)
     # training
     crop: int = 128  # sensor pixels per side of a training crop (its height)
@@ -253,6 +256,8 @@ class DesignConfig:
                 )
         if self.images and not Path(self.images).is_dir():
             raise InputError(f"images: no such folder {self.images}")
+        if self.photos and not Path(self.photos).is_dir():
+            raise InputError(f"photos: no such folder {self.photos}")
         if self.software_isp and not Path(self.software_isp).is_file():
             raise InputError(f"software_isp: no such file {self.software_isp}")
         if self.detector and not Path(self.detector).is_file():
@@ -325,7 +330,7 @@ def task_default(task: str, budget: str, key: str):
     return values.get(key, getattr(DesignConfig, key))
 
 
-PATH_SETTINGS = ("images", "software_isp", "detector")  # settings that name files or folders
+PATH_SETTINGS = ("images", "photos", "software_isp", "detector")  # settings that name files or folders
 
 
 def read_config_file(path: Path) -> dict:

@@ -221,8 +221,10 @@ class DetectionHooks(TaskHooks):
 
     def check(self, sur, ranks):
         c = self.cfg
-        if c.images:
-            raise InputError("--images is for the image-quality tasks; detection trains on street scenes")
+        if c.images or c.photos:
+            raise InputError(
+                f"{'--images' if c.images else 'photos'} is for the image-quality tasks; detection trains on street scenes"
+            )
         if c.fields:
             raise InputError("fields: the detection run renders from all the surrogate's field samples (fields = 0)")
         if c.optics not in ("surrogate", "exact", "auto"):

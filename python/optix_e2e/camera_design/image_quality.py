@@ -27,6 +27,7 @@ from tqdm import tqdm
 from ..camera import Camera, FixedOptics
 from ..errors import InputError
 from ..scenes import ImageFolder, bundled_photos
+from ..scenes.corpus import PhotoCorpus
 from ..surrogate.refine import RefineSettings
 from ..tasks import heldout_set
 from ..tasks.samples import POSITIONS, photo_test_set
@@ -101,6 +102,7 @@ class ImageQualityHooks(TaskHooks):
         super().__init__(cfg, device)
         self.mode, self.choice = resolve_optics(cfg)
         self.folder = ImageFolder(cfg.images) if cfg.images else None
+        self.corpus = PhotoCorpus(cfg.photos, "train") if cfg.photos else None
 
     def check(self, sur, ranks):
         if not sur.has_network:  # the run measures the network along the way (OpticsMonitor)

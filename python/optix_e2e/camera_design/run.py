@@ -114,6 +114,7 @@ def run_design(
             "end_to_end",
             loss_at=hooks.loss_at(camera, frame, ranks),
             folder=hooks.folder,
+            corpus=hooks.corpus,
             monitor=monitor if ranks.is_main else None,  # surrogate optics: it only measures
             lens_scale=lens_scale,
             **common,
@@ -138,6 +139,7 @@ def run_design(
             "nominal",
             loss_at=hooks.loss_at(nominal, frame, ranks),
             folder=hooks.folder,
+            corpus=hooks.corpus,
             **common,
         )
         # the ceiling (image-quality tasks): the baseline's processing fine-tuned on the same budget
@@ -156,6 +158,7 @@ def run_design(
                 "ideal_lens",
                 loss_at=hooks.loss_at(ideal, frame, ranks),
                 folder=hooks.folder,
+                corpus=hooks.corpus,
                 **common,
             )
     finally:

@@ -29,6 +29,7 @@ class TaskHooks:
     exact_fallback: str | None = None
     #: the user's training images (``--images``: scenes.ImageFolder), where the task takes them
     folder = None
+    corpus = None  # a scenes.corpus.PhotoCorpus of training photographs (the photos setting)
 
     def __init__(self, cfg: DesignConfig, device: "torch.device | str" = "cpu"):
         self.cfg = cfg

@@ -121,6 +121,7 @@ def train(
     writer=None,
     frame: SensorFrame = SensorFrame(),
     folder=None,
+    corpus=None,
     on_step=None,
     log=None,
     loss_at=None,
@@ -167,6 +168,7 @@ def train(
                 frame,
                 folder,
                 positions=cfg.train_positions,
+                corpus=corpus,
             )
             out_img, _ = camera(batch.scene[part].to(dev), batch.offset_px, gen)
             return loss_mod(out_img, batch.target[part].to(dev))

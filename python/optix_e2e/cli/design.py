@@ -51,6 +51,12 @@ from ._common import DEVICE_HELP, PRECISION_HELP, SEED, THREADS, dumps, friendly
     help="A folder of your images, mixed into the training scenes.",
 )
 @click.option(
+    "--photos",
+    type=click.Path(exists=True, file_okay=False),
+    default=None,
+    help="A prepared photo corpus (`optix scenes photos prepare`): its photographs become most of the training scenes.",
+)
+@click.option(
     "--optics",
     type=click.Choice(["surrogate", "exact", "hybrid", "auto"]),
     default=None,
@@ -95,6 +101,7 @@ def design(
     seed,
     surrogate,
     images,
+    photos,
     optics,
     space,
     optics_init,
@@ -127,6 +134,7 @@ def design(
         seed=seed,
         surrogate=surrogate,
         images=images,
+        photos=photos,
         threads=threads,
         optics=optics,
         space=space,

@@ -85,11 +85,12 @@ def _light(srgb: torch.Tensor, level: np.ndarray, tint: np.ndarray, margin: int)
     return lin * torch.as_tensor(tint, dtype=srgb.dtype).reshape(-1, 3, 1, 1), ideal
 
 
-def training_scene(size: int, rng: np.random.Generator) -> torch.Tensor:
+def training_scene(size: int, rng: np.random.Generator, corpus=None) -> torch.Tensor:
     """A training scene from the natural mix (scenes/natural.py: dead leaves in the training
-    photos' colours, photo crops, textures, text, gradients, edges, the standard chart); the
-    held-out photos and seeds are never drawn."""
-    return scenes.natural_scene(size, rng)
+    photos' colours, photo crops, textures, text, gradients, edges, the standard chart; with a
+    ``corpus`` of photographs, PHOTO_MIX: its native-scale crops the majority); the held-out
+    photos and seeds are never drawn."""
+    return scenes.natural_scene(size, rng, None, corpus)
 
 
 def training_batch(
@@ -103,11 +104,13 @@ def training_batch(
     folder=None,
     tint: float = 0.0,
     positions: str = "frame",
+    corpus=None,
 ) -> Batch:
     """Batch ``step`` of the training stream ``seed`` (see the module doc). ``positions``: where
     the batch's crop lies, "frame" (uniform over the frame's area) or "radius" (its centre's
     field radius uniform from the axis to the full field, the azimuth uniform, the crop kept
-    inside the frame: the centre and the corners weigh as much as the mid-field)."""
+    inside the frame: the centre and the corners weigh as much as the mid-field). ``corpus``: a
+    scenes.corpus.PhotoCorpus whose photographs become most of the scenes (PHOTO_MIX)."""
     if positions not in TRAIN_POSITIONS:
         raise InputError(f"training positions must be one of {', '.join(TRAIN_POSITIONS)}, got {positions!r}")
     rng = np.random.default_rng([1, int(seed), int(step)])  # stream tag 1: training batches
@@ -122,7 +125,7 @@ def training_batch(
             imgs.append(scenes.random_crops(img, full, 1, rng)[0])
             names.append(f"folder:{i}")
         else:
-            imgs.append(training_scene(full, rng))
+            imgs.append(training_scene(full, rng, corpus))
             names.append("procedural")
     if positions == "frame":
         y0 = 2 * int(rng.integers(0, (frame.height - size) // 2 + 1))
