@@ -9,7 +9,8 @@ set of `optix design` (9 photos + 13 procedural scenes, 4 positions each over th
 * the nominal lens of the space: the engine's exact PSFs and relative illumination,
 
 at normal light and at low light (exposure / 100, gain x 100), and scored by PSNR and SSIM
-(8-bit output, as the design runs score). No fine-tuning: the network as shipped.
+(8-bit output, as the design runs score), with LPIPS and the design runs' task loss L1 + LPIPS.
+No fine-tuning: the network as shipped.
 
 Two bounds split the error budget of the perfect lens (rows ``LIGHT/bound/...``):
 
@@ -47,6 +48,7 @@ from optix_e2e.isp.classical import ClassicalISP
 from optix_e2e.isp.software import SoftwareISP
 from optix_e2e import color
 from optix_e2e.metrics.image import psnr, ssim
+from optix_e2e.metrics.lpips import lpips
 from optix_e2e.sensor import get_preset
 from optix_e2e.sensor.emva import expected_electrons, raw_from_electrons, simulate_raw
 from optix_e2e.camera_design.build import SOFTWARE_ISP, base_lens_f_number, design_field_heights, load_surrogate
@@ -81,20 +83,25 @@ def _score(rows: list, key: str, res: dict) -> None:
     res[key] = {
         "psnr_db": float(np.mean([r[1] for r in rows])),
         "ssim": float(np.mean([r[2] for r in rows])),
+        "lpips": float(np.mean([r[3] for r in rows])),
+        # the design runs' task loss (L1 + LPIPS, iq-software and low light), what fine-tuning minimizes
+        "l1_plus_lpips": float(np.mean([r[4] + r[3] for r in rows])),
         "psnr_db_photos": float(np.mean([r[1] for r in photo])) if photo else None,
         "psnr_db_procedural": float(np.mean([r[1] for r in proc])) if proc else None,
         "n_samples": len(rows),
     }
     parts = ", ".join(f"{k} {res[key][f'psnr_db_{k}']:.2f}" for k in ("photos", "procedural") if proc and photo)
     print(
-        f"{key}: PSNR {res[key]['psnr_db']:.2f} dB{f' ({parts})' if parts else ''}, SSIM {res[key]['ssim']:.3f}",
+        f"{key}: PSNR {res[key]['psnr_db']:.2f} dB{f' ({parts})' if parts else ''}, SSIM {res[key]['ssim']:.3f}, LPIPS {res[key]['lpips']:.4f}",
         flush=True,
     )
 
 
-def _row(name: str, out: torch.Tensor, target: torch.Tensor) -> tuple[str, float, float]:
+def _row(name: str, out: torch.Tensor, target: torch.Tensor) -> tuple[str, float, float, float, float]:
+    """(name, PSNR, SSIM, LPIPS, L1) of the 8-bit output."""
     x = (out.clamp(0, 1) * 255).round() / 255
-    return name, float(psnr(x, target[None])[0]), float(ssim(x, target[None])[0])
+    y = target[None]
+    return name, float(psnr(x, y)[0]), float(ssim(x, y)[0]), float(lpips(x, y)[0]), float((x - y).abs().mean())
 
 
 def main(argv=None) -> dict:
