@@ -69,10 +69,12 @@ def test_map_falls_as_blur_and_noise_grow(overfit):
     for sigma, std in ((0.0, 0.0), (1.2, 0.04), (2.5, 0.10)):
         x = gaussian_blur(images, [2 * int(3 * sigma) + 1] * 2, [sigma] * 2) if sigma else images
         maps.append(mean_average_precision(detect(model, (x + std * noise).clamp(0, 1)), targets))
-    # mAP over the IoU thresholds falls at every step; mAP@0.5 (23 objects: steps of about 0.04)
-    # may hold at the mild level (0.962 at both in a CI run, 2026-11-27) but falls by the strong one
-    assert maps[0]["map"] > maps[1]["map"] > maps[2]["map"], maps
-    assert maps[0]["map_50"] >= maps[1]["map_50"] >= maps[2]["map_50"], maps
+    # both fall by the strong level; at the mild one they may hold within one object's share
+    # (23 objects: about 0.04): mAP@0.5 0.962 at both in a CI run (2026-11-27), mAP 0.712 -> 0.733
+    # on another machine's arithmetic (2026-11-28), where the strong level gave 0.520
+    for m in ("map", "map_50"):
+        assert maps[2][m] < min(maps[0][m], maps[1][m]) - 0.1, maps
+        assert maps[1][m] <= maps[0][m] + 0.04, maps
     assert maps[2]["map_50"] < maps[0]["map_50"], maps
 
 

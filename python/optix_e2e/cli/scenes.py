@@ -8,7 +8,7 @@ import time
 
 import click
 
-from ._common import SEED, dumps, friendly_errors
+from ._common import SEED, FiniteFloatRange, dumps, friendly_errors
 
 
 @click.group("scenes")
@@ -99,7 +99,7 @@ def photo_sources():
 )
 @click.option(
     "--val-fraction",
-    type=click.FloatRange(0, 0.9),
+    type=FiniteFloatRange(0, 0.9),
     default=0.1,
     show_default=True,
     help="Share of a training corpus held back for validation (chosen by each file's sha256).",
