@@ -369,7 +369,10 @@ def pretrain(
     bar.close()
     writer.close()
     meta = {
-        "command": "optix " + " ".join(sys.argv[1:]) if Path(sys.argv[0]).name == "optix" else "pretrain()",
+        # `optix ...` or `python -m optix_e2e ...` (argv[0] is then the package's __main__.py)
+        "command": "optix " + " ".join(sys.argv[1:])
+        if Path(sys.argv[0]).name == "optix" or Path(sys.argv[0]).parent.name == "optix_e2e"
+        else "pretrain()",
         "config": asdict(cfg),
         "steps": step,
         "device": str(dev),  # where this call trained
