@@ -273,8 +273,12 @@ def test_the_shipped_software_isp_is_pretrained():
     from optix_e2e.metrics.image import psnr
     from optix_e2e.optics.render import render
     from optix_e2e.camera_design.build import SOFTWARE_ISP, nominal_field_heights
+    from optix_e2e.metrics.lpips import LPIPS
     from optix_e2e.sensor import simulate_raw
+    from optix_e2e.tasks.image_quality import task_loss
     from optix_e2e.tasks.samples import HELDOUT_SEED0, SensorFrame, heldout_set
+
+    lp = LPIPS()
 
     sur = load_surrogate("paper-triplet-e2e")
     psf, vig = sur.psfs(DifferentiableOptics(sur).base_values(), check=False)
@@ -313,13 +317,19 @@ def test_the_shipped_software_isp_is_pretrained():
             )
             out = torch.cat([shipped(raw[i : i + 1], s.offset_px, full) for i, s in enumerate(held)])
             base = ClassicalISP(preset)(raw)
-        got[case] = (psnr(out.clamp(0, 1), target).mean().item(), psnr(base.clamp(0, 1), target).mean().item())
-    # measured 2026-11-26 (shipped / classical): nominal 25.60 / 23.29, low light 22.43 / 18.37, perfect
-    # lens 28.05 / 25.87 dB (the full held-out set at 192 px, benches/isp_headroom.py: perfect lens
-    # 27.16 / 26.69, nominal 26.38 / 23.53, low light 22.67 / 18.79)
-    assert got["nominal"][0] > got["nominal"][1] + 2.0, got
-    assert got["low"][0] > got["low"][1] + 3.0, got
-    assert got["normal"][0] > got["normal"][1], got
+        got[case] = tuple(
+            (psnr(x.clamp(0, 1), target).mean().item(), task_loss(x.clamp(0, 1), target, lp, 1.0)[0].item())
+            for x in (out, base)
+        )
+    # the network is trained for the design runs' loss, L1 + LPIPS (since 2026-11-28, issue 54): it
+    # must lower that loss well below the classical pipeline's and stay ahead of it on PSNR.
+    # Measured 2026-11-28 (shipped / classical), PSNR: nominal 24.45 / 23.29, low light 22.78 /
+    # 18.37, perfect lens 27.77 / 25.87 dB; L1 + LPIPS: nominal 0.126 / 0.288, low light 0.244 /
+    # 0.613, perfect lens 0.093 / 0.143. (The L1-trained network of 2026-11-26, PSNR: nominal
+    # 25.60, low light 22.43, perfect lens 28.05 dB.)
+    for case, ((p_net, l_net), (p_cls, l_cls)) in got.items():
+        assert p_net > p_cls + 0.5 and l_net < (0.8 if case == "normal" else 0.6) * l_cls, (case, got)
+    assert got["low"][0][0] > got["low"][1][0] + 3.0, got
 
 
 def test_a_step_that_breaks_a_manufacturing_limit_is_cut_back_to_the_boundary():
