@@ -188,32 +188,49 @@ class ImageQualityHooks(TaskHooks):
         for who in WHO:
             rows[who] = {}
             for kind in ("exact", "surrogate"):
-                psf, vig, fh = optics[who][kind]
-                fo = FixedOptics(psf, vig, fh, patch=c.patch, full_field_px=frame.full_field_px).to(self.device)
-                rows[who][kind], s = _evaluate_cached(
+                rows[who][kind], s = self._evaluate_behind(
                     out / f"eval_{who}_{kind}.json",
-                    _camera_key(psf, vig, fh, cams[who].isp, cams[who].sensor, samples, samples_key),
-                    Camera(fo, cams[who].sensor, cams[who].isp),
+                    cams[who],
+                    optics[who][kind],
+                    frame,
                     samples,
+                    samples_key,
+                    "",
                     f"eval {who} ({kind} optics)",
                     progress,
                 )
                 reused_s += s
         # the further baselines, on the same samples and noise draws (``_own_optics``)
         extra = {who: v for who, v in _own_optics(cams, optics).items() if who not in WHO}
-        for who, (kind, (psf, vig, fh)) in extra.items():
-            fo = FixedOptics(psf, vig, fh, patch=c.patch, full_field_px=frame.full_field_px).to(self.device)
+        for who, (kind, fo) in extra.items():
             rows[who] = {}
-            rows[who][kind], s = _evaluate_cached(
+            rows[who][kind], s = self._evaluate_behind(
                 out / f"eval_{who}_{kind}.json",
-                _camera_key(psf, vig, fh, cams[who].isp, cams[who].sensor, samples, samples_key, f"/{who}"),
-                Camera(fo, cams[who].sensor, cams[who].isp),
+                cams[who],
+                fo,
+                frame,
                 samples,
+                samples_key,
+                f"/{who}",
                 f"eval {who} ({kind} optics)",
                 progress,
             )
             reused_s += s
         return {"samples": samples, "rows": rows, "window": int(exact["psf"].shape[-1])}, reused_s
+
+    def _evaluate_behind(self, path, cam, lens, frame, samples, samples_key, tag, desc, progress):
+        """``cam``'s sensor and processing behind ``lens`` = (psf, vignetting, field heights) on
+        ``samples``, cached in ``path`` under the camera's key (``tag`` tells cameras apart)."""
+        psf, vig, fh = lens
+        fo = FixedOptics(psf, vig, fh, patch=self.cfg.patch, full_field_px=frame.full_field_px).to(self.device)
+        return _evaluate_cached(
+            path,
+            _camera_key(psf, vig, fh, cam.isp, cam.sensor, samples, samples_key, tag),
+            Camera(fo, cam.sensor, cam.isp),
+            samples,
+            desc,
+            progress,
+        )
 
     def test_split(self, out, cams, optics, evaluation, corpus, frame, baseline, progress):
         c = self.cfg
@@ -222,13 +239,15 @@ class ImageQualityHooks(TaskHooks):
         )
         samples_key = eval_cache.samples_digest(samples)
         rows = {}
-        for who, (kind, (psf, vig, fh)) in _own_optics(cams, optics).items():
-            fo = FixedOptics(psf, vig, fh, patch=c.patch, full_field_px=frame.full_field_px).to(self.device)
-            rows[who], _ = _evaluate_cached(
+        for who, (kind, fo) in _own_optics(cams, optics).items():
+            rows[who], _ = self._evaluate_behind(
                 out / f"test_{who}.json",
-                _camera_key(psf, vig, fh, cams[who].isp, cams[who].sensor, samples, samples_key, f"/test/{who}"),
-                Camera(fo, cams[who].sensor, cams[who].isp),
+                cams[who],
+                fo,
+                frame,
                 samples,
+                samples_key,
+                f"/test/{who}",
                 f"test split: {who} ({kind} optics)",
                 progress,
             )
