@@ -49,6 +49,7 @@ pub fn psf_rgb(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions)
         channels,
         o,
         None,
+        0.0,
         &mut ri,
         |c, v, k| {
             data[c * s * s..(c + 1) * s * s]
@@ -66,12 +67,32 @@ pub fn psf_rgb(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions)
     })
 }
 
+/// An error where the image of the lens's field folds between the axis and `reach_deg`
+/// (`spot::field_fold`): its relative illumination cannot be computed per field (nor is any
+/// negative or non-finite one returned).
+pub fn check_no_fold(lens: &Lens, reach_deg: f64, aiming: crate::aim::Aiming) -> Result<()> {
+    match field_fold(lens, reach_deg, lens.primary_nm, aiming)? {
+        None => Ok(()),
+        Some(f) => Err(crate::error::EngineError::Trace(format!(
+            "the image of the field folds: at pupil point ({:.2}, {:.2}) the image height falls by {:.4} mm \
+             from {:.3} to {:.3} deg ({} nm), so rays of different fields cross and the relative \
+             illumination (and the field's PSF) cannot be computed per field",
+            f.px,
+            f.py,
+            -f.step_mm,
+            f.field_deg - reach_deg / crate::spot::FOLD_FIELDS as f64,
+            f.field_deg,
+            lens.primary_nm
+        ))),
+    }
+}
+
 /// The channels of one field: `sink(c, psf, k)` receives channel c's PSF as `psf` times
 /// `k` (unit sum), `ri` its relative illumination; `diag` each wavelength's
 /// diagnostics. `axis[k]`: the on-axis irradiance of the k-th wavelength (channels
 /// flattened), where the caller has it. A design whose image of the field folds
-/// (`spot::field_fold` over its fields and this one) is an error: its relative illumination
-/// cannot be computed per field (nor is any negative or non-finite one returned).
+/// (`check_no_fold` over its fields and this one) is an error; `fold_checked_deg`: the
+/// reach the caller has already checked (the batch checks each design once), else 0.
 #[allow(clippy::too_many_arguments)]
 fn rgb_core(
     lens: &Lens,
@@ -79,24 +100,15 @@ fn rgb_core(
     channels: &Channels,
     o: &PsfOptions,
     axis: Option<&[Option<f64>]>,
+    fold_checked_deg: f64,
     ri: &mut [f64],
     mut sink: impl FnMut(usize, &[f64], f64),
     mut diag: impl FnMut(Diagnostics),
 ) -> Result<()> {
     let s = o.size;
     let reach = lens.max_field_deg().max(field_deg.abs());
-    if let Some(f) = field_fold(lens, reach, lens.primary_nm, o.aiming)? {
-        return Err(crate::error::EngineError::Trace(format!(
-            "the image of the field folds: at pupil point ({:.2}, {:.2}) the image height falls by {:.4} mm \
-             from {:.3} to {:.3} deg ({} nm), so rays of different fields cross and the relative \
-             illumination (and the field's PSF) cannot be computed per field",
-            f.px,
-            f.py,
-            -f.step_mm,
-            f.field_deg - reach / crate::spot::FOLD_FIELDS as f64,
-            f.field_deg,
-            lens.primary_nm
-        )));
+    if !(reach <= fold_checked_deg) {
+        check_no_fold(lens, reach, o.aiming)?;
     }
     let mut acc = vec![];
     let mut k = 0;
@@ -347,6 +359,15 @@ pub fn psf_batch_into(
                 .collect()
         })
         .collect();
+    // Whether each design's image of the field folds, checked once over its own fields
+    // (rgb_core checks a field beyond them itself).
+    let folds: Vec<(f64, std::result::Result<(), String>)> = lenses
+        .par_iter()
+        .map(|l| {
+            let reach = l.max_field_deg();
+            (reach, check_no_fold(l, reach, o.aiming).map_err(|e| e.to_string()))
+        })
+        .collect();
     let mut ri = vec![0.0; nd * nf * nc];
     let mut energy = vec![0.0; nd * nf * nc];
     // channel and weight of each wavelength, in the order rgb_core visits them
@@ -382,7 +403,11 @@ pub fn psf_batch_into(
                     b.apply(v, k, &mut sout[c * ss..(c + 1) * ss]);
                 }
             };
-            let err = rgb_core(&lenses[d], f, channels, o, axis, ri, sink, |dg| {
+            let (reach, folded) = &folds[d];
+            if let (Err(e), true) = (folded, f.abs() <= *reach) {
+                return (Some(format!("field {f} deg: {e}")), warnings);
+            }
+            let err = rgb_core(&lenses[d], f, channels, o, axis, *reach, ri, sink, |dg| {
                 let (c, wl, w) = visits[k];
                 used[k] = method_used(&dg);
                 k += 1;

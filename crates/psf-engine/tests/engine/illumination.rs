@@ -78,4 +78,28 @@ fn a_field_that_folds_is_found_and_its_rgb_psfs_refused() {
     assert!(err.contains("the image of the field folds"), "{err}");
     let ri = psf_rgb(&bright, 14.9, &channels, &o).unwrap().relative_illumination;
     assert!(ri.iter().all(|&v| v > 1.05 && v.is_finite()), "{ri:?}");
+    // the batch checks each design once over its own fields (a field beyond them anew) and
+    // refuses or computes exactly as field by field
+    let fields = [0.0, 5.0, 14.9, 16.0];
+    let b = psf_engine::rgb::psf_batch(&[bright.clone(), folds.clone()], &fields, &channels, &o).unwrap();
+    let refused = b.errors[1].as_deref().expect("the folding design refused");
+    assert!(
+        refused.starts_with("field 0 deg: ") && refused.contains("the image of the field folds"),
+        "{refused}"
+    );
+    let beyond = psf_rgb(&bright, 16.0, &channels, &o).err().map(|e| e.to_string());
+    assert_eq!(
+        b.errors[0].as_ref().map(|e| e.starts_with("field 16 deg: ")),
+        beyond.as_ref().map(|_| true)
+    );
+    for (i, &f) in fields.iter().enumerate().filter(|_| beyond.is_none()) {
+        let one = psf_rgb(&bright, f, &channels, &o).unwrap();
+        assert_eq!(
+            &b.relative_illumination[i * 3..i * 3 + 3],
+            &one.relative_illumination[..],
+            "{f} deg"
+        );
+        let psf: Vec<f32> = one.data.iter().map(|&v| v as f32).collect();
+        assert_eq!(&b.psf[i * 3 * 256..(i + 1) * 3 * 256], &psf[..], "{f} deg");
+    }
 }
