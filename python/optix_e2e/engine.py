@@ -165,6 +165,16 @@ def field_fold(
 
 
 @_door
+def chief_ray_status(
+    lens_json: str, *, fields_deg: Sequence[float], wavelengths_nm: Sequence[float], aiming: str = "paraxial"
+) -> list[int | str]:
+    """The chief ray's status code (0 ok, 1 missed a surface, 2 clipped, 3 totally reflected,
+    4 invalid) at each field and wavelength, fields outer, in one call; where its beam cannot
+    be launched, the engine's message instead."""
+    return _ext.chief_ray_status(lens_json, [float(f) for f in fields_deg], [float(w) for w in wavelengths_nm], aiming)
+
+
+@_door
 def psf(
     lens_json: str,
     *,

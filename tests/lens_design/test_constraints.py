@@ -108,3 +108,31 @@ def test_a_design_no_ray_of_some_field_reaches_is_refused_as_the_engine_would():
     with pytest.raises(TraceError, match="chief ray at 14.9 deg"):
         _engine.psf_rgb(lens.to_engine_json(), 14.9, lens.rgb_channels(), method="fft", size=16)
     assert Manufacturability(Limits()).problems(engine_base(Lens.load("paper-triplet"), "auto")) == []
+
+
+def test_the_chief_ray_status_of_every_field_in_one_call_is_each_fields_own_trace():
+    """engine.chief_ray_status (the check's one call) gives, field by field and wavelength by
+    wavelength, the status of that field's own chief-ray trace, and the engine's message
+    where a beam cannot be launched (a wavelength the glass does not cover)."""
+    import json
+    from pathlib import Path
+
+    import numpy as np
+
+    from optix_e2e import engine
+
+    path = Path(__file__).parents[1] / "data" / "lenses" / "detect_wide_unreached.json"
+    lens = Lens(json.loads(path.read_text()))
+    fields, wls = [0.0, 7.0, 12.7, 14.9], [470.0, 550.0, 600.0, 650.0, 5000.0]
+    got = engine.chief_ray_status(lens.to_engine_json(), fields_deg=fields, wavelengths_nm=wls)
+    assert len(got) == len(fields) * len(wls)
+    zero = np.zeros(1)
+    for k, st in enumerate(got):
+        f, wl = fields[k // len(wls)], wls[k % len(wls)]
+        try:
+            own = int(lens.trace_field(f, zero, zero, wavelength_nm=wl)["status"][0])
+        except engine.EngineError as err:
+            assert isinstance(st, str) and st.split(":")[-1].strip() in str(err), (f, wl, st, err)
+            continue
+        assert st == own, (f, wl, st, own)
+    assert 1 in got and 0 in got and any(isinstance(s, str) for s in got), got

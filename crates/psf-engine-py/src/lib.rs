@@ -6,7 +6,7 @@ use psf_engine::psf::{Method, PsfOptions};
 use psf_engine::{Aiming, EngineError as CoreError, Lens};
 use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyList};
 
 pyo3::create_exception!(
     _engine,
@@ -492,6 +492,37 @@ fn field_fold<'py>(
     .transpose()
 }
 
+/// The chief ray's status code (0-4) at each field and wavelength (fields outer), or the
+/// message of the error where its beam cannot be launched.
+#[pyfunction]
+#[pyo3(signature = (lens_json, fields_deg, wavelengths_nm, aiming="paraxial"))]
+fn chief_ray_status<'py>(
+    py: Python<'py>,
+    lens_json: &str,
+    fields_deg: Vec<f64>,
+    wavelengths_nm: Vec<f64>,
+    aiming: &str,
+) -> PyResult<Bound<'py, PyList>> {
+    let aiming: Aiming = aiming.parse().map_err(to_py)?;
+    let st = run(py, move || {
+        let lens = parse_lens(lens_json)?;
+        Ok(psf_engine::spot::chief_ray_status(
+            &lens,
+            &fields_deg,
+            &wavelengths_nm,
+            aiming,
+        ))
+    })?;
+    let out = PyList::empty(py);
+    for r in st {
+        match r {
+            Ok(code) => out.append(code)?,
+            Err(e) => out.append(e.to_string())?,
+        }
+    }
+    Ok(out)
+}
+
 #[pyfunction]
 #[pyo3(signature = (lens_json, field_deg, wavelength_nm, method="fft", pixel_um=1.0, size=64, pupil_samples=64, fft_grid=None, aiming="paraxial", integrate=false, exact=false, fast=false, accuracy=0.02, progress=None))]
 #[allow(clippy::too_many_arguments)]
@@ -859,6 +890,7 @@ fn _engine(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(trace_field_path, m)?)?;
     m.add_function(wrap_pyfunction!(spot, m)?)?;
     m.add_function(wrap_pyfunction!(field_fold, m)?)?;
+    m.add_function(wrap_pyfunction!(chief_ray_status, m)?)?;
     m.add_function(wrap_pyfunction!(wavefront, m)?)?;
     m.add_function(wrap_pyfunction!(best_focus_batch, m)?)?;
     m.add_function(wrap_pyfunction!(psf, m)?)?;

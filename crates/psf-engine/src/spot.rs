@@ -182,6 +182,23 @@ pub fn field_fold(lens: &Lens, field_max_deg: f64, wavelength_nm: f64, aiming: A
     Ok(worst)
 }
 
+/// The chief ray's status code (`trace::Status`, 0-4) at each field (outer) and wavelength
+/// (inner), or the error where its beam cannot be launched (a wavelength the glass does not
+/// cover, a field the aiming cannot reach): what a design check needs of every field at once.
+pub fn chief_ray_status(lens: &Lens, fields_deg: &[f64], wavelengths_nm: &[f64], aiming: Aiming) -> Vec<Result<u8>> {
+    let systems: Vec<Result<System>> = wavelengths_nm.iter().map(|&wl| System::new(lens, wl)).collect();
+    let mut out = Vec::with_capacity(fields_deg.len() * wavelengths_nm.len());
+    for &f in fields_deg {
+        for sys in &systems {
+            out.push(match sys {
+                Err(e) => Err(e.clone()),
+                Ok(sys) => Beam::new(sys, f, aiming).map(|b| b.trace_pupil_soa(&[0.0], &[0.0]).status[0]),
+            });
+        }
+    }
+    out
+}
+
 /// Rings of the midpoint pupil grid where vignetting cuts the pupil (the edge must be
 /// resolved; the clear beam uses the Gauss grid of `gauss_pupil`).
 pub const RI_RINGS: usize = 24;

@@ -3,7 +3,6 @@ wrappers around the Rust engine (:mod:`optix_e2e.engine`)."""
 
 from __future__ import annotations
 
-import copy
 import json
 import math
 from pathlib import Path
@@ -13,7 +12,7 @@ import numpy as np
 
 from .. import engine
 from .text import display_name
-from .prescription import PrescriptionError, SurfacesCrossError, resolve_prescription
+from .prescription import PrescriptionError, SurfacesCrossError, resolve_prescription, tree_copy
 from .pupil import pupil_quadrature
 from ..errors import InputError
 
@@ -111,7 +110,7 @@ class Lens:
         if crossing:
             raise SurfacesCrossError(f"{source}: {crossing}")
         #: the prescription as given (catalog names unresolved): what save() writes
-        self.raw = copy.deepcopy(data)
+        self.raw = tree_copy(data)
         #: for a lens read from .zmx: the :class:`optix_e2e.lens.zemax.ZemaxImport` report
         self.zemax_import = None
         self._json: str | None = None

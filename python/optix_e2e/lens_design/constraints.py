@@ -34,6 +34,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .. import engine
 from ..errors import InputError
 from ..lens import Lens
 from ..lens.prescription import SurfacesCrossError
@@ -159,17 +160,19 @@ def unreached_field(design: dict | Lens) -> str | None:
 
     lens = _as_lens(design)
     wavelengths = sorted({float(w) for w in lens.wavelengths_nm} | {w for c in DEFAULT_RGB_CHANNELS for w, _ in c})
-    zero = np.zeros(1)
-    for f in lens.fields_deg:
-        for wl in wavelengths:
-            try:
-                t = lens.trace_field(float(f), zero, zero, wavelength_nm=wl)
-            except Exception as err:  # noqa: BLE001 - the engine cannot launch the beam
-                return f"untraceable: {' '.join(str(err).split())}"
-            # missed a surface, totally reflected or invalid (1, 3, 4); a clear aperture that
-            # clips it (2) is vignetting, which the engine computes
-            if int(np.asarray(t["status"]).ravel()[0]) in (1, 3, 4):
-                return f"untraceable: the chief ray at {f:g} deg, {wl:g} nm does not reach the image"
+    fields = [float(f) for f in lens.fields_deg]
+    try:  # every field and wavelength in one engine call (fields outer)
+        status = lens._engine_call(engine.chief_ray_status, fields_deg=fields, wavelengths_nm=wavelengths)
+    except Exception as err:  # noqa: BLE001 - the engine cannot read the lens
+        return f"untraceable: {' '.join(str(err).split())}"
+    for k, st in enumerate(status):
+        if isinstance(st, str):  # the engine cannot launch the beam
+            return f"untraceable: {lens.source}: {' '.join(st.split())}"
+        # missed a surface, totally reflected or invalid (1, 3, 4); a clear aperture that
+        # clips it (2) is vignetting, which the engine computes
+        if st in (1, 3, 4):
+            f, wl = fields[k // len(wavelengths)], wavelengths[k % len(wavelengths)]
+            return f"untraceable: the chief ray at {f:g} deg, {wl:g} nm does not reach the image"
     return None
 
 
@@ -197,12 +200,17 @@ def own_apertures(design: dict) -> np.ndarray:
     """The clear semi-diameters a lens dict (as traced) is checked at: the ones it gives,
     else its own ray footprint. Raises ApertureError("surfaces_cross: ..." where surfaces
     cross inside the paraxial beam, "untraceable: ..." where no ray can size a surface)."""
+    return _sized(design)[1]
+
+
+def _sized(design: dict) -> tuple[Lens, np.ndarray]:
+    """The lens of a dict and ``own_apertures``'s semi-diameters (one parse for every check)."""
     try:
         lens = Lens(design, source="<design>")
     except SurfacesCrossError as err:
         raise ApertureError(f"surfaces_cross: {' '.join(str(err).split())}") from None
     try:
-        return apertures(lens)
+        return lens, apertures(lens)
     except Exception as err:  # noqa: BLE001 - no ray reaches a surface, the engine refuses it
         raise ApertureError(f"untraceable: {' '.join(str(err).split())}") from None
 
@@ -223,13 +231,12 @@ class Manufacturability:
     def problems(self, design: dict) -> list[str]:
         self.checks += 1
         try:
-            sd = own_apertures(design)
+            lens, sd = _sized(design)
         except ApertureError as err:
             return [str(err)]
         reasons = check_design(design, sd, self.limits)
         if reasons:
             return reasons
-        lens = _as_lens(design)  # one parse for both traced checks
         if (unreached := unreached_field(lens)) is not None:
             return [unreached]
         return [fold] if self.field_fold and (fold := field_folds(lens)) else []
