@@ -165,6 +165,30 @@ def field_fold(
 
 
 @_door
+def ray_footprint(
+    lens_json: str,
+    *,
+    n_surfaces: int,
+    fields_deg: Sequence[float],
+    wavelengths_nm: Sequence[float],
+    px,
+    py,
+    aiming: str = "paraxial",
+) -> np.ndarray:
+    """(n_surfaces,) largest radial height at each surface of the pupil rays (px, py) of every
+    field and wavelength that reach the image (0 where none does), in one call."""
+    return _ext.ray_footprint(
+        lens_json,
+        int(n_surfaces),
+        [float(f) for f in fields_deg],
+        [float(w) for w in wavelengths_nm],
+        _f64(px),
+        _f64(py),
+        aiming,
+    )
+
+
+@_door
 def chief_ray_status(
     lens_json: str, *, fields_deg: Sequence[float], wavelengths_nm: Sequence[float], aiming: str = "paraxial"
 ) -> list[int | str]:

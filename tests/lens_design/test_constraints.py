@@ -136,3 +136,33 @@ def test_the_chief_ray_status_of_every_field_in_one_call_is_each_fields_own_trac
             continue
         assert st == own, (f, wl, st, own)
     assert 1 in got and 0 in got and any(isinstance(s, str) for s in got), got
+
+
+def test_the_footprint_in_one_call_is_the_largest_height_of_each_fields_own_paths():
+    """engine.ray_footprint (the clear apertures' one call) equals the largest radial height,
+    surface by surface, of the rays of each field's own trace_field_path that reach the image,
+    at two wavelengths, and raises what that trace raises (a wavelength the glass lacks)."""
+    import numpy as np
+
+    from optix_e2e import engine
+
+    lens = Lens.load("paper-triplet")
+    js, k = lens.to_engine_json(), len(lens.surfaces)
+    t = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)
+    px, py = np.append(np.sin(t), 0.0), np.append(np.cos(t), 0.0)
+    fields, wls = [0.0, 10.0, 14.9, 40.0], [470.0, 650.0]  # at 40 deg some rays miss
+    want = np.zeros(k)
+    for f in fields:
+        for wl in wls:
+            d = engine.trace_field_path(js, field_deg=f, px=px, py=py, wavelength_nm=wl)
+            ok = d["status"] == 0
+            if ok.any():
+                p = d["path"][ok, :k]
+                want = np.maximum(want, np.hypot(p[..., 0], p[..., 1]).max(axis=0))
+    got = engine.ray_footprint(js, n_surfaces=k, fields_deg=fields, wavelengths_nm=wls, px=px, py=py)
+    assert np.array_equal(got, want) and (got > 0).all()
+    with pytest.raises(engine.EngineError) as one:
+        engine.trace_field_path(js, field_deg=0.0, px=px, py=py, wavelength_nm=5000.0)
+    with pytest.raises(engine.EngineError) as both:
+        engine.ray_footprint(js, n_surfaces=k, fields_deg=fields, wavelengths_nm=[5000.0], px=px, py=py)
+    assert str(both.value) == str(one.value)

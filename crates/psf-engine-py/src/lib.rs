@@ -492,6 +492,30 @@ fn field_fold<'py>(
     .transpose()
 }
 
+/// Largest radial height at each of the first `n_surfaces` surfaces of the pupil rays of
+/// every field and wavelength that reach the image (psf_engine::aim::ray_footprint).
+#[pyfunction]
+#[pyo3(signature = (lens_json, n_surfaces, fields_deg, wavelengths_nm, px, py_, aiming="paraxial"))]
+#[allow(clippy::too_many_arguments)]
+fn ray_footprint<'py>(
+    py: Python<'py>,
+    lens_json: &str,
+    n_surfaces: usize,
+    fields_deg: Vec<f64>,
+    wavelengths_nm: Vec<f64>,
+    px: PyReadonlyArray1<'py, f64>,
+    py_: PyReadonlyArray1<'py, f64>,
+    aiming: &str,
+) -> PyResult<Bound<'py, numpy::PyArray1<f64>>> {
+    let (xs, ys) = (contiguous(&px), contiguous(&py_));
+    let aiming: Aiming = aiming.parse().map_err(to_py)?;
+    let h = run(py, || {
+        let lens = parse_lens(lens_json)?;
+        psf_engine::aim::ray_footprint(&lens, n_surfaces, &fields_deg, &wavelengths_nm, &xs, &ys, aiming)
+    })?;
+    Ok(h.into_pyarray(py))
+}
+
 /// The chief ray's status code (0-4) at each field and wavelength (fields outer), or the
 /// message of the error where its beam cannot be launched.
 #[pyfunction]
@@ -891,6 +915,7 @@ fn _engine(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(spot, m)?)?;
     m.add_function(wrap_pyfunction!(field_fold, m)?)?;
     m.add_function(wrap_pyfunction!(chief_ray_status, m)?)?;
+    m.add_function(wrap_pyfunction!(ray_footprint, m)?)?;
     m.add_function(wrap_pyfunction!(wavefront, m)?)?;
     m.add_function(wrap_pyfunction!(best_focus_batch, m)?)?;
     m.add_function(wrap_pyfunction!(psf, m)?)?;

@@ -426,6 +426,45 @@ impl<'s, 'l> Beam<'s, 'l> {
     }
 }
 
+/// Largest radial height at each of the first `n_surfaces` surfaces of the pupil rays
+/// (px, py) of every field and wavelength that reach the image (0 where none does): Zemax's
+/// automatic semi-diameters, in one call (`Beam::trace_path` per field and wavelength). The
+/// first error, fields outer, is returned as it is.
+pub fn ray_footprint(
+    lens: &crate::Lens,
+    n_surfaces: usize,
+    fields_deg: &[f64],
+    wavelengths_nm: &[f64],
+    px: &[f64],
+    py: &[f64],
+    aiming: Aiming,
+) -> Result<Vec<f64>> {
+    let mut h = vec![0.0f64; n_surfaces];
+    let systems: Vec<Result<System>> = wavelengths_nm.iter().map(|&wl| System::new(lens, wl)).collect();
+    for &f in fields_deg {
+        for sys in &systems {
+            let sys = sys.as_ref().map_err(|e| e.clone())?;
+            let p = Beam::new(sys, f, aiming)?.trace_path(px, py)?;
+            if p.points < n_surfaces {
+                return arg(format!(
+                    "ray_footprint: {n_surfaces} surfaces asked, the lens has {}",
+                    p.points - 1
+                ));
+            }
+            for (j, &st) in p.image.status.iter().enumerate() {
+                if st != Status::Ok as u8 {
+                    continue;
+                }
+                for (s, hs) in h.iter_mut().enumerate() {
+                    let o = (j * p.points + s) * 3;
+                    *hs = hs.max(p.position[o].hypot(p.position[o + 1]));
+                }
+            }
+        }
+    }
+    Ok(h)
+}
+
 /// Ray paths through a lens (`Beam::trace_path`).
 #[derive(Clone, Debug, Default)]
 pub struct RayPath {

@@ -26,12 +26,12 @@ def ray_footprint(
     """
     from .. import engine
 
-    h = np.zeros(n_surfaces)
-    for f in fields_deg:
-        for wl in wavelengths_nm:
-            d = engine.trace_field_path(lens_json, field_deg=f, px=px, py=py, wavelength_nm=wl, aiming=aiming)
-            ok = d["status"] == 0
-            if ok.any():
-                p = d["path"][ok, :n_surfaces]
-                h = np.maximum(h, np.hypot(p[..., 0], p[..., 1]).max(axis=0))
-    return h
+    return engine.ray_footprint(
+        lens_json,
+        n_surfaces=n_surfaces,
+        fields_deg=fields_deg,
+        wavelengths_nm=wavelengths_nm,
+        px=px,
+        py=py,
+        aiming=aiming,
+    )
