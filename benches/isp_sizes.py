@@ -63,8 +63,16 @@ def describe(path: Path, size: int, repeats: int) -> dict:
 
 
 def table(rows: list[dict]) -> str:
-    kinds = ["psnr_db", "psnr_db_perfect_normal", "psnr_db_nominal_normal", "psnr_db_space_normal", "psnr_db_nominal_low"]
-    head = "| network | parameters | ms / MP | steps | " + " | ".join(k.removeprefix("psnr_db_") or "all" for k in kinds)
+    kinds = [
+        "psnr_db",
+        "psnr_db_perfect_normal",
+        "psnr_db_nominal_normal",
+        "psnr_db_space_normal",
+        "psnr_db_nominal_low",
+    ]
+    head = "| network | parameters | ms / MP | steps | " + " | ".join(
+        k.removeprefix("psnr_db_") or "all" for k in kinds
+    )
     head = head.replace("| psnr_db |", "| all |") + " |"
     lines = [head, "|" + "---|" * (5 + len(kinds) - 1)]
     for r in rows:

@@ -152,6 +152,24 @@ def field_fold(
     whose meridional image height stops growing with the field; 15 x 15 pupil grid, 41 fields):
     {field_deg, px, py, step_mm} of the worst step, None when the mapping is one-to-one."""
 
+def chief_ray_status(
+    lens_json: str, fields_deg: list[float], wavelengths_nm: list[float], aiming: str = "paraxial"
+) -> list[int | str]:
+    """The chief ray's status code (0 ok, 1 missed, 2 clipped, 3 TIR, 4 invalid) at each field
+    and wavelength, fields outer; the engine's message where its beam cannot be launched."""
+
+def ray_footprint(
+    lens_json: str,
+    n_surfaces: int,
+    fields_deg: list[float],
+    wavelengths_nm: list[float],
+    px: NDArray[np.float64],
+    py_: NDArray[np.float64],
+    aiming: str = "paraxial",
+) -> NDArray[np.float64]:
+    """(n_surfaces,) largest radial height at each surface of the pupil rays (px, py) of every
+    field and wavelength that reach the image (0 where none does); the first error raised."""
+
 def psf(
     lens_json: str,
     field_deg: float,

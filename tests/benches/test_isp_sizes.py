@@ -11,7 +11,9 @@ import optix_e2e
 def test_the_sizes_bench_reports_parameters_speed_and_validation(tmp_path, load_bench):
     bench = load_bench("isp_sizes")
     shipped = Path(optix_e2e.__file__).parent / "isp" / "bundled" / "software_isp.pt"
-    out = bench.main(["--isp", str(shipped), "--size", "32", "--repeats", "1", "--threads", "1", "--out", str(tmp_path)])
+    out = bench.main(
+        ["--isp", str(shipped), "--size", "32", "--repeats", "1", "--threads", "1", "--out", str(tmp_path)]
+    )
     (row,) = out["networks"]
     assert row["parameters"] == 1_605_164 and row["width"] == 32 and row["arch"] == "nafnet"
     assert row["ms_per_megapixel"] > 0 and row["steps"] == row["validation"]["step"]
