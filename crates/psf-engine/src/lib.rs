@@ -26,6 +26,7 @@ pub mod psf;
 pub mod rgb;
 pub mod spot;
 pub mod surface;
+pub mod tangent;
 pub mod trace;
 pub mod wavefront;
 

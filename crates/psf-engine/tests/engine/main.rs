@@ -15,5 +15,6 @@ mod odd_asphere;
 mod path;
 mod psf_reference;
 mod reference;
+mod tangent;
 mod traced;
 mod wavefront;

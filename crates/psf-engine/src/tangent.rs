@@ -1,0 +1,366 @@
+//! Forward-mode tangents of a real ray trace with respect to the lens's surface parameters:
+//! the first stage of the one-pass gradient (docs/optics-in-the-loop.md, "The one-pass
+//! gradient"), where a few rays carry one tangent per lens parameter.
+//!
+//! The ray itself is traced by the f64 kernel (`System::trace`): its status and its values
+//! are the kernel's. The tangents follow the same steps in dual numbers ([`Dual`]): the base
+//! conic's closed-form root, the even asphere's root by one Newton step in dual numbers from
+//! the kernel's converged root (at a root F(t) = 0 the step leaves the value and gives
+//! dt = -dF/dtheta / F'(t): the implicit-function theorem), the surface normal, Snell's law
+//! and the optical path. The refractive indices are held fixed (a glass is not a parameter
+//! here); the launch (origin and direction) is given, so aiming is the caller's.
+
+use crate::lens::{Lens, Surface, ODD_TERMS};
+use crate::trace::{End, System};
+use glam::DVec3;
+use std::ops::{Add, Div, Mul, Neg, Sub};
+
+/// A value and its derivatives along N directions.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Dual<const N: usize> {
+    pub v: f64,
+    pub d: [f64; N],
+}
+
+impl<const N: usize> Dual<N> {
+    pub fn constant(v: f64) -> Self {
+        Dual { v, d: [0.0; N] }
+    }
+
+    /// The variable of direction `k`.
+    pub fn variable(v: f64, k: usize) -> Self {
+        let mut d = [0.0; N];
+        d[k] = 1.0;
+        Dual { v, d }
+    }
+
+    fn chain(self, v: f64, dv: f64) -> Self {
+        Dual {
+            v,
+            d: self.d.map(|x| x * dv),
+        }
+    }
+
+    pub fn sqrt(self) -> Self {
+        let r = self.v.sqrt();
+        self.chain(r, 0.5 / r)
+    }
+}
+
+impl<const N: usize> Add for Dual<N> {
+    type Output = Self;
+    fn add(self, o: Self) -> Self {
+        let mut d = self.d;
+        d.iter_mut().zip(o.d).for_each(|(a, b)| *a += b);
+        Dual { v: self.v + o.v, d }
+    }
+}
+
+impl<const N: usize> Sub for Dual<N> {
+    type Output = Self;
+    fn sub(self, o: Self) -> Self {
+        self + (-o)
+    }
+}
+
+impl<const N: usize> Neg for Dual<N> {
+    type Output = Self;
+    fn neg(self) -> Self {
+        Dual {
+            v: -self.v,
+            d: self.d.map(|x| -x),
+        }
+    }
+}
+
+// The product and quotient rules (clippy reads their + and - as suspicious).
+#[allow(clippy::suspicious_arithmetic_impl)]
+impl<const N: usize> Mul for Dual<N> {
+    type Output = Self;
+    fn mul(self, o: Self) -> Self {
+        let mut d = self.d;
+        d.iter_mut().zip(o.d).for_each(|(a, b)| *a = *a * o.v + self.v * b);
+        Dual { v: self.v * o.v, d }
+    }
+}
+
+#[allow(clippy::suspicious_arithmetic_impl)]
+impl<const N: usize> Div for Dual<N> {
+    type Output = Self;
+    fn div(self, o: Self) -> Self {
+        let q = self.v / o.v;
+        let mut d = self.d;
+        d.iter_mut().zip(o.d).for_each(|(a, b)| *a = (*a - q * b) / o.v);
+        Dual { v: q, d }
+    }
+}
+
+impl<const N: usize> Add<f64> for Dual<N> {
+    type Output = Self;
+    fn add(self, o: f64) -> Self {
+        Dual {
+            v: self.v + o,
+            d: self.d,
+        }
+    }
+}
+
+impl<const N: usize> Sub<f64> for Dual<N> {
+    type Output = Self;
+    fn sub(self, o: f64) -> Self {
+        Dual {
+            v: self.v - o,
+            d: self.d,
+        }
+    }
+}
+
+impl<const N: usize> Mul<f64> for Dual<N> {
+    type Output = Self;
+    fn mul(self, o: f64) -> Self {
+        Dual {
+            v: self.v * o,
+            d: self.d.map(|x| x * o),
+        }
+    }
+}
+
+/// A lens parameter a tangent is taken along.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Param {
+    /// Curvature 1/R of a surface (mm^-1).
+    Curvature(usize),
+    /// Conic constant of a surface.
+    Conic(usize),
+    /// Even aspheric coefficient `k` of a surface (of r^(2(k+1)): 0 is a2, 1 is a4, ...).
+    Aspheric(usize, usize),
+    /// Thickness after a surface (mm): every later vertex and the image plane move with it.
+    Thickness(usize),
+}
+
+impl Param {
+    fn surface(&self) -> usize {
+        match *self {
+            Param::Curvature(i) | Param::Conic(i) | Param::Aspheric(i, _) | Param::Thickness(i) => i,
+        }
+    }
+}
+
+/// `lens` with `p` moved by `h` (vertices and the image plane re-placed after a thickness):
+/// what a tangent along `p` is the derivative of. None where `p` names no such parameter.
+pub fn perturbed(lens: &Lens, p: Param, h: f64) -> Option<Lens> {
+    let mut l = lens.clone();
+    let s = l.surfaces.get_mut(p.surface())?;
+    match p {
+        Param::Curvature(_) => s.curvature += h,
+        Param::Conic(_) => s.conic += h,
+        Param::Aspheric(_, k) => *s.aspheric.get_mut(k)? += h,
+        Param::Thickness(_) => s.thickness += h,
+    }
+    let mut z = 0.0;
+    for s in l.surfaces.iter_mut() {
+        s.z = z;
+        z += s.thickness;
+    }
+    l.image_z = z;
+    Some(l)
+}
+
+/// A surface's shape and vertex in dual numbers.
+struct DualSurface<const N: usize> {
+    c: Dual<N>,
+    kk: Dual<N>,
+    a: Vec<Dual<N>>,
+    odd: [f64; ODD_TERMS],
+    z: Dual<N>,
+}
+
+fn dual_surfaces<const N: usize>(lens: &Lens, params: &[Param]) -> (Vec<DualSurface<N>>, Dual<N>) {
+    let seed = |v: f64, want: &dyn Fn(&Param) -> bool| {
+        let mut x = Dual::constant(v);
+        for (k, p) in params.iter().enumerate() {
+            if want(p) {
+                x.d[k] = 1.0;
+            }
+        }
+        x
+    };
+    let mut z = Dual::<N>::constant(0.0);
+    let mut out = Vec::with_capacity(lens.surfaces.len());
+    for (i, s) in lens.surfaces.iter().enumerate() {
+        let nterms = s.asphere_terms().max(
+            params
+                .iter()
+                .filter_map(|p| match *p {
+                    Param::Aspheric(j, k) if j == i => Some(k + 1),
+                    _ => None,
+                })
+                .max()
+                .unwrap_or(0),
+        );
+        out.push(DualSurface {
+            c: seed(s.curvature, &|p| *p == Param::Curvature(i)),
+            kk: seed(1.0 + s.conic, &|p| *p == Param::Conic(i)),
+            a: (0..nterms)
+                .map(|k| seed(s.aspheric[k], &|p| *p == Param::Aspheric(i, k)))
+                .collect(),
+            odd: s.odd,
+            z,
+        });
+        z = z + seed(s.thickness, &|p| *p == Param::Thickness(i));
+    }
+    (out, z)
+}
+
+/// A traced ray's image point, direction and optical path with their tangents.
+#[derive(Clone, Copy, Debug)]
+pub struct RayTangents<const N: usize> {
+    pub p: [Dual<N>; 3],
+    pub d: [Dual<N>; 3],
+    pub opl: Dual<N>,
+}
+
+fn dot<const N: usize>(a: &[Dual<N>; 3], b: &[Dual<N>; 3]) -> Dual<N> {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// Sag and d(sag)/d(rho) of a dual surface at dual rho (the even terms and, with constant
+/// coefficients, the odd ones: surface.rs's arithmetic).
+fn sag_slope<const N: usize>(s: &DualSurface<N>, rho: Dual<N>) -> (Dual<N>, Dual<N>) {
+    let q = (-(s.kk * s.c * s.c * rho) + 1.0).sqrt();
+    let mut z = s.c * rho / (q + 1.0);
+    let mut dz = s.c / (q * 2.0);
+    let mut p = Dual::constant(1.0);
+    for (i, &ai) in s.a.iter().enumerate() {
+        dz = dz + ai * p * (i as f64 + 1.0);
+        p = p * rho;
+        z = z + ai * p;
+    }
+    if s.odd.iter().any(|b| *b != 0.0) {
+        let b = s.odd;
+        let r = rho.sqrt();
+        let poly = ((rho * b[3] + b[2]) * rho + b[1]) * rho + b[0];
+        z = z + r * poly;
+        let inner = (rho * (7.0 * b[3]) + 5.0 * b[2]) * rho + 3.0 * b[1];
+        // at the vertex an r^1 term has no slope to speak of (surface.rs)
+        let inv_r = if r.v > 0.0 {
+            Dual::constant(1.0) / r
+        } else {
+            Dual::constant(0.0)
+        };
+        dz = dz + (inv_r * b[0] + r * inner) * 0.5;
+    }
+    (z, dz)
+}
+
+/// The tangents of one ray traced from `p` along unit `d` (global frame, object space) to the
+/// image, along `params` (at most N; unused directions stay zero). None where the kernel's
+/// own trace of the ray does not reach the image (its status says why: `System::trace`).
+pub fn trace_tangents<const N: usize>(sys: &System, params: &[Param], p: DVec3, d: DVec3) -> Option<RayTangents<N>> {
+    assert!(
+        params.len() <= N,
+        "{} parameters for {N} tangent directions",
+        params.len()
+    );
+    if !sys.trace(p, d, End::Image).ok() {
+        return None;
+    }
+    let lens = sys.lens;
+    let (surfs, image_z) = dual_surfaces::<N>(lens, params);
+    let k = Dual::<N>::constant;
+    let mut pos = [k(p.x), k(p.y), k(p.z)];
+    let mut dir = [k(d.x), k(d.y), k(d.z)];
+    let mut opl = k(0.0);
+    for (i, (s, ds)) in lens.surfaces.iter().zip(&surfs).enumerate() {
+        let local = [pos[0], pos[1], pos[2] - ds.z];
+        let (t, normal) = if s.has_asphere() || ds.a.iter().any(|a| a.d.iter().any(|x| *x != 0.0)) {
+            asphere_hit(s, ds, &local, &dir)?
+        } else {
+            conic_hit(ds, &local, &dir)
+        };
+        for j in 0..3 {
+            pos[j] = pos[j] + t * dir[j];
+        }
+        opl = opl + t * sys.n[i];
+        let (n1, n2) = (sys.n[i], sys.n[i + 1]);
+        if n1 != n2 {
+            dir = refract(&dir, &normal, n1 / n2);
+        }
+    }
+    // The image plane (a curved sensor: its sphere through the vertex, not a parameter).
+    let t = if lens.image_curvature == 0.0 {
+        (image_z - pos[2]) / dir[2]
+    } else {
+        let img = DualSurface {
+            c: k(lens.image_curvature),
+            kk: k(1.0),
+            a: vec![],
+            odd: [0.0; ODD_TERMS],
+            z: image_z,
+        };
+        conic_hit(&img, &[pos[0], pos[1], pos[2] - image_z], &dir).0
+    };
+    for j in 0..3 {
+        pos[j] = pos[j] + t * dir[j];
+    }
+    opl = opl + t * *sys.n.last().unwrap();
+    Some(RayTangents { p: pos, d: dir, opl })
+}
+
+/// The base conic's root on the vertex sheet (the kernel's stable form and sheet choice) and
+/// the unit normal there.
+fn conic_hit<const N: usize>(s: &DualSurface<N>, p: &[Dual<N>; 3], d: &[Dual<N>; 3]) -> (Dual<N>, [Dual<N>; 3]) {
+    let (c, kk) = (s.c, s.kk);
+    let a = c * (d[0] * d[0] + d[1] * d[1] + kk * d[2] * d[2]);
+    let b = c * (p[0] * d[0] + p[1] * d[1] + kk * p[2] * d[2]) - d[2];
+    let cc = c * (p[0] * p[0] + p[1] * p[1] + kk * p[2] * p[2]) - p[2] * 2.0;
+    let disc = b * b - a * cc;
+    let root = if disc.v > 0.0 { disc.sqrt() } else { Dual::constant(0.0) };
+    let den = -b + if -b.v >= 0.0 { root } else { -root };
+    let near = cc / den;
+    let t = if (-(kk * c * (p[2] + near * d[2])) + 1.0).v <= 0.0 {
+        den / a
+    } else {
+        near
+    };
+    let h = [p[0] + t * d[0], p[1] + t * d[1], p[2] + t * d[2]];
+    // normal (-c x, -c y, 1 - (1+k) c z), normalized
+    let q = -(kk * c * h[2]) + 1.0;
+    let n = [-(c * h[0]), -(c * h[1]), q];
+    let len = dot(&n, &n).sqrt();
+    (t, [n[0] / len, n[1] / len, n[2] / len])
+}
+
+/// An even asphere: the kernel's converged root, then one Newton step in dual numbers; the
+/// normal from the dual slope.
+fn asphere_hit<const N: usize>(
+    s: &Surface,
+    ds: &DualSurface<N>,
+    p: &[Dual<N>; 3],
+    d: &[Dual<N>; 3],
+) -> Option<(Dual<N>, [Dual<N>; 3])> {
+    let real = |x: &[Dual<N>; 3]| DVec3::new(x[0].v, x[1].v, x[2].v);
+    let (t0, _) = crate::surface::intersect(s, real(p), real(d))?;
+    let t0 = Dual::constant(t0);
+    let h = [p[0] + t0 * d[0], p[1] + t0 * d[1], p[2] + t0 * d[2]];
+    let rho = h[0] * h[0] + h[1] * h[1];
+    let (z, dz) = sag_slope(ds, rho);
+    let f = h[2] - z;
+    let fp = d[2] - dz * (h[0] * d[0] + h[1] * d[1]) * 2.0;
+    let t = t0 - f / fp;
+    let h = [p[0] + t * d[0], p[1] + t * d[1], p[2] + t * d[2]];
+    let (_, dz) = sag_slope(ds, h[0] * h[0] + h[1] * h[1]);
+    let n = [-(h[0] * dz * 2.0), -(h[1] * dz * 2.0), Dual::constant(1.0)];
+    let len = dot(&n, &n).sqrt();
+    Some((t, [n[0] / len, n[1] / len, n[2] / len]))
+}
+
+/// Vector Snell's law (the kernel's form, a unit normal of either orientation).
+fn refract<const N: usize>(d: &[Dual<N>; 3], n: &[Dual<N>; 3], mu: f64) -> [Dual<N>; 3] {
+    let cos_raw = dot(d, n);
+    let s = 1.0f64.copysign(cos_raw.v);
+    let cos_i = cos_raw * s;
+    let k = -((-(cos_i * cos_i) + 1.0) * (mu * mu)) + 1.0;
+    let g = (k.sqrt() - cos_i * mu) * s;
+    [d[0] * mu + g * n[0], d[1] * mu + g * n[1], d[2] * mu + g * n[2]]
+}
