@@ -257,19 +257,30 @@ fn sag_slope<const N: usize>(s: &DualSurface<N>, rho: Dual<N>) -> (Dual<N>, Dual
 /// image, along `params` (at most N; unused directions stay zero). None where the kernel's
 /// own trace of the ray does not reach the image (its status says why: `System::trace`).
 pub fn trace_tangents<const N: usize>(sys: &System, params: &[Param], p: DVec3, d: DVec3) -> Option<RayTangents<N>> {
+    let k = Dual::<N>::constant;
+    trace_from(sys, params, [k(p.x), k(p.y), k(p.z)], [k(d.x), k(d.y), k(d.z)])
+}
+
+/// [`trace_tangents`] from a launch that itself moves with the parameters (the aiming's).
+pub fn trace_from<const N: usize>(
+    sys: &System,
+    params: &[Param],
+    p: [Dual<N>; 3],
+    d: [Dual<N>; 3],
+) -> Option<RayTangents<N>> {
     assert!(
         params.len() <= N,
         "{} parameters for {N} tangent directions",
         params.len()
     );
-    if !sys.trace(p, d, End::Image).ok() {
+    let real = |x: &[Dual<N>; 3]| DVec3::new(x[0].v, x[1].v, x[2].v);
+    if !sys.trace(real(&p), real(&d), End::Image).ok() {
         return None;
     }
     let lens = sys.lens;
     let (surfs, image_z) = dual_surfaces::<N>(lens, params);
     let k = Dual::<N>::constant;
-    let mut pos = [k(p.x), k(p.y), k(p.z)];
-    let mut dir = [k(d.x), k(d.y), k(d.z)];
+    let (mut pos, mut dir) = (p, d);
     let mut opl = k(0.0);
     for (i, (s, ds)) in lens.surfaces.iter().zip(&surfs).enumerate() {
         let local = [pos[0], pos[1], pos[2] - ds.z];
@@ -363,4 +374,147 @@ fn refract<const N: usize>(d: &[Dual<N>; 3], n: &[Dual<N>; 3], mu: f64) -> [Dual
     let k = -((-(cos_i * cos_i) + 1.0) * (mu * mu)) + 1.0;
     let g = (k.sqrt() - cos_i * mu) * s;
     [d[0] * mu + g * n[0], d[1] * mu + g * n[1], d[2] * mu + g * n[2]]
+}
+
+/// First-order data with tangents: what paraxial aiming and the reference sphere need
+/// (paraxial.rs's y-nu trace in dual numbers; an even asphere's paraxial curvature is
+/// c + 2 a2, the pupils at the lens's primary wavelength). An object at infinity.
+#[derive(Clone, Copy, Debug)]
+pub struct ParaxialTangents<const N: usize> {
+    pub efl: Dual<N>,
+    pub epd: Dual<N>,
+    /// Entrance pupil relative to the first vertex.
+    pub entrance_pupil_z: Dual<N>,
+    /// Exit pupil relative to the image plane.
+    pub exit_pupil_z: Dual<N>,
+    pub image_z: Dual<N>,
+}
+
+pub fn paraxial_tangents<const N: usize>(lens: &Lens, params: &[Param]) -> crate::Result<ParaxialTangents<N>> {
+    use crate::lens::Aperture;
+    let n = lens.indices(lens.primary_nm)?;
+    let (surfs, image_z) = dual_surfaces::<N>(lens, params);
+    let k = surfs.len();
+    let thick: Vec<Dual<N>> = (0..k)
+        .map(|i| {
+            if i + 1 < k {
+                surfs[i + 1].z - surfs[i].z
+            } else {
+                image_z - surfs[i].z
+            }
+        })
+        .collect();
+    let ynu = |y0: Dual<N>, u0: Dual<N>| {
+        let (mut y, mut nu) = (y0, u0 * n[0]);
+        let mut out = Vec::with_capacity(k);
+        for (i, s) in surfs.iter().enumerate() {
+            let a2 = s.a.first().copied().unwrap_or(Dual::constant(0.0));
+            let c = s.c + a2 * 2.0;
+            nu = nu - y * c * (n[i + 1] - n[i]);
+            out.push((y, nu));
+            y = y + thick[i] * nu * (1.0 / n[i + 1]);
+        }
+        out
+    };
+    let one = Dual::constant;
+    let a = ynu(one(1.0), one(0.0));
+    let b = ynu(one(0.0), one(1.0));
+    let nua = a[k - 1].1;
+    if nua.v.abs() < 1e-15 || lens.finite_object() {
+        return Err(crate::error::EngineError::Argument(
+            "paraxial tangents: an afocal lens or a finite object (not supported yet)".into(),
+        ));
+    }
+    let efl = -(one(1.0) / nua);
+    let entrance_pupil_z = b[lens.stop].0 / a[lens.stop].0;
+    let epd = match lens.aperture {
+        Aperture::Epd(d) => one(d),
+        Aperture::FNumber(f) => (if efl.v < 0.0 { -efl } else { efl }) * (1.0 / f),
+        Aperture::ObjectNA(_) => unreachable!("a finite object was refused above"),
+    };
+    let (yc, nuc) = ynu(-entrance_pupil_z, one(1.0))[k - 1];
+    let zx = surfs[k - 1].z - yc / (nuc * (1.0 / n[k]));
+    Ok(ParaxialTangents {
+        efl,
+        epd,
+        entrance_pupil_z,
+        exit_pupil_z: zx - image_z,
+        image_z,
+    })
+}
+
+/// What the fast FFT PSF takes from its coarse rays (psf/fast.rs), with tangents: for each
+/// pupil point (px, py), the wavefront W (waves, against the reference sphere about the chief
+/// ray's image point through the exit pupil) and the direction (L, M) from its point on the
+/// sphere to the centre; the chief ray's image point and the sphere's radius. Paraxial
+/// aiming, an object at infinity. None where a ray does not reach the image or the sphere.
+#[derive(Clone, Debug)]
+pub struct PupilTangents<const N: usize> {
+    pub w: Vec<Dual<N>>,
+    pub l: Vec<Dual<N>>,
+    pub m: Vec<Dual<N>>,
+    pub chief: [Dual<N>; 3],
+    pub radius: Dual<N>,
+}
+
+pub fn pupil_tangents<const N: usize>(
+    sys: &System,
+    params: &[Param],
+    field_deg: f64,
+    px: &[f64],
+    py: &[f64],
+) -> crate::Result<Option<PupilTangents<N>>> {
+    let par = paraxial_tangents::<N>(sys.lens, params)?;
+    let beam = crate::Beam::new(sys, field_deg, crate::Aiming::Paraxial)?;
+    let one = Dual::<N>::constant;
+    let dir = [one(beam.dir.x), one(beam.dir.y), one(beam.dir.z)];
+    // Through (px, py) EPD / 2 on the entrance-pupil plane along the field's direction, from
+    // the beam's launch plane: where on its line a ray starts changes its path and its
+    // plane-wave offset by the same amount, so W does not see the plane move.
+    let z_launch = beam.launch(0.0, 0.0).origin.z;
+    let launch = |x: f64, y: f64| {
+        let h = par.epd * 0.5;
+        let back = (par.entrance_pupil_z - z_launch) / dir[2];
+        [
+            h * x - back * dir[0],
+            h * y - back * dir[1],
+            par.entrance_pupil_z - back * dir[2],
+        ]
+    };
+    let n0 = sys.n[0];
+    let offset = |o: &[Dual<N>; 3]| dot(o, &dir) * n0;
+    let c0 = launch(0.0, 0.0);
+    let Some(chief) = trace_from(sys, params, c0, dir) else {
+        return Ok(None);
+    };
+    let n_img = sys.image_index();
+    let tc = (par.image_z + par.exit_pupil_z - chief.p[2]) / chief.d[2];
+    let radius = dot(&chief.d, &chief.d).sqrt() * (if tc.v < 0.0 { -tc } else { tc });
+    let chief_sphere_opl = chief.opl + offset(&c0) - radius * n_img;
+    let wl_mm = sys.wavelength_nm * 1e-6;
+    let (mut w, mut l, mut m) = (vec![], vec![], vec![]);
+    for (&x, &y) in px.iter().zip(py) {
+        let o = launch(x, y);
+        let Some(r) = trace_from(sys, params, o, dir) else {
+            return Ok(None);
+        };
+        // back along the ray to the sphere (pupil.rs back_to_sphere)
+        let v = [r.p[0] - chief.p[0], r.p[1] - chief.p[1], r.p[2] - chief.p[2]];
+        let vd = dot(&v, &r.d);
+        let disc = vd * vd - dot(&v, &v) + radius * radius;
+        if disc.v < 0.0 {
+            return Ok(None);
+        }
+        let tt = -vd - disc.sqrt();
+        w.push((r.opl + offset(&o) + tt * n_img - chief_sphere_opl) * (1.0 / wl_mm));
+        l.push((chief.p[0] - (r.p[0] + tt * r.d[0])) / radius);
+        m.push((chief.p[1] - (r.p[1] + tt * r.d[1])) / radius);
+    }
+    Ok(Some(PupilTangents {
+        w,
+        l,
+        m,
+        chief: chief.p,
+        radius,
+    }))
 }

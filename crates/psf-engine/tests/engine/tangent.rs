@@ -94,3 +94,96 @@ fn a_ray_the_kernel_does_not_bring_to_the_image_has_no_tangents() {
     assert!(!sys.trace(l.origin, l.dir, End::Image).ok());
     assert!(trace_tangents::<1>(&sys, &[Param::Curvature(0)], l.origin, l.dir).is_none());
 }
+
+/// The fast FFT PSF's coarse-ray data for a lens, by the kernel alone (what psf/fast.rs
+/// computes): W (waves) and (L, M) of each pupil point, the chief image point and radius.
+fn pupil_data(lens: &Lens, wl: f64, field: f64, px: &[f64], py: &[f64]) -> Vec<f64> {
+    let sys = System::new(lens, wl).unwrap();
+    let beam = Beam::new(&sys, field, Aiming::Paraxial).unwrap();
+    let c = beam.launch(0.0, 0.0);
+    let chief = sys.trace(c.origin, c.dir, End::Image);
+    assert!(chief.ok());
+    let z_xp = lens.image_z + beam.par.exit_pupil_z;
+    let radius = ((z_xp - chief.p.z) / chief.d.z * chief.d).length();
+    let n_img = sys.image_index();
+    let chief_sphere_opl = chief.opl + beam.wavefront_offset(c.origin) - n_img * radius;
+    let mut out = vec![chief.p.x, chief.p.y, chief.p.z, radius];
+    for (&x, &y) in px.iter().zip(py) {
+        let l = beam.launch(x, y);
+        let r = sys.trace(l.origin, l.dir, End::Image);
+        assert!(r.ok());
+        let v = r.p - chief.p;
+        let vd = v.dot(r.d);
+        let tt = -vd - (vd * vd - v.length_squared() + radius * radius).sqrt();
+        out.push((r.opl + beam.wavefront_offset(l.origin) + n_img * tt - chief_sphere_opl) / (wl * 1e-6));
+        let s = r.p + tt * r.d;
+        out.push((chief.p.x - s.x) / radius);
+        out.push((chief.p.y - s.y) / radius);
+    }
+    out
+}
+
+#[test]
+fn the_coarse_pupils_wavefront_and_directions_have_the_tangents_of_their_differences() {
+    use psf_engine::tangent::pupil_tangents;
+    let lens = common::paper_triplet();
+    let params = [
+        Param::Curvature(0),
+        Param::Aspheric(0, 0), // a2: the paraxial curvature moves too (EFL, EPD at f/4.4, pupils)
+        Param::Aspheric(0, 1),
+        Param::Thickness(1),
+        Param::Conic(5),
+        Param::Curvature(6),
+        Param::Thickness(4), // the stop's gap: the entrance pupil moves
+        Param::Thickness(6),
+    ];
+    let steps = [1e-7, 1e-8, 1e-9, 1e-6, 1e-6, 1e-7, 1e-6, 1e-6];
+    let (px, py) = (vec![0.3, 0.0, 0.6, 0.2, 0.0], vec![0.0, 0.5, -0.4, 0.85, -0.9]);
+    let wl = 550.0;
+    let sys = System::new(&lens, wl).unwrap();
+    let mut worst = 0.0f64;
+    for field in [0.0, 9.0, lens.max_field_deg()] {
+        let t = pupil_tangents::<8>(&sys, &params, field, &px, &py)
+            .unwrap()
+            .expect("every ray traced");
+        let mut tan: Vec<[f64; 8]> = t.chief.iter().map(|c| c.d).collect();
+        tan.push(t.radius.d);
+        for i in 0..px.len() {
+            tan.extend([t.w[i].d, t.l[i].d, t.m[i].d]);
+        }
+        let base = pupil_data(&lens, wl, field, &px, &py);
+        assert_eq!(base.len(), tan.len());
+        assert!((t.w[1].v - base[4 + 3]).abs() < 1e-6 && (t.radius.v - base[3]).abs() < 1e-9);
+        for (k, (&p, &h)) in params.iter().zip(&steps).enumerate() {
+            let (a, b) = (
+                pupil_data(&perturbed(&lens, p, h).unwrap(), wl, field, &px, &py),
+                pupil_data(&perturbed(&lens, p, -h).unwrap(), wl, field, &px, &py),
+            );
+            // each quantity against its own difference: within 1e-5 of the largest of its kind,
+            // plus the difference's own round-off (the kind's typical size x 1e-16 / h; W is a
+            // difference of optical paths of ~1e5 waves)
+            let kinds: [(&str, Vec<usize>, f64); 5] = [
+                ("chief point", (0..3).collect(), 1e-14),
+                ("radius", vec![3], 1e-14),
+                ("W", (0..px.len()).map(|i| 4 + 3 * i).collect(), 1e-10),
+                ("L", (0..px.len()).map(|i| 5 + 3 * i).collect(), 1e-16),
+                ("M", (0..px.len()).map(|i| 6 + 3 * i).collect(), 1e-16),
+            ];
+            for (kind, idx, noise) in kinds {
+                let fd: Vec<f64> = idx.iter().map(|&i| (a[i] - b[i]) / (2.0 * h)).collect();
+                let scale = fd.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+                let tol = 1e-5 * scale + 10.0 * noise / h;
+                for (f, &i) in fd.iter().zip(&idx) {
+                    let err = (f - tan[i][k]).abs();
+                    assert!(
+                        err <= tol,
+                        "{p:?} at {field} deg, {kind} [{i}]: {} against {f} (tol {tol:e})",
+                        tan[i][k]
+                    );
+                    worst = worst.max(err / scale.max(1e-300));
+                }
+            }
+        }
+    }
+    assert!(worst > 0.0);
+}
