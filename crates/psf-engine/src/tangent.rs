@@ -454,6 +454,8 @@ pub struct PupilTangents<const N: usize> {
     pub l: Vec<Dual<N>>,
     pub m: Vec<Dual<N>>,
     pub chief: [Dual<N>; 3],
+    /// The chief ray's direction at the image.
+    pub chief_dir: [Dual<N>; 3],
     pub radius: Dual<N>,
 }
 
@@ -515,6 +517,228 @@ pub fn pupil_tangents<const N: usize>(
         l,
         m,
         chief: chief.p,
+        chief_dir: chief.d,
         radius,
     }))
+}
+
+/// The fast FFT PSF's polynomial fits with tangents (psf/fast.rs): over its coarse pupil set,
+/// W and py as even, px as odd Legendre series in u = L / rho, v = (M - M_chief) / rho, rho the
+/// rays' largest |L| or |M - M_chief|, at a given degree (the forward pass chooses it: a
+/// discrete choice, fixed for the tangents). Coefficients in `fast::terms` order.
+#[derive(Clone, Debug)]
+pub struct FitTangents<const N: usize> {
+    pub degree: usize,
+    pub rho: Dual<N>,
+    pub m_chief: Dual<N>,
+    pub w: Vec<Dual<N>>,
+    pub py: Vec<Dual<N>>,
+    pub px: Vec<Dual<N>>,
+}
+
+/// Legendre P_0..=deg at a dual x (fast.rs's recurrence).
+fn legendre_dual<const N: usize>(x: Dual<N>, deg: usize) -> Vec<Dual<N>> {
+    let mut p = vec![Dual::constant(1.0), x];
+    for n in 1..deg {
+        let nf = n as f64;
+        let next = (x * p[n] * (2.0 * nf + 1.0) - p[n - 1] * nf) * (1.0 / (nf + 1.0));
+        p.push(next);
+    }
+    p.truncate(deg + 1);
+    p
+}
+
+/// Least squares of each of `ys` on the terms by the normal equations and Cholesky, in dual
+/// numbers (fast.rs's `lsq`); None where the system is singular.
+fn lsq_dual<const N: usize>(
+    pu: &[Vec<Dual<N>>],
+    pv: &[Vec<Dual<N>>],
+    ys: &[&[Dual<N>]],
+    tm: &[(usize, usize)],
+) -> Option<Vec<Vec<Dual<N>>>> {
+    let t = tm.len();
+    let zero = Dual::<N>::constant(0.0);
+    let phi: Vec<Vec<Dual<N>>> = pu
+        .iter()
+        .zip(pv)
+        .map(|(a, b)| tm.iter().map(|&(i, j)| a[i] * b[j]).collect())
+        .collect();
+    let mut g = vec![zero; t * t];
+    for r in 0..t {
+        for c in 0..=r {
+            let v = phi.iter().fold(zero, |s, row| s + row[r] * row[c]);
+            g[r * t + c] = v;
+            g[c * t + r] = v;
+        }
+    }
+    for c in 0..t {
+        let mut d = g[c * t + c];
+        for k in 0..c {
+            d = d - g[c * t + k] * g[c * t + k];
+        }
+        if !(d.v > 1e-14 * g[c * t + c].v.max(1e-300)) {
+            return None;
+        }
+        let d = d.sqrt();
+        g[c * t + c] = d;
+        for r in c + 1..t {
+            let mut s = g[r * t + c];
+            for k in 0..c {
+                s = s - g[r * t + k] * g[c * t + k];
+            }
+            g[r * t + c] = s / d;
+        }
+    }
+    Some(
+        ys.iter()
+            .map(|y| {
+                let mut x: Vec<Dual<N>> = (0..t)
+                    .map(|r| phi.iter().zip(y.iter()).fold(zero, |s, (row, &yv)| s + row[r] * yv))
+                    .collect();
+                for r in 0..t {
+                    let mut s = x[r];
+                    for k in 0..r {
+                        s = s - g[r * t + k] * x[k];
+                    }
+                    x[r] = s / g[r * t + r];
+                }
+                for r in (0..t).rev() {
+                    let mut s = x[r];
+                    for k in r + 1..t {
+                        s = s - g[k * t + r] * x[k];
+                    }
+                    x[r] = s / g[r * t + r];
+                }
+                x
+            })
+            .collect(),
+    )
+}
+
+/// The fits of the fast FFT PSF at `field_deg` and `degree` with tangents along `params`.
+pub fn fit_tangents<const N: usize>(
+    sys: &System,
+    params: &[Param],
+    field_deg: f64,
+    degree: usize,
+) -> crate::Result<Option<FitTangents<N>>> {
+    use crate::psf::fast::{half_pupil, terms, NT, N_RIM, R_RIM};
+    let (px, py) = half_pupil(NT, N_RIM, R_RIM);
+    let Some(pt) = pupil_tangents::<N>(sys, params, field_deg, &px, &py)? else {
+        return Ok(None);
+    };
+    let mc = pt.chief_dir[1];
+    // rho: the largest |L| or |M - M_chief| (its ray's value, with its tangent)
+    let mut rho = Dual::constant(0.0);
+    for x in pt.l.iter().copied().chain(pt.m.iter().map(|m| *m - mc)) {
+        let a = if x.v < 0.0 { -x } else { x };
+        if a.v > rho.v {
+            rho = a;
+        }
+    }
+    let u: Vec<Dual<N>> = pt.l.iter().map(|l| *l / rho).collect();
+    let v: Vec<Dual<N>> = pt.m.iter().map(|m| (*m - mc) / rho).collect();
+    let pu: Vec<Vec<Dual<N>>> = u.iter().map(|x| legendre_dual(*x, degree)).collect();
+    let pv: Vec<Vec<Dual<N>>> = v.iter().map(|x| legendre_dual(*x, degree)).collect();
+    let k = Dual::<N>::constant;
+    let (pxd, pyd): (Vec<Dual<N>>, Vec<Dual<N>>) =
+        (px.iter().map(|x| k(*x)).collect(), py.iter().map(|y| k(*y)).collect());
+    let (Some(even), Some(odd)) = (
+        lsq_dual(&pu, &pv, &[&pt.w, &pyd], &terms(degree, 0)),
+        lsq_dual(&pu, &pv, &[&pxd], &terms(degree, 1)),
+    ) else {
+        return Ok(None);
+    };
+    let mut even = even.into_iter();
+    let (w, py) = (even.next().unwrap_or_default(), even.next().unwrap_or_default());
+    Ok(Some(FitTangents {
+        degree,
+        rho,
+        m_chief: mc,
+        w,
+        py,
+        px: odd.into_iter().next().expect("one fit"),
+    }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::psf::fast::{half_pupil, legendre_table, lsq, terms, NT, N_RIM, R_RIM};
+
+    /// The fits by fast.rs's own f64 code from the coarse data's values (pupil_tangents's
+    /// values are the kernel's: tests/engine/tangent.rs).
+    fn fits(lens: &Lens, wl: f64, field: f64, deg: usize) -> Vec<f64> {
+        let sys = System::new(lens, wl).unwrap();
+        let (px, py) = half_pupil(NT, N_RIM, R_RIM);
+        let pt = pupil_tangents::<1>(&sys, &[], field, &px, &py).unwrap().unwrap();
+        let mc = pt.chief_dir[1].v;
+        let (l, m): (Vec<f64>, Vec<f64>) = (pt.l.iter().map(|x| x.v).collect(), pt.m.iter().map(|x| x.v).collect());
+        let rho = l
+            .iter()
+            .map(|x| x.abs())
+            .chain(m.iter().map(|y| (y - mc).abs()))
+            .fold(0.0, f64::max);
+        let u: Vec<f64> = l.iter().map(|x| x / rho).collect();
+        let v: Vec<f64> = m.iter().map(|y| (y - mc) / rho).collect();
+        let w: Vec<f64> = pt.w.iter().map(|x| x.v).collect();
+        let (pu, pv) = (legendre_table(&u), legendre_table(&v));
+        let (ce, _) = lsq(&pu, &pv, &[&w, &py], &terms(deg, 0)).unwrap();
+        let (co, _) = lsq(&pu, &pv, &[&px], &terms(deg, 1)).unwrap();
+        let mut out = vec![rho, mc];
+        out.extend(ce.concat());
+        out.extend(co.concat());
+        out
+    }
+
+    #[test]
+    fn the_fits_coefficients_have_the_tangents_of_their_differences() {
+        let text = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../tests/data/lenses/detect_wide_f3.2.json"
+        ))
+        .unwrap();
+        let lens = Lens::from_json(&text).unwrap();
+        let params = [
+            Param::Curvature(0),
+            Param::Aspheric(0, 1),
+            Param::Thickness(1),
+            Param::Conic(5),
+            Param::Thickness(4),
+        ];
+        // steps where each difference is clear of its round-off (a conic moves W by 0.009
+        // waves per unit: 1e-3)
+        let steps = [1e-6, 1e-8, 1e-5, 1e-3, 1e-5];
+        let (wl, deg) = (550.0, 8);
+        let sys = System::new(&lens, wl).unwrap();
+        for field in [0.0, lens.max_field_deg()] {
+            let f = fit_tangents::<5>(&sys, &params, field, deg).unwrap().unwrap();
+            let mut tan: Vec<[f64; 5]> = vec![f.rho.d, f.m_chief.d];
+            tan.extend(f.w.iter().chain(&f.py).chain(&f.px).map(|x| x.d));
+            let base = fits(&lens, wl, field, deg);
+            assert_eq!(base.len(), tan.len());
+            assert!((f.w[0].v - base[2]).abs() < 1e-9 * base[2].abs().max(1.0));
+            for (k, (&p, &h)) in params.iter().zip(&steps).enumerate() {
+                let (a, b) = (
+                    fits(&perturbed(&lens, p, h).unwrap(), wl, field, deg),
+                    fits(&perturbed(&lens, p, -h).unwrap(), wl, field, deg),
+                );
+                let fd: Vec<f64> = a.iter().zip(&b).map(|(a, b)| (a - b) / (2.0 * h)).collect();
+                // W's coefficients (waves) against W's largest, the maps' against theirs
+                let nw = f.w.len();
+                for range in [0..2, 2..2 + nw, 2 + nw..fd.len()] {
+                    let scale = fd[range.clone()].iter().fold(0.0f64, |m, x| m.max(x.abs()));
+                    for i in range {
+                        let err = (fd[i] - tan[i][k]).abs();
+                        assert!(
+                            err <= 1e-4 * scale + 1e-6,
+                            "{p:?} at {field} deg [{i}]: {} against {}",
+                            tan[i][k],
+                            fd[i]
+                        );
+                    }
+                }
+            }
+        }
+    }
 }

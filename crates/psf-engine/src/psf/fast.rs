@@ -50,9 +50,9 @@ use std::sync::OnceLock;
 /// sliver thinner than 1 - R_RIM, of no consequence at this tolerance, and such a design
 /// keeps the fast path. Where the rim rays pass, every polar-grid ray of the relative
 /// illumination (outer ring at 0.979) passes too.
-const NT: usize = 12;
-const N_RIM: usize = 25;
-const R_RIM: f64 = 0.999;
+pub(crate) const NT: usize = 12;
+pub(crate) const N_RIM: usize = 25;
+pub(crate) const R_RIM: f64 = 0.999;
 /// Polynomial degrees tried, in order.
 const DEGREES: [usize; 3] = [8, 10, 12];
 const MAX_DEGREE: usize = 12;
@@ -158,7 +158,7 @@ fn legendre_monomials() -> &'static [[f64; MAX_DEGREE + 1]; MAX_DEGREE + 1] {
 }
 
 /// Terms (i, j) of P_i(u) P_j(v) with i + j <= deg and i of the given parity.
-fn terms(deg: usize, parity: usize) -> Vec<(usize, usize)> {
+pub(crate) fn terms(deg: usize, parity: usize) -> Vec<(usize, usize)> {
     (parity..=deg)
         .step_by(2)
         .flat_map(|i| (0..=deg - i).map(move |j| (i, j)))
@@ -166,10 +166,10 @@ fn terms(deg: usize, parity: usize) -> Vec<(usize, usize)> {
 }
 
 /// P_0..=P_MAX_DEGREE at one point.
-type Leg = [f64; MAX_DEGREE + 1];
+pub(crate) type Leg = [f64; MAX_DEGREE + 1];
 
 /// Legendre values at each of `x`.
-fn legendre_table(x: &[f64]) -> Vec<Leg> {
+pub(crate) fn legendre_table(x: &[f64]) -> Vec<Leg> {
     let mut d = [0.0; MAX_DEGREE + 1];
     x.iter()
         .map(|&x| {
@@ -183,7 +183,7 @@ fn legendre_table(x: &[f64]) -> Vec<Leg> {
 /// Least squares of each of `ys` on the terms at the points (u, v) (their Legendre values
 /// `pu`, `pv`), by the normal equations (well conditioned in this basis) and Cholesky. Returns the coefficients per
 /// function and the largest |residual| per function; None if the system is singular.
-fn lsq(pu: &[Leg], pv: &[Leg], ys: &[&[f64]], tm: &[(usize, usize)]) -> Option<(Vec<Vec<f64>>, Vec<f64>)> {
+pub(crate) fn lsq(pu: &[Leg], pv: &[Leg], ys: &[&[f64]], tm: &[(usize, usize)]) -> Option<(Vec<Vec<f64>>, Vec<f64>)> {
     let (t, m, nf) = (tm.len(), pu.len(), ys.len());
     // Basis matrix phi (m x t, row-major) and the values (m x nf).
     let mut phi = vec![0.0; m * t];
