@@ -135,3 +135,20 @@ def test_eight_element_space_designs_pass_the_samplers_constraints(name):
         assert min(g["center_mm"] for g in geo["glass"]) >= limits.min_center - 1e-9
         assert min(min(g["edge_mm"], g["center_mm"]) for g in geo["air"]) >= limits.min_air_gap - 1e-9
         assert d["surfaces"][-1]["thickness"] >= limits.min_bfd
+
+
+def test_checking_candidates_in_chunks_on_two_threads_draws_what_one_at_a_time_draws(monkeypatch):
+    """The sampler checks CHUNK candidates at a time on two threads and takes them in draw
+    order: the designs, the candidates drawn and the rejections are those of one candidate at a
+    time (CHUNK = 1), also where drawing stops in the middle of a chunk."""
+    from optix_e2e.lens_design import sampling
+
+    space, base = load_space("paper-triplet")
+    limits = Limits.from_dict(space.constraints)
+    monkeypatch.setattr(sampling, "CHUNK", 1)
+    one = sample_designs(space, base, 19, seed=4, limits=limits)
+    monkeypatch.setattr(sampling, "CHUNK", 32)
+    many = sample_designs(space, base, 19, seed=4, limits=limits)
+    assert one.n_rejected > 0 and one.drawn % 32 != 0  # rejections seen, stopped inside a chunk
+    assert np.array_equal(one.values, many.values) and one.drawn == many.drawn
+    assert one.rejected == many.rejected and one.n_rejected == many.n_rejected

@@ -19,6 +19,7 @@ import csv
 import io
 import math
 import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Sequence
@@ -33,6 +34,8 @@ from .space import ParameterSpace, SpaceError
 from ..errors import InputError
 
 METHODS = ("uniform", "sobol", "lhs")
+#: candidates checked at a time (on two threads) before they are taken in draw order
+CHUNK = 32
 APERTURE_RULES = ("auto", "fixed", "base-lens")
 
 
@@ -130,29 +133,37 @@ def sample_designs(
     accepted: list[np.ndarray] = []
     drawn = n_rej = 0
     state: dict = {}
-    while len(accepted) < n:
-        if drawn >= max_draws:
-            raise SpaceError(
-                f"{space.source}: only {len(accepted)} of {n} designs pass the manufacturability "
-                f"checks after {drawn} candidates (rejections: "
-                + ", ".join(f"{k} {v}" for k, v in rejected.items() if v)
-                + "); widen the ranges or relax the limits"
-            )
-        block = _unit_block(method, len(space), n if method == "sobol" else n - len(accepted), seed, state)
-        for u in block:
-            if len(accepted) == n or drawn >= max_draws:
-                break
-            drawn += 1
-            x = lo + u * span
-            reasons = problems(space.apply(data, x))
-            if reasons:
-                n_rej += 1
-                for r in {reason_of(r) for r in reasons}:
-                    rejected[r] += 1
-            else:
-                accepted.append(x)
-            if progress:
-                progress(drawn, len(accepted))
+    # Candidates are checked CHUNK at a time on two threads (the engine's checks release the
+    # GIL, so one candidate's trace runs beside another's Python) and taken in draw order, so
+    # the designs, counts and the point where drawing stops are those of one-at-a-time checks
+    # (a chunk's candidates past the n-th accepted are checked and dropped, not counted).
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        while len(accepted) < n:
+            if drawn >= max_draws:
+                raise SpaceError(
+                    f"{space.source}: only {len(accepted)} of {n} designs pass the manufacturability "
+                    f"checks after {drawn} candidates (rejections: "
+                    + ", ".join(f"{k} {v}" for k, v in rejected.items() if v)
+                    + "); widen the ranges or relax the limits"
+                )
+            block = _unit_block(method, len(space), n if method == "sobol" else n - len(accepted), seed, state)
+            for lo_k in range(0, len(block), CHUNK):
+                if len(accepted) == n or drawn >= max_draws:
+                    break
+                xs = [lo + u * span for u in block[lo_k : lo_k + min(CHUNK, max_draws - drawn)]]
+                checked = pool.map(lambda x: problems(space.apply(data, x)), xs)
+                for x, reasons in zip(xs, checked):
+                    if len(accepted) == n:
+                        break
+                    drawn += 1
+                    if reasons:
+                        n_rej += 1
+                        for r in {reason_of(r) for r in reasons}:
+                            rejected[r] += 1
+                    else:
+                        accepted.append(x)
+                    if progress:
+                        progress(drawn, len(accepted))
     return SampleResult(space, np.array(accepted), drawn, rejected, n_rej, limits, method, seed, apertures)
 
 
