@@ -443,6 +443,28 @@ pub fn paraxial_tangents<const N: usize>(lens: &Lens, params: &[Param]) -> crate
     })
 }
 
+/// Paraxial aiming with tangents: the launch point of the ray through normalized pupil point
+/// (x, y), through (x, y) EPD / 2 on the entrance-pupil plane along the field's direction
+/// (an object at infinity), from the beam's launch plane: where on its line a ray starts
+/// changes its path and its plane-wave offset by the same amount, so nothing downstream sees
+/// the plane move.
+fn launcher<'a, const N: usize>(
+    par: &'a ParaxialTangents<N>,
+    beam: &crate::Beam,
+) -> impl Fn(f64, f64) -> [Dual<N>; 3] + 'a {
+    let z_launch = beam.launch(0.0, 0.0).origin.z;
+    let dir = beam.dir;
+    move |x: f64, y: f64| {
+        let h = par.epd * 0.5;
+        let back = (par.entrance_pupil_z - z_launch) * (1.0 / dir.z);
+        [
+            h * x - back * dir.x,
+            h * y - back * dir.y,
+            par.entrance_pupil_z - back * dir.z,
+        ]
+    }
+}
+
 /// What the fast FFT PSF takes from its coarse rays (psf/fast.rs), with tangents: for each
 /// pupil point (px, py), the wavefront W (waves, against the reference sphere about the chief
 /// ray's image point through the exit pupil) and the direction (L, M) from its point on the
@@ -473,16 +495,7 @@ pub fn pupil_tangents<const N: usize>(
     // Through (px, py) EPD / 2 on the entrance-pupil plane along the field's direction, from
     // the beam's launch plane: where on its line a ray starts changes its path and its
     // plane-wave offset by the same amount, so W does not see the plane move.
-    let z_launch = beam.launch(0.0, 0.0).origin.z;
-    let launch = |x: f64, y: f64| {
-        let h = par.epd * 0.5;
-        let back = (par.entrance_pupil_z - z_launch) / dir[2];
-        [
-            h * x - back * dir[0],
-            h * y - back * dir[1],
-            par.entrance_pupil_z - back * dir[2],
-        ]
-    };
+    let launch = launcher(&par, &beam);
     let n0 = sys.n[0];
     let offset = |o: &[Dual<N>; 3]| dot(o, &dir) * n0;
     let c0 = launch(0.0, 0.0);
@@ -661,6 +674,62 @@ pub fn fit_tangents<const N: usize>(
     }))
 }
 
+/// The best-focus shift (focus.rs: the image-plane shift minimizing the mean over `fields`
+/// of the polychromatic RMS spot squared on a polar grid of `rings`) with tangents; paraxial
+/// aiming, an object at infinity. Rays the kernel does not bring to the image are left out,
+/// as there.
+pub fn best_focus_tangents<const N: usize>(
+    lens: &Lens,
+    params: &[Param],
+    fields: &[f64],
+    wavelengths: &[(f64, f64)],
+    rings: usize,
+) -> crate::Result<Dual<N>> {
+    let par = paraxial_tangents::<N>(lens, params)?;
+    let wsum: f64 = wavelengths.iter().map(|p| p.1).sum();
+    let (px, py) = crate::spot::polar_grid(rings);
+    let systems = wavelengths
+        .iter()
+        .map(|p| System::new(lens, p.0))
+        .collect::<crate::Result<Vec<_>>>()?;
+    let zero = Dual::<N>::constant(0.0);
+    let (mut b, mut c) = (zero, zero);
+    let mut pts: Vec<[Dual<N>; 5]> = vec![];
+    for &f in fields {
+        pts.clear();
+        for (sys, &(_, wt)) in systems.iter().zip(wavelengths) {
+            let beam = crate::Beam::new(sys, f, crate::Aiming::Paraxial)?;
+            let launch = launcher(&par, &beam);
+            let d = beam.dir;
+            let dir = [Dual::constant(d.x), Dual::constant(d.y), Dual::constant(d.z)];
+            // flux weight: the launch's area (EPD / 2)^2 projected on the beam
+            let h = par.epd * 0.5;
+            let weight = h * h * (d.z * wt / wsum);
+            for (&x, &y) in px.iter().zip(&py) {
+                let Some(r) = trace_from(sys, params, launch(x, y), dir) else {
+                    continue;
+                };
+                if r.d[2].v.abs() > 1e-12 {
+                    pts.push([r.p[0], r.p[1], r.d[0] / r.d[2], r.d[1] / r.d[2], weight]);
+                }
+            }
+        }
+        let sw = pts.iter().fold(zero, |a, p| a + p[4]);
+        if !(sw.v > 0.0) {
+            continue;
+        }
+        let mean = |k: usize| pts.iter().fold(zero, |a, p| a + p[4] * p[k]) / sw;
+        let m = [mean(0), mean(1), mean(2), mean(3)];
+        for p in &pts {
+            let w = p[4] / sw;
+            let (ax, ay, sx, sy) = (p[0] - m[0], p[1] - m[1], p[2] - m[2], p[3] - m[3]);
+            b = b + w * (ax * sx + ay * sy);
+            c = c + w * (sx * sx + sy * sy);
+        }
+    }
+    Ok(if c.v > 0.0 { -(b / c) } else { zero })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -740,5 +809,40 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn the_best_focus_shift_has_the_tangent_of_its_difference() {
+        use crate::focus::best_focus_shift;
+        let text = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../tests/data/lenses/detect_wide_f3.2.json"
+        ))
+        .unwrap();
+        let lens = Lens::from_json(&text).unwrap();
+        let params = [
+            Param::Curvature(0),
+            Param::Aspheric(0, 0),
+            Param::Thickness(1),
+            Param::Conic(5),
+            Param::Thickness(6),
+        ];
+        let steps = [1e-6, 1e-7, 1e-5, 1e-4, 1e-5];
+        let (fields, wls) = ([0.0, 7.0, 10.0, 14.9], [(470.0, 1.0), (550.0, 2.0), (650.0, 1.0)]);
+        let t = best_focus_tangents::<5>(&lens, &params, &fields, &wls, 4).unwrap();
+        let at = |l: &Lens| best_focus_shift(l, &fields, &wls, 4, crate::Aiming::Paraxial).unwrap();
+        assert!((t.v - at(&lens)).abs() < 1e-12, "{} against {}", t.v, at(&lens));
+        let mut moved = 0;
+        for (k, (&p, &h)) in params.iter().zip(&steps).enumerate() {
+            let fd = (at(&perturbed(&lens, p, h).unwrap()) - at(&perturbed(&lens, p, -h).unwrap())) / (2.0 * h);
+            assert!(
+                (fd - t.d[k]).abs() <= 1e-5 * fd.abs() + 1e-7,
+                "{p:?}: {} against {fd}",
+                t.d[k]
+            );
+            moved += (fd.abs() > 1e-4) as usize;
+        }
+        // the back focus moves the plane one for one (the shift is from the plane)
+        assert!((t.d[4] + 1.0).abs() < 1e-9 && moved == params.len(), "{:?}", t.d);
     }
 }
