@@ -204,7 +204,7 @@ pub fn chief_ray_status(lens: &Lens, fields_deg: &[f64], wavelengths_nm: &[f64],
 pub const RI_RINGS: usize = 24;
 
 /// Direction-cosine step of the Jacobian's central differences.
-const RI_STEP: f64 = 1e-5;
+pub(crate) const RI_STEP: f64 = 1e-5;
 
 /// Pupil points (x, y) and weights (summing to pi, the unit disc's area) of a product
 /// quadrature: Gauss-Legendre in r^2 (4 nodes) times 12 equally spaced angles, exact for

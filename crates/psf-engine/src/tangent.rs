@@ -730,6 +730,139 @@ pub fn best_focus_tangents<const N: usize>(
     Ok(if c.v > 0.0 { -(b / c) } else { zero })
 }
 
+/// The image irradiance of `spot::irradiance` with tangents (a flat image, paraxial aiming, an
+/// object at infinity): the flux of each pupil point over |det J| of its image-plane Jacobian
+/// in the launch direction (central differences of unclipped rays, as there), after the one
+/// Newton step onto the chief ray's image point; the pupil grid the forward pass chose (the
+/// Gauss grid where the beam is clear, else the fine polar one: a discrete choice, fixed).
+pub fn irradiance_tangents<const N: usize>(
+    lens: &Lens,
+    params: &[Param],
+    field_deg: f64,
+    wavelength_nm: f64,
+) -> crate::Result<Dual<N>> {
+    use crate::spot::{gauss_pupil, irradiance, polar_grid, PupilGrid, RI_RINGS, RI_STEP};
+    if lens.image_curvature != 0.0 {
+        return Err(crate::error::EngineError::Argument(
+            "irradiance tangents: a curved image (not supported yet)".into(),
+        ));
+    }
+    let clear = irradiance(
+        lens,
+        field_deg,
+        wavelength_nm,
+        PupilGrid::Clear,
+        crate::Aiming::Paraxial,
+    )?
+    .1;
+    let (px, py, pw) = if clear {
+        gauss_pupil()
+    } else {
+        let (x, y) = polar_grid(RI_RINGS);
+        let cell = std::f64::consts::PI / x.len() as f64;
+        let keep: Vec<(f64, f64, f64)> = x
+            .iter()
+            .zip(&y)
+            .filter(|(x, _)| **x > -1e-12)
+            .map(|(&x, &y)| (x, y, if x > 1e-12 { 2.0 * cell } else { cell }))
+            .collect();
+        (
+            keep.iter().map(|p| p.0).collect(),
+            keep.iter().map(|p| p.1).collect(),
+            keep.iter().map(|p| p.2).collect(),
+        )
+    };
+    let par = paraxial_tangents::<N>(lens, params)?;
+    let sys = System::new(lens, wavelength_nm)?;
+    let mut open = System::new(lens, wavelength_nm)?;
+    open.clip = false;
+    let beam = crate::Beam::new(&sys, field_deg, crate::Aiming::Paraxial)?;
+    let z_launch = beam.launch(0.0, 0.0).origin.z;
+    let d0 = beam.dir;
+    let k = Dual::<N>::constant;
+    // a direction about the beam's, and the launch on the entrance-pupil point's line along it
+    let dir = |dl: Dual<N>, dm: Dual<N>| {
+        let (x, y) = (dl + d0.x, dm + d0.y);
+        [x, y, (-(x * x) - y * y + 1.0).sqrt()]
+    };
+    let h = par.epd * 0.5;
+    let along = |x: f64, y: f64, d: &[Dual<N>; 3]| {
+        let back = (par.entrance_pupil_z - z_launch) / d[2];
+        [
+            h * x - back * d[0],
+            h * y - back * d[1],
+            par.entrance_pupil_z - back * d[2],
+        ]
+    };
+    let launch = launcher(&par, &beam);
+    let beam_dir = [k(d0.x), k(d0.y), k(d0.z)];
+    let chief = trace_from(&open, params, launch(0.0, 0.0), beam_dir);
+    let mut e = k(0.0);
+    for ((&x, &y), &w) in px.iter().zip(&py).zip(&pw) {
+        let steps = [
+            (0.0, 0.0),
+            (RI_STEP, 0.0),
+            (-RI_STEP, 0.0),
+            (0.0, RI_STEP),
+            (0.0, -RI_STEP),
+        ];
+        let g: Option<Vec<RayTangents<N>>> = steps
+            .iter()
+            .map(|&(a, b)| {
+                let d = dir(k(a), k(b));
+                trace_from(&open, params, along(x, y, &d), d)
+            })
+            .collect();
+        let Some(g) = g else { continue };
+        let s2 = 2.0 * RI_STEP;
+        let j = [
+            [
+                (g[1].p[0] - g[2].p[0]) * (1.0 / s2),
+                (g[3].p[0] - g[4].p[0]) * (1.0 / s2),
+            ],
+            [
+                (g[1].p[1] - g[2].p[1]) * (1.0 / s2),
+                (g[3].p[1] - g[4].p[1]) * (1.0 / s2),
+            ],
+        ];
+        let det = j[0][0] * j[1][1] - j[0][1] * j[1][0];
+        if !(det.v.abs() > 1e-300) {
+            continue;
+        }
+        let (dl, dm) = match &chief {
+            Some(c) => {
+                let (rx, ry) = (c.p[0] - g[0].p[0], c.p[1] - g[0].p[1]);
+                (
+                    (j[1][1] * rx - j[0][1] * ry) / det,
+                    (-(j[1][0] * rx) + j[0][0] * ry) / det,
+                )
+            }
+            None => (k(0.0), k(0.0)),
+        };
+        let d = dir(dl, dm);
+        if trace_from(&sys, params, along(x, y, &d), d).is_some() {
+            let adet = if det.v < 0.0 { -det } else { det };
+            e = e + h * h * w / adet;
+        }
+    }
+    Ok(e)
+}
+
+/// `spot::relative_illumination_from` with tangents: the irradiance at the field over the
+/// same on the axis (1 at the axis itself).
+pub fn relative_illumination_tangents<const N: usize>(
+    lens: &Lens,
+    params: &[Param],
+    field_deg: f64,
+    wavelength_nm: f64,
+) -> crate::Result<Dual<N>> {
+    if field_deg == 0.0 {
+        return Ok(Dual::constant(1.0));
+    }
+    Ok(irradiance_tangents(lens, params, field_deg, wavelength_nm)?
+        / irradiance_tangents(lens, params, 0.0, wavelength_nm)?)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -844,5 +977,44 @@ mod tests {
         }
         // the back focus moves the plane one for one (the shift is from the plane)
         assert!((t.d[4] + 1.0).abs() < 1e-9 && moved == params.len(), "{:?}", t.d);
+    }
+
+    #[test]
+    fn the_relative_illumination_has_the_tangent_of_its_difference() {
+        use crate::spot::relative_illumination_from;
+        let text = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../tests/data/lenses/detect_wide_f3.2.json"
+        ))
+        .unwrap();
+        let lens = Lens::from_json(&text).unwrap();
+        let params = [
+            Param::Curvature(0),
+            Param::Aspheric(0, 1),
+            Param::Thickness(1),
+            Param::Thickness(4),
+            Param::Thickness(6),
+        ];
+        let steps = [1e-6, 1e-8, 1e-5, 1e-5, 1e-5];
+        let at = |l: &Lens, f: f64| relative_illumination_from(l, f, 550.0, crate::Aiming::Paraxial, None).unwrap();
+        for field in [9.0, 14.9] {
+            let t = relative_illumination_tangents::<5>(&lens, &params, field, 550.0).unwrap();
+            assert!(
+                (t.v - at(&lens, field)).abs() < 1e-9,
+                "{} against {}",
+                t.v,
+                at(&lens, field)
+            );
+            for (k, (&p, &h)) in params.iter().zip(&steps).enumerate() {
+                let fd = (at(&perturbed(&lens, p, h).unwrap(), field) - at(&perturbed(&lens, p, -h).unwrap(), field))
+                    / (2.0 * h);
+                assert!(
+                    (fd - t.d[k]).abs() <= 1e-4 * fd.abs() + 1e-5,
+                    "{p:?} at {field} deg: {} against {fd}",
+                    t.d[k]
+                );
+            }
+            assert!(t.d.iter().filter(|x| x.abs() > 1e-3).count() >= 3, "{:?}", t.d);
+        }
     }
 }
