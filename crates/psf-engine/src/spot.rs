@@ -252,6 +252,32 @@ pub enum PupilGrid {
     Rings(usize),
 }
 
+impl PupilGrid {
+    /// The grid's pupil points (px, py) and area weights.
+    pub fn points(self) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+        match self {
+            PupilGrid::Clear => gauss_pupil(),
+            PupilGrid::Rings(r) => {
+                // the grid is mirror symmetric in x (as the integrand is): the x > 0 half at
+                // twice the weight, the points on x = 0 once
+                let (x, y) = polar_grid(r);
+                let cell = std::f64::consts::PI / x.len() as f64;
+                let keep: Vec<(f64, f64, f64)> = x
+                    .iter()
+                    .zip(&y)
+                    .filter(|(x, _)| **x > -1e-12)
+                    .map(|(&x, &y)| (x, y, if x > 1e-12 { 2.0 * cell } else { cell }))
+                    .collect();
+                (
+                    keep.iter().map(|p| p.0).collect(),
+                    keep.iter().map(|p| p.1).collect(),
+                    keep.iter().map(|p| p.2).collect(),
+                )
+            }
+        }
+    }
+}
+
 /// Image irradiance at the image point of the chief ray of a field, for a uniform
 /// Lambertian object at infinity of unit radiance (object-space index 1), in flux per mm^2
 /// of image per unit radiance, and whether every pupil ray passed.
@@ -277,26 +303,7 @@ pub fn irradiance(
     let mut open = System::new(lens, wavelength_nm)?;
     open.clip = false;
     let beam = Beam::new(&sys, field_deg, aiming)?;
-    let (px, py, pw) = match grid {
-        PupilGrid::Clear => gauss_pupil(),
-        PupilGrid::Rings(r) => {
-            // the grid is mirror symmetric in x (as the integrand is): the x > 0 half at twice
-            // the weight, the points on x = 0 once
-            let (x, y) = polar_grid(r);
-            let cell = std::f64::consts::PI / x.len() as f64;
-            let keep: Vec<(f64, f64, f64)> = x
-                .iter()
-                .zip(&y)
-                .filter(|(x, _)| **x > -1e-12)
-                .map(|(&x, &y)| (x, y, if x > 1e-12 { 2.0 * cell } else { cell }))
-                .collect();
-            (
-                keep.iter().map(|p| p.0).collect(),
-                keep.iter().map(|p| p.1).collect(),
-                keep.iter().map(|p| p.2).collect(),
-            )
-        }
-    };
+    let (px, py, pw) = grid.points();
     let mut all_pass = true;
     if let PupilGrid::Clear = grid {
         // the rim's x >= 0 half (the other is its mirror image): 19 rays, 10 deg apart

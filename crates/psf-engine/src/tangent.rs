@@ -741,7 +741,7 @@ pub fn irradiance_tangents<const N: usize>(
     field_deg: f64,
     wavelength_nm: f64,
 ) -> crate::Result<Dual<N>> {
-    use crate::spot::{gauss_pupil, irradiance, polar_grid, PupilGrid, RI_RINGS, RI_STEP};
+    use crate::spot::{irradiance, PupilGrid, RI_RINGS, RI_STEP};
     if lens.image_curvature != 0.0 {
         return Err(crate::error::EngineError::Argument(
             "irradiance tangents: a curved image (not supported yet)".into(),
@@ -756,22 +756,11 @@ pub fn irradiance_tangents<const N: usize>(
     )?
     .1;
     let (px, py, pw) = if clear {
-        gauss_pupil()
+        PupilGrid::Clear
     } else {
-        let (x, y) = polar_grid(RI_RINGS);
-        let cell = std::f64::consts::PI / x.len() as f64;
-        let keep: Vec<(f64, f64, f64)> = x
-            .iter()
-            .zip(&y)
-            .filter(|(x, _)| **x > -1e-12)
-            .map(|(&x, &y)| (x, y, if x > 1e-12 { 2.0 * cell } else { cell }))
-            .collect();
-        (
-            keep.iter().map(|p| p.0).collect(),
-            keep.iter().map(|p| p.1).collect(),
-            keep.iter().map(|p| p.2).collect(),
-        )
-    };
+        PupilGrid::Rings(RI_RINGS)
+    }
+    .points();
     let par = paraxial_tangents::<N>(lens, params)?;
     let sys = System::new(lens, wavelength_nm)?;
     let mut open = System::new(lens, wavelength_nm)?;
@@ -868,6 +857,15 @@ mod tests {
     use super::*;
     use crate::psf::fast::{half_pupil, legendre_table, lsq, terms, NT, N_RIM, R_RIM};
 
+    /// A sampled design of the detect-wide space (tests/data/lenses), aspheric surfaces 1 and 6.
+    fn detect_wide() -> Lens {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../tests/data/lenses/detect_wide_f3.2.json"
+        );
+        Lens::from_json(&std::fs::read_to_string(path).unwrap()).unwrap()
+    }
+
     /// The fits by fast.rs's own f64 code from the coarse data's values (pupil_tangents's
     /// values are the kernel's: tests/engine/tangent.rs).
     fn fits(lens: &Lens, wl: f64, field: f64, deg: usize) -> Vec<f64> {
@@ -895,12 +893,7 @@ mod tests {
 
     #[test]
     fn the_fits_coefficients_have_the_tangents_of_their_differences() {
-        let text = std::fs::read_to_string(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../../tests/data/lenses/detect_wide_f3.2.json"
-        ))
-        .unwrap();
-        let lens = Lens::from_json(&text).unwrap();
+        let lens = detect_wide();
         let params = [
             Param::Curvature(0),
             Param::Aspheric(0, 1),
@@ -947,12 +940,7 @@ mod tests {
     #[test]
     fn the_best_focus_shift_has_the_tangent_of_its_difference() {
         use crate::focus::best_focus_shift;
-        let text = std::fs::read_to_string(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../../tests/data/lenses/detect_wide_f3.2.json"
-        ))
-        .unwrap();
-        let lens = Lens::from_json(&text).unwrap();
+        let lens = detect_wide();
         let params = [
             Param::Curvature(0),
             Param::Aspheric(0, 0),
@@ -982,12 +970,7 @@ mod tests {
     #[test]
     fn the_relative_illumination_has_the_tangent_of_its_difference() {
         use crate::spot::relative_illumination_from;
-        let text = std::fs::read_to_string(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../../tests/data/lenses/detect_wide_f3.2.json"
-        ))
-        .unwrap();
-        let lens = Lens::from_json(&text).unwrap();
+        let lens = detect_wide();
         let params = [
             Param::Curvature(0),
             Param::Aspheric(0, 1),
