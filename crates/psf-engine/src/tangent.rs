@@ -136,12 +136,18 @@ pub enum Param {
     Aspheric(usize, usize),
     /// Thickness after a surface (mm): every later vertex and the image plane move with it.
     Thickness(usize),
+    /// The aperture's value where it is given as an f-number (EPD = EFL / F) or as the
+    /// entrance pupil's diameter (mm).
+    FNumber,
+    Epd,
 }
 
 impl Param {
-    fn surface(&self) -> usize {
+    /// The surface it belongs to (None: the aperture's).
+    fn surface(&self) -> Option<usize> {
         match *self {
-            Param::Curvature(i) | Param::Conic(i) | Param::Aspheric(i, _) | Param::Thickness(i) => i,
+            Param::Curvature(i) | Param::Conic(i) | Param::Aspheric(i, _) | Param::Thickness(i) => Some(i),
+            Param::FNumber | Param::Epd => None,
         }
     }
 }
@@ -149,13 +155,21 @@ impl Param {
 /// `lens` with `p` moved by `h` (vertices and the image plane re-placed after a thickness):
 /// what a tangent along `p` is the derivative of. None where `p` names no such parameter.
 pub fn perturbed(lens: &Lens, p: Param, h: f64) -> Option<Lens> {
+    use crate::lens::Aperture;
     let mut l = lens.clone();
-    let s = l.surfaces.get_mut(p.surface())?;
-    match p {
-        Param::Curvature(_) => s.curvature += h,
-        Param::Conic(_) => s.conic += h,
-        Param::Aspheric(_, k) => *s.aspheric.get_mut(k)? += h,
-        Param::Thickness(_) => s.thickness += h,
+    match (p, &mut l.aperture) {
+        (Param::FNumber, Aperture::FNumber(f)) | (Param::Epd, Aperture::Epd(f)) => *f += h,
+        (Param::FNumber | Param::Epd, _) => return None,
+        _ => {
+            let s = l.surfaces.get_mut(p.surface()?)?;
+            match p {
+                Param::Curvature(_) => s.curvature += h,
+                Param::Conic(_) => s.conic += h,
+                Param::Aspheric(_, k) => *s.aspheric.get_mut(k)? += h,
+                Param::Thickness(_) => s.thickness += h,
+                Param::FNumber | Param::Epd => unreachable!("matched above"),
+            }
+        }
     }
     let mut z = 0.0;
     for s in l.surfaces.iter_mut() {
@@ -427,9 +441,18 @@ pub fn paraxial_tangents<const N: usize>(lens: &Lens, params: &[Param]) -> crate
     }
     let efl = -(one(1.0) / nua);
     let entrance_pupil_z = b[lens.stop].0 / a[lens.stop].0;
+    let seeded = |v: f64, which: Param| {
+        let mut x = one(v);
+        for (k, p) in params.iter().enumerate() {
+            if *p == which {
+                x.d[k] = 1.0;
+            }
+        }
+        x
+    };
     let epd = match lens.aperture {
-        Aperture::Epd(d) => one(d),
-        Aperture::FNumber(f) => (if efl.v < 0.0 { -efl } else { efl }) * (1.0 / f),
+        Aperture::Epd(d) => seeded(d, Param::Epd),
+        Aperture::FNumber(f) => (if efl.v < 0.0 { -efl } else { efl }) / seeded(f, Param::FNumber),
         Aperture::ObjectNA(_) => unreachable!("a finite object was refused above"),
     };
     let (yc, nuc) = ynu(-entrance_pupil_z, one(1.0))[k - 1];
@@ -947,10 +970,11 @@ mod tests {
             Param::Thickness(1),
             Param::Conic(5),
             Param::Thickness(6),
+            Param::FNumber,
         ];
-        let steps = [1e-6, 1e-7, 1e-5, 1e-4, 1e-5];
+        let steps = [1e-6, 1e-7, 1e-5, 1e-4, 1e-5, 1e-4];
         let (fields, wls) = ([0.0, 7.0, 10.0, 14.9], [(470.0, 1.0), (550.0, 2.0), (650.0, 1.0)]);
-        let t = best_focus_tangents::<5>(&lens, &params, &fields, &wls, 4).unwrap();
+        let t = best_focus_tangents::<6>(&lens, &params, &fields, &wls, 4).unwrap();
         let at = |l: &Lens| best_focus_shift(l, &fields, &wls, 4, crate::Aiming::Paraxial).unwrap();
         assert!((t.v - at(&lens)).abs() < 1e-12, "{} against {}", t.v, at(&lens));
         let mut moved = 0;
@@ -965,6 +989,7 @@ mod tests {
         }
         // the back focus moves the plane one for one (the shift is from the plane)
         assert!((t.d[4] + 1.0).abs() < 1e-9 && moved == params.len(), "{:?}", t.d);
+        assert!(perturbed(&lens, Param::Epd, 0.1).is_none()); // an f-number lens has no EPD to move
     }
 
     #[test]
@@ -977,11 +1002,12 @@ mod tests {
             Param::Thickness(1),
             Param::Thickness(4),
             Param::Thickness(6),
+            Param::FNumber,
         ];
-        let steps = [1e-6, 1e-8, 1e-5, 1e-5, 1e-5];
+        let steps = [1e-6, 1e-8, 1e-5, 1e-5, 1e-5, 1e-4];
         let at = |l: &Lens, f: f64| relative_illumination_from(l, f, 550.0, crate::Aiming::Paraxial, None).unwrap();
         for field in [9.0, 14.9] {
-            let t = relative_illumination_tangents::<5>(&lens, &params, field, 550.0).unwrap();
+            let t = relative_illumination_tangents::<6>(&lens, &params, field, 550.0).unwrap();
             assert!(
                 (t.v - at(&lens, field)).abs() < 1e-9,
                 "{} against {}",

@@ -125,7 +125,6 @@ fn pupil_data(lens: &Lens, wl: f64, field: f64, px: &[f64], py: &[f64]) -> Vec<f
 
 #[test]
 fn the_coarse_pupils_wavefront_and_directions_have_the_tangents_of_their_differences() {
-    use psf_engine::tangent::pupil_tangents;
     let lens = common::paper_triplet();
     let params = [
         Param::Curvature(0),
@@ -138,15 +137,23 @@ fn the_coarse_pupils_wavefront_and_directions_have_the_tangents_of_their_differe
         Param::Thickness(6),
     ];
     let steps = [1e-7, 1e-8, 1e-9, 1e-6, 1e-6, 1e-7, 1e-6, 1e-6];
+    the_coarse_pupil_along(&lens, &params, &steps);
+    // the aperture: the f-number scales the pupil (and so W, L and M)
+    the_coarse_pupil_along(&lens, &[Param::FNumber, Param::Curvature(2)], &[1e-5, 1e-7]);
+}
+
+fn the_coarse_pupil_along<const N: usize>(lens: &Lens, params: &[Param; N], steps: &[f64; N]) {
+    use psf_engine::tangent::pupil_tangents;
+    let lens = lens.clone();
     let (px, py) = (vec![0.3, 0.0, 0.6, 0.2, 0.0], vec![0.0, 0.5, -0.4, 0.85, -0.9]);
     let wl = 550.0;
     let sys = System::new(&lens, wl).unwrap();
     let mut worst = 0.0f64;
     for field in [0.0, 9.0, lens.max_field_deg()] {
-        let t = pupil_tangents::<8>(&sys, &params, field, &px, &py)
+        let t = pupil_tangents::<N>(&sys, params, field, &px, &py)
             .unwrap()
             .expect("every ray traced");
-        let mut tan: Vec<[f64; 8]> = t.chief.iter().map(|c| c.d).collect();
+        let mut tan: Vec<[f64; N]> = t.chief.iter().map(|c| c.d).collect();
         tan.push(t.radius.d);
         for i in 0..px.len() {
             tan.extend([t.w[i].d, t.l[i].d, t.m[i].d]);
@@ -154,7 +161,7 @@ fn the_coarse_pupils_wavefront_and_directions_have_the_tangents_of_their_differe
         let base = pupil_data(&lens, wl, field, &px, &py);
         assert_eq!(base.len(), tan.len());
         assert!((t.w[1].v - base[4 + 3]).abs() < 1e-6 && (t.radius.v - base[3]).abs() < 1e-9);
-        for (k, (&p, &h)) in params.iter().zip(&steps).enumerate() {
+        for (k, (&p, &h)) in params.iter().zip(steps).enumerate() {
             let (a, b) = (
                 pupil_data(&perturbed(&lens, p, h).unwrap(), wl, field, &px, &py),
                 pupil_data(&perturbed(&lens, p, -h).unwrap(), wl, field, &px, &py),
