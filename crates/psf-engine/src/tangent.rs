@@ -130,6 +130,9 @@ impl<const N: usize> Mul<f64> for Dual<N> {
 pub enum Param {
     /// Curvature 1/R of a surface (mm^-1).
     Curvature(usize),
+    /// Radius R of a curved surface (mm): the curvature's tangent times dc/dR = -c^2 (the
+    /// design spaces' `radius` parameters).
+    Radius(usize),
     /// Conic constant of a surface.
     Conic(usize),
     /// Even aspheric coefficient `k` of a surface (of r^(2(k+1)): 0 is a2, 1 is a4, ...).
@@ -146,7 +149,9 @@ impl Param {
     /// The surface it belongs to (None: the aperture's).
     fn surface(&self) -> Option<usize> {
         match *self {
-            Param::Curvature(i) | Param::Conic(i) | Param::Aspheric(i, _) | Param::Thickness(i) => Some(i),
+            Param::Curvature(i) | Param::Radius(i) | Param::Conic(i) | Param::Aspheric(i, _) | Param::Thickness(i) => {
+                Some(i)
+            }
             Param::FNumber | Param::Epd => None,
         }
     }
@@ -164,6 +169,7 @@ pub fn perturbed(lens: &Lens, p: Param, h: f64) -> Option<Lens> {
             let s = l.surfaces.get_mut(p.surface()?)?;
             match p {
                 Param::Curvature(_) => s.curvature += h,
+                Param::Radius(_) => s.curvature = 1.0 / (1.0 / s.curvature + h),
                 Param::Conic(_) => s.conic += h,
                 Param::Aspheric(_, k) => *s.aspheric.get_mut(k)? += h,
                 Param::Thickness(_) => s.thickness += h,
@@ -213,7 +219,15 @@ fn dual_surfaces<const N: usize>(lens: &Lens, params: &[Param]) -> (Vec<DualSurf
                 .unwrap_or(0),
         );
         out.push(DualSurface {
-            c: seed(s.curvature, &|p| *p == Param::Curvature(i)),
+            c: {
+                let mut c = seed(s.curvature, &|p| *p == Param::Curvature(i));
+                for (k, p) in params.iter().enumerate() {
+                    if *p == Param::Radius(i) {
+                        c.d[k] = -s.curvature * s.curvature;
+                    }
+                }
+                c
+            },
             kk: seed(1.0 + s.conic, &|p| *p == Param::Conic(i)),
             a: (0..nterms)
                 .map(|k| seed(s.aspheric[k], &|p| *p == Param::Aspheric(i, k)))

@@ -72,16 +72,17 @@ fn tangents_of_a_ray_through_an_aspheric_triplet_match_central_differences() {
 }
 
 #[test]
-fn tangents_through_spheres_and_an_aspheric_term_a_surface_lacks() {
+fn tangents_through_spheres_a_radius_and_an_aspheric_term_a_surface_lacks() {
     let lens = common::cooke();
     let params = [
         Param::Curvature(1),
         Param::Thickness(2),
         Param::Aspheric(3, 1), // the Cooke triplet has no aspheric terms: a4 = 0 moved
         Param::Curvature(5),
+        Param::Radius(4), // the spaces' radius: the curvature's tangent times -c^2
     ];
-    let steps = [1e-7, 1e-6, 1e-8, 1e-7];
-    let (err, k) = worst_error::<4>(&lens, &params, &steps, &[]);
+    let steps = [1e-7, 1e-6, 1e-8, 1e-7, 1e-5];
+    let (err, k) = worst_error::<5>(&lens, &params, &steps, &[]);
     assert!(err < 1e-5, "{:?}: relative error {err:e}", params[k]);
 }
 
