@@ -195,18 +195,31 @@ struct DualSurface<const N: usize> {
     z: Dual<N>,
 }
 
-fn dual_surfaces<const N: usize>(lens: &Lens, params: &[Param]) -> (Vec<DualSurface<N>>, Dual<N>) {
-    let seed = |v: f64, want: &dyn Fn(&Param) -> bool| {
-        let mut x = Dual::constant(v);
-        for (k, p) in params.iter().enumerate() {
-            if want(p) {
-                x.d[k] = 1.0;
-            }
+/// A lens's surfaces and image plane in dual numbers, seeded along `params`.
+struct DualLens<const N: usize> {
+    surfs: Vec<DualSurface<N>>,
+    image_z: Dual<N>,
+}
+
+/// `v` with tangent `slope(p)` along each of `params` that moves it (None: not at all).
+fn seeded<const N: usize>(v: f64, params: &[Param], slope: impl Fn(Param) -> Option<f64>) -> Dual<N> {
+    let mut x = Dual::constant(v);
+    for (k, &p) in params.iter().enumerate() {
+        if let Some(s) = slope(p) {
+            x.d[k] = s;
         }
-        x
-    };
+    }
+    x
+}
+
+/// One along `want`, 0 along every other parameter.
+fn along(want: Param) -> impl Fn(Param) -> Option<f64> {
+    move |p| (p == want).then_some(1.0)
+}
+
+fn dual_lens<const N: usize>(lens: &Lens, params: &[Param]) -> DualLens<N> {
     let mut z = Dual::<N>::constant(0.0);
-    let mut out = Vec::with_capacity(lens.surfaces.len());
+    let mut surfs = Vec::with_capacity(lens.surfaces.len());
     for (i, s) in lens.surfaces.iter().enumerate() {
         let nterms = s.asphere_terms().max(
             params
@@ -218,26 +231,24 @@ fn dual_surfaces<const N: usize>(lens: &Lens, params: &[Param]) -> (Vec<DualSurf
                 .max()
                 .unwrap_or(0),
         );
-        out.push(DualSurface {
-            c: {
-                let mut c = seed(s.curvature, &|p| *p == Param::Curvature(i));
-                for (k, p) in params.iter().enumerate() {
-                    if *p == Param::Radius(i) {
-                        c.d[k] = -s.curvature * s.curvature;
-                    }
-                }
-                c
-            },
-            kk: seed(1.0 + s.conic, &|p| *p == Param::Conic(i)),
+        let c = s.curvature;
+        surfs.push(DualSurface {
+            // dc/dR = -1/R^2 = -c^2
+            c: seeded(c, params, |p| match p {
+                Param::Curvature(j) if j == i => Some(1.0),
+                Param::Radius(j) if j == i => Some(-c * c),
+                _ => None,
+            }),
+            kk: seeded(1.0 + s.conic, params, along(Param::Conic(i))),
             a: (0..nterms)
-                .map(|k| seed(s.aspheric[k], &|p| *p == Param::Aspheric(i, k)))
+                .map(|k| seeded(s.aspheric[k], params, along(Param::Aspheric(i, k))))
                 .collect(),
             odd: s.odd,
             z,
         });
-        z = z + seed(s.thickness, &|p| *p == Param::Thickness(i));
+        z = z + seeded(s.thickness, params, along(Param::Thickness(i)));
     }
-    (out, z)
+    DualLens { surfs, image_z: z }
 }
 
 /// A traced ray's image point, direction and optical path with their tangents.
@@ -301,16 +312,26 @@ pub fn trace_from<const N: usize>(
         "{} parameters for {N} tangent directions",
         params.len()
     );
+    trace_dual(sys, &dual_lens(sys.lens, params), p, d)
+}
+
+/// [`trace_from`] through a lens already in dual numbers (the same for every ray of a call).
+fn trace_dual<const N: usize>(
+    sys: &System,
+    dl: &DualLens<N>,
+    p: [Dual<N>; 3],
+    d: [Dual<N>; 3],
+) -> Option<RayTangents<N>> {
     let real = |x: &[Dual<N>; 3]| DVec3::new(x[0].v, x[1].v, x[2].v);
     if !sys.trace(real(&p), real(&d), End::Image).ok() {
         return None;
     }
     let lens = sys.lens;
-    let (surfs, image_z) = dual_surfaces::<N>(lens, params);
+    let (surfs, image_z) = (&dl.surfs, dl.image_z);
     let k = Dual::<N>::constant;
     let (mut pos, mut dir) = (p, d);
     let mut opl = k(0.0);
-    for (i, (s, ds)) in lens.surfaces.iter().zip(&surfs).enumerate() {
+    for (i, (s, ds)) in lens.surfaces.iter().zip(surfs).enumerate() {
         let local = [pos[0], pos[1], pos[2] - ds.z];
         let (t, normal) = if s.has_asphere() || ds.a.iter().any(|a| a.d.iter().any(|x| *x != 0.0)) {
             asphere_hit(s, ds, &local, &dir)?
@@ -421,7 +442,7 @@ pub struct ParaxialTangents<const N: usize> {
 pub fn paraxial_tangents<const N: usize>(lens: &Lens, params: &[Param]) -> crate::Result<ParaxialTangents<N>> {
     use crate::lens::Aperture;
     let n = lens.indices(lens.primary_nm)?;
-    let (surfs, image_z) = dual_surfaces::<N>(lens, params);
+    let DualLens { surfs, image_z } = dual_lens::<N>(lens, params);
     let k = surfs.len();
     let thick: Vec<Dual<N>> = (0..k)
         .map(|i| {
@@ -455,18 +476,9 @@ pub fn paraxial_tangents<const N: usize>(lens: &Lens, params: &[Param]) -> crate
     }
     let efl = -(one(1.0) / nua);
     let entrance_pupil_z = b[lens.stop].0 / a[lens.stop].0;
-    let seeded = |v: f64, which: Param| {
-        let mut x = one(v);
-        for (k, p) in params.iter().enumerate() {
-            if *p == which {
-                x.d[k] = 1.0;
-            }
-        }
-        x
-    };
     let epd = match lens.aperture {
-        Aperture::Epd(d) => seeded(d, Param::Epd),
-        Aperture::FNumber(f) => (if efl.v < 0.0 { -efl } else { efl }) / seeded(f, Param::FNumber),
+        Aperture::Epd(d) => seeded(d, params, along(Param::Epd)),
+        Aperture::FNumber(f) => (if efl.v < 0.0 { -efl } else { efl }) / seeded(f, params, along(Param::FNumber)),
         Aperture::ObjectNA(_) => unreachable!("a finite object was refused above"),
     };
     let (yc, nuc) = ynu(-entrance_pupil_z, one(1.0))[k - 1];
@@ -481,25 +493,33 @@ pub fn paraxial_tangents<const N: usize>(lens: &Lens, params: &[Param]) -> crate
 }
 
 /// Paraxial aiming with tangents: the launch point of the ray through normalized pupil point
-/// (x, y), through (x, y) EPD / 2 on the entrance-pupil plane along the field's direction
-/// (an object at infinity), from the beam's launch plane: where on its line a ray starts
-/// changes its path and its plane-wave offset by the same amount, so nothing downstream sees
-/// the plane move.
-fn launcher<'a, const N: usize>(
-    par: &'a ParaxialTangents<N>,
-    beam: &crate::Beam,
-) -> impl Fn(f64, f64) -> [Dual<N>; 3] + 'a {
-    let z_launch = beam.launch(0.0, 0.0).origin.z;
-    let dir = beam.dir;
-    move |x: f64, y: f64| {
-        let h = par.epd * 0.5;
-        let back = (par.entrance_pupil_z - z_launch) * (1.0 / dir.z);
-        [
-            h * x - back * dir.x,
-            h * y - back * dir.y,
-            par.entrance_pupil_z - back * dir.z,
-        ]
-    }
+/// (x, y), i.e. through (x, y) EPD / 2 on the entrance-pupil plane, along `d` (an object at
+/// infinity), on the beam's launch plane `z_launch` (`Beam::ray_from`'s arithmetic): where on
+/// its line a ray starts changes its path and its plane-wave offset by the same amount, so
+/// nothing downstream sees the plane move.
+fn launch_along<const N: usize>(
+    par: &ParaxialTangents<N>,
+    z_launch: f64,
+    x: f64,
+    y: f64,
+    d: &[Dual<N>; 3],
+) -> [Dual<N>; 3] {
+    let h = par.epd * 0.5;
+    let back = (par.entrance_pupil_z - z_launch) / d[2];
+    [
+        h * x - back * d[0],
+        h * y - back * d[1],
+        par.entrance_pupil_z - back * d[2],
+    ]
+}
+
+/// The beam's direction in dual numbers and its launch plane.
+fn beam_frame<const N: usize>(beam: &crate::Beam) -> ([Dual<N>; 3], f64) {
+    let d = beam.dir;
+    (
+        [Dual::constant(d.x), Dual::constant(d.y), Dual::constant(d.z)],
+        beam.launch(0.0, 0.0).origin.z,
+    )
 }
 
 /// What the fast FFT PSF takes from its coarse rays (psf/fast.rs), with tangents: for each
@@ -526,17 +546,14 @@ pub fn pupil_tangents<const N: usize>(
     py: &[f64],
 ) -> crate::Result<Option<PupilTangents<N>>> {
     let par = paraxial_tangents::<N>(sys.lens, params)?;
+    let dl = dual_lens::<N>(sys.lens, params);
     let beam = crate::Beam::new(sys, field_deg, crate::Aiming::Paraxial)?;
-    let one = Dual::<N>::constant;
-    let dir = [one(beam.dir.x), one(beam.dir.y), one(beam.dir.z)];
-    // Through (px, py) EPD / 2 on the entrance-pupil plane along the field's direction, from
-    // the beam's launch plane: where on its line a ray starts changes its path and its
-    // plane-wave offset by the same amount, so W does not see the plane move.
-    let launch = launcher(&par, &beam);
+    let (dir, z_launch) = beam_frame::<N>(&beam);
+    let launch = |x: f64, y: f64| launch_along(&par, z_launch, x, y, &dir);
     let n0 = sys.n[0];
     let offset = |o: &[Dual<N>; 3]| dot(o, &dir) * n0;
     let c0 = launch(0.0, 0.0);
-    let Some(chief) = trace_from(sys, params, c0, dir) else {
+    let Some(chief) = trace_dual(sys, &dl, c0, dir) else {
         return Ok(None);
     };
     let n_img = sys.image_index();
@@ -547,7 +564,7 @@ pub fn pupil_tangents<const N: usize>(
     let (mut w, mut l, mut m) = (vec![], vec![], vec![]);
     for (&x, &y) in px.iter().zip(py) {
         let o = launch(x, y);
-        let Some(r) = trace_from(sys, params, o, dir) else {
+        let Some(r) = trace_dual(sys, &dl, o, dir) else {
             return Ok(None);
         };
         // back along the ray to the sphere (pupil.rs back_to_sphere)
@@ -723,6 +740,7 @@ pub fn best_focus_tangents<const N: usize>(
     rings: usize,
 ) -> crate::Result<Dual<N>> {
     let par = paraxial_tangents::<N>(lens, params)?;
+    let dl = dual_lens::<N>(lens, params);
     let wsum: f64 = wavelengths.iter().map(|p| p.1).sum();
     let (px, py) = crate::spot::polar_grid(rings);
     let systems = wavelengths
@@ -736,14 +754,12 @@ pub fn best_focus_tangents<const N: usize>(
         pts.clear();
         for (sys, &(_, wt)) in systems.iter().zip(wavelengths) {
             let beam = crate::Beam::new(sys, f, crate::Aiming::Paraxial)?;
-            let launch = launcher(&par, &beam);
-            let d = beam.dir;
-            let dir = [Dual::constant(d.x), Dual::constant(d.y), Dual::constant(d.z)];
+            let (dir, z_launch) = beam_frame::<N>(&beam);
             // flux weight: the launch's area (EPD / 2)^2 projected on the beam
             let h = par.epd * 0.5;
-            let weight = h * h * (d.z * wt / wsum);
+            let weight = h * h * (beam.dir.z * wt / wsum);
             for (&x, &y) in px.iter().zip(&py) {
-                let Some(r) = trace_from(sys, params, launch(x, y), dir) else {
+                let Some(r) = trace_dual(sys, &dl, launch_along(&par, z_launch, x, y, &dir), dir) else {
                     continue;
                 };
                 if r.d[2].v.abs() > 1e-12 {
@@ -799,30 +815,21 @@ pub fn irradiance_tangents<const N: usize>(
     }
     .points();
     let par = paraxial_tangents::<N>(lens, params)?;
+    let dl = dual_lens::<N>(lens, params);
     let sys = System::new(lens, wavelength_nm)?;
     let mut open = System::new(lens, wavelength_nm)?;
     open.clip = false;
     let beam = crate::Beam::new(&sys, field_deg, crate::Aiming::Paraxial)?;
-    let z_launch = beam.launch(0.0, 0.0).origin.z;
+    let (beam_dir, z_launch) = beam_frame::<N>(&beam);
     let d0 = beam.dir;
     let k = Dual::<N>::constant;
-    // a direction about the beam's, and the launch on the entrance-pupil point's line along it
-    let dir = |dl: Dual<N>, dm: Dual<N>| {
-        let (x, y) = (dl + d0.x, dm + d0.y);
+    // a direction about the beam's (the launch: on the entrance-pupil point's line along it)
+    let dir = |a: Dual<N>, b: Dual<N>| {
+        let (x, y) = (a + d0.x, b + d0.y);
         [x, y, (-(x * x) - y * y + 1.0).sqrt()]
     };
     let h = par.epd * 0.5;
-    let along = |x: f64, y: f64, d: &[Dual<N>; 3]| {
-        let back = (par.entrance_pupil_z - z_launch) / d[2];
-        [
-            h * x - back * d[0],
-            h * y - back * d[1],
-            par.entrance_pupil_z - back * d[2],
-        ]
-    };
-    let launch = launcher(&par, &beam);
-    let beam_dir = [k(d0.x), k(d0.y), k(d0.z)];
-    let chief = trace_from(&open, params, launch(0.0, 0.0), beam_dir);
+    let chief = trace_dual(&open, &dl, launch_along(&par, z_launch, 0.0, 0.0, &beam_dir), beam_dir);
     let mut e = k(0.0);
     for ((&x, &y), &w) in px.iter().zip(&py).zip(&pw) {
         let steps = [
@@ -836,7 +843,7 @@ pub fn irradiance_tangents<const N: usize>(
             .iter()
             .map(|&(a, b)| {
                 let d = dir(k(a), k(b));
-                trace_from(&open, params, along(x, y, &d), d)
+                trace_dual(&open, &dl, launch_along(&par, z_launch, x, y, &d), d)
             })
             .collect();
         let Some(g) = g else { continue };
@@ -855,7 +862,7 @@ pub fn irradiance_tangents<const N: usize>(
         if !(det.v.abs() > 1e-300) {
             continue;
         }
-        let (dl, dm) = match &chief {
+        let (step_l, step_m) = match &chief {
             Some(c) => {
                 let (rx, ry) = (c.p[0] - g[0].p[0], c.p[1] - g[0].p[1]);
                 (
@@ -865,8 +872,8 @@ pub fn irradiance_tangents<const N: usize>(
             }
             None => (k(0.0), k(0.0)),
         };
-        let d = dir(dl, dm);
-        if trace_from(&sys, params, along(x, y, &d), d).is_some() {
+        let d = dir(step_l, step_m);
+        if trace_dual(&sys, &dl, launch_along(&par, z_launch, x, y, &d), d).is_some() {
             let adet = if det.v < 0.0 { -det } else { det };
             e = e + h * h * w / adet;
         }
