@@ -175,8 +175,13 @@ def ray_footprint(
     py,
     aiming: str = "paraxial",
 ) -> np.ndarray:
-    """(n_surfaces,) largest radial height at each surface of the pupil rays (px, py) of every
-    field and wavelength that reach the image (0 where none does), in one call."""
+    """Clear semi-diameters from the ray footprint, as Zemax's automatic semi-diameters:
+    (n_surfaces,) largest radial height at each surface of the pupil rays (px, py) of every
+    field and wavelength, in one call (0 where no ray gets there).
+
+    Only rays that reach the image count: a ray that misses a surface or is totally reflected
+    does not pass the lens at that field, and its path on the surfaces before (far out on an
+    extended sphere, say) would size them for light that never arrives."""
     return _ext.ray_footprint(
         lens_json,
         int(n_surfaces),

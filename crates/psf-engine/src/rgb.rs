@@ -70,7 +70,7 @@ pub fn psf_rgb(lens: &Lens, field_deg: f64, channels: &Channels, o: &PsfOptions)
 /// An error where the image of the lens's field folds between the axis and `reach_deg`
 /// (`spot::field_fold`): its relative illumination cannot be computed per field (nor is any
 /// negative or non-finite one returned).
-pub fn check_no_fold(lens: &Lens, reach_deg: f64, aiming: crate::aim::Aiming) -> Result<()> {
+fn check_no_fold(lens: &Lens, reach_deg: f64, aiming: crate::aim::Aiming) -> Result<()> {
     match field_fold(lens, reach_deg, lens.primary_nm, aiming)? {
         None => Ok(()),
         Some(f) => Err(crate::error::EngineError::Trace(format!(

@@ -176,17 +176,15 @@ class Lens:
         too (OpticStudio's automatic value has no margin; it does not clip)."""
         import numpy as np
 
-        from .footprint import ray_footprint
-
         t = np.linspace(0.0, 2 * np.pi, n_rim, endpoint=False)
         try:
-            h = ray_footprint(
+            h = engine.ray_footprint(
                 self.to_engine_json(),
-                len(self.surfaces) + 1,
-                self.fields_deg,
-                self.wavelengths_nm,
-                np.append(np.sin(t), 0.0),
-                np.append(np.cos(t), 0.0),
+                n_surfaces=len(self.surfaces) + 1,
+                fields_deg=self.fields_deg,
+                wavelengths_nm=self.wavelengths_nm,
+                px=np.append(np.sin(t), 0.0),
+                py=np.append(np.cos(t), 0.0),
             )
         except Exception:  # noqa: BLE001 - a lens the engine cannot trace (afocal, say) still exports
             return [0.0] * (len(self.surfaces) + 1)  # DIAM 0: automatic, size unknown

@@ -44,7 +44,6 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .. import engine
-from ..lens.footprint import ray_footprint
 from ..lens.pupil import pupil_quadrature
 from ..lens import Lens
 from .space import ParameterSpace
@@ -256,8 +255,14 @@ class Merit:
     def footprint(self, lens: dict, js: str) -> np.ndarray:
         """Clear semi-diameter of each surface: the largest rim-ray height over all fields
         and wavelengths (the engine's ray paths on the real surfaces)."""
-        return ray_footprint(
-            js, len(lens["surfaces"]), self.fields, self.wavelengths, self.rim_px, self.rim_py, self.aiming
+        return engine.ray_footprint(
+            js,
+            n_surfaces=len(lens["surfaces"]),
+            fields_deg=self.fields,
+            wavelengths_nm=self.wavelengths,
+            px=self.rim_px,
+            py=self.rim_py,
+            aiming=self.aiming,
         )
 
     def _spot_terms(self, js: str) -> tuple[list, list, int]:

@@ -12,7 +12,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ..lens.footprint import ray_footprint
+from .. import engine
 from ..lens import Lens
 from ..lens.mtf import NYQUIST_5P86_UM, default_frequencies, field_mtf, mtf_at, psf_sampling
 from ..lens.surface import curvature, sag
@@ -59,8 +59,6 @@ def surface_geometry(lens: Lens, footprint: Sequence[float]) -> list[dict[str, A
 
 
 def _trace_paths(lens: Lens, field: float, px, py, wavelength_nm: float, aiming: str) -> dict:
-    from .. import engine
-
     return engine.trace_field_path(
         lens.to_engine_json(), field_deg=field, px=px, py=py, wavelength_nm=wavelength_nm, aiming=aiming
     )
@@ -72,8 +70,14 @@ def footprint(lens: Lens, fields: Sequence[float], aiming: str = "paraxial", n_e
     without a clear semi-diameter (as Zemax's automatic semi-diameters)."""
     t = np.linspace(0.0, 2 * np.pi, n_edge, endpoint=False)
     px, py = np.append(np.sin(t), 0.0), np.append(np.cos(t), 0.0)
-    h = ray_footprint(
-        lens.to_engine_json(), len(lens.surfaces), sorted(set(fields)), [lens.primary_wavelength_nm], px, py, aiming
+    h = engine.ray_footprint(
+        lens.to_engine_json(),
+        n_surfaces=len(lens.surfaces),
+        fields_deg=sorted(set(fields)),
+        wavelengths_nm=[lens.primary_wavelength_nm],
+        px=px,
+        py=py,
+        aiming=aiming,
     )
     if np.any(h <= 0):
         bad = [i + 1 for i in np.flatnonzero(h <= 0)]
