@@ -122,8 +122,10 @@ def whole_command(space: str, n: int, seed: int) -> dict:
         cmd = [sys.executable, "-c", "from optix_e2e.cli import main; main()", "dataset", space, "-n", str(n)]
         cmd += ["--seed", str(seed), "--out", str(Path(tmp) / "ds")]
         t = time.perf_counter()
-        subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        done = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         wall = time.perf_counter() - t
+    if done.returncode:  # the command's own one-line refusal (a bad space, n, ...)
+        raise SystemExit((done.stderr.strip().splitlines() or ["optix dataset failed"])[-1])
     return {"seconds": wall, "designs_per_s_end_to_end": n / wall}
 
 

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import torch
 
+from optix_e2e.errors import InputError
 from optix_e2e.isp.software import SoftwareISP
 
 # The IMX249's half diagonal in pixels (1920 x 1200): the position channels' full field.
@@ -94,7 +95,12 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args(argv)
     torch.set_num_threads(a.threads)
-    rows = [describe(p, a.size, a.repeats) for p in a.isp]
+    if a.size < 2 or a.size % 2 or a.repeats < 1:
+        raise SystemExit(f"--size must be even and >= 2, --repeats >= 1 (got {a.size}, {a.repeats})")
+    try:
+        rows = [describe(p, a.size, a.repeats) for p in a.isp]
+    except InputError as err:  # a missing or foreign checkpoint: its one line
+        raise SystemExit(str(err)) from None
     out = {"size_px": a.size, "threads": a.threads, "repeats": a.repeats, "networks": rows}
     if a.out:
         a.out.mkdir(parents=True, exist_ok=True)
