@@ -45,6 +45,7 @@ from tqdm import tqdm
 
 from optix_e2e.camera import Camera, FixedOptics, PerfectOptics, SensorStage, SoftwareISPStage, calibrated_preset
 from optix_e2e.isp.classical import ClassicalISP
+from optix_e2e.errors import InputError
 from optix_e2e.isp.software import SoftwareISP
 from optix_e2e import color
 from optix_e2e.metrics.image import psnr, ssim
@@ -105,6 +106,13 @@ def _row(name: str, out: torch.Tensor, target: torch.Tensor) -> tuple[str, float
 
 
 def main(argv=None) -> dict:
+    try:
+        return _main(argv)
+    except InputError as err:  # a missing checkpoint, a corpus of the wrong split: its one line
+        raise SystemExit(str(err)) from None
+
+
+def _main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=Path("runs/isp_headroom"))
     ap.add_argument("--isp", action="append", default=None, help="software ISP checkpoint(s) (default: shipped)")
@@ -115,6 +123,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--split", choices=("val", "test"), default="val", help="with --photos: which split")
     ap.add_argument("--threads", type=int, default=0)
     a = ap.parse_args(argv)
+    for path in a.isp or []:  # every checkpoint readable before minutes of work
+        SoftwareISP.load(path)
     if a.threads:
         torch.set_num_threads(a.threads)
     a.out.mkdir(parents=True, exist_ok=True)
