@@ -689,6 +689,21 @@ pub fn fit_tangents<const N: usize>(
     field_deg: f64,
     degree: usize,
 ) -> crate::Result<Option<FitTangents<N>>> {
+    fits_along::<N>(sys, params, field_deg, degree, false)
+}
+
+/// [`fit_tangents`] with the scale rho held at its value where `fixed_scale` (its tangent
+/// zero): the derivative of the fitted functions at fixed cells of the direction grid, which
+/// is what the reverse pass of the fast PSF needs. (The fits span all polynomials of their
+/// degree and parity, a space that scaling u, v leaves unchanged: the fitted functions of
+/// (L, M - M_chief) do not depend on rho, only their coefficients do.)
+pub(crate) fn fits_along<const N: usize>(
+    sys: &System,
+    params: &[Param],
+    field_deg: f64,
+    degree: usize,
+    fixed_scale: bool,
+) -> crate::Result<Option<FitTangents<N>>> {
     use crate::psf::fast::{half_pupil, terms, NT, N_RIM, R_RIM};
     let (px, py) = half_pupil(NT, N_RIM, R_RIM);
     let Some(pt) = pupil_tangents::<N>(sys, params, field_deg, &px, &py)? else {
@@ -702,6 +717,9 @@ pub fn fit_tangents<const N: usize>(
         if a.v > rho.v {
             rho = a;
         }
+    }
+    if fixed_scale {
+        rho = Dual::constant(rho.v);
     }
     let u: Vec<Dual<N>> = pt.l.iter().map(|l| *l / rho).collect();
     let v: Vec<Dual<N>> = pt.m.iter().map(|m| (*m - mc) / rho).collect();

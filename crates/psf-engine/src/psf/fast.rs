@@ -55,7 +55,7 @@ pub(crate) const N_RIM: usize = 25;
 pub(crate) const R_RIM: f64 = 0.999;
 /// Polynomial degrees tried, in order.
 const DEGREES: [usize; 3] = [8, 10, 12];
-const MAX_DEGREE: usize = 12;
+pub(crate) const MAX_DEGREE: usize = 12;
 /// Largest fit residual accepted at the traced rays: wavefront (waves) and pupil coordinates.
 pub const W_TOL_WAVES: f64 = 1e-3;
 pub const P_TOL: f64 = 1e-4;
@@ -76,9 +76,44 @@ pub(crate) fn fallback_is_the_pupils(why: &str) -> bool {
 /// (its distortion is far smaller: within 1% at the paper-triplet's corner; a cut pupil
 /// fails the area test and falls back).
 const GUARD: f64 = 1.05;
+
+/// Cells t = 0..n of the grid row at v: those within GUARD pupil radii of the affine map
+/// `aff` = (pxu, py0, pyv) (x grows with t), at most t_hi + 1; 0 where the row misses it.
+pub(super) fn row_len(aff: (f64, f64, f64), sc: f64, v: f64, t_hi: usize) -> usize {
+    let (pxu, py0, pyv) = aff;
+    let pya = py0 + pyv * v;
+    let room = GUARD * GUARD - pya * pya;
+    if room <= 0.0 {
+        return 0;
+    }
+    ((room.sqrt() / (pxu.abs() * sc)).floor() as usize + 1).min(t_hi + 1)
+}
 /// The grid's pupil area (sum of cell areas times edge coverage) must match the unit
 /// circle's to this fraction, else the fit is not trusted.
 const AREA_TOL: f64 = 1e-3;
+
+/// What the reverse pass of a fitted-pupil fast PSF (psf/fast_adjoint.rs) takes from its
+/// forward pass: the fits, the grid, and the transformed field U (columns m = 0..=h, each of
+/// g bins).
+pub(crate) struct FastState {
+    pub(crate) degree: usize,
+    /// Coefficients in `terms` order: W and py (even in u), px (odd).
+    pub(crate) w: Vec<f64>,
+    pub(crate) py: Vec<f64>,
+    pub(crate) px: Vec<f64>,
+    /// The affine pupil map (pxu, py0, pyv) that bounds each row's cells.
+    pub(crate) affine: (f64, f64, f64),
+    pub(crate) g: usize,
+    pub(crate) b_lo: usize,
+    pub(crate) nrow: usize,
+    pub(crate) t_hi: usize,
+    /// Cell size in u, v; the rim zone's half width; intensity per |U|^2.
+    pub(crate) sc: f64,
+    pub(crate) delta: f64,
+    pub(crate) scale: f64,
+    /// The field: ncol x g values from index 0 (a pooled buffer; recycle it).
+    pub(crate) cols: Vec<Complex32>,
+}
 
 /// Whether the fast path is asked for and can apply to these options.
 pub fn applies(o: &PsfOptions) -> bool {
@@ -125,7 +160,7 @@ pub(crate) fn half_pupil(nt: usize, n_rim: usize, r_rim: f64) -> (Vec<f64>, Vec<
 
 /// Legendre polynomials P_0..=P_deg at x, and their derivatives.
 #[inline]
-fn legendre(x: f64, deg: usize, p: &mut [f64], dp: &mut [f64]) {
+pub(crate) fn legendre(x: f64, deg: usize, p: &mut [f64], dp: &mut [f64]) {
     p[0] = 1.0;
     dp[0] = 0.0;
     if deg >= 1 {
@@ -312,19 +347,19 @@ pub(crate) fn lsq(pu: &[Leg], pv: &[Leg], ys: &[&[f64]], tm: &[(usize, usize)]) 
 }
 
 /// Lanes of the per-row series in s = u^2 (at most MAX_DEGREE / 2 + 1 terms used).
-const NL: usize = 8;
-type Lanes = [f64; NL];
+pub(super) const NL: usize = 8;
+pub(super) type Lanes = [f64; NL];
 
 /// A fitted function f(u, v) = sum c_ij P_i(u) P_j(v) of one parity in u, as monomials:
 /// f = u^parity sum_q s^q sum_k t[k][q] v^k (s = u^2), and df/dv from `dt`.
-struct Table {
+pub(super) struct Table {
     t: [Lanes; MAX_DEGREE + 1],
     dt: [Lanes; MAX_DEGREE + 1],
     deg: usize,
 }
 
 impl Table {
-    fn new(c: &[f64], tm: &[(usize, usize)], parity: usize, deg: usize) -> Table {
+    pub(super) fn new(c: &[f64], tm: &[(usize, usize)], parity: usize, deg: usize) -> Table {
         let leg = legendre_monomials();
         let mut t = [[0.0; NL]; MAX_DEGREE + 1];
         for (&c, &(i, j)) in c.iter().zip(tm) {
@@ -395,21 +430,21 @@ pub(crate) fn fast_len(n: usize) -> usize {
 /// d px/dv = u XV(s); py = Y(s), d py/du = u YD(s), d py/dv = YV(s); and the products
 /// J = XD YV - s XV YD (the Jacobian d(px, py)/d(u, v)) and R = s X^2 + Y^2 (r^2).
 /// `nq` terms in W, X, Y, ...; 2 nq - 1 in J, 2 nq in R.
-struct RowSeries {
-    w: Lanes,
-    x: Lanes,
-    xd: Lanes,
-    xv: Lanes,
-    y: Lanes,
-    yd: Lanes,
-    yv: Lanes,
-    j: [f64; 2 * NL],
-    r: [f64; 2 * NL],
+pub(super) struct RowSeries {
+    pub(super) w: Lanes,
+    pub(super) x: Lanes,
+    pub(super) xd: Lanes,
+    pub(super) xv: Lanes,
+    pub(super) y: Lanes,
+    pub(super) yd: Lanes,
+    pub(super) yv: Lanes,
+    pub(super) j: [f64; 2 * NL],
+    pub(super) r: [f64; 2 * NL],
 }
 
 impl RowSeries {
     #[inline(always)]
-    fn new(tw: &Table, tx: &Table, ty: &Table, v: f64, nq: usize) -> RowSeries {
+    pub(super) fn new(tw: &Table, tx: &Table, ty: &Table, v: f64, nq: usize) -> RowSeries {
         let (w, x, xv, y, yv) = (tw.val(v), tx.val(v), tx.dv(v), ty.val(v), ty.dv(v));
         let (mut xd, mut yd) = ([0.0; NL], [0.0; NL]);
         for q in 0..nq {
@@ -771,6 +806,19 @@ pub(crate) fn fast_psf_pupil(
     d: &mut Diagnostics,
     force_traced: bool,
 ) -> Result<std::result::Result<Vec<f64>, &'static str>> {
+    fast_psf_kept(sys, field_deg, o, d, force_traced, None)
+}
+
+/// `fast_psf_pupil`, and where `keep` is given and the fits held, what the reverse pass needs
+/// into it (None after a traced pupil).
+pub(crate) fn fast_psf_kept(
+    sys: &System,
+    field_deg: f64,
+    o: &PsfOptions,
+    d: &mut Diagnostics,
+    force_traced: bool,
+    keep: Option<&mut Option<FastState>>,
+) -> Result<std::result::Result<Vec<f64>, &'static str>> {
     let beam = Beam::new(sys, field_deg, Aiming::Paraxial)?;
     if beam.object.is_some() {
         return Ok(Err(
@@ -943,14 +991,11 @@ pub(crate) fn fast_psf_pupil(
         let delta = sc * pxu.abs().max(pyv.abs());
         for (ri, row) in rows.chunks_exact_mut(g).enumerate() {
             let vb = ((b_lo + ri) as f64 - half) * sc;
-            // Cells t = 0..n: within GUARD pupil radii of the affine map (x grows with t).
-            let pya = py0 + pyv * vb;
-            let room = GUARD * GUARD - pya * pya;
-            if room <= 0.0 {
+            let n = row_len((pxu, py0, pyv), sc, vb, t_hi);
+            if n == 0 {
                 zero_fill(row);
                 continue;
             }
-            let n = ((room.sqrt() / (pxu.abs() * sc)).floor() as usize + 1).min(t_hi + 1);
             let (a, am, e) = cw_.row(row, [&tw, &tx, &ty], vb, nq, n, sc, delta);
             area += a;
             amp_sum += am;
@@ -995,7 +1040,7 @@ pub(crate) fn fast_psf_pupil(
             "pupil_traced_because",
             "the fitted pupil's area differs from the unit circle's",
         );
-        return fast_psf_pupil(sys, field_deg, o, d, true);
+        return fast_psf_kept(sys, field_deg, o, d, true, keep);
     }
     let mut scratch_v = buffer::<f32>(scratch_len);
     let scratch = &mut scratch_v[..scratch_len];
@@ -1060,7 +1105,32 @@ pub(crate) fn fast_psf_pupil(
         }
     }
     CELL_WORK.with(|c| *c.borrow_mut() = cw_);
-    recycle(cols_v);
+    let fit_degree = fit.as_ref().map(|f| f.0);
+    match (keep, fit) {
+        (Some(k), Some((degree, _, _, ce, co))) => {
+            let mut ce = ce.into_iter();
+            *k = Some(FastState {
+                degree,
+                w: ce.next().unwrap_or_default(),
+                py: ce.next().unwrap_or_default(),
+                px: co.into_iter().next().unwrap_or_default(),
+                affine: (pxu, py0, pyv),
+                g,
+                b_lo,
+                nrow,
+                t_hi,
+                sc,
+                delta: sc * pxu.abs().max(pyv.abs()),
+                scale,
+                cols: cols_v,
+            });
+        }
+        (Some(k), None) => {
+            *k = None;
+            recycle(cols_v);
+        }
+        _ => recycle(cols_v),
+    }
     // Energy in the window.
     let window_energy = super::sum_lanes(&out);
 
@@ -1088,8 +1158,8 @@ pub(crate) fn fast_psf_pupil(
             },
         );
     }
-    if let Some((deg, ..)) = &fit {
-        d.set("pupil_fit_degree", *deg as f64);
+    if let Some(deg) = fit_degree {
+        d.set("pupil_fit_degree", deg as f64);
     } else {
         d.set("pupil_newton_iterations", newton_iterations as f64);
     }

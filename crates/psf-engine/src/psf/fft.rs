@@ -94,6 +94,11 @@ pub(super) fn plan<T: Real>(len: usize) -> Arc<dyn Fft<T>> {
     T::planner().with(|p| p.borrow_mut().plan_fft_inverse(len))
 }
 
+/// The adjoint of `plan`'s transform (the unnormalized forward FFT): a reverse pass's.
+pub(super) fn plan_adjoint<T: Real>(len: usize) -> Arc<dyn Fft<T>> {
+    T::planner().with(|p| p.borrow_mut().plan_fft_forward(len))
+}
+
 /// Largest Taylor order for the pupil-distortion correction, and its target phase error.
 pub(crate) const MAX_ORDER: usize = 8;
 pub(crate) const TAYLOR_TOL_RAD: f64 = 1e-3;

@@ -6,6 +6,7 @@
 
 pub mod auto;
 pub mod fast;
+pub mod fast_adjoint;
 pub mod fft;
 pub mod geometric;
 pub mod huygens;

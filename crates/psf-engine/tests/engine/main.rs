@@ -6,6 +6,7 @@ mod common;
 mod aiming;
 mod curved_image;
 mod failure_modes;
+mod fast_adjoint;
 mod fast_batch;
 mod finite_object;
 mod geometric;
