@@ -17,6 +17,7 @@ pub mod aim;
 pub mod budget;
 pub mod error;
 pub mod focus;
+pub mod gradient;
 pub mod image;
 pub mod kernel;
 pub mod lens;

@@ -211,8 +211,36 @@ impl SensorBinning {
         }
     }
 
+    /// The adjoint of `apply` (k = 1): dL/d(fine PSF) (fine x fine) from dL/d(sensor pixels)
+    /// (size x size), into `out`.
+    pub fn apply_adjoint(&self, g: &[f64], out: &mut [f64]) {
+        let (n, m) = (self.fine, self.size);
+        let mut rows = vec![0.0; n * m];
+        for (i, (r0, w)) in self.taps.iter().enumerate() {
+            for (t, a) in w.iter().enumerate() {
+                for j in 0..m {
+                    rows[(r0 + t) * m + j] += a * g[i * m + j];
+                }
+            }
+        }
+        out[..n * n].fill(0.0);
+        for (r, orow) in out.chunks_exact_mut(n).enumerate() {
+            for (j, (i0, w)) in self.taps.iter().enumerate() {
+                let gj = rows[r * m + j];
+                for (o, a) in orow[*i0..].iter_mut().zip(w) {
+                    *o += a * gj;
+                }
+            }
+        }
+    }
+
     pub fn size(&self) -> usize {
         self.size
+    }
+
+    /// The fine PSF's size it bins.
+    pub fn fine(&self) -> usize {
+        self.fine
     }
 }
 

@@ -29,39 +29,73 @@ use super::fast::{self, legendre, row_len, terms, FastState, RowSeries, Table, M
 use super::fft::{buffer, plan_adjoint, recycle, zero_fill};
 use super::{Diagnostics, PsfOptions};
 use crate::error::{arg, Result};
-use crate::tangent::{fits_along, Dual, Param};
+use crate::tangent::{fits_along, Dual, FitTangents, Param};
 use crate::trace::System;
 use num_complex::Complex32;
 use std::f64::consts::PI;
 
-/// A PSF's data and the gradient, or why there is no one-pass gradient.
-pub type WithGradient<const N: usize> = std::result::Result<(Vec<f64>, [f64; N]), &'static str>;
+/// A fast PSF and what its reverse pass needs: the forward pass's grid and field, and the
+/// fits' tangents along the parameters.
+pub struct Linearized<const N: usize> {
+    /// The PSF (`fast::fast_psf`'s data).
+    pub psf: Vec<f64>,
+    state: Option<FastState>,
+    fits: FitTangents<N>,
+    size: usize,
+}
 
-/// The fast PSF at `field_deg` (`fast::fast_psf`'s data and diagnostics) and the gradient of
-/// sum(g * PSF) along `params` (at most N), g holding size x size values. Ok(Err(reason))
-/// where the fast path with fitted pupils does not compute this PSF (a traced pupil, a
-/// fallback): no one-pass gradient then.
-pub fn fast_psf_vjp<const N: usize>(
+impl<const N: usize> Linearized<N> {
+    /// The gradient of sum(g * PSF) along the parameters (g: size x size values).
+    pub fn vjp(&self, g: &[f64]) -> Result<[f64; N]> {
+        if g.len() != self.size * self.size {
+            return arg(format!(
+                "fast PSF gradient: dL/dPSF holds {} values, expected {} x {}",
+                g.len(),
+                self.size,
+                self.size
+            ));
+        }
+        let st = self.state.as_ref().expect("held until dropped");
+        let adj = coefficient_adjoints(st, g, self.size);
+        let mut grad = [0.0; N];
+        for (a, c) in [
+            (&adj[0], &self.fits.w),
+            (&adj[1], &self.fits.py),
+            (&adj[2], &self.fits.px),
+        ] {
+            for (a, c) in a.iter().zip(c) {
+                for (gk, dk) in grad.iter_mut().zip(&c.d) {
+                    *gk += a * dk;
+                }
+            }
+        }
+        Ok(grad)
+    }
+}
+
+impl<const N: usize> Drop for Linearized<N> {
+    fn drop(&mut self) {
+        if let Some(st) = self.state.take() {
+            recycle(st.cols);
+        }
+    }
+}
+
+/// The fast PSF at `field_deg` (as `fast::fast_psf`, its diagnostics into `d`), linearized
+/// along `params` (at most N). Ok(Err(reason)) where the fast path with fitted pupils does not
+/// compute this PSF (a traced pupil, a fallback): no one-pass gradient then.
+pub fn linearize<const N: usize>(
     sys: &System,
     field_deg: f64,
     o: &PsfOptions,
     params: &[Param],
-    g: &[f64],
     d: &mut Diagnostics,
-) -> Result<WithGradient<N>> {
-    if g.len() != o.size * o.size {
-        return arg(format!(
-            "fast PSF gradient: dL/dPSF holds {} values, expected {} x {}",
-            g.len(),
-            o.size,
-            o.size
-        ));
-    }
+) -> Result<std::result::Result<Linearized<N>, &'static str>> {
     if params.len() > N {
         return arg(format!("fast PSF gradient: {} parameters, at most {N}", params.len()));
     }
     let mut keep = None;
-    let out = match fast::fast_psf_kept(sys, field_deg, o, d, false, Some(&mut keep))? {
+    let psf = match fast::fast_psf_kept(sys, field_deg, o, d, false, Some(&mut keep))? {
         Ok(out) => out,
         Err(why) => return Ok(Err(why)),
     };
@@ -70,21 +104,24 @@ pub fn fast_psf_vjp<const N: usize>(
             "the pupil was traced cell by cell (its fits missed their tolerance): no one-pass gradient",
         ));
     };
-    let fits = fits_along::<N>(sys, params, field_deg, st.degree, true)?;
-    let adj = coefficient_adjoints(&st, g, o.size);
-    recycle(st.cols);
-    let Some(fits) = fits else {
-        return Ok(Err("the fits' tangents could not be formed (a coarse ray lost)"));
-    };
-    let mut grad = [0.0; N];
-    for (a, c) in [(&adj[0], &fits.w), (&adj[1], &fits.py), (&adj[2], &fits.px)] {
-        for (a, c) in a.iter().zip(c) {
-            for (gk, dk) in grad.iter_mut().zip(&c.d) {
-                *gk += a * dk;
-            }
+    let fits = fits_along::<N>(sys, params, field_deg, st.degree, true);
+    let fits = match fits {
+        Ok(Some(f)) => f,
+        Ok(None) => {
+            recycle(st.cols);
+            return Ok(Err("the fits' tangents could not be formed (a coarse ray lost)"));
         }
-    }
-    Ok(Ok((out, grad)))
+        Err(e) => {
+            recycle(st.cols);
+            return Err(e);
+        }
+    };
+    Ok(Ok(Linearized {
+        psf,
+        state: Some(st),
+        fits,
+        size: o.size,
+    }))
 }
 
 /// Horner in s over the first `n` coefficients.

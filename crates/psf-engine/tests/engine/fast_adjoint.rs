@@ -1,11 +1,11 @@
-//! The fast FFT PSF's reverse pass (`psf::fast_adjoint::fast_psf_vjp`): the gradient of
+//! The fast FFT PSF's reverse pass (`psf::fast_adjoint::linearize`, then `vjp`): the gradient of
 //! L = sum(g * PSF) along the lens parameters against central differences of the engine's own
 //! PSF of the perturbed lens (`tangent::perturbed`), J^T g for a random g and for g = the PSF
 //! itself (L its sum of squares: sharpness), at three fields and two wavelengths, on the
 //! aspheric paper triplet and the spherical Cooke triplet.
 use crate::common;
 use psf_engine::psf::fast::fast_psf;
-use psf_engine::psf::fast_adjoint::fast_psf_vjp;
+use psf_engine::psf::fast_adjoint::linearize;
 use psf_engine::psf::{Diagnostics, Method, PsfOptions};
 use psf_engine::tangent::{perturbed, Param};
 use psf_engine::{Lens, System};
@@ -55,8 +55,9 @@ fn worst<const N: usize>(lens: &Lens, params: &[Param; N], steps: &[f64; N], wls
             let (p0, choice0) = psf_of(lens, wl, field, &o);
             for g in [random_g(p0.len(), (field * 10.0) as u64 + wl as u64), p0.clone()] {
                 let mut d = Diagnostics::default();
-                let (p, grad) = fast_psf_vjp::<N>(&sys, field, &o, params, &g, &mut d).unwrap().unwrap();
-                assert_eq!(p, p0, "the reverse pass's PSF is the forward one");
+                let lin = linearize::<N>(&sys, field, &o, params, &mut d).unwrap().unwrap();
+                assert_eq!(lin.psf, p0, "the linearized PSF is the forward one");
+                let grad = lin.vjp(&g).unwrap();
                 let loss = |l: &Lens| -> (f64, String) {
                     let (p, c) = psf_of(l, wl, field, &o);
                     (p.iter().zip(&g).map(|(a, b)| a * b).sum(), c)

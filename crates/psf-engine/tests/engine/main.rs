@@ -10,6 +10,7 @@ mod fast_adjoint;
 mod fast_batch;
 mod finite_object;
 mod geometric;
+mod gradient;
 mod illumination;
 mod kernel;
 mod odd_asphere;
