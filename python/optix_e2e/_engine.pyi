@@ -243,6 +243,37 @@ def auto_candidates(
     """What method "auto" sees: ``probe`` (its measurements) and ``candidates`` (name,
     method, fast, pupil_samples, predicted_rel_l1, predicted_cost_s; cheapest first)."""
 
+def psf_set_vjp(
+    lens_json: str,
+    fields_deg: Sequence[float],
+    channels: Sequence[Sequence[tuple[float, float]]],
+    params: Sequence[tuple[str, int, int]],
+    g_psf: np.ndarray,
+    g_ri: np.ndarray,
+    method: str = "auto",
+    pixel_um: float = 1.0,
+    size: int = 64,
+    pupil_samples: int = 64,
+    aiming: str = "paraxial",
+    accuracy: float = 0.02,
+    sensor: tuple[float, int] | None = None,
+    focus: tuple[Sequence[float], Sequence[tuple[float, float]], int] | None = None,
+) -> dict[str, Any]:
+    """The one-pass gradient of one design's PSF set (GIL released): dL/d(params) from
+    ``g_psf`` = dL/dPSF, float64 [fields, channels, m, m] (m = sensor[1] where ``sensor`` =
+    (pitch_um, m) bins the PSFs to sensor pixels, else ``size``) and ``g_ri`` = dL/d(relative
+    illumination) [fields, channels], for the set ``psf_batch`` computes with the same options
+    (each channel normalized to unit sum). ``params``: (kind, surface from 0, aspheric term
+    index from 0 = r^2) with kind curvature, radius, conic, aspheric, thickness, f_number or
+    epd (surface and index ignored where they do not apply). ``focus`` = (fields_deg,
+    (nm, weight) pairs, rings): the image plane follows the best focus (best_focus_batch's),
+    so its shift's tangent enters; None: the image plane is held. Returns grad (P,) float64,
+    psf [fields, channels, size, size] and relative_illumination [fields, channels] (the set's,
+    before binning), and fallback: None, or why this design has no one-pass gradient (the
+    first PSF not from the fast FFT with fitted pupils, real-ray aiming, a curved image); then
+    grad, psf and relative_illumination are None and the caller uses differences.
+    """
+
 def best_focus_batch(
     lens_jsons: Sequence[str],
     fields_deg: Sequence[float],

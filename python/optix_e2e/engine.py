@@ -40,6 +40,7 @@ __all__ = [
     "psf",
     "psf_batch",
     "psf_rgb",
+    "psf_set_vjp",
     "refractive_indices",
     "spot",
     "trace",
@@ -336,6 +337,44 @@ def best_focus_batch(
         [(float(w), float(k)) for w, k in wavelengths],
         int(rings),
         aiming,
+    )
+
+
+@_door
+def psf_set_vjp(
+    *,
+    lens_json: str,
+    fields_deg: Sequence[float],
+    channels: Channels,
+    params: Sequence[tuple[str, int, int]],
+    g_psf: np.ndarray,
+    g_ri: np.ndarray,
+    method: str = "auto",
+    pixel_um: float = 1.0,
+    size: int = 64,
+    pupil_samples: int = 64,
+    aiming: str = "paraxial",
+    accuracy: float = 0.02,
+    sensor: tuple[float, int] | None = None,
+    focus: tuple[Sequence[float], Sequence[tuple[float, float]], int] | None = None,
+) -> dict[str, Any]:
+    return _ext.psf_set_vjp(
+        lens_json,
+        [float(f) for f in fields_deg],
+        [[(float(w), float(k)) for w, k in c] for c in channels],
+        [(str(k), int(s), int(t)) for k, s, t in params],
+        np.ascontiguousarray(g_psf, np.float64),
+        np.ascontiguousarray(g_ri, np.float64),
+        method,
+        float(pixel_um),
+        int(size),
+        int(pupil_samples),
+        aiming,
+        float(accuracy),
+        None if sensor is None else (float(sensor[0]), int(sensor[1])),
+        None
+        if focus is None
+        else ([float(f) for f in focus[0]], [(float(w), float(k)) for w, k in focus[1]], int(focus[2])),
     )
 
 

@@ -79,7 +79,7 @@ def test_detection_needs_a_space_with_the_f_number(tmp_path, optix, smoke_design
 
 def test_detection_in_the_wide_space_runs_on_exact_optics(tmp_path, optix, smoke_design):
     """The detection space with free centre thicknesses (issue 35) has no network: the run's
-    lens steps go through the engine (its PSFs and central-difference Jacobian), the nominal
+    lens steps go through the engine (its PSFs and one-pass gradient), the nominal
     baseline trains on the engine's PSFs of the nominal lens, and results.json says so; the
     surrogate's reference figures are absent, not made up."""
     (tmp_path / "wide.toml").write_text('optics = "exact"\nspace = "paper-triplet-detect-wide"\n')
@@ -89,8 +89,11 @@ def test_detection_in_the_wide_space_runs_on_exact_optics(tmp_path, optix, smoke
     res = json.loads((out / "results.json").read_text())
     m = res["optics_model"]
     assert m["mode"] == "exact" and m["network"] is False and "adds s_1_thickness, s_6_thickness" in m["no_network"]
-    # 4 lens steps, each a Jacobian of 2 P + 1 designs (P = 22), besides the step choice
-    assert m["engine"]["designs"] >= 4 * 45 and len(m["steps"]["steps"]) == 22
+    # 4 lens steps on the engine's one-pass gradient (P = 22, the f-number among them), none by
+    # differences: no Jacobian's designs, no step choice
+    e = m["engine"]
+    assert e["gradient"] == "one-pass" and e["one_pass_gradients"] >= 4 and e["difference_fallbacks"] == 0
+    assert e["designs"] < 20 and "steps" not in m
     assert res["design"]["parameters"][-3:] == ["s_1_thickness", "s_6_thickness", "f_number"]
     assert res["space"]["source"] == "paper-triplet-detect-wide" and not res["space"]["surrogates_own"]
     assert res["surrogate_psf_rel_l1_per_field"]["end_to_end"] is None

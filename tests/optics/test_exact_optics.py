@@ -84,8 +84,12 @@ def test_autograd_function_returns_the_jacobian_contraction(nominal_jacobian, su
     w_psf = torch.rand(psf.shape, generator=g, dtype=torch.float64)
     w_vig = torch.rand(vig.shape, generator=g, dtype=torch.float64)
     x = torch.tensor(v, requires_grad=True)
-    p, q = exact_psfs(x, eng)
-    ((p * w_psf).sum() + (q * w_vig).sum()).backward()
+    eng.gradient = "differences"
+    try:
+        p, q = exact_psfs(x, eng)
+        ((p * w_psf).sum() + (q * w_vig).sum()).backward()
+    finally:
+        eng.gradient = "one-pass"
     want = (jp * w_psf.numpy()).reshape(len(v), -1).sum(1) + (jv * w_vig.numpy()).reshape(len(v), -1).sum(1)
     np.testing.assert_allclose(x.grad.numpy(), want, rtol=1e-10, atol=1e-14)
     # without gradients only the design itself is computed
@@ -93,6 +97,48 @@ def test_autograd_function_returns_the_jacobian_contraction(nominal_jacobian, su
     with torch.no_grad():
         exact_psfs(torch.tensor(v + 1e-3 * (eng.hi - eng.lo)), eng)
     assert eng.designs_computed == n + 1
+
+
+def test_the_one_pass_gradient_is_the_jacobians_contraction(nominal_jacobian):
+    """The engine's one-pass gradient (the default, ``exact_gradient = "one-pass"``) against the
+    central-difference Jacobian's J^T g for random g over all 13 fields x RGB PSFs and the
+    vignetting, every parameter of the space: refocus, auto's method, the sensor binning and the
+    normalization included. Measured 6e-5 and 5e-4 relative (vector norm); asserted <= 0.5 %.
+    The backward pass is one engine call: no designs computed, no fallback."""
+    eng, v, psf, vig, jp, jv = nominal_jacobian
+    rng = np.random.default_rng(3)
+    for _ in range(2):
+        g_psf, g_vig = rng.uniform(-1, 1, psf.shape), rng.uniform(-1, 1, vig.shape)
+        x = torch.tensor(v, requires_grad=True)
+        p, q = exact_psfs(x, eng)
+        n, one = eng.designs_computed, eng.one_pass
+        ((p * torch.as_tensor(g_psf)).sum() + (q * torch.as_tensor(g_vig)).sum()).backward()
+        assert eng.designs_computed == n and eng.one_pass == one + 1 and eng.last["fallback"] is None
+        want = (jp * g_psf).reshape(len(v), -1).sum(1) + (jv * g_vig).reshape(len(v), -1).sum(1)
+        err = np.linalg.norm(x.grad.numpy() - want) / np.linalg.norm(want)
+        assert err <= 5e-3, err
+
+
+def test_a_design_without_a_one_pass_gradient_falls_back_to_differences_and_says_why(sur, monkeypatch):
+    """Where the engine has no one-pass gradient for the design (here: a manifest whose PSFs are
+    the general FFT's), the step is the Jacobian's, counted, with the engine's reason."""
+    man = {**sur.manifest, "settings": {**sur.manifest["settings"], "psf_method": "huygens"}}
+    eng = ExactOptics(man, sur.psf_kind, sur.bin, sur.param_min.double().numpy(), sur.param_max.double().numpy())
+    k, c, s = len(man["fields_deg"]), len(man["channels"]), man["sensor_size"]
+    calls = []
+
+    def jacobian(v):
+        calls.append(v)
+        return None, None, np.ones((len(v), k, c, s, s)), np.ones((len(v), k, c))
+
+    monkeypatch.setattr(eng, "jacobian", jacobian)
+    monkeypatch.setattr(eng, "psfs", lambda v: None)
+    eng._cache = (None, None, None, float(sur.manifest["base_lens"]["surfaces"][-1]["thickness"]))
+    v = DifferentiableOptics(sur).base_values().double().numpy()
+    g = eng.vjp(v, np.full((k, c, s, s), 2.0), np.full((k, c), 3.0))
+    assert len(calls) == 1 and eng.fallbacks == 1 and eng.one_pass == 0
+    np.testing.assert_allclose(g, 2.0 * k * c * s * s + 3.0 * k * c)
+    assert "huygens" in eng.last["fallback"], eng.last
 
 
 @pytest.mark.slow
@@ -142,8 +188,8 @@ def test_one_rejected_side_gives_the_one_sided_difference_and_both_a_named_error
     real_run = eng._run
     drop = {}
 
-    def run(values):
-        psf, vig, reasons = real_run(values)
+    def run(values, image=None):
+        psf, vig, reasons = real_run(values, image)
         for k in drop:
             psf[k], vig[k] = None, None
             reasons[k] = drop[k]

@@ -99,14 +99,14 @@ class _Killed(Exception):
     pass
 
 
-def _train_exact(out, kill_at=None):
+def _train_exact(out, kill_at=None, gradient="one-pass"):
     """A smoke end-to-end training on exact optics (6 steps, a checkpoint after each), killed
     in the middle of step ``kill_at`` (after its check, before its checkpoint) if given."""
     from optix_e2e.camera_design.build import build_camera, make_optimizer
     from optix_e2e.camera_design.training import train
     from optix_e2e.tasks import SensorFrame
 
-    cfg = make_config("smoke", optics="exact", checkpoint_every=1, check_every=2, threads=1)
+    cfg = make_config("smoke", optics="exact", checkpoint_every=1, check_every=2, threads=1, exact_gradient=gradient)
     sur = load_surrogate(cfg.surrogate)
     frame = SensorFrame()
     cam = build_camera(cfg, sur, frame=frame)
@@ -134,13 +134,14 @@ def _train_exact(out, kill_at=None):
 
 
 @pytest.mark.slow
-def test_an_exact_optics_run_resumes_on_the_same_path(tmp_path):
-    """Killed after the step sizes were chosen (step 1) and before the next Jacobians (steps 5,
-    6): the resumed run reuses the saved steps, checks and counters, and lands on the
-    uninterrupted run's lens."""
-    cam, mon, _ = _train_exact(tmp_path / "whole")
-    assert _train_exact(tmp_path / "killed", kill_at=4) is None
-    cam2, mon2, res2 = _train_exact(tmp_path / "killed")
+@pytest.mark.parametrize("gradient", ["one-pass", "differences"])
+def test_an_exact_optics_run_resumes_on_the_same_path(tmp_path, gradient):
+    """Killed after the first lens steps (under differences: after the step sizes were chosen)
+    and before steps 5, 6: the resumed run reuses the saved checks and counters (the steps),
+    and lands on the uninterrupted run's lens."""
+    cam, mon, _ = _train_exact(tmp_path / "whole", gradient=gradient)
+    assert _train_exact(tmp_path / "killed", kill_at=4, gradient=gradient) is None
+    cam2, mon2, res2 = _train_exact(tmp_path / "killed", gradient=gradient)
     assert res2["steps"] == 6
     assert torch.equal(cam2.optics.u, cam.optics.u)
 
@@ -150,9 +151,17 @@ def test_an_exact_optics_run_resumes_on_the_same_path(tmp_path):
     assert [c["step"] for c in mon.checks] == [0, 2, 4, 6]
     assert key(mon2.checks) == key(mon.checks)
     s1, s2 = mon.summary(), mon2.summary()
-    assert s2["step_choice"] == s1["step_choice"] and s1["step_choice"] is not None
-    # counted across the kill (give or take the design recomputed after it: the cache is not saved)
-    assert abs(s2["engine_designs"] - s1["engine_designs"]) <= 2 and s1["engine_designs"] > 266
+    assert s2["exact_gradient"] == s1["exact_gradient"] == gradient
+    if gradient == "differences":
+        assert s2["step_choice"] == s1["step_choice"] and s1["step_choice"] is not None
+        # counted across the kill (give or take the design recomputed after it: the cache is not saved)
+        assert abs(s2["engine_designs"] - s1["engine_designs"]) <= 2 and s1["engine_designs"] > 266
+    else:
+        # every lens step on one engine pass, none by differences; counted across the kill (the
+        # killed step's own pass, not checkpointed, is made again)
+        assert s1["step_choice"] is None and s1["difference_fallbacks"] == s2["difference_fallbacks"] == 0
+        assert s1["one_pass_gradients"] >= 4 and s2["one_pass_gradients"] == s1["one_pass_gradients"]
+        assert s1["engine_designs"] < 20
     json.dumps(s2, allow_nan=False)
 
 

@@ -889,6 +889,113 @@ fn best_focus_batch<'py>(
     Ok(d)
 }
 
+/// The best-focus rule as Python passes it: (fields_deg, (nm, weight) pairs, rings).
+type FocusArg = (Vec<f64>, Vec<(f64, f64)>, usize);
+
+/// A lens parameter from its name: (kind, surface (0-based), aspheric term index).
+fn parse_param(kind: &str, surface: usize, term: usize) -> PyResult<psf_engine::tangent::Param> {
+    use psf_engine::tangent::Param;
+    Ok(match kind {
+        "curvature" => Param::Curvature(surface),
+        "radius" => Param::Radius(surface),
+        "conic" => Param::Conic(surface),
+        "aspheric" => Param::Aspheric(surface, term),
+        "thickness" => Param::Thickness(surface),
+        "f_number" => Param::FNumber,
+        "epd" => Param::Epd,
+        _ => {
+            return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                "parameter kind {kind:?}: use curvature, radius, conic, aspheric, thickness, f_number or epd"
+            )))
+        }
+    })
+}
+
+/// The one-pass gradient of one design's PSF set (psf_engine::gradient::psf_set_vjp).
+#[pyfunction]
+#[pyo3(signature = (lens_json, fields_deg, channels, params, g_psf, g_ri, method="auto", pixel_um=1.0, size=64, pupil_samples=64, aiming="paraxial", accuracy=0.02, sensor=None, focus=None))]
+#[allow(clippy::too_many_arguments)]
+fn psf_set_vjp<'py>(
+    py: Python<'py>,
+    lens_json: &str,
+    fields_deg: Vec<f64>,
+    channels: Vec<Vec<(f64, f64)>>,
+    params: Vec<(String, usize, usize)>,
+    g_psf: numpy::PyReadonlyArrayDyn<'py, f64>,
+    g_ri: numpy::PyReadonlyArrayDyn<'py, f64>,
+    method: &str,
+    pixel_um: f64,
+    size: usize,
+    pupil_samples: usize,
+    aiming: &str,
+    accuracy: f64,
+    sensor: Option<(f64, usize)>,
+    focus: Option<FocusArg>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let o = options(
+        method,
+        pixel_um,
+        size,
+        pupil_samples,
+        None,
+        aiming,
+        false,
+        false,
+        true,
+        accuracy,
+    )?;
+    let params = params
+        .iter()
+        .map(|(k, s, t)| parse_param(k, *s, *t))
+        .collect::<PyResult<Vec<_>>>()?;
+    let binning = match sensor {
+        Some((pitch_um, m)) => {
+            Some(psf_engine::rgb::SensorBinning::new(size, pixel_um * 1e-3, m, pitch_um * 1e-3).map_err(to_py)?)
+        }
+        None => None,
+    };
+    let focus = focus.map(|(fields, wavelengths, rings)| psf_engine::gradient::FocusRule {
+        fields,
+        wavelengths,
+        rings,
+    });
+    fn contiguous(name: &str, a: &numpy::PyReadonlyArrayDyn<'_, f64>) -> PyResult<Vec<f64>> {
+        a.as_slice()
+            .map(|s| s.to_vec())
+            .map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("{name}: {e}")))
+    }
+    let (gp, gr) = (contiguous("g_psf", &g_psf)?, contiguous("g_ri", &g_ri)?);
+    let (nf, nc) = (fields_deg.len(), channels.len());
+    let r = run(py, || {
+        psf_engine::gradient::psf_set_vjp(
+            &parse_lens(lens_json)?,
+            &fields_deg,
+            &channels,
+            &o,
+            binning.as_ref(),
+            &params,
+            focus.as_ref(),
+            &gp,
+            &gr,
+        )
+    })?;
+    let d = PyDict::new(py);
+    d.set_item("fallback", r.fallback.clone())?;
+    if r.fallback.is_none() {
+        d.set_item("grad", r.grad.into_pyarray(py))?;
+        d.set_item("psf", r.psf.into_pyarray(py).reshape([nf, nc, size, size])?)?;
+        d.set_item(
+            "relative_illumination",
+            r.relative_illumination.into_pyarray(py).reshape([nf, nc])?,
+        )?;
+    } else {
+        d.set_item("grad", py.None())?;
+        d.set_item("psf", py.None())?;
+        d.set_item("relative_illumination", py.None())?;
+    }
+    Ok(d)
+}
+
 #[pymodule]
 fn _engine(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
@@ -918,6 +1025,7 @@ fn _engine(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(ray_footprint, m)?)?;
     m.add_function(wrap_pyfunction!(wavefront, m)?)?;
     m.add_function(wrap_pyfunction!(best_focus_batch, m)?)?;
+    m.add_function(wrap_pyfunction!(psf_set_vjp, m)?)?;
     m.add_function(wrap_pyfunction!(psf, m)?)?;
     m.add_function(wrap_pyfunction!(psf_rgb, m)?)?;
     m.add_function(wrap_pyfunction!(psf_batch, m)?)?;

@@ -207,6 +207,7 @@ def build_camera(
         optics = DifferentiableOptics(
             copy.deepcopy(sur) if own_surrogate else sur, patch=cfg.patch, full_field_px=frame.full_field_px
         )
+        optics.exact_gradient = cfg.exact_gradient
         optics.set_values(initial_optics_values(cfg, optics))
         optics.render_fields = nominal_field_heights(sur)
         optics.use_fields(cfg.fields)

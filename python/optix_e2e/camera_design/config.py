@@ -134,6 +134,10 @@ class DesignConfig:
     # to 20 % off at the full field, exact costs nothing measurable on the whole run); detection too, in
     # paper-triplet-detect-wide, a space no network learned (TASK_BUDGETS; its smoke budget: surrogate)
     optics: str = "exact"
+    # the exact optics' lens gradient (optics/exact.py): "one-pass", the engine's vector-Jacobian
+    # product (differences where a design has none, counted), or "differences", the central-
+    # difference Jacobian (2P + 1 designs a step; how runs made before the one-pass gradient ran)
+    exact_gradient: str = "one-pass"
     check_every: int = 10  # exact check of the current design every N steps (and after the last)
     hybrid_threshold: float = 0.02  # hybrid: refine when the worst field's PSF rel. L1 passes this
     refine: str = "correction"  # hybrid: correction (exact minus surrogate at the design) | network
@@ -190,6 +194,10 @@ class DesignConfig:
 
         if self.optics not in OPTICS_MODES:
             raise InputError(f"optics must be one of {', '.join(OPTICS_MODES)}, got {self.optics!r}")
+        from ..optics.exact import EXACT_GRADIENTS
+
+        if self.exact_gradient not in EXACT_GRADIENTS:
+            raise InputError(f"exact_gradient must be one of {', '.join(EXACT_GRADIENTS)}, got {self.exact_gradient!r}")
         if self.refine not in REFINE_MODES:
             raise InputError(f"refine must be one of {', '.join(REFINE_MODES)}, got {self.refine!r}")
         from .guard import GUARD_MODES
@@ -417,6 +425,7 @@ BEFORE_SETTING: dict[str, object] = {
     "train_positions": "frame",
     "optics": "surrogate",
     "lens_steps": "sigmoid",
+    "exact_gradient": "differences",
 }
 
 

@@ -370,7 +370,14 @@ class DetectionHooks(TaskHooks):
             model["no_network"] = optics.surrogate.no_network_why
         if self.cfg.optics == "exact":
             ex = optics.exact
-            model["engine"] = {"designs": ex.designs_computed, "seconds": ex.seconds}
+            model["engine"] = {
+                "designs": ex.designs_computed,
+                "seconds": ex.seconds,
+                # lens steps on the engine's one-pass gradient, and by differences where it had none
+                "gradient": ex.gradient,
+                "one_pass_gradients": ex.one_pass,
+                "difference_fallbacks": ex.fallbacks,
+            }
             if ex.step_choice is not None:
                 model["steps"] = ex.step_choice.to_json()
         return {

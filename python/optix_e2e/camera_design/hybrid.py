@@ -211,6 +211,8 @@ class OpticsMonitor:
                 "step_choice": ex.step_choice.to_json() if ex.step_choice is not None else None,
                 "designs_computed": int(ex.designs_computed),
                 "seconds": float(ex.seconds),
+                "one_pass": int(ex.one_pass),
+                "fallbacks": int(ex.fallbacks),
             }
         )
         return {
@@ -249,6 +251,7 @@ class OpticsMonitor:
             ex.steps = None if eng["steps"] is None else np.array(eng["steps"], float)
             ex.step_choice = None if eng["step_choice"] is None else StepChoice.from_json(eng["step_choice"])
             ex.designs_computed, ex.seconds = int(eng["designs_computed"]), float(eng["seconds"])
+            ex.one_pass, ex.fallbacks = int(eng.get("one_pass", 0)), int(eng.get("fallbacks", 0))
 
     def summary(self) -> dict:
         """For results.json: settings, every check, the events, and the final design's errors."""
@@ -264,6 +267,10 @@ class OpticsMonitor:
             "n_refinements": sum(e["event"] == "refine" for e in self.events),
             "engine_designs": ex.designs_computed if ex is not None else 0,
             "engine_seconds": ex.seconds if ex is not None else 0.0,
+            # lens steps on the engine's one-pass gradient, and on differences where it had none
+            "exact_gradient": ex.gradient if ex is not None else None,
+            "one_pass_gradients": ex.one_pass if ex is not None else 0,
+            "difference_fallbacks": ex.fallbacks if ex is not None else 0,
             "refine_seconds": self.refine_seconds,
             "step_choice": ex.step_choice.to_json() if ex is not None and ex.step_choice is not None else None,
             "checks": self.checks,

@@ -125,6 +125,19 @@ def _complete(root: Path, k: int, man: dict, log: Callable[[str], None]) -> bool
         return False
 
 
+def focus_points(man: dict) -> tuple[list[float], list[float]]:
+    """The fields and wavelengths (nm, equal weights) of a dataset's best focus: by default 7
+    of its K fields, spread evenly with both ends, and every channel's wavelengths, with a
+    4-ring polar pupil (96 rays per field and wavelength; within 1 um of 8 rings near the
+    nominal, against a depth of focus of +-20 um at f/4.4); settings focus_fields, focus_rings."""
+    s = DatasetSettings.of_manifest(man["settings"])
+    fields = man["fields_deg"]
+    k = len(fields)
+    nf = min(k, s.focus_fields)
+    chosen = [float(fields[i]) for i in np.unique(np.linspace(0, k - 1, nf).round().astype(int))]
+    return chosen, sorted({float(wl) for c in man["channels"] for wl, _ in c})
+
+
 def compute_shard(
     k: int,
     man: dict,
@@ -161,12 +174,7 @@ def compute_shard(
     ri, image, energy, warnings = [], [], [], {}
     legend: dict[str, int] = {}
     methods: dict[str, list[int]] = {}
-    wavelengths = sorted({wl for c in channels for wl, _ in c})
-    # best focus from 7 of the K fields and a 4-ring polar pupil by default (96 rays per field
-    # and wavelength; within 1 um of 8 rings near the nominal, against a depth of focus of
-    # +-20 um at f/4.4); settings focus_fields, focus_rings
-    nf = min(K, s.focus_fields)
-    focus_fields = [fields[i] for i in np.unique(np.linspace(0, K - 1, nf).round().astype(int))]
+    focus_fields, wavelengths = focus_points(man)
     # the geometry check at the clear apertures the dataset's sampler used: each design's own
     # (lens_design.constraints), or the base lens's for the datasets made before that rule
     base_sd = apertures(base) if man.get("sampling_summary", {}).get("apertures", "base-lens") == "base-lens" else None

@@ -65,6 +65,8 @@ class DifferentiableOptics(nn.Module):
         # buffer, so it moves with the module (not saved: the run sets it when it builds the camera)
         self.register_buffer("render_fields", None, persistent=False)
         self._exact = None
+        # the exact optics' lens gradient (optics/exact.py EXACT_GRADIENTS), set before first use
+        self.exact_gradient = "one-pass"
         # default: the network where there is one (a copy on another space's terms has none)
         self.backend = backend or ("surrogate" if surrogate.has_network else "exact")
         # an additive correction of the surrogate's output (psf [K, C, S, S], vignetting [K, C]):
@@ -91,7 +93,7 @@ class DifferentiableOptics(nn.Module):
         if self._exact is None:
             from .exact import ExactOptics
 
-            self._exact = ExactOptics.from_surrogate(self.surrogate)
+            self._exact = ExactOptics.from_surrogate(self.surrogate, gradient=self.exact_gradient)
         return self._exact
 
     @property
@@ -163,7 +165,7 @@ class DifferentiableOptics(nn.Module):
 
     def psfs(self) -> tuple[torch.Tensor, torch.Tensor]:
         """(psf [K, C, S, S] unit sum per channel, vignetting [K, C]) at the current parameters,
-        from the backend (exact: the engine, gradients by central differences)."""
+        from the backend (exact: the engine, gradients by its one-pass gradient or differences)."""
         if self._backend == "exact":
             from .exact import exact_psfs
 

@@ -1,17 +1,23 @@
 """Exact optics inside the loop: the engine's PSFs and relative illumination of a design, and
 their derivatives with respect to the lens parameters, as a torch autograd Function.
 
-Why central differences (and not forward-mode derivatives through the trace and the pupil
-function): the engine computes a design's K fields x RGB PSFs in milliseconds and runs many
-designs in parallel in one call, so the 2P + 1 designs of a central-difference Jacobian
-(P = 19 in the paper-triplet e2e space: 39 designs) are one batch. Everything the dataset does
-to a design comes with it unchanged, refocusing included (the closed-form best focus of
-lens_design/focus.py is a smooth function of the lens), so the gradient is that of exactly the
-PSFs the surrogate was trained to imitate. Forward-mode would need dual numbers through the
-ray trace, the aiming, the focus, the pupil sampling, the FFT and the resampling of the Rust
-engine: a second engine to keep right.
+Two gradients (``ExactOptics.gradient``, the design setting ``exact_gradient``):
 
-The step of each parameter is chosen, not guessed (``choose_steps``): the central difference
+* ``"one-pass"`` (the default): the engine's vector-Jacobian product
+  (``engine.psf_set_vjp``; crates/psf-engine/src/gradient.rs). The backward pass hands the
+  engine dL/dPSF and dL/d(vignetting) and gets dL/d(parameters) back from one pass over the
+  design's PSFs: forward-mode tangents through the rays, the fits and the focus, reverse mode
+  through the pupil grid, the transforms, the normalization and the sensor binning. Its cost
+  does not grow with the number of parameters. It is exact where every PSF of the set comes
+  from the fast FFT with fitted pupils (the dataset's usual path); where one does not (``auto``
+  chose another method, a fit missed its tolerance, a paraxial refocus, real-ray aiming), the
+  engine says so and that step falls back to the differences below, counted in
+  ``ExactOptics.fallbacks`` (results.json).
+* ``"differences"``: the central-difference Jacobian, 2P + 1 designs in one parallel engine
+  call. Everything the dataset does to a design comes with it unchanged, refocusing included
+  (the closed-form best focus of lens_design/focus.py is a smooth function of the lens).
+
+The step of each difference is chosen, not guessed (``choose_steps``): the central difference
 D(h) = (f(x + h) - f(x - h)) / 2h has a truncation error ~ h^2 f''' / 6 and a round-off error
 ~ eps |f| / h (here "round-off" is everything in the engine that is not smooth at tiny scales:
 pupil sampling, method switches of the ``auto`` PSF, float32 PSFs). On a geometric ladder of
@@ -28,6 +34,7 @@ parameter.
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, field
 
@@ -118,6 +125,27 @@ def unrenderable(manifest: dict, values, min_energy: float = 0.9) -> str | None:
     return None
 
 
+EXACT_GRADIENTS = ("one-pass", "differences")
+
+
+def engine_parameters(space) -> list[tuple[str, int, int]]:
+    """The engine's name of each of a space's parameters (``engine.psf_set_vjp``'s params):
+    (kind, surface index from 0, aspheric term index: 0 for r^2, 1 for r^4, ...)."""
+    from ..lens_design.space import ASPHERE_KINDS
+
+    out = []
+    for p in space.params:
+        if p.kind in ("f_number", "epd"):
+            out.append((p.kind, 0, 0))
+        elif p.kind in ("thickness", "air_gap"):
+            out.append(("thickness", p.surface - 1, 0))
+        elif p.kind in ("radius", "conic"):
+            out.append((p.kind, p.surface - 1, 0))
+        else:
+            out.append(("aspheric", p.surface - 1, ASPHERE_KINDS[p.kind] // 2 - 1))
+    return out
+
+
 @dataclass
 class ExactOptics:
     """The engine on a surrogate's (or a dataset manifest's) terms: ``psfs(values)`` and
@@ -133,10 +161,17 @@ class ExactOptics:
     last: dict = field(default_factory=dict)  # what the last call did: designs, seconds, one-sided
     designs_computed: int = 0
     seconds: float = 0.0  # engine time of every call so far
-    _cache: tuple | None = None  # (values bytes, psf, vig) of the last design computed
+    gradient: str = "one-pass"  # EXACT_GRADIENTS: the backward pass's method
+    one_pass: int = 0  # backward passes by the engine's one-pass gradient
+    fallbacks: int = 0  # ... and by differences where it had none (the last reason in `last`)
+    _cache: tuple | None = None  # (values bytes, psf, vig, image distance) of the last design
+
+    def __post_init__(self):
+        if self.gradient not in EXACT_GRADIENTS:
+            raise InputError(f"exact_gradient must be one of {', '.join(EXACT_GRADIENTS)}, got {self.gradient!r}")
 
     @classmethod
-    def from_surrogate(cls, sur) -> "ExactOptics":
+    def from_surrogate(cls, sur, gradient: str = "one-pass") -> "ExactOptics":
         if not sur.manifest:
             raise InputError("exact optics need the surrogate's dataset manifest (its space, fields and settings)")
         return cls(
@@ -145,6 +180,7 @@ class ExactOptics:
             sur.bin,
             sur.param_min.double().cpu().numpy(),
             sur.param_max.double().cpu().numpy(),
+            gradient=gradient,
         )
 
     @property
@@ -158,17 +194,22 @@ class ExactOptics:
             self.hi = np.array([p["max"] for p in ps], float)
         return self.lo, self.hi
 
-    def _run(self, values: np.ndarray) -> tuple[list, list, dict]:
-        """PSFs [K, C, S, S] and vignetting [K, C] of each design (None where rejected), reasons."""
+    def _run(self, values: np.ndarray, image: list | None = None) -> tuple[list, list, dict]:
+        """PSFs [K, C, S, S] and vignetting [K, C] of each design (None where rejected), reasons;
+        ``image`` gets each design's image distance (mm, None where rejected)."""
         t0 = time.perf_counter()
         arrays, meta = exact_arrays(self.manifest, values)
         self.designs_computed += len(values)
         self.seconds += time.perf_counter() - t0
         psf = [None] * len(values)
         vig = [None] * len(values)
+        if image is not None:
+            image[:] = [None] * len(values)
         for j, i in enumerate(arrays["design"]):
             psf[int(i)] = np.asarray(bin_psf(arrays[self.psf_kind][j], self.bin), np.float64)
             vig[int(i)] = np.asarray(arrays["relative_illumination"][j], np.float64)
+            if image is not None:
+                image[int(i)] = float(arrays["image_distance"][j])
         reasons = {int(f["design"]): f["reason"] for f in meta["failures"]}
         return psf, vig, reasons
 
@@ -183,12 +224,84 @@ class ExactOptics:
             self.last = {"designs": 0, "seconds": 0.0, "one_sided": []}
             return self._cache[1], self._cache[2]
         t0 = time.perf_counter()
-        psf, vig, reasons = self._run(v)
+        image: list = []
+        psf, vig, reasons = self._run(v, image)
         self.last = {"designs": 1, "seconds": time.perf_counter() - t0, "one_sided": []}
         if psf[0] is None:
             raise self._rejected(v[0], reasons.get(0, "engine error"))
-        self._cache = (v.tobytes(), psf[0], vig[0])
+        self._cache = (v.tobytes(), psf[0], vig[0], image[0])
         return psf[0], vig[0]
+
+    def vjp(self, values, g_psf, g_vig) -> np.ndarray:
+        """dL/d(values) [P] at one design from dL/dpsf [K, C, S, S] and dL/dvignetting [K, C]:
+        the engine's one-pass gradient, or, where it has none for this design (``last["fallback"]``
+        says why), the central-difference Jacobian's product."""
+        v = np.asarray(values, np.float64).reshape(-1)
+        g_psf = np.asarray(g_psf, np.float64)
+        g_vig = np.asarray(g_vig, np.float64)
+        if self.gradient == "one-pass":
+            grad, why = self._one_pass(v, g_psf, g_vig)
+            if grad is not None:
+                self.one_pass += 1
+                return grad
+            self.fallbacks += 1
+        else:
+            why = None
+        _, _, jp, jv = self.jacobian(v)
+        self.last["fallback"] = why
+        return (jp * g_psf).reshape(len(v), -1).sum(1) + (jv * g_vig).reshape(len(v), -1).sum(1)
+
+    def _one_pass(self, v: np.ndarray, g_psf: np.ndarray, g_vig: np.ndarray) -> tuple[np.ndarray | None, str | None]:
+        """The engine's gradient at ``v``, or (None, why not)."""
+        from .. import engine
+        from ..dataset.generate import focus_points
+        from ..dataset.manifest import nearest_image_plane, refocused_designs, space_and_base
+        from ..dataset.settings import DatasetSettings
+
+        self.psfs(v)  # the design and its image distance (cached: the forward pass's)
+        z = self._cache[3]
+        man = self.manifest
+        s = DatasetSettings.of_manifest(man["settings"])
+        space, _ = space_and_base(man)
+        nearest = nearest_image_plane(man)
+        if s.focus == "paraxial":
+            return None, "the paraxial refocus has no tangents here (focus = best or fixed)"
+        # the image plane follows the best focus unless it sits at the back-focus limit
+        clamped = nearest is not None and z <= nearest + 1e-12
+        focus = None
+        if s.focus == "best" and not clamped:
+            fields, wls = focus_points(man)
+            focus = (fields, [(wl, 1.0) for wl in wls], int(s.focus_rings))
+        # dL/d(the engine's PSFs) before this surrogate's binning: binning's transpose
+        sensor = self.psf_kind == "psf_sensor"
+        g = torch.as_tensor(g_psf)
+        if self.bin > 1:
+            k = self.bin
+            g = g.repeat_interleave(k, -2).repeat_interleave(k, -1)
+        lens = refocused_designs(man, v[None], [z])[0]
+        t0 = time.perf_counter()
+        r = engine.psf_set_vjp(
+            lens_json=json.dumps(lens),
+            fields_deg=[float(f) for f in man["fields_deg"]],
+            channels=[[(float(a), float(b)) for a, b in c] for c in man["channels"]],
+            params=engine_parameters(space),
+            g_psf=np.ascontiguousarray(g.numpy(), np.float64),
+            g_ri=np.ascontiguousarray(g_vig, np.float64),
+            method=s.psf_method,
+            pixel_um=s.pixel_um,
+            size=s.size,
+            pupil_samples=s.pupil_samples,
+            aiming=s.aiming,
+            accuracy=s.accuracy,
+            sensor=(s.sensor_pixel_um, s.sensor_size) if sensor else None,
+            focus=focus,
+        )
+        dt = time.perf_counter() - t0
+        self.seconds += dt
+        self.last = {"designs": 0, "seconds": dt, "one_sided": [], "fallback": r["fallback"]}
+        if r["fallback"] is not None:
+            return None, r["fallback"]
+        return np.asarray(r["grad"], np.float64), None
 
     def jacobian(self, values) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(psf, vignetting, dpsf/dv [P, K, C, S, S], dvig/dv [P, K, C]) at one design, by
@@ -211,7 +324,8 @@ class ExactOptics:
         ]
         rows = [v] + [v + s * h[i] * np.eye(p)[i] for i, s in sides]
         t0 = time.perf_counter()
-        psf, vig, reasons = self._run(np.stack(rows))
+        image: list = []
+        psf, vig, reasons = self._run(np.stack(rows), image)
         if psf[0] is None:
             raise self._rejected(v, reasons.get(0, "engine error"))
         at = {side: 1 + k for k, side in enumerate(sides)}  # (parameter, sign) -> row
@@ -240,7 +354,7 @@ class ExactOptics:
                     f"{self.names[i]} = {v[i]:.6g} +- {h[i]:.3g} are both rejected ({why})"
                 )
         self.last = {"designs": len(rows), "seconds": time.perf_counter() - t0, "one_sided": one_sided}
-        self._cache = (v.reshape(1, -1).tobytes(), psf[0], vig[0])
+        self._cache = (v.reshape(1, -1).tobytes(), psf[0], vig[0], image[0])
         return psf[0], vig[0], jp, jv
 
 
@@ -283,15 +397,17 @@ def choose_steps(
 
 class _ExactPSF(torch.autograd.Function):
     """values [P] -> (psf [K, C, S, S], vignetting [K, C]) from the engine; backward by the
-    central-difference Jacobian computed in the same forward call."""
+    engine's one-pass gradient (``engine.gradient == "one-pass"``: one engine call in the
+    backward pass) or by the central-difference Jacobian computed in the same forward call."""
 
     @staticmethod
     def forward(ctx, values, engine):
         v = values.detach().double().cpu().numpy()
-        if values.requires_grad:
+        ctx.engine, ctx.values, ctx.jacobian = engine, v, None
+        if values.requires_grad and engine.gradient == "differences":
             psf, vig, jp, jv = engine.jacobian(v)
             # the Jacobian goes to the values' device with the PSFs: one copy per call
-            ctx.save_for_backward(torch.as_tensor(jp, device=values.device), torch.as_tensor(jv, device=values.device))
+            ctx.jacobian = (torch.as_tensor(jp, device=values.device), torch.as_tensor(jv, device=values.device))
         else:
             psf, vig = engine.psfs(v)
         ctx.dtype = values.dtype
@@ -303,12 +419,15 @@ class _ExactPSF(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, g_psf, g_vig):
-        jp, jv = ctx.saved_tensors
-        g = (jp * g_psf.double()).flatten(1).sum(1) + (jv * g_vig.double()).flatten(1).sum(1)
-        return g.to(dtype=ctx.dtype), None
+        if ctx.jacobian is not None:
+            jp, jv = ctx.jacobian
+            g = (jp * g_psf.double()).flatten(1).sum(1) + (jv * g_vig.double()).flatten(1).sum(1)
+            return g.to(dtype=ctx.dtype), None
+        g = ctx.engine.vjp(ctx.values, g_psf.detach().double().cpu().numpy(), g_vig.detach().double().cpu().numpy())
+        return torch.as_tensor(g, dtype=ctx.dtype, device=g_psf.device), None
 
 
 def exact_psfs(values: torch.Tensor, engine: ExactOptics) -> tuple[torch.Tensor, torch.Tensor]:
     """Differentiable exact optics: raw lens parameters [P] -> (psf [K, C, S, S] unit sum per
-    channel, vignetting [K, C]), gradients by the engine's central differences."""
+    channel, vignetting [K, C]), gradients by the engine (``engine.gradient``)."""
     return _ExactPSF.apply(values, engine)
