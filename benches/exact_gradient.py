@@ -2,7 +2,7 @@
 """Exact lens gradients from the engine (optics/exact.py): their accuracy, their cost, and how
 the surrogate's gradients compare.
 
-    python benches/exact_gradient.py [--surrogate paper-triplet-e2e] [--repeats 5] [--json OUT.json]
+    python benches/exact_gradient.py [--surrogate paper-triplet-e2e] [--repeats 5] [--designs K] [--json OUT.json]
 
 At the space's nominal design:
 * per parameter: the chosen central-difference step, the step choice's own error estimate,
@@ -10,6 +10,11 @@ At the space's nominal design:
 * the whole Jacobian: J d against a central difference along a random direction d;
 * cost (median of --repeats): one exact Jacobian (2P + 1 designs in one engine call), the
   step choice (once per run), one surrogate forward + backward of the same PSFs;
+* the engine's one-pass gradient (``exact_gradient = "one-pass"``, optics/exact.py): its time
+  against the forward PSF set and the Jacobian, and J^T g against the Jacobian's for three
+  random g (relative vector norm), at the nominal and at ``--designs`` designs drawn uniformly
+  over the space's ranges (seeded; a design the engine rejects is counted and skipped; a
+  design without a one-pass gradient is listed with the engine's reason);
 * agreement with the surrogate's lens gradient on two losses: a task-like one (L1 of a textured
   96 x 96 image through the lens against the sharp image) and the PSFs' mean second moment
   (spot size, weighting the tails): sign on the parameters with >= 5 % of the largest
@@ -29,12 +34,13 @@ import torch
 
 def main() -> None:
     from optix_e2e.optics import DifferentiableOptics
-    from optix_e2e.optics.exact import ExactOptics, choose_steps
+    from optix_e2e.optics.exact import EngineRejectedDesign, ExactOptics, choose_steps
     from optix_e2e.camera_design.build import load_surrogate
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--surrogate", default="paper-triplet-e2e")
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--designs", type=int, default=0, help="random designs for the one-pass gradient's check")
     ap.add_argument("--json", default=None)
     a = ap.parse_args()
     sur = load_surrogate(a.surrogate)
@@ -85,6 +91,42 @@ def main() -> None:
         (ps.sum() * 0 + (ps**2).sum() + vs.sum()).backward()
         st.append(time.perf_counter() - t0)
 
+    # the one-pass gradient: time (forward set, VJP) and J^T g against the Jacobian's
+    rng = np.random.default_rng(11)
+
+    def one_pass_check(x, jp, jv, label):
+        errs, why = [], None
+        for _ in range(3):
+            g_psf, g_vig = rng.uniform(-1, 1, jp.shape[1:]), rng.uniform(-1, 1, jv.shape[1:])
+            want = (jp * g_psf).reshape(len(x), -1).sum(1) + (jv * g_vig).reshape(len(x), -1).sum(1)
+            got, why = eng._one_pass(x, g_psf, g_vig)
+            if got is None:
+                break
+            errs.append(float(np.linalg.norm(got - want) / np.linalg.norm(want)))
+        return {"design": label, "rel_error": errs, "fallback": why}
+
+    checks = [one_pass_check(v, jp, jv, "nominal")]
+    fwd, vjp = [], []
+    g_psf, g_vig = rng.uniform(-1, 1, psf.shape), rng.uniform(-1, 1, vig.shape)
+    for _ in range(a.repeats):
+        eng._cache = None
+        t0 = time.perf_counter()
+        eng.psfs(v)
+        fwd.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        eng._one_pass(v, g_psf, g_vig)
+        vjp.append(time.perf_counter() - t0)
+    rejected = 0
+    draw = np.random.default_rng(5)
+    for k in range(a.designs):
+        x = eng.lo + (eng.hi - eng.lo) * draw.uniform(0.05, 0.95, p)
+        try:
+            _, _, jpx, jvx = eng.jacobian(x)
+        except EngineRejectedDesign:
+            rejected += 1
+            continue
+        checks.append(one_pass_check(x, jpx, jvx, f"draw {k}"))
+
     def spot2(psf):
         s = psf.shape[-1]
         c = torch.arange(s, dtype=psf.dtype) - s // 2
@@ -127,6 +169,15 @@ def main() -> None:
         "step_choice_designs": 2 * p * len(eng.step_choice.ladder),
         "surrogate_forward_backward_s": float(np.median(st)),
         "random_direction_rel_error": direction_error,
+        "one_pass": {
+            "forward_set_s": float(np.median(fwd)),
+            "vjp_s": float(np.median(vjp)),
+            "vjp_over_forward": float(np.median(vjp) / np.median(fwd)),
+            "jacobian_over_vjp": float(np.median(times) / np.median(vjp)),
+            "checks": checks,
+            "designs_drawn": a.designs,
+            "designs_rejected": rejected,
+        },
         "per_parameter": rows,
         "agreement": agreement,
     }
@@ -142,6 +193,19 @@ def main() -> None:
         f"{out['surrogate_forward_backward_s'] * 1e3:.0f} ms ({torch.get_num_threads()} threads)"
     )
     print(f"J d against the central difference along a random direction: {direction_error:.2e} relative L1")
+    op = out["one_pass"]
+    print(
+        f"one-pass gradient: {op['vjp_s'] * 1e3:.0f} ms ({op['vjp_over_forward']:.1f}x the forward set's "
+        f"{op['forward_set_s'] * 1e3:.0f} ms, the Jacobian {op['jacobian_over_vjp']:.1f}x it)"
+    )
+    for c in checks:
+        errs = ", ".join(f"{e:.1e}" for e in c["rel_error"])
+        print(
+            f"  {c['design']}: J^T g relative error {errs}"
+            + (f"; no one-pass gradient: {c['fallback']}" if c["fallback"] else "")
+        )
+    if rejected:
+        print(f"  ({rejected} of {a.designs} drawn designs rejected by the engine)")
     for k, g in agreement.items():
         print(
             f"{k}: cosine {g['cosine']:.4f}, sign agrees on {g['sign_agree_dominant']} of {g['dominant']} dominant "

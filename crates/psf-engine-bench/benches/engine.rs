@@ -1,14 +1,19 @@
 //! Criterion benchmarks of the core: ray throughput through the Cooke triplet at full
 //! field, FFT PSF (64 pupil samples, 256 grid) and Huygens PSF (64 samples, 128x128), and
-//! the dataset batch (paper-triplet-v1, 13 fields x 3 channels, 128 x 128 at 1 um).
+//! the dataset batch (paper-triplet-v1, 13 fields x 3 channels, 128 x 128 at 1 um), and the
+//! lens gradient of one design's PSF set (the e2e dataset's settings): the forward set, its
+//! one-pass vector-Jacobian product, and the Jacobian by central differences (2P + 1
+//! designs), on the triplet (P = 19) and the eight-element lens (P = 20).
 //! Uses the reference Cooke triplet in ../shared/reference and the bundled paper-triplet-v1 (crates/psf-engine/tests/common).
 
 #[path = "../../psf-engine/tests/common/mod.rs"]
 mod common;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use psf_engine::gradient::{psf_set_vjp, FocusRule};
 use psf_engine::psf::{psf, Method, PsfOptions};
-use psf_engine::rgb::psf_batch;
+use psf_engine::rgb::{psf_batch, psf_batch_into, SensorBinning};
+use psf_engine::tangent::Param;
 use psf_engine::{Aiming, Beam, System};
 use std::hint::black_box;
 
@@ -117,5 +122,209 @@ fn bench_dataset(c: &mut Criterion) {
     );
 }
 
-criterion_group!(benches, bench_trace, bench_psf, bench_dataset);
+/// One design's PSF set on the e2e dataset's terms, and its gradient's inputs.
+struct GradientCase {
+    name: &'static str,
+    lens: psf_engine::Lens,
+    /// The PSF options and the sensor binning's size (its dataset's window).
+    o: PsfOptions,
+    m: usize,
+    fields: Vec<f64>,
+    params: Vec<Param>,
+    rule: FocusRule,
+}
+
+fn gradient_cases() -> Vec<GradientCase> {
+    use psf_engine::focus::best_focus_shift;
+    let refocus = |lens: psf_engine::Lens, rule: &FocusRule| {
+        let dz = best_focus_shift(&lens, &rule.fields, &rule.wavelengths, rule.rings, Aiming::Paraxial).unwrap();
+        let last = lens.surfaces.len() - 1;
+        psf_engine::tangent::perturbed(&lens, Param::Thickness(last), dz).unwrap()
+    };
+    let fields = |max: f64| -> Vec<f64> { (0..13).map(|i| max * i as f64 / 12.0).collect() };
+    let rule = |f: &[f64]| FocusRule {
+        fields: f.iter().step_by(2).copied().collect(),
+        wavelengths: vec![(470.0, 1.0), (550.0, 1.0), (650.0, 1.0)],
+        rings: 4,
+    };
+    // the paper triplet as the dataset traces it (no clear apertures), the e2e space's 19
+    let mut v = common::paper_triplet_json();
+    for s in v["surfaces"].as_array_mut().unwrap() {
+        s.as_object_mut().unwrap().remove("semi_diameter");
+    }
+    let f3 = fields(14.9);
+    let r3 = rule(&f3);
+    let mut p3 = vec![
+        Param::Radius(0),
+        Param::Conic(0),
+        Param::Radius(1),
+        Param::Thickness(1),
+        Param::Thickness(3),
+        Param::Thickness(4),
+        Param::Radius(5),
+        Param::Conic(5),
+        Param::Radius(6),
+    ];
+    p3.extend((0..5).map(|k| Param::Aspheric(0, k)));
+    p3.extend((0..5).map(|k| Param::Aspheric(5, k)));
+    let triplet = refocus(psf_engine::Lens::from_json(&v.to_string()).unwrap(), &r3);
+    // the eight-element lens (unclipped), its space's 14 radii and 6 gaps
+    let f8 = fields(23.94);
+    let r8 = rule(&f8);
+    let mut p8: Vec<Param> = [0, 1, 2, 3, 4, 5, 6, 8, 9, 10, 11, 12, 13, 14]
+        .map(Param::Radius)
+        .to_vec();
+    p8.extend([1, 3, 6, 7, 10, 12].map(Param::Thickness));
+    let eight = refocus(common::fixture_lens("apo_gauss_8e"), &r8);
+    let o = |size: usize, pixel_mm: f64| PsfOptions {
+        method: Method::Auto,
+        pupil_samples: 64,
+        size,
+        pixel_mm,
+        fast: true,
+        ..Default::default()
+    };
+    vec![
+        GradientCase {
+            name: "paper_triplet",
+            lens: triplet,
+            o: o(123, 2e-3),
+            m: 41,
+            fields: f3,
+            params: p3,
+            rule: r3,
+        },
+        GradientCase {
+            name: "apo_gauss_8e",
+            lens: eight,
+            o: o(64, 1e-3),
+            m: 9,
+            fields: f8,
+            params: p8,
+            rule: r8,
+        },
+    ]
+}
+
+/// A parameter's value in the lens.
+fn param_value(lens: &psf_engine::Lens, p: Param) -> f64 {
+    match p {
+        Param::Curvature(i) => lens.surfaces[i].curvature,
+        Param::Radius(i) => 1.0 / lens.surfaces[i].curvature,
+        Param::Conic(i) => lens.surfaces[i].conic,
+        Param::Aspheric(i, k) => lens.surfaces[i].aspheric[k],
+        Param::Thickness(i) => lens.surfaces[i].thickness,
+        Param::FNumber | Param::Epd => 1.0,
+    }
+}
+
+fn bench_gradient(c: &mut Criterion) {
+    let ch = vec![vec![(650.0, 1.0)], vec![(550.0, 1.0)], vec![(470.0, 1.0)]];
+    let mut g = c.benchmark_group("gradient");
+    g.sample_size(10);
+    let mut per_psf = vec![];
+    for case in gradient_cases() {
+        let (o, m) = (&case.o, case.m);
+        let bin = SensorBinning::new(o.size, o.pixel_mm, m, 5.86e-3).unwrap();
+        let (nf, nc) = (case.fields.len(), ch.len());
+        let g_psf: Vec<f64> = (0..nf * nc * m * m)
+            .map(|i| ((i * 7919) % 1000) as f64 / 500.0 - 1.0)
+            .collect();
+        let g_ri = vec![0.5; nf * nc];
+        let mut sensor = vec![0.0f32; nf * nc * m * m];
+        let mut out = vec![0.0f32; nf * nc * o.size * o.size];
+        let forward = |out: &mut [f32], sensor: &mut [f32]| {
+            psf_batch_into(
+                std::slice::from_ref(&case.lens),
+                &case.fields,
+                &ch,
+                o,
+                out,
+                Some((&bin, sensor)),
+            )
+            .unwrap()
+        };
+        let vjp = || {
+            let r = psf_set_vjp(
+                &case.lens,
+                &case.fields,
+                &ch,
+                o,
+                Some(&bin),
+                &case.params,
+                Some(&case.rule),
+                &g_psf,
+                &g_ri,
+            )
+            .unwrap();
+            assert!(r.fallback.is_none(), "{}: {:?}", case.name, r.fallback);
+            r
+        };
+        // the Jacobian by differences: 2P + 1 designs in one batch (steps of 1e-4 of each value)
+        let p = case.params.len();
+        let designs: Vec<psf_engine::Lens> = std::iter::once(case.lens.clone())
+            .chain(case.params.iter().flat_map(|&q| {
+                let h = 1e-4 * param_value(&case.lens, q).abs().max(1e-8);
+                [h, -h].map(|h| psf_engine::tangent::perturbed(&case.lens, q, h).unwrap())
+            }))
+            .collect();
+        let mut jout = vec![0.0f32; designs.len() * nf * nc * o.size * o.size];
+        let mut jsensor = vec![0.0f32; designs.len() * nf * nc * m * m];
+        g.bench_function(format!("{}_forward_13x3", case.name), |b| {
+            b.iter(|| black_box(forward(&mut out, &mut sensor)))
+        });
+        g.bench_function(format!("{}_vjp_13x3_p{p}", case.name), |b| b.iter(|| black_box(vjp())));
+        g.bench_function(format!("{}_differences_13x3_p{p}", case.name), |b| {
+            b.iter(|| {
+                black_box(
+                    psf_batch_into(&designs, &case.fields, &ch, o, &mut jout, Some((&bin, &mut jsensor))).unwrap(),
+                )
+            })
+        });
+        // the ratios, printed plainly (median of 5 of each, in turn)
+        let time = |f: &mut dyn FnMut()| {
+            let mut t: Vec<f64> = (0..5)
+                .map(|_| {
+                    let t0 = std::time::Instant::now();
+                    f();
+                    t0.elapsed().as_secs_f64()
+                })
+                .collect();
+            t.sort_by(f64::total_cmp);
+            t[2]
+        };
+        let tf = time(&mut || {
+            black_box(forward(&mut out, &mut sensor));
+        });
+        let tv = time(&mut || {
+            black_box(vjp());
+        });
+        let td = time(&mut || {
+            black_box(psf_batch_into(&designs, &case.fields, &ch, o, &mut jout, Some((&bin, &mut jsensor))).unwrap());
+        });
+        println!(
+            "gradient/{}: forward set {:.1} ms, one-pass VJP {:.1} ms ({:.2}x the forward), differences ({} designs) {:.1} ms ({:.1}x the VJP), P = {p}, {} threads",
+            case.name,
+            tf * 1e3,
+            tv * 1e3,
+            tv / tf,
+            designs.len(),
+            td * 1e3,
+            td / tv,
+            rayon::current_num_threads()
+        );
+        per_psf.push((case.name, tv / (nf * nc) as f64));
+    }
+    g.finish();
+    println!(
+        "gradient: VJP per PSF {} {:.2} ms, {} {:.2} ms ({:.2}x)",
+        per_psf[1].0,
+        per_psf[1].1 * 1e3,
+        per_psf[0].0,
+        per_psf[0].1 * 1e3,
+        per_psf[1].1 / per_psf[0].1
+    );
+}
+
+criterion_group!(benches, bench_trace, bench_psf, bench_dataset, bench_gradient);
 criterion_main!(benches);

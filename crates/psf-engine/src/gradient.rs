@@ -19,7 +19,7 @@ use crate::lens::Lens;
 use crate::psf::fast_adjoint::linearize;
 use crate::psf::{auto, fast, sum_lanes, Diagnostics, Method, PsfOptions, ENERGY_EXCESS_TOL};
 use crate::rgb::{check_channels, Channels, SensorBinning};
-use crate::tangent::{best_focus_tangents, perturbed, relative_illumination_tangents, Param};
+use crate::tangent::{best_focus_tangents, irradiance_tangents, perturbed, Dual, Param};
 use crate::trace::System;
 use rayon::prelude::*;
 
@@ -185,11 +185,20 @@ fn set_vjp<const N: usize>(
             })
         })
         .collect();
+    // Each wavelength's on-axis irradiance with its tangents, shared by its fields.
+    let mut wls: Vec<f64> = visits.iter().map(|v| v.wl).collect();
+    wls.sort_by(f64::total_cmp);
+    wls.dedup();
+    let axis: Vec<Dual<N>> = wls
+        .par_iter()
+        .map(|&wl| irradiance_tangents::<N>(lens, all, 0.0, wl))
+        .collect::<Result<_>>()?;
     let parts: Vec<Result<Part<N>>> = visits
         .par_iter()
         .map(|v| {
             let k = v.field * nc + v.channel;
-            psf_part::<N>(lens, fields[v.field], v, o, all, &g_fine[k], g_ri[k])
+            let e0 = axis[wls.partition_point(|&w| w < v.wl)];
+            psf_part::<N>(lens, fields[v.field], v, o, all, &g_fine[k], g_ri[k], e0)
         })
         .collect();
     // In a fixed order: the same sums on any number of threads.
@@ -236,6 +245,7 @@ fn psf_part<const N: usize>(
     all: &[Param],
     g_fine: &[f64],
     g_ri: f64,
+    axis: Dual<N>,
 ) -> Result<Part<N>> {
     // What psf_path computes this PSF with: auto's first candidate, or the options as given.
     let (opts, cand) = if o.method == Method::Auto {
@@ -279,7 +289,12 @@ fn psf_part<const N: usize>(
     let gq: f64 = g_fine.iter().zip(&lin.psf).map(|(a, b)| a * b).sum::<f64>() / tot;
     let gp: Vec<f64> = g_fine.iter().map(|x| v.weight * (x - gq) / tot).collect();
     let mut grad = lin.vjp(&gp)?;
-    let ri = relative_illumination_tangents::<N>(lens, all, field, v.wl)?;
+    // the relative illumination: the field's irradiance over the axis's (tangent.rs)
+    let ri = if field == 0.0 {
+        Dual::constant(1.0)
+    } else {
+        irradiance_tangents::<N>(lens, all, field, v.wl)? / axis
+    };
     grad.iter_mut().zip(ri.d).for_each(|(a, t)| *a += g_ri * v.weight * t);
     let p = lin.psf.iter().map(|x| v.weight * x / tot).collect();
     Ok(Ok((grad, p, v.weight * ri.v)))

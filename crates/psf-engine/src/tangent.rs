@@ -603,80 +603,84 @@ pub struct FitTangents<const N: usize> {
     pub px: Vec<Dual<N>>,
 }
 
-/// Legendre P_0..=deg at a dual x (fast.rs's recurrence).
-fn legendre_dual<const N: usize>(x: Dual<N>, deg: usize) -> Vec<Dual<N>> {
-    let mut p = vec![Dual::constant(1.0), x];
-    for n in 1..deg {
-        let nf = n as f64;
-        let next = (x * p[n] * (2.0 * nf + 1.0) - p[n - 1] * nf) * (1.0 / (nf + 1.0));
-        p.push(next);
-    }
-    p.truncate(deg + 1);
-    p
-}
-
-/// Least squares of each of `ys` on the terms by the normal equations and Cholesky, in dual
-/// numbers (fast.rs's `lsq`); None where the system is singular.
-fn lsq_dual<const N: usize>(
-    pu: &[Vec<Dual<N>>],
-    pv: &[Vec<Dual<N>>],
+/// Least squares of each of `ys` on the terms at the points (u, v), with tangents: the
+/// coefficients c of min |Phi c - y| (fast.rs's `lsq`, by the normal equations and Cholesky)
+/// and, by differentiating the normal equations Phi^T Phi c = Phi^T y,
+///   Phi^T Phi dc = Phi^T (dy - dPhi c) + dPhi^T (y - Phi c),
+/// dPhi = Phi_u du + Phi_v dv (the basis's slopes at the points as they move): one solve per
+/// direction with the same factor. None where the system is singular.
+fn lsq_tangents<const N: usize>(
+    u: &[Dual<N>],
+    v: &[Dual<N>],
     ys: &[&[Dual<N>]],
     tm: &[(usize, usize)],
+    degree: usize,
 ) -> Option<Vec<Vec<Dual<N>>>> {
-    let t = tm.len();
-    let zero = Dual::<N>::constant(0.0);
-    let phi: Vec<Vec<Dual<N>>> = pu
-        .iter()
-        .zip(pv)
-        .map(|(a, b)| tm.iter().map(|&(i, j)| a[i] * b[j]).collect())
-        .collect();
-    let mut g = vec![zero; t * t];
-    for r in 0..t {
-        for c in 0..=r {
-            let v = phi.iter().fold(zero, |s, row| s + row[r] * row[c]);
-            g[r * t + c] = v;
-            g[c * t + r] = v;
+    use crate::psf::fast::{cholesky, cholesky_solve, legendre, MAX_DEGREE};
+    let (m, t) = (u.len(), tm.len());
+    let leg = |x: f64| {
+        let (mut p, mut dp) = ([0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1]);
+        legendre(x, degree.min(MAX_DEGREE), &mut p, &mut dp);
+        (p, dp)
+    };
+    // Phi, Phi_u, Phi_v (m x t, row-major)
+    let (mut phi, mut phu, mut phv) = (vec![0.0; m * t], vec![0.0; m * t], vec![0.0; m * t]);
+    for r in 0..m {
+        let ((pu, dpu), (pv, dpv)) = (leg(u[r].v), leg(v[r].v));
+        for (k, &(i, j)) in tm.iter().enumerate() {
+            phi[r * t + k] = pu[i] * pv[j];
+            phu[r * t + k] = dpu[i] * pv[j];
+            phv[r * t + k] = pu[i] * dpv[j];
         }
     }
-    for c in 0..t {
-        let mut d = g[c * t + c];
-        for k in 0..c {
-            d = d - g[c * t + k] * g[c * t + k];
-        }
-        if !(d.v > 1e-14 * g[c * t + c].v.max(1e-300)) {
-            return None;
-        }
-        let d = d.sqrt();
-        g[c * t + c] = d;
-        for r in c + 1..t {
-            let mut s = g[r * t + c];
-            for k in 0..c {
-                s = s - g[r * t + k] * g[c * t + k];
-            }
-            g[r * t + c] = s / d;
+    let mut g = vec![0.0; t * t];
+    for a in 0..t {
+        for b in 0..=a {
+            let x: f64 = (0..m).map(|r| phi[r * t + a] * phi[r * t + b]).sum();
+            g[a * t + b] = x;
+            g[b * t + a] = x;
         }
     }
+    if !cholesky(&mut g, t) {
+        return None;
+    }
+    let atb = |mat: &[f64], w: &[f64], out: &mut [f64]| {
+        for (k, o) in out.iter_mut().enumerate() {
+            *o += (0..m).map(|r| mat[r * t + k] * w[r]).sum::<f64>();
+        }
+    };
     Some(
         ys.iter()
             .map(|y| {
-                let mut x: Vec<Dual<N>> = (0..t)
-                    .map(|r| phi.iter().zip(y.iter()).fold(zero, |s, (row, &yv)| s + row[r] * yv))
-                    .collect();
-                for r in 0..t {
-                    let mut s = x[r];
-                    for k in 0..r {
-                        s = s - g[r * t + k] * x[k];
+                let yv: Vec<f64> = y.iter().map(|x| x.v).collect();
+                let mut c = vec![0.0; t];
+                atb(&phi, &yv, &mut c);
+                cholesky_solve(&g, t, &mut c);
+                // the fitted function's slopes and residual at the points
+                let row = |mat: &[f64], r: usize| (0..t).map(|k| mat[r * t + k] * c[k]).sum::<f64>();
+                let fu: Vec<f64> = (0..m).map(|r| row(&phu, r)).collect();
+                let fv: Vec<f64> = (0..m).map(|r| row(&phv, r)).collect();
+                let res: Vec<f64> = (0..m).map(|r| yv[r] - row(&phi, r)).collect();
+                let mut out: Vec<Dual<N>> = c.iter().map(|&x| Dual::constant(x)).collect();
+                let (mut z, mut ru, mut rv) = (vec![0.0; m], vec![0.0; m], vec![0.0; m]);
+                let mut b = vec![0.0; t];
+                for n in 0..N {
+                    for r in 0..m {
+                        let (du, dv) = (u[r].d[n], v[r].d[n]);
+                        z[r] = y[r].d[n] - fu[r] * du - fv[r] * dv;
+                        ru[r] = res[r] * du;
+                        rv[r] = res[r] * dv;
                     }
-                    x[r] = s / g[r * t + r];
-                }
-                for r in (0..t).rev() {
-                    let mut s = x[r];
-                    for k in r + 1..t {
-                        s = s - g[k * t + r] * x[k];
+                    b.iter_mut().for_each(|x| *x = 0.0);
+                    atb(&phi, &z, &mut b);
+                    atb(&phu, &ru, &mut b);
+                    atb(&phv, &rv, &mut b);
+                    cholesky_solve(&g, t, &mut b);
+                    for (o, x) in out.iter_mut().zip(&b) {
+                        o.d[n] = *x;
                     }
-                    x[r] = s / g[r * t + r];
                 }
-                x
+                out
             })
             .collect(),
     )
@@ -723,14 +727,12 @@ pub(crate) fn fits_along<const N: usize>(
     }
     let u: Vec<Dual<N>> = pt.l.iter().map(|l| *l / rho).collect();
     let v: Vec<Dual<N>> = pt.m.iter().map(|m| (*m - mc) / rho).collect();
-    let pu: Vec<Vec<Dual<N>>> = u.iter().map(|x| legendre_dual(*x, degree)).collect();
-    let pv: Vec<Vec<Dual<N>>> = v.iter().map(|x| legendre_dual(*x, degree)).collect();
     let k = Dual::<N>::constant;
     let (pxd, pyd): (Vec<Dual<N>>, Vec<Dual<N>>) =
         (px.iter().map(|x| k(*x)).collect(), py.iter().map(|y| k(*y)).collect());
     let (Some(even), Some(odd)) = (
-        lsq_dual(&pu, &pv, &[&pt.w, &pyd], &terms(degree, 0)),
-        lsq_dual(&pu, &pv, &[&pxd], &terms(degree, 1)),
+        lsq_tangents(&u, &v, &[&pt.w, &pyd], &terms(degree, 0), degree),
+        lsq_tangents(&u, &v, &[&pxd], &terms(degree, 1), degree),
     ) else {
         return Ok(None);
     };

@@ -175,7 +175,7 @@ pub(crate) fn legendre(x: f64, deg: usize, p: &mut [f64], dp: &mut [f64]) {
 }
 
 /// Monomial coefficients of the Legendre polynomials: LEG[i][k] = coefficient of x^k in P_i.
-fn legendre_monomials() -> &'static [[f64; MAX_DEGREE + 1]; MAX_DEGREE + 1] {
+pub(super) fn legendre_monomials() -> &'static [[f64; MAX_DEGREE + 1]; MAX_DEGREE + 1] {
     static T: OnceLock<[[f64; MAX_DEGREE + 1]; MAX_DEGREE + 1]> = OnceLock::new();
     T.get_or_init(|| {
         let mut t = [[0.0; MAX_DEGREE + 1]; MAX_DEGREE + 1];
@@ -270,42 +270,13 @@ pub(crate) fn lsq(pu: &[Leg], pv: &[Leg], ys: &[&[f64]], tm: &[(usize, usize)]) 
             1,
         );
     }
-    // Cholesky G = L L^T in the lower triangle.
-    for c in 0..t {
-        let mut d = g[c * t + c];
-        for k in 0..c {
-            d -= g[c * t + k] * g[c * t + k];
-        }
-        if !(d > 1e-14 * g[c * t + c].max(1e-300)) {
-            return None;
-        }
-        let d = d.sqrt();
-        g[c * t + c] = d;
-        for r in c + 1..t {
-            let mut s = g[r * t + c];
-            for k in 0..c {
-                s -= g[r * t + k] * g[c * t + k];
-            }
-            g[r * t + c] = s / d;
-        }
+    if !cholesky(&mut g, t) {
+        return None;
     }
     let mut coef = vec![0.0; t * nf];
     for f in 0..nf {
         let mut x: Vec<f64> = (0..t).map(|r| rhs[r * nf + f]).collect();
-        for r in 0..t {
-            let mut s = x[r];
-            for k in 0..r {
-                s -= g[r * t + k] * x[k];
-            }
-            x[r] = s / g[r * t + r];
-        }
-        for r in (0..t).rev() {
-            let mut s = x[r];
-            for k in r + 1..t {
-                s -= g[k * t + r] * x[k];
-            }
-            x[r] = s / g[r * t + r];
-        }
+        cholesky_solve(&g, t, &mut x);
         for (r, xv) in x.into_iter().enumerate() {
             coef[r * nf + f] = xv;
         }
@@ -344,6 +315,48 @@ pub(crate) fn lsq(pu: &[Leg], pv: &[Leg], ys: &[&[f64]], tm: &[(usize, usize)]) 
         .collect();
     let coefs = (0..nf).map(|f| (0..t).map(|r| coef[r * nf + f]).collect()).collect();
     Some((coefs, worst))
+}
+
+/// Cholesky G = L L^T of a symmetric t x t matrix (row-major), L into the lower triangle in
+/// place; false where G is not positive definite to working precision.
+pub(crate) fn cholesky(g: &mut [f64], t: usize) -> bool {
+    for c in 0..t {
+        let mut d = g[c * t + c];
+        for k in 0..c {
+            d -= g[c * t + k] * g[c * t + k];
+        }
+        if !(d > 1e-14 * g[c * t + c].max(1e-300)) {
+            return false;
+        }
+        let d = d.sqrt();
+        g[c * t + c] = d;
+        for r in c + 1..t {
+            let mut s = g[r * t + c];
+            for k in 0..c {
+                s -= g[r * t + k] * g[c * t + k];
+            }
+            g[r * t + c] = s / d;
+        }
+    }
+    true
+}
+
+/// Solves L L^T x = b in place (L from `cholesky`).
+pub(crate) fn cholesky_solve(l: &[f64], t: usize, x: &mut [f64]) {
+    for r in 0..t {
+        let mut s = x[r];
+        for k in 0..r {
+            s -= l[r * t + k] * x[k];
+        }
+        x[r] = s / l[r * t + r];
+    }
+    for r in (0..t).rev() {
+        let mut s = x[r];
+        for k in r + 1..t {
+            s -= l[k * t + r] * x[k];
+        }
+        x[r] = s / l[r * t + r];
+    }
 }
 
 /// Lanes of the per-row series in s = u^2 (at most MAX_DEGREE / 2 + 1 terms used).
@@ -491,7 +504,7 @@ struct CellWork {
 }
 
 #[inline(always)]
-fn horner<const L: usize>(c: &[f64], x: f64) -> f64 {
+pub(super) fn horner<const L: usize>(c: &[f64], x: f64) -> f64 {
     let c: &[f64; L] = c[..L].try_into().unwrap();
     let mut a = c[L - 1];
     for k in (0..L - 1).rev() {
@@ -534,7 +547,7 @@ pub(crate) fn cover_cell(r: f64, gx: f64, gy: f64) -> f64 {
 /// W, |J|, r^2, the interior amplitude sqrt|J| and area |J| of cells 0..n (one pass,
 /// vectorized across the cells).
 #[inline(always)]
-fn cells<const NQ: usize, const NJ: usize, const NR: usize>(
+pub(super) fn cells<const NQ: usize, const NJ: usize, const NR: usize>(
     sr: &RowSeries,
     s: &[f64],
     r_in2: f64,
@@ -688,7 +701,7 @@ fn row_body(
 /// in th^2 of six terms each on |th| <= pi/4 (error below 1e-13, far below the
 /// single-precision field's rounding), branch free so that loops over it vectorize.
 #[inline(always)]
-fn cis_turns(t: f64) -> (f64, f64) {
+pub(super) fn cis_turns(t: f64) -> (f64, f64) {
     let (q, th) = octant(t);
     let x2 = th * th;
     // sin(th) / th and cos(th) fitted in x2 on [0, (pi/4)^2] (errors 6e-15 and 6e-14).

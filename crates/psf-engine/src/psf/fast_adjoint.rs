@@ -124,6 +124,97 @@ pub fn linearize<const N: usize>(
     }))
 }
 
+/// One row's interior cells (amplitude sqrt|J|) for the reverse pass: their adjoints' moments.
+struct Interior<'a> {
+    sr: &'a RowSeries,
+    s: &'a [f64],
+    sc: f64,
+    sign: f64,
+    amp: &'a [f64],
+    w: &'a [f64],
+    zr: &'a [f64],
+    zi: &'a [f64],
+    pw: &'a [Vec<f64>],
+}
+
+impl Interior<'_> {
+    /// dL/dW and the slopes' adjoints through J per cell (into `f`: W, px_u, px_v u, py_u u,
+    /// py_v), then m[k][q] = sum_t f_k s^q.
+    fn moments(&self, nq: usize, f: [&mut Vec<f64>; 5], m: &mut [[f64; fast::NL]; 5]) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return unsafe { self.moments_avx2(nq, f, m) };
+        }
+        self.moments_body(nq, f, m)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn moments_avx2(&self, nq: usize, f: [&mut Vec<f64>; 5], m: &mut [[f64; fast::NL]; 5]) {
+        self.moments_body(nq, f, m)
+    }
+
+    #[inline(always)]
+    fn moments_body(&self, nq: usize, f: [&mut Vec<f64>; 5], m: &mut [[f64; fast::NL]; 5]) {
+        match nq {
+            5 => self.cells::<5>(f, m),
+            6 => self.cells::<6>(f, m),
+            _ => self.cells::<7>(f, m),
+        }
+    }
+
+    #[inline(always)]
+    fn cells<const NQ: usize>(&self, f: [&mut Vec<f64>; 5], m: &mut [[f64; fast::NL]; 5]) {
+        let n = self.s.len();
+        let sr = self.sr;
+        let [gw, fxd, fxv, fyd, fyv] = f;
+        let (gw, fxd, fxv, fyd, fyv) = (&mut gw[..n], &mut fxd[..n], &mut fxv[..n], &mut fyd[..n], &mut fyv[..n]);
+        for t in 0..n {
+            let (a, s) = (self.amp[t], self.s[t]);
+            let (zr, zi) = (self.zr[t], self.zi[t]);
+            let (cs, sn) = fast::cis_turns(self.w[t]);
+            gw[t] = 2.0 * PI * a * (zi * cs - zr * sn);
+            let ga = zr * cs + zi * sn;
+            // d sqrt|J| = sign dJ / (2 sqrt|J|), J = xu yv - xv yu
+            let gj = if a > 0.0 {
+                ga * self.sign / (2.0 * a.max(1e-300))
+            } else {
+                0.0
+            };
+            let u = t as f64 * self.sc;
+            let (pxu, pyv) = (fast::horner::<NQ>(&sr.xd, s), fast::horner::<NQ>(&sr.yv, s));
+            let (pxv, pyu) = (u * fast::horner::<NQ>(&sr.xv, s), u * fast::horner::<NQ>(&sr.yd, s));
+            fxd[t] = gj * pyv;
+            fyv[t] = gj * pxu;
+            fxv[t] = -gj * pyu * u;
+            fyd[t] = -gj * pxv * u;
+        }
+        for (k, f) in [&*gw, &*fxd, &*fxv, &*fyd, &*fyv].into_iter().enumerate() {
+            for (mq, p) in m[k].iter_mut().zip(&self.pw[..NQ]) {
+                *mq = dot(f, &p[..n]);
+            }
+        }
+    }
+}
+
+/// sum a b in four fixed lanes (vectorizable; the same order every run).
+#[inline(always)]
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let mut acc = [0.0; 4];
+    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for k in 0..4 {
+            acc[k] += x[k] * y[k];
+        }
+    }
+    for (k, (x, y)) in ra.iter().zip(rb).enumerate() {
+        acc[k] += x * y;
+    }
+    (acc[0] + acc[1]) + (acc[2] + acc[3])
+}
+
 /// Horner in s over the first `n` coefficients.
 #[inline]
 fn series(c: &[f64], n: usize, s: f64) -> f64 {
@@ -156,6 +247,22 @@ fn cover_dual<const N: usize>(r: Dual<N>, gx: Dual<N>, gy: Dual<N>) -> Dual<N> {
 
 /// dL/d(coefficients) of W, py and px (in `terms` order) for dL/dPSF = g (size x size).
 fn coefficient_adjoints(st: &FastState, gout: &[f64], size: usize) -> [Vec<f64>; 3] {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked just above).
+        return unsafe { adjoints_avx2(st, gout, size) };
+    }
+    adjoints_body(st, gout, size)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn adjoints_avx2(st: &FastState, gout: &[f64], size: usize) -> [Vec<f64>; 3] {
+    adjoints_body(st, gout, size)
+}
+
+#[inline(always)]
+fn adjoints_body(st: &FastState, gout: &[f64], size: usize) -> [Vec<f64>; 3] {
     let (g, h) = (st.g, size / 2);
     let ncol = h + 1;
     let fft = plan_adjoint::<f32>(g);
@@ -195,7 +302,9 @@ fn coefficient_adjoints(st: &FastState, gout: &[f64], size: usize) -> [Vec<f64>;
     recycle(scratch_v);
     recycle(cols_v);
 
-    // 3. The cells, row by row (fast.rs's cell values recomputed from the same tables).
+    // 3. The cells, row by row: fast.rs's cell values from the same tables (vectorized passes
+    //    over a row's cells), each cell's dL/dW and dL/d(amplitude), then their moments
+    //    sum_t f_t s_t^q (s = u^2) per row, the adjoints of the row's series in s.
     let deg = st.degree;
     let (te, to) = (terms(deg, 0), terms(deg, 1));
     let (tw, ty, tx) = (
@@ -205,15 +314,20 @@ fn coefficient_adjoints(st: &FastState, gout: &[f64], size: usize) -> [Vec<f64>;
     );
     let nq = deg / 2 + 1;
     let sc = st.sc;
-    let leg = |x: f64| {
-        let (mut p, mut dp) = ([0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1]);
-        legendre(x, MAX_DEGREE, &mut p, &mut dp);
-        (p, dp)
-    };
-    let pu: Vec<_> = (0..=st.t_hi).map(|t| leg(t as f64 * sc)).collect();
+    let nt = st.t_hi + 1;
+    let s_t: Vec<f64> = (0..nt).map(|t| (t as f64 * sc) * (t as f64 * sc)).collect();
+    // s^q at every cell of a row (the same for every row)
+    let pw: Vec<Vec<f64>> = (0..nq)
+        .map(|q| s_t.iter().map(|s| s.powi(q as i32)).collect())
+        .collect();
     let (r_in2, r_out2) = ((1.0 - st.delta).max(0.0).powi(2), (1.0 + st.delta).powi(2));
     let half = (g / 2) as f64;
+    let leg = fast::legendre_monomials();
     let (mut adj_w, mut adj_py, mut adj_px) = (vec![0.0; te.len()], vec![0.0; te.len()], vec![0.0; to.len()]);
+    let z = || vec![0.0; nt];
+    let (mut w, mut amp, mut jac, mut r2, mut jin) = (z(), z(), z(), z(), z());
+    let (mut gw, mut fxd, mut fxv, mut fyd, mut fyv) = (z(), z(), z(), z(), z());
+    let (mut zr, mut zi) = (z(), z());
     for (ri, q) in rows.chunks_exact(g).enumerate() {
         let v = ((st.b_lo + ri) as f64 - half) * sc;
         let n = row_len(st.affine, sc, v, st.t_hi);
@@ -221,68 +335,105 @@ fn coefficient_adjoints(st: &FastState, gout: &[f64], size: usize) -> [Vec<f64>;
             continue;
         }
         let sr = RowSeries::new(&tw, &tx, &ty, v, nq);
-        // Per Legendre index i: W's, px's (values and u-slopes; v-slopes) and py's sums.
-        let mut acc = [[0.0; MAX_DEGREE + 1]; 5];
+        let s = &s_t[..n];
+        match nq {
+            5 => fast::cells::<5, 9, 10>(&sr, s, r_in2, &mut w, &mut amp, &mut jac, &mut r2, &mut jin),
+            6 => fast::cells::<6, 11, 12>(&sr, s, r_in2, &mut w, &mut amp, &mut jac, &mut r2, &mut jin),
+            _ => fast::cells::<7, 13, 14>(&sr, s, r_in2, &mut w, &mut amp, &mut jac, &mut r2, &mut jin),
+        }
+        // The Jacobian's sign (one over the pupil: a fold is refused upstream).
+        let sign = if sr.j[0] < 0.0 { -1.0 } else { 1.0 };
+        let (xd, xv, yd, yv) = (&sr.xd[..nq], &sr.xv[..nq], &sr.yd[..nq], &sr.yv[..nq]);
+        // Each cell's adjoint, its mirror image's added.
+        zr[0] = q[0].re as f64;
+        zi[0] = q[0].im as f64;
+        for t in 1..n {
+            zr[t] = (q[t].re + q[g - t].re) as f64;
+            zi[t] = (q[t].im + q[g - t].im) as f64;
+        }
+        let mut m = [[0.0; fast::NL]; 5];
+        let io = Interior {
+            sr: &sr,
+            s,
+            sc,
+            sign,
+            amp: &amp[..n],
+            w: &w[..n],
+            zr: &zr[..n],
+            zi: &zi[..n],
+            pw: &pw,
+        };
+        io.moments(nq, [&mut gw, &mut fxd, &mut fxv, &mut fyd, &mut fyv], &mut m);
+        // The rim cells (partly covered: amplitude sqrt|J| cov), one by one, in dual numbers.
+        let (mut mx1, mut my0) = ([0.0; fast::NL], [0.0; fast::NL]);
         for t in 0..n {
-            let u = t as f64 * sc;
-            let s = u * u;
-            let r2 = series(&sr.r, 2 * nq, s);
-            if r2 >= r_out2 {
+            if !(r2[t] > r_in2 && r2[t] < r_out2) {
                 continue;
             }
-            let jac = series(&sr.j, 2 * nq - 1, s);
+            let (st_, u) = (s[t], t as f64 * sc);
             let f = [
-                u * series(&sr.x, nq, s),
-                series(&sr.y, nq, s),
-                series(&sr.xd, nq, s),
-                u * series(&sr.xv, nq, s),
-                u * series(&sr.yd, nq, s),
-                series(&sr.yv, nq, s),
+                u * series(&sr.x, nq, st_),
+                series(&sr.y, nq, st_),
+                series(xd, nq, st_),
+                u * series(xv, nq, st_),
+                u * series(yd, nq, st_),
+                series(yv, nq, st_),
             ];
-            let (amp, mut gf) = if r2 <= r_in2 {
-                (jac.abs().sqrt(), [0.0; 6])
-            } else {
-                // amplitude sqrt|J| cov(r, grad r in cells) as a function of the six values
-                let x: [Dual<6>; 6] = std::array::from_fn(|k| Dual::variable(f[k], k));
-                let [px, py, xu, xv, yu, yv] = x;
-                let j = xu * yv - xv * yu;
-                let r = (px * px + py * py).sqrt();
-                let ir = Dual::constant(sc) / r;
-                let cov = cover_dual(r, (px * xu + py * yu) * ir, (px * xv + py * yv) * ir);
-                let a = (if j.v < 0.0 { -j } else { j }).sqrt() * cov;
-                (a.v, a.d)
-            };
-            if !(amp > 0.0) {
+            let x: [Dual<6>; 6] = std::array::from_fn(|k| Dual::variable(f[k], k));
+            let [px, py, xu, xvd, yu, yvd] = x;
+            let j = xu * yvd - xvd * yu;
+            let r = (px * px + py * py).sqrt();
+            let ir = Dual::constant(sc) / r;
+            let cov = cover_dual(r, (px * xu + py * yu) * ir, (px * xvd + py * yvd) * ir);
+            let a = (if j.v < 0.0 { -j } else { j }).sqrt() * cov;
+            if !(a.v > 0.0) {
                 continue;
             }
-            let z = q[t] + if t > 0 { q[g - t] } else { Complex32::new(0.0, 0.0) };
-            let (zr, zi) = (z.re as f64, z.im as f64);
-            let (sn, cs) = (2.0 * PI * series(&sr.w, nq, s)).sin_cos();
-            let gw = 2.0 * PI * amp * (zi * cs - zr * sn);
-            let ga = zr * cs + zi * sn;
-            if r2 <= r_in2 {
-                // d sqrt|J| = sign(J) dJ / (2 sqrt|J|), J = xu yv - xv yu
-                let gj = ga * jac.signum() / (2.0 * amp);
-                gf = [0.0, 0.0, gj * f[5], -gj * f[4], -gj * f[3], gj * f[2]];
+            let (zr, zi) = if t > 0 {
+                ((q[t].re + q[g - t].re) as f64, (q[t].im + q[g - t].im) as f64)
             } else {
-                gf.iter_mut().for_each(|x| *x *= ga);
-            }
-            let (p, dp) = &pu[t];
-            for i in 0..=deg {
-                acc[0][i] += gw * p[i];
-                acc[1][i] += gf[0] * p[i] + gf[2] * dp[i];
-                acc[2][i] += gf[3] * p[i];
-                acc[3][i] += gf[1] * p[i] + gf[4] * dp[i];
-                acc[4][i] += gf[5] * p[i];
+                (q[0].re as f64, q[0].im as f64)
+            };
+            let (cs, sn) = fast::cis_turns(w[t]);
+            let gwt = 2.0 * PI * a.v * (zi * cs - zr * sn);
+            let gf = a.d.map(|d| d * (zr * cs + zi * sn));
+            let mut p = 1.0;
+            for k in 0..nq {
+                m[0][k] += gwt * p;
+                mx1[k] += gf[0] * u * p;
+                m[1][k] += gf[2] * p;
+                m[2][k] += gf[3] * u * p;
+                my0[k] += gf[1] * p;
+                m[3][k] += gf[4] * u * p;
+                m[4][k] += gf[5] * p;
+                p *= st_;
             }
         }
-        let (pv, dpv) = leg(v);
+        // Adjoints of the row's series: W = sum w_q s^q; px = u sum x_q s^q, px_u = sum (2q + 1)
+        // x_q s^q, px_v = u sum x'_q s^q; py = sum y_q s^q, py_u = u sum 2q y_q s^(q - 1),
+        // py_v = sum y'_q s^q (' = d/dv; RowSeries).
+        let mut gx = [0.0; fast::NL];
+        let mut gy = [0.0; fast::NL];
+        for k in 0..nq {
+            gx[k] = mx1[k] + (2 * k + 1) as f64 * m[1][k];
+            gy[k] = my0[k] + if k > 0 { 2.0 * k as f64 * m[3][k - 1] } else { 0.0 };
+        }
+        // A row's series coefficient q of parity p is sum_ij c_ij leg[i][2q + p] P_j(v), its
+        // v-derivative's the same with P'_j(v) (Table::new).
+        let (mut pv, mut dpv) = ([0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1]);
+        legendre(v, MAX_DEGREE, &mut pv, &mut dpv);
+        let along = |gq: &[f64], i: usize, parity: usize| -> f64 {
+            (0..nq)
+                .filter(|&k| 2 * k + parity <= i)
+                .map(|k| gq[k] * leg[i][2 * k + parity])
+                .sum()
+        };
         for (k, &(i, j)) in te.iter().enumerate() {
-            adj_w[k] += acc[0][i] * pv[j];
-            adj_py[k] += acc[3][i] * pv[j] + acc[4][i] * dpv[j];
+            adj_w[k] += along(&m[0], i, 0) * pv[j];
+            adj_py[k] += along(&gy, i, 0) * pv[j] + along(&m[4], i, 0) * dpv[j];
         }
         for (k, &(i, j)) in to.iter().enumerate() {
-            adj_px[k] += acc[1][i] * pv[j] + acc[2][i] * dpv[j];
+            adj_px[k] += along(&gx, i, 1) * pv[j] + along(&m[2], i, 1) * dpv[j];
         }
     }
     recycle(rows_v);
