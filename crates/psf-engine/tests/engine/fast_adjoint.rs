@@ -2,7 +2,7 @@
 //! L = sum(g * PSF) along the lens parameters against central differences of the engine's own
 //! PSF of the perturbed lens (`tangent::perturbed`), J^T g for a random g and for g = the PSF
 //! itself (L its sum of squares: sharpness), at three fields and two wavelengths, on the
-//! aspheric paper triplet and the spherical Cooke triplet.
+//! aspheric paper triplet, the spherical Cooke triplet and the eight-element double Gauss.
 use crate::common;
 use psf_engine::psf::fast::fast_psf;
 use psf_engine::psf::fast_adjoint::linearize;
@@ -131,5 +131,36 @@ fn the_reverse_pass_of_the_cooke_triplets_fast_psf_matches_central_differences()
     let steps = [4e-6, 4e-6, 1e-4, 4e-6, 1e-4, 1e-4, 1e-3];
     let err = worst::<7>(&lens, &params, &steps, &[587.6]);
     eprintln!("Cooke triplet: relative error of J^T g {err:.2e}");
+    assert!(err < 5e-3, "relative error of J^T g: {err:e}");
+}
+
+#[test]
+fn the_reverse_pass_of_the_eight_element_lenss_fast_psf_matches_central_differences() {
+    // the apochromatic double Gauss (JP 2025-108279 A), unclipped: 15 surfaces, all spherical
+    let lens = common::fixture_lens("apo_gauss_8e");
+    let last = lens.surfaces.len() - 1;
+    let params = [
+        Param::Radius(0),
+        Param::Radius(4),
+        Param::Radius(9),
+        Param::Radius(14),
+        Param::Thickness(6),
+        Param::Thickness(12),
+        Param::Thickness(last),
+        Param::FNumber,
+    ];
+    let r = |i: usize| 1.0 / lens.surfaces[i].curvature;
+    let steps = [
+        2e-5 * r(0).abs(),
+        2e-5 * r(4).abs(),
+        2e-5 * r(9).abs(),
+        2e-5 * r(14).abs(),
+        1e-3,
+        1e-3,
+        1e-4,
+        1e-3,
+    ];
+    let err = worst::<8>(&lens, &params, &steps, &[587.6]);
+    eprintln!("eight-element lens: relative error of J^T g {err:.2e}");
     assert!(err < 5e-3, "relative error of J^T g: {err:e}");
 }
