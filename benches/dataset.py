@@ -28,6 +28,7 @@ Prints one JSON object (``--out`` also writes dataset_speed.json). It measures; 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -60,8 +61,10 @@ print(json.dumps({"startup_s": startup, "s_per_design": (time.perf_counter() - t
 """
 
 
-def _timed(module, name: str, acc: dict, key: str) -> None:
-    """Wrap ``module.name`` so that its wall time adds up in ``acc[key]``."""
+@contextlib.contextmanager
+def _timed(module, name: str, acc: dict, key: str):
+    """Within the block, ``module.name`` is wrapped so that its wall time adds up in
+    ``acc[key]``; restored after it (a caller in the same process, a test, sees the original)."""
     fn = getattr(module, name)
 
     def wrapper(*args, **kwargs):
@@ -72,6 +75,10 @@ def _timed(module, name: str, acc: dict, key: str) -> None:
             acc[key] = acc.get(key, 0.0) + time.perf_counter() - t
 
     setattr(module, name, wrapper)
+    try:
+        yield
+    finally:
+        setattr(module, name, fn)
 
 
 def engine_only(root: str) -> float:
@@ -145,9 +152,11 @@ def phases(space_name: str, n: int, seed: int, s) -> dict:
 
     gen = sys.modules["optix_e2e.dataset.generate"]  # the module (the package exports the function)
     acc: dict = {}
-    _timed(gen, "refocus_many", acc, "refocus_s")
-    _timed(engine, "psf_batch", acc, "psf_batch_s")
-    with tempfile.TemporaryDirectory() as tmp:
+    with (
+        _timed(gen, "refocus_many", acc, "refocus_s"),
+        _timed(engine, "psf_batch", acc, "psf_batch_s"),
+        tempfile.TemporaryDirectory() as tmp,
+    ):
         space, base = load_space(space_name)
         t = time.perf_counter()
         prepare(Path(tmp), space, base, n, seed, s)

@@ -141,6 +141,29 @@ def test_a_design_without_a_one_pass_gradient_falls_back_to_differences_and_says
     assert "huygens" in eng.last["fallback"], eng.last
 
 
+def test_an_engine_error_or_a_non_finite_one_pass_gradient_falls_back_too(nominal_jacobian, monkeypatch):
+    """The forward pass computed the design, so a failure of its one-pass gradient (an engine
+    error in the tangents) or a non-finite one is a fallback with its reason, never a NaN."""
+    from optix_e2e import engine
+
+    eng, v, psf, vig, jp, jv = nominal_jacobian
+    g_psf, g_vig = np.ones(psf.shape), np.ones(vig.shape)
+    want = (jp * g_psf).reshape(len(v), -1).sum(1) + (jv * g_vig).reshape(len(v), -1).sum(1)
+    for bad in ("error", "nan"):
+
+        def vjp(*args, bad=bad):
+            if bad == "error":
+                raise engine.TraceError("chief ray at 14.9 deg: missed at surface 5")
+            return {"fallback": None, "grad": np.full(len(v), np.nan)}
+
+        monkeypatch.setattr(ExactOptics, "_engine_vjp", staticmethod(vjp))
+        n = eng.fallbacks
+        got = eng.vjp(v, g_psf, g_vig)
+        assert eng.fallbacks == n + 1 and np.isfinite(got).all()
+        np.testing.assert_allclose(got, want, rtol=1e-12)
+        assert ("missed at surface 5" if bad == "error" else "not finite") in eng.last["fallback"]
+
+
 @pytest.mark.slow
 def test_exact_lens_gradient_agrees_with_the_surrogate_in_sign(sur):
     """A task-like loss (L1 of a textured image through the lens against the sharp image): the

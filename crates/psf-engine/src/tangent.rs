@@ -892,8 +892,11 @@ pub fn irradiance_tangents<const N: usize>(
             }
             None => (k(0.0), k(0.0)),
         };
+        // whether the clipped system passes the ray (the kernel's f64 trace: no tangents needed)
         let d = dir(step_l, step_m);
-        if trace_dual(&sys, &dl, launch_along(&par, z_launch, x, y, &d), d).is_some() {
+        let o = launch_along(&par, z_launch, x, y, &d);
+        let real = |x: &[Dual<N>; 3]| DVec3::new(x[0].v, x[1].v, x[2].v);
+        if sys.trace(real(&o), real(&d), End::Image).ok() {
             let adet = if det.v < 0.0 { -det } else { det };
             e = e + h * h * w / adet;
         }

@@ -280,7 +280,27 @@ class ExactOptics:
             g = g.repeat_interleave(k, -2).repeat_interleave(k, -1)
         lens = refocused_designs(man, v[None], [z])[0]
         t0 = time.perf_counter()
-        r = engine.psf_set_vjp(
+        try:
+            r = self._engine_vjp(man, s, space, lens, g, g_vig, sensor, focus)
+        except engine.ArgumentError:
+            raise  # ours to fix (shapes, names): not a property of the design
+        except engine.EngineError as err:  # the forward pass computed this design: differences can
+            return None, f"the engine's one-pass gradient failed ({err})"
+        dt = time.perf_counter() - t0
+        self.seconds += dt
+        self.last = {"designs": 0, "seconds": dt, "one_sided": [], "fallback": r["fallback"]}
+        if r["fallback"] is not None:
+            return None, r["fallback"]
+        grad = np.asarray(r["grad"], np.float64)
+        if not np.isfinite(grad).all():
+            return None, "the one-pass gradient is not finite"
+        return grad, None
+
+    @staticmethod
+    def _engine_vjp(man, s, space, lens, g, g_vig, sensor, focus) -> dict:
+        from .. import engine
+
+        return engine.psf_set_vjp(
             lens_json=json.dumps(lens),
             fields_deg=[float(f) for f in man["fields_deg"]],
             channels=[[(float(a), float(b)) for a, b in c] for c in man["channels"]],
@@ -296,12 +316,6 @@ class ExactOptics:
             sensor=(s.sensor_pixel_um, s.sensor_size) if sensor else None,
             focus=focus,
         )
-        dt = time.perf_counter() - t0
-        self.seconds += dt
-        self.last = {"designs": 0, "seconds": dt, "one_sided": [], "fallback": r["fallback"]}
-        if r["fallback"] is not None:
-            return None, r["fallback"]
-        return np.asarray(r["grad"], np.float64), None
 
     def jacobian(self, values) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(psf, vignetting, dpsf/dv [P, K, C, S, S], dvig/dv [P, K, C]) at one design, by
