@@ -148,26 +148,10 @@ fn gradient_cases() -> Vec<GradientCase> {
         rings: 4,
     };
     // the paper triplet as the dataset traces it (no clear apertures), the e2e space's 19
-    let mut v = common::paper_triplet_json();
-    for s in v["surfaces"].as_array_mut().unwrap() {
-        s.as_object_mut().unwrap().remove("semi_diameter");
-    }
     let f3 = fields(14.9);
     let r3 = rule(&f3);
-    let mut p3 = vec![
-        Param::Radius(0),
-        Param::Conic(0),
-        Param::Radius(1),
-        Param::Thickness(1),
-        Param::Thickness(3),
-        Param::Thickness(4),
-        Param::Radius(5),
-        Param::Conic(5),
-        Param::Radius(6),
-    ];
-    p3.extend((0..5).map(|k| Param::Aspheric(0, k)));
-    p3.extend((0..5).map(|k| Param::Aspheric(5, k)));
-    let triplet = refocus(psf_engine::Lens::from_json(&v.to_string()).unwrap(), &r3);
+    let p3 = common::e2e_params();
+    let triplet = refocus(common::paper_triplet_unclipped(), &r3);
     // the eight-element lens (unclipped), its space's 14 radii and 6 gaps
     let f8 = fields(23.94);
     let r8 = rule(&f8);

@@ -106,6 +106,38 @@ pub fn paper_triplet() -> Lens {
     Lens::from_json(&paper_triplet_json().to_string()).unwrap()
 }
 
+/// The paper triplet as the dataset traces it by default (apertures "auto": no clear apertures,
+/// the design's own beam).
+#[allow(dead_code)] // not every test binary that includes this module uses it
+pub fn paper_triplet_unclipped() -> Lens {
+    let mut v = paper_triplet_json();
+    for s in v["surfaces"].as_array_mut().unwrap() {
+        s.as_object_mut().unwrap().remove("semi_diameter");
+    }
+    Lens::from_json(&v.to_string()).unwrap()
+}
+
+/// The paper-triplet e2e space's 19 parameters (bundled/spaces/paper-triplet-e2e.toml): radii,
+/// conics, the three air gaps, and both aspheres' r^2 .. r^10 terms.
+#[allow(dead_code)]
+pub fn e2e_params() -> Vec<psf_engine::tangent::Param> {
+    use psf_engine::tangent::Param;
+    let mut p = vec![
+        Param::Radius(0),
+        Param::Conic(0),
+        Param::Radius(1),
+        Param::Thickness(1),
+        Param::Thickness(3),
+        Param::Thickness(4),
+        Param::Radius(5),
+        Param::Conic(5),
+        Param::Radius(6),
+    ];
+    p.extend((0..5).map(|k| Param::Aspheric(0, k)));
+    p.extend((0..5).map(|k| Param::Aspheric(5, k)));
+    p
+}
+
 /// A lens of the Python suite's fixtures (tests/data/lenses/NAME.json).
 pub fn fixture_lens(name: &str) -> Lens {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(format!("../../tests/data/lenses/{name}.json"));
