@@ -103,7 +103,7 @@ pub fn psf_set_vjp(
             all.len() - 1
         })
     });
-    let r = match all.len() {
+    let mut r = match all.len() {
         0..=8 => set_vjp::<8>(lens, fields, channels, o, sensor, &all, focus, image_k, g_psf, g_ri)?,
         9..=24 => set_vjp::<24>(lens, fields, channels, o, sensor, &all, focus, image_k, g_psf, g_ri)?,
         25..=MAX_DIRECTIONS => {
@@ -115,7 +115,6 @@ pub fn psf_set_vjp(
             ))
         }
     };
-    let mut r = r;
     if r.fallback.is_none() {
         r.grad.truncate(params.len());
     }

@@ -389,14 +389,10 @@ fn adjoints_body(st: &FastState, gout: &[f64], size: usize) -> [Vec<f64>; 3] {
             if !(a.v > 0.0) {
                 continue;
             }
-            let (zr, zi) = if t > 0 {
-                ((q[t].re + q[g - t].re) as f64, (q[t].im + q[g - t].im) as f64)
-            } else {
-                (q[0].re as f64, q[0].im as f64)
-            };
+            let (zrt, zit) = (zr[t], zi[t]);
             let (cs, sn) = fast::cis_turns(w[t]);
-            let gwt = 2.0 * PI * a.v * (zi * cs - zr * sn);
-            let gf = a.d.map(|d| d * (zr * cs + zi * sn));
+            let gwt = 2.0 * PI * a.v * (zit * cs - zrt * sn);
+            let gf = a.d.map(|d| d * (zrt * cs + zit * sn));
             let mut p = 1.0;
             for k in 0..nq {
                 m[0][k] += gwt * p;
