@@ -1,7 +1,7 @@
 """Seeded sampling of designs from a parameter space, with manufacturability checks.
 
-Candidates are drawn in blocks from a uniform, scrambled Sobol or Latin-hypercube
-sequence over the space's box (scipy.stats.qmc), checked, and the first ``n`` that pass are
+Candidates are drawn in blocks from a uniform, scrambled Sobol (:mod:`.sobol`, scipy's bits
+without its import) or Latin-hypercube (scipy.stats.qmc) sequence over the space's box, checked, and the first ``n`` that pass are
 kept in draw order, so a seed gives the same designs on every machine.  Rejected
 candidates are counted by reason (a candidate may fail several checks; each is counted).
 
@@ -28,6 +28,7 @@ import numpy as np
 
 from ..lens import Lens
 from ..lens.apertures import engine_base
+from .sobol import ScrambledSobol
 from .constraints import REASONS, Limits, Manufacturability, check_design, reason_of
 from .constraints import apertures as clear_apertures
 from .space import ParameterSpace, SpaceError
@@ -41,14 +42,14 @@ APERTURE_RULES = ("auto", "fixed", "base-lens")
 
 def _unit_block(method: str, d: int, m: int, seed: int, state: dict) -> np.ndarray:
     """The next ``m`` points of the seeded sequence in [0, 1)^d."""
-    from scipy.stats import qmc
-
     if "engine" not in state:
         if method == "uniform":
             state["engine"] = np.random.Generator(np.random.PCG64(seed))
         elif method == "sobol":
-            state["engine"] = qmc.Sobol(d, scramble=True, seed=np.random.default_rng(seed))
+            state["engine"] = ScrambledSobol(d, seed)
         elif method == "lhs":
+            from scipy.stats import qmc
+
             state["engine"] = qmc.LatinHypercube(d, seed=np.random.default_rng(seed))
         else:
             raise InputError(f"unknown sampling method {method!r} (one of {', '.join(METHODS)})")
@@ -57,7 +58,7 @@ def _unit_block(method: str, d: int, m: int, seed: int, state: dict) -> np.ndarr
         return eng.random((m, d))
     if method == "sobol":  # balance holds for 2^k points: the first block, then doubling
         done = int(eng.num_generated)
-        return eng.random(done) if done else eng.random_base2(max(0, math.ceil(math.log2(m))))
+        return eng.random(done if done else 2 ** max(0, math.ceil(math.log2(m))))
     return eng.random(m)
 
 
