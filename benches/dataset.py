@@ -9,8 +9,8 @@ Three measurements, one after the other on the same machine (run it on a quiet o
    (imports, sampling, refocusing, PSFs, shards written and checksummed), wall time;
    ``designs_per_s_end_to_end`` = N over it.
 2. **Phases**, the same generation in this process with timers around each stage: importing
-   the package (a fresh interpreter, ``import optix_e2e.cli``), importing scipy.stats (the
-   Sobol sampler's module), sampling (``prepare``: the checked draws and the manifest), the
+   the package (a fresh interpreter, ``import optix_e2e.cli``; the command loads no scipy.stats:
+   its Sobol' points are lens_design/sobol.py's), sampling (``prepare``: the checked draws and the manifest), the
    refocus (``refocus_many``), the engine's ``psf_batch`` and the rest of ``generate`` (the
    geometry checks, shard writing, checksums); and ``engine_designs_per_s``, ``psf_batch``
    alone on the refocused designs (16 per call) as the generator calls it.
@@ -141,10 +141,6 @@ def phases(space_name: str, n: int, seed: int, s) -> dict:
     t = time.perf_counter()
     subprocess.run([sys.executable, "-c", "import optix_e2e.cli"], check=True)
     import_s = time.perf_counter() - t
-    t = time.perf_counter()
-    import scipy.stats  # noqa: F401 - the sampler's Sobol sequence lives here
-
-    scipy_s = time.perf_counter() - t
     from optix_e2e import engine
     from optix_e2e.dataset import generate
     from optix_e2e.dataset.manifest import prepare
@@ -166,7 +162,6 @@ def phases(space_name: str, n: int, seed: int, s) -> dict:
     rest = rep.seconds - acc.get("refocus_s", 0.0) - acc.get("psf_batch_s", 0.0)
     return {
         "import_package_s": import_s,
-        "import_scipy_stats_s": scipy_s,
         "sampling_s": sampling_s,
         "refocus_s": acc.get("refocus_s", 0.0),
         "psf_batch_s": acc.get("psf_batch_s", 0.0),
