@@ -18,7 +18,7 @@ import torch
 from torch import nn
 
 from .cfa import mosaic
-from .poisson import poisson_sample
+from .poisson import poisson_quantile, poisson_sample
 from .presets import SensorPreset, check_positive, get_preset
 from .spectral import WAVELENGTHS_NM, interpolation_weights, photons_per_radiance
 from ..errors import InputError
@@ -136,9 +136,10 @@ def raw_from_electrons(
     for any two signals given the same generator state (common random numbers, for paired
     comparisons): the uniform, normal and uniform fields of shot noise, dark noise and
     quantisation are drawn first, in float64 (their number does not depend on the signal), and
-    the shot noise is the Poisson quantile of its uniform at the pixel's mean. Sampling
-    ``torch.poisson`` consumes a signal-dependent amount of the random stream instead. This
-    path runs on the CPU (scipy's Poisson quantile) and returns to the signal's device.
+    the shot noise is the Poisson quantile of its uniform at the pixel's mean
+    (:func:`poisson_quantile`). Sampling ``torch.poisson`` consumes a signal-dependent amount
+    of the random stream instead. The fields are drawn on the generator's device (a CPU one:
+    the CPU's draws on any device) and the rest runs on the signal's.
     """
     if quantize not in QUANTIZE:
         raise InputError(f"quantize must be one of {', '.join(QUANTIZE)}, got {quantize!r}")
@@ -147,14 +148,10 @@ def raw_from_electrons(
     if common_noise and noise:
         if quantize != "uniform":
             raise InputError("common_noise needs quantize='uniform'")
-        from scipy.stats import poisson
-
         with torch.no_grad():
-            u_shot = torch.rand(mu_e.shape, generator=generator, dtype=torch.float64)
-            z_read = torch.randn(mu_e.shape, generator=generator, dtype=torch.float64)
-            u_q = torch.rand(mu_e.shape, generator=generator, dtype=torch.float64)
-            lam = mu_e.detach().double().cpu().clamp_min(0).numpy()
-            e = torch.from_numpy(poisson.ppf(u_shot.numpy(), lam)) + p.dark_noise_e * z_read
+            lam = mu_e.detach().double()
+            u_shot, z_read, u_q = (_drawn(d, lam, generator) for d in (torch.rand, torch.randn, torch.rand))
+            e = poisson_quantile(u_shot, lam) + p.dark_noise_e * z_read
             y = p.black_level_dn + p.gain_dn_per_e * torch.clamp(e, max=p.full_well_e) + u_q - 0.5
             return y.clamp(0, p.adc_max_dn).to(photo_electrons)
     if noise:

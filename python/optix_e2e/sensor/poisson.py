@@ -55,3 +55,55 @@ def poisson_sample(
     eps = (k - mu) / torch.sqrt(mu.clamp_min(min_rate))
     g = pathwise(rate, eps, min_rate)
     return k + (g - g.detach())
+
+
+#: unit steps from the normal approximation's guess before the bisection takes over (one or two
+#: suffice for the uniforms torch.rand draws, u >= 2^-53, at any rate a sensor holds)
+QUANTILE_STEPS = 16
+
+
+@torch.no_grad()
+def poisson_quantile(u: torch.Tensor, rate: torch.Tensor) -> torch.Tensor:
+    """The Poisson quantile: the smallest integer k >= 0 with P(K <= k) >= u, K ~ Poisson(rate),
+    elementwise (float64, broadcast; rates < 0 taken as 0, u in [0, 1)). Not differentiable.
+
+    What the common-random-number shot noise needs (the same uniform u gives nearby counts
+    at nearby rates). The same values as ``scipy.stats.poisson.ppf`` (tests/sensor/test_poisson.py;
+    scipy gives -1 at u = 0, this 0), in torch on the tensors' device and 5-20x faster on the
+    CPU: from the Cornish-Fisher guess floor(rate + sqrt(rate) z + (z^2 - 1) / 6), z = Phi^-1(u),
+    it steps up while P(K <= k) = Q(k + 1, rate) < u and down while P(K <= k - 1) = Q(k, rate)
+    >= u (Q the regularized upper incomplete gamma function); an element still moving after
+    ``QUANTILE_STEPS`` steps (u far in a tail) is bisected instead."""
+    u, lam = torch.broadcast_tensors(u.double(), rate.double().clamp_min(0))
+    if torch.any((u < 0) | (u >= 1) | torch.isnan(u)) or not torch.isfinite(lam).all():
+        raise InputError("poisson_quantile needs u in [0, 1) and finite rates")
+    z = torch.special.ndtri(u.clamp(min=2.0**-60))
+    k = torch.floor(lam + lam.sqrt() * z + (z * z - 1.0) / 6.0).clamp_min(0.0)
+    stuck = torch.zeros_like(u, dtype=torch.bool)
+    for step in (1.0, -1.0):
+        for _ in range(QUANTILE_STEPS + 1):
+            if step > 0:
+                move = torch.special.gammaincc(k + 1.0, lam) < u
+            else:
+                move = (k > 0) & (torch.special.gammaincc(k.clamp_min(1.0), lam) >= u)
+            move &= ~stuck
+            if not move.any():
+                break
+            k = k + step * move
+        else:
+            stuck |= move
+    if stuck.any():
+        k[stuck] = _bisected_quantile(u[stuck], lam[stuck])
+    return k
+
+
+def _bisected_quantile(u: torch.Tensor, lam: torch.Tensor) -> torch.Tensor:
+    """``poisson_quantile`` by bisection over [0, rate + 40 sqrt(rate) + 100], where P(K <= k)
+    rounds to 1 in float64."""
+    lo = torch.full_like(lam, -1.0)  # P(K <= -1) = 0: below any u > 0 (u = 0 ends at k = 0)
+    hi = torch.floor(lam + 40.0 * lam.sqrt() + 100.0)
+    while torch.any(hi - lo > 1):
+        mid = torch.floor((lo + hi) / 2)
+        ok = torch.special.gammaincc(mid + 1.0, lam) >= u
+        hi, lo = torch.where(ok, mid, hi), torch.where(ok, lo, mid)
+    return hi
