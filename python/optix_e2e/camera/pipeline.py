@@ -77,3 +77,25 @@ class Camera(nn.Module):
         )
         out = self.isp.final(raw, *where) if final else self.isp(raw, *where)
         return out, raw
+
+    @torch.no_grad()
+    def final_batch(self, radiance: torch.Tensor, offsets_px, generators) -> torch.Tensor:
+        """``forward(final=True)``'s sRGB [B, 3, H, W] for B samples at their own crop positions
+        (``offsets_px``: B pairs) with their own noise generators (B): the optics and the
+        sensor's common random numbers one sample at a time (each its own PSFs and draws, as
+        alone), the ISP on the whole batch (its work, the larger part, in one call)."""
+        if not (len(radiance) == len(offsets_px) == len(generators)):
+            raise ValueError("final_batch: one offset and one generator per sample")
+        m = self.margin
+        f_number = self.optics.f_number() if hasattr(self.optics, "f_number") else None
+        raws = []
+        for x, off, gen in zip(radiance.split(1), offsets_px, generators):
+            image = self.optics(x, off)
+            if m:
+                image = image[..., m:-m, m:-m]
+            raws.append(self.sensor(image, gen, common_noise=True, f_number=f_number))
+        raw = torch.cat(raws)
+        if getattr(self.isp, "takes_position", False):
+            offsets = torch.tensor([[float(a), float(b)] for a, b in offsets_px], device=raw.device)
+            return self.isp.final(raw, offsets, getattr(self.optics, "full_field_px", None))
+        return self.isp.final(raw)
