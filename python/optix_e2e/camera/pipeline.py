@@ -15,6 +15,7 @@ from collections import OrderedDict
 import torch
 from torch import nn
 
+from ..errors import InputError
 from .stages import SensorStage
 
 
@@ -85,7 +86,9 @@ class Camera(nn.Module):
         sensor's common random numbers one sample at a time (each its own PSFs and draws, as
         alone), the ISP on the whole batch (its work, the larger part, in one call)."""
         if not (len(radiance) == len(offsets_px) == len(generators)):
-            raise ValueError("final_batch: one offset and one generator per sample")
+            raise InputError(
+                f"final_batch: one offset and one generator per sample, got {len(radiance)} samples, {len(offsets_px)} offsets, {len(generators)} generators"
+            )
         m = self.margin
         f_number = self.optics.f_number() if hasattr(self.optics, "f_number") else None
         raws = []
