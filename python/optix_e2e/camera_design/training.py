@@ -21,6 +21,7 @@ from ..errors import InputError
 from ..io import save_atomic
 from ..optics import DifferentiableOptics
 from ..tasks import SensorFrame, TaskLoss, get_task, training_batch
+from ..tasks.prefetch import Prefetched
 from ..torchfile import DAMAGED_STATE_ERRORS, load_plain
 from .config import DesignConfig
 from .guard import Manufacturable, barrier_gradient, keep_manufacturable
@@ -104,6 +105,15 @@ def _check_schedule(path: Path, st: dict, opt) -> None:
         )
 
 
+#: whether a design run on the CPU makes its next batch beside the step (the step's own threads
+#: use the cores; measured in docs/gpu.md): off; on any other device, on
+PREFETCH_ON_CPU = False
+
+
+def prefetch_batches(device) -> bool:
+    return torch.device(device).type != "cpu" or PREFETCH_ON_CPU
+
+
 def noise_generator(seed: int, t: int, ranks: parallel.Ranks = parallel.Ranks()) -> torch.Generator:
     """Step t's sensor-noise stream (stream tag 4); under torchrun each rank draws its own."""
     key = [4, int(seed), int(t)] + ([ranks.rank, ranks.world] if ranks.distributed else [])
@@ -152,13 +162,14 @@ def train(
         parallel.broadcast_params(camera.parameters(), ranks)  # one starting point, whatever each rank read
         opt.reduce = lambda params, loss, info: parallel.average_step(ranks, params, loss, info)
         progress = progress and ranks.is_main
+    stream = None
     if loss_at is None:
         dev = camera.device  # a batch is drawn on the CPU (seeded) and goes to the camera once
         loss_mod = TaskLoss(task).to(dev)
         part = parallel.batch_slice(cfg.batch, ranks)
-
-        def loss_at(t, gen):
-            batch = training_batch(
+        # batch t + 1 made while step t runs, where the step is not the CPU's (tasks/prefetch.py)
+        stream = Prefetched(
+            lambda t: training_batch(
                 cfg.seed,
                 t,
                 cfg.batch,
@@ -169,7 +180,13 @@ def train(
                 folder,
                 positions=cfg.train_positions,
                 corpus=corpus,
-            )
+            ),
+            ahead=prefetch_batches(dev),
+            last=opt.total_steps - 1,
+        )
+
+        def loss_at(t, gen):
+            batch = stream(t)
             out_img, _ = camera(batch.scene[part].to(dev), batch.offset_px, gen)
             return loss_mod(out_img, batch.target[part].to(dev))
 
@@ -201,50 +218,56 @@ def train(
     )
     if monitor is not None and opt.t == 0 and not monitor.checks:
         monitor.check(0)
-    while opt.t < opt.total_steps:
-        t = opt.t
-        gen = noise_generator(cfg.seed, t, ranks)
+    try:
+        while opt.t < opt.total_steps:
+            t = opt.t
+            gen = noise_generator(cfg.seed, t, ranks)
 
-        def loss_fn():
-            return loss_at(t, gen)
+            def loss_fn():
+                return loss_at(t, gen)
 
-        t0 = time.perf_counter()
-        u_prev = optics.u.detach().clone() if optics is not None else None
-        backend = optics.backend if optics is not None else "fixed"
-        info = opt.step(loss_fn)
-        if lens_scale is not None and optics is not None and info["block"] in ("optics", "all"):
-            with torch.no_grad():  # per-parameter step sizes (Adam's step is one lr for the whole tensor u)
-                optics.u.copy_(u_prev + lens_scale.to(optics.u) * (optics.u - u_prev))
-        hint = "lower the learning rates (lr_optics, lr_isp_net, lr_isp_params, lr_detector) in another --out"
-        parallel.stop_if_diverged(opt.t, state_path, hint, loss=info["loss"])
-        info["optics"] = backend
-        # the paper enforces its limits on every lens: a step that breaks one is cut back
-        info["cut"] = int(
-            guard is not None and info["block"] in ("optics", "all") and keep_manufacturable(optics, u_prev, guard)
-        )
-        info["seconds"] = time.perf_counter() - t0
-        info.setdefault("barrier", 0.0)  # the guard's barrier term (guard = barrier), not in the loss
-        row = {k: info[k] for k in history_keys(parts)}
-        if optics is not None and info["block"] in ("optics", "all"):
-            row["lens"] = [float(v) for v in optics.values().detach()]  # where this step left the lens (lens_path.csv)
-        history.append(row)
-        if writer is not None:
-            for k in ("loss", *parts):
-                writer.add_scalar(f"{name}/{k}", info[k], info["step"])
-            if info["prox"]:
-                writer.add_scalar(f"{name}/prox", info["prox"], info["step"])
-            if info.get("barrier"):
-                writer.add_scalar(f"{name}/barrier", info["barrier"], info["step"])
-        if monitor is not None and monitor.due(opt.t, opt.total_steps):
-            monitor.check(opt.t, final=opt.t == opt.total_steps)
-        if on_step is not None:
-            on_step(info, camera)
-        bar.update(1)
-        bar.set_postfix(loss=f"{info['loss']:.4f}", block=info["block"])
-        if opt.t % cfg.checkpoint_every == 0 or opt.t == opt.total_steps:
-            parallel.stop_if_diverged(opt.t, state_path, hint, camera=camera)  # every rank: all stop together
-        if ranks.is_main and (opt.t % cfg.checkpoint_every == 0 or opt.t == opt.total_steps):
-            _save_state(state_path, camera, opt, wall_s + time.perf_counter() - t_start, history, monitor)
+            t0 = time.perf_counter()
+            u_prev = optics.u.detach().clone() if optics is not None else None
+            backend = optics.backend if optics is not None else "fixed"
+            info = opt.step(loss_fn)
+            if lens_scale is not None and optics is not None and info["block"] in ("optics", "all"):
+                with torch.no_grad():  # per-parameter step sizes (Adam's step is one lr for the whole tensor u)
+                    optics.u.copy_(u_prev + lens_scale.to(optics.u) * (optics.u - u_prev))
+            hint = "lower the learning rates (lr_optics, lr_isp_net, lr_isp_params, lr_detector) in another --out"
+            parallel.stop_if_diverged(opt.t, state_path, hint, loss=info["loss"])
+            info["optics"] = backend
+            # the paper enforces its limits on every lens: a step that breaks one is cut back
+            info["cut"] = int(
+                guard is not None and info["block"] in ("optics", "all") and keep_manufacturable(optics, u_prev, guard)
+            )
+            info["seconds"] = time.perf_counter() - t0
+            info.setdefault("barrier", 0.0)  # the guard's barrier term (guard = barrier), not in the loss
+            row = {k: info[k] for k in history_keys(parts)}
+            if optics is not None and info["block"] in ("optics", "all"):
+                row["lens"] = [
+                    float(v) for v in optics.values().detach()
+                ]  # where this step left the lens (lens_path.csv)
+            history.append(row)
+            if writer is not None:
+                for k in ("loss", *parts):
+                    writer.add_scalar(f"{name}/{k}", info[k], info["step"])
+                if info["prox"]:
+                    writer.add_scalar(f"{name}/prox", info["prox"], info["step"])
+                if info.get("barrier"):
+                    writer.add_scalar(f"{name}/barrier", info["barrier"], info["step"])
+            if monitor is not None and monitor.due(opt.t, opt.total_steps):
+                monitor.check(opt.t, final=opt.t == opt.total_steps)
+            if on_step is not None:
+                on_step(info, camera)
+            bar.update(1)
+            bar.set_postfix(loss=f"{info['loss']:.4f}", block=info["block"])
+            if opt.t % cfg.checkpoint_every == 0 or opt.t == opt.total_steps:
+                parallel.stop_if_diverged(opt.t, state_path, hint, camera=camera)  # every rank: all stop together
+            if ranks.is_main and (opt.t % cfg.checkpoint_every == 0 or opt.t == opt.total_steps):
+                _save_state(state_path, camera, opt, wall_s + time.perf_counter() - t_start, history, monitor)
+    finally:
+        if stream is not None:
+            stream.close()  # the thread ends with the run, a failed step included
     bar.close()
     wall = wall_s + (time.perf_counter() - t_start if ran else 0.0)
     camera.eval()
