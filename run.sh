@@ -15,7 +15,7 @@ fi
 # shellcheck disable=SC1091
 . .venv/bin/activate
 python -m pip install --disable-pip-version-check -q "uv==0.13.9"
-uv pip install -q --refresh-package optix-e2e --reinstall-package optix-e2e .
+uv pip install -q --compile-bytecode --refresh-package optix-e2e --reinstall-package optix-e2e .  # .pyc once (test.sh says why)
 optix design iq-software --out "$OUT/design-iq-software"
 echo "results: $OUT/design-iq-software/results.json (panels.png, psf_*.png, lens/end_to_end.zmx, report/);"
 echo "TensorBoard: tensorboard --logdir $OUT/design-iq-software/tb; the PSF demo: optix demo --out $OUT/psf-demo"
