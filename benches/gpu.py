@@ -135,10 +135,13 @@ def design_step(dev: torch.device, plan: Plan, precision: str = "fp32", exact: b
     m = cam.margin
     fields = cam.optics.fields if cam.optics.render_fields is None else cam.optics.render_fields
     times: dict[str, list[float]] = {k: [] for k in (*DESIGN_STAGES, "step")}
+    host: list[float] = []  # per step: the share in work on the CPU whatever the device
+    engine = cam.optics.exact if exact else None
     _reset_peak(dev)
     n = 0
     for t, timed in plan.loop(plan.exact_steps if exact else None):
         c = [time.perf_counter()]
+        e = [engine.seconds] if engine is not None else []
 
         def lap():
             _sync(dev)
@@ -152,6 +155,8 @@ def design_step(dev: torch.device, plan: Plan, precision: str = "fp32", exact: b
         lap()
         psf, vig = cam.optics.psfs()
         lap()
+        if engine is not None:
+            e.append(engine.seconds)
         img = render(
             scene,
             psf,
@@ -170,6 +175,8 @@ def design_step(dev: torch.device, plan: Plan, precision: str = "fp32", exact: b
         lap()
         (scaler.scale(loss) if scaler is not None else loss).backward()
         lap()
+        if engine is not None:
+            e.append(engine.seconds)  # the engine's gradient inside the backward pass
         if scaler is not None:
             scaler.step(opt)
             scaler.update()
@@ -181,6 +188,10 @@ def design_step(dev: torch.device, plan: Plan, precision: str = "fp32", exact: b
             for k, (x, y) in zip(DESIGN_STAGES, zip(c, c[1:])):
                 times[k].append(y - x)
             times["step"].append(c[-1] - c[0])
+            # the scenes are drawn on the CPU; the exact optics' forward stage and the engine's
+            # time in the backward pass run there too
+            on_host = (c[1] - c[0]) + ((c[2] - c[1]) + (e[2] - e[1]) if engine is not None else 0.0)
+            host.append(on_host / (c[-1] - c[0]))
     med = _median_ms(times)
     return {
         "what": f"optix design iq-software, {budget} budget's shapes, {'exact' if exact else 'surrogate'} optics",
@@ -190,6 +201,8 @@ def design_step(dev: torch.device, plan: Plan, precision: str = "fp32", exact: b
         "steps": n,
         "median_ms": med,
         "steps_per_s": round(1e3 / med["step"], 3),
+        # on a GPU, the share of the step it waits for the CPU (the median over the steps)
+        "host_fraction": round(float(sorted(host)[len(host) // 2]), 4) if host else None,
         "peak_mib": _peak_mib(dev),
     }
 
@@ -361,6 +374,10 @@ def lines(res: dict) -> list[str]:
                 for stage, ms in r["median_ms"].items():
                     out.append(f"{dev} {prec} {part} {stage} {ms} ms (median of {r['steps']})")
                 out.append(f"{dev} {prec} {part} {r['steps_per_s']} steps/s")
+                if r.get("host_fraction") is not None:
+                    out.append(
+                        f"{dev} {prec} {part} on the CPU whatever the device: {r['host_fraction']:.1%} of the step"
+                    )
                 if r["peak_mib"] is not None:
                     out.append(f"{dev} {prec} {part} peak memory {r['peak_mib']} MiB")
     for key, x in res["ratios"].items():

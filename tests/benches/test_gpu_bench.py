@@ -21,6 +21,9 @@ def test_the_smallest_run_writes_every_figure(tmp_path, capsys, load_bench):
     assert set(parts) == set(bench.PARTS)
     for name in ("design", "design_exact"):
         assert set(parts[name]["median_ms"]) == {*bench.DESIGN_STAGES, "step"}, name
+        assert 0.0 < parts[name]["host_fraction"] < 1.0, name  # the scenes at least; never the whole step
+    ms = parts["design_exact"]["median_ms"]  # its optics stage is the engine's, on the CPU: counted
+    assert parts["design_exact"]["host_fraction"] >= (ms["batch"] + ms["optics"]) / ms["step"] - 1e-3
     for name, r in parts.items():
         assert "error" not in r, (name, r.get("error"))
         assert r["steps"] == 1 and r["steps_per_s"] > 0 and r["peak_mib"] is None  # no GPU memory on the CPU
