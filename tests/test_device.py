@@ -136,8 +136,8 @@ def test_a_training_step_makes_every_tensor_on_its_inputs_device(task, smoke_cam
     (fields increasing, values finite), which reads data a meta tensor does not have; those
     stages run here on the CPU under the spy instead. Not covered: the Rust engine (exact optics:
     its values go to the CPU and its PSFs come back once per call, by design), the reference ISP
-    and the sensor's common-random-number noise of the evaluation (CPU by design, the latter
-    through scipy), the detector's NMS and target assignment (torchvision's)."""
+    (CPU by design), the detector's NMS and target assignment (torchvision's); the evaluation's
+    batches are the next test's."""
     from optix_e2e.camera_design.training import noise_generator
     from optix_e2e.tasks import TaskLoss, get_task
 
@@ -150,6 +150,27 @@ def test_a_training_step_makes_every_tensor_on_its_inputs_device(task, smoke_cam
         loss.backward()
     assert not spy.found, "\n".join(dict.fromkeys(spy.found))
     assert cam.optics.u.grad is not None and bool(torch.isfinite(loss))
+
+
+def test_an_evaluation_batch_makes_every_tensor_on_its_inputs_device(smoke_camera):
+    """The held-out evaluation's camera output (``Camera.final_batch``: each sample's optics and
+    common-random-number noise, whose Poisson quantile runs on the signal's device, then the ISP
+    on the batch) and its metrics under ``DeviceSpy``: the uniforms come from each sample's CPU
+    generator and move to the device (named), nothing else is made on or copied to the host."""
+    from optix_e2e.metrics.image import haarpsi, psnr, ssim
+    from optix_e2e.metrics.lpips import lpips
+
+    cam, scene, target = smoke_camera("iq-software")
+    scenes, targets = scene[:1].expand(2, -1, -1, -1), target[:1].expand(2, -1, -1, -1)
+    lpips(targets, targets)  # LPIPS's network is built once (on the CPU) and moved: not per call
+    spy = DeviceSpy()
+    with spy, torch.no_grad():
+        out = cam.final_batch(scenes, [(120.0, -80.0), (0.0, 0.0)], [torch.Generator().manual_seed(k) for k in (1, 2)])
+        x = (out.clamp(0, 1) * 255).round() / 255
+        for metric in (psnr, ssim, lpips, haarpsi):
+            metric(x, targets)
+    assert not spy.found, "\n".join(dict.fromkeys(spy.found))
+    assert out.shape[0] == 2 and not torch.equal(out[0], out[1])
 
 
 def test_the_spy_catches_a_stage_that_makes_a_tensor_on_the_cpu(monkeypatch, smoke_camera):
