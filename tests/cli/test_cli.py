@@ -71,6 +71,15 @@ def test_psf_writes_npy_and_one_json_line(tmp_path):
     assert png.stat().st_size > 1000
 
 
+def test_psf_refuses_an_out_that_is_not_npy(tmp_path):
+    """numpy appends .npy to any other name: ``--out x.png`` wrote x.png.npy and reported x.png.
+    Now one line before any work, naming --png for a picture; nothing written."""
+    r = run("psf", "cooke-f50", "--size", 16, "--out", tmp_path / "x.png")
+    assert r.exit_code != 0 and "Traceback" not in r.output
+    assert "--out" in r.output and ".npy" in r.output and "--png" in r.output
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("method", ["geometric", "huygens"])
 def test_psf_other_methods(tmp_path, method):
     out = tmp_path / "p.npy"

@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from ..errors import InputError
 from ._common import AIMING, FiniteFloatRange, dumps, friendly_errors, load_lens
 
 
@@ -84,6 +85,8 @@ def psf(
     The array's row index is image y, the column index image x, pixel (SIZE//2, SIZE//2)
     sits on the chief ray, and each pixel holds its fraction of the entrance-pupil flux.
     """
+    if out.suffix.lower() != ".npy":  # numpy would append .npy to any other name
+        raise InputError(f"--out {out}: the PSF array is written as .npy (name it *.npy; a picture: --png {out})")
     lens_ = load_lens(lens_spec)
     wl = lens_.primary_wavelength_nm if wavelength_nm is None else wavelength_nm
     kwargs = dict(pixel_um=pixel_um, size=size, pupil_samples=pupil_samples, aiming=aiming, accuracy=accuracy)
