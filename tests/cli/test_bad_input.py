@@ -311,6 +311,22 @@ def test_lens_survey_names_any_file_name_in_utf8_and_writes_its_files_whole(tmp_
     assert "\x1b" not in (out / "survey.csv").read_text() and "\\x1b]0;pwned" in (out / "survey.csv").read_text()
 
 
+def test_lens_info_and_convert_show_a_zmx_names_escape_bytes_escaped(tmp_path):
+    """A .zmx NAME (and so the lens's name) holding a terminal escape (set the title, ring the
+    bell): ``lens info`` and ``lens convert`` print it escaped, never the bytes themselves."""
+    from pathlib import Path
+
+    text = (Path(__file__).parents[1] / "data" / "zmx" / "cooke_utf8.zmx").read_text(encoding="utf-8")
+    lines = [ln for ln in text.splitlines() if not ln.startswith("NAME ")]
+    evil = tmp_path / "evil.zmx"
+    evil.write_text("NAME \x1b]0;pwned\x07Cooke\u202e\n" + "\n".join(lines) + "\n", encoding="utf-8")
+    for args in (["lens", "info", str(evil)], ["lens", "convert", str(evil), str(tmp_path / "out.json")]):
+        res = CliRunner().invoke(main, args)
+        assert res.exit_code == 0, res.output
+        assert not any(c in res.output for c in "\x1b\x07\u202e"), res.output
+    assert "\\x1b]0;pwned\\x07Cooke\\u202e" in CliRunner().invoke(main, ["lens", "info", str(evil)]).output
+
+
 # ----- COCO sets: names stay inside, categories the detector knows, finite extras ----------------
 def _street_set(tmp_path, n=2):
     from optix_e2e.scenes.coco import write_street_coco

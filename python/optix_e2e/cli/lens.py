@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from ..lens import Lens
+from ..lens.text import printable
 from ._common import AIMING, dumps, friendly_errors, load_lens
 
 PARAXIAL_KEYS = ("efl_mm", "bfl_mm", "f_number", "epd_mm", "total_track_mm")
@@ -97,7 +98,7 @@ def info(lens_spec, aiming, rings, as_json, lenient):
     if as_json:
         click.echo(dumps(out))
         return
-    click.echo(f"{lens_.name}  ({lens_.source})")
+    click.echo(printable(f"{lens_.name}  ({lens_.source})"))  # a .zmx NAME may hold escape bytes
     click.echo(
         f"  EFL {par['efl_mm']:.4f} mm   BFL {par['bfl_mm']:.4f} mm   f/{par['f_number']:.3f}"
         f"   EPD {par['epd_mm']:.4f} mm   total track {par['total_track_mm']:.4f} mm"
@@ -118,7 +119,7 @@ def info(lens_spec, aiming, rings, as_json, lenient):
         wfe_text = f"{wfe:>15.4f}" if wfe is not None else f"{'-':>15}"
         click.echo(f"  {row['field_deg']:>11.3f}  {row['rms_spot_um']:>13.4f}  {wfe_text}  {ri_text}")
     for w in warnings:
-        click.echo(f"  warning: {w}")
+        click.echo(printable(f"  warning: {w}"))
 
 
 def bundled_summary(name: str) -> dict:
@@ -218,11 +219,11 @@ def convert(src, dst, utf16, lenient):
         lens_ = load_lens(src)
     imp = lens_.zemax_import
     if imp is not None:
-        for note in imp.notes:
-            click.echo(f"note: {note}", err=True)
+        for note in imp.notes:  # names and glass names from the file: their escape bytes shown, not sent
+            click.echo(printable(f"note: {note}"), err=True)
         if imp.ignored:
             click.echo("ignored (no effect on the nominal optics, see docs/zemax.md):", err=True)
-            click.echo("  " + imp.ignored_summary().replace("\n", "\n  "), err=True)
+            click.echo("\n".join("  " + printable(line) for line in imp.ignored_summary().split("\n")), err=True)
     lens_.save(out, encoding="utf-16" if utf16 else "utf-8")
     back = Lens.from_file(out, strict=True)
     a, b = lens_.paraxial(), back.paraxial()
