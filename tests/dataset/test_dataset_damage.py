@@ -74,6 +74,27 @@ def test_rerun_redoes_a_damaged_shard(data, pristine, damage):
     assert any(p.name.startswith(".00001.damaged") for p in (data / "shards").iterdir())
 
 
+@pytest.mark.parametrize("name", ["psf", "psf_sensor"])
+def test_a_shard_of_all_zero_psfs_with_matching_checksums_fails_verify(data, name):
+    """PSFs zeroed and the shard's checksum forged to match (what a bad copy or a hand edit
+    leaves): verify names the file and the reason, every PSF channel has light."""
+    import numpy as np
+
+    from optix_e2e.dataset.layout import crc32_file
+
+    shard = data / "shards" / "00001"
+    p = shard / f"{name}.npy"
+    np.save(p, np.zeros_like(np.load(p)))
+    meta = json.loads((shard / "shard.json").read_text())
+    meta["files"][name]["crc32"] = crc32_file(p)
+    (shard / "shard.json").write_text(json.dumps(meta))
+    rep = verify(data)
+    assert not rep["ok"]
+    assert any(f"{name}.npy" in m and ("not 1" in m or "to nothing" in m) for m in rep["problems"]), rep["problems"]
+    res = _verify_cli(data)
+    assert res.exit_code != 0 and "Traceback" not in res.output
+
+
 @pytest.mark.parametrize(
     "key, value",
     [

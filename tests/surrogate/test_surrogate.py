@@ -252,3 +252,24 @@ def test_cli_train_and_eval(tiny_data, tmp_path):
     assert (tmp_path / "ev" / "eval.json").is_file() and (tmp_path / "ev" / "grid.png").is_file()
     r = run("surrogate", "eval", tmp_path / "nothing.pt", tiny_data)
     assert r.exit_code == 1 and "no such surrogate file" in r.output
+
+
+def test_eval_refuses_a_dataset_whose_psfs_hold_no_light(tiny_data, tmp_path):
+    """A shard whose sensor PSFs were zeroed with a checksum forged to match: ``surrogate eval``
+    says so in one line and points at ``dataset verify``, not an exit 0 with NaN medians."""
+    from click.testing import CliRunner
+
+    from optix_e2e.cli import main
+    from optix_e2e.dataset.layout import crc32_file
+
+    data = tmp_path / "data"
+    shutil.copytree(tiny_data, data)
+    shard = data / "shards" / "00000"
+    p = shard / "psf_sensor.npy"
+    np.save(p, np.zeros_like(np.load(p)))
+    meta = json.loads((shard / "shard.json").read_text())
+    meta["files"]["psf_sensor"]["crc32"] = crc32_file(p)
+    (shard / "shard.json").write_text(json.dumps(meta))
+    r = CliRunner().invoke(main, ["surrogate", "eval", "paper-triplet-v1", str(data), "--json"])
+    assert r.exit_code == 1 and "hold no light" in r.output and "dataset verify" in r.output, r.output
+    assert "Traceback" not in r.output and "NaN" not in r.output

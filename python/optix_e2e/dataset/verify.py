@@ -123,7 +123,7 @@ def _out_of_range(path: Path, what: str, bad: np.ndarray, values: np.ndarray, de
 def check_shard(root: Path, k: int, man: dict, check_hashes: bool = True) -> tuple[dict, dict]:
     """:func:`open_shard` and the values' checks (all finite, relative illumination and window
     energy in range, PSFs non-negative with unit-sum channels, sensor PSFs summing to at most
-    1): what verify checks per shard and what a resumed generation checks before it skips a
+    1 and more than 0): what verify checks per shard and what a resumed generation checks before it skips a
     shard."""
     arrays, meta = open_shard(root, k, man, check_hashes)
     d = shards_dir(root) / shard_name(k)
@@ -144,11 +144,13 @@ def check_shard(root: Path, k: int, man: dict, check_hashes: bool = True) -> tup
         low = np.stack([np.asarray(a[i]).min(axis=(-1, -2)) for i in range(len(a))])
         if (low < 0).any():
             raise _out_of_range(d / f"{name}.npy", "channels with negative values", low < 0, low, design)
-        bad = np.abs(sums - 1) > SUM_TOL if exact else sums > 1 + SUM_TOL
+        # a sensor PSF holds the light of its window: at most 1, and never none (the fine PSF of
+        # the same channel has unit sum; an all-zero copy is a damaged or forged shard)
+        bad = np.abs(sums - 1) > SUM_TOL if exact else (sums > 1 + SUM_TOL) | (sums <= 0)
         if bad.any():
             raise _out_of_range(
                 d / f"{name}.npy",
-                "channels whose sum is not 1" if exact else "channels summing above 1",
+                "channels whose sum is not 1" if exact else "channels summing above 1 or to nothing",
                 bad,
                 sums,
                 design,

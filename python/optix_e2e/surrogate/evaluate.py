@@ -200,7 +200,14 @@ def evaluate(
             f"the surrogate predicts non-finite PSFs or vignetting for {int(bad.sum())} of "
             f"{len(bad)} designs (damaged weights?); no metrics"
         )
-    m = sample_metrics(psf, vig, torch.as_tensor(arrays.psf), torch.as_tensor(arrays.vignetting))
+    truth = torch.as_tensor(arrays.psf)
+    dark = ~(truth.flatten(-2).sum(-1) > 0)  # a PSF with no light has no relative error (NaN)
+    if dark.any():
+        raise InputError(
+            f"{data_root}: {int(dark.sum())} of the dataset's PSF channels hold no light (a damaged or "
+            f"forged shard: `optix dataset verify {data_root}` names it); no metrics"
+        )
+    m = sample_metrics(psf, vig, truth, torch.as_tensor(arrays.vignetting))
     s = summarize(m, model.fields_deg)
     o = s["overall"]
     report = {
