@@ -255,6 +255,30 @@ def test_haarpsi_of_two_identical_images_without_structure_is_one(tmp_path):
     assert res.exit_code == 0 and json.loads(res.output)["haarpsi"] == 1.0, res.output
 
 
+def test_metrics_refuses_images_smaller_than_lpips_windows(tmp_path):
+    """LPIPS's AlexNet reaches relu5 only from 31 x 31 pixels: a 24 x 20 pair, or a crop that
+    leaves less, is one line naming the size (was a traceback from a max-pool); 31 x 31 scores."""
+    import torch
+    from PIL import Image
+
+    from optix_e2e.errors import InputError
+    from optix_e2e.metrics.lpips import LPIPS_MIN_SIZE, lpips
+
+    for w, h, crop in ((24, 20, 0), (48, 48, 9), (31, 31, 0)):
+        Image.new("RGB", (w, h), (90, 120, 40)).save(tmp_path / "a.png")
+        Image.new("RGB", (w, h), (80, 120, 40)).save(tmp_path / "b.png")
+        res = CliRunner().invoke(
+            main, ["metrics", str(tmp_path / "a.png"), str(tmp_path / "b.png"), "--crop", str(crop)]
+        )
+        if min(w, h) - 2 * crop >= LPIPS_MIN_SIZE:
+            assert res.exit_code == 0, res.output
+        else:
+            assert res.exit_code == 1 and "LPIPS" in res.output and "Traceback" not in res.output, res.output
+    with pytest.raises(InputError, match="at least 31x31"):
+        lpips(torch.rand(1, 3, 30, 64), torch.rand(1, 3, 30, 64))
+    assert lpips(torch.rand(1, 3, 31, 31), torch.rand(1, 3, 31, 31)).isfinite().all()
+
+
 def test_error_messages_escape_control_bytes():
     from optix_e2e.cli._common import _one_line
 

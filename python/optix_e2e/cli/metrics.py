@@ -72,7 +72,7 @@ def metrics(image, reference, crop, device, as_json):
     LPIPS (AlexNet, v0.1; lower is closer; the paper reports 1 - LPIPS) and HaarPSI, computed
     on --device."""
     from ..device import resolve_device
-    from ..metrics.lpips import lpips
+    from ..metrics.lpips import LPIPS_MIN_SIZE, lpips
     from ..metrics.image import summarize
 
     dev = resolve_device(device)
@@ -83,9 +83,10 @@ def metrics(image, reference, crop, device, as_json):
             f"{image} is {x.shape[2]}x{x.shape[1]} but {reference} is "
             f"{y.shape[2]}x{y.shape[1]}: the images must have one size"
         )
-    if min(x.shape[1:]) - 2 * crop < 16:
+    if min(x.shape[1:]) - 2 * crop < LPIPS_MIN_SIZE:
         raise click.ClickException(
-            f"images of {x.shape[2]}x{x.shape[1]} with --crop {crop} leave less than 16x16 pixels (HaarPSI's minimum)"
+            f"images of {x.shape[2]}x{x.shape[1]} with --crop {crop} leave less than {LPIPS_MIN_SIZE}x"
+            f"{LPIPS_MIN_SIZE} pixels (LPIPS's minimum: its AlexNet's windows; HaarPSI needs 16x16)"
         )
     x, y = x.to(dev), y.to(dev)
     out = summarize(x[None], y[None], crop=crop)

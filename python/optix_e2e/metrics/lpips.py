@@ -37,6 +37,9 @@ __all__ = ["LPIPS", "lpips", "weights_path", "weights_digest", "LPIPSWeightsErro
 SHIFT = (-0.030, -0.088, -0.188)
 SCALE = (0.458, 0.448, 0.450)
 RELU_TAPS = (1, 4, 7, 9, 11)  # indices of the ReLUs in torchvision's AlexNet.features
+#: the smallest side the features reach relu5 from: conv1 (11 px, stride 4) and two 3 x 3 / 2
+#: max-pools need 7 rows after conv1, so (H + 4 - 11) / 4 + 1 >= 7
+LPIPS_MIN_SIZE = 31
 WEIGHTS = Path(__file__).resolve().parents[1] / "bundled" / "lpips" / "alexnet-v0.1.npz"
 FEATURE_CONVS = (0, 3, 6, 8, 10)  # indices of the convolutions in torchvision's AlexNet.features
 # weights_digest of the shipped arrays (scripts/lpips_weights.py prints it)
@@ -122,6 +125,11 @@ class LPIPS(nn.Module):
             raise InputError(
                 f"LPIPS: need two [B, 3, H, W] (or [3, H, W]) images of one shape, got "
                 f"{tuple(x.shape)} and {tuple(y.shape)}"
+            )
+        if min(x.shape[-2:]) < LPIPS_MIN_SIZE:
+            raise InputError(
+                f"LPIPS: images of {x.shape[-1]}x{x.shape[-2]} pixels; its AlexNet needs at least "
+                f"{LPIPS_MIN_SIZE}x{LPIPS_MIN_SIZE}"
             )
         x, y = x.to(self.shift.dtype), y.to(self.shift.dtype)
         d = sum(lin((a - b).pow(2)).mean(dim=(2, 3)) for lin, a, b in zip(self.lin, self._taps(x), self._taps(y)))
