@@ -29,16 +29,23 @@ def fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
+def require_regular_file(path: "str | Path", what: str = "file", error: type[Exception] = InputError) -> Path:
+    """``path`` if it names a regular file: a pipe (FIFO), a device or a folder where a file is
+    read would block for ever or read without end, so it is refused before it is opened, in one
+    ``error`` naming the file. A missing file raises FileNotFoundError, as open() would."""
+    import stat
+
+    path = Path(path)
+    if not stat.S_ISREG(path.stat().st_mode):
+        raise error(f"{path}: the {what} is not a regular file")
+    return path
+
+
 def read_small_text(path: "str | Path", max_bytes: int = 1 << 20, what: str = "file") -> str:
     """The UTF-8 text of a regular file of at most ``max_bytes``: a pipe, a device (/dev/zero)
     or a folder is refused before anything is read, so reading never blocks or runs without
     a limit. One ValueError naming the file; FileNotFoundError passes through."""
-    import stat
-
-    path = Path(path)
-    st = path.stat()
-    if not stat.S_ISREG(st.st_mode):
-        raise InputError(f"{path}: the {what} is not a regular file")
+    path = require_regular_file(path, what)
     with open(path, "rb") as f:
         data = f.read(max_bytes + 1)
     if len(data) > max_bytes:

@@ -12,6 +12,7 @@ import re
 from pathlib import Path
 
 from .errors import InputError
+from .io import require_regular_file
 
 
 #: What restoring a damaged state raises once it is loaded as plain data: a missing or
@@ -39,11 +40,16 @@ def load_plain(path: "str | Path", what: str, error: type[Exception] = InputErro
     import torch
 
     try:
+        if Path(path).is_dir():
+            raise IsADirectoryError(path)
+        require_regular_file(path, what, error)  # a FIFO would block torch.load for ever
         return torch.load(path, map_location=map_location, weights_only=True)
     except FileNotFoundError:
         raise error(f"{path}: no such {what}") from None
     except IsADirectoryError:
         raise error(f"{path}: is a directory, not a {what}") from None
+    except error:
+        raise  # require_regular_file's own line
     except pickle.UnpicklingError as exc:
         raise error(
             f"{path}: refused as a {what}: not plain data ({_reason(exc)}; only tensors, dicts, "

@@ -279,6 +279,29 @@ def test_metrics_refuses_images_smaller_than_lpips_windows(tmp_path):
     assert lpips(torch.rand(1, 3, 31, 31), torch.rand(1, 3, 31, 31)).isfinite().all()
 
 
+@pytest.mark.timeout(60)
+def test_a_fifo_where_a_file_is_read_is_refused_not_waited_on(tmp_path):
+    """A named pipe where an image, a torch checkpoint or a COCO annotation file is read: one
+    line naming it (a read would block for ever: nothing writes to the pipe)."""
+    from optix_e2e.errors import InputError
+    from optix_e2e.tasks.detector_train import load_coco_folder
+    from optix_e2e.torchfile import load_plain
+
+    fifo = tmp_path / "pipe.png"
+    os.mkfifo(fifo)
+    Image = pytest.importorskip("PIL.Image")
+    Image.new("RGB", (40, 40)).save(tmp_path / "ok.png")
+    res = CliRunner().invoke(main, ["metrics", str(fifo), str(tmp_path / "ok.png")])
+    assert res.exit_code == 1 and "not a regular file" in res.output, res.output
+    with pytest.raises(InputError, match="not a regular file"):
+        load_plain(fifo, "software ISP checkpoint")
+    coco = tmp_path / "coco"
+    (coco / "images").mkdir(parents=True)
+    os.mkfifo(coco / "annotations.json")
+    with pytest.raises(InputError, match="annotation file is not a regular file"):
+        load_coco_folder(coco)
+
+
 def test_error_messages_escape_control_bytes():
     from optix_e2e.cli._common import _one_line
 

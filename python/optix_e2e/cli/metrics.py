@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from ..io import require_regular_file
 from ._common import device_option, dumps, friendly_errors
 
 
@@ -24,6 +25,7 @@ def _read(path: str):
     from PIL import Image, UnidentifiedImageError
 
     try:
+        require_regular_file(path, "image")  # a FIFO would block the read for ever
         with warnings.catch_warnings():
             warnings.simplefilter("error", Image.DecompressionBombWarning)
             with Image.open(path) as im:

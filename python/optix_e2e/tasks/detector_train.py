@@ -28,6 +28,7 @@ from ..scenes.coco import CocoDetection
 from ..scenes.street import CATEGORIES
 from .detector import detect, in_the_dark, make_detector, mean_average_precision
 from ..errors import InputError
+from ..io import require_regular_file
 
 FORMAT = "optix-detector/1"
 
@@ -36,6 +37,8 @@ def load_coco_folder(folder: "str | Path") -> tuple[torch.Tensor, list[dict], Co
     """A COCO folder (images/ + annotations.json, as ``optix scenes street`` writes) as uint8
     images [N, 3, H, W] and targets; every image must have the same size."""
     folder = Path(folder)
+    if (folder / "annotations.json").exists():  # a missing one: CocoDetection's own error below
+        require_regular_file(folder / "annotations.json", "COCO annotation file")  # a FIFO would block
     ds = CocoDetection(folder / "images", folder / "annotations.json")
     if len(ds) == 0:
         raise InputError(f"{folder}: the annotation file lists no images")
