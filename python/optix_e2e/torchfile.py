@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import pickle
 import re
+import stat
 from pathlib import Path
 
 from .errors import InputError
-from .io import require_regular_file
 
 
 #: What restoring a damaged state raises once it is loaded as plain data: a missing or
@@ -42,14 +42,15 @@ def load_plain(path: "str | Path", what: str, error: type[Exception] = InputErro
     try:
         if Path(path).is_dir():
             raise IsADirectoryError(path)
-        require_regular_file(path, what, error)  # a FIFO would block torch.load for ever
+        if not stat.S_ISREG(Path(path).stat().st_mode):  # a FIFO or a device would block torch.load
+            raise error(f"{path}: the {what} is not a regular file")
         return torch.load(path, map_location=map_location, weights_only=True)
     except FileNotFoundError:
         raise error(f"{path}: no such {what}") from None
     except IsADirectoryError:
         raise error(f"{path}: is a directory, not a {what}") from None
     except error:
-        raise  # require_regular_file's own line
+        raise  # the line above
     except pickle.UnpicklingError as exc:
         raise error(
             f"{path}: refused as a {what}: not plain data ({_reason(exc)}; only tensors, dicts, "

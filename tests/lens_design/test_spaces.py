@@ -3,6 +3,8 @@ and the aperture kinds."""
 
 from __future__ import annotations
 
+import re
+
 import pytest
 from pathlib import Path
 
@@ -184,3 +186,23 @@ def test_with_ranges_keeps_everything_but_the_ranges():
     assert wide.params[0].max == float(f"{space.params[0].max + 1.23456789:.6g}")
     with pytest.raises(SpaceError, match="2 ranges for 19 parameters"):
         space.with_ranges([(0, 1), (0, 1)], source="x.toml")
+
+
+@pytest.mark.parametrize(
+    "old, new, words",
+    [
+        ("[constraints]\n", "[constraints]\nmin_bdf = 12.0\n", "unknown constraint(s) min_bdf"),
+        ("min_bfd = 10.0", 'min_bfd = "abc"', "min_bfd must be"),
+    ],
+)
+def test_a_space_files_bad_constraint_is_refused_where_it_is_read(tmp_path, old, new, words):
+    """A misspelt or non-numeric limit in [constraints] was ignored by ``optix design --space``
+    and refused by ``optix sample``: every command reads the file through load_space, which now
+    refuses it, naming the file."""
+    text = (Path(load_space("paper-triplet")[0].source)).read_text()
+    bad = tmp_path / "bad.toml"
+    assert old in text
+    bad.write_text(text.replace(old, new, 1))
+    with pytest.raises(SpaceError, match=re.escape(words)) as err:
+        load_space(str(bad))
+    assert str(bad) in str(err.value)

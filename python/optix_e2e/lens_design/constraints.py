@@ -28,8 +28,6 @@ Checks (limits in mm from the space file's ``[constraints]`` table, :class:`Limi
 
 from __future__ import annotations
 
-import math
-from dataclasses import asdict, dataclass
 from typing import Sequence
 
 import numpy as np
@@ -40,7 +38,7 @@ from ..lens import Lens
 from ..lens.prescription import SurfacesCrossError
 from ..lens.surface import sag
 from .optimizer import Constraints
-from .space import SpaceError
+from .space import Limits, SpaceError  # noqa: F401 - Limits: the space file's [constraints], read here
 
 REASONS = (
     "center_thickness",
@@ -60,32 +58,6 @@ _ROW_REASON = {
     "stop_clearance": "air_gap",
     "back_focal_distance": "back_focal_distance",
 }
-
-
-@dataclass
-class Limits:
-    """Manufacturability limits (mm); ``None`` = not checked."""
-
-    min_center: float | None = None
-    min_edge: float | None = None
-    min_air_gap: float | None = None
-    min_bfd: float | None = None
-
-    @classmethod
-    def from_dict(cls, d: dict | None, source: str = "constraints") -> "Limits":
-        d = dict(d or {})
-        unknown = sorted(set(d) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise SpaceError(
-                f"{source}: unknown constraint(s) {', '.join(unknown)} (known: {', '.join(cls.__dataclass_fields__)})"
-            )
-        for k, v in d.items():
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise SpaceError(f"{source}: {k} must be a finite number >= 0, got {v!r}")
-        return cls(**{k: float(v) for k, v in d.items()})
-
-    def merged(self, **override) -> "Limits":
-        return Limits(**{**asdict(self), **{k: v for k, v in override.items() if v is not None}})
 
 
 def apertures(lens: Lens) -> np.ndarray:

@@ -197,6 +197,32 @@ def default_bounds(p: Parameter, lens: dict, semi_diameters: Sequence[float] | N
     return (v - amp, v + amp)
 
 
+@dataclass
+class Limits:
+    """Manufacturability limits (mm); ``None`` = not checked."""
+
+    min_center: float | None = None
+    min_edge: float | None = None
+    min_air_gap: float | None = None
+    min_bfd: float | None = None
+
+    @classmethod
+    def from_dict(cls, d: dict | None, source: str = "constraints") -> "Limits":
+        d = dict(d or {})
+        unknown = sorted(set(d) - set(cls.__dataclass_fields__))
+        if unknown:
+            raise SpaceError(
+                f"{source}: unknown constraint(s) {', '.join(unknown)} (known: {', '.join(cls.__dataclass_fields__)})"
+            )
+        for k, v in d.items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise SpaceError(f"{source}: {k} must be a finite number >= 0, got {v!r}")
+        return cls(**{k: float(v) for k, v in d.items()})
+
+    def merged(self, **override) -> "Limits":
+        return Limits(**{**asdict(self), **{k: v for k, v in override.items() if v is not None}})
+
+
 class ParameterSpace:
     """An ordered list of :class:`Parameter` over a base lens."""
 
@@ -301,6 +327,7 @@ class ParameterSpace:
             constraints = data.get("constraints")
             if constraints is not None and not isinstance(constraints, dict):
                 raise SpaceError(f"{path}: constraints must be a table (min_air_gap = 1.0, ...)")
+            Limits.from_dict(constraints, f"{path}: [constraints]")  # a misspelt or bad limit: refused here
             lens_ref = data.get("lens")
             if lens_ref is not None and not isinstance(lens_ref, str):
                 raise SpaceError(f"{path}: lens must be a bundled lens name or a path, got {lens_ref!r}")
