@@ -206,3 +206,23 @@ def test_a_space_files_bad_constraint_is_refused_where_it_is_read(tmp_path, old,
     with pytest.raises(SpaceError, match=re.escape(words)) as err:
         load_space(str(bad))
     assert str(bad) in str(err.value)
+
+
+@pytest.mark.parametrize(
+    "old, new, words",
+    [
+        ('kind = "radius"', 'kind = ["radius"]', "kind ['radius'] is not one of"),
+        ('name = "s_1_radius"', 'name = ["s_1_radius"]', "name must be a text"),
+        ("[constraints]\n", "deep = " + "[" * 20000 + "]" * 20000 + "\n[constraints]\n", "nested too deeply"),
+    ],
+)
+def test_a_space_file_of_the_wrong_shape_is_one_error(tmp_path, old, new, words):
+    """A list where a name or a kind belongs, arrays nested 20,000 deep: one SpaceError naming the
+    file (were a TypeError and a RecursionError traceback in design, sample and dataset)."""
+    text = Path(load_space("paper-triplet")[0].source).read_text()
+    assert old in text
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace(old, new, 1))
+    with pytest.raises(SpaceError, match=re.escape(words)) as err:
+        load_space(str(bad))
+    assert str(bad) in str(err.value)

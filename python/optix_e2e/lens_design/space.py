@@ -307,6 +307,8 @@ class ParameterSpace:
                 data = _toml().loads(text)
             except _toml().TOMLDecodeError as exc:
                 raise SpaceError(f"{path}: invalid TOML: {exc}") from exc
+            except RecursionError:
+                raise SpaceError(f"{path}: invalid TOML: nested too deeply to be a parameter space") from None
             key = "parameter"
         else:
             try:
@@ -400,8 +402,10 @@ class ParameterSpace:
             if key not in e:
                 raise SpaceError(f"{where}: missing {key!r}")
         name = e["name"]
+        if not isinstance(name, str) or not name:
+            raise SpaceError(f"{where}: name must be a text, got {name!r}")
         where = f"{path}: {entry} ({name})"
-        if e["kind"] not in KINDS:
+        if not isinstance(e["kind"], str) or e["kind"] not in KINDS:
             raise SpaceError(f"{where}: kind {e['kind']!r} is not one of {', '.join(sorted(KINDS))}")
         surf = e["surface"]
         if e["kind"] in APERTURE_KINDS:
