@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import shutil
 
 import numpy as np
 import pytest
@@ -208,6 +209,16 @@ def test_software_isp_pretraining_learns_and_resumes(tmp_path):
     assert back.meta["steps"] == 16 and back.config()["arch"] == "nafnet"
     with pytest.raises(ValueError, match="other settings"):
         pretrain(dataclasses.replace(cfg, width=16), tmp_path, progress=False)
+    # a damaged state (other weight keys; no step): one error naming it, not a traceback
+    good = torch.load(tmp_path / "state.pt", weights_only=True)
+    for i, damage in enumerate((lambda st: st["model"].pop(next(iter(st["model"]))), lambda st: st.pop("step"))):
+        copy = tmp_path.parent / f"{tmp_path.name}-damaged{i}"  # the run folder with only its state changed
+        shutil.copytree(tmp_path, copy)
+        st = {**good, "model": dict(good["model"])}
+        damage(st)
+        torch.save(st, copy / "state.pt")
+        with pytest.raises(ValueError, match="damaged ISP pre-training state"):
+            pretrain(cfg, copy, progress=False)
     # a new run from those weights (--init): the record of the first run is kept
     said = []
     again = pretrain(

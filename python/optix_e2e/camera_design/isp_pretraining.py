@@ -272,11 +272,15 @@ def pretrain(
             raise InputError(f"{state_path}: not an ISP pre-training state ({FORMAT})")
         if st.get("config") != _resumable(cfg, digest):
             raise InputError(f"{state_path}: made with other settings; use another --out or the same settings")
-        model.load_state_dict(st["model"])
+        try:  # a damaged state (other weight keys or shapes, a missing entry): one line, not a traceback
+            model.load_state_dict(st["model"])
+            opt.load_state_dict(st["optimizer"])
+            step, seconds, curve = int(st["step"]), float(st["seconds"]), list(st["curve"])
+            earlier = list(st.get("earlier_training", []))
+        except (KeyError, RuntimeError, TypeError, ValueError) as err:
+            what = f"no {err}" if isinstance(err, KeyError) else " ".join(str(err).split())[:300]
+            raise InputError(f"{state_path}: damaged ISP pre-training state ({what}); use another --out") from None
         model.calibrate(calibrated_preset("imx249", f_number))  # the classical path: today's calibration
-        opt.load_state_dict(st["optimizer"])
-        step, seconds, curve = int(st["step"]), float(st["seconds"]), list(st["curve"])
-        earlier = list(st.get("earlier_training", []))
         log(f"resuming ISP pre-training at step {step} ({seconds / 60:.1f} min done)")
     n_params = sum(p.numel() for p in model.parameters())
     val = make_pool(
