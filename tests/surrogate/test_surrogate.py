@@ -273,3 +273,30 @@ def test_eval_refuses_a_dataset_whose_psfs_hold_no_light(tiny_data, tmp_path):
     r = CliRunner().invoke(main, ["surrogate", "eval", "paper-triplet-v1", str(data), "--json"])
     assert r.exit_code == 1 and "hold no light" in r.output and "dataset verify" in r.output, r.output
     assert "Traceback" not in r.output and "NaN" not in r.output
+
+
+def test_eval_writes_only_into_its_own_folder(tiny_data, tmp_path):
+    """``surrogate eval --out`` into a folder holding another command's eval.json (``isp eval``
+    writes one too) or a design run: refused before any work, the files left as they were;
+    into its own earlier output it writes again."""
+    from click.testing import CliRunner
+
+    from optix_e2e.cli import main
+
+    def ev(out):
+        return CliRunner().invoke(main, ["surrogate", "eval", "paper-triplet-v1", str(tiny_data), "--out", str(out)])
+
+    other = tmp_path / "isp"
+    other.mkdir()
+    (other / "eval.json").write_text('{"psnr_db": 30.0}')
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text("{}")
+    for folder, kept in ((other, "eval.json"), (run, "config.json")):
+        before = (folder / kept).read_text()
+        r = ev(folder)
+        assert r.exit_code == 1 and "choose another --out" in r.output, r.output
+        assert sorted(p.name for p in folder.iterdir()) == [kept] and (folder / kept).read_text() == before
+    own = tmp_path / "own"
+    assert ev(own).exit_code == 0 and ev(own).exit_code == 0  # its own folder: written again
+    assert json.loads((own / "eval.json").read_text())["n_designs"] == 24

@@ -156,6 +156,10 @@ def eval_cmd(model, data, max_designs, png, out_dir, device, as_json):
     from ..surrogate.evaluate import evaluate
 
     dev = resolve_device(device)
+    if out_dir is not None:  # before any work: never into another command's folder or over its eval.json
+        from ..io import claim_out_dir
+
+        claim_out_dir(out_dir, "surrogate evaluation", {"eval.json", "grid.png"}, own=_own_eval)
     m = OpticsSurrogate.load(model).to(dev)
     if png is None and out_dir is not None:
         png = out_dir / "grid.png"
@@ -163,8 +167,10 @@ def eval_cmd(model, data, max_designs, png, out_dir, device, as_json):
     res["model"] = str(resolve(model))
     res["device"] = str(dev)  # where the network predicted (the metrics are computed on the CPU)
     if out_dir is not None:
+        from ..io import write_text_atomic
+
         out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / "eval.json").write_text(dumps(res, indent=2))
+        write_text_atomic(out_dir / "eval.json", dumps(res, indent=2))
     if as_json:
         click.echo(dumps(res))
         return
@@ -179,3 +185,19 @@ def eval_cmd(model, data, max_designs, png, out_dir, device, as_json):
             f"  {row['field_deg']:6.2f} deg: L1 {row['psf_rel_l1']['median']:.2%}  "
             f"vignetting {row['vignetting_abs_err']['median']:.4f}"
         )
+
+
+def _own_eval(folder: Path) -> bool:
+    """Whether ``folder``'s eval.json (if any) is a surrogate evaluation's (``isp eval`` and
+    others write files of that name too)."""
+    import json
+
+    from ..io import read_small_text
+
+    f = folder / "eval.json"
+    if not f.is_file():
+        return True
+    try:
+        return "psf_rel_l1_median" in json.loads(read_small_text(f, 16 << 20, "evaluation file"))
+    except (ValueError, OSError):
+        return False
