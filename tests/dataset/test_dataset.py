@@ -385,6 +385,16 @@ def test_disjoint_shard_ranges_merge_to_the_same_data(reference, tmp_path):
     generate("paper-triplet", 8, 12, other, SMALL_SETTINGS, shards="0", progress=False)
     with pytest.raises(DatasetError, match=r"other/manifest.json: a different dataset .*differs in: .*seed"):
         merge(tmp_path / "m2", [a, other])
+    # merge writes only into its own folder: not over optix sample's designs.csv, nor a design run
+    for name, text in (("designs.csv", "design,s_1_radius\n0,30.0\n"), ("config.json", "{}")):
+        folder = tmp_path / f"not-ours-{name}"
+        folder.mkdir()
+        (folder / name).write_text(text)
+        r = CliRunner().invoke(dataset, ["merge", str(folder), str(a), str(b)])
+        assert r.exit_code == 1 and "choose another --out" in r.output, r.output
+        assert [p.name for p in folder.iterdir()] == [name] and (folder / name).read_text() == text
+    again = CliRunner().invoke(dataset, ["merge", str(tmp_path / "m"), str(a), str(b)])  # its own: resumes
+    assert again.exit_code == 0, again.output
 
 
 def test_torch_dataset(reference):

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import filecmp
 import os
 import shutil
 from pathlib import Path
 from typing import Sequence
 
-from ..io import write_json_atomic
+from ..io import claim_out_dir, write_json_atomic
 from .layout import DatasetError, differing_keys, read_manifest, shard_name, shards_dir
 from .generate import temporary_name
 from .verify import read_shard_meta
@@ -33,6 +34,11 @@ def merge(out: "str | Path", parts: Sequence["str | Path"]) -> dict:
             raise DatasetError(
                 f"{p / 'manifest.json'}: a different dataset from {parts[0]} (differs in: {', '.join(diff)})"
             )
+    # a dataset of its own (resumed), or a folder of nothing but what merge writes: never over
+    # another command's files (optix sample's designs.csv, a design run)
+    claim_out_dir(
+        out, "dataset", {"designs.csv", "shards"}, marker="manifest.json", own=lambda d: _same_designs(d, parts[0])
+    )
     out.mkdir(parents=True, exist_ok=True)
     if (out / "manifest.json").exists():
         m = read_manifest(out)
@@ -65,3 +71,10 @@ def merge(out: "str | Path", parts: Sequence["str | Path"]) -> dict:
         os.rename(tmp, dst)
         copied.append(k)
     return {"out": str(out), "copied": copied, "already_present": present}
+
+
+def _same_designs(folder: Path, part: Path) -> bool:
+    """A designs.csv in ``folder`` without a manifest is merge's own (a merge stopped between its
+    two writes) only where it is the dataset's: byte for byte the first part's."""
+    mine = folder / "designs.csv"
+    return not mine.exists() or filecmp.cmp(mine, part / "designs.csv", shallow=False)
