@@ -302,6 +302,18 @@ def test_a_fifo_where_a_file_is_read_is_refused_not_waited_on(tmp_path):
         load_coco_folder(coco)
 
 
+def test_isp_tune_does_not_write_over_a_detect_tunes_record(tmp_path):
+    """A killed ``detect tune`` leaves its tune.json alone in its folder: ``isp tune --out`` there
+    is refused before any work (it wrote its own tune.json over the detector's record)."""
+    record = '{"tuned_from": {"crop": 192}}'
+    (tmp_path / "tune.json").write_text(record)
+    res = CliRunner().invoke(
+        main, ["isp", "tune", "--steps", "1", "--scenes", "2", "--size", "32", "--out", str(tmp_path)]
+    )
+    assert res.exit_code == 1 and "choose another --out" in res.output, res.output
+    assert [p.name for p in tmp_path.iterdir()] == ["tune.json"] and (tmp_path / "tune.json").read_text() == record
+
+
 def test_error_messages_escape_control_bytes():
     from optix_e2e.cli._common import _one_line
 
