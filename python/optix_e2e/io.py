@@ -29,15 +29,15 @@ def fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
-def require_regular_file(path: "str | Path", what: str = "file", error: type[Exception] = InputError) -> Path:
+def require_regular_file(path: "str | Path", what: str = "file") -> Path:
     """``path`` if it names a regular file: a pipe (FIFO), a device or a folder where a file is
     read would block for ever or read without end, so it is refused before it is opened, in one
-    ``error`` naming the file. A missing file raises FileNotFoundError, as open() would."""
+    InputError naming the file. A missing file raises FileNotFoundError, as open() would."""
     import stat
 
     path = Path(path)
     if not stat.S_ISREG(path.stat().st_mode):
-        raise error(f"{path}: the {what} is not a regular file")
+        raise InputError(f"{path}: the {what} is not a regular file")
     return path
 
 
@@ -54,6 +54,19 @@ def read_small_text(path: "str | Path", max_bytes: int = 1 << 20, what: str = "f
         return data.decode("utf-8")
     except UnicodeDecodeError as err:
         raise InputError(f"{path}: the {what} is not UTF-8 text ({err.reason} at byte {err.start})") from None
+
+
+def json_holds(path: Path, key: str) -> bool:
+    """Whether the JSON object in ``path`` has ``key`` (True where there is no file): how a
+    command tells its own result file from another command's of the same name (eval.json,
+    tune.json) before it claims a folder. An unreadable file is not its own."""
+    if not path.is_file():
+        return True
+    try:
+        data = json.loads(read_small_text(path, 16 << 20, "result file"))
+    except (ValueError, OSError):
+        return False
+    return isinstance(data, dict) and key in data
 
 
 def claim_out_dir(

@@ -120,7 +120,7 @@ def _report(summary: dict, as_json: bool, out_dir: Path, name: str) -> None:
 
 
 #: a key each ISP command's JSON holds and no other command's file of the same name does
-#: (``detect tune`` writes a tune.json too; ``surrogate eval`` an eval.json)
+#: (``detect tune`` writes a tune.json too)
 OWN_KEY = {"tune.json": "tuned_params"}
 
 
@@ -128,24 +128,11 @@ def _claim(out_dir: Path | None, name: str) -> None:
     """Refuse an --out that holds files other than ``name``, or a ``name`` another command
     wrote, before any work is done."""
     if out_dir is not None:
-        from ..io import claim_out_dir
+        from ..io import claim_out_dir, json_holds
 
-        claim_out_dir(out_dir, f"ISP {name}", {name}, own=lambda d: _ours(d / name))
-
-
-def _ours(path: Path) -> bool:
-    """Whether ``path`` (if there) is this command's output (:data:`OWN_KEY`)."""
-    import json
-
-    from ..io import read_small_text
-
-    key = OWN_KEY.get(path.name)
-    if key is None or not path.is_file():
-        return True
-    try:
-        return key in json.loads(read_small_text(path, 16 << 20, "result file"))
-    except (ValueError, OSError):
-        return False
+        key = OWN_KEY.get(name)
+        own = None if key is None else (lambda d: json_holds(d / name, key))
+        claim_out_dir(out_dir, f"ISP {name}", {name}, own=own)
 
 
 def _emit(res: dict, out_dir: Path | None, name: str, as_json: bool) -> bool:

@@ -157,9 +157,12 @@ def eval_cmd(model, data, max_designs, png, out_dir, device, as_json):
 
     dev = resolve_device(device)
     if out_dir is not None:  # before any work: never into another command's folder or over its eval.json
-        from ..io import claim_out_dir
+        from ..io import claim_out_dir, json_holds
 
-        claim_out_dir(out_dir, "surrogate evaluation", {"eval.json", "grid.png"}, own=_own_eval)
+        def own(folder: Path) -> bool:  # isp eval writes an eval.json too
+            return json_holds(folder / "eval.json", "psf_rel_l1_median")
+
+        claim_out_dir(out_dir, "surrogate evaluation", {"eval.json", "grid.png"}, own=own)
     m = OpticsSurrogate.load(model).to(dev)
     if png is None and out_dir is not None:
         png = out_dir / "grid.png"
@@ -185,19 +188,3 @@ def eval_cmd(model, data, max_designs, png, out_dir, device, as_json):
             f"  {row['field_deg']:6.2f} deg: L1 {row['psf_rel_l1']['median']:.2%}  "
             f"vignetting {row['vignetting_abs_err']['median']:.4f}"
         )
-
-
-def _own_eval(folder: Path) -> bool:
-    """Whether ``folder``'s eval.json (if any) is a surrogate evaluation's (``isp eval`` and
-    others write files of that name too)."""
-    import json
-
-    from ..io import read_small_text
-
-    f = folder / "eval.json"
-    if not f.is_file():
-        return True
-    try:
-        return "psf_rel_l1_median" in json.loads(read_small_text(f, 16 << 20, "evaluation file"))
-    except (ValueError, OSError):
-        return False
