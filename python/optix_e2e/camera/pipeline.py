@@ -62,20 +62,8 @@ class Camera(nn.Module):
         """``final``: the camera's real output (evaluation): the reference ISP for a hardware
         ISP, and the sensor's common-random-number noise (the same draws for any camera given
         the same generator state)."""
-        m = self.margin
-        image = self.optics(radiance, offset_px)
-        if m:
-            image = image[..., m:-m, m:-m]
-        # the photon count follows the lens's f-number where the optics carry one (Eq. 3)
-        f_number = self.optics.f_number() if hasattr(self.optics, "f_number") else None
-        raw = self.sensor(image, generator, common_noise=final, f_number=f_number)
-        # the ISP is told where the crop lies in the frame (a software ISP that sees the field
-        # position undoes a blur and a shading that vary over it)
-        where = (
-            (offset_px, getattr(self.optics, "full_field_px", None))
-            if getattr(self.isp, "takes_position", False)
-            else ()
-        )
+        raw = self._raw(radiance, offset_px, generator, final)
+        where = self._where(offset_px)
         out = self.isp.final(raw, *where) if final else self.isp(raw, *where)
         return out, raw
 
@@ -87,18 +75,27 @@ class Camera(nn.Module):
         alone), the ISP on the whole batch (its work, the larger part, in one call)."""
         if not (len(radiance) == len(offsets_px) == len(generators)):
             raise InputError(
-                f"final_batch: one offset and one generator per sample, got {len(radiance)} samples, {len(offsets_px)} offsets, {len(generators)} generators"
+                f"final_batch: one offset and one generator per sample, got {len(radiance)} samples, "
+                f"{len(offsets_px)} offsets, {len(generators)} generators"
             )
+        raw = torch.cat([self._raw(x, o, g, True) for x, o, g in zip(radiance.split(1), offsets_px, generators)])
+        offsets = torch.tensor([[float(a), float(b)] for a, b in offsets_px], device=raw.device)
+        return self.isp.final(raw, *self._where(offsets))
+
+    def _raw(self, radiance: torch.Tensor, offset_px, generator, common_noise: bool) -> torch.Tensor:
+        """The optics at the crop's position, the margin cut, then the sensor's RAW."""
         m = self.margin
+        image = self.optics(radiance, offset_px)
+        if m:
+            image = image[..., m:-m, m:-m]
+        # the photon count follows the lens's f-number where the optics carry one (Eq. 3)
         f_number = self.optics.f_number() if hasattr(self.optics, "f_number") else None
-        raws = []
-        for x, off, gen in zip(radiance.split(1), offsets_px, generators):
-            image = self.optics(x, off)
-            if m:
-                image = image[..., m:-m, m:-m]
-            raws.append(self.sensor(image, gen, common_noise=True, f_number=f_number))
-        raw = torch.cat(raws)
-        if getattr(self.isp, "takes_position", False):
-            offsets = torch.tensor([[float(a), float(b)] for a, b in offsets_px], device=raw.device)
-            return self.isp.final(raw, offsets, getattr(self.optics, "full_field_px", None))
-        return self.isp.final(raw)
+        return self.sensor(image, generator, common_noise=common_noise, f_number=f_number)
+
+    def _where(self, offset_px) -> tuple:
+        """What the ISP is told of where the crop lies in the frame (a software ISP that sees
+        the field position undoes a blur and a shading that vary over it): one offset, or one
+        per sample [B, 2]."""
+        if not getattr(self.isp, "takes_position", False):
+            return ()
+        return (offset_px, getattr(self.optics, "full_field_px", None))
