@@ -244,9 +244,8 @@ def train(
             info.setdefault("barrier", 0.0)  # the guard's barrier term (guard = barrier), not in the loss
             row = {k: info[k] for k in history_keys(parts)}
             if optics is not None and info["block"] in ("optics", "all"):
-                row["lens"] = [
-                    float(v) for v in optics.values().detach()
-                ]  # where this step left the lens (lens_path.csv)
+                # where this step left the lens (lens_path.csv)
+                row["lens"] = [float(v) for v in optics.values().detach()]
             history.append(row)
             if writer is not None:
                 for k in ("loss", *parts):
