@@ -6,15 +6,17 @@ use psf_engine::Lens;
 use serde_json::{json, Value};
 use std::path::PathBuf;
 
-/// `OPTIX_REFERENCE_DIR` where set (as tests/conftest.py reads it), else `shared/reference`
-/// beside the repository.
+/// As tests/conftest.py finds it: `OPTIX_REFERENCE_DIR` where set, else
+/// `$OPTIX_SHARED_DIR/reference`, else `shared/reference` beside the repository.
 pub fn reference_dir() -> PathBuf {
     let p = std::env::var_os("OPTIX_REFERENCE_DIR")
         .map(PathBuf::from)
+        .or_else(|| std::env::var_os("OPTIX_SHARED_DIR").map(|d| PathBuf::from(d).join("reference")))
         .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/reference"));
     assert!(
         p.join("cooke_triplet.json").exists(),
-        "reference data missing: expected {} (shared/ beside the repo, or set OPTIX_REFERENCE_DIR)",
+        "reference data missing: expected {} (shared/ beside the repo, or set OPTIX_SHARED_DIR \
+         or OPTIX_REFERENCE_DIR)",
         p.display()
     );
     p
