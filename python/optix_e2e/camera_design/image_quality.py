@@ -95,6 +95,10 @@ def headline_baseline(means: dict) -> dict:
     }
 
 
+def _summary_or_none(rows: list | None) -> dict | None:
+    return None if rows is None else ev.summarize(rows)
+
+
 class ImageQualityHooks(TaskHooks):
     loss_parts = LOSS_PARTS
 
@@ -105,11 +109,8 @@ class ImageQualityHooks(TaskHooks):
         self.corpus = PhotoCorpus(cfg.photos, "train") if cfg.photos else None
 
     def check(self, sur, ranks):
-        if not sur.has_network:  # the run measures the network along the way (OpticsMonitor)
-            raise InputError(
-                f"space {self.cfg.space}: {sur.no_network_why}; the image-quality runs need a space "
-                "over the surrogate's parameters"
-            )
+        if not sur.has_network and self.mode != "exact":
+            raise InputError(f"space {self.cfg.space}: {sur.no_network_why}; run it with --optics exact")
         if ranks.distributed and self.mode != "surrogate":
             raise InputError(
                 f"--optics {self.cfg.optics} ({self.mode}) runs the engine inside the training steps, which is not "
@@ -188,6 +189,8 @@ class ImageQualityHooks(TaskHooks):
         for who in WHO:
             rows[who] = {}
             for kind in ("exact", "surrogate"):
+                if optics[who][kind] is None:
+                    continue  # no network on this space's terms: the engine's optics only
                 rows[who][kind], s = self._evaluate_behind(
                     out / f"eval_{who}_{kind}.json",
                     cams[who],
@@ -320,7 +323,7 @@ class ImageQualityHooks(TaskHooks):
 
         res = {
             **{
-                who: {**ev.summarize(rows[who]["exact"]), "surrogate": ev.summarize(rows[who]["surrogate"])}
+                who: {**ev.summarize(rows[who]["exact"]), "surrogate": _summary_or_none(rows[who].get("surrogate"))}
                 for who in WHO
             },
             "headline_position": head,
@@ -333,7 +336,10 @@ class ImageQualityHooks(TaskHooks):
             "paired": at_head(by_position, a["exact"]),
             "paired_by_position": by_position,
             "paired_by_zone": ev.paired_by_zone(a["exact"], b["exact"], c.bootstrap, c.seed),
-            "paired_surrogate_optics": ev.paired(a["surrogate"], b["surrogate"], c.bootstrap, c.seed),
+            # None: no network on this space's terms (paper-doublet), the engine's optics only
+            "paired_surrogate_optics": ev.paired(a["surrogate"], b["surrogate"], c.bootstrap, c.seed)
+            if "surrogate" in a
+            else None,
         }
         if "nominal_untuned" in rows:
             res["nominal_untuned"] = {
@@ -446,11 +452,14 @@ class ImageQualityHooks(TaskHooks):
                 + (f"; minus ideal_lens {ti['mean']:+.4f} [{ti['ci95'][0]:+.4f}, {ti['ci95'][1]:+.4f}]" if ti else "")
             )
         om = res["optics_model"]
+        used, net = om["final_error_per_field"], om["final_network_error_per_field"]
         lines.append(
             f"optics model {om['mode']} ({om['choice']['why']}); PSF rel. L1 at the final design, worst field: "
-            f"the model the last steps used {max(om['final_error_per_field']):.4f}, the network "
-            f"{max(om['final_network_error_per_field']):.4f}; {om['n_refinements']} refinements, "
-            f"{om['exact_gradient_steps']} lens steps on exact gradients"
+            "the model the last steps used "
+            + (f"{max(used):.4f}" if used else "-")
+            + ", the network "
+            + (f"{max(net):.4f}" if net else "none (no network learned this space)")
+            + f"; {om['n_refinements']} refinements, {om['exact_gradient_steps']} lens steps on exact gradients"
         )
         return lines
 

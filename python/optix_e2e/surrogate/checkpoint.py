@@ -66,6 +66,17 @@ def outside_ranges(values, lo, hi) -> tuple[list[int], list[tuple[int, float, in
     return nonfinite, cols
 
 
+def _same_specification(lens: dict, own: dict, where: str) -> None:
+    """A lens may take a surrogate's terms (PSF window, sampling, fields, sensor) only at the
+    specification they were made for: the same aperture, field angles and wavelengths."""
+    for key in ("aperture", "fields_deg", "wavelengths_nm", "primary_wavelength_nm"):
+        if lens.get(key) != own.get(key):
+            raise InputError(
+                f"{where}: its base lens {lens.get('name', '?')} differs from {own.get('name', '?')} "
+                f"(whose terms it would take) in {key}: {lens.get(key)!r} vs {own.get(key)!r}"
+            )
+
+
 class OpticsSurrogate(nn.Module):
     """Raw lens parameters [B, P] + normalized field [B] -> (psf [B, C, S, S] unit sum,
     vignetting [B, C]). ``psfs(params)`` gives every trained field at once for the renderer."""
@@ -163,9 +174,11 @@ class OpticsSurrogate(nn.Module):
         ``base``: the space's base lens (a Lens or dict), which must be the surrogate's.
 
         ``network=False``: a space over other parameters of the same base lens (the detection
-        space with free centre thicknesses, issue 35): the copy gives only the terms (fields,
-        PSF window and sampling, sensor pitch, base lens, limits) for exact optics, and has no
-        network (``has_network`` False; ``psfs`` and ``forward`` are an error saying so)."""
+        space with free centre thicknesses, issue 35), or of another lens at the same
+        specification (the two-element paper-doublet, issue 57: the same f-number, fields and
+        wavelengths, so the same PSF window, sampling and sensor): the copy gives only the terms
+        (fields, PSF window and sampling, sensor pitch, base lens, limits) for exact optics, and
+        has no network (``has_network`` False; ``psfs`` and ``forward`` are an error saying so)."""
         import copy
 
         from ..dataset.manifest import space_and_base
@@ -180,8 +193,14 @@ class OpticsSurrogate(nn.Module):
                 f"{where}: its parameters ({', '.join(space.names)}) are not the surrogate's "
                 f"({', '.join(trained.names)}), in the same order"
             )
+        base_data = base.data if hasattr(base, "data") else base
+        other_lens = base_data != own_base.data
+        if other_lens and network:
+            raise InputError(f"{where}: its base lens is not the surrogate's ({own_base.name})")
+        if other_lens:
+            _same_specification(base_data, own_base.data, where)
         mine = {p.name: (p.kind, p.surface) for p in space.params}
-        if any(mine.get(p.name, (p.kind, p.surface)) != (p.kind, p.surface) for p in trained.params):
+        if not other_lens and any(mine.get(p.name, (p.kind, p.surface)) != (p.kind, p.surface) for p in trained.params):
             raise InputError(f"{where}: its parameters change other surfaces than the surrogate's of the same names")
         if space.constraints and "sampling_summary" in self.manifest:
             limits = self.manifest["sampling_summary"].get("limits") or {}
@@ -191,11 +210,13 @@ class OpticsSurrogate(nn.Module):
                     f"{where}: its limits {other} are not those of the surrogate's dataset {limits}; "
                     "the guard and the final checks use one set"
                 )
-        if (base.data if hasattr(base, "data") else base) != own_base.data:
-            raise InputError(f"{where}: its base lens is not the surrogate's ({own_base.name})")
         man = copy.deepcopy(self.manifest)
         man["trained_space"] = man["space"]
         man["space"] = {**man["space"], "source": where, "parameters": space.to_json()}
+        if other_lens:
+            man["space"]["lens"] = base_data.get("name", man["space"].get("lens"))
+            man["base_lens"] = copy.deepcopy(base_data)
+            man["terms_from"] = own_base.name
         # away from the nominal the dataset's coarse best-focus sampling (7 fields, 4 rings) is
         # off by up to 10 um: refocus every design on all the fields with 8 rings (the final
         # focus check's sampling)
