@@ -39,10 +39,11 @@ def _run(root, space: str, seed: int) -> None:
         w = csv.writer(f)
         w.writerow(["camera", "image", "position", "radius", "psnr_db", "ssim", "lpips", "haarpsi"])
         w.writerows(rows)
-    means = {
-        who: {"psnr_db": sum(_psnr(space, who, seed, k) for k in range(3)) / 3, "ssim": 0.8, "one_minus_lpips": 0.89}
-        for who in CAMERAS
-    }
+    means = {}
+    for who in CAMERAS:
+        psnr = sum(_psnr(space, who, seed, k) for k in range(3)) / 3
+        by = {"frame": {"psnr_db": psnr}, "corner": {"psnr_db": psnr - 3.0}}
+        means[who] = {"psnr_db": psnr, "ssim": 0.8, "one_minus_lpips": 0.89, "by_position": by}
     res = {"test_split": {"means": means}, "nominal": {"psnr_db": 25.0}, "end_to_end": {"psnr_db": 25.5}, "wall_s": 1.0}
     (run / "results.json").write_text(json.dumps(res))
     for who in ("nominal", "end_to_end"):
@@ -71,6 +72,10 @@ def test_the_table_pairs_photographs_within_a_seed_and_seeds_by_t(tmp_path, load
     x = t["differences"]["doublet end-to-end minus triplet nominal + fine-tuned processing"]
     assert x["psnr_db"]["per_seed"] == pytest.approx([26.0 - 26.5 + SHIFT[s] for s in SHIFT])
     assert x["one_minus_lpips"]["per_seed"] == pytest.approx([0.0, 0.0, 0.0], abs=1e-12)
+    assert dbl["test_split"]["end_to_end"]["psnr_db_by_position"]["corner"] == pytest.approx(
+        (26.1 + 26.4 + 26.0) / 3 - 3.0
+    )
     md = (tmp_path / "form_factor.md").read_text()
+    assert "| paper-doublet | end_to_end | 23.17 | 26.17 |" in md  # corner, frame
     assert "| paper-doublet | 2 |" in md and "doublet end-to-end minus triplet end-to-end" in md
     assert (tmp_path / "form_factor.png").stat().st_size > 10_000 and (tmp_path / "form_factor.csv").is_file()
