@@ -37,18 +37,18 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
 from alg1_vs_vanilla import seeds_interval  # Student's t interval of a mean of paired differences
 from detection_swap import camera_state, finished_run, load_processing
+
 from optix_e2e.camera import FixedOptics
 from optix_e2e.camera_design.build import design_field_heights, start_run
 from optix_e2e.camera_design.config import DesignConfig
 from optix_e2e.camera_design.detection import detection_scores, evaluate_detection, map_resamples, paired_resamples
 from optix_e2e.camera_design.guard import Manufacturable
 from optix_e2e.camera_design.run import hooks_for
+from optix_e2e.camera_design.training import noise_generator
 from optix_e2e.errors import InputError
 from optix_e2e.io import claim_out_dir
-from optix_e2e.camera_design.training import noise_generator
 from optix_e2e.parallel import Ranks
 from optix_e2e.surrogate.ground_truth import exact_optics
 from optix_e2e.tasks.detection import VALIDATION_STREETS, heldout_streets, street_batch

@@ -21,10 +21,10 @@ import torch
 
 
 def main() -> None:
+    from optix_e2e.camera_design.build import build_camera, load_surrogate
+    from optix_e2e.camera_design.config import make_config
     from optix_e2e.metrics.lpips import LPIPS
     from optix_e2e.optics.render import render
-    from optix_e2e.camera_design.config import make_config
-    from optix_e2e.camera_design.build import build_camera, load_surrogate
     from optix_e2e.tasks import SensorFrame, get_task, task_loss, training_batch
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -43,10 +43,9 @@ from pathlib import Path
 import torch
 
 from optix_e2e.camera import FixedOptics
-from optix_e2e.errors import InputError
+from optix_e2e.camera_design import eval_cache
 from optix_e2e.camera_design.build import design_field_heights, start_run
 from optix_e2e.camera_design.config import DesignConfig
-from optix_e2e.camera_design import eval_cache
 from optix_e2e.camera_design.detection import (
     _digest,
     detection_scores,
@@ -58,6 +57,7 @@ from optix_e2e.camera_design.detection import (
     write_detections,
 )
 from optix_e2e.camera_design.run import hooks_for
+from optix_e2e.errors import InputError
 from optix_e2e.parallel import Ranks
 from optix_e2e.surrogate.ground_truth import exact_optics
 from optix_e2e.tasks.detection import DetectionCamera, heldout_streets

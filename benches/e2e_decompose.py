@@ -28,8 +28,8 @@ from pathlib import Path
 import torch
 
 from optix_e2e.camera import Camera
-from optix_e2e.camera_design.config import DesignConfig
 from optix_e2e.camera_design.build import build_camera, load_surrogate
+from optix_e2e.camera_design.config import DesignConfig
 from optix_e2e.tasks import SensorFrame, TaskLoss, get_task, training_batch
 from optix_e2e.torchfile import load_plain
 

@@ -20,8 +20,8 @@ from pathlib import Path
 import torch
 
 from optix_e2e.camera import Camera, FixedOptics
-from optix_e2e.camera_design.config import make_config
 from optix_e2e.camera_design.build import build_camera, design_field_heights, load_surrogate
+from optix_e2e.camera_design.config import make_config
 from optix_e2e.surrogate.ground_truth import exact_optics
 from optix_e2e.tasks import SensorFrame, TaskLoss, get_task, training_batch
 

@@ -157,7 +157,8 @@ def over_seeds(task: str, seeds: list[int], per: dict, runs: dict) -> dict:
     differences (end-to-end minus nominal; the frame headline's samples)."""
     from alg1_vs_vanilla import seeds_interval
 
-    from optix_e2e.camera_design.evaluate import METRICS as EV_METRICS, paired
+    from optix_e2e.camera_design.evaluate import METRICS as EV_METRICS
+    from optix_e2e.camera_design.evaluate import paired
 
     def held(run: Path, who: str) -> list[dict]:
         with open(run / "metrics.csv") as f:

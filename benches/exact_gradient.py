@@ -33,9 +33,9 @@ import torch
 
 
 def main() -> None:
+    from optix_e2e.camera_design.build import load_surrogate
     from optix_e2e.optics import DifferentiableOptics
     from optix_e2e.optics.exact import EngineRejectedDesign, ExactOptics, choose_steps
-    from optix_e2e.camera_design.build import load_surrogate
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--surrogate", default="paper-triplet-e2e")

@@ -24,10 +24,10 @@ import torch
 
 
 def main() -> None:
+    from optix_e2e.camera_design.build import load_surrogate
+    from optix_e2e.camera_design.hybrid import psf_errors
     from optix_e2e.optics import DifferentiableOptics
     from optix_e2e.optics.exact import ExactOptics
-    from optix_e2e.camera_design.hybrid import psf_errors
-    from optix_e2e.camera_design.build import load_surrogate
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--surrogate", default="paper-triplet-e2e")

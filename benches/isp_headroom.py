@@ -43,19 +43,19 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from optix_e2e.camera import Camera, FixedOptics, PerfectOptics, SensorStage, SoftwareISPStage, calibrated_preset
-from optix_e2e.isp.classical import ClassicalISP
-from optix_e2e.errors import InputError
-from optix_e2e.isp.software import SoftwareISP
 from optix_e2e import color
+from optix_e2e.camera import Camera, FixedOptics, PerfectOptics, SensorStage, SoftwareISPStage, calibrated_preset
+from optix_e2e.camera_design.build import SOFTWARE_ISP, base_lens_f_number, design_field_heights, load_surrogate
+from optix_e2e.errors import InputError
+from optix_e2e.isp.classical import ClassicalISP
+from optix_e2e.isp.software import SoftwareISP
 from optix_e2e.metrics.image import psnr, ssim
 from optix_e2e.metrics.lpips import lpips
+from optix_e2e.scenes.corpus import PhotoCorpus
 from optix_e2e.sensor import get_preset
 from optix_e2e.sensor.emva import expected_electrons, raw_from_electrons, simulate_raw
-from optix_e2e.camera_design.build import SOFTWARE_ISP, base_lens_f_number, design_field_heights, load_surrogate
 from optix_e2e.surrogate.ground_truth import exact_optics
 from optix_e2e.tasks import SensorFrame, heldout_set
-from optix_e2e.scenes.corpus import PhotoCorpus
 from optix_e2e.tasks.samples import POSITIONS, photo_test_set
 
 

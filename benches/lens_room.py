@@ -46,18 +46,18 @@ import numpy as np
 import torch
 
 from optix_e2e.camera import PerfectOptics
+from optix_e2e.camera_design import eval_cache
 from optix_e2e.camera_design import evaluate as ev
 from optix_e2e.camera_design.build import build_camera, delta_lens, make_optimizer, nominal_shading, start_run
-from optix_e2e.camera_design import eval_cache
 from optix_e2e.camera_design.config import BEFORE_SETTING, DesignConfig
 from optix_e2e.camera_design.training import train
 from optix_e2e.io import write_json_atomic
 from optix_e2e.optics.render import shade
-from optix_e2e.torchfile import load_plain
 from optix_e2e.scenes import ImageFolder
 from optix_e2e.scenes.corpus import PhotoCorpus
 from optix_e2e.tasks import heldout_set
 from optix_e2e.tasks.samples import POSITIONS
+from optix_e2e.torchfile import load_plain
 
 METRIC_NAMES = {"psnr_db": "PSNR (dB)", "ssim": "SSIM", "lpips": "LPIPS", "haarpsi": "HaarPSI"}
 

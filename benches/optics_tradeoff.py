@@ -51,9 +51,9 @@ EVAL_PATCH = 32
 def run_point(name: str, seed: int, overrides: dict, a, log) -> dict:
     from optix_e2e.camera import Camera, FixedOptics, calibrated_preset
     from optix_e2e.camera_design import evaluate as ev
+    from optix_e2e.camera_design.build import build_camera, design_field_heights, load_surrogate, make_optimizer
     from optix_e2e.camera_design.config import make_config
     from optix_e2e.camera_design.hybrid import OpticsMonitor, exact_gradient_steps
-    from optix_e2e.camera_design.build import build_camera, design_field_heights, load_surrogate, make_optimizer
     from optix_e2e.camera_design.training import train
     from optix_e2e.surrogate.ground_truth import exact_optics
     from optix_e2e.surrogate.refine import RefineSettings

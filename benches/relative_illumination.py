@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from optix_e2e.lens.illumination import relative_illumination_count
 from optix_e2e.lens import Lens
+from optix_e2e.lens.illumination import relative_illumination_count
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "lens"))
 from test_relative_illumination import thin_lens, vignetted_cooke  # noqa: E402  (the tests' lenses)
 
 

@@ -21,8 +21,8 @@ import numpy as np
 
 from optix_e2e import _engine
 from optix_e2e.lens.apertures import engine_base
-from optix_e2e.lens_design.focus import refocus
 from optix_e2e.lens_design.constraints import Limits
+from optix_e2e.lens_design.focus import refocus
 from optix_e2e.lens_design.sampling import sample_designs
 from optix_e2e.lens_design.space import Parameter, ParameterSpace, load_space
 

@@ -21,8 +21,8 @@ import json
 import sys
 from pathlib import Path
 
-from optix_e2e.lens_design.report import DEFAULT_MTF_FREQS
 from optix_e2e.lens.mtf import NYQUIST_5P86_UM
+from optix_e2e.lens_design.report import DEFAULT_MTF_FREQS
 
 METRICS = [
     ("1 - LPIPS", "one_minus_lpips", "lpips", -1.0),

@@ -22,9 +22,9 @@ import math
 import numpy as np
 
 from optix_e2e import _engine
-from optix_e2e.lens_design.space import ParameterSpace, load_space
 from optix_e2e.lens import Lens
 from optix_e2e.lens.scale import scale_lens
+from optix_e2e.lens_design.space import ParameterSpace, load_space
 
 HALF_DIAGONAL_MM = 0.5 * math.hypot(1920, 1200) * 5.86e-3
 WAVELENGTHS_NM = [470.0, 550.0, 650.0]  # the camera's B, G, R channel centres (as paper-triplet)

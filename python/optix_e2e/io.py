@@ -13,6 +13,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+
 from .errors import InputError
 
 

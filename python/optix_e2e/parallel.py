@@ -20,9 +20,9 @@ from dataclasses import dataclass
 
 import torch
 import torch.distributed as dist
+
 from .device import resolve_device
 from .errors import InputError, RunError
-
 
 MAX_THREADS = 1024  # torch aborts with a segmentation fault when asked for tens of thousands
 

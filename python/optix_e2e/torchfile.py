@@ -14,7 +14,6 @@ from pathlib import Path
 
 from .errors import InputError
 
-
 #: What restoring a damaged state raises once it is loaded as plain data: a missing or
 #: misspelt key, a value of another type or shape, a count out of reason. Every resume
 #: (design runs, surrogate and detector training) turns these into one error naming the file.

@@ -12,10 +12,10 @@ import pytest
 from click.testing import CliRunner
 
 from optix_e2e import _engine
+from optix_e2e.accuracy.auto import choose_fields, choose_wavelengths
 from optix_e2e.accuracy.auto_check import check_case, held_out_cases, summarize
 from optix_e2e.accuracy.psf_errors import rel_l1
 from optix_e2e.accuracy.sweep import channel_wavelengths
-from optix_e2e.accuracy.auto import choose_fields, choose_wavelengths
 from optix_e2e.cli import main
 from optix_e2e.lens import Lens
 

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-
 import torch
 
 from optix_e2e.optics.render import _prepare

@@ -15,11 +15,11 @@ from click.testing import CliRunner
 from optix_e2e import _engine
 from optix_e2e.cli import main
 from optix_e2e.dataset import DatasetSettings, generate
+from optix_e2e.lens import Lens
+from optix_e2e.lens.scale import scale_lens
 from optix_e2e.lens_design import tolerance as T
 from optix_e2e.lens_design.optimizer import Merit
 from optix_e2e.lens_design.space import load_space
-from optix_e2e.lens import Lens
-from optix_e2e.lens.scale import scale_lens
 
 HALF_DIAGONAL_MM = 0.5 * math.hypot(1920, 1200) * 5.86e-3  # the IMX249's corner
 

@@ -3,7 +3,6 @@ optimizer, the low-light setting and calibration, the held-out set, the run sett
 
 from __future__ import annotations
 
-
 import json
 import math
 
@@ -12,11 +11,11 @@ import pytest
 import torch
 
 from optix_e2e.camera import Camera, SensorStage, SoftwareISPStage, calibrated_preset
+from optix_e2e.camera_design.build import build_camera, load_surrogate, make_optimizer
+from optix_e2e.camera_design.config import make_config
 from optix_e2e.isp.software import SoftwareISP
 from optix_e2e.lens import Lens
 from optix_e2e.optics import DifferentiableOptics
-from optix_e2e.camera_design.config import make_config
-from optix_e2e.camera_design.build import build_camera, load_surrogate, make_optimizer
 from optix_e2e.tasks import SensorFrame, get_task, heldout_set, task_loss, training_batch
 from optix_e2e.tasks.samples import POSITIONS
 
@@ -176,9 +175,9 @@ def test_config_files_and_run_directories_are_checked(tmp_path):
     ):  # a folder (a pipe, a device: tests/cli/test_bad_input.py)
         make_config("quick", tmp_path)
     # a damaged run directory (config.json not UTF-8) and a damaged checkpoint: one error naming it
+    from optix_e2e.camera_design.build import build_camera, make_optimizer
     from optix_e2e.camera_design.config import check_run_dir
     from optix_e2e.camera_design.training import _load_state
-    from optix_e2e.camera_design.build import build_camera, make_optimizer
     from optix_e2e.io import save_atomic
 
     run = tmp_path / "run"
@@ -269,11 +268,11 @@ def test_the_shipped_software_isp_is_pretrained():
     # of the blur, at low light much of the noise; through a perfect lens at normal light (the
     # scene unblurred, not the renderer behind a delta PSF) it must beat the classical pipeline.
     from optix_e2e.camera import calibrated_preset
+    from optix_e2e.camera_design.build import SOFTWARE_ISP, nominal_field_heights
     from optix_e2e.isp.classical import ClassicalISP
     from optix_e2e.metrics.image import psnr
-    from optix_e2e.optics.render import render
-    from optix_e2e.camera_design.build import SOFTWARE_ISP, nominal_field_heights
     from optix_e2e.metrics.lpips import LPIPS
+    from optix_e2e.optics.render import render
     from optix_e2e.sensor import simulate_raw
     from optix_e2e.tasks.image_quality import task_loss
     from optix_e2e.tasks.samples import HELDOUT_SEED0, SensorFrame, heldout_set
@@ -362,8 +361,9 @@ def test_a_step_that_breaks_a_manufacturing_limit_is_cut_back_to_the_boundary():
 def test_fields_are_rendered_where_their_chief_rays_land():
     # a lens with little distortion images field angle theta at f tan(theta) (closed form);
     # the paper-triplet nominal (+ distortion) puts its half field well inside half the height
-    from optix_e2e.camera.stages import image_height_fractions
     import math
+
+    from optix_e2e.camera.stages import image_height_fractions
 
     cooke = Lens.load("cooke-f50")
     fields = [0.0, 5.0, 10.0, 15.0, 20.0]

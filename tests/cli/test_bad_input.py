@@ -15,9 +15,9 @@ import os
 import pytest
 from click.testing import CliRunner
 
+from optix_e2e.camera_design.config import RANGES, DesignConfig, make_config, read_config_file
 from optix_e2e.cli import main
 from optix_e2e.io import read_small_text, write_json_atomic
-from optix_e2e.camera_design.config import RANGES, DesignConfig, make_config, read_config_file
 from optix_e2e.parallel import MAX_THREADS, set_threads
 
 

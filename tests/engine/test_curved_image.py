@@ -8,8 +8,8 @@ import copy
 import numpy as np
 import pytest
 
-from optix_e2e.lens import Lens
 from optix_e2e._engine import LensError
+from optix_e2e.lens import Lens
 from optix_e2e.lens.prescription import PrescriptionError
 
 N_GLASS, R_LENS, EPD = 1.5, 100.0, 10.0

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import WHERE_SHARED, shared_dir
+
 from optix_e2e.lens import Lens
 from optix_e2e.lens.prescription import PrescriptionError
 from optix_e2e.lens.zemax import ZemaxError

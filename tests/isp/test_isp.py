@@ -14,7 +14,6 @@ from optix_e2e.isp import ISPProxy, SoftwareISP, bilinear_demosaick, ccm, data, 
 from optix_e2e.isp import params as hp
 from optix_e2e.sensor import PATTERNS, get_preset, mosaic, simulate_raw
 
-
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from optix_e2e import _engine
-from optix_e2e.lens.glass import GlassError
 from optix_e2e.lens import Lens, bundled_lenses
+from optix_e2e.lens.glass import GlassError
 from optix_e2e.lens.prescription import PrescriptionError
 from optix_e2e.lens.zemax.common import ZemaxError
 

@@ -14,9 +14,9 @@ import json
 
 import numpy as np
 import pytest
+from test_physics import WL_NM, plano_convex
 
 from optix_e2e.lens.mtf import NYQUIST_5P86_UM, diffraction_mtf, field_mtf, otf_1d
-from test_physics import WL_NM, plano_convex
 
 
 def test_diffraction_mtf_closed_form_points():

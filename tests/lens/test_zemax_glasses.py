@@ -8,8 +8,7 @@ published independently of the dispersion coefficients that were copied from its
 
 import pytest
 
-from optix_e2e.lens import glass
-from optix_e2e.lens import Lens
+from optix_e2e.lens import Lens, glass
 from optix_e2e.lens.zemax import ZemaxError, parse_zmx
 
 D, F, C = 0.5875618, 0.4861327, 0.6562725  # um

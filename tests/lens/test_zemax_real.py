@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-
 from conftest import WHERE_SHARED, shared_dir
+
 from optix_e2e.cli import main
 from optix_e2e.lens import Lens
 from optix_e2e.lens.zemax import ZemaxError, parse_zmx, read_zmx

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from optix_e2e import _engine
-from optix_e2e.lens_design.focus import best_focus_shift, refocus
 from optix_e2e.lens import Lens
+from optix_e2e.lens_design.focus import best_focus_shift, refocus
 
 
 def _mean_ms(lens: dict, fields, wls, dz: float) -> float:

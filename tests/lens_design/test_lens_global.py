@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from optix_e2e import _engine
 from optix_e2e.cli import main
 from optix_e2e.lens import Lens
-from optix_e2e.lens_design.global_search import global_search
-from optix_e2e import _engine
-from optix_e2e.lens_design.optimizer import Constraints, LensProblem, Merit, polish
 from optix_e2e.lens.pupil import pupil_quadrature
+from optix_e2e.lens_design.global_search import global_search
+from optix_e2e.lens_design.optimizer import Constraints, LensProblem, Merit, polish
 from optix_e2e.lens_design.space import ParameterSpace
 
 

@@ -18,8 +18,8 @@ from click.testing import CliRunner
 
 from optix_e2e.cli.lens_optimize import optimize_cmd
 from optix_e2e.lens import BUNDLED_DIR, Lens
-from optix_e2e.lens_design.optimizer import Constraints, Merit, element_geometry, optimize, sag
 from optix_e2e.lens.pupil import pupil_quadrature
+from optix_e2e.lens_design.optimizer import Constraints, Merit, element_geometry, optimize, sag
 from optix_e2e.lens_design.space import ParameterSpace, SpaceError, parameter_from_name
 
 

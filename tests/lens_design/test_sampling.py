@@ -14,8 +14,8 @@ from click.testing import CliRunner
 from optix_e2e.cli.sample import sample
 from optix_e2e.lens import Lens
 from optix_e2e.lens.apertures import engine_base
-from optix_e2e.lens_design.optimizer import element_geometry
 from optix_e2e.lens_design.constraints import REASONS, Limits, apertures, check_design
+from optix_e2e.lens_design.optimizer import element_geometry
 from optix_e2e.lens_design.sampling import sample_designs
 from optix_e2e.lens_design.space import SpaceError, load_space
 

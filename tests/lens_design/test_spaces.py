@@ -4,9 +4,9 @@ and the aperture kinds."""
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import pytest
-from pathlib import Path
 
 from optix_e2e.lens import Lens, bundled_lenses
 from optix_e2e.lens_design.space import ParameterSpace, SpaceError, bundled_spaces, load_space, parameter_from_name

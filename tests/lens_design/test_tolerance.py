@@ -15,9 +15,9 @@ import pytest
 from click.testing import CliRunner
 
 from optix_e2e.cli import main
+from optix_e2e.lens_design import tolerance as T
 from optix_e2e.lens_design.optimizer import Merit
 from optix_e2e.lens_design.space import Parameter, ParameterSpace, load_space
-from optix_e2e.lens_design import tolerance as T
 
 RINGS, ARMS = 3, 6
 

@@ -3,18 +3,17 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
+from conftest import WHERE_SHARED, shared_dir
 from PIL import Image
 
 import optix_e2e
-from conftest import WHERE_SHARED, shared_dir
 from optix_e2e.metrics import lpips as lpips_module
-from optix_e2e.metrics.lpips import WEIGHTS_SHA256, LPIPS, LPIPSWeightsError, lpips, weights_digest, weights_path
-
-from pathlib import Path
-
+from optix_e2e.metrics.lpips import LPIPS, WEIGHTS_SHA256, LPIPSWeightsError, lpips, weights_digest, weights_path
 
 LPIPS_REF = shared_dir("lpips-reference")
 

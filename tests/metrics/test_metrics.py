@@ -11,7 +11,6 @@ import torch.nn.functional as F
 from optix_e2e.metrics import image as M
 from optix_e2e.scenes import load_photo
 
-
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 

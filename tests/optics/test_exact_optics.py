@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
+from optix_e2e.camera_design.build import load_surrogate
 from optix_e2e.optics import DifferentiableOptics
 from optix_e2e.optics.exact import EngineRejectedDesign, ExactOptics, exact_psfs
-from optix_e2e.camera_design.build import load_surrogate
 
 
 @pytest.fixture(scope="module")

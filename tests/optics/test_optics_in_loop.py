@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import torch
 
-from optix_e2e.optics import DifferentiableOptics
+from optix_e2e.camera_design.build import load_surrogate
 from optix_e2e.camera_design.config import make_config
 from optix_e2e.camera_design.hybrid import OpticsMonitor, resolve_optics
-from optix_e2e.camera_design.build import load_surrogate
+from optix_e2e.optics import DifferentiableOptics
 from optix_e2e.surrogate.refine import RefineSettings
 
 
@@ -294,7 +294,7 @@ def test_a_uniform_start_in_the_wide_space_is_manufacturable_and_renderable():
     uniformly, redrawn until manufacturable and until the run's exact optics can render it (its
     PSFs inside the window on the engine's FFT), the draws counted; the same seed, the same start."""
     from optix_e2e.camera_design import build
-    from optix_e2e.lens_design.constraints import Manufacturability, Limits
+    from optix_e2e.lens_design.constraints import Limits, Manufacturability
     from optix_e2e.optics.exact import unrenderable
 
     cfg = make_config("smoke", optics="exact", space="paper-triplet-wide", optics_init="uniform", seed=1)

@@ -25,7 +25,6 @@ from optix_e2e.scenes import (
 )
 from optix_e2e.scenes.procedural import _disk_radii, _power_law
 
-
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 # ---------------------------------------------------------------------------------- colour

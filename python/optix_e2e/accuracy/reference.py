@@ -8,8 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .psf_errors import rel_l1
 from ..errors import RunError
+from .psf_errors import rel_l1
 
 
 @dataclass

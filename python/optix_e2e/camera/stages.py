@@ -20,6 +20,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ..errors import InputError
 from ..isp import params as hp
 from ..isp.proxy import ISPProxy
 from ..isp.reference import ReferenceISP
@@ -28,7 +29,6 @@ from ..optics.render import render
 from ..sensor import get_preset, simulate_raw
 from ..sensor.emva import calibrate_radiance_scale
 from ..sensor.spectral import aperture_gain
-from ..errors import InputError
 
 
 def image_height_fractions(lens_data: dict, fields_deg) -> torch.Tensor:

@@ -41,6 +41,7 @@ from typing import Callable
 
 import torch
 from torch import nn
+
 from ..errors import InputError, RunError
 
 

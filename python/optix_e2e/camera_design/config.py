@@ -12,11 +12,11 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..device import resolve_device
+from ..errors import InputError
 from ..io import claim_out_dir, read_small_text, write_json_atomic
 from ..tasks import get_task
 from ..tasks.samples import POSITIONS, TRAIN_POSITIONS
-from ..device import resolve_device
-from ..errors import InputError
 
 try:
     import tomllib
@@ -475,7 +475,8 @@ RESUMES_ANYWHERE = ("device",)
 def check_run_dir(out: Path, cfg: DesignConfig) -> None:
     """Write config.json (and inputs.json, what its file settings hold) in a new run directory;
     in an existing one, refuse other settings."""
-    from .inputs import record as record_inputs, same_content
+    from .inputs import record as record_inputs
+    from .inputs import same_content
 
     path = out / "config.json"
     if path.is_file():

@@ -32,10 +32,10 @@ from .. import color, parallel
 from ..camera import Camera, FixedOptics
 from ..errors import InputError
 from ..metrics.map_bootstrap import MatchTable
+from ..precision import apply_precision, resolve_precision
 from ..scenes.street import CATEGORIES
 from ..tasks import SensorFrame, get_task
 from ..tasks.detection import DetectionCamera, heldout_streets, street_batch
-from ..precision import apply_precision, resolve_precision
 from ..tasks.detector import in_the_dark, make_detector, mean_average_precision
 from ..tasks.detector_train import load_detector
 from . import eval_cache

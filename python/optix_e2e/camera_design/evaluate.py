@@ -24,9 +24,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ..errors import InputError
 from ..metrics.image import haarpsi, psnr, ssim
 from ..metrics.lpips import lpips
-from ..errors import InputError
 
 METRICS = ("psnr_db", "ssim", "lpips", "haarpsi")
 

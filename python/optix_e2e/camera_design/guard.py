@@ -21,7 +21,6 @@ from ..lens_design.constraints import Limits, Manufacturability
 from ..optics import DifferentiableOptics
 from .outputs import design_lens
 
-
 GUARD_MODES = ("project", "barrier")
 
 

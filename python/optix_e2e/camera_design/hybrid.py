@@ -32,8 +32,8 @@ import time
 import numpy as np
 import torch
 
-from ..surrogate.refine import RefineSettings, refine_around
 from ..errors import InputError
+from ..surrogate.refine import RefineSettings, refine_around
 from .config import task_default
 
 OPTICS_MODES = ("surrogate", "exact", "hybrid", "auto")

@@ -37,22 +37,22 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from ..device import resolve_device
-from ..precision import apply_precision, grad_scaler, resolve_precision, scaled_backward, scaled_step
-from ..parallel import set_threads, stop_if_diverged
 from .. import color
 from ..camera import calibrated_preset
 from ..dataset.manifest import space_and_base
+from ..device import resolve_device
+from ..errors import InputError
+from ..io import save_atomic
 from ..isp.software import SoftwareISP
 from ..isp.train import cosine_lr
 from ..optics.render import render
+from ..parallel import set_threads, stop_if_diverged
+from ..precision import apply_precision, grad_scaler, resolve_precision, scaled_backward, scaled_step
 from ..scenes.natural import natural_scene
 from ..sensor import simulate_raw
-from ..io import save_atomic
 from ..tasks.samples import SensorFrame
 from ..torchfile import load_plain
 from .build import base_lens_f_number, load_surrogate, nominal_field_heights
-from ..errors import InputError
 
 FORMAT = "optix-isp-pretraining/1"
 LENS_KINDS = ("perfect", "nominal", "space")

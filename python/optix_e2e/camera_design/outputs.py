@@ -10,9 +10,9 @@ import numpy as np
 import torch
 
 from ..dataset.manifest import nearest_image_plane, refocused_designs, space_and_base
-from ..lens_design.constraints import Limits, Manufacturability, apertures
 from ..lens import Lens
 from ..lens.zemax.writer import write_zmx
+from ..lens_design.constraints import Limits, Manufacturability, apertures
 
 
 def design_lens(manifest: dict, values, image_distance: float) -> dict:

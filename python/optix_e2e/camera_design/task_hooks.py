@@ -13,9 +13,9 @@ import torch
 
 from .. import parallel
 from ..camera import FixedOptics
+from ..errors import InputError
 from ..surrogate.checkpoint import OpticsSurrogate
 from ..tasks import SensorFrame, get_task
-from ..errors import InputError
 from .config import DesignConfig
 
 

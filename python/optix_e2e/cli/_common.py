@@ -7,10 +7,10 @@ import math
 
 import click
 
-from ..lens import Lens
 from ..engine import EngineError
 from ..errors import OptixError
 from ..io import dumps, to_jsonable  # noqa: F401  (the subcommands' strict JSON)
+from ..lens import Lens
 from ..lens.text import printable
 
 AIMING = click.Choice(["paraxial", "real"])

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from ._common import FiniteFloatRange, SEED, dumps, friendly_errors
+from ._common import SEED, FiniteFloatRange, dumps, friendly_errors
 
 
 class _DefaultToGenerate(click.Group):

@@ -11,7 +11,6 @@ from tqdm import tqdm
 
 from ._common import AIMING, FiniteFloatRange, dumps, friendly_errors, load_lens
 
-
 MAX_PRINTED_WARNINGS = 8
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from ._common import FiniteFloatRange, SEED, THREADS, device_option, dumps, friendly_errors, precision_option
+from ._common import SEED, THREADS, FiniteFloatRange, device_option, dumps, friendly_errors, precision_option
 
 
 @click.group("detect")

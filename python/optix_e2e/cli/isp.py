@@ -14,7 +14,7 @@ from pathlib import Path
 
 import click
 
-from ._common import THREADS, SEED, FiniteFloatRange, device_option, dumps, friendly_errors, precision_option
+from ._common import SEED, THREADS, FiniteFloatRange, device_option, dumps, friendly_errors, precision_option
 
 OUT = click.Path(file_okay=False, path_type=Path)
 

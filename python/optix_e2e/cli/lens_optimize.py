@@ -10,11 +10,11 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ._common import AIMING, FINITE, FiniteFloatRange, SEED, dumps, friendly_errors
 from ..lens import BUNDLED_DIR, Lens, LensLoadError
 from ..lens_design.optimizer import Constraints, LensProblem, Merit, optimize
 from ..lens_design.optimizer import set_semi_diameters as _with_semi_diameters
 from ..lens_design.space import ParameterSpace, SpaceError
+from ._common import AIMING, FINITE, SEED, FiniteFloatRange, dumps, friendly_errors
 
 
 def _raw_lens(spec: str) -> tuple[dict, str]:

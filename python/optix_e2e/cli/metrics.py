@@ -11,7 +11,6 @@ import click
 from ..io import require_regular_file
 from ._common import device_option, dumps, friendly_errors
 
-
 MAX_PIXELS = 64_000_000  # larger files are refused before they are decoded (a decompression bomb)
 
 
@@ -74,8 +73,8 @@ def metrics(image, reference, crop, device, as_json):
     LPIPS (AlexNet, v0.1; lower is closer; the paper reports 1 - LPIPS) and HaarPSI, computed
     on --device."""
     from ..device import resolve_device
-    from ..metrics.lpips import LPIPS_MIN_SIZE, lpips
     from ..metrics.image import summarize
+    from ..metrics.lpips import LPIPS_MIN_SIZE, lpips
 
     dev = resolve_device(device)
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ._common import THREADS, SEED, FiniteFloatRange, device_option, dumps, friendly_errors
+from ._common import SEED, THREADS, FiniteFloatRange, device_option, dumps, friendly_errors
 
 DATA = click.Path(file_okay=False, exists=True, path_type=Path)
 

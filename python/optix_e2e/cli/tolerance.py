@@ -12,8 +12,8 @@ import click
 
 from ..lens import Lens
 from ..lens_design.optimizer import Merit
-from ..lens_design.tolerance import DEFAULT_PUPIL
 from ..lens_design.space import SPACES_DIR, ParameterSpace, SpaceError, bundled_spaces
+from ..lens_design.tolerance import DEFAULT_PUPIL
 from ._common import FINITE, SEED, FiniteFloatRange, dumps, friendly_errors
 
 MC_SPACES = ("proposed", "given")

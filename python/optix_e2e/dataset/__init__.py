@@ -3,8 +3,8 @@
 guarantees: docs/dataset.md."""
 
 from .generate import GenerateReport, generate
-from .settings import DatasetSettings
 from .layout import DatasetError
+from .settings import DatasetSettings
 from .verify import verify
 
 __all__ = ["DatasetSettings", "DatasetError", "GenerateReport", "generate", "verify"]

@@ -18,8 +18,8 @@ import threading
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator
-from ..errors import RunError
 
+from ..errors import RunError
 
 # the engine's batch PSFs use every core of a worker's process unless told otherwise; a
 # Dask worker with T threads gets T cores' worth of engine threads

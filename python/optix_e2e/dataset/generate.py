@@ -24,17 +24,17 @@ from typing import Callable
 
 import numpy as np
 
-from ..lens import Lens
-from ..lens_design.focus import refocus_many
-from ..lens_design.constraints import ApertureError, apertures, geometry_problem, own_apertures
-from ..lens_design.space import ParameterSpace, load_space
+from ..errors import InputError
 from ..io import fsync_dir, write_json_atomic
+from ..lens import Lens
+from ..lens.apertures import engine_base
+from ..lens_design.constraints import ApertureError, apertures, geometry_problem, own_apertures
+from ..lens_design.focus import refocus_many
+from ..lens_design.space import ParameterSpace, load_space
 from .layout import ARRAYS, FORMAT, DatasetError, aligned_empty, save_npy, shard_name, shards_dir
 from .manifest import nearest_image_plane, prepare
-from ..lens.apertures import engine_base
 from .settings import DatasetSettings
 from .verify import check_shard
-from ..errors import InputError
 
 
 @dataclass

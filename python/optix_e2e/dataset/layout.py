@@ -31,6 +31,7 @@ import zlib
 from pathlib import Path
 
 import numpy as np
+
 from ..errors import InputError
 
 FORMAT = "optix-psf-dataset/1"

@@ -12,15 +12,15 @@ from typing import Callable
 
 import numpy as np
 
+from ..errors import InputError
+from ..io import claim_out_dir, write_json_atomic
 from ..lens import Lens
+from ..lens.apertures import engine_base
 from ..lens_design.constraints import Limits
 from ..lens_design.sampling import read_designs_csv, sample_designs, write_designs_csv
 from ..lens_design.space import Parameter, ParameterSpace, SpaceError
-from ..io import claim_out_dir, write_json_atomic
 from .layout import FORMAT, DatasetError, differing_keys, read_json, sha256_file
-from ..lens.apertures import engine_base
 from .settings import BEFORE_KEY, DatasetSettings, field_positions
-from ..errors import InputError
 
 
 def _request(

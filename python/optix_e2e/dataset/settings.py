@@ -7,9 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..lens import Lens
 from ..errors import InputError
-
+from ..lens import Lens
 
 # The engine's largest PSF (pixels across; crates/psf-engine PsfOptions::check).
 MAX_SIZE = 8192

@@ -18,9 +18,9 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from ..errors import InputError
 from .layout import DatasetError, read_manifest, shard_name, shards_dir
 from .verify import open_shard, read_shard_meta
-from ..errors import InputError
 
 
 class PsfDataset(Dataset):

@@ -22,11 +22,11 @@ import torch.nn.functional as F
 from torch import nn
 
 from .. import color
+from ..errors import InputError
 from ..sensor import get_preset
 from ..sensor.cfa import bayer_masks, check_pattern
 from ..sensor.emva import expected_electrons
 from .demosaick import bilinear_demosaick
-from ..errors import InputError
 
 # Malvar, He & Cutler (ICASSP 2004), Fig. 2 filters (x 1/8), the same as reference.py's.
 _G_AT_RB = [[0, 0, -1, 0, 0], [0, 0, 2, 0, 0], [-1, 2, 4, 2, -1], [0, 0, 2, 0, 0], [0, 0, -1, 0, 0]]

@@ -16,10 +16,10 @@ import torch
 from tqdm import tqdm
 
 from .. import color, scenes
+from ..errors import InputError
 from ..sensor import get_preset, simulate_raw
 from . import params as hp
 from . import reference
-from ..errors import InputError
 
 
 @dataclass(frozen=True)

@@ -12,11 +12,11 @@ import torch
 from tqdm import tqdm
 
 from .. import scenes
+from ..errors import InputError
 from ..metrics import image as metrics
 from . import data
 from . import params as hp
 from .proxy import ISPProxy
-from ..errors import InputError
 
 HELD_OUT_SEED = 20_261_121  # hyperparameter draws and sensor noise for evaluation
 

@@ -13,11 +13,11 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from ..errors import InputError
 from ..io import save_atomic
 from ..torchfile import build_module, load_plain
 from . import params as hp
 from .rawnet import RawUNet
-from ..errors import InputError
 
 BUNDLED = Path(__file__).with_name("bundled") / "isp_proxy.pt"
 

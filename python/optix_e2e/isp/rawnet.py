@@ -13,10 +13,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .demosaick import BilinearDemosaick
-from .unet import UNet, pad_to_multiple
 from ..errors import InputError
 from ..precision import network_autocast, to_float32
+from .demosaick import BilinearDemosaick
+from .unet import UNet, pad_to_multiple
 
 
 class RawUNet(nn.Module):

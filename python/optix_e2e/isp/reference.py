@@ -21,9 +21,9 @@ from scipy.ndimage import convolve
 from skimage.filters import unsharp_mask
 from skimage.restoration import denoise_bilateral
 
+from ..errors import InputError
 from ..sensor.cfa import bayer_masks
 from . import params as hp
-from ..errors import InputError
 
 # Malvar, He & Cutler (ICASSP 2004), Fig. 2 filters (x 1/8).
 _G_AT_RB = (

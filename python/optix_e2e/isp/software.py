@@ -24,13 +24,13 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..errors import InputError
 from ..precision import network_autocast, to_float32
 from ..torchfile import build_module, load_plain
 from .classical import ClassicalISP
 from .nafnet import NAFNet
 from .rawnet import RawUNet
 from .unet import UNet
-from ..errors import InputError
 
 FORMATS = ("optix-software-isp/1", "optix-software-isp/2")
 

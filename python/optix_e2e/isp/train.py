@@ -22,9 +22,9 @@ from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
 from ..device import resolve_device
-from ..precision import apply_precision, grad_scaler, resolve_precision, scaled_backward, scaled_step
-from ..parallel import set_threads, stop_if_diverged
 from ..metrics import image as metrics
+from ..parallel import set_threads, stop_if_diverged
+from ..precision import apply_precision, grad_scaler, resolve_precision, scaled_backward, scaled_step
 from . import data
 from .proxy import ISPProxy
 

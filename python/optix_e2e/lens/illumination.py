@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .model import Lens
 from ..errors import InputError
+from .model import Lens
 
 
 def _image_point(lens: Lens, field_deg: float, wavelength_nm: float) -> tuple[float, float]:
@@ -29,8 +29,8 @@ def _image_point(lens: Lens, field_deg: float, wavelength_nm: float) -> tuple[fl
 def _optiland_tracer(lens: Lens, wavelength_nm: float):
     """Trace (origins, directions) with optiland: the lens rebuilt there with its indices at
     `wavelength_nm` as ideal materials and its clear semi-diameters as radial apertures."""
-    from optiland.optic import Optic
     from optiland.materials import IdealMaterial
+    from optiland.optic import Optic
     from optiland.physical_apertures import RadialAperture
     from optiland.rays import RealRays
 

@@ -11,10 +11,10 @@ from typing import Any, Sequence
 import numpy as np
 
 from .. import engine
-from .text import display_name
+from ..errors import InputError
 from .prescription import PrescriptionError, SurfacesCrossError, resolve_prescription, tree_copy
 from .pupil import pupil_quadrature
-from ..errors import InputError
+from .text import display_name
 
 __all__ = ["Lens", "LensLoadError", "bundled_lenses", "DEFAULT_RGB_CHANNELS"]
 

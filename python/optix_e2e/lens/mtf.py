@@ -35,6 +35,7 @@ import math
 from typing import Any, Callable, Sequence
 
 import numpy as np
+
 from ..errors import InputError
 
 __all__ = ["diffraction_mtf", "otf_1d", "psf_sampling", "field_mtf", "NYQUIST_5P86_UM"]

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import math
+
 from ..errors import InputError
 
 __all__ = ["scale_lens"]

@@ -31,8 +31,8 @@ from typing import Callable
 
 import numpy as np
 
-from .optimizer import polish
 from ..errors import InputError, RunError
+from .optimizer import polish
 
 __all__ = ["Basin", "GlobalResult", "basins_csv", "global_search"]
 

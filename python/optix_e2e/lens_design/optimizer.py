@@ -44,11 +44,11 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .. import engine
-from ..lens.pupil import pupil_quadrature
-from ..lens import Lens
-from .space import ParameterSpace
-from ..lens.surface import sag as _surface_sag
 from ..errors import InputError
+from ..lens import Lens
+from ..lens.pupil import pupil_quadrature
+from ..lens.surface import sag as _surface_sag
+from .space import ParameterSpace
 
 __all__ = ["Constraints", "LensProblem", "Merit", "OptimizeResult", "optimize", "polish", "sag", "element_geometry"]
 

@@ -13,10 +13,10 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .. import engine
+from ..errors import InputError
 from ..lens import Lens
 from ..lens.mtf import NYQUIST_5P86_UM, default_frequencies, field_mtf, mtf_at, psf_sampling
 from ..lens.surface import curvature, sag
-from ..errors import InputError
 
 __all__ = ["sag", "surface_geometry", "ray_fans", "spot_diagram", "hexapolar", "write_report", "DEFAULT_MTF_FREQS"]
 
@@ -166,8 +166,8 @@ def write_report(
     progress: Progress = None,
 ) -> dict[str, Any]:
     """layout.png, spots.png, mtf.png and report.json in ``out_dir``; returns the JSON."""
-    from . import plots as plotting
     from ..io import to_jsonable
+    from . import plots as plotting
 
     say = progress or (lambda msg: None)
     t0 = time.perf_counter()

@@ -26,13 +26,13 @@ from typing import Sequence
 
 import numpy as np
 
+from ..errors import InputError
 from ..lens import Lens
 from ..lens.apertures import engine_base
-from .sobol import ScrambledSobol
 from .constraints import REASONS, Limits, Manufacturability, check_design, reason_of
 from .constraints import apertures as clear_apertures
+from .sobol import ScrambledSobol
 from .space import ParameterSpace, SpaceError
-from ..errors import InputError
 
 METHODS = ("uniform", "sobol", "lhs")
 #: candidates checked at a time (on two threads) before they are taken in draw order

@@ -31,6 +31,7 @@ import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Sequence
+
 from ..errors import InputError
 
 __all__ = [

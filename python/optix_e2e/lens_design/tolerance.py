@@ -53,10 +53,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from ..errors import InputError
 from ..lens import Lens
 from .optimizer import Merit, _is_design_error
 from .space import APERTURE_KINDS, ASPHERE_KINDS, Parameter, ParameterSpace, SpaceError
-from ..errors import InputError
 
 __all__ = [
     "DEFAULT_STEPS",

@@ -38,6 +38,7 @@ from __future__ import annotations
 import piq
 import torch
 from torch import nn
+
 from ..errors import InputError
 
 __all__ = [

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 import torch
+
 from ..errors import InputError
 
 IOU_THRESHOLDS = np.linspace(0.5, 0.95, 10)

@@ -27,9 +27,9 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .render import render
-from ..surrogate.checkpoint import OpticsSurrogate
 from ..errors import InputError
+from ..surrogate.checkpoint import OpticsSurrogate
+from .render import render
 
 
 class DifferentiableOptics(nn.Module):

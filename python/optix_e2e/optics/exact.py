@@ -41,10 +41,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..surrogate.data import bin_psf
-from ..surrogate.ground_truth import EngineRejectedDesign
-from ..surrogate.ground_truth import exact_arrays
 from ..errors import InputError
+from ..surrogate.data import bin_psf
+from ..surrogate.ground_truth import EngineRejectedDesign, exact_arrays
 
 
 @dataclass

@@ -32,6 +32,7 @@ import math
 
 import torch
 import torch.nn.functional as F
+
 from ..errors import InputError
 
 

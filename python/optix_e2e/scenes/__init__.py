@@ -1,11 +1,11 @@
 """Scenes for training and evaluation, all offline: bundled photos, procedural charts, user folders,
 labelled street scenes and COCO detection data."""
 
-from .folder import ImageFolder
 from .coco import CocoDetection, CocoFormatError, write_street_coco
+from .folder import ImageFolder
+from .natural import natural_scene, training_photos
 from .photos import bundled_photos, fit_size, load_photo, to_image_tensor
 from .procedural import chart_patch_boxes, color_chart, dead_leaves, mixed_scene, random_crops, slanted_edge
-from .natural import natural_scene, training_photos
 from .street import CATEGORIES, StreetScene, street_scene
 
 __all__ = [

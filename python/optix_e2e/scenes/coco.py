@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .street import CATEGORIES, street_scene
 from ..errors import InputError
+from .street import CATEGORIES, street_scene
 
 
 class CocoFormatError(InputError):

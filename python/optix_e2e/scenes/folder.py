@@ -7,8 +7,8 @@ from pathlib import Path
 import torch
 from torch.utils.data import Dataset
 
-from .photos import fit_size, to_image_tensor
 from ..errors import InputError
+from .photos import fit_size, to_image_tensor
 
 __all__ = ["ImageFolder"]
 

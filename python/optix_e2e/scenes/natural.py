@@ -30,9 +30,9 @@ import torch
 import torch.nn.functional as F
 
 from ..color import linear_to_srgb, srgb_to_linear
+from ..errors import InputError
 from .photos import to_image_tensor
 from .procedural import _hw, _rng, dead_leaves
-from ..errors import InputError
 
 __all__ = [
     "natural_dead_leaves",

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
+
 from ..errors import InputError
 
 __all__ = ["bundled_photos", "load_photo", "to_image_tensor", "fit_size"]

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+
 from ..errors import InputError
 
 #: COCO categories of the scenes (ids as written in COCO JSON; 0 is left for "background")

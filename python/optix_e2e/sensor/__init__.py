@@ -6,8 +6,8 @@ from .emva import (
     calibrate_radiance_scale,
     dark_current_mean,
     expected_electrons,
-    raw_from_electrons,
     expected_signal,
+    raw_from_electrons,
     simulate_raw,
 )
 from .poisson import poisson_sample

@@ -7,6 +7,7 @@ G at (0, 1) and (1, 0), B at (1, 1)). Channel order everywhere is (R, G, B).
 from __future__ import annotations
 
 import torch
+
 from ..errors import InputError
 
 PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")

@@ -17,11 +17,11 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ..errors import InputError
 from .cfa import mosaic
 from .poisson import poisson_quantile, poisson_sample
 from .presets import SensorPreset, check_positive, get_preset
 from .spectral import WAVELENGTHS_NM, interpolation_weights, photons_per_radiance
-from ..errors import InputError
 
 QUANTIZE = ("uniform", "round", "none")
 

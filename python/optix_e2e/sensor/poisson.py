@@ -23,6 +23,7 @@ straight-through gradient 1: still exact for the mean, bounded for dark pixels.
 from __future__ import annotations
 
 import torch
+
 from ..errors import InputError
 
 ESTIMATORS = ("gaussian", "straight_through")

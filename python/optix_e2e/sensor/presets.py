@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import torch
 
-from .cfa import check_pattern
 from ..errors import InputError
+from .cfa import check_pattern
 
 ABSOLUTE_ZERO_C = -273.15
 

@@ -18,11 +18,11 @@ import numpy as np
 import torch
 from torch import nn
 
+from ..errors import InputError
 from ..io import save_atomic
 from ..lens import BUNDLED_SURROGATES
 from ..torchfile import build_module, load_plain
 from .model import SurrogateConfig, SurrogateNet
-from ..errors import InputError
 
 FORMAT = "optix-surrogate/1"
 BUNDLED = BUNDLED_SURROGATES

@@ -23,13 +23,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .checkpoint import OpticsSurrogate
 from ..dataset.layout import differing_keys, read_manifest, shard_name, shards_dir
 from ..dataset.manifest import back_focus_limit
 from ..dataset.settings import DatasetSettings
+from ..errors import InputError
+from .checkpoint import OpticsSurrogate
 from .data import load_arrays, psf_grid, psf_pitch_um
 from .train import predict_all
-from ..errors import InputError
 
 METRICS = ("psf_rel_l1", "psf_rel_l2", "strehl_rel_err", "ee_abs_err", "vignetting_abs_err")
 

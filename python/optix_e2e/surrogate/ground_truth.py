@@ -9,8 +9,8 @@ import numpy as np
 
 from ..dataset.generate import compute_shard
 from ..dataset.manifest import refocused_designs, space_and_base
-from ..lens import Lens
 from ..errors import InputError
+from ..lens import Lens
 
 
 class EngineRejectedDesign(InputError):

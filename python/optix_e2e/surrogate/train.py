@@ -19,7 +19,8 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, fields as dc_fields, replace
+from dataclasses import asdict, dataclass, replace
+from dataclasses import fields as dc_fields
 from pathlib import Path
 
 import numpy as np
@@ -29,13 +30,13 @@ from tqdm import tqdm
 
 from .. import parallel
 from ..device import resolve_device
-from ..torchfile import DAMAGED_STATE_ERRORS, load_plain
+from ..errors import InputError
 from ..io import claim_out_dir, save_atomic
+from ..torchfile import DAMAGED_STATE_ERRORS, load_plain
 from .checkpoint import OpticsSurrogate
 from .data import design_indices, load_arrays, psf_grid, psf_pitch_um, to_tensors
 from .loss import LossWeights, optics_loss_terms
 from .model import SurrogateConfig
-from ..errors import InputError
 
 # changing these makes a different model or different data: resuming refuses
 MAX_STEPS = 10_000_000  # the command line's maximum of --steps

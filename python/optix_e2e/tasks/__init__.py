@@ -1,9 +1,10 @@
 """What the camera is for (paper Sec. 6): the tasks, their losses and their scenes."""
 
-from .detection import DETECTION, DetectionTask
-from .image_quality import TASKS as IMAGE_QUALITY_TASKS, ImageQualityTask, TaskLoss, task_loss
-from .samples import HeldoutSample, SensorFrame, heldout_set, training_batch
 from ..errors import InputError
+from .detection import DETECTION, DetectionTask
+from .image_quality import TASKS as IMAGE_QUALITY_TASKS
+from .image_quality import ImageQualityTask, TaskLoss, task_loss
+from .samples import HeldoutSample, SensorFrame, heldout_set, training_batch
 
 #: every task of ``optix design``: the image-quality tasks and detection
 TASKS = {**IMAGE_QUALITY_TASKS, DETECTION.name: DETECTION}

@@ -19,16 +19,15 @@ import numpy as np
 import torch
 
 from .. import color
-from ..precision import apply_precision, grad_scaler, resolve_precision
 from ..device import resolve_device
-from ..io import claim_out_dir
-from ..torchfile import DAMAGED_STATE_ERRORS
+from ..errors import InputError
+from ..io import claim_out_dir, require_regular_file
 from ..parallel import check_finite_weights, stop_if_diverged
+from ..precision import apply_precision, grad_scaler, resolve_precision
 from ..scenes.coco import CocoDetection
 from ..scenes.street import CATEGORIES
+from ..torchfile import DAMAGED_STATE_ERRORS
 from .detector import detect, in_the_dark, make_detector, mean_average_precision
-from ..errors import InputError
-from ..io import require_regular_file
 
 FORMAT = "optix-detector/1"
 

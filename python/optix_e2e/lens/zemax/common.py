@@ -4,6 +4,7 @@ and the import report."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+
 from ...errors import InputError
 
 #: Lens units -> millimetres (the UNIT line's first token).

@@ -7,8 +7,8 @@ from pathlib import Path
 from typing import Any
 
 from ... import engine
-from ..text import display_name
 from .. import glass as _glass
+from ..text import display_name
 from .common import (
     GCAT_TO_CATALOG,
     IGNORED,

@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from ...engine import EngineError
-from .common import ZemaxError
 from ..text import display_name, printable
+from .common import ZemaxError
 from .reader import _decode
 
 MAX_FILE_BYTES = 16 << 20  # real .zmx files are kilobytes; a larger one is not read into memory
