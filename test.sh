@@ -25,12 +25,13 @@ MATURIN_PEP517_ARGS="--profile ci" uv pip install -q --compile-bytecode --refres
 stamp "lint: ruff, rustfmt, clippy (the stub check is tests/engine/test_engine_stub.py)"
 ruff check python tests benches scripts
 ruff format --check python tests benches scripts
-if cargo fmt --version >/dev/null 2>&1 && cargo clippy --version >/dev/null 2>&1; then
-  cargo fmt --all --check
-  cargo clippy --release -p psf-engine -p psf-engine-bench --all-targets -- -D warnings
-else
-  echo "!! rustfmt/clippy are not installed here: the Rust lint did NOT run (rustup component add rustfmt clippy)"
+# a hard gate: where rustfmt or clippy is missing, rustup installs them, and without them the
+# lint fails (set -e) instead of being skipped; clippy covers the binding crate too
+if ! cargo fmt --version >/dev/null 2>&1 || ! cargo clippy --version >/dev/null 2>&1; then
+  rustup component add rustfmt clippy
 fi
+cargo fmt --all --check
+cargo clippy --release -p psf-engine -p psf-engine-bench -p psf-engine-py --all-targets -- -D warnings
 stamp "cargo test --profile ci (crates/psf-engine; release optimization without LTO)"
 cargo test --profile ci
 stamp "pytest (two workers, one test file per worker at a time)"
