@@ -143,17 +143,20 @@ def test_triplet_space_is_table1_and_contains_nominal(triplet_raw, triplet):
     assert kinds["l_12"] == ("air_gap", 2) and kinds["l_2STO"] == ("air_gap", 4) and kinds["l_STO3"] == ("air_gap", 5)
 
 
-def test_triplet_matches_optiland(triplet):
+@pytest.mark.parametrize("name", ["paper-triplet", "paper-doublet"])
+def test_paper_designs_match_optiland(name):
     """optiland 0.6.3 built from our prescription (even aspheres, stop plane; indices at
     550 nm as ideal materials, so both use the same glass data): paraxial EFL/BFL to 1e-6
-    relative and real rays at the corner field (paraxial aiming in both) to 1e-6 mm."""
+    relative and real rays at the corner field (paraxial aiming in both) to 1e-6 mm; the
+    triplet and the two-element camera of issue 57 (docs/form-factor.md)."""
+    lens = Lens.load(name)
     optic_mod = pytest.importorskip("optiland.optic", reason="optiland is in the test extra")
     from optiland.materials import IdealMaterial
 
-    n = triplet.refractive_indices(550.0)
+    n = lens.refractive_indices(550.0)
     o = optic_mod.Optic()
     o.surfaces.add(index=0, radius=np.inf, thickness=np.inf)
-    for i, s in enumerate(triplet.surfaces, 1):
+    for i, s in enumerate(lens.surfaces, 1):
         kw = dict(
             index=i,
             radius=np.inf if s["radius"] == "inf" else s["radius"],
@@ -166,17 +169,17 @@ def test_triplet_matches_optiland(triplet):
             a = s["aspheric"]
             kw.update(surface_type="even_asphere", coefficients=[0.0, a["a4"], a["a6"], a["a8"], a["a10"]])
         o.surfaces.add(**kw)
-    o.surfaces.add(index=len(triplet.surfaces) + 1)
-    par = triplet.paraxial(550.0)
+    o.surfaces.add(index=len(lens.surfaces) + 1)
+    par = lens.paraxial(550.0)
     o.set_aperture(aperture_type="EPD", value=par["epd_mm"])
     o.fields.set_type(field_type="angle")
-    for f in triplet.fields_deg:
+    for f in lens.fields_deg:
         o.fields.add(y=f)
     o.wavelengths.add(value=0.55, is_primary=True)
     assert float(o.paraxial.f2()) == pytest.approx(par["efl_mm"], rel=1e-6)
     assert float(o.surfaces[-2].thickness) + float(o.paraxial.F2()) == pytest.approx(par["bfl_mm"], rel=1e-6)
     pupil = [0.0, 1.0, -1.0, 0.5, -0.5]
-    ours = triplet.trace_field(triplet.max_field_deg, [0.0] * 5, pupil, 550.0)["position"][:, 1]
+    ours = lens.trace_field(lens.max_field_deg, [0.0] * 5, pupil, 550.0)["position"][:, 1]
     for py, y in zip(pupil, ours):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
