@@ -142,14 +142,13 @@ def phases(space_name: str, n: int, seed: int, s) -> dict:
     subprocess.run([sys.executable, "-c", "import optix_e2e.cli"], check=True)
     import_s = time.perf_counter() - t
     from optix_e2e import engine
-    from optix_e2e.dataset import generate
+    from optix_e2e.dataset import generate, shards
     from optix_e2e.dataset.manifest import prepare
     from optix_e2e.lens_design.space import load_space
 
-    gen = sys.modules["optix_e2e.dataset.generate"]  # the module (the package exports the function)
     acc: dict = {}
     with (
-        _timed(gen, "refocus_many", acc, "refocus_s"),
+        _timed(shards, "refocus_many", acc, "refocus_s"),
         _timed(engine, "psf_batch", acc, "psf_batch_s"),
         tempfile.TemporaryDirectory() as tmp,
     ):

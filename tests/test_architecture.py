@@ -1,14 +1,18 @@
 """The layering of docs/architecture.md, enforced on the source (an AST walk, so imports
 inside functions count): a module imports only from its own subpackage, the foundations and
-the layers below; nothing imports the CLI; the Rust extension is imported only by the
-engine's door, optix_e2e.engine."""
+the layers below; no circle among a subpackage's modules, nor among the Rust engine's files;
+nothing imports the CLI; the Rust extension is imported only by the engine's door,
+optix_e2e.engine."""
 
 from __future__ import annotations
 
 import ast
+import re
+from functools import cache
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "python" / "optix_e2e"
+CRATE = Path(__file__).resolve().parents[1] / "crates" / "psf-engine" / "src"
 
 #: Each subpackage or top-level module and its layer (docs/architecture.md); a module may import
 #: what sits on a lower layer, never a sibling of its own layer nor anything above.
@@ -92,6 +96,176 @@ def test_no_module_imports_upwards_or_sideways():
         if LAYER[b] >= LAYER[a]:
             bad.append(f"{module}:{line} imports {target} (layer {LAYER[a]} -> {LAYER[b]})")
     assert not bad, "imports against docs/architecture.md:\n" + "\n".join(sorted(bad))
+
+
+def _circles(graph: dict[str, dict[str, str]]) -> list[list[str]]:
+    """The strongly connected components of more than one node (Tarjan): the circles."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    out = []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in graph.get(v, {}):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            at = stack.index(v)
+            if len(stack) - at > 1:
+                out.append(sorted(stack[at:]))
+            del stack[at:]
+
+    for v in list(graph):
+        if v not in index:
+            visit(v)
+    return sorted(out)
+
+
+def _describe(circles: list[list[str]], graph: dict[str, dict[str, str]]) -> str:
+    return "\n".join(f"{a} -> {b} ({graph[a][b]})" for c in circles for a in c for b in c if b in graph.get(a, {}))
+
+
+def _python_graph() -> dict[str, dict[str, str]]:
+    """Module -> the modules of its own subpackage it imports (-> where), function-local imports included."""
+    modules = set()
+    for path in PACKAGE.rglob("*.py"):
+        parts = path.relative_to(PACKAGE).with_suffix("").parts
+        modules.add(".".join(parts[:-1] if parts[-1] == "__init__" else parts))
+    graph: dict[str, dict[str, str]] = {}
+    for module, target, line in _imports():
+        while target and target not in modules:  # `from .a import name`: the module a
+            target = target.rpartition(".")[0]
+        if target != module and _top(target) == _top(module):
+            graph.setdefault(module, {}).setdefault(target, f"line {line}")
+    return graph
+
+
+def test_no_circle_among_a_subpackages_modules():
+    """Within a subpackage the modules import one way: a circle (one import of it inside a
+    function is enough) means the two files are one idea, or a shared piece belongs below both."""
+    graph = _python_graph()
+    assert "dataset.shards" in graph["dataset.generate"]  # the walk sees the package's imports
+    circles = _circles(graph)
+    assert not circles, "import circles:\n" + _describe(circles, graph)
+
+
+@cache
+def _rust_code(path: Path) -> str:
+    """A Rust file without comments, string and char literals and #[cfg(test)] modules (a
+    unit test may use any module, as tests/ does)."""
+    literal = r"""//[^\n]*|/\*.*?\*/|(?<!\w)b?r(#*)".*?"\1|"(?:\\.|[^"\\])*"|'(?:\\.[^']*|[^\\'])'"""
+    text = re.sub(literal, " ", path.read_text(encoding="utf-8"), flags=re.S)
+    while m := re.search(r"#\[cfg\(test\)\]\s*(?:#\[[^\]]*\]\s*)*(?:pub\s+)?mod\s+\w+\s*([;{])", text):
+        end, depth = m.end(), int(m[1] == "{")
+        while depth:
+            depth += {"{": 1, "}": -1}.get(text[end], 0)
+            end += 1
+        text = text[: m.start()] + text[end:]
+    return text
+
+
+def _rust_file(module: list[str]) -> Path | None:
+    if not module:
+        return CRATE / "lib.rs"
+    found = [p for p in (CRATE.joinpath(*module).with_suffix(".rs"), CRATE.joinpath(*module, "mod.rs")) if p.is_file()]
+    return found[0] if found else None
+
+
+def _rust_module(path: Path) -> list[str]:
+    parts = list(path.relative_to(CRATE).with_suffix("").parts)
+    return [] if parts == ["lib"] else parts[:-1] if parts[-1] == "mod" else parts
+
+
+def _use_paths(tree: str) -> list[list[str]]:
+    """``a::{b, c::{self, d}}`` -> a::b, a::c, a::c::d."""
+    if tree.startswith("{"):
+        parts, depth, cur = [], 0, ""
+        for ch in tree[1:-1] + ",":
+            if ch == "," and not depth:
+                parts, cur = parts + [cur], ""
+            else:
+                depth, cur = depth + (ch == "{") - (ch == "}"), cur + ch
+        return [p for part in parts if part for p in _use_paths(part)]
+    head, sep, rest = tree.partition("::")
+    if not sep:
+        return [[]] if head in ("self", "*") else [[head]]
+    return [[head] + p for p in _use_paths(rest)]
+
+
+def _uses(code: str, public: bool = False) -> list[list[str]]:
+    found = []
+    for m in re.finditer(r"\b(pub\s*(?:\([^)]*\))?\s*)?use\s+([^;]+);", code):
+        if m[1] or not public:
+            found += _use_paths(re.sub(r"\s+as\s+\w+|\s+", "", m[2]))
+    return found
+
+
+def _absolute(path: list[str], module: list[str], children: set[str]) -> list[str] | None:
+    """A path written in ``module`` from the crate's root; None for other crates."""
+    if path[0] == "crate":
+        return path[1:]
+    if path[0] == "self":
+        return module + path[1:]
+    if path[0] == "super":
+        base = module
+        while path and path[0] == "super":
+            base, path = base[:-1], path[1:]
+        return base + path
+    return module + path if path[0] in children else None
+
+
+def _defining_file(path: list[str], hops: int = 0) -> Path:
+    """The file that defines what ``path`` names, through ``pub use`` re-exports."""
+    module: list[str] = []
+    for i, name in enumerate(path):
+        if _rust_file(module + [name]) is None:
+            code = _rust_code(_rust_file(module))
+            children = set(re.findall(r"\bmod\s+(\w+)\s*;", code))
+            for p in _uses(code, public=True):
+                if p and p[-1] == name and hops < 8:
+                    again = _absolute(p, module, children)
+                    if again is not None and again != module + [name]:
+                        return _defining_file(again + path[i + 1 :], hops + 1)
+            break
+        module.append(name)
+    return _rust_file(module)
+
+
+def _rust_graph() -> dict[str, dict[str, str]]:
+    """File -> the files whose items it uses (-> the first path), from its ``use`` trees and
+    the ``crate::``/``super::``/child-module paths in its code. A module's use of its
+    parent's items (psf/fast.rs of psf/mod.rs) is left out: a child is part of its parent and
+    sees its private items; the parent's use of its children counts."""
+    graph: dict[str, dict[str, str]] = {}
+    for path in sorted(CRATE.rglob("*.rs")):
+        module, code = _rust_module(path), _rust_code(path)
+        children = set(re.findall(r"\bmod\s+(\w+)\s*;", code))
+        body = re.sub(r"\buse\s+[^;]+;", " ", code)
+        paths = _uses(code) + [m[0].split("::") for m in re.finditer(r"(?<![\w:])\w+(?:::\w+)+", body)]
+        for p in paths:
+            a = _absolute(p, module, children) if p else None
+            if a is None:
+                continue
+            target = _defining_file(a)
+            if target is None or target == path or _rust_module(target) == module[: len(_rust_module(target))]:
+                continue
+            here = graph.setdefault(path.relative_to(CRATE).as_posix(), {})
+            here.setdefault(target.relative_to(CRATE).as_posix(), "::".join(p))
+    return graph
+
+
+def test_no_circle_among_the_engines_modules():
+    """crates/psf-engine/src, file by file: the modules use each other one way (a shared
+    type or helper sits in the lower file; the higher one may re-export it)."""
+    graph = _rust_graph()
+    assert "kernel.rs" in graph["trace.rs"] and "psf/traced.rs" in graph["psf/fast.rs"]  # the parser sees uses
+    circles = _circles(graph)
+    assert not circles, "circles among the engine's modules:\n" + _describe(circles, graph)
 
 
 def test_nothing_imports_the_cli():

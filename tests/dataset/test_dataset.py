@@ -312,8 +312,8 @@ def test_engine_failures_are_recorded_not_written(tmp_path):
     trace both; the generator checks), and, with the base lens's apertures kept, one
     whose edge-field chief ray the engine finds clipped.  Each lands in the shard's failure
     list with its reason; the good designs are written."""
-    from optix_e2e.dataset.generate import compute_shard, write_shard
     from optix_e2e.dataset.manifest import prepare
+    from optix_e2e.dataset.shards import compute_shard, write_shard
     from optix_e2e.lens_design.space import load_space
 
     (tmp_path / "lens.json").write_text(json.dumps(Lens.load("cooke-f50").data))

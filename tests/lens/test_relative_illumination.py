@@ -146,8 +146,8 @@ def test_dataset_window_energy_within_one_and_verify_flags_out_of_range(tmp_path
     import json
 
     from optix_e2e.dataset import DatasetSettings, generate, verify
-    from optix_e2e.dataset.generate import compute_shard
     from optix_e2e.dataset.layout import crc32_file
+    from optix_e2e.dataset.shards import compute_shard
     from optix_e2e.lens_design.constraints import Limits
     from optix_e2e.lens_design.sampling import sample_designs
     from optix_e2e.lens_design.space import load_space

@@ -1,5 +1,5 @@
-"""Layout, spot diagrams, report and the ``plot``/``report`` commands (optix_e2e.lens_design.report,
-optix_e2e.lens_design.plots, cli/lens_report.py), and the engine's ray paths (trace_field_path).
+"""Layout, spot diagrams, report and the ``plot``/``report`` commands (optix_e2e.lens_design.analysis,
+optix_e2e.lens_design.report, optix_e2e.lens_design.plots, cli/lens_report.py), and the engine's ray paths (trace_field_path).
 
 Geometry is checked against closed forms (sphere, parabola and asphere sags) and against
 the engine: every path point lies on the Python sag of its surface to 1e-12 mm, which
@@ -17,7 +17,8 @@ from optix_e2e import _engine
 from optix_e2e.cli.lens_report import plot, report
 from optix_e2e.lens import Lens
 from optix_e2e.lens.mtf import field_mtf
-from optix_e2e.lens_design.report import footprint, hexapolar, sag, spot_diagram, surface_geometry
+from optix_e2e.lens.surface import sag
+from optix_e2e.lens_design.analysis import footprint, hexapolar, spot_diagram, surface_geometry
 
 ASPHERIC = {
     "name": "asph-test",

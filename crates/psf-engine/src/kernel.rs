@@ -8,7 +8,30 @@
 
 use crate::lens::{Lens, Surface};
 use crate::surface;
-use crate::trace::Status;
+
+/// How a ray ended: it reached the image plane, or where and why it stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Status {
+    Ok = 0,
+    Missed = 1,
+    Clipped = 2,
+    Tir = 3,
+    Invalid = 4,
+}
+
+impl Status {
+    /// The status for a kernel code (0-4).
+    pub fn from_code(c: u8) -> Status {
+        match c {
+            0 => Status::Ok,
+            1 => Status::Missed,
+            2 => Status::Clipped,
+            3 => Status::Tir,
+            _ => Status::Invalid,
+        }
+    }
+}
 
 /// How far behind its current point a ray may meet the next surface and still count (mm):
 /// rounding only, e.g. a ray that starts on the surface.

@@ -8,44 +8,8 @@ use crate::error::{EngineError, Result};
 use crate::material::Material;
 use serde_json::{Map, Value};
 
-/// Highest even-asphere order supported: a2 .. a20.
-pub const MAX_ASPHERE_TERMS: usize = 10;
-/// Odd-power terms supported (OpticStudio's odd asphere): a1, a3, a5, a7.
-pub const ODD_TERMS: usize = 4;
-
-#[derive(Debug, Clone, PartialEq)]
-pub struct Surface {
-    /// Curvature 1/R (mm^-1); 0 for a plane.
-    pub curvature: f64,
-    pub conic: f64,
-    /// a2, a4, ... a20: coefficient of r^(2(i+1)).
-    pub aspheric: [f64; MAX_ASPHERE_TERMS],
-    /// a1, a3, a5, a7: coefficient of r^(2i+1) (a1 alone is an axicon's cone; no paraxial
-    /// power: a cone has no focus, an r^3 term no curvature at the vertex).
-    pub odd: [f64; ODD_TERMS],
-    /// Thickness to the next surface (or to the image plane for the last surface).
-    pub thickness: f64,
-    /// Global z of the vertex (first surface at 0).
-    pub z: f64,
-    /// Clear semi-diameter; None means no clipping.
-    pub semi_diameter: Option<f64>,
-    pub name: String,
-}
-
-impl Surface {
-    pub fn has_asphere(&self) -> bool {
-        self.aspheric.iter().any(|a| *a != 0.0) || self.has_odd()
-    }
-
-    pub fn has_odd(&self) -> bool {
-        self.odd.iter().any(|a| *a != 0.0)
-    }
-
-    /// Aspheric terms up to the last nonzero one (the rest add nothing).
-    pub fn asphere_terms(&self) -> usize {
-        self.aspheric.iter().rposition(|a| *a != 0.0).map_or(0, |i| i + 1)
-    }
-}
+// A surface's data lives with its geometry (surface.rs); callers name it from here too.
+pub use crate::surface::{Surface, MAX_ASPHERE_TERMS, ODD_TERMS};
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Aperture {

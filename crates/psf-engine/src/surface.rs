@@ -1,9 +1,47 @@
-//! Surface geometry: sag of a conic plus even (and odd) aspheric terms, ray intersection
-//! (closed form for the conic, Newton refinement for the aspheric terms) and the surface
-//! normal.
+//! A surface of the lens (`Surface`) and its geometry: sag of a conic plus even (and odd)
+//! aspheric terms, ray intersection (closed form for the conic, Newton refinement for the
+//! aspheric terms) and the surface normal.
 
-use crate::lens::Surface;
 use glam::DVec3;
+
+/// Highest even-asphere order supported: a2 .. a20.
+pub const MAX_ASPHERE_TERMS: usize = 10;
+/// Odd-power terms supported (OpticStudio's odd asphere): a1, a3, a5, a7.
+pub const ODD_TERMS: usize = 4;
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Surface {
+    /// Curvature 1/R (mm^-1); 0 for a plane.
+    pub curvature: f64,
+    pub conic: f64,
+    /// a2, a4, ... a20: coefficient of r^(2(i+1)).
+    pub aspheric: [f64; MAX_ASPHERE_TERMS],
+    /// a1, a3, a5, a7: coefficient of r^(2i+1) (a1 alone is an axicon's cone; no paraxial
+    /// power: a cone has no focus, an r^3 term no curvature at the vertex).
+    pub odd: [f64; ODD_TERMS],
+    /// Thickness to the next surface (or to the image plane for the last surface).
+    pub thickness: f64,
+    /// Global z of the vertex (first surface at 0).
+    pub z: f64,
+    /// Clear semi-diameter; None means no clipping.
+    pub semi_diameter: Option<f64>,
+    pub name: String,
+}
+
+impl Surface {
+    pub fn has_asphere(&self) -> bool {
+        self.aspheric.iter().any(|a| *a != 0.0) || self.has_odd()
+    }
+
+    pub fn has_odd(&self) -> bool {
+        self.odd.iter().any(|a| *a != 0.0)
+    }
+
+    /// Aspheric terms up to the last nonzero one (the rest add nothing).
+    pub fn asphere_terms(&self) -> usize {
+        self.aspheric.iter().rposition(|a| *a != 0.0).map_or(0, |i| i + 1)
+    }
+}
 
 /// How far below 0 the conic's 1 - (1+k) c^2 r^2 may fall (a relative rounding error) and
 /// still count as the rim: a ball lens whose clear radius equals its radius of curvature
@@ -119,7 +157,7 @@ const NEWTON_TOL: f64 = 1e-13;
 /// (a1 / r + 3 a3 r + 5 a5 r^3 + 7 a7 r^5) / 2. At the vertex an r^1 term (a cone's apex)
 /// has no slope to speak of: the normal there is taken along the axis.
 #[inline(always)]
-fn odd_sag_slope(b: &[f64; crate::lens::ODD_TERMS], rho: f64) -> (f64, f64) {
+fn odd_sag_slope(b: &[f64; ODD_TERMS], rho: f64) -> (f64, f64) {
     let r = rho.sqrt();
     let z = r * (b[0] + rho * (b[1] + rho * (b[2] + rho * b[3])));
     let inv_r = if r > 0.0 { 1.0 / r } else { 0.0 };
@@ -263,13 +301,13 @@ mod tests {
     use super::*;
 
     fn surf(c: f64, k: f64, a4: f64) -> Surface {
-        let mut aspheric = [0.0; crate::lens::MAX_ASPHERE_TERMS];
+        let mut aspheric = [0.0; MAX_ASPHERE_TERMS];
         aspheric[1] = a4;
         Surface {
             curvature: c,
             conic: k,
             aspheric,
-            odd: [0.0; crate::lens::ODD_TERMS],
+            odd: [0.0; ODD_TERMS],
             thickness: 1.0,
             z: 0.0,
             semi_diameter: None,

@@ -708,7 +708,8 @@ pub(crate) fn fits_along<const N: usize>(
     degree: usize,
     fixed_scale: bool,
 ) -> crate::Result<Option<FitTangents<N>>> {
-    use crate::psf::fast::{half_pupil, terms, NT, N_RIM, R_RIM};
+    use crate::psf::fast::{terms, NT, N_RIM, R_RIM};
+    use crate::psf::pupil::half_pupil;
     let (px, py) = half_pupil(NT, N_RIM, R_RIM);
     let Some(pt) = pupil_tangents::<N>(sys, params, field_deg, &px, &py)? else {
         return Ok(None);
@@ -922,7 +923,8 @@ pub fn relative_illumination_tangents<const N: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::psf::fast::{half_pupil, legendre_table, lsq, terms, NT, N_RIM, R_RIM};
+    use crate::psf::fast::{legendre_table, lsq, terms, NT, N_RIM, R_RIM};
+    use crate::psf::pupil::half_pupil;
 
     /// A sampled design of the detect-wide space (tests/data/lenses), aspheric surfaces 1 and 6.
     fn detect_wide() -> Lens {

@@ -8,15 +8,8 @@ use crate::lens::Lens;
 use glam::DVec3;
 use rayon::prelude::*;
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[repr(u8)]
-pub enum Status {
-    Ok = 0,
-    Missed = 1,
-    Clipped = 2,
-    Tir = 3,
-    Invalid = 4,
-}
+// The status codes are the kernel's; callers name them from here.
+pub use crate::kernel::Status;
 
 #[derive(Clone, Copy, Debug)]
 pub struct RayState {
@@ -29,19 +22,6 @@ pub struct RayState {
     pub status: Status,
     /// Surface index (0-based, len = image plane) where the ray failed, or -1.
     pub surface: i32,
-}
-
-impl Status {
-    /// The status for a kernel code (0-4).
-    pub fn from_code(c: u8) -> Status {
-        match c {
-            0 => Status::Ok,
-            1 => Status::Missed,
-            2 => Status::Clipped,
-            3 => Status::Tir,
-            _ => Status::Invalid,
-        }
-    }
 }
 
 impl RayState {

@@ -33,6 +33,7 @@ from ..precision import apply_precision, grad_scaler, resolve_precision
 from ..surrogate.checkpoint import OpticsSurrogate
 from ..surrogate.ground_truth import exact_optics
 from ..tasks import SensorFrame, get_task
+from ..tasks.detector_train import load_detector
 from .alg1 import Block, ProximalCompositional, Vanilla
 from .config import DesignConfig
 from .guard import Manufacturable
@@ -174,12 +175,24 @@ def delta_lens(
 UNTUNED_EPS = 1e-6
 
 
+def tuned_isp_unit(path: "str | Path") -> torch.Tensor:
+    """The hardware ISP's hyperparameters (range-normalized, in (0, 1)) tuned with the detector
+    checkpoint at ``path``; one error naming the file if it holds none."""
+    _, ck = load_detector(path)
+    u = ck.get("isp_unit")
+    n = len(hp.NAMES)
+    if not (isinstance(u, list) and len(u) == n and all(isinstance(v, float) and 0.0 < v < 1.0 for v in u)):
+        raise InputError(
+            f"{path}: no tuned ISP hyperparameters ({n} values in (0, 1)) in this detector checkpoint: "
+            f"make it with `optix detect tune`, or set isp_init = random"
+        )
+    return torch.tensor(u, dtype=torch.float32)
+
+
 def initial_isp_unit(cfg: DesignConfig) -> torch.Tensor:
     """Alg. 1's initialization of P_ISP: uniform random over the ranges (seeded); with
     ``isp_init = "detector"``, the hyperparameters tuned with the start detector."""
     if cfg.isp_init == "detector":
-        from .detector_tuning import tuned_isp_unit
-
         return tuned_isp_unit(cfg.detector)
     rng = np.random.default_rng([2, int(cfg.seed)])
     return torch.as_tensor(hp.to_unit(hp.sample(rng)), dtype=torch.float32)

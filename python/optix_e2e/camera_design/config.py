@@ -27,6 +27,8 @@ except ImportError:  # Python 3.10
 MAX_THREADS = 1024  # torch aborts (a segmentation fault) when asked for tens of thousands
 BIG = 10**7  # steps and counts: far above any real run, far below what overflows
 LENS_STEPS = ("sigmoid", "range")  # DesignConfig.lens_steps
+OPTICS_MODES = ("surrogate", "exact", "hybrid", "auto")  # DesignConfig.optics (hybrid.py)
+REFINE_MODES = ("correction", "network")  # DesignConfig.refine (hybrid.py)
 
 # Every numeric setting's range, checked in one place (DesignConfig.check): (low, high, low
 # excluded). Floats must also be finite. A new numeric setting without a range is a test failure.
@@ -190,8 +192,6 @@ class DesignConfig:
             raise InputError(f"optimizer must be alg1 or vanilla, got {self.optimizer!r}")
         if self.eval_positions not in POSITIONS:
             raise InputError(f"eval_positions must be one of {', '.join(POSITIONS)}, got {self.eval_positions!r}")
-        from .hybrid import OPTICS_MODES, REFINE_MODES
-
         if self.optics not in OPTICS_MODES:
             raise InputError(f"optics must be one of {', '.join(OPTICS_MODES)}, got {self.optics!r}")
         from ..optics.exact import EXACT_GRADIENTS

@@ -153,17 +153,3 @@ def tune_start_detector(
     if scenes:
         log(f"tuned detector behind the nominal camera: validation mAP@0.5 {record['tuned']['map_50']:.3f}")
     return record
-
-
-def tuned_isp_unit(path: "str | Path") -> torch.Tensor:
-    """The hardware ISP's hyperparameters (range-normalized, in (0, 1)) tuned with the detector
-    checkpoint at ``path``; one error naming the file if it holds none."""
-    _, ck = load_detector(path)
-    u = ck.get("isp_unit")
-    n = len(hp.NAMES)
-    if not (isinstance(u, list) and len(u) == n and all(isinstance(v, float) and 0.0 < v < 1.0 for v in u)):
-        raise InputError(
-            f"{path}: no tuned ISP hyperparameters ({n} values in (0, 1)) in this detector checkpoint: "
-            f"make it with `optix detect tune`, or set isp_init = random"
-        )
-    return torch.tensor(u, dtype=torch.float32)

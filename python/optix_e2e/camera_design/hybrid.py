@@ -34,10 +34,7 @@ import torch
 
 from ..errors import InputError
 from ..surrogate.refine import RefineSettings, refine_around
-from .config import task_default
-
-OPTICS_MODES = ("surrogate", "exact", "hybrid", "auto")
-REFINE_MODES = ("correction", "network")
+from .config import REFINE_MODES, task_default
 
 
 def psf_errors(psf: torch.Tensor, psf_true: torch.Tensor) -> list[float]:

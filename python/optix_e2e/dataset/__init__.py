@@ -1,4 +1,4 @@
-"""Sharded, resumable PSF datasets: generation (:mod:`.generate`), checking
+"""Sharded, resumable PSF datasets: generation (:mod:`.generate`, each shard by :mod:`.shards`), checking
 (:mod:`.verify`) and a lazy torch ``Dataset`` (:mod:`.torch_dataset`).  Layout and
 guarantees: docs/dataset.md."""
 

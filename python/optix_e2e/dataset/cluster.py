@@ -173,8 +173,8 @@ def _engine_file_sha() -> str:
 
 
 def _thread_buffers(man: dict) -> tuple:
-    """This worker thread's shard buffers for ``man``'s shard shape (generate.shard_buffers)."""
-    from .generate import shard_buffers
+    """This worker thread's shard buffers for ``man``'s shard shape (shards.shard_buffers)."""
+    from .shards import shard_buffers
 
     key = threading.get_ident()
     shape = (
@@ -204,9 +204,9 @@ def run_shard(out: str, k: int, expect: dict) -> dict:
     ``expect``: the client's identity (:func:`_identity`), checked first on every task, so
     a worker that joins late with another view or build writes nothing."""
     from ..lens_design.sampling import read_designs_csv
-    from .generate import _clean_stale, _complete, compute_shard, write_shard
     from .layout import read_manifest, shards_dir
     from .manifest import space_and_base
+    from .shards import clean_stale, compute_shard, shard_complete, write_shard
 
     mine = _identity(out)
     why = _mismatch(mine, expect, out)
@@ -215,13 +215,13 @@ def run_shard(out: str, k: int, expect: dict) -> dict:
     root = Path(out)
     man = read_manifest(root)
     notes: list[str] = []
-    if _complete(root, k, man, notes.append):
+    if shard_complete(root, k, man, notes.append):
         return {"shard": k, "written": False, "n_ok": 0, "n_failed": 0, "notes": notes}
     space, base = space_and_base(man)
     designs = read_designs_csv(root / "designs.csv", space.names)
     sdir = shards_dir(root)
     if sdir.exists():
-        _clean_stale(sdir, k)
+        clean_stale(sdir, k)
     psf_buf, sensor_buf = _thread_buffers(man)
     arrays, meta = compute_shard(
         k, man, designs, space, base, checked=True, psf_buffer=psf_buf, sensor_buffer=sensor_buf
@@ -298,7 +298,7 @@ def run_shards(
                 pass
     rep.shards_written.sort()
     rep.shard_errors.sort(key=lambda e: e["shard"])
-    from .generate import clean_temporaries
+    from .shards import clean_temporaries
 
     # every task has ended: what a dead worker left of a shard that is now complete goes
     failed = {e["shard"] for e in rep.shard_errors}

@@ -10,8 +10,8 @@ from typing import Sequence
 
 from ..errors import InputError
 from ..io import claim_out_dir, write_json_atomic
-from .generate import temporary_name
 from .layout import DatasetError, differing_keys, read_manifest, shard_name, shards_dir
+from .shards import temporary_name
 from .verify import read_shard_meta
 
 # manifest keys that may differ between processes of one dataset

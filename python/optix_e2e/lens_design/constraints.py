@@ -63,7 +63,7 @@ _ROW_REASON = {
 def apertures(lens: Lens) -> np.ndarray:
     """Clear semi-diameters of ``lens``: the prescription's, else its own ray footprint
     (raises InputError when no ray reaches some surface)."""
-    from .report import footprint
+    from .analysis import footprint
 
     given = [s.get("semi_diameter") for s in lens.surfaces]
     if all(g is not None for g in given):

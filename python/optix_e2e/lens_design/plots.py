@@ -59,7 +59,8 @@ def save_layout_png(
     surface 1 to the image (or to where they are clipped). Returns the traced fans."""
     from matplotlib.patches import Polygon
 
-    from .report import footprint, ray_fans, sag, surface_geometry
+    from ..lens.surface import sag
+    from .analysis import footprint, ray_fans, surface_geometry
 
     fields = list(lens.fields_deg if fields is None else fields)
     wl = lens.primary_wavelength_nm if wavelength_nm is None else wavelength_nm

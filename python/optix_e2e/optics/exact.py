@@ -253,9 +253,9 @@ class ExactOptics:
     def _one_pass(self, v: np.ndarray, g_psf: np.ndarray, g_vig: np.ndarray) -> tuple[np.ndarray | None, str | None]:
         """The engine's gradient at ``v``, or (None, why not)."""
         from .. import engine
-        from ..dataset.generate import focus_points
         from ..dataset.manifest import nearest_image_plane, refocused_designs, space_and_base
         from ..dataset.settings import DatasetSettings
+        from ..dataset.shards import focus_points
 
         self.psfs(v)  # the design and its image distance (cached: the forward pass's)
         z = self._cache[3]

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..dataset.generate import compute_shard
 from ..dataset.manifest import refocused_designs, space_and_base
+from ..dataset.shards import compute_shard
 from ..errors import InputError
 from ..lens import Lens
 

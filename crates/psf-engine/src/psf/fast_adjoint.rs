@@ -221,7 +221,7 @@ fn series(c: &[f64], n: usize, s: f64) -> f64 {
     c[..n].iter().rev().fold(0.0, |a, &k| a * s + k)
 }
 
-/// `fast::cover_cell` in dual numbers (the same branches, taken on the values).
+/// `pupil::cover_cell` in dual numbers (the same branches, taken on the values).
 fn cover_dual<const N: usize>(r: Dual<N>, gx: Dual<N>, gy: Dual<N>) -> Dual<N> {
     let one = Dual::constant(1.0);
     let abs = |x: Dual<N>| if x.v < 0.0 { -x } else { x };
@@ -439,6 +439,7 @@ fn adjoints_body(st: &FastState, gout: &[f64], size: usize) -> [Vec<f64>; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::psf::pupil;
 
     #[test]
     fn the_dual_edge_coverage_is_the_coverage_and_its_slope() {
@@ -452,13 +453,13 @@ mod tests {
             let x = [r, gx, gy];
             let dual: [Dual<3>; 3] = std::array::from_fn(|k| Dual::variable(x[k], k));
             let c = cover_dual(dual[0], dual[1], dual[2]);
-            assert!((c.v - fast::cover_cell(r, gx, gy)).abs() < 1e-14, "{x:?}");
+            assert!((c.v - pupil::cover_cell(r, gx, gy)).abs() < 1e-14, "{x:?}");
             for k in 0..3 {
                 let h = 1e-7 * x[k].abs();
                 let (mut a, mut b) = (x, x);
                 a[k] += h;
                 b[k] -= h;
-                let fd = (fast::cover_cell(a[0], a[1], a[2]) - fast::cover_cell(b[0], b[1], b[2])) / (2.0 * h);
+                let fd = (pupil::cover_cell(a[0], a[1], a[2]) - pupil::cover_cell(b[0], b[1], b[2])) / (2.0 * h);
                 assert!(
                     (fd - c.d[k]).abs() <= 1e-5 * fd.abs().max(1.0),
                     "{x:?} direction {k}: {} vs {fd}",

@@ -10,6 +10,7 @@ use crate::error::{EngineError, Result};
 use crate::trace::{End, RayState, Status, System};
 use glam::DVec3;
 use std::cell::RefCell;
+use std::f64::consts::{FRAC_PI_2, PI};
 use std::sync::Arc;
 
 pub struct Pupil {
@@ -501,5 +502,62 @@ fn jacobians(p: &mut Pupil) {
         if valid[j] && *v < 0.0 {
             *v = mean;
         }
+    }
+}
+
+// The fast FFT's half pupil (fast.rs, and traced.rs for the cells no polynomial follows).
+
+/// Entrance-pupil points of the half pupil px >= 0 (a field along y images it mirror
+/// symmetric): the cell centres of an nt x nt grid over [-1, 1]^2 inside the unit circle, then
+/// `n_rim` points on the half circle of radius `r_rim` from py = -r_rim to py = r_rim.
+pub(crate) fn half_pupil(nt: usize, n_rim: usize, r_rim: f64) -> (Vec<f64>, Vec<f64>) {
+    let coord = |i: usize| -1.0 + (2.0 * i as f64 + 1.0) / nt as f64;
+    let (mut px, mut py) = (vec![], vec![]);
+    for b in 0..nt {
+        for a in nt / 2..nt {
+            let (x, y) = (coord(a), coord(b));
+            if x * x + y * y <= 1.0 {
+                px.push(x);
+                py.push(y);
+            }
+        }
+    }
+    for k in 0..n_rim {
+        let phi = -FRAC_PI_2 + PI * k as f64 / (n_rim - 1) as f64;
+        let x = if k == 0 || k == n_rim - 1 { 0.0 } else { phi.cos() };
+        px.push(r_rim * x);
+        py.push(r_rim * phi.sin());
+    }
+    (px, py)
+}
+
+/// Area fraction of the unit cell inside the pupil edge, branch free: d = signed distance
+/// (cells) from the cell centre to the edge (> 0 inside), (gx, gy) the gradient of r in
+/// cells (n = g / |g|), r the pupil radius at the centre.
+#[inline(always)]
+pub(crate) fn cover_cell(r: f64, gx: f64, gy: f64) -> f64 {
+    let gn = (gx * gx + gy * gy).sqrt();
+    let d = (1.0 - r) / gn;
+    let (ax, ay) = (gx.abs() / gn, gy.abs() / gn);
+    let (a, b) = (ax.max(ay), ax.min(ay));
+    let (lo, hi) = (0.5 * (a - b), 0.5 * (a + b));
+    let dd = d.max(-hi).min(hi);
+    let q1 = (dd + hi) * (dd + hi) / (2.0 * a * b);
+    let q2 = 0.5 + dd / a;
+    let q3 = 1.0 - (hi - dd) * (hi - dd) / (2.0 * a * b);
+    let c = if dd < -lo {
+        q1
+    } else if dd <= lo {
+        q2
+    } else {
+        q3
+    };
+    // Deep inside (also where the gradient vanishes, at the pupil centre): fully covered.
+    if r < 0.5 || d >= hi {
+        1.0
+    } else if d <= -hi {
+        0.0
+    } else {
+        c
     }
 }

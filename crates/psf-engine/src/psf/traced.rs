@@ -15,14 +15,14 @@
 //! 2. The cell's W is that ray's optical path against the reference sphere (no fit: exact
 //!    to the Newton tolerance, NEWTON_TOL in u times dW/du, below 1e-6 waves), its amplitude
 //!    sqrt|d(px, py)/d(u, v)|, and its share of the pupil the area fraction of the cell
-//!    inside the unit circle (fast.rs's `cover_cell`, from r = |(px, py)| and its gradient).
+//!    inside the unit circle (pupil.rs's `cover_cell`, from r = |(px, py)| and its gradient).
 //!
 //! The rest (mirror symmetry in x, the FFT sized from the spot) is fast.rs's. Cost: about
 //! 3 x 5 rays per cell of the bounding box, e.g. 2.4 M rays (0.1 s at 30 M rays/s) for the
 //! 565 cells across the pupil of a 1536-point grid, against a minute or more for Huygens
 //! over a 246 x 246 window.
 
-use super::fast::cover_cell;
+use super::pupil::{cover_cell, half_pupil};
 use crate::aim::Beam;
 use glam::DVec3;
 use num_complex::Complex32;
@@ -286,7 +286,7 @@ const EXTENT_SAMPLES: usize = 48;
 /// set under-reports the spot of a pupil that no polynomial follows, and the grid is sized
 /// from it.
 pub(crate) fn extent(beam: &Beam, chief: DVec3) -> (f64, f64) {
-    let (px, py) = super::fast::half_pupil(EXTENT_SAMPLES, EXTENT_SAMPLES + 1, 0.999);
+    let (px, py) = half_pupil(EXTENT_SAMPLES, EXTENT_SAMPLES + 1, 0.999);
     let t = beam.trace_pupil_soa(&px, &py);
     let (mut ex, mut ey) = (0.0f64, 0.0f64);
     for k in 0..px.len() {

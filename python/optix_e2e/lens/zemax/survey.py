@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ...engine import EngineError
+from ..model import Lens
 from ..text import display_name, printable
 from .common import ZemaxError
 from .reader import _decode
@@ -127,8 +128,6 @@ def _trace_check(lens) -> str:
 
 
 def survey_file(path: Path, root: Path | None = None) -> FileResult:
-    from ..model import Lens  # circular import otherwise
-
     name = display_name(path.relative_to(root) if root else path)  # UTF-8, no control bytes
     try:
         size = path.stat().st_size
