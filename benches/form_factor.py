@@ -66,23 +66,8 @@ def run_one(run: Path, space: str, seed: int, a) -> str:
     res = run / "results.json"
     if res.is_file() and "test_split" in json.loads(res.read_text()):
         return f"{run.name}: done before"
-    cmd = [
-        sys.executable,
-        "-m",
-        "optix_e2e",
-        "design",
-        a.task,
-        "--out",
-        str(run),
-        "--budget",
-        a.budget,
-        "--seed",
-        str(seed),
-        "--threads",
-        str(a.threads),
-        "--quiet",
-        *SPACES[space]["option"],
-    ]
+    flags = f"--budget {a.budget} --seed {seed} --threads {a.threads} --quiet".split()
+    cmd = [sys.executable, "-m", "optix_e2e", "design", a.task, "--out", str(run), *flags, *SPACES[space]["option"]]
     for p in a.test_photos:
         cmd += ["--test-photos", p]
     with open(run.with_suffix(".log"), "a") as log:
