@@ -521,6 +521,25 @@ def test_a_run_folder_copied_with_its_inputs_resumes_where_they_now_lie(tmp_path
     assert json.loads((there / "run2" / "inputs.json").read_text())["detector"]["fingerprint"].startswith("sha256:")
 
 
+def test_a_run_whose_image_folder_changed_in_place_is_refused(tmp_path):
+    """--images names a folder by path; a run killed, its folder edited, then resumed with the
+    same command is another run's inputs: refused in one line naming the setting (the path alone
+    is the same); restored, it resumes."""
+    from optix_e2e.camera_design.config import check_run_dir, make_config
+
+    images = tmp_path / "images"
+    images.mkdir()
+    (images / "a.png").write_bytes(b"picture A")
+    cfg = make_config("smoke", images=str(images))
+    check_run_dir(tmp_path / "run", cfg)
+    check_run_dir(tmp_path / "run", cfg)  # the same content: resumes
+    (images / "b.png").write_bytes(b"picture B")
+    with pytest.raises(ValueError, match=r"what images \(.*images\) holds changed since the run was made"):
+        check_run_dir(tmp_path / "run", cfg)
+    (images / "b.png").unlink()
+    check_run_dir(tmp_path / "run", cfg)
+
+
 def test_batched_evaluation_gives_the_figures_of_one_sample_at_a_time():
     """``evaluate`` takes the ISP and the metrics a batch at a time while each sample keeps its
     own crop position, PSFs and noise draws: the rows of batches of 4 (a partial last batch

@@ -475,8 +475,8 @@ RESUMES_ANYWHERE = ("device",)
 def check_run_dir(out: Path, cfg: DesignConfig) -> None:
     """Write config.json (and inputs.json, what its file settings hold) in a new run directory;
     in an existing one, refuse other settings."""
+    from .inputs import content_changed, same_content
     from .inputs import record as record_inputs
-    from .inputs import same_content
 
     path = out / "config.json"
     if path.is_file():
@@ -497,6 +497,13 @@ def check_run_dir(out: Path, cfg: DesignConfig) -> None:
         if diff:
             detail = ", ".join(f"{k}: {old.get(k)!r} -> {new.get(k)!r}" for k in diff)
             raise InputError(f"{out} was made with other settings ({detail}); use another --out or the same settings")
+        changed = [k for k in PATH_SETTINGS if new.get(k) and content_changed(out, k, new[k])]
+        if changed:
+            detail = ", ".join(f"{k} ({new[k]})" for k in changed)
+            raise InputError(
+                f"{out}: what {detail} holds changed since the run was made (inputs.json); "
+                "restore it, or use another --out"
+            )
         if not (out / "inputs.json").exists():  # a run made before inputs.json: recorded now, as resumed
             record_inputs(out, new, PATH_SETTINGS)
         return

@@ -6,7 +6,9 @@ machine's copy of the tree, a fresh clone) or an input moved next to it names an
 the same file. ``inputs.json`` beside ``config.json`` records each one's content fingerprint when
 the run is made; on resume a setting whose path changed counts as the same where the new path
 holds what the old one held (by the recorded fingerprint, or, for a run made before
-``inputs.json``, by the old path's file where it still exists).
+``inputs.json``, by the old path's file where it still exists); a setting whose path is the same
+but whose content changed since (an --images folder edited between a kill and its resume) is not
+the same run.
 """
 
 from __future__ import annotations
@@ -60,3 +62,16 @@ def same_content(out: Path, key: str, old: str, new: str) -> bool:
     else:
         was = fingerprint(old)
     return was is not None and was == fingerprint(new)
+
+
+def content_changed(out: Path, key: str, path: str) -> bool:
+    """Whether the file or folder ``path`` of setting ``key`` no longer holds what ``inputs.json``
+    recorded for that same path (False where nothing was recorded for it)."""
+    try:
+        rec = json.loads((out / INPUTS_FILE).read_text())
+    except (OSError, ValueError, RecursionError):
+        return False
+    entry = rec.get(key) if isinstance(rec, dict) else None
+    if not (isinstance(entry, dict) and entry.get("path") == path and isinstance(entry.get("fingerprint"), str)):
+        return False
+    return fingerprint(path) != entry["fingerprint"]
