@@ -46,32 +46,31 @@ def record(out: Path, settings: dict, keys) -> None:
     write_json_atomic(out / INPUTS_FILE, rec)
 
 
+def recorded(out: Path, key: str, path: str) -> str | None:
+    """The fingerprint ``inputs.json`` recorded for setting ``key`` at ``path`` (None where it
+    recorded none for that path, or is unreadable)."""
+    try:
+        rec = json.loads((out / INPUTS_FILE).read_text())
+    except (OSError, ValueError, RecursionError):
+        return None
+    entry = rec.get(key) if isinstance(rec, dict) else None
+    if isinstance(entry, dict) and entry.get("path") == path and isinstance(entry.get("fingerprint"), str):
+        return entry["fingerprint"]
+    return None
+
+
 def same_content(out: Path, key: str, old: str, new: str) -> bool:
     """Whether the path setting ``key``, ``old`` when the run was made, ``new`` now, names the
     same content: the fingerprint ``inputs.json`` recorded for ``old`` (or, without one, the
     old path's own where it exists) equals the new path's."""
     if not old or not new:
         return False
-    try:
-        rec = json.loads((out / INPUTS_FILE).read_text())
-    except (OSError, ValueError, RecursionError):
-        rec = None
-    entry = rec.get(key) if isinstance(rec, dict) else None
-    if isinstance(entry, dict) and entry.get("path") == old and isinstance(entry.get("fingerprint"), str):
-        was = entry["fingerprint"]
-    else:
-        was = fingerprint(old)
+    was = recorded(out, key, old) or fingerprint(old)
     return was is not None and was == fingerprint(new)
 
 
 def content_changed(out: Path, key: str, path: str) -> bool:
     """Whether the file or folder ``path`` of setting ``key`` no longer holds what ``inputs.json``
     recorded for that same path (False where nothing was recorded for it)."""
-    try:
-        rec = json.loads((out / INPUTS_FILE).read_text())
-    except (OSError, ValueError, RecursionError):
-        return False
-    entry = rec.get(key) if isinstance(rec, dict) else None
-    if not (isinstance(entry, dict) and entry.get("path") == path and isinstance(entry.get("fingerprint"), str)):
-        return False
-    return fingerprint(path) != entry["fingerprint"]
+    was = recorded(out, key, path)
+    return was is not None and fingerprint(path) != was
