@@ -30,6 +30,7 @@ import json
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -77,6 +78,7 @@ def run_one(run: Path, space: str, seed: int, a) -> str:
     return f"{run.name}: ran"
 
 
+@cache  # each run's file is read once, however many comparisons pair it
 def test_rows(run: Path, who: str) -> list[dict]:
     from optix_e2e.camera_design.evaluate import METRICS as EV
 

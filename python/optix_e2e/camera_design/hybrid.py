@@ -95,11 +95,11 @@ class OpticsMonitor:
     def check(self, step: int, final: bool = False) -> dict:
         t0 = time.perf_counter()
         optics = self.optics
+        if not optics.surrogate.has_network:  # exact optics on a space no network learned (paper-doublet)
+            return self._engine_only(step, t0)
         values = optics.values().detach().double().cpu().numpy()
         # the engine's PSFs (CPU) go to the optics' device once per check
         psf_x, vig_x = (torch.as_tensor(a, device=optics.lo.device) for a in optics.exact.psfs(values))
-        if not optics.surrogate.has_network:  # exact optics on a space no network learned (paper-doublet)
-            return self._engine_only(step, psf_x, t0)
         with torch.no_grad():
             net_psf, _ = optics.surrogate.psfs(optics.values().detach(), check=False)
             model_psf, model_vig = self._model_psfs()
@@ -157,12 +157,13 @@ class OpticsMonitor:
                 self.log(f"{self.name} step {step}: {ev['event']}: {ev['detail']}")
         return rec
 
-    def _engine_only(self, step: int, psf_x: torch.Tensor, t0: float) -> dict:
-        """A check where there is no network to measure: the steps used the engine's own PSFs."""
+    def _engine_only(self, step: int, t0: float) -> dict:
+        """A check where there is no network to measure: the steps used the engine's own PSFs
+        (error 0 at every field), so the engine is not asked for them again."""
         rec = {
             "step": int(step),
             "backend": self.optics.backend,
-            "error_per_field": [0.0] * int(psf_x.shape[0]),
+            "error_per_field": [0.0] * len(self.optics.surrogate.fields_deg),
             "model_error_per_field": None,
             "network_error_per_field": None,
             "vignetting_abs_error_max": 0.0,
@@ -171,7 +172,7 @@ class OpticsMonitor:
         }
         self.checks.append(rec)
         if self.writer is not None:
-            self.writer.add_scalar(f"{self.name}/optics_exact_gradients", 1.0, step)
+            self.writer.add_scalar(f"{self.name}/optics_exact_gradients", float(self.optics.backend == "exact"), step)
         return rec
 
     def _event(self, step: int, kind: str, detail: str, **extra) -> dict:
