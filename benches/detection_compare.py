@@ -14,7 +14,7 @@ import argparse
 import json
 from pathlib import Path
 
-from optix_e2e.camera_design.config import DesignConfig
+from optix_e2e.camera_design.config import run_config
 from optix_e2e.camera_design.detection import detection_scores, paired_map, saved_detections
 from optix_e2e.tasks import SensorFrame, get_task
 from optix_e2e.tasks.detection import heldout_streets
@@ -30,7 +30,7 @@ def main() -> None:
     for r in (args.run_a, args.run_b):
         if not ((r / "config.json").is_file() and (r / "results.json").is_file()):
             raise SystemExit(f"{r}: not a finished design run (no config.json or results.json)")
-    cfgs = [DesignConfig(**json.loads((r / "config.json").read_text())) for r in (args.run_a, args.run_b)]
+    cfgs = [run_config(r) for r in (args.run_a, args.run_b)]
     a, b = cfgs
     if (a.eval_scenes, a.crop_hw, a.seed) != (b.eval_scenes, b.crop_hw, b.seed):
         raise SystemExit("the two runs have different held-out sets (eval_scenes, crop or seed)")

@@ -45,7 +45,7 @@ import torch
 from optix_e2e.camera import FixedOptics
 from optix_e2e.camera_design import eval_cache
 from optix_e2e.camera_design.build import design_field_heights, start_run
-from optix_e2e.camera_design.config import DesignConfig
+from optix_e2e.camera_design.config import DesignConfig, run_config
 from optix_e2e.camera_design.detection import (
     _digest,
     detection_scores,
@@ -72,7 +72,7 @@ def finished_run(run: Path) -> tuple[DesignConfig, dict]:
     if missing:
         raise SystemExit(f"{run}: not a finished design run (no {', '.join(missing)})")
     try:
-        cfg = DesignConfig(**json.loads((run / "config.json").read_text())).check()
+        cfg = run_config(run).check()
         res = json.loads((run / "results.json").read_text())
     except (TypeError, ValueError, InputError) as err:  # damaged or hand-edited files
         raise SystemExit(f"{run}: not a readable design run ({err})") from None

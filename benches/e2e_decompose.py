@@ -29,7 +29,7 @@ import torch
 
 from optix_e2e.camera import Camera
 from optix_e2e.camera_design.build import build_camera, load_surrogate
-from optix_e2e.camera_design.config import DesignConfig
+from optix_e2e.camera_design.config import DesignConfig, run_config
 from optix_e2e.tasks import SensorFrame, TaskLoss, get_task, training_batch
 from optix_e2e.torchfile import load_plain
 
@@ -47,7 +47,7 @@ def main() -> None:
     )
     a = ap.parse_args()
     run = Path(a.run)
-    cfg = DesignConfig(**json.loads((run / "config.json").read_text())).check()
+    cfg = run_config(run).check()
     if a.val_seed == cfg.seed:
         raise SystemExit(f"--val-seed must differ from the run's seed {cfg.seed} (its training batches)")
     sur = load_surrogate(cfg.surrogate)

@@ -75,7 +75,7 @@ def main() -> None:
                         "task": task,
                         "seed": seed,
                         "camera": who,
-                        # the optics the run trained on (a resumed folder keeps its own: FORMER_DEFAULTS)
+                        # the optics the run trained on (a resumed folder keeps its own settings)
                         "optics": (res.get("optics_model") or {}).get("mode", "surrogate"),
                         **{m: res[who][m] for m, _ in METRICS},
                         **{f"{m}_surrogate_optics": res[who]["surrogate"][m] for m, _ in METRICS},

@@ -49,8 +49,9 @@ from optix_e2e.camera import PerfectOptics
 from optix_e2e.camera_design import eval_cache
 from optix_e2e.camera_design import evaluate as ev
 from optix_e2e.camera_design.build import build_camera, delta_lens, make_optimizer, nominal_shading, start_run
-from optix_e2e.camera_design.config import BEFORE_SETTING, DesignConfig
+from optix_e2e.camera_design.config import DesignConfig, run_config
 from optix_e2e.camera_design.training import train
+from optix_e2e.errors import InputError
 from optix_e2e.io import write_json_atomic
 from optix_e2e.optics.render import shade
 from optix_e2e.scenes import ImageFolder
@@ -126,8 +127,10 @@ def ideal_lens(kind: str, sur, results: dict, window: int, cfg: DesignConfig, fr
 
 
 def room(run: Path, out: Path, threads: int | None, progress: bool, kind: str = "perfect") -> dict:
-    # a setting the run's config.json lacks ran under its behaviour before it existed
-    cfg = DesignConfig(**{**BEFORE_SETTING, **run_json(run, "config.json")}).check()
+    try:
+        cfg = run_config(run).check()
+    except InputError as err:
+        raise SystemExit(str(err)) from None
     if cfg.task == "detection":
         raise SystemExit(f"{run}: a detection run; this bench is for the image-quality tasks")
     if threads is not None:
@@ -151,8 +154,6 @@ def room(run: Path, out: Path, threads: int | None, progress: bool, kind: str = 
         raise SystemExit(f"{run}: the rebuilt held-out set is not the run's (another code version?)")
     settings = {"run": str(run.resolve()), "window_px": window, "lens": kind, **cfg.to_json()}
     made = json.loads((out / "config.json").read_text()) if (out / "config.json").is_file() else None
-    if made is not None:  # a setting made after the folder was: its behaviour before it existed
-        made = {**{k: v for k, v in BEFORE_SETTING.items() if k not in made}, **made}
     if made is not None and made != settings:
         raise SystemExit(f"{out} was made for another run or settings; use another --out")
     out.mkdir(parents=True, exist_ok=True)

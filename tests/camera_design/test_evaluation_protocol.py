@@ -14,7 +14,7 @@ from torch import nn
 from optix_e2e.camera_design import eval_cache
 from optix_e2e.camera_design import evaluate as ev
 from optix_e2e.camera_design.build import make_optimizer
-from optix_e2e.camera_design.config import DesignConfig, check_run_dir, make_config, run_dir_settings
+from optix_e2e.camera_design.config import DesignConfig, check_run_dir, load_config, make_config, resume_settings
 from optix_e2e.tasks.samples import POSITIONS
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -130,19 +130,19 @@ def test_summary_lines_give_the_headline_against_the_better_baseline_and_the_cen
 def test_an_old_run_made_with_frame_positions_resumes_with_them(tmp_path):
     old = make_config("smoke", eval_positions="frame")
     check_run_dir(tmp_path / "run", old)
-    today = make_config("smoke")
+    today, given = load_config("smoke")
     assert today.eval_positions == "frame+centre+corner"
     with pytest.raises(ValueError, match="other settings.*eval_positions"):
         check_run_dir(tmp_path / "run", today)
-    kept = run_dir_settings(tmp_path / "run", today)
+    kept = resume_settings(tmp_path / "run", today, given)
     assert kept == old
     check_run_dir(tmp_path / "run", kept)  # accepted: the run resumes as it was made
-    # a new folder, or one made with today's default, is left alone; so is a choice made on purpose
-    assert run_dir_settings(tmp_path / "new", today) == today
+    # a new folder, or one made with today's default, is left alone; a choice given is held to the folder
+    assert resume_settings(tmp_path / "new", today, given) == today
     check_run_dir(tmp_path / "today", today)
-    assert run_dir_settings(tmp_path / "today", today) == today
-    cc = make_config("smoke", eval_positions="centre-corner")
-    assert run_dir_settings(tmp_path / "run", cc) == cc
+    assert resume_settings(tmp_path / "today", today, given) == today
+    cc, given = load_config("smoke", eval_positions="centre-corner")
+    assert resume_settings(tmp_path / "run", cc, given) == cc
 
 
 # ----- the same number of processing updates for both cameras ------------------------------------

@@ -361,8 +361,23 @@ def read_config_file(path: Path) -> dict:
     return data
 
 
-def make_config(budget: str = "quick", file: "str | Path | None" = None, **overrides) -> DesignConfig:
-    """The budget's settings, then the TOML file's, then ``overrides`` (None values ignored)."""
+#: settings an optimizer never reads: given under it, they are refused (Alg. 1's per-block rates and
+#: prox weights under vanilla's one rate, and vanilla's rate under Alg. 1; build.make_optimizer)
+UNUSED_BY: dict[str, tuple[str, ...]] = {
+    "vanilla": ("lr_optics", "lr_isp_net", "lr_isp_params", "lr_detector", "beta_optics", "beta_isp", "beta_detector"),
+    "alg1": ("lr_vanilla",),
+}
+
+
+def load_config(
+    budget: "str | None" = "quick", file: "str | Path | None" = None, **overrides
+) -> tuple[DesignConfig, frozenset[str]]:
+    """The budget's settings (None: quick, not given), then the TOML file's, then ``overrides``
+    (None values ignored); with the names of the settings the user gave (the budget unless None,
+    the file's, the non-None overrides'): a resumed run takes every other setting from its
+    folder (``resume_settings``)."""
+    budget_given = budget is not None
+    budget = "quick" if budget is None else budget
     if budget not in BUDGETS:
         raise InputError(f"unknown budget {budget!r}: known budgets are {', '.join(BUDGETS)}")
     fields = {f.name for f in dataclasses.fields(DesignConfig)}
@@ -371,8 +386,11 @@ def make_config(budget: str = "quick", file: "str | Path | None" = None, **overr
     if task is None and file is not None:
         task = read_config_file(Path(file)).get("task")
     values.update(TASK_BUDGETS.get(task or DesignConfig.task, {}).get(budget, {}))
+    given = {k for k, v in overrides.items() if v is not None}
+    where = "on the command line"
     if file is not None:
         path = Path(file)
+        where = f"in {path}"
         data = read_config_file(path)
         unknown = sorted(set(data) - fields)
         if "budget" in data:
@@ -388,6 +406,7 @@ def make_config(budget: str = "quick", file: "str | Path | None" = None, **overr
             values[k] = v
             if overrides.get(k) is not None and overrides[k] != v:  # the command line and the file disagree
                 raise InputError(f"{path}: {k} = {v!r} here, {overrides[k]!r} on the command line; say it once")
+        given |= set(data)
         check_ranges(data, what=f"{path}: setting")
         # a GPU the machine lacks, a precision it cannot run: the error names the file
         if "device" in data:
@@ -395,81 +414,79 @@ def make_config(budget: str = "quick", file: "str | Path | None" = None, **overr
         if "precision" in data:
             from ..precision import resolve_precision
 
-            where = overrides.get("device") or data.get("device") or DesignConfig.device
-            resolve_precision(data["precision"], resolve_device(where), option=f"{path}: precision")
+            where_run = overrides.get("device") or data.get("device") or DesignConfig.device
+            resolve_precision(data["precision"], resolve_device(where_run), option=f"{path}: precision")
     values.update({k: v for k, v in overrides.items() if v is not None})
-    return DesignConfig(**values).check()
+    optimizer = values.get("optimizer", DesignConfig.optimizer)
+    unused = sorted(given & set(UNUSED_BY.get(optimizer, ())))
+    if unused:
+        raise InputError(
+            f"{', '.join(unused)} given {where}, but the {optimizer} optimizer does not use "
+            f"{'it' if len(unused) == 1 else 'them'}; remove {'it' if len(unused) == 1 else 'them'}"
+            + (" (vanilla's one rate is lr_vanilla)" if optimizer == "vanilla" else "")
+        )
+    return DesignConfig(**values).check(), frozenset(given | ({"budget"} if budget_given else set()))
 
 
-#: settings whose default has changed, with the default they had before: a run directory made
-#: under the former default keeps it when the command leaves the setting at today's default, so
-#: the run resumes as it was made (eval_positions was "frame" until 2026-11-27, issue 34; optics
-#: was "surrogate" until then too)
-FORMER_DEFAULTS: dict[str, object] = {
-    "eval_positions": "frame",
-    "guard": "project",
-    "train_positions": "frame",
-    "optics": "surrogate",
-}
-#: a task's budget values that have changed, with the value they had before, by (task, budget,
-#: setting): a run directory made with the former value keeps it when the command leaves the
-#: setting at the task budget's value today (detection's quick lr_optics was 3e-2 until 2026-11-28)
-FORMER_TASK_DEFAULTS: dict[tuple[str, str, str], object] = {
-    ("detection", "quick", "lr_optics"): 3e-2,
-}
-#: settings a run directory made before they existed ran under: a config.json without the key
-#: keeps that behaviour (the guard was the projection until guard existed; the optics the surrogate
-#: until optics existed)
-BEFORE_SETTING: dict[str, object] = {
-    "guard": "project",
-    "train_positions": "frame",
-    "optics": "surrogate",
-    "lens_steps": "sigmoid",
-    "exact_gradient": "differences",
-}
-
-
-def run_dir_settings(out: Path, cfg: DesignConfig) -> DesignConfig:
-    """``cfg`` with the settings an existing run directory ``out`` was made with under a former
-    default (``FORMER_DEFAULTS``) where ``cfg`` has today's default; ``cfg`` unchanged for a new,
-    unreadable or other directory (check_run_dir then decides). Read-only: every rank may call it."""
-    try:
-        old = json.loads((Path(out) / "config.json").read_text())
-    except (OSError, ValueError, RecursionError):
-        return cfg
-    if not isinstance(old, dict):
-        return cfg
-    today = DesignConfig()
-    raw, old = old, {**BEFORE_SETTING, **old}
-    keep = {
-        k: old[k]
-        for k, former in FORMER_DEFAULTS.items()
-        if old.get(k) == former and getattr(cfg, k) == getattr(today, k) != former
-    }
-    # a setting made after the run was: the run keeps how it ran where the command leaves the
-    # setting at what the task's budget would give it today (detection's lens_steps, 2026-11-28)
-    keep.update(
-        {
-            k: before
-            for k, before in BEFORE_SETTING.items()
-            if k not in raw and k not in keep and getattr(cfg, k) == task_default(cfg.task, cfg.budget, k) != before
-        }
-    )
-    keep.update(
-        {
-            k: former
-            for (task, budget, k), former in FORMER_TASK_DEFAULTS.items()
-            if (task, budget) == (cfg.task, cfg.budget)
-            and k not in keep
-            and old.get(k) == former
-            and getattr(cfg, k) == task_default(task, budget, k) != former
-        }
-    )
-    return dataclasses.replace(cfg, **keep).check() if keep else cfg
+def make_config(budget: "str | None" = "quick", file: "str | Path | None" = None, **overrides) -> DesignConfig:
+    """``load_config``'s settings alone."""
+    return load_config(budget, file, **overrides)[0]
 
 
 #: settings a run directory does not hold its run to: a run made on one device resumes on another
 RESUMES_ANYWHERE = ("device",)
+
+
+def read_run_config(out: "str | Path") -> "dict | None":
+    """The settings a run folder was made with (its config.json), None where it has none yet;
+    one error if the file is damaged or does not name every setting of today's DesignConfig
+    (a folder made before a setting existed: config.json gains it, with the value the run used)."""
+    path = Path(out) / "config.json"
+    if not path.is_file():
+        return None
+    try:
+        old = json.loads(read_small_text(path, what="run config"))
+    except (OSError, ValueError, RecursionError):  # unreadable, not UTF-8, not JSON, too deep
+        old = None
+    if not isinstance(old, dict):
+        raise InputError(f"{path} is damaged; remove the directory or choose another --out")
+    missing = [f.name for f in dataclasses.fields(DesignConfig) if f.name not in old]
+    if missing:
+        one = len(missing) == 1
+        raise InputError(
+            f"{path} does not say how the run was made for {', '.join(missing)} (made before "
+            f"{'that setting' if one else 'those settings'} existed): add {'it' if one else 'them'} to "
+            f"config.json with the value{'' if one else 's'} the run used, or use another --out"
+        )
+    return old
+
+
+def run_config(out: "str | Path") -> DesignConfig:
+    """The settings a finished or interrupted run folder was made with; one error if it has none."""
+    old = read_run_config(out)
+    if old is None:
+        raise InputError(f"{out}: not a design run folder (no config.json)")
+    unknown = sorted(set(old) - {f.name for f in dataclasses.fields(DesignConfig)})
+    if unknown:
+        raise InputError(f"{Path(out) / 'config.json'}: settings this version does not have: {', '.join(unknown)}")
+    return DesignConfig(**old)
+
+
+def resume_settings(out: "str | Path", cfg: DesignConfig, given: "frozenset[str] | None") -> DesignConfig:
+    """The settings a run in ``out`` goes on with: where the folder holds a run (config.json),
+    every setting the user did not give (``given``, from load_config; None: all given) is the
+    folder's, so a run resumes as it was made whatever today's defaults are; check_run_dir then
+    holds the given ones to the folder's. ``cfg`` for a new folder. Read-only: every rank may
+    call it."""
+    old = read_run_config(out)
+    if old is None or given is None:
+        return cfg
+    taken = {
+        f.name: old[f.name]
+        for f in dataclasses.fields(DesignConfig)
+        if f.name not in given and f.name not in RESUMES_ANYWHERE and old[f.name] != getattr(cfg, f.name)
+    }
+    return dataclasses.replace(cfg, **taken).check() if taken else cfg
 
 
 def check_run_dir(out: Path, cfg: DesignConfig) -> None:
@@ -478,18 +495,9 @@ def check_run_dir(out: Path, cfg: DesignConfig) -> None:
     from .inputs import content_changed, same_content
     from .inputs import record as record_inputs
 
-    path = out / "config.json"
-    if path.is_file():
-        try:
-            old = json.loads(path.read_text())
-        except (OSError, ValueError, RecursionError):  # unreadable, not UTF-8, not JSON, nested too deeply
-            old = None
-        if not isinstance(old, dict):
-            raise InputError(f"{path} is damaged; remove the directory or choose another --out")
+    old = read_run_config(out)
+    if old is not None:
         new = cfg.to_json()
-        # a setting added since the run was made counts as its default there
-        defaults = DesignConfig().to_json()
-        old = {**{k: v for k, v in defaults.items() if k not in old}, **BEFORE_SETTING, **old}
         diff = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k) and k not in RESUMES_ANYWHERE)
         # a file setting at another path that holds the same content (the run folder and its
         # inputs copied to another machine): the same run (camera_design/inputs.py)
@@ -510,5 +518,5 @@ def check_run_dir(out: Path, cfg: DesignConfig) -> None:
     claim_out_dir(out, "design run", marker="config.json")
     out.mkdir(parents=True, exist_ok=True)
     settings = cfg.to_json()
-    write_json_atomic(path, settings)
+    write_json_atomic(out / "config.json", settings)
     record_inputs(out, settings, PATH_SETTINGS)

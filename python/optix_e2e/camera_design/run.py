@@ -36,7 +36,7 @@ from ..scenes.corpus import PhotoCorpus
 from ..surrogate.ground_truth import exact_optics
 from . import outputs
 from .build import design_field_heights, lens_step_scale, make_optimizer, start_record, start_run
-from .config import DesignConfig, check_run_dir, run_dir_settings
+from .config import DesignConfig, check_run_dir, resume_settings
 from .detection import DetectionHooks
 from .image_quality import ImageQualityHooks
 from .task_hooks import TaskHooks
@@ -74,20 +74,25 @@ def claim_run_dir(out: Path, cfg: DesignConfig, ranks: parallel.Ranks, progress:
 
 
 def run_design(
-    cfg: DesignConfig, out: "str | Path", *, progress: bool = True, log=print, test_photos=()
+    cfg: DesignConfig,
+    out: "str | Path",
+    *,
+    given: "frozenset[str] | None" = None,
+    progress: bool = True,
+    log=print,
+    test_photos=(),
 ) -> dict | None:
-    """The whole run; returns the results (also written to out/results.json). Under torchrun
+    """The whole run; returns the results (also written to out/results.json). Where ``out``
+    holds a run already, the settings not named in ``given`` (config.load_config; None: every
+    setting given) are the folder's, and the run resumes as it was made. Under torchrun
     (``torchrun --nproc_per_node N -m optix_e2e design ...``) the N processes share each
     training batch (optix_e2e.parallel); rank 0 alone evaluates and writes, and the other
     ranks return None once the trainings are done."""
     ranks = parallel.setup(cfg.device)  # cfg.device: --device (torchrun: gloo on the CPU, NCCL on CUDA)
-    kept = run_dir_settings(Path(out), cfg)  # an old run keeps a former default (config.FORMER_DEFAULTS)
+    kept = resume_settings(Path(out), cfg, given)  # an existing run: what the user did not give, the folder's
     if kept != cfg and ranks.is_main:
-        log(
-            "this run was made with "
-            + ", ".join(f"{k} = {getattr(kept, k)!r}" for k in kept.to_json() if getattr(kept, k) != getattr(cfg, k))
-            + " (the default then, or how it ran before the setting existed); it keeps it"
-        )
+        taken = [f"{k} = {getattr(kept, k)!r}" for k in kept.to_json() if getattr(kept, k) != getattr(cfg, k)]
+        log(f"{out} resumes with its own {', '.join(taken)} (config.json; give a setting to hold the run to it)")
     cfg = kept
     # the untouched test split (docs/test-split.md), checked before anything runs; not a setting of
     # the run: evaluated when asked for, on a finished run too (its trainings and evaluations reused)

@@ -33,9 +33,8 @@ from ._common import DEVICE_HELP, PRECISION_HELP, SEED, THREADS, dumps, friendly
 @click.option(
     "--budget",
     type=click.Choice(["smoke", "quick", "full"]),
-    default="quick",
-    show_default=True,
-    help="smoke: seconds (tests); quick: the main job; full: the figures we report.",
+    default=None,
+    help="smoke: seconds (tests); quick (the default): the main job; full: the figures we report.",
 )
 @click.option("--seed", type=SEED, default=None, help="Initialization, batches and noise (default 0).")
 @click.option(
@@ -120,13 +119,13 @@ def design(
     `torchrun --nproc_per_node N -m optix_e2e design ...` shares each training batch over N
     processes (gloo; the batch must divide by N; docs/distributed.md)."""
     from .. import parallel
-    from ..camera_design.config import make_config
+    from ..camera_design.config import load_config
     from ..camera_design.run import run_design, summary_lines
     from ..device import resolve_device
 
     if device is not None:
         resolve_device(device)  # a GPU that is not there: one error naming --device
-    cfg = make_config(
+    cfg, given = load_config(
         budget,
         config_file,
         task=task,
@@ -143,7 +142,9 @@ def design(
         precision=precision,
     )
     try:
-        res = run_design(cfg, Path(out), progress=not quiet, log=click.echo, test_photos=tuple(test_photos))
+        res = run_design(
+            cfg, Path(out), given=given, progress=not quiet, log=click.echo, test_photos=tuple(test_photos)
+        )
     finally:
         parallel.teardown()
     if res is None:  # not rank 0 of a torchrun run: rank 0 reports
