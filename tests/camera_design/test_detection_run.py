@@ -131,7 +131,7 @@ def test_the_start_detector_tuned_behind_the_nominal_camera_starts_a_design_run(
     import torch
 
     from optix_e2e.camera_design.config import make_config
-    from optix_e2e.camera_design.detection import BUNDLED_DETECTOR, load_start_detector
+    from optix_e2e.camera_design.detection import load_start_detector
     from optix_e2e.camera_design.detector_tuning import tune_start_detector
     from optix_e2e.tasks.detector_train import load_detector
 
@@ -141,7 +141,7 @@ def test_the_start_detector_tuned_behind_the_nominal_camera_starts_a_design_run(
     for k in ("start", "tuned"):
         assert 0.0 <= rec[k]["map_50"] <= 1.0
     _, ck = load_detector(tmp_path / "tune" / "detector.pt")
-    assert ck["step"] == 2 and ck["tuned"]["detector"] == BUNDLED_DETECTOR.name
+    assert ck["step"] == 2 and ck["tuned"]["detector"] == "street_tuned.pt"  # the default start (shipped)
     tuned = load_start_detector(
         make_config("smoke", task="detection", detector=str(tmp_path / "tune" / "detector.pt")), cfg.crop_hw
     )
@@ -180,7 +180,7 @@ def test_isp_init_from_the_detector_is_refused_where_it_cannot_hold(tmp_path):
     with pytest.raises(ValueError, match="isp_init must be random or detector"):
         make_config("smoke", task="detection", isp_init="tuned").check()
     with pytest.raises(ValueError, match="needs the detection task and a tuned checkpoint"):
-        make_config("smoke", task="detection", isp_init="detector").check()  # the bundled detector holds no ISP
+        make_config("smoke", task="detection", detector="", isp_init="detector").check()  # the first holds no ISP
     (tmp_path / "d.pt").write_bytes(b"")
     with pytest.raises(ValueError, match="needs the detection task"):
         make_config("smoke", task="iq-hardware", isp_init="detector", detector=str(tmp_path / "d.pt")).check()

@@ -34,6 +34,7 @@ from ..surrogate.checkpoint import OpticsSurrogate
 from ..surrogate.ground_truth import exact_optics
 from ..tasks import SensorFrame, get_task
 from ..tasks.detector_train import load_detector
+from ..tasks.shipped_detectors import detector_file
 from .alg1 import Block, ProximalCompositional, Vanilla
 from .config import DesignConfig
 from .guard import Manufacturable
@@ -193,7 +194,7 @@ def initial_isp_unit(cfg: DesignConfig) -> torch.Tensor:
     """Alg. 1's initialization of P_ISP: uniform random over the ranges (seeded); with
     ``isp_init = "detector"``, the hyperparameters tuned with the start detector."""
     if cfg.isp_init == "detector":
-        return tuned_isp_unit(cfg.detector)
+        return tuned_isp_unit(detector_file(cfg.detector))
     rng = np.random.default_rng([2, int(cfg.seed)])
     return torch.as_tensor(hp.to_unit(hp.sample(rng)), dtype=torch.float32)
 

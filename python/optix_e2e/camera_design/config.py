@@ -17,6 +17,7 @@ from ..errors import InputError
 from ..io import claim_out_dir, read_small_text, write_json_atomic
 from ..tasks import get_task
 from ..tasks.samples import POSITIONS, TRAIN_POSITIONS
+from ..tasks.shipped_detectors import check_detector_setting, is_shipped
 
 try:
     import tomllib
@@ -120,7 +121,9 @@ class DesignConfig:
     beta_optics: float = 0.1  # Eq. 15's beta per block
     beta_isp: float = 0.0
     # the detection task's third block, the detector (tasks/detection.py)
-    detector: str = ""  # the pre-trained detector to start from ("": the bundled one)
+    # the pre-trained detector to start from: a shipped detector's name (tasks/bundled/detectors.json;
+    # "": "street", the first one shipped) or a checkpoint's path; the detection budgets: "street-tuned"
+    detector: str = ""
     # where the hardware ISP's hyperparameters start: "random" (Alg. 1: uniform over their
     # ranges, drawn from the seed) or "detector" (the ones tuned with the start detector behind
     # the nominal camera, stored in its checkpoint by `optix detect tune`)
@@ -224,7 +227,8 @@ class DesignConfig:
         if self.isp_init == "detector" and (self.task != "detection" or not self.detector):
             raise InputError(
                 "isp_init = detector starts the hardware ISP where `optix detect tune` left it: it needs "
-                "the detection task and a tuned checkpoint as its detector setting"
+                "the detection task and a tuned checkpoint as its detector setting (street-tuned, or one "
+                "`optix detect tune` made); or set isp_init = random"
             )
         if self.optics_init not in ("nominal", "uniform"):
             raise InputError(f"optics_init must be nominal or uniform, got {self.optics_init!r}")
@@ -268,8 +272,8 @@ class DesignConfig:
             raise InputError(f"photos: no such folder {self.photos}")
         if self.software_isp and not Path(self.software_isp).is_file():
             raise InputError(f"software_isp: no such file {self.software_isp}")
-        if self.detector and not Path(self.detector).is_file():
-            raise InputError(f"detector: no such file {self.detector}")
+        if self.detector:
+            check_detector_setting(self.detector)
         if self.total_steps < 1:
             raise InputError("the schedule has no step (n_cycles and n_finetune both 0)")
         from ..precision import resolve_precision
@@ -305,23 +309,16 @@ BUDGETS: dict[str, dict] = {
 # crops and held-out street scenes (>= 500 objects at quick). The lens moves in the wide
 # detection space (f/2.8-4.6, free centre thicknesses; docs/detection.md) on the engine's exact
 # PSFs and gradients: no network has learned that space. Smoke (tests) keeps the narrow space's
-# surrogate. At quick the lens learned at 3e-2 (until 2026-11-28): Adam moves a
-# sigmoid-parameterized value about lr per step, so from the nominal f/4.4 (at 0.89 of its
-# range) 90 lens steps that all ask for a faster lens reach f/4.15 at the paper's 1e-2, f/3.6
-# at 0.022 and f/3.28 at 3e-2; the full
-# budget's 350 lens steps at 1e-2 reach f/3.07 (test_detection_parts.py). Those runs moved the
-# aperture at 0.22-0.58 of Adam's full step, and the sigmoid alone gave the aperture 0.4 of
-# the first step a mid-range parameter gets: since 2026-11-28 every detection budget evens the
-# steps out (lens_steps = "range", 2.53x for the aperture at f/4.4; docs/detection.md). Even so
-# the quick run at 3e-2 stopped at f/3.90: Adam on a noisy detection gradient went as far as 0.21
-# of the lr would on a steady one (the full seeds' f/3.41-3.82 fit the same share). Since
-# 2026-11-28 (second change) quick's lens learns at 5e-2: at that share its 90 lens steps reach
-# f/3.4, the full budget's fastest seed (3.9e-2, the full budget's lr x lens steps, f/3.66);
-# test_detection_parts.py.
-_DETECTION = dict(surrogate="paper-triplet-detect", optics="surrogate", lens_steps="range")
-_DETECTION_WIDE = dict(
-    surrogate="paper-triplet-detect", space="paper-triplet-detect-wide", optics="exact", lens_steps="range"
-)
+# surrogate. Both cameras start from the shipped detector tuned behind the nominal lens with the
+# hardware ISP (street-tuned) and from that ISP (isp_init = "detector"): the start the runs found
+# best (docs/detection.md, "Out of the box"). Each lens parameter's steps are evened out over its
+# range (lens_steps = "range": the nominal f/4.4 sits at 0.89 of its range, where Adam's steps in
+# the sigmoid's argument barely move it), and quick's lens learns at 5e-2, so that its 90 lens
+# steps on a noisy detection gradient go as far as the full budget's 350 at 1e-2
+# (docs/detection.md, "The quick budget at lr 5e-2"; test_detection_parts.py).
+_START = dict(detector="street-tuned", isp_init="detector", lens_steps="range")
+_DETECTION = dict(_START, surrogate="paper-triplet-detect", optics="surrogate")
+_DETECTION_WIDE = dict(_START, surrogate="paper-triplet-detect", space="paper-triplet-detect-wide", optics="exact")
 TASK_BUDGETS: dict[str, dict[str, dict]] = {
     "detection": {
         "smoke": dict(_DETECTION, crop=64, crop_width=96, steps_detector=2, eval_scenes=4),
@@ -356,7 +353,7 @@ def read_config_file(path: Path) -> dict:
         raise InputError(f"{path}: not a config file (nested too deeply to parse)") from None
     for k in PATH_SETTINGS:
         v = data.get(k)
-        if isinstance(v, str) and v and not Path(v).is_absolute():
+        if isinstance(v, str) and v and not Path(v).is_absolute() and not (k == "detector" and is_shipped(v)):
             data[k] = str((path.parent / v).resolve())  # relative to the config file
     return data
 

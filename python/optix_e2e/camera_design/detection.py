@@ -38,19 +38,19 @@ from ..tasks import SensorFrame, get_task
 from ..tasks.detection import DetectionCamera, heldout_streets, street_batch
 from ..tasks.detector import in_the_dark, make_detector, mean_average_precision
 from ..tasks.detector_train import load_detector
+from ..tasks.shipped_detectors import detector_file
 from . import eval_cache
 from .build import build_camera
 from .config import DesignConfig
 from .outputs import save_panels
 from .task_hooks import TaskHooks
 
-BUNDLED_DETECTOR = Path(__file__).resolve().parent.parent / "tasks" / "bundled" / "street_detector.pt"
 PANEL_SCORE = 0.3  # detections drawn in the panels: score at least this
 
 
 def load_start_detector(cfg: DesignConfig, size: tuple[int, int]) -> torch.nn.Module:
     """The pre-trained detector both trainings start from, built for crops of ``size``."""
-    path = Path(cfg.detector) if cfg.detector else BUNDLED_DETECTOR
+    path = detector_file(cfg.detector)
     if not path.is_file():
         raise FileNotFoundError(f"the pre-trained detector is missing: {path}")
     model, ck = load_detector(path)

@@ -36,9 +36,10 @@ from ..io import claim_out_dir, write_json_atomic
 from ..isp import params as hp
 from ..tasks.detection import VALIDATION_STREETS, heldout_streets
 from ..tasks.detector_train import load_detector, save_detector
+from ..tasks.shipped_detectors import detector_file
 from .build import make_optimizer, start_run
 from .config import DesignConfig
-from .detection import BUNDLED_DETECTOR, detection_scores, evaluate_detection
+from .detection import detection_scores, evaluate_detection
 from .run import hooks_for
 from .training import train, write_history
 
@@ -71,7 +72,7 @@ def tune_start_detector(
     out, task, frame, sur = start_run(cfg, out)
     hooks = hooks_for(cfg, "cpu")
     hooks.check(sur, parallel.Ranks())
-    start_detector = Path(cfg.detector) if cfg.detector else BUNDLED_DETECTOR
+    start_detector = detector_file(cfg.detector)
     _, start_ck = load_detector(start_detector)
     settings = {
         "detector": start_detector.name,

@@ -19,6 +19,7 @@ from pathlib import Path
 
 from ..dataset.layout import sha256_file
 from ..io import write_json_atomic
+from ..tasks.shipped_detectors import detector_file
 
 INPUTS_FILE = "inputs.json"
 
@@ -40,9 +41,16 @@ def fingerprint(value: str) -> str | None:
     return None
 
 
+def located(key: str, value: str) -> str:
+    """Where setting ``key``'s ``value`` lies: a shipped detector's name is its bundled file."""
+    return str(detector_file(value)) if key == "detector" else value
+
+
 def record(out: Path, settings: dict, keys) -> None:
     """Write ``out``/inputs.json: each set path setting's path and fingerprint."""
-    rec = {k: {"path": settings[k], "fingerprint": fingerprint(settings[k])} for k in keys if settings.get(k)}
+    rec = {
+        k: {"path": settings[k], "fingerprint": fingerprint(located(k, settings[k]))} for k in keys if settings.get(k)
+    }
     write_json_atomic(out / INPUTS_FILE, rec)
 
 
@@ -65,12 +73,12 @@ def same_content(out: Path, key: str, old: str, new: str) -> bool:
     old path's own where it exists) equals the new path's."""
     if not old or not new:
         return False
-    was = recorded(out, key, old) or fingerprint(old)
-    return was is not None and was == fingerprint(new)
+    was = recorded(out, key, old) or fingerprint(located(key, old))
+    return was is not None and was == fingerprint(located(key, new))
 
 
 def content_changed(out: Path, key: str, path: str) -> bool:
     """Whether the file or folder ``path`` of setting ``key`` no longer holds what ``inputs.json``
     recorded for that same path (False where nothing was recorded for it)."""
     was = recorded(out, key, path)
-    return was is not None and fingerprint(path) != was
+    return was is not None and fingerprint(located(key, path)) != was
