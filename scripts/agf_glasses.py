@@ -2,14 +2,18 @@
 catalogs that the refractiveindex.info database lacks (withdrawn and older glasses,
 mostly), so that a .zmx file naming one under its GCAT gets the vendor's own data.
 
-    python scripts/agf_glasses.py AGF_FOLDER [--out python/optix_e2e/bundled/glass/agf_glasses.json]
+    python scripts/agf_glasses.py AGF_FOLDER [AGF_FOLDER ...] [--only CATALOG ...] [--out ...json]
 
-AGF_FOLDER holds the public copies named in SOURCES (the KrakenOS catalog folder of
-github.com/Garchupiter/Kraken-Optical-Simulator, KrakenOS/Cat). Each entry keeps the
+The AGF_FOLDERs hold the public copies named in SOURCES (the KrakenOS catalog folder of
+github.com/Garchupiter/Kraken-Optical-Simulator, KrakenOS/Cat, and the AGF_files folder of
+github.com/nzhagen/zemaxglass); each file is read from the first folder that has it. --only
+rebuilds those catalogs and keeps the others as the file has them. Each entry keeps the
 formula (converted to the database's formula numbers), the coefficients of its CD line, the
 range of its LD line and the NM line's nd and vd; an entry whose formula does not give
 that nd to 1e-4 and vd to 0.5 is left out (a formula read wrongly cannot slip in; the
-catalogs' own rounding of vd reaches 0.2).
+catalogs' own rounding of vd reaches 0.2). An infrared material whose NM line has no d-line
+data (nd 1, vd 0) is kept where its formula gives a finite index in (1, 5) over its whole LD
+range (the formula readings themselves are checked by the glasses that have d-line data).
 """
 
 from __future__ import annotations
@@ -22,18 +26,26 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
+from optix_e2e.io import write_text_atomic  # noqa: E402
 from optix_e2e.lens import glass as _glass  # noqa: E402
 
-REPO = "github.com/Garchupiter/Kraken-Optical-Simulator, KrakenOS/Cat"
-#: our catalog -> AGF files, newest first (a name in a newer file wins).
+KRAKEN = "github.com/Garchupiter/Kraken-Optical-Simulator, KrakenOS/Cat"
+HAGEN = "github.com/nzhagen/zemaxglass, AGF_files"
+#: our catalog -> (AGF file, where it is public), newest first (a name in a newer file wins).
+#: rpo: RPO's moulded glasses (*_MOLD: the molder's data, a few 1e-3 below the annealed
+#: glass); zeon: ZEON's cyclo-olefin polymers (E48R, 480R, 330R); infrared: Zemax's INFRARED
+#: catalog (ZNS_IR, AMTIR1, ...: the crystals the database has stay its pages).
 SOURCES = {
-    "schott": ["schott-1.agf", "SCHOTT-2.AGF"],
-    "hoya": ["HOYA20220711_include_obsolete.agf"],
-    "hikari": ["hikari.agf"],
-    "ohara": ["ohara.agf"],
-    "sumita": ["sumita.agf"],
-    "cdgm": ["cdgm.agf"],
-    "lzos": ["lzos.agf"],
+    "schott": [("schott-1.agf", KRAKEN), ("SCHOTT-2.AGF", KRAKEN)],
+    "hoya": [("HOYA20220711_include_obsolete.agf", KRAKEN)],
+    "hikari": [("hikari.agf", KRAKEN)],
+    "ohara": [("ohara.agf", KRAKEN)],
+    "sumita": [("sumita.agf", KRAKEN)],
+    "cdgm": [("cdgm.agf", KRAKEN)],
+    "lzos": [("lzos.agf", KRAKEN)],
+    "rpo": [("rpo.agf", HAGEN)],
+    "zeon": [("zeon.agf", HAGEN)],
+    "infrared": [("infrared.agf", HAGEN)],
 }
 # (nikon.agf is left out: its formula-1 and -13 coefficients do not give its own NM lines'
 # nd and vd, so this script cannot tell what they mean.)
@@ -55,9 +67,13 @@ def to_database_formula(zf: int, cd: list[float]) -> tuple[int, list[float]] | N
         exps = [2, -2, -4, -6, -8, 4, 6]
     elif zf == 13:  # Extended 3: n^2 = a0 + a1 l^2 + a2 l^4 + a3 l^-2 + ... + a8 l^-12
         exps = [2, 4, -2, -4, -6, -8, -10, -12]
-    elif zf in (2, 6):  # Sellmeier 1 (3 terms), Sellmeier 3 (4 terms): K_i l^2 / (l^2 - L_i)
-        k = 3 if zf == 2 else 4
+    elif zf in (2, 6, 11):  # Sellmeier 1 (3 terms), 3 (4 terms), 5 (5 terms): K_i l^2 / (l^2 - L_i)
+        k = {2: 3, 6: 4, 11: 5}[zf]
         return 2, [0.0, *cd[: 2 * k]]
+    elif zf == 3:  # Herzberger: n = A + B L + C L^2 + D l^2 + E l^4 + F l^6, L = 1 / (l^2 - 0.028)
+        return 7, list(cd[:6])
+    elif zf == 5:  # Conrady: n = n0 + A / l + B / l^3.5 (the database's formula 5, exponents written out)
+        return 5, [cd[0], cd[1], -1.0, cd[2], -3.5]
     else:
         return None
     coeffs = [cd[0]]
@@ -96,24 +112,33 @@ def parse(path: Path):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("folder", type=Path)
+    ap.add_argument("folders", type=Path, nargs="+")
+    ap.add_argument("--only", nargs="+", choices=sorted(SOURCES), help="rebuild these catalogs only")
     ap.add_argument(
         "--out",
         type=Path,
         default=Path(__file__).resolve().parents[1] / "python" / "optix_e2e" / "bundled" / "glass" / "agf_glasses.json",
     )
     args = ap.parse_args()
-    out: dict[str, dict] = {}
+    out: dict[str, dict] = json.loads(args.out.read_text()) if args.only else {}
     kept = dropped = 0
     for catalog, files in SOURCES.items():
+        if args.only and catalog not in args.only:
+            continue
         table: dict[str, dict] = {}
-        for fname in files:
-            for e in parse(args.folder / fname):
+        for fname, repo in files:
+            folder = next((f for f in args.folders if (f / fname).is_file()), None)
+            if folder is None:
+                sys.exit(f"{fname} is in none of {', '.join(map(str, args.folders))}")
+            for e in parse(folder / fname):
                 if e["name"] in table or not e["range"]:
                     continue
                 try:
-                    _glass.resolve(e["name"], catalog)
-                    continue  # the database has it: its page wins
+                    found = _glass.resolve(e["name"], catalog)
+                    if found.path != f"builtin:{catalog}/{found.name}" or found.name in _glass.ZEMAX_NAMES.get(
+                        catalog, {}
+                    ):
+                        continue  # the database (or a named entry) has it: its page wins
                 except _glass.GlassError:
                     pass
                 conv = to_database_formula(e["zf"], e["cd"])
@@ -124,7 +149,16 @@ def main():
                 with np.errstate(all="ignore"):
                     nd, nf, nc = (float(_glass._eval_formula(formula, coeffs, w)) for w in (D, F, C))
                     vd = (nd - 1) / (nf - nc) if nf != nc else float("nan")
-                if not (abs(nd - e["nd"]) <= 1e-4 and abs(vd - e["vd"]) <= 0.5):
+                if e["nd"] == 1.0 and e["vd"] == 0.0:  # no d-line data (an infrared material): its range instead
+                    with np.errstate(all="ignore"):
+                        n = _glass._eval_formula(formula, coeffs, np.linspace(*e["range"], 50))
+                    if not (np.all(np.isfinite(n)) and np.all((n > 1.0) & (n < 5.0))):
+                        print(
+                            f"{catalog}/{e['name']}: formula {e['zf']} gives no index in (1, 5) over its range: left out"
+                        )
+                        dropped += 1
+                        continue
+                elif not (abs(nd - e["nd"]) <= 1e-4 and abs(vd - e["vd"]) <= 0.5):
                     print(
                         f"{catalog}/{e['name']}: formula {e['zf']} gives nd {nd:.6f}, vd "
                         f"{vd:.2f}, the NM line {e['nd']}, {e['vd']}: left out"
@@ -138,11 +172,11 @@ def main():
                     "nd": e["nd"],
                     "vd": e["vd"],
                     "obsolete": e["status"] == 2,
-                    "source": f"Zemax {fname} ({REPO}/{fname})",
+                    "source": f"Zemax {fname} ({repo}/{fname})",
                 }
                 kept += 1
         out[catalog] = dict(sorted(table.items()))
-    args.out.write_text(json.dumps(out, indent=0, separators=(",", ":")) + "\n")
+    write_text_atomic(args.out, json.dumps(out, indent=0, separators=(",", ":")) + "\n")
     print(f"{kept} glasses written to {args.out} ({dropped} left out)")
 
 

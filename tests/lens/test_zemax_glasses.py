@@ -200,8 +200,47 @@ def test_every_agf_glass_gives_its_catalogs_nd_and_vd():
         for name, e in names.items():
             g = glass.resolve(name, catalog)
             assert g.path == f"builtin:{catalog}/{name}"
+            if e["nd"] == 1.0 and e["vd"] == 0.0:  # an infrared material without d-line data (below)
+                continue
             nd, vd = _nd_vd(g)
             assert abs(nd - e["nd"]) <= 1e-4 and abs(vd - e["vd"]) <= 0.5, (catalog, name)
+
+
+@pytest.mark.parametrize(
+    "catalog, name, page, wavelengths_um, tol",
+    [
+        # Zemax INFRARED's ZNS_IR (Herzberger) against Debenham's ZnS (Sellmeier), 4-12 um
+        ("infrared", "ZNS_IR", "main/ZnS/nk/Debenham.yml", (4.0, 8.0, 12.0), 2e-3),
+        # ZEON's E48R (Zemax ZEON catalog) against Sultanova's measurement of Zeonex E48R
+        ("zeon", "E48R", "other/commercial polymers/ZeonexE48R/nk/Sultanova.yml", (0.48, 0.5876, 0.656), 2e-3),
+    ],
+)
+def test_catalog_materials_agree_with_an_independent_measurement(catalog, name, page, wavelengths_um, tol):
+    """The AGF data of an infrared crystal and a cyclo-olefin polymer (bundled/glass/agf_glasses.json,
+    scripts/agf_glasses.py) against the refractiveindex.info database's page of the same material,
+    measured by others (the tolerance: what two measurements of one material differ by)."""
+    ours, theirs = glass.resolve(name, catalog), glass._load_page(name, catalog, page)
+    for w in wavelengths_um:
+        assert float(ours.n(w)) == pytest.approx(float(theirs.n(w)), abs=tol), w
+
+
+@pytest.mark.parametrize(
+    "glas, gcat, want, nd",
+    [
+        ("S-NPH1_MOLD", "RPO", "rpo", 1.797889),  # RPO's moulded S-NPH1 (S-NPH1 itself: 1.80809)
+        ("D-K59_MOLD", "RPO CDGM", "rpo", None),
+        ("E48R", "ZEON", "zeon", 1.531160),
+        ("480R", "SCHOTT ZEON", "zeon", 1.525279),
+    ],
+)
+def test_moulded_glasses_and_polymers_import_with_the_makers_data(glas, gcat, want, nd):
+    """A GLAS line without nd/vd naming a moulded glass (RPO's *_MOLD) or a ZEON polymer under its
+    catalog resolves to that catalog's AGF data, no substitution."""
+    imp = parse_zmx(HEAD.format(gcat=gcat, glass=f"{glas} 0 0 0 0"), source="<t>")
+    m = imp.data["surfaces"][0]["material"]
+    assert (m["glass"], m["catalog"]) == (glas, want) and not imp.notes
+    if nd is not None:
+        assert Lens(imp.data).refractive_indices(587.5618)[1] == pytest.approx(nd, abs=1e-5)
 
 
 def test_successor_names_stay_inside_the_vendors_renaming():
