@@ -13,10 +13,9 @@
 #   uniform-full   Alg. 1 from the 3 uniform random starts of fig12-uniform at the full budget
 #                  (400 steps), exact optics in the paper-width space: do they reach the nominal
 #                  camera with 4x the steps? (docs/e2e.md, "The paper-width space").
-# A session's background work does not outlive it, so each finished run's small files
-# (results.json, metrics.csv, history.csv, the lens .zmx, the summaries) are kept in git under
-# the default OUT (its .gitignore leaves checkpoints, TensorBoard and images out); a later
-# checkout skips those runs. Logs: OUT/*.log. Run it from the project's environment
+# Each finished run's results.json, config.json, lens .zmx and summaries are kept in git under the
+# default OUT (its .gitignore leaves checkpoints, per-step and per-sample records, TensorBoard and
+# images in the local run folder). Logs: OUT/*.log. Run it from the project's environment
 # (source .venv/bin/activate, as ./run.sh makes it).
 set -euo pipefail
 OUT="${1:-benches/results/issue34}"

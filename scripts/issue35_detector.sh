@@ -6,9 +6,9 @@
 # time, data/ is not kept), each training image darkened by a log-uniform factor in [0.1, 1] in
 # linear light and half of them given the design run's sensor noise (--noise 0.5), batch 8,
 # AdamW with warm-up and a cosine decay over STEPS, THREADS torch threads (default 2). A session's background
-# work does not outlive it: the run's checkpoint (detector.pt, with the optimizer's state) and
-# history.csv are kept in git under the default RUN_DIR (its .gitignore), so the next checkout
-# continues from the last one committed. Then the clean held-out mAP (150 scenes, seed 1).
+# work does not outlive it: the run's checkpoint (detector.pt, with the optimizer's state) resumes a
+# run in the same folder; git keeps only eval_clean.json (the detector ships as street-pretrained,
+# tasks/bundled/detectors.json). Then the clean held-out mAP (150 scenes, seed 1).
 set -euo pipefail
 RUN="${1:-benches/results/issue35/detector}"
 STEPS="${2:-6000}"

@@ -33,9 +33,9 @@
 # SUFFIX=_lr5 the quick runs after the quick budget's lr_optics became 5e-2 (2026-11-28, stages quick
 # and quick-seeds; its comparison with vanilla used detect_quick_vanilla_range, vanilla not using
 # lr_optics: docs/detection.md, "The quick budget at lr 5e-2").
-# Each finished run's small files (results.json, metrics.csv, history.csv, lens_path.csv, the
-# lens .zmx, the end-to-end camera's detections) are kept in git under the default OUT (its
-# .gitignore); logs in OUT/*.log stay local.
+# Each finished run's results.json, config.json and lens .zmx are kept in git under the default OUT
+# (its .gitignore); its per-step and per-sample records (history.csv, lens_path.csv, metrics.csv),
+# detections and logs stay in the local run folder (the benches that read them need the runs).
 set -euo pipefail
 OUT="${1:-benches/results/issue35}"
 shift || true

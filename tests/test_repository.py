@@ -35,3 +35,12 @@ def test_no_tracked_file_is_over_a_megabyte_but_the_shipped_weights():
         if p.is_file() and p.stat().st_size > LIMIT_BYTES and not _shipped_weights(p)
     ]
     assert not big, "tracked files over 1 MB (run outputs belong out of git): " + ", ".join(big)
+
+
+def test_benches_track_under_five_megabytes():
+    """benches/ holds benches and the small results made from runs (tables, summaries, configs),
+    not the runs' per-step and per-sample records (.gitignore)."""
+    bench = [p for p in _tracked() if p.relative_to(ROOT).parts[0] == "benches" and p.is_file()]
+    assert len(bench) > 50  # the listing worked
+    total = sum(p.stat().st_size for p in bench)
+    assert total < 5_000_000, f"benches/ tracks {total / 1e6:.1f} MB"
