@@ -29,6 +29,16 @@ def shared_dir(name: str, env: str | None = None) -> Path:
     return (Path(root) if root else REPO_ROOT.parent / "shared") / name
 
 
+@pytest.fixture(autouse=True)
+def _release_held_folders():
+    """A test that calls the package's functions directly lets go of the --out folders they
+    held (io.hold_out_dir), as the end of a command does."""
+    yield
+    from optix_e2e.io import release_out_dirs
+
+    release_out_dirs()
+
+
 #: how a missing shared folder is to be found (the failure message)
 WHERE_SHARED = "clone the repository with shared/ beside it or set OPTIX_SHARED_DIR"
 

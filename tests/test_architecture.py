@@ -2,7 +2,7 @@
 inside functions count): a module imports only from its own subpackage, the foundations and
 the layers below; no circle among a subpackage's modules, nor among the Rust engine's files;
 nothing imports the CLI; the Rust extension is imported only by the engine's door,
-optix_e2e.engine."""
+optix_e2e.engine; files are written only through optix_e2e.io."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ LAYER = {
     "device": 1,
     "precision": 1,
     "engine": 2,
-    "io": 2,
+    "io": 1,
     "color": 2,
     "parallel": 2,
     "torchfile": 2,
@@ -276,6 +276,55 @@ def test_nothing_imports_the_cli():
 def test_the_extension_is_imported_only_through_the_engine_door():
     importers = {m for m, t, _ in _imports() if "_engine" in t.split(".")}
     assert importers == {"engine"}, f"import the engine through optix_e2e.engine, not _engine: {sorted(importers)}"
+
+
+#: modules that write files themselves, and why (every other write goes through optix_e2e.io)
+OWN_WRITERS = {
+    "io.py": "the one place files are written (atomic text, JSON, CSV, arrays, figures, images, checkpoints)",
+    "dataset/layout.py": "a dataset's shard arrays by direct I/O (O_DIRECT), gigabytes that bypass the page cache",
+}
+_WRITE_METHODS = {"write_text", "write_bytes", "savefig", "imwrite", "savez", "savez_compressed"}
+
+
+def _writes(tree: ast.AST) -> list[tuple[int, str]]:
+    """(line, what) for every call in ``tree`` that writes a file by itself: open() with a mode
+    that writes, Path.write_text/write_bytes, savefig, imwrite, json.dump, torch.save, np.save."""
+    found = []
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.Call):
+            continue
+        f = node.func
+        if isinstance(f, ast.Name) and f.id == "open":
+            mode = (
+                node.args[1] if len(node.args) > 1 else next((k.value for k in node.keywords if k.arg == "mode"), None)
+            )
+            if isinstance(mode, ast.Constant) and isinstance(mode.value, str) and set(mode.value) & set("wax+"):
+                found.append((node.lineno, f"open(..., {mode.value!r})"))
+        elif isinstance(f, ast.Attribute):
+            owner = f.value.id if isinstance(f.value, ast.Name) else ""
+            if f.attr in _WRITE_METHODS or (f.attr == "dump" and owner == "json"):
+                found.append((node.lineno, f"{owner or '...'}.{f.attr}"))
+            elif f.attr == "save" and owner in ("torch", "np", "numpy"):
+                found.append((node.lineno, f"{owner}.save"))
+    return found
+
+
+def test_files_are_written_through_io():
+    """Every file the package writes goes through optix_e2e.io (whole or absent: a temporary
+    file, fsync, a rename; strict JSON), but for the writers named in OWN_WRITERS."""
+    bad = []
+    for path in PACKAGE.rglob("*.py"):
+        rel = path.relative_to(PACKAGE).as_posix()
+        if rel in OWN_WRITERS:
+            continue
+        bad += [f"{rel}:{line} {what}" for line, what in _writes(ast.parse(path.read_text(encoding="utf-8")))]
+    assert not bad, "write through optix_e2e.io:\n" + "\n".join(sorted(bad))
+    # the check finds each kind of write
+    probe = ast.parse(
+        "open(p, 'w')\nopen(p, mode='ab')\np.write_text(t)\nfig.savefig(p)\njson.dump(o, f)\ntorch.save(o, p)\n"
+        "np.save(p, a)\nopen(p)\nopen(p, 'rb')\njson.dumps(o)\nlens.save(p)"
+    )
+    assert [line for line, _ in _writes(probe)] == [1, 2, 3, 4, 5, 6, 7]
 
 
 def test_the_package_raises_its_own_errors():

@@ -213,6 +213,9 @@ def test_every_network_training_takes_precision_and_records_it(optix, tmp_path):
     assert json.loads((tmp_path / "sw" / "train.json").read_text())["precision"] == "bf16"
     results = json.loads((tmp_path / "design" / "results.json").read_text())
     assert results["precision"] == "bf16" and results["device"] == "cpu"
-    # the run is held to its precision: the same folder in fp32 is another run's
-    r = optix(*runs["design"], "--device", "cpu")
+    # the run is held to its precision: asked for fp32, the folder is another run's; not asked,
+    # the run resumes in its own (a finished run: nothing trained again)
+    r = optix(*runs["design"], "--device", "cpu", "--precision", "fp32")
     assert r.returncode == 1 and "precision: 'bf16' -> 'fp32'" in r.stderr, r.stderr
+    r = optix(*runs["design"], "--device", "cpu")
+    assert r.returncode == 0 and "resumes with its own precision = 'bf16'" in r.stdout, r.stdout + r.stderr

@@ -10,6 +10,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 
+from .io import save_figure
+
 LOG_FLOOR = 1e-4  # log plots show four decades below the peak
 
 
@@ -41,7 +43,7 @@ def save_psf_png(path: str | Path, image: np.ndarray, pixel_um: float, title: st
     ax.set_ylabel("y (um)")
     ax.set_title(title, fontsize=9)
     fig.tight_layout()
-    fig.savefig(path)
+    save_figure(fig, path)
 
 
 def rgb_composite(channels: np.ndarray, log: bool = False) -> np.ndarray:
@@ -106,7 +108,7 @@ def save_psf_grid(
     w, h = fig.get_size_inches()
     fig.suptitle(f"{title} ({scale}; centred on the chief ray)", fontsize=10, y=1 - 0.2 / h)
     fig.subplots_adjust(left=0.55 / w, right=1 - 0.15 / w, bottom=0.45 / h, top=1 - 0.75 / h, wspace=0.45, hspace=0.4)
-    fig.savefig(path)
+    save_figure(fig, path)
 
 
 # ----------------------------------------------------------------------------- lens figures

@@ -38,7 +38,8 @@ def test_the_aperture_scan_crosses_the_runs_lens_with_other_apertures(tmp_path, 
     assert mine["loss_minus_own"]["mean"] == 0.0 and mine["map_50_minus_own"]["mean"] == 0.0
     for x in out["rows"]:
         assert x["loss_minus_own"]["mean"] == pytest.approx(x["loss"] - mine["loss"], abs=1e-9)
-        assert x["map_50_minus_own"]["mean"] == pytest.approx(x["map_50"] - mine["map_50"], abs=1e-9)
+        # mAP is torchmetrics' float32: its differences agree to float32's rounding of values near 1
+        assert x["map_50_minus_own"]["mean"] == pytest.approx(x["map_50"] - mine["map_50"], abs=1e-6)
         lo, hi = x["loss_minus_own"]["ci95"]
         assert lo <= x["loss_minus_own"]["mean"] <= hi
     # more light through the same lens: the faster aperture's images are less noisy, so its

@@ -34,13 +34,14 @@ def test_the_swap_bench_rebuilds_the_runs_cameras(tmp_path, optix, smoke_design,
     effects = {e["name"]: e for e in out["effects"]}
     lens = effects["lens e2e A - nominal, processing nominal"]
     diff = cells[("e2e A", "nominal")]["map_50"] - cells[("nominal", "nominal")]["map_50"]
-    assert lens["map_50"]["mean"] == pytest.approx(diff, abs=1e-9)
+    # mAP is torchmetrics' float32: a difference of two cells agrees to float32's rounding near 1
+    assert lens["map_50"]["mean"] == pytest.approx(diff, abs=1e-6)
     whole = effects["camera e2e A - nominal"]  # the run's own paired figure
     assert whole["map_50"]["mean"] == pytest.approx(res["paired"]["map_50"]["mean"], abs=1e-9)
     assert whole["map_50"]["ci95"] == pytest.approx(res["paired"]["map_50"]["ci95"], abs=1e-9)
     proc = effects["processing e2e A - nominal, lens e2e A"]
     diff = cells[("e2e A", "e2e A")]["map"] - cells[("e2e A", "nominal")]["map"]
-    assert proc["map"]["mean"] == pytest.approx(diff, abs=1e-9)
+    assert proc["map"]["mean"] == pytest.approx(diff, abs=1e-6)
     assert (tmp_path / "swap" / "detection_swap.md").read_text().count("\n| lens e2e A - nominal") == 2
 
     # a blurred nominal lens as a control: the cells already evaluated come from the bench's cache

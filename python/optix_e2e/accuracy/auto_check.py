@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..io import write_record_atomic
 from .psf_errors import rel_l1
 from .reference import converged_reference
 from .sweep import timed
@@ -125,8 +126,7 @@ def summarize(rows: list[dict]) -> dict:
 
 
 def dump(rows: list[dict], path) -> None:
-    with open(path, "w") as fh:
-        json.dump(rows, fh, indent=1)
+    write_record_atomic(path, rows, indent=1)
 
 
 def bundled_cases(lenses, wavelengths: str = "all") -> list[Case]:

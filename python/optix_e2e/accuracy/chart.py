@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io import save_figure
+
 METRICS = ("rel_l1", "rel_l2", "strehl_err", "ee80_err_um", "image_rel_l2")
 METHOD_ORDER = ("geometric", "fft", "fft-fast", "huygens")
 
@@ -116,7 +118,7 @@ def plot_methods(summary: list[dict], path: Path, title: str) -> None:
     axes[0].legend(fontsize=7, loc="best")
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
 
 
@@ -159,5 +161,5 @@ def plot_sampling(spectral: list[dict], fields: list[dict], path: Path) -> None:
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import csv
-import json
 import os
 import platform
 import time
 from pathlib import Path
 from typing import Callable
 
+from ..io import write_csv_atomic, write_record_atomic
 from ..lens import Lens
 from .chart import plot_methods, plot_sampling, summarize
 from .sweep import Config, field_rows, method_rows, method_settings, spectral_rows
@@ -22,10 +21,7 @@ def write_csv(path: Path, rows: list[dict]) -> None:
     keys: list[str] = []
     for r in rows:
         keys += [k for k in r if k not in keys]
-    with open(path, "w", newline="", encoding="utf-8") as f:
-        w = csv.DictWriter(f, fieldnames=keys)
-        w.writeheader()
-        w.writerows(rows)
+    write_csv_atomic(path, ([r.get(k, "") for k in keys] for r in rows), header=keys)
 
 
 def run(
@@ -108,5 +104,5 @@ def run(
         "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine()},
         "files": ["rows.csv", "summary.csv", "sampling.csv", "speed_accuracy.png", "sampling.png"],
     }
-    (out / "accuracy.json").write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    write_record_atomic(out / "accuracy.json", report)
     return report

@@ -14,8 +14,8 @@ from pathlib import Path
 
 from ..device import resolve_device
 from ..errors import InputError
-from ..io import claim_out_dir, read_small_text, write_json_atomic
-from ..tasks import get_task
+from ..io import claim_out_dir, hold_out_dir, read_small_text, write_json_atomic
+from ..tasks import get_task, plugin
 from ..tasks.samples import POSITIONS, TRAIN_POSITIONS
 from ..tasks.shipped_detectors import check_detector_setting, is_shipped
 
@@ -105,7 +105,7 @@ class DesignConfig:
     crop: int = 128  # sensor pixels per side of a training crop (its height)
     # where a training batch's crop lies: "radius" (its field radius uniform: the centre and the
     # corners weigh as much as the mid-field; tasks/samples.py) or "frame" (uniform over the
-    # area, the default until 2026-11-27: the end-to-end camera then lost at centre and corner)
+    # area: trained so, the end-to-end camera lost at centre and corner; docs/e2e.md)
     train_positions: str = "radius"
     crop_width: int = 0  # its width (0: square)
     batch: int = 4
@@ -137,7 +137,7 @@ class DesignConfig:
     # exact | surrogate | hybrid | auto (from the measured trade-off); exact, the engine with central-
     # difference gradients, for the image-quality tasks (docs/optics-in-the-loop.md: the surrogate is up
     # to 20 % off at the full field, exact costs nothing measurable on the whole run); detection too, in
-    # paper-triplet-detect-wide, a space no network learned (TASK_BUDGETS; its smoke budget: surrogate)
+    # paper-triplet-detect-wide, a space no network learned (its plugin's budgets, tasks/detection.py; its smoke budget: surrogate)
     optics: str = "exact"
     # the exact optics' lens gradient (optics/exact.py): "one-pass", the engine's vector-Jacobian
     # product (differences where a design has none, counted), or "differences", the central-
@@ -154,7 +154,7 @@ class DesignConfig:
     # the lens's manufacturability limits at every step (camera_design/guard.py): project = the
     # step projected along the limits it leans across, then cut back; barrier = that, after a
     # log barrier on the margins within guard_band mm has steered the lens's gradient
-    guard: str = "barrier"  # "project" until 2026-11-27 (docs/e2e.md, "Constraints that steer")
+    guard: str = "barrier"  # or "project" (docs/e2e.md, "Constraints that steer")
     guard_band: float = 0.25  # mm
     guard_weight: float = 1e-3  # the barrier's weight (loss units per log of a margin)
     # how a lens step is sized: "sigmoid" (Adam on the sigmoid's argument u: a step in the
@@ -181,7 +181,8 @@ class DesignConfig:
 
     @property
     def total_steps(self) -> int:
-        per_cycle = self.steps_optics + self.steps_isp + (self.steps_detector if self.task == "detection" else 0)
+        blocks = plugin(self.task).blocks  # the task's blocks beside the optics and the ISP
+        per_cycle = self.steps_optics + self.steps_isp + sum(getattr(self, f"steps_{b}") for b in blocks)
         return self.n_cycles * per_cycle + self.n_finetune
 
     @property
@@ -224,7 +225,7 @@ class DesignConfig:
             )
         if self.isp_init not in ("random", "detector"):
             raise InputError(f"isp_init must be random or detector, got {self.isp_init!r}")
-        if self.isp_init == "detector" and (self.task != "detection" or not self.detector):
+        if self.isp_init == "detector" and ("detector" not in plugin(self.task).blocks or not self.detector):
             raise InputError(
                 "isp_init = detector starts the hardware ISP where `optix detect tune` left it: it needs "
                 "the detection task and a tuned checkpoint as its detector setting (street-tuned, or one "
@@ -305,33 +306,10 @@ BUDGETS: dict[str, dict] = {
 }
 
 
-# the detection task's own defaults under each budget (applied before the config file), 3:2
-# crops and held-out street scenes (>= 500 objects at quick). The lens moves in the wide
-# detection space (f/2.8-4.6, free centre thicknesses; docs/detection.md) on the engine's exact
-# PSFs and gradients: no network has learned that space. Smoke (tests) keeps the narrow space's
-# surrogate. Both cameras start from the shipped detector tuned behind the nominal lens with the
-# hardware ISP (street-tuned) and from that ISP (isp_init = "detector"): the start the runs found
-# best (docs/detection.md, "Out of the box"). Each lens parameter's steps are evened out over its
-# range (lens_steps = "range": the nominal f/4.4 sits at 0.89 of its range, where Adam's steps in
-# the sigmoid's argument barely move it), and quick's lens learns at 5e-2, so that its 90 lens
-# steps on a noisy detection gradient go as far as the full budget's 350 at 1e-2
-# (docs/detection.md, "The quick budget at lr 5e-2"; test_detection_parts.py).
-_START = dict(detector="street-tuned", isp_init="detector", lens_steps="range")
-_DETECTION = dict(_START, surrogate="paper-triplet-detect", optics="surrogate")
-_DETECTION_WIDE = dict(_START, surrogate="paper-triplet-detect", space="paper-triplet-detect-wide", optics="exact")
-TASK_BUDGETS: dict[str, dict[str, dict]] = {
-    "detection": {
-        "smoke": dict(_DETECTION, crop=64, crop_width=96, steps_detector=2, eval_scenes=4),
-        "quick": dict(_DETECTION_WIDE, crop=192, crop_width=288, batch=4, eval_scenes=100, lr_optics=5e-2),
-        "full": dict(_DETECTION_WIDE, crop=192, crop_width=288, batch=4, steps_detector=25, eval_scenes=200),
-    },
-}
-
-
 def task_default(task: str, budget: str, key: str):
     """The value setting ``key`` takes for ``task`` at ``budget`` when neither a config file
     nor the command line sets it."""
-    values = {**BUDGETS.get(budget, {}), **TASK_BUDGETS.get(task, {}).get(budget, {})}
+    values = {**BUDGETS.get(budget, {}), **plugin(task).budgets.get(budget, {})}
     return values.get(key, getattr(DesignConfig, key))
 
 
@@ -382,7 +360,7 @@ def load_config(
     task = overrides.get("task")
     if task is None and file is not None:
         task = read_config_file(Path(file)).get("task")
-    values.update(TASK_BUDGETS.get(task or DesignConfig.task, {}).get(budget, {}))
+    values.update(plugin(task or DesignConfig.task).budgets.get(budget, {}))
     given = {k for k, v in overrides.items() if v is not None}
     where = "on the command line"
     if file is not None:
@@ -492,6 +470,7 @@ def check_run_dir(out: Path, cfg: DesignConfig) -> None:
     from .inputs import content_changed, same_content
     from .inputs import record as record_inputs
 
+    hold_out_dir(out, "design run")  # one command at a time writes into a run folder
     old = read_run_config(out)
     if old is not None:
         new = cfg.to_json()

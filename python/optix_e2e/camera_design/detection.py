@@ -18,7 +18,6 @@ differences with a 95 % bootstrap interval over scenes (each resample scored by 
 
 from __future__ import annotations
 
-import csv
 import json
 import time
 from pathlib import Path
@@ -31,6 +30,7 @@ from tqdm import tqdm
 from .. import color, parallel
 from ..camera import Camera, FixedOptics
 from ..errors import InputError
+from ..io import write_csv_atomic
 from ..metrics.map_bootstrap import MatchTable
 from ..precision import apply_precision, resolve_precision
 from ..scenes.street import CATEGORIES
@@ -278,8 +278,10 @@ class DetectionHooks(TaskHooks):
     def f_number(self, values):
         return float(values[self.f_index])
 
-    def evaluate(self, out, cams, optics, f_numbers, exact, frame, progress):
+    def evaluate(self, run):
         c, task = self.cfg, self.task
+        out, cams, optics, f_numbers, frame = run.out, run.cams, run.optics, run.f_numbers, run.frame
+        exact, progress = run.exact, run.progress
         samples = heldout_streets(
             c.eval_scenes, c.crop_hw, exact["psf"].shape[-1] // 2, (task.level_min, task.level_max), frame
         )
@@ -309,12 +311,14 @@ class DetectionHooks(TaskHooks):
         scores = {who: {kind: detection_scores(p, samples, task.dark) for kind, p in preds[who].items()} for who in WHO}
         return {"samples": samples, "preds": preds, "scores": scores}, reused_s
 
-    def panels(self, path, evaluation, cams, optics, f_numbers, frame):
+    def panels(self, run, path):
+        ev = run.evaluation
         _detection_panels(
-            path, evaluation["samples"], evaluation["preds"], optics, cams, f_numbers, self.cfg.patch, frame
+            path, ev["samples"], ev["preds"], run.optics, run.cams, run.f_numbers, self.cfg.patch, run.frame
         )
 
-    def summarize(self, evaluation, cams, reports, f_numbers):
+    def summarize(self, run):
+        evaluation, reports, f_numbers = run.evaluation, run.reports, run.f_numbers
         scores, preds, c = evaluation["scores"], evaluation["preds"], self.cfg
 
         def camera_summary(who: str) -> dict:
@@ -349,17 +353,18 @@ class DetectionHooks(TaskHooks):
         )
         return {"nominal": camera_summary("nominal"), "end_to_end": camera_summary("end_to_end"), "paired": paired}
 
-    def held_out(self, evaluation):
-        s = evaluation["scores"]["nominal"]["exact"]
+    def held_out(self, run):
+        s = run.evaluation["scores"]["nominal"]["exact"]
         return {
-            "n_images": len(evaluation["samples"]),
+            "n_images": len(run.evaluation["samples"]),
             "n_objects": s["n_objects"],
             "n_objects_dark": s["dark"]["n_objects"],
             "size_px": list(self.cfg.crop_hw),
             "levels": [self.task.level_min, self.task.level_max],
         }
 
-    def extra(self, cams, monitor, e2e):
+    def extra(self, run, monitor, e2e):
+        cams = run.cams
         optics = cams["end_to_end"].optics
         model = {
             "mode": "exact" if self.cfg.optics == "exact" else "surrogate",
@@ -385,8 +390,8 @@ class DetectionHooks(TaskHooks):
             "optics_model": model,
         }
 
-    def write_tables(self, out, evaluation):
-        _write_scenes(out / "metrics.csv", evaluation["samples"], evaluation["preds"])
+    def write_tables(self, run):
+        _write_scenes(run.out / "metrics.csv", run.evaluation["samples"], run.evaluation["preds"])
 
     @staticmethod
     def summary_lines(res):
@@ -409,20 +414,21 @@ class DetectionHooks(TaskHooks):
 def _write_scenes(path: Path, samples, preds: dict) -> None:
     """Per held-out scene: where it lies, its light, its objects, and each camera's detections
     at score >= 0.3 under exact optics."""
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["image", "radius", "level", "n_objects", "n_dark", *(f"n_detections_{who}" for who in preds)])
-        for i, s in enumerate(samples):
-            w.writerow(
-                [
-                    s.name,
-                    f"{s.radius:.4f}",
-                    f"{s.level:.4f}",
-                    len(s.target["labels"]),
-                    int((s.object_light < 0.1).sum()),
-                    *(int((preds[who]["exact"][i]["scores"] >= PANEL_SCORE).sum()) for who in preds),
-                ]
-            )
+    write_csv_atomic(
+        path,
+        (
+            [
+                s.name,
+                f"{s.radius:.4f}",
+                f"{s.level:.4f}",
+                len(s.target["labels"]),
+                int((s.object_light < 0.1).sum()),
+                *(int((preds[who]["exact"][i]["scores"] >= PANEL_SCORE).sum()) for who in preds),
+            ]
+            for i, s in enumerate(samples)
+        ),
+        header=["image", "radius", "level", "n_objects", "n_dark", *(f"n_detections_{who}" for who in preds)],
+    )
 
 
 @torch.no_grad()

@@ -17,7 +17,6 @@ paired against each of the two and against the ideal lens (``paired_against``)."
 
 from __future__ import annotations
 
-import csv
 import time
 from pathlib import Path
 
@@ -26,6 +25,7 @@ from tqdm import tqdm
 
 from ..camera import Camera, FixedOptics
 from ..errors import InputError
+from ..io import write_csv_atomic
 from ..scenes import ImageFolder, bundled_photos
 from ..scenes.corpus import PhotoCorpus
 from ..surrogate.refine import RefineSettings
@@ -173,8 +173,9 @@ class ImageQualityHooks(TaskHooks):
             self.cfg, sur, fixed_optics=nominal_optics, frame=frame, device=self.device, untuned=True
         ).eval()
 
-    def evaluate(self, out, cams, optics, f_numbers, exact, frame, progress):
+    def evaluate(self, run):
         c = self.cfg
+        out, cams, optics, exact, frame, progress = run.out, run.cams, run.optics, run.exact, run.frame, run.progress
         samples = heldout_set(
             c.eval_size,
             exact["psf"].shape[-1] // 2,
@@ -235,8 +236,16 @@ class ImageQualityHooks(TaskHooks):
             progress,
         )
 
-    def test_split(self, out, cams, optics, evaluation, corpus, frame, baseline, progress):
+    def test_split(self, run, corpus, baseline):
         c = self.cfg
+        out, cams, optics, evaluation, frame, progress = (
+            run.out,
+            run.cams,
+            run.optics,
+            run.evaluation,
+            run.frame,
+            run.progress,
+        )
         samples = photo_test_set(
             corpus, c.eval_size, evaluation["window"] // 2, c.eval_level, frame, positions=POSITIONS[c.eval_positions]
         )
@@ -254,11 +263,15 @@ class ImageQualityHooks(TaskHooks):
                 f"test split: {who} ({kind} optics)",
                 progress,
             )
-        with open(out / "test_metrics.csv", "w", newline="") as f:
-            w = csv.writer(f)
-            w.writerow(["camera", "image", "position", "radius", *ev.METRICS])
-            for who, rs in rows.items():
-                w.writerows([who, r["image"], r["position"], r["radius"], *(r[m] for m in ev.METRICS)] for r in rs)
+        write_csv_atomic(
+            out / "test_metrics.csv",
+            (
+                [who, r["image"], r["position"], r["radius"], *(r[m] for m in ev.METRICS)]
+                for who, rs in rows.items()
+                for r in rs
+            ),
+            header=["camera", "image", "position", "radius", *ev.METRICS],
+        )
         paired = {}
         for who in rows:
             if who != "end_to_end":
@@ -282,9 +295,10 @@ class ImageQualityHooks(TaskHooks):
         }
 
     @torch.no_grad()
-    def panels(self, path, evaluation, cams, optics, f_numbers, frame, n_images: int = 3):
+    def panels(self, run, path, n_images: int = 3):
         """target / nominal / end-to-end for three photos, at each held-out position."""
         c = self.cfg
+        evaluation, cams, optics, frame = run.evaluation, run.cams, run.optics, run.frame
         samples = heldout_set(
             c.eval_size, evaluation["window"] // 2, 0, c.eval_level, frame, photos=bundled_photos()[:3]
         )
@@ -311,8 +325,8 @@ class ImageQualityHooks(TaskHooks):
             rows.append((f"{s.name} ({s.position})", imgs))
         save_panels(path, rows, ["target", "nominal + fine-tuned processing", "end-to-end"])
 
-    def summarize(self, evaluation, cams, reports, f_numbers):
-        rows, c = evaluation["rows"], self.cfg
+    def summarize(self, run):
+        rows, c = run.evaluation["rows"], self.cfg
         a, b = rows["nominal"], rows["end_to_end"]
         # each position paired apart, from the same rows; the headline (``paired``) is the frame's
         by_position = ev.paired_by_position(a["exact"], b["exact"], c.bootstrap, c.seed)
@@ -361,8 +375,8 @@ class ImageQualityHooks(TaskHooks):
             res["baseline"] = {**base, "paired": res["paired_against"][base["camera"]]["paired"]}
         return res
 
-    def held_out(self, evaluation):
-        samples, c = evaluation["samples"], self.cfg
+    def held_out(self, run):
+        samples, c = run.evaluation["samples"], self.cfg
         per_position = {p: POSITIONS[c.eval_positions].count(p) for p in dict.fromkeys(POSITIONS[c.eval_positions])}
         return {
             "n_images": len({s.name for s in samples}),
@@ -374,7 +388,8 @@ class ImageQualityHooks(TaskHooks):
             "size_px": c.eval_size,
         }
 
-    def extra(self, cams, monitor, e2e):
+    def extra(self, run, monitor, e2e):
+        cams = run.cams
         res = {
             "optics_model": {
                 **monitor.summary(),
@@ -387,16 +402,17 @@ class ImageQualityHooks(TaskHooks):
             res["isp_hyperparameters"] = {who: cam.isp.hyperparameters() for who, cam in cams.items()}
         return res
 
-    def write_tables(self, out, evaluation):
-        with open(out / "metrics.csv", "w", newline="") as f:
-            w = csv.writer(f)
-            w.writerow(["camera", "optics", "image", "position", "radius", *ev.METRICS])
-            for who, kinds in evaluation["rows"].items():
-                for kind, rs in kinds.items():
-                    for r in rs:
-                        w.writerow(
-                            [who, kind, r["image"], r["position"], r.get("radius", ""), *(r[m] for m in ev.METRICS)]
-                        )
+    def write_tables(self, run):
+        write_csv_atomic(
+            run.out / "metrics.csv",
+            (
+                [who, kind, r["image"], r["position"], r.get("radius", ""), *(r[m] for m in ev.METRICS)]
+                for who, kinds in run.evaluation["rows"].items()
+                for kind, rs in kinds.items()
+                for r in rs
+            ),
+            header=["camera", "optics", "image", "position", "radius", *ev.METRICS],
+        )
 
     @staticmethod
     def summary_lines(res):

@@ -26,7 +26,6 @@ after any stop, on the same curve.
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 import time
@@ -42,7 +41,7 @@ from ..camera import calibrated_preset
 from ..dataset.manifest import space_and_base
 from ..device import resolve_device
 from ..errors import InputError
-from ..io import save_atomic
+from ..io import save_atomic, tensorboard_writer, write_record_atomic, write_text_atomic
 from ..isp.software import SoftwareISP
 from ..isp.train import cosine_lr
 from ..optics.render import render
@@ -223,7 +222,6 @@ def pretrain(
     curve.csv, train.json and tb/ into ``out``. ``init``: a software ISP checkpoint whose
     weights a new run starts from (its architecture must be the config's; the optimizer
     starts afresh); its training record is kept in the new one's manifest."""
-    from torch.utils.tensorboard import SummaryWriter
 
     from ..io import claim_out_dir
 
@@ -294,7 +292,7 @@ def pretrain(
         corpus=val_corpus,
         mix={"corpus_photo": 1.0} if val_corpus is not None else None,
     )
-    writer = SummaryWriter(str(out / "tb"))
+    writer = tensorboard_writer(out / "tb")
     model.train()
     t0, pool, pool_id = time.time() - seconds, None, None
     t_call, start_step = time.time(), step
@@ -396,10 +394,8 @@ def pretrain(
         "validation": val_corpus.record() if val_corpus is not None else "the natural mix, its own seed",
     }
     export(model, out / "software_isp.pt", meta)
-    with open(out / "curve.csv", "w") as f:
-        keys = sorted({k for c in curve for k in c}, key=lambda k: (k != "step", k))
-        f.write(",".join(keys) + "\n")
-        for c in curve:
-            f.write(",".join(str(c.get(k, "")) for k in keys) + "\n")
-    (out / "train.json").write_text(json.dumps(meta, indent=2))
+    keys = sorted({k for c in curve for k in c}, key=lambda k: (k != "step", k))
+    lines = [",".join(keys)] + [",".join(str(c.get(k, "")) for k in keys) for c in curve]
+    write_text_atomic(out / "curve.csv", "".join(line + "\n" for line in lines))
+    write_record_atomic(out / "train.json", meta)
     return meta

@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from ..dataset.manifest import nearest_image_plane, refocused_designs, space_and_base
+from ..io import save_figure
 from ..lens import Lens
 from ..lens.zemax.writer import write_zmx
 from ..lens_design.constraints import Limits, Manufacturability, apertures
@@ -150,7 +151,7 @@ def save_panels(path: Path, rows: list[tuple[str, list[torch.Tensor]]], columns:
             if j == 0:
                 ax.set_ylabel(label, fontsize=8)
     fig.tight_layout()
-    fig.savefig(path)
+    save_figure(fig, path)
 
 
 def write_design_outputs(out: Path, cfg, sur, nominal_values, final_values, exact: dict) -> tuple[dict, dict]:

@@ -23,40 +23,36 @@ the same skeleton for every task (the task's part is a plugin: task_hooks.py).
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
-from torch.utils.tensorboard import SummaryWriter
 
 from .. import parallel
-from ..io import write_json_atomic
+from ..io import tensorboard_writer, write_json_atomic
 from ..lens import Lens
 from ..lens_design.report import write_report
 from ..scenes.corpus import PhotoCorpus
 from ..surrogate.ground_truth import exact_optics
+from ..tasks import plugin
 from . import outputs
 from .build import design_field_heights, lens_step_scale, make_optimizer, start_record, start_run
 from .config import DesignConfig, check_run_dir, resume_settings
-from .detection import DetectionHooks
-from .image_quality import ImageQualityHooks
-from .task_hooks import TaskHooks
+from .task_hooks import RunState, TaskHooks
 from .training import lens_travel, train, write_history, write_lens_path
-
-#: the task plugins by kind: detection, and the image-quality tasks (every other task)
-HOOKS: dict[str, type[TaskHooks]] = {"detection": DetectionHooks}
 
 WHO = ("nominal", "end_to_end")
 
 
 def hooks_for(cfg: DesignConfig, device: "torch.device | str" = "cpu") -> TaskHooks:
-    """The task's hooks (tasks.get_task refuses an unknown task), its cameras on ``device``."""
-    return HOOKS.get(cfg.task, ImageQualityHooks)(cfg, device)
+    """The task's hooks (its plugin's, tasks/registry.py), its cameras on ``device``."""
+    return plugin(cfg.task).hooks_class()(cfg, device)
 
 
 def summary_lines(cfg: DesignConfig, results: dict) -> list[str]:
     """What ``optix design`` prints about a run's results: the task's lines, read from the
     results alone (no second set of hooks: those resolve the optics model and scan --images)."""
-    return HOOKS.get(cfg.task, ImageQualityHooks).summary_lines(results)
+    return plugin(cfg.task).hooks_class().summary_lines(results)
 
 
 def claim_run_dir(out: Path, cfg: DesignConfig, ranks: parallel.Ranks, progress: bool, log):
@@ -70,7 +66,7 @@ def claim_run_dir(out: Path, cfg: DesignConfig, ranks: parallel.Ranks, progress:
     parallel.barrier(ranks)
     if not ranks.is_main:
         return False, (lambda m: None), None
-    return progress, log, SummaryWriter(str(out / "tb"))
+    return progress, log, tensorboard_writer(out / "tb")
 
 
 def run_design(
@@ -205,16 +201,67 @@ def run_design(
         cams["nominal_untuned"] = untuned
     if ideal is not None:
         cams["ideal_lens"] = ideal
-    evaluation, reused_s = hooks.evaluate(out, cams, optics, f_numbers, exact, frame, progress)
+    state = RunState(cfg, out, frame, sur, cams, optics, f_numbers, exact, progress)
+    state.evaluation, reused_s = hooks.evaluate(state)
 
     log("[4/4] lens export, checks, PSF grids, panels, reports")
-    fields_deg = [float(f) for f in sur.manifest["fields_deg"]]
     exported, checks = outputs.write_design_outputs(
         out, cfg, sur, nominal_values.cpu().numpy(), final_values.cpu().numpy(), exact
     )
-    hooks.panels(out / "panels.png", evaluation, cams, optics, f_numbers, frame)
-    reports = {who: write_report(Lens.load(out / "lens" / f"{who}.json"), out / "report" / who) for who in WHO}
-    results = {
+    hooks.panels(state, out / "panels.png")
+    state.reports = {who: write_report(Lens.load(out / "lens" / f"{who}.json"), out / "report" / who) for who in WHO}
+    runs = {"end_to_end": e2e, "nominal": nom, "ideal_lens": ideal_run}
+    lens = LensRecord(nominal_values, start_values, final_values, lens_scale, exported, checks)
+    results = results_document(state, hooks, task, ranks, runs, lens, (psf_ns, psf_es), monitor)
+    if test_corpus is not None:
+        baseline = results.get("baseline", {}).get("camera", "nominal")
+        results["test_split"] = hooks.test_split(state, test_corpus, baseline)
+    write_history(out / "history.csv", {k: v["history"] for k, v in runs.items() if v is not None}, hooks.loss_parts)
+    write_lens_path(out / "lens_path.csv", e2e["history"], sur.param_names, start_values.tolist())
+    hooks.write_tables(state)
+    # training (every camera trained, across resumes) + exact PSFs, evaluation and outputs of this call
+    # + the evaluations it reused from an earlier one
+    trained_s = sum(v["wall_s"] for v in runs.values() if v is not None)
+    results["wall_s"] = trained_s + reused_s + (time.perf_counter() - t_eval)
+    write_json_atomic(out / "results.json", results)
+    return results
+
+
+@dataclass(frozen=True)
+class LensRecord:
+    """The lens of a run: its nominal, start and final values, the factors on its steps (None:
+    Adam's own), the exported files and their checks (outputs.write_design_outputs)."""
+
+    nominal: torch.Tensor
+    start: torch.Tensor
+    final: torch.Tensor
+    scale: "torch.Tensor | None"
+    exported: dict
+    checks: dict
+
+
+#: what results.json's ``training`` keeps of each camera's training
+TRAINING_KEYS = ("steps", "updates", "wall_s", "final_loss", "lens_steps", "cut_steps", "guard", "barrier_steps")
+
+
+def results_document(
+    run: RunState,
+    hooks: TaskHooks,
+    task,
+    ranks: parallel.Ranks,
+    trainings: dict,
+    lens: LensRecord,
+    surrogate_psfs,
+    monitor,
+) -> dict:
+    """results.json of a design run (docs/e2e.md, "results.json"): the task's figures
+    (TaskHooks.summarize, held_out, extra), the lens, the optics models' agreement, the trainings;
+    ``surrogate_psfs`` the network's PSFs of the nominal and the final lens (None, None: no network)."""
+    cfg, sur, out, exact = run.cfg, run.sur, run.out, run.exact
+    psf_ns, psf_es = surrogate_psfs
+    fields_deg = [float(f) for f in sur.manifest["fields_deg"]]
+    camera = run.cams["end_to_end"]
+    return {
         "task": cfg.task,
         "description": task.description,
         "optimizer": cfg.optimizer,
@@ -223,25 +270,25 @@ def run_design(
         "device": str(ranks.device),  # where this call ran (a resumed run may have trained elsewhere)
         "precision": cfg.precision,  # the networks' arithmetic (optix_e2e.precision)
         "optics_eval": "exact",
-        **hooks.summarize(evaluation, cams, reports, f_numbers),
-        "lens_zmx": str(Path(exported["zmx"]).relative_to(out)),
-        "lens_json": str(Path(exported["json"]).relative_to(out)),
+        **hooks.summarize(run),
+        "lens_zmx": str(Path(lens.exported["zmx"]).relative_to(out)),
+        "lens_json": str(Path(lens.exported["json"]).relative_to(out)),
         "design": {
             "parameters": sur.param_names,
-            "nominal": [float(v) for v in nominal_values],
-            "start": [float(v) for v in start_values],
+            "nominal": [float(v) for v in lens.nominal],
+            "start": [float(v) for v in lens.start],
             # each parameter's factor on Adam's steps in u (lens_steps = "range"), null: none
-            "step_scale": None if lens_scale is None else lens_scale.tolist(),
-            "end_to_end": [float(v) for v in final_values],
+            "step_scale": None if lens.scale is None else lens.scale.tolist(),
+            "end_to_end": [float(v) for v in lens.final],
             # how far the lens moved from its start, as fractions of each range (lens_path.csv: each step)
             "travel": lens_travel(
                 sur.param_names,
                 camera.optics.lo.tolist(),
                 camera.optics.hi.tolist(),
-                start_values.tolist(),
-                e2e["history"],
+                lens.start.tolist(),
+                trainings["end_to_end"]["history"],
             ),
-            "checks": checks,
+            "checks": lens.checks,
         },
         "surrogate_psf_rel_l1_per_field": {
             "fields_deg": fields_deg,
@@ -259,24 +306,8 @@ def run_design(
             "nominal": [float(e) for e in exact["energy_in_window"][0].min(axis=-1)],
             "end_to_end": [float(e) for e in exact["energy_in_window"][1].min(axis=-1)],
         },
-        "held_out": hooks.held_out(evaluation),
-        "training": {
-            k: {
-                kk: v[kk]
-                for kk in (
-                    "steps",
-                    "updates",
-                    "wall_s",
-                    "final_loss",
-                    "lens_steps",
-                    "cut_steps",
-                    "guard",
-                    "barrier_steps",
-                )
-            }
-            for k, v in (("end_to_end", e2e), ("nominal", nom), ("ideal_lens", ideal_run))
-            if v is not None
-        },
+        "held_out": hooks.held_out(run),
+        "training": {k: {kk: v[kk] for kk in TRAINING_KEYS} for k, v in trainings.items() if v is not None},
         "surrogate": cfg.surrogate,
         "start": start_record(cfg),
         # the space the lens moved in: its ranges, and whether the network was trained on it
@@ -285,18 +316,5 @@ def run_design(
             "surrogates_own": "trained_space" not in sur.manifest,
             "ranges": {p["name"]: [p["min"], p["max"]] for p in sur.manifest["space"]["parameters"]},
         },
-        **hooks.extra(cams, monitor, e2e),
+        **hooks.extra(run, monitor, trainings["end_to_end"]),
     }
-    if test_corpus is not None:
-        baseline = results.get("baseline", {}).get("camera", "nominal")
-        results["test_split"] = hooks.test_split(out, cams, optics, evaluation, test_corpus, frame, baseline, progress)
-    runs = {"end_to_end": e2e, "nominal": nom, "ideal_lens": ideal_run}
-    write_history(out / "history.csv", {k: v["history"] for k, v in runs.items() if v is not None}, hooks.loss_parts)
-    write_lens_path(out / "lens_path.csv", e2e["history"], sur.param_names, start_values.tolist())
-    hooks.write_tables(out, evaluation)
-    # training (every camera trained, across resumes) + exact PSFs, evaluation and outputs of this call
-    # + the evaluations it reused from an earlier one
-    trained_s = sum(v["wall_s"] for v in runs.values() if v is not None)
-    results["wall_s"] = trained_s + reused_s + (time.perf_counter() - t_eval)
-    write_json_atomic(out / "results.json", results)
-    return results

@@ -1,13 +1,16 @@
 """What a task adds to the design run (run.py, the skeleton: claim the folder, build, train the
 end-to-end camera and the nominal baseline with the same budget, checkpoint and resume, compute
-both lenses' exact PSFs, evaluate on held-out data, write the outputs). A task is a plugin: a
-``TaskHooks`` subclass that builds its camera and loss, evaluates and summarizes; run.py's
-``HOOKS`` finds it by the task's name. The image-quality tasks (iq-software, iq-hardware, low-light) are
-``image_quality.ImageQualityHooks``; detection is ``detection.DetectionHooks``."""
+both lenses' exact PSFs, evaluate on held-out data, write the outputs). A task is a plugin
+(tasks/plugin.py, registered in tasks/registry.py) whose hooks are a ``TaskHooks`` subclass that
+builds its camera and loss, evaluates and summarizes. The image-quality tasks (iq-software,
+iq-hardware, low-light) share ``image_quality.ImageQualityHooks``; detection has
+``detection.DetectionHooks``."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -17,6 +20,32 @@ from ..errors import InputError
 from ..surrogate.checkpoint import OpticsSurrogate
 from ..tasks import SensorFrame, get_task
 from .config import DesignConfig
+
+
+@dataclass
+class RunState:
+    """A design run after its trainings, as the hooks see it (run.py fills it in, in this order).
+
+    ``cams``: the cameras by who: "nominal" and "end_to_end", and the task's further baselines
+    ("nominal_untuned", "ideal_lens"). ``optics``: for "nominal" and "end_to_end", the optics each
+    is evaluated under: "exact", the engine's (PSFs [K, 3, S, S], vignetting [K, 3], field heights
+    [K] in mm) of its lens, and "surrogate", the network's (None where no network learned the
+    space). ``f_numbers``: each lens's working f-number where the task sets its photons by it
+    (else None). ``exact``: the engine's output for both lenses (surrogate.ground_truth.exact_optics).
+    Then ``evaluation`` (TaskHooks.evaluate's) and ``reports`` (each lens's report,
+    lens_design.report.write_report)."""
+
+    cfg: DesignConfig
+    out: Path
+    frame: SensorFrame
+    sur: OpticsSurrogate
+    cams: dict[str, Any]
+    optics: dict[str, dict[str, Any]]
+    f_numbers: dict[str, "float | None"]
+    exact: dict
+    progress: bool = False
+    evaluation: Any = None
+    reports: "dict[str, dict] | None" = None
 
 
 class TaskHooks:
@@ -83,35 +112,35 @@ class TaskHooks:
         """The working f-number of a design where the task sets the photons by it (Eq. 3)."""
         return None
 
-    def evaluate(self, out: Path, cams: dict, optics: dict, f_numbers: dict, exact: dict, frame, progress: bool):
+    def evaluate(self, run: RunState):
         """Both cameras on the held-out data under each optics ("exact", "surrogate"), and the
-        task's further baselines in ``cams`` (``ideal_optics``, ``untuned_camera``); returns
+        task's further baselines in ``run.cams`` (``ideal_optics``, ``untuned_camera``); returns
         (the evaluation, the seconds of evaluations reused from an earlier call)."""
         raise NotImplementedError
 
-    def test_split(self, out: Path, cams: dict, optics: dict, evaluation, corpus, frame, baseline: str, progress: bool):
+    def test_split(self, run: RunState, corpus, baseline: str):
         """Every camera on the untouched test split (``corpus``: a scenes.corpus.PhotoCorpus of
         role test; docs/test-split.md), the end-to-end camera paired against each other camera;
         ``baseline``: the headline baseline the held-out set chose (results.json ``test_split``)."""
         raise InputError(f"task {self.cfg.task}: the test split of photographs is for the image-quality tasks")
 
-    def panels(self, path: Path, evaluation, cams: dict, optics: dict, f_numbers: dict, frame) -> None:
+    def panels(self, run: RunState, path: Path) -> None:
         """The image panels (panels.png)."""
         raise NotImplementedError
 
-    def summarize(self, evaluation, cams: dict, reports: dict, f_numbers: dict) -> dict:
+    def summarize(self, run: RunState) -> dict:
         """The task's figures for results.json: ``nominal``, ``end_to_end``, ``paired``, ..."""
         raise NotImplementedError
 
-    def held_out(self, evaluation) -> dict:
+    def held_out(self, run: RunState) -> dict:
         """What the held-out set was (results.json ``held_out``)."""
         raise NotImplementedError
 
-    def extra(self, cams: dict, monitor, e2e: dict) -> dict:
+    def extra(self, run: RunState, monitor, e2e: dict) -> dict:
         """Further results.json entries (the optics model, the ISP's hyperparameters)."""
         return {}
 
-    def write_tables(self, out: Path, evaluation) -> None:
+    def write_tables(self, run: RunState) -> None:
         """metrics.csv: the per-image (per-scene) figures."""
         raise NotImplementedError
 

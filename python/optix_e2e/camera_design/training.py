@@ -6,7 +6,6 @@ Under torchrun each rank computes its slice of each batch and the gradients are 
 
 from __future__ import annotations
 
-import csv
 import math
 import time
 from pathlib import Path
@@ -18,7 +17,7 @@ from tqdm import tqdm
 from .. import parallel
 from ..camera import Camera
 from ..errors import InputError
-from ..io import save_atomic
+from ..io import save_atomic, write_csv_atomic
 from ..optics import DifferentiableOptics
 from ..tasks import SensorFrame, TaskLoss, get_task, training_batch
 from ..tasks.prefetch import Prefetched
@@ -287,13 +286,9 @@ def train(
 def write_lens_path(path: Path, history: list[dict], names: list[str], start) -> None:
     """The lens after each of a training's lens steps (its parameters in their units, step 0
     the start), one row per step: what the run did to the lens, step by step."""
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["step", "block", "cut", *names])
-        w.writerow([0, "start", 0, *[float(v) for v in start]])
-        for h in history:
-            if "lens" in h:
-                w.writerow([h["step"], h["block"], h.get("cut", 0), *h["lens"]])
+    rows = [[0, "start", 0, *[float(v) for v in start]]]
+    rows += [[h["step"], h["block"], h.get("cut", 0), *h["lens"]] for h in history if "lens" in h]
+    write_csv_atomic(path, rows, header=["step", "block", "cut", *names])
 
 
 def lens_travel(names: list[str], lo, hi, start, history: list[dict]) -> dict:
@@ -318,9 +313,6 @@ def lens_travel(names: list[str], lo, hi, start, history: list[dict]) -> dict:
 
 def write_history(path: Path, runs: dict, parts: tuple[str, ...] = LOSS_PARTS) -> None:
     keys = history_keys(parts)
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["run", *keys])
-        for run, hist in runs.items():
-            for h in hist:
-                w.writerow([run] + [h.get(k, "") for k in keys])
+    write_csv_atomic(
+        path, ([run] + [h.get(k, "") for k in keys] for run, hist in runs.items() for h in hist), header=["run", *keys]
+    )

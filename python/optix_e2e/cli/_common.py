@@ -9,7 +9,7 @@ import click
 
 from ..engine import EngineError
 from ..errors import OptixError
-from ..io import dumps, to_jsonable  # noqa: F401  (the subcommands' strict JSON)
+from ..io import dumps, release_out_dirs, to_jsonable  # noqa: F401  (dumps, to_jsonable: the subcommands' strict JSON)
 from ..lens import Lens
 from ..lens.text import printable
 
@@ -73,6 +73,8 @@ def friendly_errors(fn):
             raise click.ClickException(_one_line(exc)) from None
         except EngineError as exc:
             raise click.ClickException(f"engine: {type(exc).__name__}: {_one_line(exc)}") from None
+        finally:
+            release_out_dirs()  # the folders the command held (io.hold_out_dir)
 
     return wrapper
 

@@ -9,7 +9,8 @@ import click
 import numpy as np
 from tqdm import tqdm
 
-from ._common import AIMING, FiniteFloatRange, dumps, friendly_errors, load_lens
+from ..io import save_npy_atomic, write_record_atomic
+from ._common import AIMING, FiniteFloatRange, friendly_errors, load_lens
 
 MAX_PRINTED_WARNINGS = 8
 
@@ -127,7 +128,7 @@ def demo(lens_spec, out_dir, n_fields, channels, method, pixel_um, size, pupil_s
 
     t0 = time.perf_counter()
     grid = np.stack(stacks)
-    np.save(out_dir / "psfs.npy", grid)
+    save_npy_atomic(out_dir / "psfs.npy", grid)
     from ..plotting import save_psf_grid
 
     save_psf_grid(
@@ -159,7 +160,7 @@ def demo(lens_spec, out_dir, n_fields, channels, method, pixel_um, size, pupil_s
         "timings": timings,
         "files": {"psf_grid_png": "psf_grid.png", "psfs_npy": "psfs.npy"},
     }
-    (out_dir / "summary.json").write_text(dumps(summary, indent=1) + "\n")
+    write_record_atomic(out_dir / "summary.json", summary, indent=1)
     click.echo(
         f"wrote {out_dir / 'psf_grid.png'}, {out_dir / 'psfs.npy'}, {out_dir / 'summary.json'} "
         f"({len(fields)} fields x {len(chans)} channels, {timings['total_s']:.2f} s, "

@@ -9,8 +9,35 @@ import click
 from ._common import DEVICE_HELP, PRECISION_HELP, SEED, THREADS, dumps, friendly_errors
 
 
-@click.command("design")
-@click.argument("task", type=click.Choice(["iq-software", "iq-hardware", "low-light", "detection"]))
+class TaskName(click.ParamType):
+    """A registered task's name (tasks/registry.py), checked when the command runs: the registry
+    (and torch with it) is imported then, not when `optix` starts."""
+
+    name = "task"
+
+    def convert(self, value, param, ctx):
+        from ..errors import InputError
+        from ..tasks import plugin
+
+        try:
+            return plugin(value).name
+        except InputError as err:
+            self.fail(str(err), param, ctx)
+
+
+class DesignCommand(click.Command):
+    """`optix design --help` lists every registered task with its plugin's help line."""
+
+    def format_help_text(self, ctx, formatter):
+        super().format_help_text(ctx, formatter)
+        from ..tasks import plugins
+
+        with formatter.section("Tasks"):
+            formatter.write_dl([(p.name, p.help) for p in plugins()])
+
+
+@click.command("design", cls=DesignCommand)
+@click.argument("task", type=TaskName())
 @click.option(
     "--out",
     type=click.Path(file_okay=False),
@@ -113,9 +140,8 @@ def design(
     """Optimize lens and processing together for TASK, against the nominal lens with its
     processing fine-tuned with as many updates per block, and evaluate both under the exact
     engine's PSFs on held-out images (the frame's positions the headline; centre, corner
-    apart). Running the same command again resumes an interrupted run.
-    detection: lens (with its f-number), hardware ISP and detector, scored by mAP on held-out
-    street scenes at dusk (docs/detection.md).
+    apart). Running the same command again resumes an interrupted run, with the settings it was
+    made with (those given must match them).
     `torchrun --nproc_per_node N -m optix_e2e design ...` shares each training batch over N
     processes (gloo; the batch must divide by N; docs/distributed.md)."""
     from .. import parallel

@@ -10,6 +10,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from ..io import write_text_atomic
 from ..lens import BUNDLED_DIR, Lens, LensLoadError
 from ..lens_design.optimizer import Constraints, LensProblem, Merit, optimize
 from ..lens_design.optimizer import set_semi_diameters as _with_semi_diameters
@@ -298,7 +299,7 @@ def optimize_cmd(
     if description:
         out["description"] = description
     Lens(out, source=out_path)  # the result must be a valid prescription
-    Path(out_path).write_text(json.dumps(out, indent=2) + "\n", encoding="utf-8")
+    write_text_atomic(out_path, json.dumps(out, indent=2) + "\n")
     summary = {
         "lens": lens.name,
         "source": source,
@@ -315,10 +316,10 @@ def optimize_cmd(
         if basins_path:
             from ..lens_design.global_search import basins_csv
 
-            Path(basins_path).write_text(basins_csv(global_summary), encoding="utf-8")
+            write_text_atomic(basins_path, basins_csv(global_summary))
     text = dumps(summary, indent=2)
     if summary_path:
-        Path(summary_path).write_text(text + "\n", encoding="utf-8")
+        write_text_atomic(summary_path, text + "\n")
     click.echo(text)
     after, before = res.after, res.before
     what = "RMS spot" if merit_kind == "spot" else "RMS wavefront"

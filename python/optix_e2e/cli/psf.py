@@ -8,6 +8,7 @@ import click
 import numpy as np
 
 from ..errors import InputError
+from ..io import save_npy_atomic
 from ._common import AIMING, FiniteFloatRange, dumps, friendly_errors, load_lens
 
 
@@ -103,7 +104,7 @@ def psf(
         len(lens_.surfaces),
     )
     out.parent.mkdir(parents=True, exist_ok=True)
-    np.save(out, image)
+    save_npy_atomic(out, image)
     line = {
         "strehl": diag.get("strehl"),
         "time_s": diag.get("time_s"),

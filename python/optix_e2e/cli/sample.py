@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from ..io import write_record_atomic
 from ..lens_design.constraints import Limits
 from ..lens_design.sampling import APERTURE_RULES, METHODS, sample_designs, write_designs_csv
 from ..lens_design.space import load_space
@@ -76,5 +77,5 @@ def sample(space_spec, n, seed, method, out_path, apertures, min_air_gap, min_ce
     Path(out_path).parent.mkdir(parents=True, exist_ok=True)  # like the other commands' --out
     write_designs_csv(out_path, space.names, res.values)
     summary = {"out": str(out_path), "lens": base.name, **res.summary()}
-    Path(out_path).with_suffix(".summary.json").write_text(dumps(summary, indent=2) + "\n", encoding="utf-8")
+    write_record_atomic(Path(out_path).with_suffix(".summary.json"), summary)
     click.echo(dumps(summary))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import math
 import os
 import sys
@@ -10,6 +9,7 @@ from pathlib import Path
 
 import click
 
+from ..io import save_figure, write_csv_atomic, write_record_atomic
 from ..lens import Lens
 from ..lens_design.optimizer import Merit
 from ..lens_design.space import SPACES_DIR, ParameterSpace, SpaceError, bundled_spaces
@@ -48,76 +48,73 @@ def write_csv(path: Path, sens, alloc, given: ParameterSpace) -> None:
     by = {a.name: a for a in alloc}
     g = {p.name: p for p in given.params}
     rank = {r.param.name: i + 1 for i, r in enumerate(sens.ranking())}
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "w", newline="", encoding="utf-8") as f:
-        w = csv.writer(f)
-        w.writerow(
+    rows = [  # the header, then one row per parameter
+        [
+            "rank",
+            "name",
+            "kind",
+            "surface",
+            "unit",
+            "nominal",
+            "step",
+            "worst_m2_um",
+            "worst_m1_um",
+            "worst_p1_um",
+            "worst_p2_um",
+            "d_worst_step_um",
+            "d_mean_step_um",
+            "lin_worst_um_per_unit",
+            "quad_worst_um_per_unit2",
+            "lin_mean_um_per_unit",
+            "quad_mean_um_per_unit2",
+            "fit_rms_um",
+            "share_um",
+            "tolerance",
+            "capped",
+            "proposed_min",
+            "proposed_max",
+            "given_min",
+            "given_max",
+            "growth_model_um",
+            "growth_traced_um",
+            "failed",
+        ]
+    ]
+    for r in sens.rows:
+        a = by[r.param.name]
+        lw, qw = r.worst_fit()
+        lm, qm = r.mean_fit()
+        gp = g.get(r.param.name)
+        rows.append(
             [
-                "rank",
-                "name",
-                "kind",
-                "surface",
-                "unit",
-                "nominal",
-                "step",
-                "worst_m2_um",
-                "worst_m1_um",
-                "worst_p1_um",
-                "worst_p2_um",
-                "d_worst_step_um",
-                "d_mean_step_um",
-                "lin_worst_um_per_unit",
-                "quad_worst_um_per_unit2",
-                "lin_mean_um_per_unit",
-                "quad_mean_um_per_unit2",
-                "fit_rms_um",
-                "share_um",
-                "tolerance",
-                "capped",
-                "proposed_min",
-                "proposed_max",
-                "given_min",
-                "given_max",
-                "growth_model_um",
-                "growth_traced_um",
-                "failed",
+                rank[r.param.name],
+                r.param.name,
+                r.param.kind,
+                r.param.surface,
+                r.param.unit,
+                _num(r.nominal),
+                _num(r.step),
+                *(_num(v) for v in r.worst),
+                _num(r.d_worst_step),
+                _num(r.d_mean_step),
+                _num(lw),
+                _num(qw),
+                _num(lm),
+                _num(qm),
+                _num(r.fit_rms_um),
+                _num(a.share_um),
+                _num(a.tolerance),
+                int(a.capped),
+                _num(a.lo),
+                _num(a.hi),
+                _num(gp.min) if gp else "",
+                _num(gp.max) if gp else "",
+                _num(a.growth_model_um),
+                _num(a.growth_traced_um),
+                "; ".join(r.failed + a.traced_failed),
             ]
         )
-        for r in sens.rows:
-            a = by[r.param.name]
-            lw, qw = r.worst_fit()
-            lm, qm = r.mean_fit()
-            gp = g.get(r.param.name)
-            w.writerow(
-                [
-                    rank[r.param.name],
-                    r.param.name,
-                    r.param.kind,
-                    r.param.surface,
-                    r.param.unit,
-                    _num(r.nominal),
-                    _num(r.step),
-                    *(_num(v) for v in r.worst),
-                    _num(r.d_worst_step),
-                    _num(r.d_mean_step),
-                    _num(lw),
-                    _num(qw),
-                    _num(lm),
-                    _num(qm),
-                    _num(r.fit_rms_um),
-                    _num(a.share_um),
-                    _num(a.tolerance),
-                    int(a.capped),
-                    _num(a.lo),
-                    _num(a.hi),
-                    _num(gp.min) if gp else "",
-                    _num(gp.max) if gp else "",
-                    _num(a.growth_model_um),
-                    _num(a.growth_traced_um),
-                    "; ".join(r.failed + a.traced_failed),
-                ]
-            )
-    os.replace(tmp, path)
+    write_csv_atomic(path, rows)
 
 
 def plot_sensitivity(path: Path, sens, alloc, budget_um: float) -> None:
@@ -151,7 +148,7 @@ def plot_sensitivity(path: Path, sens, alloc, budget_um: float) -> None:
     ax2.legend(fontsize=7, loc="lower right")
     ax1.set_yticks(y, names, fontsize=8)
     ax1.invert_yaxis()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
 
 
 def plot_yield(path: Path, mc, nominal_um: float, label: str) -> None:
@@ -175,7 +172,7 @@ def plot_yield(path: Path, mc, nominal_um: float, label: str) -> None:
         fontsize=10,
     )
     ax.legend(fontsize=8)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
 
 
 @click.command("tolerance")
@@ -424,7 +421,7 @@ def tolerance(
         },
         "warnings": warnings,
     }
-    (out / "tolerance.json").write_text(dumps(doc, indent=1) + "\n", encoding="utf-8")
+    write_record_atomic(out / "tolerance.json", doc, indent=1)
     summary = {
         "lens": lens.name,
         "space": str(space_path),

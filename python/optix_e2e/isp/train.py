@@ -10,7 +10,6 @@ old one every ``refresh_every`` steps, so the network rarely sees a pair twice.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import asdict, dataclass
@@ -18,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
 from ..device import resolve_device
+from ..io import tensorboard_writer, write_record_atomic
 from ..metrics import image as metrics
 from ..parallel import set_threads, stop_if_diverged
 from ..precision import apply_precision, grad_scaler, resolve_precision, scaled_backward, scaled_step
@@ -115,7 +114,7 @@ def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) ->
     model.train()
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     loss_fn = metrics.L1PerceptualLoss(cfg.perceptual_weight).to(dev)
-    writer = SummaryWriter(str(out_dir / "tb"))
+    writer = tensorboard_writer(out_dir / "tb")
     val_pool = data.make_pool(64, cfg.val_size, seed=10_000 + cfg.seed, progress=False)
     rng = np.random.default_rng(cfg.seed)
     history, t0, pool, step = [], time.time(), None, 0
@@ -166,5 +165,5 @@ def _train(model, kind: str, cfg: TrainConfig, out_dir: Path, progress: bool) ->
         "final_val": history[-1] if history else None,
         "history": history,
     }
-    (out_dir / "train.json").write_text(json.dumps(summary, indent=2))
+    write_record_atomic(out_dir / "train.json", summary)
     return summary

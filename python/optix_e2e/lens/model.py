@@ -12,6 +12,7 @@ import numpy as np
 
 from .. import engine
 from ..errors import InputError
+from ..io import write_text_atomic
 from .prescription import PrescriptionError, SurfacesCrossError, resolve_prescription, tree_copy
 from .pupil import pupil_quadrature
 from .text import display_name
@@ -206,7 +207,7 @@ class Lens:
 
             return write_zmx(self.raw, path, encoding=encoding, source=self.source, footprint=self.zmx_footprint())
         if suffix == ".json":
-            path.write_text(json.dumps(self.raw, indent=2) + "\n", encoding="utf-8")
+            write_text_atomic(path, json.dumps(self.raw, indent=2) + "\n")
             return path
         raise LensLoadError(f"{path}: unknown lens file extension {path.suffix!r} (use .json or .zmx)")
 

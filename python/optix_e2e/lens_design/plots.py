@@ -10,6 +10,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from ..io import save_figure
+
 
 def wavelength_rgb(nm: float) -> tuple[float, float, float]:
     """Approximate display colour of a wavelength (380-780 nm; grey outside)."""
@@ -157,7 +159,7 @@ def save_layout_png(
         fontsize=9,
     )
     fig.tight_layout()
-    fig.savefig(path)
+    save_figure(fig, path)
     return {
         "fans": fans,
         "geometry": geo,
@@ -218,7 +220,7 @@ def save_spots_png(path: str | Path, lens, spots: Sequence[dict]) -> None:
         fontsize=9,
     )
     fig.tight_layout()
-    fig.savefig(path)
+    save_figure(fig, path)
 
 
 def save_mtf_png(
@@ -266,4 +268,4 @@ def save_mtf_png(
         fontsize=9,
     )
     fig.tight_layout()
-    fig.savefig(path)
+    save_figure(fig, path)

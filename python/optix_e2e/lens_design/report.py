@@ -4,7 +4,6 @@ figures are drawn in :mod:`.plots`."""
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -12,6 +11,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ..errors import InputError
+from ..io import write_record_atomic
 from ..lens import Lens
 from ..lens.mtf import NYQUIST_5P86_UM, default_frequencies, field_mtf, mtf_at, psf_sampling
 from .analysis import spot_diagram
@@ -38,7 +38,6 @@ def write_report(
     progress: Progress = None,
 ) -> dict[str, Any]:
     """layout.png, spots.png, mtf.png and report.json in ``out_dir``; returns the JSON."""
-    from ..io import to_jsonable
     from . import plots as plotting
 
     say = progress or (lambda msg: None)
@@ -117,5 +116,5 @@ def write_report(
         "files": ["layout.png", "spots.png", "mtf.png", "report.json"],
         "time_s": time.perf_counter() - t0,
     }
-    (out / "report.json").write_text(json.dumps(to_jsonable(report), indent=1, allow_nan=False))
+    write_record_atomic(out / "report.json", report, indent=1)
     return report

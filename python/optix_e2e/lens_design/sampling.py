@@ -18,7 +18,6 @@ import copy
 import csv
 import io
 import math
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -27,6 +26,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import InputError
+from ..io import write_text_atomic
 from ..lens import Lens
 from ..lens.apertures import engine_base
 from .constraints import REASONS, Limits, Manufacturability, check_design, reason_of
@@ -178,9 +178,7 @@ def write_designs_csv(path: "str | Path", names: Sequence[str], values: np.ndarr
     w.writerow(["design", *names])
     for i, row in enumerate(values):
         w.writerow([i, *(repr(float(v)) for v in row)])
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_text(buf.getvalue(), encoding="utf-8", newline="")
-    os.replace(tmp, path)
+    write_text_atomic(path, buf.getvalue())
 
 
 def read_designs_csv(path: "str | Path", names: Sequence[str]) -> np.ndarray:

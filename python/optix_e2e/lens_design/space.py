@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Sequence
 
 from ..errors import InputError
+from ..io import write_text_atomic
 
 __all__ = [
     "Parameter",
@@ -389,7 +390,7 @@ class ParameterSpace:
         doc["parameter"] = [
             {**asdict(p), **({"note": self.notes[p.name]} if p.name in self.notes else {})} for p in self.params
         ]
-        Path(path).write_text(tomli_w.dumps(doc), encoding="utf-8")
+        write_text_atomic(path, tomli_w.dumps(doc))
 
     @staticmethod
     def _entry(path, entry: str, e, lens) -> Parameter:

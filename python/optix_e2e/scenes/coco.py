@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError
+from ..io import save_image, write_text_atomic
 from .street import CATEGORIES, street_scene
 
 
@@ -28,7 +29,6 @@ def write_street_coco(out: "str | Path", n: int, size=(256, 384), seed: int = 0,
     """``n`` street scenes as 8-bit sRGB PNGs in ``out/images`` and ``out/annotations.json``
     (scene ``i`` is ``street_scene(size, [seed, i])``, so any scene can be made again alone).
     Extra per-object key: ``illumination`` (mean light over its visible pixels, sunlit = 1)."""
-    import imageio.v3 as iio
     from tqdm import tqdm
 
     from ..color import linear_to_srgb
@@ -45,7 +45,7 @@ def write_street_coco(out: "str | Path", n: int, size=(256, 384), seed: int = 0,
         s = street_scene(size, np.random.default_rng([int(seed), i]))
         name = f"street_{seed}_{i:06d}.png"
         srgb = linear_to_srgb(s.radiance.clamp(0, 1)).permute(1, 2, 0).numpy()
-        iio.imwrite(out / "images" / name, (srgb * 255 + 0.5).astype(np.uint8))
+        save_image(out / "images" / name, (srgb * 255 + 0.5).astype(np.uint8))
         h, w = s.radiance.shape[-2:]
         images.append({"id": i + 1, "file_name": name, "height": int(h), "width": int(w)})
         for (x0, y0, x1, y1), c, light in zip(s.boxes.tolist(), s.labels.tolist(), s.object_light.tolist()):
@@ -61,8 +61,8 @@ def write_street_coco(out: "str | Path", n: int, size=(256, 384), seed: int = 0,
                 }
             )
     ann_path = out / "annotations.json"
-    tmp = ann_path.with_suffix(".json.tmp")
-    tmp.write_text(
+    write_text_atomic(
+        ann_path,
         json.dumps(
             {
                 "info": {"description": f"optix-e2e street scenes, seed {seed}", "size": list(size)},
@@ -70,9 +70,8 @@ def write_street_coco(out: "str | Path", n: int, size=(256, 384), seed: int = 0,
                 "annotations": anns,
                 "categories": list(CATEGORIES),
             }
-        )
+        ),
     )
-    tmp.replace(ann_path)
     return ann_path
 
 

@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError
+from ..io import save_figure, write_record_atomic
 from .cfa import bayer_masks
 from .emva import _resolve, dark_current_mean, expected_electrons, raw_from_electrons
 
@@ -203,7 +204,7 @@ def save_ptc(result: dict, out_dir) -> dict:
     """Write ptc.json and ptc.png (variance vs mean with the fit; linearity) to out_dir; returns the paths."""
     import matplotlib
 
-    from ..io import claim_out_dir, dumps  # strict JSON: non-finite -> null
+    from ..io import claim_out_dir  # strict JSON: non-finite -> null
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -212,7 +213,7 @@ def save_ptc(result: dict, out_dir) -> dict:
     claim_out_dir(out, "photon transfer curve", {"ptc.json", "ptc.png"})
     out.mkdir(parents=True, exist_ok=True)
     paths = {"json": str(out / "ptc.json"), "png": str(out / "ptc.png")}
-    Path(paths["json"]).write_text(dumps(result, indent=2) + "\n", encoding="utf-8")
+    write_record_atomic(paths["json"], result)
 
     c = result["curves"]
     x, var = np.array(c["mean_minus_dark_dn"]), np.array(c["variance_dn2"])
@@ -236,6 +237,6 @@ def save_ptc(result: dict, out_dir) -> dict:
     ax2.set_ylabel("mean signal minus dark (DN)")
     ax2.set_title(f"linearity error {result['linearity_error_pct']:.2f}%", fontsize=10)
     fig.tight_layout()
-    fig.savefig(paths["png"], dpi=110)
+    save_figure(fig, paths["png"], dpi=110)
     plt.close(fig)
     return paths

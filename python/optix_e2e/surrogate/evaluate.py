@@ -27,6 +27,7 @@ from ..dataset.layout import differing_keys, read_manifest, shard_name, shards_d
 from ..dataset.manifest import back_focus_limit
 from ..dataset.settings import DatasetSettings
 from ..errors import InputError
+from ..io import save_figure
 from .checkpoint import OpticsSurrogate
 from .data import load_arrays, psf_grid, psf_pitch_um
 from .train import predict_all
@@ -276,4 +277,4 @@ def save_grid(
     )
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
+    save_figure(fig, path)

@@ -16,7 +16,6 @@ so the run follows the single-process run's path; rank 0 validates and writes ev
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import asdict, dataclass, replace
@@ -25,13 +24,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
 from .. import parallel
 from ..device import resolve_device
 from ..errors import InputError
-from ..io import claim_out_dir, save_atomic
+from ..io import claim_out_dir, save_atomic, tensorboard_writer, write_record_atomic
 from ..torchfile import DAMAGED_STATE_ERRORS, load_plain
 from .checkpoint import OpticsSurrogate
 from .data import design_indices, load_arrays, psf_grid, psf_pitch_um, to_tensors
@@ -314,7 +312,7 @@ def train(
         from torch.nn.parallel import DistributedDataParallel
 
         net = DistributedDataParallel(model.net, device_ids=[device.index] if device.type == "cuda" else None)
-    writer = SummaryWriter(str(out_dir / "tb")) if ranks.is_main else None
+    writer = tensorboard_writer(out_dir / "tb") if ranks.is_main else None
     n_tr, k = len(tr_designs), len(man["fields_deg"])
     fields = model.fields
     bar = tqdm(total=cfg.steps, initial=step, desc="train surrogate", unit="step", disable=not progress)
@@ -414,7 +412,7 @@ def train(
     }
     if ranks.is_main:
         writer.close()
-        (out_dir / "train.json").write_text(json.dumps(summary, indent=2))
+        write_record_atomic(out_dir / "train.json", summary)
     parallel.barrier(ranks)  # the files are written when any rank returns
     return summary if ranks.is_main else None
 

@@ -1,28 +1,28 @@
-"""What the camera is for (paper Sec. 6): the tasks, their losses and their scenes."""
+"""What the camera is for (paper Sec. 6): the tasks, their losses and their scenes; every task
+of `optix design` is a plugin in one registry (tasks/registry.py)."""
 
-from ..errors import InputError
 from .detection import DETECTION, DetectionTask
-from .image_quality import TASKS as IMAGE_QUALITY_TASKS
 from .image_quality import ImageQualityTask, TaskLoss, task_loss
+from .plugin import TaskPlugin
+from .registry import plugin, plugins, register
 from .samples import HeldoutSample, SensorFrame, heldout_set, training_batch
-
-#: every task of ``optix design``: the image-quality tasks and detection
-TASKS = {**IMAGE_QUALITY_TASKS, DETECTION.name: DETECTION}
 
 
 def get_task(name: str) -> "ImageQualityTask | DetectionTask":
-    if name not in TASKS:
-        raise InputError(f"unknown task {name!r}: known tasks are {', '.join(TASKS)}")
-    return TASKS[name]
+    """The definition of the task called ``name`` (its plugin's); one error for an unknown name."""
+    return plugin(name).definition
 
 
 __all__ = [
-    "TASKS",
     "ImageQualityTask",
     "DetectionTask",
     "DETECTION",
     "TaskLoss",
+    "TaskPlugin",
     "get_task",
+    "plugin",
+    "plugins",
+    "register",
     "task_loss",
     "SensorFrame",
     "training_batch",

@@ -21,7 +21,7 @@ import torch
 from .. import color
 from ..device import resolve_device
 from ..errors import InputError
-from ..io import claim_out_dir, require_regular_file
+from ..io import claim_out_dir, open_log, require_regular_file, tensorboard_writer, write_text_atomic
 from ..parallel import check_finite_weights, stop_if_diverged
 from ..precision import apply_precision, grad_scaler, resolve_precision
 from ..scenes.coco import CocoDetection
@@ -190,7 +190,6 @@ def train_detector(
     the batches are drawn on the CPU from (seed, step) and go there once per step.
     ``precision``: fp32, or bf16 / fp16 autocast for the backbone and head (optix_e2e.precision;
     the losses in float32; fp16 with a gradient scaler, started afresh on a resume)."""
-    from torch.utils.tensorboard import SummaryWriter
     from tqdm import tqdm
 
     dev = resolve_device(device)
@@ -240,14 +239,14 @@ def train_detector(
         warm = min(1.0, (s + 1) / 100)
         return lr * warm * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * min(frac, 1.0))))
 
-    writer = SummaryWriter(str(out / "tb"))
+    writer = tensorboard_writer(out / "tb")
     hist_path = out / "history.csv"
     if hist_path.is_file():  # rows written after the checkpoint we resume from are run again: drop them
         lines = hist_path.read_text().splitlines(keepends=True)
         keep = lines[:1] + [ln for ln in lines[1:] if ln.split(",")[0].isdigit() and int(ln.split(",")[0]) <= step]
-        hist_path.write_text("".join(keep))
+        write_text_atomic(hist_path, "".join(keep))
     new_hist = not hist_path.is_file()
-    hist = open(hist_path, "a", newline="")
+    hist = open_log(hist_path)
     hw = csv.writer(hist)
     if new_hist:
         hw.writerow(HISTORY_HEADER)

@@ -19,6 +19,7 @@ import torch
 from torch import nn
 
 from ..metrics.lpips import LPIPS
+from .plugin import TaskPlugin
 
 
 @dataclass(frozen=True)
@@ -33,14 +34,24 @@ class ImageQualityTask:
     description: str = ""
 
 
-TASKS: dict[str, ImageQualityTask] = {
-    "iq-software": ImageQualityTask(
+_HOOKS = "optix_e2e.camera_design.image_quality:ImageQualityHooks"  # one set of hooks for the three
+
+IQ_SOFTWARE = TaskPlugin(
+    ImageQualityTask(
         "iq-software", "software", 1.0, description="image quality, software ISP (paper Table 2, rows 1-2)"
     ),
-    "iq-hardware": ImageQualityTask(
+    _HOOKS,
+    help="image quality behind the software ISP (a UNet): L1 + LPIPS (paper Table 2)",
+)
+IQ_HARDWARE = TaskPlugin(
+    ImageQualityTask(
         "iq-hardware", "hardware", 3.0, description="image quality, hardware ISP through its proxy (Table 2, rows 3-4)"
     ),
-    "low-light": ImageQualityTask(
+    _HOOKS,
+    help="image quality behind the hardware ISP, its proxy in the loop: L1 + 3 LPIPS (paper Table 2)",
+)
+LOW_LIGHT = TaskPlugin(
+    ImageQualityTask(
         "low-light",
         "software",
         1.0,
@@ -48,7 +59,9 @@ TASKS: dict[str, ImageQualityTask] = {
         gain_factor=100.0,
         description="low-light imaging: exposure / 100, gain x 100 (Table 3)",
     ),
-}
+    _HOOKS,
+    help="low-light imaging: the software ISP at exposure / 100, gain x 100 (paper Table 3)",
+)
 
 
 def task_loss(

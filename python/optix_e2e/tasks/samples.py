@@ -38,7 +38,7 @@ HELDOUT_SEED0 = 2_000_000_000  # procedural held-out scenes use seeds from here;
 HELDOUT_NOISE0 = 1 << 60  # held-out noise seeds (training noise: SeedSequence([4, seed, step]))
 TEST_NOISE0 = 1 << 61  # the test split's noise seeds (docs/test-split.md)
 #: a design run's eval_positions: the held-out positions of each image. "frame+centre+corner" (the
-#: default since 2026-11-27, issue 34) puts the frame's four first, so its frame samples (positions
+#: default, issue 34) puts the frame's four first, so its frame samples (positions
 #: and noise seeds) are exactly those of "frame"; "frame" and "centre-corner" stay valid (old runs)
 POSITIONS = {
     "frame+centre+corner": ("frame",) * 4 + ("centre", "corner"),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ...io import write_bytes_atomic, write_text_atomic
 from .. import glass as _glass
 from .common import CATALOG_TO_GCAT, N_EVENASPH, N_ODDASPHE, ZEMAX_POLYMER_NAMES, ZemaxError
 from .numbers import _curv, _to_um
@@ -176,7 +177,7 @@ def write_zmx(
     path = Path(path)
     text = zmx_text(data, source, footprint)
     if encoding.lower().replace("_", "-") == "utf-16":
-        path.write_bytes(b"\xff\xfe" + text.replace("\n", "\r\n").encode("utf-16-le"))
+        write_bytes_atomic(path, b"\xff\xfe" + text.replace("\n", "\r\n").encode("utf-16-le"))
     else:
-        path.write_text(text, encoding="utf-8")
+        write_text_atomic(path, text)
     return path
