@@ -38,6 +38,7 @@ from ..tasks import plugin
 from . import outputs
 from .build import design_field_heights, lens_step_scale, make_optimizer, start_record, start_run
 from .config import DesignConfig, check_run_dir, resume_settings
+from .memory import check_memory
 from .task_hooks import RunState, TaskHooks
 from .training import lens_travel, train, write_history, write_lens_path
 
@@ -98,7 +99,8 @@ def run_design(
     hooks = hooks_for(cfg, ranks.device)
     # everything the run needs is checked before the run directory is claimed
     hooks.check(sur, ranks)
-    hooks.build_camera(sur, frame)
+    margin = hooks.build_camera(sur, frame).margin
+    check_memory(cfg, margin, str(ranks.device))  # a batch that cannot fit: refused now, not minutes in
     progress, log, writer = claim_run_dir(out, cfg, ranks, progress, log)
     common = dict(progress=progress, writer=writer, frame=frame, log=log, ranks=ranks, parts=hooks.loss_parts)
     try:
