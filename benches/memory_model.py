@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """What a design run's training takes in memory, measured, and the model the run checks itself
-against before it starts (camera_design/memory.py, python/optix_e2e/bundled/memory_model.json):
+against before it starts (camera_design/memory.py, python/optix_e2e/bundled/design/memory_model.json):
 
     python benches/memory_model.py [--out benches/results/memory_model] [--write-model]
 

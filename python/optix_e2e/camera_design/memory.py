@@ -1,7 +1,7 @@
 """A design run's memory, estimated before it starts: a batch that cannot fit is refused in one
 line up front, instead of an allocator's traceback minutes into the run.
 
-The model (bundled/memory_model.json, measured by ``python benches/memory_model.py
+The model (bundled/design/memory_model.json, measured by ``python benches/memory_model.py
 --write-model``): per task, the peak of a run is ``base + per_pixel x batch x (crop + 2 m) x
 (crop_width + 2 m)``, m the camera's margin (the scene a training step renders is the crop and
 the PSF's half-window around it). It was fitted to the peak resident memory of smoke runs on the
@@ -20,7 +20,7 @@ from pathlib import Path
 from ..errors import InputError
 from .config import DesignConfig
 
-MODEL_FILE = Path(__file__).resolve().parents[1] / "bundled" / "memory_model.json"
+MODEL_FILE = Path(__file__).resolve().parents[1] / "bundled" / "design" / "memory_model.json"
 
 
 @cache
