@@ -21,7 +21,6 @@ import torch
 from optix_e2e.io import save_atomic, write_json_atomic
 from optix_e2e.tasks.detector_train import load_detector
 from optix_e2e.tasks.shipped_detectors import BUNDLED, MANIFEST
-from optix_e2e.torchfile import load_plain
 
 KEEP = ("format", "config", "step", "steps", "seed", "dim", "noise", "wall_s", "data", "tuned", "isp_unit")
 
@@ -34,8 +33,7 @@ def main() -> None:
     ap.add_argument("--file", default=None, help="the bundled file's name (default: NAME with _ and .pt)")
     ap.add_argument("--measured", action="append", default=[], metavar="KEY=JSON")
     a = ap.parse_args()
-    load_detector(a.src)  # a detector checkpoint, or one error naming it
-    ck = load_plain(a.src, "detector checkpoint")
+    _, ck = load_detector(a.src)  # the checkpoint as plain data, or one error naming it
     small = {k: ck[k] for k in KEEP if k in ck}
     small["state_dict"] = {k: v.to(torch.float16) if v.is_floating_point() else v for k, v in ck["state_dict"].items()}
     file = a.file or a.name.replace("-", "_") + ".pt"

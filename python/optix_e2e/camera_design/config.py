@@ -357,16 +357,14 @@ def load_config(
         raise InputError(f"unknown budget {budget!r}: known budgets are {', '.join(BUDGETS)}")
     fields = {f.name for f in dataclasses.fields(DesignConfig)}
     values = {"budget": budget, **BUDGETS[budget]}
-    task = overrides.get("task")
-    if task is None and file is not None:
-        task = read_config_file(Path(file)).get("task")
+    data = read_config_file(Path(file)) if file is not None else {}
+    task = overrides.get("task") or data.get("task")
     values.update(plugin(task or DesignConfig.task).budgets.get(budget, {}))
     given = {k for k, v in overrides.items() if v is not None}
     where = "on the command line"
     if file is not None:
         path = Path(file)
         where = f"in {path}"
-        data = read_config_file(path)
         unknown = sorted(set(data) - fields)
         if "budget" in data:
             raise InputError(f"{path}: the budget is chosen with --budget, not in the config file")

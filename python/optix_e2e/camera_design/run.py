@@ -94,7 +94,7 @@ def run_design(
     # the untouched test split (docs/test-split.md), checked before anything runs; not a setting of
     # the run: evaluated when asked for, on a finished run too (its trainings and evaluations reused)
     test_corpus = PhotoCorpus(test_photos, "test") if test_photos and ranks.is_main else None
-    out, task, frame, sur = start_run(cfg, out)
+    out, _, frame, sur = start_run(cfg, out)
     sur.to(ranks.device)  # every camera's optics (and a hybrid run's copy) start from it there
     hooks = hooks_for(cfg, ranks.device)
     # everything the run needs is checked before the run directory is claimed
@@ -214,7 +214,7 @@ def run_design(
     state.reports = {who: write_report(Lens.load(out / "lens" / f"{who}.json"), out / "report" / who) for who in WHO}
     runs = {"end_to_end": e2e, "nominal": nom, "ideal_lens": ideal_run}
     lens = LensRecord(nominal_values, start_values, final_values, lens_scale, exported, checks)
-    results = results_document(state, hooks, task, ranks, runs, lens, (psf_ns, psf_es), monitor)
+    results = results_document(state, hooks, ranks, runs, lens, (psf_ns, psf_es), monitor)
     if test_corpus is not None:
         baseline = results.get("baseline", {}).get("camera", "nominal")
         results["test_split"] = hooks.test_split(state, test_corpus, baseline)
@@ -249,7 +249,6 @@ TRAINING_KEYS = ("steps", "updates", "wall_s", "final_loss", "lens_steps", "cut_
 def results_document(
     run: RunState,
     hooks: TaskHooks,
-    task,
     ranks: parallel.Ranks,
     trainings: dict,
     lens: LensRecord,
@@ -265,7 +264,7 @@ def results_document(
     camera = run.cams["end_to_end"]
     return {
         "task": cfg.task,
-        "description": task.description,
+        "description": hooks.task.description,
         "optimizer": cfg.optimizer,
         "budget": cfg.budget,
         "seed": cfg.seed,
